@@ -1,0 +1,29 @@
+# The set-up contract: `make demo` and `make test` work on a fresh machine with Python 3.11.
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PIP    := $(PY) -m pip -q --disable-pip-version-check
+
+.PHONY: demo test bench install clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install --upgrade pip
+	# CPU torch first, so stable-baselines3 does not pull a multi-GB CUDA build.
+	$(PIP) install torch==2.13.0
+	$(PIP) install -e ".[test,bench]"
+	touch $@
+
+install: $(VENV)/.installed
+
+demo: $(VENV)/.installed
+	MUJOCO_GL=disable $(VENV)/bin/smo-gym compare
+
+test: $(VENV)/.installed
+	MUJOCO_GL=disable $(PY) -m pytest -q -m "not slow"
+
+bench: $(VENV)/.installed
+	MUJOCO_GL=disable $(PY) scripts/bench_observers.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,12 @@
+"""smo_gym: realistic sensing for Gymnasium and MuJoCo.
+
+Joint positions come from a sensor model; velocities are estimated online by sliding-mode, higher-order
+sliding-mode and high-gain observers, the way a real controller would have to.
+"""
+
+from . import design, observers
+from ._validation import DivergenceError
+from .offline import differentiate
+
+__version__ = "0.1.0"
+__all__ = ["DivergenceError", "__version__", "design", "differentiate", "observers"]

@@ -1,0 +1,24 @@
+"""Gain design: Levant's tables, super-twisting gains, Ackermann's formula (and LMI designs in later modules).
+
+No Gymnasium or MuJoCo imports here: design works on numbers only.
+"""
+
+from .gains import (
+    LEVANT_LAMBDAS,
+    MAX_LEVANT_ORDER,
+    ackermann_observer_gain,
+    binomial_coefficients,
+    levant_gains,
+    levant_lambdas,
+    super_twisting_gains,
+)
+
+__all__ = [
+    "LEVANT_LAMBDAS",
+    "MAX_LEVANT_ORDER",
+    "ackermann_observer_gain",
+    "binomial_coefficients",
+    "levant_gains",
+    "levant_lambdas",
+    "super_twisting_gains",
+]

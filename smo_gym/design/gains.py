@@ -1,0 +1,167 @@
+r"""Gain helpers for the model-free differentiators.
+
+Pure functions of the Lipschitz bound ``L`` (the bound on the first derivative the observer does *not*
+estimate, e.g. ``|f''| <= L`` for a velocity observer), plus Ackermann's formula for observer gains.
+
+References
+----------
+.. [1] A. Levant, "Higher-order sliding modes, differentiation and output-feedback control",
+   Int. J. Control 76(9-10), 2003.
+.. [2] M. Livne and A. Levant, "Proper discretization of homogeneous differentiators", Automatica 50, 2014.
+.. [3] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear discrete-time
+   observer" (paper 003 in ``shared/papers``), eq. (35).
+"""
+
+from __future__ import annotations
+
+from math import comb
+
+import numpy as np
+
+from .._validation import check_int_in_range, check_positive, check_positive_array
+
+__all__ = [
+    "LEVANT_LAMBDAS",
+    "MAX_LEVANT_ORDER",
+    "ackermann_observer_gain",
+    "binomial_coefficients",
+    "levant_gains",
+    "levant_lambdas",
+    "super_twisting_gains",
+]
+
+#: Levant's recursive-form parameters ``lambda_0 .. lambda_5`` (paper 004, below eq. (7); [1]).
+LEVANT_LAMBDAS = (1.1, 1.5, 2.0, 3.0, 5.0, 8.0)
+#: The table above covers differentiators of order 1 to 5.
+MAX_LEVANT_ORDER = 5
+
+
+def levant_lambdas(order: int, form: str = "recursive") -> np.ndarray:
+    r"""Levant's differentiator parameters for a differentiator of ``order`` k.
+
+    Parameters
+    ----------
+    order : int
+        Differentiation order ``k`` in ``[1, 5]``.
+    form : {"recursive", "nonrecursive"}
+        ``"recursive"`` returns ``(lambda_k, ..., lambda_0)`` of eq. (7) of paper 004, in state order (the entry
+        ``i`` multiplies the correction of ``z_i``). ``"nonrecursive"`` returns the equivalent
+        ``(Lambda_1, ..., Lambda_k, lambda_0)`` of the non-recursive form
+
+        .. math:: \dot z_i = -\Lambda_{i+1} L^{(i+1)/(k+1)} \lceil z_0 - f\rfloor^{(k-i)/(k+1)} + z_{i+1},
+                  \quad \dot z_k = -\lambda_0 L\, \mathrm{sign}(z_0 - f),
+
+        obtained from :math:`\Lambda_0 = 1,\ \Lambda_{i+1} = \lambda_{k-i}\Lambda_i^{(k-i)/(k-i+1)}`.
+
+    Returns
+    -------
+    ndarray, shape (k + 1,)
+
+    Notes
+    -----
+    In (7) the quantity :math:`s_{i+1} = z_{i+1} - \nu_i` depends on :math:`z_0 - f` only, so the recursive and
+    non-recursive forms are the *same map*, in continuous time and sample by sample. For ``k = 2`` this gives
+    ``(2, 2.12, 1.1)`` and for ``k = 3`` ``(3, 4.16, 3.06, 1.1)``, the values of Livne and Levant [2].
+    """
+    k = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
+    recursive = np.array([LEVANT_LAMBDAS[k - i] for i in range(k + 1)])
+    if form == "recursive":
+        return recursive
+    if form != "nonrecursive":
+        raise ValueError(f"expected form to be 'recursive' or 'nonrecursive', actual value: {form!r}")
+    out = np.empty(k + 1)
+    big_lambda = 1.0
+    for i in range(k):
+        big_lambda = LEVANT_LAMBDAS[k - i] * big_lambda ** ((k - i) / (k - i + 1))
+        out[i] = big_lambda
+    out[k] = LEVANT_LAMBDAS[0]
+    return out
+
+
+def levant_gains(order: int, lipschitz) -> tuple[np.ndarray, np.ndarray]:
+    r"""Gains and exponents of the non-recursive Levant differentiator of ``order`` k with bound ``L``.
+
+    Returns ``(gains, powers)`` such that the correction of state ``i`` is
+    ``-gains[..., i] * |e|**powers[i] * sign(e)``, ``e = z_0 - f``, with
+    ``gains[..., i] = Lambda_{i+1} L^{(i+1)/(k+1)}`` and ``powers[i] = (k - i)/(k + 1)``.
+
+    Parameters
+    ----------
+    order : int
+        ``k`` in ``[1, 5]``.
+    lipschitz : float or array_like
+        ``L > 0``, a bound on ``|f^{(k+1)}|``; an array gives per-channel gains (shape ``(..., k + 1)`` returned).
+    """
+    k = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
+    L = check_positive_array("lipschitz", lipschitz)[..., None]
+    lam = levant_lambdas(k, "nonrecursive")
+    exponents = np.arange(1, k + 2) / (k + 1)
+    gains = lam * L**exponents
+    powers = (k - np.arange(k + 1)) / (k + 1)
+    return gains, powers
+
+
+def super_twisting_gains(lipschitz) -> tuple[np.ndarray | float, np.ndarray | float]:
+    r"""Default super-twisting differentiator gains ``k1 = 1.5 sqrt(L)``, ``k2 = 1.1 L`` (Levant 1998, 2003).
+
+    With :math:`|\ddot f| \le L` the differentiator
+    :math:`\dot x_1 = x_2 - k_1 \lceil x_1 - f\rfloor^{1/2},\ \dot x_2 = -k_2\, \mathrm{sign}(x_1 - f)`
+    converges to :math:`x_1 = f,\ x_2 = \dot f` in finite time.
+    """
+    L = check_positive_array("lipschitz", lipschitz)
+    k1, k2 = 1.5 * np.sqrt(L), 1.1 * L
+    if k1.ndim == 0:
+        return float(k1), float(k2)
+    return k1, k2
+
+
+def binomial_coefficients(n: int, rate: float = 1.0) -> np.ndarray:
+    """Coefficients ``(k_1, ..., k_n)`` of ``(s + rate)^n = s^n + k_1 s^{n-1} + ... + k_n``."""
+    n = check_int_in_range("n", n, 1, 64)
+    rate = check_positive("rate", rate)
+    return np.array([comb(n, i) * rate**i for i in range(1, n + 1)], dtype=np.float64)
+
+
+def ackermann_observer_gain(A, c, poles) -> np.ndarray:
+    r"""Observer gain ``l`` placing the eigenvalues of ``A - l c^T`` at ``poles`` (Ackermann's formula).
+
+    .. math:: l = p(A)\, \mathcal{O}^{-1} e_n,\qquad
+              \mathcal{O} = \begin{bmatrix} c^T \\ c^T A \\ \vdots \\ c^T A^{n-1}\end{bmatrix},\qquad
+              p(s) = \prod_j (s - s_j).
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    c : array_like, shape (n,)
+        Output row, ``y = c^T x``.
+    poles : array_like, shape (n,)
+        Desired eigenvalues (complex ones in conjugate pairs).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+
+    Raises
+    ------
+    ValueError
+        If ``(A, c)`` is not observable or shapes disagree.
+    """
+    A = np.asarray(A, dtype=np.float64)
+    c = np.asarray(c, dtype=np.float64).reshape(-1)
+    poles = np.asarray(poles).reshape(-1)
+    n = A.shape[0]
+    if A.shape != (n, n) or c.shape != (n,) or poles.shape != (n,):
+        raise ValueError(
+            f"expected A (n, n), c (n,) and poles (n,), actual value: A {A.shape}, c {c.shape}, poles {poles.shape}"
+        )
+    obs = np.vstack([c @ np.linalg.matrix_power(A, i) for i in range(n)])
+    if np.linalg.matrix_rank(obs) < n:
+        raise ValueError(f"expected an observable pair (A, c), actual value: observability rank "
+                         f"{np.linalg.matrix_rank(obs)} < {n}")
+    coeffs = np.real_if_close(np.poly(poles))  # p(s) = s^n + a_1 s^{n-1} + ... + a_n
+    if np.iscomplexobj(coeffs):
+        raise ValueError(f"expected poles closed under conjugation, actual value: {poles!r}")
+    p_of_A = sum(a * np.linalg.matrix_power(A, n - i) for i, a in enumerate(coeffs))
+    e_n = np.zeros(n)
+    e_n[-1] = 1.0
+    return p_of_A @ np.linalg.solve(obs, e_n)

@@ -1,0 +1,42 @@
+"""Observers: stateful estimators of signals and their derivatives, batched over ``(..., n_channels)``.
+
+Pure NumPy and compiled kernels only: nothing here imports Gymnasium or MuJoCo.
+"""
+
+from __future__ import annotations
+
+from .._validation import DivergenceError
+from .base import Observer
+from .differentiators import URED, Levant, SuperTwisting, UniformLevant
+from .linear import FiniteDifference, HighGain, KalmanCA
+
+#: name -> class, for the wrapper, the CLI and :func:`smo_gym.differentiate`
+OBSERVERS: dict[str, type[Observer]] = {
+    cls.name: cls for cls in (SuperTwisting, Levant, URED, UniformLevant, HighGain, FiniteDifference, KalmanCA)
+}
+
+
+def make_observer(name: str, **params) -> Observer:
+    """Build an observer by its short name (``"super-twisting"``, ``"levant"``, ...) with ``params``."""
+    try:
+        cls = OBSERVERS[name]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"expected an observer name in {', '.join(sorted(OBSERVERS))}, actual value: {name!r}"
+        ) from None
+    return cls(**params)
+
+
+__all__ = [
+    "OBSERVERS",
+    "URED",
+    "DivergenceError",
+    "FiniteDifference",
+    "HighGain",
+    "KalmanCA",
+    "Levant",
+    "Observer",
+    "SuperTwisting",
+    "UniformLevant",
+    "make_observer",
+]

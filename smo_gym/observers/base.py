@@ -1,0 +1,288 @@
+"""The stateful shell every observer shares: validation, batching, masked resets, bookkeeping.
+
+The maths lives in the compiled channel steps of :mod:`smo_gym.observers._kernels`; a subclass only says which
+kernel it uses, how wide its state is, and how its parameters are packed per channel.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .._validation import DivergenceError, check_choice, check_positive, check_positive_array
+from . import _kernels
+
+__all__ = ["Observer"]
+
+
+class Observer:
+    r"""Base class of the signal observers (differentiators).
+
+    Shapes: measurements are ``(..., n_channels)``; any leading dimensions (environments of a vector env, say)
+    are batch dimensions, and every channel is an independent signal. Estimates are
+    ``(..., n_channels, order + 1)``: ``xhat[..., 0]`` the filtered value, ``xhat[..., 1]`` the first derivative,
+    and so on.
+
+    Life cycle (scipy ``OdeSolver`` style): ``reset(y0)`` sizes the state from the first measurement and must come
+    first; ``update(y)`` validates and keeps the bookkeeping; the recursion itself is the compiled kernel.
+
+    Attributes
+    ----------
+    dt : float
+        Sampling step ``tau`` in seconds.
+    order : int
+        Number of derivatives estimated.
+    discretization : str
+        One of the class's ``discretizations``.
+    n_updates : int
+        Samples processed since the last full reset.
+    """
+
+    #: discretizations the class implements; the first is its default
+    discretizations: ClassVar[tuple[str, ...]] = ("euler",)
+    #: short name used by :func:`smo_gym.observers.make_observer`, the wrapper and the CLI
+    name: ClassVar[str] = ""
+
+    def __init__(self, dt: float, order: int, discretization: str | None):
+        self.dt = check_positive("dt", dt)
+        self.order = order
+        self.discretization = check_choice(
+            "discretization", self.discretizations[0] if discretization is None else discretization,
+            self.discretizations,
+        )
+        self._shape: tuple[int, ...] | None = None
+        self._state: np.ndarray | None = None
+        self._scratch: np.ndarray | None = None
+        self._params: np.ndarray | None = None
+        self._estimate: np.ndarray | None = None
+        self.n_updates = 0
+
+    # ---- what a subclass provides ---------------------------------------------------------------------------
+    @property
+    def _kernel(self):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _state_width(self) -> int:
+        """Columns of the state: the ``order + 1`` estimates plus the innovation, by default."""
+        return self.order + 2
+
+    def _innovation_column(self) -> int:
+        """Column of the state that holds the innovation."""
+        return self.order + 1
+
+    def _channel_params(self, shape: tuple[int, ...]) -> np.ndarray:  # pragma: no cover - abstract
+        """Per-channel parameter rows, shape ``(prod(shape), P)``, for measurements of ``shape``."""
+        raise NotImplementedError
+
+    def _initial_state(self, y0: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """State after ``reset``: value ``y0``, zero derivatives, zero innovation. ``y0`` is flat ``(N,)``."""
+        state = np.zeros((y0.shape[0], self._state_width()))
+        state[:, 0] = y0
+        return state
+
+    # ---- helpers for subclasses -----------------------------------------------------------------------------
+    @staticmethod
+    def _per_channel(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+        """Broadcast a positive scalar or array parameter to the channel shape and flatten it to ``(N,)``."""
+        arr = check_positive_array(name, value)
+        try:
+            return np.broadcast_to(arr, shape).reshape(-1)
+        except ValueError:
+            raise ValueError(
+                f"expected {name} broadcastable to the measurement shape {shape}, actual value: shape {arr.shape}"
+            ) from None
+
+    # ---- public API -----------------------------------------------------------------------------------------
+    def _as_measurement(self, y, name: str) -> np.ndarray:
+        try:
+            arr = np.asarray(y, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TypeError(f"expected {name} to be an array of real numbers, actual value: {y!r}") from None
+        if arr.ndim == 0:
+            raise ValueError(f"expected {name} with shape (..., n_channels), actual value: a scalar {float(arr)!r}")
+        return arr
+
+    def _raise_nonfinite(self, arr: np.ndarray, name: str) -> None:
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        index = tuple(int(i) for i in bad)
+        raise ValueError(
+            f"expected finite measurements in {name}, actual value: {arr[index]!r} at channel {index[-1]}"
+            + (f" of batch element {index[:-1]}" if len(index) > 1 else "")
+        )
+
+    def reset(self, y0, mask=None) -> np.ndarray:
+        """Start (or restart) the observer at the measurement ``y0``.
+
+        Parameters
+        ----------
+        y0 : array_like, shape (..., n_channels)
+            First measurement; the value estimate starts there and every derivative at zero.
+        mask : array_like of bool, optional
+            Restart only some rows: shape ``(...)`` (whole batch elements, e.g. one environment of a vector
+            env) or ``(..., n_channels)``. Requires a previous full reset with the same shape.
+
+        Returns
+        -------
+        ndarray, shape (..., n_channels, order + 1)
+            The initial estimate.
+        """
+        y0 = self._as_measurement(y0, "y0")
+        if not np.all(np.isfinite(y0)):
+            self._raise_nonfinite(y0, "y0")
+        if mask is None:
+            self._shape = y0.shape
+            self._params = np.ascontiguousarray(self._channel_params(y0.shape), dtype=np.float64)
+            self._state = np.ascontiguousarray(self._initial_state(y0.reshape(-1), self._params))
+            self._scratch = np.empty_like(self._state)
+            self._estimate = np.zeros(y0.shape + (self.order + 1,))
+            self._estimate[..., 0] = y0
+            self.n_updates = 0
+            return self._estimate.copy()
+        if self._state is None:
+            raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
+        if y0.shape != self._shape:
+            raise ValueError(f"expected y0 with shape {self._shape} for a masked reset, actual value: {y0.shape}")
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape == self._shape[:-1]:
+            mask = np.broadcast_to(mask[..., None], self._shape)
+        elif mask.shape != self._shape:
+            raise ValueError(
+                f"expected mask with shape {self._shape[:-1]} or {self._shape}, actual value: {mask.shape}"
+            )
+        flat = mask.reshape(-1)
+        fresh = self._initial_state(y0.reshape(-1), self._params)
+        self._state[flat] = fresh[flat]
+        self._estimate[mask] = 0.0
+        self._estimate[mask, 0] = y0[mask]
+        return self._estimate.copy()
+
+    def update(self, y) -> np.ndarray:
+        """Process one sample and return the estimate at its time.
+
+        Parameters
+        ----------
+        y : array_like, shape (..., n_channels)
+            The measurement, same shape as at ``reset``.
+
+        Returns
+        -------
+        ndarray, shape (..., n_channels, order + 1)
+            A new array (safe to keep): value, first derivative, ...
+
+        Raises
+        ------
+        RuntimeError
+            If called before ``reset``.
+        ValueError
+            On a wrong shape, or a NaN/inf measurement (the channel is named; the state is unchanged).
+        DivergenceError
+            If the state would become non-finite (the previous state is kept).
+        """
+        state = self._state
+        if state is None:
+            raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
+        if type(y) is not np.ndarray or y.dtype != np.float64:
+            y = self._as_measurement(y, "y")
+        if y.shape != self._shape:
+            raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
+        out = np.empty(self._estimate.shape)
+        m = self.order + 1
+        status = self._kernel(state, y.reshape(-1), self._params, self._scratch, out.reshape(-1, m))
+        if status != -1:
+            self._raise_status(status, y)
+        self._state, self._scratch = self._scratch, state
+        self._estimate = out
+        self.n_updates += 1
+        return out
+
+    def _raise_status(self, status: int, y: np.ndarray):
+        if status >= 0:
+            self._raise_nonfinite(y, "y")
+        channel = -2 - status
+        index = np.unravel_index(channel, self._shape)
+        raise DivergenceError(
+            f"expected a finite observer state, actual value: non-finite after update at channel {index[-1]}"
+            + (f" of batch element {tuple(int(i) for i in index[:-1])}" if len(index) > 1 else "")
+            + f" (dt={self.dt}); the step was rejected and the previous state kept. The step is too large for this "
+            "observer and discretization at this error level: reduce dt or choose an implicit discretization."
+        )
+
+    def step(self, state: np.ndarray, y) -> tuple[np.ndarray, np.ndarray]:
+        """Pure form of ``update``: return ``(new_state, estimate)`` for a flat state without touching ``self``.
+
+        ``state`` has shape ``(N, S)`` as ``self.state``; ``y`` shape ``(N,)``. Requires a previous ``reset`` (for
+        the per-channel parameters).
+        """
+        if self._params is None:
+            raise RuntimeError("expected reset(y0) before step(), actual value: the observer was never reset")
+        y = np.ascontiguousarray(y, dtype=np.float64).reshape(-1)
+        state = np.ascontiguousarray(state, dtype=np.float64)
+        new_state = np.empty_like(state)
+        out = np.empty((state.shape[0], self.order + 1))
+        status = self._kernel(state, y, self._params, new_state, out)
+        if status != -1:
+            self._raise_status(status, y)
+        return new_state, out
+
+    def run(self, Y) -> np.ndarray:
+        """Process a recorded block ``Y`` of shape ``(T, ...)`` (continuing from the current state) in one call.
+
+        Returns the estimates, shape ``(T, ..., order + 1)``. Uses the same compiled kernel as ``update``.
+        """
+        if self._state is None:
+            raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
+        Y = np.ascontiguousarray(Y, dtype=np.float64)
+        if Y.shape[1:] != self._shape:
+            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        T = Y.shape[0]
+        m = self.order + 1
+        out = np.empty((T,) + self._estimate.shape)
+        if T == 0:
+            return out
+        status, t = _kernels.run_offline(self._kernel, self._state, Y.reshape(T, -1), self._params,
+                                         out.reshape(T, -1, m))
+        if status != -1:
+            self._raise_status(status, Y[t])
+        self._estimate = out[-1].copy()
+        self.n_updates += T
+        return out
+
+    # ---- read-only views ------------------------------------------------------------------------------------
+    def _require_reset(self) -> np.ndarray:
+        if self._estimate is None:
+            raise RuntimeError("expected reset(y0) first, actual value: the observer was never reset")
+        return self._estimate
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """Last estimate, shape ``(..., n_channels, order + 1)``."""
+        return self._require_reset()
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """Last first-derivative estimate, shape ``(..., n_channels)``."""
+        return self._require_reset()[..., 1]
+
+    @property
+    def output_error(self) -> np.ndarray:
+        """Last innovation ``y - yhat^-`` (measurement minus predicted value), shape ``(..., n_channels)``."""
+        self._require_reset()
+        return self._state[:, self._innovation_column()].reshape(self._shape)
+
+    @property
+    def state(self) -> np.ndarray:
+        """Internal state, shape ``(N, S)`` with ``N`` the number of channels (a copy)."""
+        self._require_reset()
+        return self._state.copy()
+
+    @property
+    def shape(self) -> tuple[int, ...] | None:
+        """Measurement shape ``(..., n_channels)`` fixed at the last full reset."""
+        return self._shape
+
+    def __getstate__(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(dt={self.dt}, order={self.order}, discretization={self.discretization!r})"

@@ -1,0 +1,343 @@
+r"""Model-free sliding-mode differentiators: super-twisting, Levant, URED, uniform Levant.
+
+All estimate a signal ``f`` and its derivatives from samples ``y_k = f(t_k) + noise``, assuming only a bound
+``L`` on the first derivative they do not estimate (``|f''| <= L`` for a velocity observer).
+
+Discretizations (see ``DESIGN.md``)
+-----------------------------------
+``"euler"``
+    explicit Euler of the continuous differentiator; chatters at the level ``L * tau`` in the last derivative.
+``"taylor"``
+    explicit, with the Taylor terms of Livne & Levant (2014): accuracy ``|z_i - f^(i)| = O(L tau^(k+1-i))``.
+``"implicit"``
+    set-valued implicit Euler (closed form for super-twisting): exact and chattering-free on constants.
+``"semi-implicit"``, ``"matching"``
+    state-dependent eigenvalue mappings (15) and (16) of Wetzlinger, Reichhartinger and Horn (paper 003):
+    no discretization chattering and stable at any step for any initial error.
+
+References
+----------
+.. [Lev03] A. Levant, "Higher-order sliding modes, differentiation and output-feedback control",
+   Int. J. Control 76(9-10), 2003.
+.. [LL14] M. Livne and A. Levant, "Proper discretization of homogeneous differentiators", Automatica 50, 2014.
+.. [CMF11] E. Cruz-Zavala, J. A. Moreno and L. Fridman, "Uniform robust exact differentiator",
+   IEEE TAC 56(11), 2011.
+.. [AMF13] M. T. Angulo, J. A. Moreno and L. Fridman, "Robust exact uniformly convergent arbitrary order
+   differentiator", Automatica 49(8), 2013.
+.. [WRH] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear
+   discrete-time observer" (paper 003).
+.. [BPE] B. Brogliato, A. Polyakov and D. Efimov, "The implicit discretization of the super-twisting sliding-mode
+   control algorithm", IEEE TAC 65(8), 2020.
+"""
+
+from __future__ import annotations
+
+from math import comb
+
+import numpy as np
+
+from .._validation import check_int_in_range, check_positive
+from ..design.gains import MAX_LEVANT_ORDER, binomial_coefficients, levant_lambdas, super_twisting_gains
+from . import _kernels
+from .base import Observer
+
+__all__ = ["Levant", "SuperTwisting", "URED", "UniformLevant", "eigenvalue_mapping_vectors"]
+
+
+def _pack_hosm(dt: float, taylor: bool, gains: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """Parameter rows of the HOSM kernel: ``[dt, taylor, gains (m*J), powers (m*J)]`` per channel.
+
+    ``gains`` has shape ``(N, m, J)``, ``powers`` ``(m, J)`` with ``J <= N_TERMS`` (padded with zero gains).
+    """
+    N, m, J = gains.shape
+    g = np.zeros((N, m, _kernels.N_TERMS))
+    p = np.zeros((m, _kernels.N_TERMS))
+    g[:, :, :J] = gains
+    p[:, :J] = powers
+    head = np.tile([dt, 1.0 if taylor else 0.0], (N, 1))
+    return np.hstack([head, g.reshape(N, -1), np.broadcast_to(p.reshape(1, -1), (N, m * _kernels.N_TERMS))])
+
+
+def taylor_matrix(m: int, dt: float) -> np.ndarray:
+    r"""The ``(m, m)`` matrix :math:`e^{\tau N}` with entries :math:`\tau^{j-i}/(j-i)!` (paper 003, eq. (31))."""
+    A = np.zeros((m, m))
+    for i in range(m):
+        fac = 1.0
+        for j in range(i, m):
+            A[i, j] = fac
+            fac *= dt / (j - i + 1)
+    return A
+
+
+def eigenvalue_mapping_vectors(m: int, dt: float) -> np.ndarray:
+    r"""Vectors :math:`v_j = \binom{m}{j} A^j \mathcal{O}^{-1} e_m`, ``j = 0..m``, shape ``(m + 1, m)``.
+
+    With ``A`` the Taylor matrix (31) and ``c = e_1``, Ackermann's formula (35) of paper 003 for the observer gain
+    that puts all eigenvalues of ``A - l c^T`` at ``z`` expands to :math:`l(z) = \sum_j (-z)^{m-j} v_j`, a
+    polynomial in ``z`` the kernel evaluates per sample by Horner's rule.
+
+    Notes
+    -----
+    Paper 003 warns (and ``shared/papers/README.md`` repeats) that its printed closed-form gains (79)-(82) are not
+    stable; these vectors come from Ackermann's formula itself, and the tests check the placed eigenvalues.
+    """
+    A = taylor_matrix(m, dt)
+    obs = np.vstack([np.linalg.matrix_power(A, i)[0] for i in range(m)])
+    e_m = np.zeros(m)
+    e_m[-1] = 1.0
+    w = np.linalg.solve(obs, e_m)
+    return np.array([comb(m, j) * np.linalg.matrix_power(A, j) @ w for j in range(m + 1)])
+
+
+def _pack_eigmap(dt: float, p1: np.ndarray, mu: float, mode: str, m: int) -> np.ndarray:
+    """Parameter rows of the eigenvalue-mapping kernel: ``[dt, p1, mu, mode, V]`` per channel."""
+    V = eigenvalue_mapping_vectors(m, dt).reshape(-1)
+    N = p1.shape[0]
+    head = np.column_stack([np.full(N, dt), p1, np.full(N, mu), np.full(N, 0.0 if mode == "semi-implicit" else 1.0)])
+    return np.hstack([head, np.broadcast_to(V, (N, V.size))])
+
+
+class SuperTwisting(Observer):
+    r"""Levant's first-order robust exact differentiator (super-twisting algorithm).
+
+    .. math::
+        \dot{\hat x}_1 = \hat x_2 - k_1 \lceil \hat x_1 - y\rfloor^{1/2},\qquad
+        \dot{\hat x}_2 = -k_2\,\mathrm{sign}(\hat x_1 - y),
+
+    with defaults :math:`k_1 = 1.5\sqrt L,\ k_2 = 1.1 L` for :math:`|\ddot f| \le L` (paper 004, "STA observer").
+    Converges in finite time to :math:`\hat x_1 = f,\ \hat x_2 = \dot f`.
+
+    Parameters
+    ----------
+    dt : float
+        Sampling step ``tau > 0`` [s].
+    lipschitz : float or array_like, optional
+        ``L``, bound on ``|f''|`` (per channel if an array broadcastable to ``(..., n_channels)``). Required unless
+        both ``k1`` and ``k2`` are given.
+    k1, k2 : float or array_like, optional
+        Override the default gains.
+    discretization : {"implicit", "euler"}
+        ``"implicit"`` (default): the set-valued implicit Euler step [BPE] in closed form; on a constant signal the
+        derivative becomes exactly zero, and it is stable at any step. ``"euler"``: explicit Euler, chattering of
+        amplitude ``O(k2 tau)`` in the derivative.
+
+    Notes
+    -----
+    The implicit step is an estimator at the current sample (it uses ``y_k`` to produce ``xhat_k``). When the
+    predicted error is within ``tau^2 k2`` of the measurement it sets ``xhat_1 = y_k`` and
+    ``xhat_2 = (y_k - xhat_{1,k-1}) / tau``: inside its sliding set it *is* a backward difference of its own
+    estimate, which is why at coarse steps with large ``L`` it matches finite differences (DESIGN.md).
+    """
+
+    discretizations = ("implicit", "euler")
+    name = "super-twisting"
+
+    def __init__(self, dt: float, lipschitz=None, *, k1=None, k2=None, discretization: str | None = None):
+        super().__init__(dt, 1, discretization)
+        if lipschitz is None and (k1 is None or k2 is None):
+            raise ValueError("expected lipschitz > 0 or both k1 and k2, actual value: lipschitz=None")
+        self.lipschitz, self.k1, self.k2 = lipschitz, k1, k2
+
+    def _gains(self, shape):
+        L = None if self.lipschitz is None else self._per_channel("lipschitz", self.lipschitz, shape)
+        k1 = super_twisting_gains(L)[0] if self.k1 is None else self._per_channel("k1", self.k1, shape)
+        k2 = super_twisting_gains(L)[1] if self.k2 is None else self._per_channel("k2", self.k2, shape)
+        return np.asarray(k1, dtype=float).reshape(-1), np.asarray(k2, dtype=float).reshape(-1)
+
+    @property
+    def _kernel(self):
+        return _kernels.sta_implicit_kernel if self.discretization == "implicit" else _kernels.hosm_kernel
+
+    def _channel_params(self, shape):
+        k1, k2 = self._gains(shape)
+        if self.discretization == "implicit":
+            return np.column_stack([np.full(k1.shape, self.dt), k1, k2])
+        return _pack_hosm(self.dt, False, np.stack([k1, k2], axis=1)[:, :, None], np.array([[0.5], [0.0]]))
+
+
+class Levant(Observer):
+    r"""Levant's arbitrary-order robust exact differentiator (paper 004, eq. (7); [Lev03]).
+
+    For ``|f^(k+1)| <= L`` the order-``k`` differentiator, in the non-recursive form equivalent to (7)
+    (see :func:`smo_gym.design.levant_lambdas`),
+
+    .. math::
+        \dot z_i = -\Lambda_{i+1} L^{\frac{i+1}{k+1}} \lceil z_0 - f\rfloor^{\frac{k-i}{k+1}} + z_{i+1},
+        \quad i < k,\qquad \dot z_k = -\lambda_0 L\,\mathrm{sign}(z_0 - f),
+
+    gives :math:`z_i = f^{(i)}` after a finite time.
+
+    Parameters
+    ----------
+    order : int
+        ``k`` in ``[1, 5]`` (Levant's table of lambdas).
+    dt : float
+        Sampling step.
+    lipschitz : float or array_like
+        ``L``, per channel if an array.
+    discretization : {"taylor", "euler", "semi-implicit", "matching"}
+        ``"taylor"`` (default, [LL14]): accuracy ``O(L tau^(k+1-i))`` for ``z_i`` on noise-free signals, and
+        ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under noise of amplitude ``eps``. ``"euler"``: the same without the
+        Taylor terms (accuracy of ``z_i`` limited to ``O(tau^2)`` for ``k >= 2``). ``"semi-implicit"`` /
+        ``"matching"``: the discrete-time observer of paper 003 with eigenvalue mapping (15) / (16); its
+        continuous-time counterpart (11) is a Levant-type differentiator with gains from ``(s + p1)^(k+1)``.
+    p1 : float, optional
+        Eigenvalue-mapping rate of paper 003; default ``(1.1 L)^(1/(k+1))`` so that the last gain
+        ``p1^(k+1)`` equals Levant's ``lambda_0 L``.
+    mu : float
+        Paper 003's ``mu >= 0`` (0 gives finite-time, ``mu > 0`` adds the uniform, fixed-time part).
+    """
+
+    discretizations = ("taylor", "euler", "semi-implicit", "matching")
+    name = "levant"
+
+    def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, discretization: str | None = None,
+                 p1=None, mu: float = 0.0):
+        order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
+        super().__init__(dt, order, discretization)
+        self.lipschitz = lipschitz
+        self._per_channel("lipschitz", lipschitz, np.shape(lipschitz))  # validate now, not at reset
+        self.p1 = p1
+        if mu < 0 or not np.isfinite(mu):
+            raise ValueError(f"expected mu >= 0, actual value: {mu!r}")
+        self.mu = float(mu)
+
+    @property
+    def _kernel(self):
+        if self.discretization in ("semi-implicit", "matching"):
+            return _kernels.eigmap_kernel
+        return _kernels.hosm_kernel
+
+    def _channel_params(self, shape):
+        k, m = self.order, self.order + 1
+        L = self._per_channel("lipschitz", self.lipschitz, shape)
+        if self.discretization in ("semi-implicit", "matching"):
+            p1 = (1.1 * L) ** (1.0 / m) if self.p1 is None else self._per_channel("p1", self.p1, shape)
+            return _pack_eigmap(self.dt, p1, self.mu, self.discretization, m)
+        lam = levant_lambdas(k, "nonrecursive")
+        gains = lam[None, :] * L[:, None] ** (np.arange(1, m + 1) / m)[None, :]
+        powers = ((k - np.arange(m)) / m)[:, None]
+        return _pack_hosm(self.dt, self.discretization == "taylor", gains[:, :, None], powers)
+
+
+class URED(Observer):
+    r"""Uniform robust exact differentiator of Cruz-Zavala, Moreno and Fridman [CMF11] (paper 004).
+
+    .. math::
+        \dot z_0 = -k_1 \phi_1(z_0 - y) + z_1,\quad \dot z_1 = -k_2 \phi_2(z_0 - y),\\
+        \phi_1(\sigma) = \lceil\sigma\rfloor^{1/2} + \beta\lceil\sigma\rfloor^{3/2},\quad
+        \phi_2(\sigma) = \tfrac12\mathrm{sign}(\sigma) + 2\beta\sigma + \tfrac32\beta^2\lceil\sigma\rfloor^{2}.
+
+    Convergence time is bounded uniformly in the initial error. The slides print ``beta = 1``.
+
+    Parameters
+    ----------
+    dt : float
+    lipschitz : float or array_like
+        ``L >= |f''|``; defaults ``k1 = 1.5 sqrt(L)``, ``k2 = 2.2 L`` so that near the origin (where the
+        ``beta`` terms vanish) it is the super-twisting differentiator with Levant's gains.
+    k1, k2 : optional overrides.
+    beta : float
+        Weight of the high-degree terms (units 1/[y]); larger means faster from large errors.
+    discretization : {"euler"}
+        Explicit Euler. The high-degree terms make it stiff: at error ``|e|`` the step must satisfy roughly
+        ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as ``DivergenceError``). For large
+        initial errors at a coarse step use ``Levant(discretization="semi-implicit", mu>0)``, paper 003's uniform
+        observer, which is stable at any step.
+    """
+
+    discretizations = ("euler",)
+    name = "ured"
+
+    def __init__(self, dt: float, lipschitz=1.0, *, k1=None, k2=None, beta: float = 1.0,
+                 discretization: str | None = None):
+        super().__init__(dt, 1, discretization)
+        self.lipschitz, self.k1, self.k2 = lipschitz, k1, k2
+        self.beta = check_positive("beta", beta)
+
+    @property
+    def _kernel(self):
+        return _kernels.hosm_kernel
+
+    def _channel_params(self, shape):
+        L = self._per_channel("lipschitz", self.lipschitz, shape)
+        k1 = 1.5 * np.sqrt(L) if self.k1 is None else self._per_channel("k1", self.k1, shape)
+        k2 = 2.2 * L if self.k2 is None else self._per_channel("k2", self.k2, shape)
+        b = self.beta
+        gains = np.zeros((k1.size, 2, 3))
+        gains[:, 0, 0], gains[:, 0, 1] = k1, k1 * b
+        gains[:, 1, 0], gains[:, 1, 1], gains[:, 1, 2] = 0.5 * k2, 2.0 * b * k2, 1.5 * b * b * k2
+        powers = np.array([[0.5, 1.5, 0.0], [0.0, 1.0, 2.0]])
+        return _pack_hosm(self.dt, False, gains, powers)
+
+
+class UniformLevant(Observer):
+    r"""Arbitrary-order uniform robust exact differentiator of Angulo, Moreno and Fridman [AMF13] (paper 004, (8)).
+
+    With ``n = order + 1`` states and :math:`e = y - \hat x_1`,
+
+    .. math::
+        \dot{\hat x}_i = \lambda_i L^{i/n}\lceil e\rfloor^{\frac{n-i}{n}} + k_i\lceil e\rfloor^{\frac{n+\alpha i}{n}}
+        + \hat x_{i+1},\quad
+        \dot{\hat x}_n = \lambda_n L\,\mathrm{sign}(e) + k_n \lceil e\rfloor^{1+\alpha}.
+
+    The low-degree terms are Levant's (non-recursive lambdas); the high-degree ones make the convergence time
+    uniform in the initial error.
+
+    Parameters
+    ----------
+    order : int
+        ``1 <= order <= 5``.
+    dt, lipschitz : as for :class:`Levant`.
+    alpha : float
+        ``alpha > 0``; default 1, which for ``order = 1`` gives URED's exponents 3/2 and 2.
+    k : array_like, shape (order + 1,), optional
+        Coefficients making ``s^n + k_1 s^(n-1) + ... + k_n`` Hurwitz; default those of
+        ``(s + L^(1/n))^n`` (so the uniform part has the time scale of the Levant part).
+    discretization : {"euler", "taylor"}
+        Explicit; stiff for large errors like :class:`URED` (errors raise ``DivergenceError``).
+
+    Notes
+    -----
+    The slides print the injections as :math:`-\lambda_i\lceil y - \hat x_1\rfloor^{\cdot}`, which with
+    :math:`\dot{\hat x}_1 = \ldots + \hat x_2` pushes the estimate *away* from ``y``; the derivation (and [AMF13])
+    needs the error ``y - xhat_1`` with positive sign, as implemented. The printed stability condition on
+    ``P(s) = k_n s^(n-1) + ... + k_1`` is garbled; we use the Hurwitz condition of the linear limit
+    ``alpha -> 0``, ``s^n + k_1 s^(n-1) + ... + k_n``.
+    """
+
+    discretizations = ("euler", "taylor")
+    name = "uniform-levant"
+
+    def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, alpha: float = 1.0, k=None,
+                 discretization: str | None = None):
+        order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
+        super().__init__(dt, order, discretization)
+        self.lipschitz = lipschitz
+        self.alpha = check_positive("alpha", alpha)
+        if k is not None:
+            k = np.asarray(k, dtype=float)
+            if k.shape != (order + 1,):
+                raise ValueError(f"expected k with shape ({order + 1},), actual value: {k.shape}")
+            roots = np.roots(np.concatenate([[1.0], k]))
+            if np.any(roots.real >= 0):
+                raise ValueError(f"expected k making s^n + k_1 s^(n-1) + ... + k_n Hurwitz, actual value: roots "
+                                 f"{roots}")
+        self.k = k
+
+    @property
+    def _kernel(self):
+        return _kernels.hosm_kernel
+
+    def _channel_params(self, shape):
+        n = self.order + 1
+        L = self._per_channel("lipschitz", self.lipschitz, shape)
+        i = np.arange(1, n + 1)
+        lam = levant_lambdas(self.order, "nonrecursive")[None, :] * L[:, None] ** (i / n)[None, :]
+        if self.k is None:
+            kk = np.stack([binomial_coefficients(n, float(rate)) for rate in L ** (1.0 / n)])
+        else:
+            kk = np.broadcast_to(self.k, (L.size, n))
+        gains = np.stack([lam, kk], axis=2)
+        powers = np.stack([(n - i) / n, (n + self.alpha * i) / n], axis=1)
+        return _pack_hosm(self.dt, self.discretization == "taylor", gains, powers)

@@ -1,0 +1,213 @@
+r"""Linear estimators: the high-gain observer, and the baselines a user would otherwise pick.
+
+References
+----------
+.. [AMPT18] D. Astolfi, L. Marconi, L. Praly and A. R. Teel, "Low-power peaking-free high-gain observers",
+   Automatica 98, 2018 (paper 002), eq. (2).
+.. [BSL01] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, *Estimation with Applications to Tracking and
+   Navigation*, Wiley 2001, section 6.2.3 (continuous white-noise jerk model).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import expm
+
+from .._validation import check_int_in_range, check_positive
+from ..design.gains import binomial_coefficients
+from . import _kernels
+from .base import Observer
+
+__all__ = ["FiniteDifference", "HighGain", "KalmanCA"]
+
+
+class HighGain(Observer):
+    r"""The standard linear high-gain observer of an integrator chain (paper 002, eq. (2)).
+
+    With ``n = order + 1`` states, :math:`D(\ell) = \mathrm{diag}(\ell, \ell^2, \ldots, \ell^n)` and
+    ``K = (k_1, ..., k_n)`` making :math:`s^n + k_1 s^{n-1} + \dots + k_n` Hurwitz,
+
+    .. math:: \dot{\hat x} = N\hat x + D(\ell) K (y - \hat x_1),
+
+    ``N`` the shift matrix (the model-free case :math:`\varphi = 0` of (2)). The error eigenvalues are
+    :math:`\ell` times the roots of that polynomial; for a bound ``L`` on :math:`|f^{(n)}|` and noise ``eps`` the
+    derivative errors are :math:`O(L/\ell^{n-i})` plus :math:`O(\ell^{i}\epsilon)`, and the transient peak of
+    :math:`\hat x_i` grows like :math:`\ell^{i-1}` (peaking).
+
+    Parameters
+    ----------
+    dt : float
+    gain : float
+        The high gain ``ell > 0`` (1/s).
+    order : int
+        Derivatives estimated (``1 <= order <= 9``).
+    coefficients : array_like, shape (order + 1,), optional
+        ``K``; default the binomial coefficients of ``(s + 1)^n`` (all error poles at ``-ell``).
+    discretization : {"implicit", "euler"}
+        ``"implicit"`` (default): backward Euler, stable for every ``ell * tau``; a current estimator.
+        ``"euler"``: forward Euler in predictor form, unstable once ``ell * tau`` exceeds about 2/k_1.
+    """
+
+    discretizations = ("implicit", "euler")
+    name = "high-gain"
+
+    def __init__(self, dt: float, gain: float, order: int = 1, *, coefficients=None,
+                 discretization: str | None = None):
+        order = check_int_in_range("order", order, 1, 9)
+        super().__init__(dt, order, discretization)
+        self.gain = check_positive("gain", gain)
+        n = order + 1
+        if coefficients is None:
+            coefficients = binomial_coefficients(n)
+        coefficients = np.asarray(coefficients, dtype=float)
+        if coefficients.shape != (n,):
+            raise ValueError(f"expected coefficients with shape ({n},), actual value: {coefficients.shape}")
+        if np.any(np.roots(np.concatenate([[1.0], coefficients])).real >= 0):
+            raise ValueError(f"expected coefficients of a Hurwitz polynomial, actual value: {coefficients}")
+        self.coefficients = coefficients
+
+    @classmethod
+    def from_bounds(cls, dt: float, lipschitz: float, noise: float, order: int = 1, **kwargs) -> HighGain:
+        r"""Gain balancing the two error terms of the first derivative: :math:`\ell = (L/\epsilon)^{1/(n)}`.
+
+        ``lipschitz`` bounds :math:`|f^{(n)}|`, ``noise`` is the measurement noise amplitude.
+        """
+        L, eps = check_positive("lipschitz", lipschitz), check_positive("noise", noise)
+        return cls(dt, (L / eps) ** (1.0 / (order + 1)), order, **kwargs)
+
+    def system_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous-time error-injection form ``(A - H c^T, H)`` with ``H = D(ell) K``."""
+        n = self.order + 1
+        H = self.coefficients * self.gain ** np.arange(1, n + 1)
+        A = np.eye(n, k=1)
+        A[:, 0] -= H
+        return A, H
+
+    @property
+    def _kernel(self):
+        return _kernels.linear_kernel
+
+    def _channel_params(self, shape):
+        n, dt = self.order + 1, self.dt
+        A, H = self.system_matrices()
+        if self.discretization == "implicit":
+            # (I - dt (A - H c^T)) x_k = x_{k-1} + dt H y_k
+            M = np.linalg.inv(np.eye(n) - dt * A)
+            F, g, R = M, dt * M @ H, np.eye(n)
+        else:
+            # predictor x_{k+1} = x_k + dt((N - H c^T) x_k + H y_k); report exp(-dt N) x_{k+1}
+            F, g = np.eye(n) + dt * A, dt * H
+            R = expm(-dt * np.eye(n, k=1))
+        row = np.concatenate([F.ravel(), g, R.ravel()])
+        return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
+
+
+class FiniteDifference(Observer):
+    r"""Backward finite differences: :math:`\hat v_k = (y_k - y_{k-1})/\tau`, and (``order=2``)
+    :math:`\hat a_k = (\hat v_k - \hat v_{k-1})/\tau`.
+
+    The baseline: velocity error :math:`O(\tau \max|\ddot f|) + O(2\epsilon/\tau)` with noise ``eps``.
+    """
+
+    discretizations = ("backward",)
+    name = "finite-difference"
+
+    def __init__(self, dt: float, order: int = 1, *, discretization: str | None = None):
+        super().__init__(dt, check_int_in_range("order", order, 1, 2), discretization)
+
+    @property
+    def _kernel(self):
+        return _kernels.finite_difference_kernel
+
+    def _state_width(self):
+        return self.order + 3  # estimates, innovation, samples since reset
+
+    def _channel_params(self, shape):
+        return np.full((int(np.prod(shape)), 1), self.dt)
+
+
+class KalmanCA(Observer):
+    r"""Constant-acceleration Kalman filter per channel (states: value, velocity, acceleration).
+
+    Process model: continuous white-noise jerk of spectral density ``q`` [BSL01], measurement
+    :math:`y_k = x_{1,k} + v_k,\ v_k \sim \mathcal N(0, r)`:
+
+    .. math::
+        x_{k+1} = e^{\tau N} x_k + w_k,\quad
+        Q = q\begin{bmatrix}\tau^5/20 & \tau^4/8 & \tau^3/6\\ \tau^4/8 & \tau^3/3 & \tau^2/2\\
+        \tau^3/6 & \tau^2/2 & \tau\end{bmatrix}.
+
+    Parameters
+    ----------
+    dt : float
+    process_noise : float
+        ``q`` [units^2 / s^5].
+    measurement_noise : float
+        ``r``, the variance of the measurement noise [units^2].
+    initial_std : tuple of 2 floats
+        Prior standard deviations of velocity and acceleration at reset (the value's is ``sqrt(r)``).
+
+    Attributes
+    ----------
+    output_error : the last innovation ``y - x1^-``.
+    """
+
+    discretizations = ("exact",)
+    name = "kalman-ca"
+
+    def __init__(self, dt: float, process_noise: float, measurement_noise: float, *,
+                 initial_std: tuple[float, float] = (10.0, 100.0), discretization: str | None = None):
+        super().__init__(dt, 2, discretization)
+        self.process_noise = check_positive("process_noise", process_noise)
+        self.measurement_noise = check_positive("measurement_noise", measurement_noise)
+        self.initial_std = (check_positive("initial_std[0]", initial_std[0]),
+                            check_positive("initial_std[1]", initial_std[1]))
+
+    @classmethod
+    def from_bounds(cls, dt: float, noise_std: float, accel_bound: float, *, resolution: float = 0.0,
+                    **kwargs) -> KalmanCA:
+        r"""Set ``q`` and ``r`` from a noise level and an acceleration bound.
+
+        ``r = noise_std^2 + resolution^2 / 12`` (Gaussian noise plus uniform quantization error), and
+        ``q = accel_bound^2 / dt``: the acceleration may change by about its whole bound within one sample, the
+        regime of contacts and bang-bang actions in MuJoCo. Smoother signals want a smaller ``q``.
+        """
+        noise_std = float(noise_std)
+        if noise_std < 0 or resolution < 0:
+            raise ValueError(f"expected noise_std >= 0 and resolution >= 0, actual value: {noise_std}, {resolution}")
+        r = noise_std**2 + resolution**2 / 12.0
+        if r <= 0:
+            raise ValueError("expected noise_std > 0 or resolution > 0, actual value: both zero")
+        q = check_positive("accel_bound", accel_bound) ** 2 / check_positive("dt", dt)
+        return cls(dt, q, r, **kwargs)
+
+    @property
+    def _kernel(self):
+        return _kernels.kalman_ca_kernel
+
+    def _state_width(self):
+        return 10
+
+    def _innovation_column(self):
+        return 9
+
+    def _channel_params(self, shape):
+        return np.tile([self.dt, self.process_noise, self.measurement_noise], (int(np.prod(shape)), 1))
+
+    def _initial_state(self, y0, params):
+        state = np.zeros((y0.shape[0], 10))
+        state[:, 0] = y0
+        state[:, 3] = self.measurement_noise  # P00
+        state[:, 6] = self.initial_std[0] ** 2  # P11
+        state[:, 8] = self.initial_std[1] ** 2  # P22
+        return state
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Posterior covariance of each channel, shape ``(..., n_channels, 3, 3)``."""
+        self._require_reset()
+        s = self._state
+        P = np.empty((s.shape[0], 3, 3))
+        for (i, j), col in {(0, 0): 3, (0, 1): 4, (0, 2): 5, (1, 1): 6, (1, 2): 7, (2, 2): 8}.items():
+            P[:, i, j] = P[:, j, i] = s[:, col]
+        return P.reshape(self._shape + (3, 3))
