@@ -68,6 +68,13 @@ def _taylor_back(x_new, m, dt, out_row):
         out_row[i] = acc
 
 
+@njit(cache=CACHE, inline="always")
+def _flat(y, out):
+    """Views ``(N,)`` and ``(N, m)`` of a C-contiguous measurement ``(..., n)`` and estimate ``(..., n, m)``."""
+    yf = y.reshape(y.size)
+    return yf, out.reshape((yf.shape[0], out.shape[-1]))
+
+
 @njit(cache=CACHE)
 def _first_nonfinite(y):
     for i in range(y.shape[0]):
@@ -127,6 +134,7 @@ def hosm_channel_step(x, y, params, m, x_new, out_row):
 
 @njit(cache=CACHE)
 def hosm_kernel(state, y, params, new_state, out):
+    y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
@@ -172,6 +180,7 @@ def sta_implicit_channel_step(x, y, params, x_new):
 
 @njit(cache=CACHE)
 def sta_implicit_kernel(state, y, params, new_state, out):
+    y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
@@ -227,6 +236,7 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
 
 @njit(cache=CACHE)
 def eigmap_kernel(state, y, params, new_state, out):
+    y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
@@ -242,6 +252,7 @@ def eigmap_kernel(state, y, params, new_state, out):
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE)
 def linear_kernel(state, y, params, new_state, out):
+    y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
@@ -327,6 +338,7 @@ def kalman_ca_channel_step(s, y, params, s_new):
 
 @njit(cache=CACHE)
 def kalman_ca_kernel(state, y, params, new_state, out):
+    y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
@@ -344,6 +356,7 @@ def kalman_ca_kernel(state, y, params, new_state, out):
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE)
 def finite_difference_kernel(state, y, params, new_state, out):
+    y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad

@@ -182,13 +182,12 @@ class Observer:
         state = self._state
         if state is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
-        if type(y) is not np.ndarray or y.dtype != np.float64:
-            y = self._as_measurement(y, "y")
+        if type(y) is not np.ndarray or y.dtype != np.float64 or not y.flags.c_contiguous:
+            y = np.ascontiguousarray(self._as_measurement(y, "y"))
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
         out = np.empty(self._estimate.shape)
-        m = self.order + 1
-        status = self._kernel(state, y.reshape(-1), self._params, self._scratch, out.reshape(-1, m))
+        status = self._kernel(state, y, self._params, self._scratch, out)
         if status != -1:
             self._raise_status(status, y)
         self._state, self._scratch = self._scratch, state
