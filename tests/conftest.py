@@ -1,0 +1,49 @@
+"""Shared test signal and helpers for the observer tests.
+
+The reference signal of the acceptance tests is :math:`f(t) = \\sin t + \\tfrac12\\cos 2t`, whose derivatives are
+known in closed form:
+
+.. math:: f^{(i)}(t) = \\sin(t + i\\pi/2) + \\tfrac12\\,2^i\\cos(2t + i\\pi/2),
+
+so :math:`|f^{(i)}| \\le 1 + 2^{i-1}`: ``|f''| <= 3``, ``|f'''| <= 5``, ``|f''''| <= 9``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+#: sup |f^(i)| of the reference signal, i = 0..5 (triangle inequality bound 1 + 2^(i-1))
+DERIVATIVE_BOUNDS = tuple(1.0 + 0.5 * 2.0**i for i in range(6))
+
+
+def signal_derivatives(t, n: int) -> np.ndarray:
+    """``(f, f', ..., f^(n-1))`` of ``f(t) = sin t + 0.5 cos 2t``; shape ``t.shape + (n,)``."""
+    t = np.asarray(t, dtype=float)
+    return np.stack(
+        [np.sin(t + i * np.pi / 2) + 0.5 * 2.0**i * np.cos(2 * t + i * np.pi / 2) for i in range(n)], axis=-1
+    )
+
+
+def signal(t) -> np.ndarray:
+    """``f(t) = sin t + 0.5 cos 2t``."""
+    return signal_derivatives(t, 1)[..., 0]
+
+
+def estimates_of(observer, Y: np.ndarray) -> np.ndarray:
+    """Reset ``observer`` at ``Y[0]`` and run it over ``Y``; returns all estimates ``(T, ..., order + 1)``.
+
+    Row ``t`` is the estimate at sample ``t`` (row 0 the reset estimate), as ``smo_gym.differentiate`` returns.
+    """
+    first = observer.reset(Y[0])
+    return np.concatenate([first[None], observer.run(Y[1:])], axis=0)
+
+
+def loglog_slope(x, y) -> float:
+    """Least-squares slope of ``log y`` against ``log x``."""
+    return float(np.polyfit(np.log(np.asarray(x, float)), np.log(np.asarray(y, float)), 1)[0])
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(20260522)
