@@ -1,0 +1,710 @@
+r"""Composable measurement models for joint positions.
+
+A sensor maps the true signal ``y`` (joint positions, shape ``(..., n_channels)``) to what a real controller
+reads. Models are *stages* applied in order; ``stage_a | stage_b`` (or :class:`Chain`) composes them:
+
+==================  =========================================================================================
+:class:`GaussianNoise`   :math:`x \leftarrow x + \sigma\,n_k,\ n_k \sim \mathcal N(0, 1)`
+:class:`UniformNoise`    :math:`x \leftarrow x + b\,u_k,\ u_k \sim \mathcal U(-1, 1)` (bounded noise, the SMO setting)
+:class:`Quantization`    :math:`x \leftarrow \Delta\,\lfloor x/\Delta + 1/2\rfloor` (an encoder's counts)
+:class:`Bias`            :math:`x \leftarrow x + b`, ``b`` fixed or drawn once per episode from :math:`\mathcal N(0, s^2)`
+:class:`Drift`           :math:`d_k = d_{k-1} + \sigma_d\sqrt{\tau}\,n_k,\ x \leftarrow x + d_k` (random walk)
+:class:`Delay`           :math:`x_k \leftarrow x_{k-d}` (``d`` samples of transport delay)
+:class:`Dropout`         with probability ``p`` the sample is lost and the last output is held
+:class:`Outliers`        with probability ``p`` a channel gets a gross error :math:`s\,n_k`
+==================  =========================================================================================
+
+Every chain runs as **one compiled call per sample** (:func:`_chain_kernel`): the stages are packed into integer
+codes and per-channel parameter rows, and the random numbers come from blocks pre-drawn from the sensor's own
+``numpy.random.Generator`` (one NumPy call per ``BLOCK`` samples). Each stage consumes exactly one standard normal
+and one uniform per channel and sample whether it needs them or not, so the stream, and therefore the
+measurements, depend only on the seed and the chain, not on how samples are batched (``measure`` sample by sample
+and ``run`` on a block give the same numbers).
+
+Channels may be angular (hinge joints, rotational tangent coordinates; radians) or linear (slide joints,
+translations; metres): :meth:`Sensor.reset` takes an ``angular`` mask and :class:`Quantization` a resolution for
+each kind. Encoder resolutions come from counts per revolution, ``2 pi / counts`` rad; a linear axis is modelled
+as the same encoder on a drive of ``linear_travel`` metres per revolution (default 1 cm per radian, i.e.
+``2 pi * 0.01`` m per revolution), so its resolution is ``linear_travel / counts`` m.
+
+A non-finite output (from a non-finite true signal or a model) is never returned: :meth:`Sensor.measure` raises
+``ValueError`` naming the channel.
+
+Named presets (:data:`PRESETS`, :func:`make_sensor`): ``"ideal"``, ``"encoder-12bit"``, ``"encoder-12bit-noisy"``,
+``"encoder-16bit"``, ``"low-cost"`` (noise, 10-bit, 2-sample delay, 2 % dropouts), ``"drifting"`` (bias and random
+walk), ``"outliers"`` (noisy 12-bit encoder with rare gross errors).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numba import njit
+
+from ._validation import check_int_in_range
+
+__all__ = [
+    "BLOCK",
+    "PRESETS",
+    "Bias",
+    "Chain",
+    "Delay",
+    "Drift",
+    "Dropout",
+    "Encoder",
+    "GaussianNoise",
+    "Outliers",
+    "Quantization",
+    "Sensor",
+    "Stage",
+    "UniformNoise",
+    "make_sensor",
+    "resolution_from_counts",
+]
+
+#: samples of random numbers drawn per refill
+BLOCK = 256
+#: metres per revolution of the drive a linear axis' encoder is assumed to sit on (1 cm per radian)
+LINEAR_TRAVEL = 2.0 * np.pi * 0.01
+
+_GAUSS, _UNIFORM, _QUANT, _BIAS, _DRIFT, _DELAY, _DROPOUT, _OUTLIER = range(8)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# compiled chain
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _chain_kernel(y, kinds, params, state, ring, ring_pos, rand, prime, out):
+    """Apply the stages ``kinds`` to one sample ``y`` (N,), writing ``out`` (N,).
+
+    ``params`` (S, 2, N) per-stage, per-channel parameters; ``state`` (S, N) bias / drift value / last output;
+    ``ring`` (S, K, N) delay lines with write positions ``ring_pos`` (S,); ``rand`` (2, S, N) this sample's
+    standard normals (``rand[0]``) and uniforms on [0, 1) (``rand[1]``). ``prime`` (reset): delay lines are filled with the current value and nothing is
+    dropped or corrupted. Returns -1, or the first channel whose output is not finite.
+    """
+    n = y.shape[0]
+    normals = rand[0]
+    uniforms = rand[1]
+    for j in range(n):
+        out[j] = y[j]
+    for s in range(kinds.shape[0]):
+        k = kinds[s]
+        if k == _GAUSS:
+            for j in range(n):
+                out[j] += params[s, 0, j] * normals[s, j]
+        elif k == _UNIFORM:
+            for j in range(n):
+                out[j] += params[s, 0, j] * (2.0 * uniforms[s, j] - 1.0)
+        elif k == _QUANT:
+            for j in range(n):
+                r = params[s, 0, j]
+                if r > 0.0:
+                    out[j] = r * np.floor(out[j] / r + 0.5)
+        elif k == _BIAS:
+            for j in range(n):
+                out[j] += state[s, j]
+        elif k == _DRIFT:
+            for j in range(n):
+                if not prime:
+                    state[s, j] += params[s, 0, j] * normals[s, j]
+                out[j] += state[s, j]
+        elif k == _DELAY:
+            K = ring.shape[1]
+            d = int(params[s, 0, 0])
+            pos = ring_pos[s]
+            for j in range(n):
+                if prime:
+                    for i in range(K):
+                        ring[s, i, j] = out[j]
+                else:
+                    ring[s, pos, j] = out[j]
+                    out[j] = ring[s, (pos - d + K) % K, j]
+            ring_pos[s] = (pos + 1) % K
+        elif k == _DROPOUT:
+            p = params[s, 0, 0]
+            per_channel = params[s, 1, 0] > 0.0
+            lost_all = (not prime) and uniforms[s, 0] < p
+            for j in range(n):
+                lost = (uniforms[s, j] < p) if per_channel else lost_all
+                if lost and not prime:
+                    out[j] = state[s, j]
+                else:
+                    state[s, j] = out[j]
+        elif k == _OUTLIER:
+            if not prime:
+                for j in range(n):
+                    if uniforms[s, j] < params[s, 0, j]:
+                        out[j] += params[s, 1, j] * normals[s, j]
+    for j in range(n):
+        if not np.isfinite(out[j]):
+            return j
+    return -1
+
+
+@njit(cache=True)
+def _chain_run(Y, kinds, params, state, ring, ring_pos, rand, t0, out):
+    """:func:`_chain_kernel` over the rows of ``Y`` (T, N), random numbers from ``rand[t0 + t]``.
+
+    Returns ``(status, t)`` with ``t`` the failing row (or T).
+    """
+    for t in range(Y.shape[0]):
+        status = _chain_kernel(Y[t], kinds, params, state, ring, ring_pos, rand[t0 + t], False, out[t])
+        if status != -1:
+            return status, t
+    return -1, Y.shape[0]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# checks
+# ----------------------------------------------------------------------------------------------------------------
+def _nonneg(name: str, value) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"expected {name} to be a number or an array of numbers, actual value: {value!r}") from None
+    if np.any(~np.isfinite(arr) | (arr < 0.0)):
+        raise ValueError(f"expected {name} >= 0 and finite everywhere, actual value: {value!r}")
+    return arr
+
+
+def _probability(name: str, value) -> float:
+    arr = _nonneg(name, value)
+    if arr.ndim != 0 or float(arr) > 1.0:
+        raise ValueError(f"expected {name} to be a probability in [0, 1], actual value: {value!r}")
+    return float(arr)
+
+
+def _per_channel(name: str, value: np.ndarray, n: int) -> np.ndarray:
+    try:
+        return np.broadcast_to(value, (n,)).astype(np.float64)
+    except ValueError:
+        raise ValueError(
+            f"expected {name} to be a scalar or to have one entry per channel ({n}), actual value: shape "
+            f"{np.shape(value)}"
+        ) from None
+
+
+def resolution_from_counts(counts_per_revolution: int) -> float:
+    """Angular resolution ``2 pi / counts`` [rad] of an encoder with ``counts_per_revolution`` counts."""
+    counts = check_int_in_range("counts_per_revolution", counts_per_revolution, 2, 2**40)
+    return 2.0 * np.pi / counts
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the sensor: a chain of stages, run by the compiled kernel
+# ----------------------------------------------------------------------------------------------------------------
+class Sensor:
+    """Base of every sensor model: a sequence of :class:`Stage` objects run by one compiled call per sample.
+
+    Life cycle: ``reset(y0, seed=...)`` returns the first measurement and must come first; ``measure(y)``
+    (or calling the sensor) processes one sample; ``run(Y)`` a block of samples ``(T, ...)``.
+
+    Attributes
+    ----------
+    stages : tuple of Stage
+        The models, applied in order.
+    """
+
+    @property
+    def stages(self) -> tuple[Stage, ...]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __or__(self, other: Sensor) -> Chain:
+        if not isinstance(other, Sensor):
+            return NotImplemented
+        return Chain(*self.stages, *other.stages)
+
+    # ---- derived numbers ------------------------------------------------------------------------------------
+    def error_std(self, n_channels: int, angular=None) -> np.ndarray:
+        r"""Standard deviation of the zero-mean random error per channel, shape ``(n_channels,)``.
+
+        :math:`\sqrt{\sum \sigma^2 + \sum b^2/3 + \sum \Delta^2/12}` over the Gaussian, uniform and quantization
+        stages (bias, drift, delay, dropouts and outliers excluded). Used to tune the observers' gains.
+        """
+        angular = self._angular(n_channels, angular)
+        var = np.zeros(n_channels)
+        for stage in self.stages:
+            var += stage._variance(n_channels, angular)
+        return np.sqrt(var)
+
+    @staticmethod
+    def _angular(n: int, angular) -> np.ndarray:
+        if angular is None:
+            return np.ones(n, dtype=bool)
+        a = np.asarray(angular, dtype=bool).reshape(-1)
+        if a.shape != (n,):
+            raise ValueError(f"expected angular with one entry per channel ({n}), actual value: shape {a.shape}")
+        return a
+
+    # ---- life cycle -----------------------------------------------------------------------------------------
+    def reset(self, y0, *, seed=None, rng: np.random.Generator | None = None, dt: float = 1.0,
+              angular=None) -> np.ndarray:
+        """Start the sensor at the true signal ``y0`` and return the first measurement.
+
+        Parameters
+        ----------
+        y0 : array_like, shape (..., n_channels)
+            True signal at the first sample.
+        seed : int or SeedSequence, optional
+            Seed of the sensor's own random stream (``numpy.random.default_rng(seed)``); ignored if ``rng`` is
+            given. A vector env gives each environment its own seed, hence its own stream.
+        rng : numpy.random.Generator, optional
+            Use this generator (kept and advanced by the sensor).
+        dt : float
+            Sampling step [s] (scales the random walk of :class:`Drift`).
+        angular : array_like of bool, shape (..., n_channels), optional
+            Which channels are angles (radians); the others are lengths (metres). Default: all angular.
+
+        Returns
+        -------
+        ndarray, shape (..., n_channels)
+            The first measurement: quantized, biased and noisy, but never delayed, dropped or an outlier.
+        """
+        y0 = np.array(y0, dtype=np.float64)
+        if y0.ndim == 0:
+            raise ValueError(f"expected y0 with shape (..., n_channels), actual value: a scalar {float(y0)!r}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"expected dt > 0, actual value: {dt!r}")
+        self._shape = y0.shape
+        n = y0.size
+        self._rng = rng if rng is not None else np.random.default_rng(seed)
+        angular = self._angular(n, None if angular is None else np.broadcast_to(angular, y0.shape))
+        stages = self.stages
+        S = len(stages)
+        self._kinds = np.array([st._kind for st in stages], dtype=np.int64)
+        self._params = np.zeros((S, 2, n))
+        self._state = np.zeros((S, n))
+        K = 1 + max([st.samples for st in stages if isinstance(st, Delay)], default=0)
+        self._ring = np.zeros((S, K, n))
+        self._ring_pos = np.zeros(S, dtype=np.int64)
+        for s, st in enumerate(stages):
+            self._params[s] = st._pack(n, angular, dt)
+            self._state[s] = st._initial_state(n, self._rng)
+        self._size = n
+        self._rand = np.zeros((BLOCK, 2, S, n))
+        self._refill()
+        out = np.empty(n)
+        status = _chain_kernel(y0.reshape(-1), self._kinds, self._params, self._state, self._ring, self._ring_pos,
+                               self._rand[0], True, out)
+        self._t = 1
+        if status != -1:
+            self._raise(status, y0.reshape(-1), out)
+        return out.reshape(self._shape)
+
+    def _refill(self) -> None:
+        S, n = self._state.shape
+        if S:
+            self._rand[:, 0] = self._rng.standard_normal((BLOCK, S, n))
+            self._rand[:, 1] = self._rng.random((BLOCK, S, n))
+        self._t = 0
+
+    def _raise(self, channel: int, y: np.ndarray, out: np.ndarray):
+        index = np.unravel_index(channel, self._shape)
+        where = f"channel {index[-1]}" + (f" of batch element {tuple(int(i) for i in index[:-1])}"
+                                          if len(index) > 1 else "")
+        source = "the true signal" if not np.isfinite(y[channel]) else f"the sensor model {self!r}"
+        raise ValueError(
+            f"expected a finite measurement, actual value: {out[channel]!r} at {where}, produced by {source}; "
+            "a non-finite measurement is never passed on"
+        )
+
+    def _check_ready(self, y) -> np.ndarray:
+        if getattr(self, "_kinds", None) is None:
+            raise RuntimeError("expected reset(y0) before measure(y), actual value: the sensor was never reset")
+        if type(y) is not np.ndarray or y.dtype != np.float64 or not y.flags.c_contiguous:
+            y = np.ascontiguousarray(y, dtype=np.float64)
+        return y
+
+    def measure(self, y) -> np.ndarray:
+        """Measure one sample of the true signal ``y`` (shape as at ``reset``); returns a new array."""
+        y = self._check_ready(y)
+        if y.shape != self._shape:
+            raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
+        t = self._t
+        if t >= BLOCK:
+            self._refill()
+            t = 0
+        out = np.empty(self._size)
+        yf = y if y.ndim == 1 else y.reshape(-1)
+        status = _chain_kernel(yf, self._kinds, self._params, self._state, self._ring, self._ring_pos,
+                               self._rand[t], False, out)
+        self._t = t + 1
+        if status != -1:
+            self._raise(status, yf, out)
+        return out if y.ndim == 1 else out.reshape(self._shape)
+
+    __call__ = measure
+
+    def run(self, Y) -> np.ndarray:
+        """Measure a block ``Y`` of shape ``(T, ...)``, continuing the stream; equal to ``measure`` row by row."""
+        Y = self._check_ready(Y)
+        if Y.shape[1:] != self._shape:
+            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        T = Y.shape[0]
+        Yf = Y.reshape(T, -1)
+        out = np.empty_like(Yf)
+        done = 0
+        while done < T:
+            if self._t >= BLOCK:
+                self._refill()
+            m = min(T - done, BLOCK - self._t)
+            status, t = _chain_run(Yf[done:done + m], self._kinds, self._params, self._state, self._ring,
+                                   self._ring_pos, self._rand, self._t, out[done:done + m])
+            self._t += m
+            if status != -1:
+                self._raise(status, Yf[done + t], out[done + t])
+            done += m
+        return out.reshape(Y.shape)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({', '.join(map(repr, self.stages))})"
+
+
+class Stage(Sensor):
+    """One measurement model; also a complete :class:`Sensor` on its own."""
+
+    _kind: int = -1
+
+    @property
+    def stages(self) -> tuple[Stage, ...]:
+        return (self,)
+
+    def _pack(self, n: int, angular: np.ndarray, dt: float) -> np.ndarray:
+        """Parameter rows ``(2, n)`` for ``n`` channels."""
+        return np.zeros((2, n))
+
+    def _initial_state(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        return np.zeros(n)
+
+    def _variance(self, n: int, angular: np.ndarray) -> np.ndarray:
+        return np.zeros(n)
+
+    def _fields(self) -> dict:
+        return {}
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self._fields().items())
+        return f"{type(self).__name__}({args})"
+
+    def __eq__(self, other) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        a, b = self._fields(), other._fields()
+        return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+    __hash__ = None  # mutable (the stream lives in the object)
+
+
+class GaussianNoise(Stage):
+    r"""Additive white Gaussian noise, :math:`x \leftarrow x + \sigma n_k`.
+
+    Parameters
+    ----------
+    std : float or array_like, shape (n_channels,)
+        :math:`\sigma \ge 0` in the channel's unit (rad or m).
+    """
+
+    _kind = _GAUSS
+
+    def __init__(self, std):
+        self.std = _nonneg("std", std)
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = _per_channel("std", self.std, n)
+        return p
+
+    def _variance(self, n, angular):
+        return _per_channel("std", self.std, n) ** 2
+
+    def _fields(self):
+        return {"std": self.std}
+
+
+class UniformNoise(Stage):
+    r"""Bounded additive noise, :math:`x \leftarrow x + b u_k,\ u_k \sim \mathcal U(-1, 1)`.
+
+    The noise model of the sliding-mode literature (``|noise| <= b``): accuracy bounds there are stated for it.
+    """
+
+    _kind = _UNIFORM
+
+    def __init__(self, bound):
+        self.bound = _nonneg("bound", bound)
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = _per_channel("bound", self.bound, n)
+        return p
+
+    def _variance(self, n, angular):
+        return _per_channel("bound", self.bound, n) ** 2 / 3.0
+
+    def _fields(self):
+        return {"bound": self.bound}
+
+
+class Quantization(Stage):
+    r"""Round to the nearest multiple of the resolution, :math:`x \leftarrow \Delta\lfloor x/\Delta + 1/2\rfloor`.
+
+    The error is in :math:`[-\Delta/2, \Delta/2]`, uniform for a moving signal (variance :math:`\Delta^2/12`).
+
+    Parameters
+    ----------
+    resolution : float or array_like
+        :math:`\Delta` [rad] of angular channels (hinges); 0 disables.
+    linear_resolution : float or array_like, optional
+        :math:`\Delta` [m] of linear channels (slides, translations); default
+        ``resolution * LINEAR_TRAVEL / (2 pi)``, the same encoder on a drive of 1 cm per radian.
+    """
+
+    _kind = _QUANT
+
+    def __init__(self, resolution, linear_resolution=None):
+        self.resolution = _nonneg("resolution", resolution)
+        self.linear_resolution = None if linear_resolution is None else _nonneg("linear_resolution",
+                                                                                  linear_resolution)
+
+    @classmethod
+    def from_counts(cls, counts_per_revolution: int, linear_travel: float = LINEAR_TRAVEL) -> Quantization:
+        """An encoder of ``counts_per_revolution``: ``2 pi / counts`` rad, ``linear_travel / counts`` m."""
+        res = resolution_from_counts(counts_per_revolution)
+        return cls(res, linear_resolution=float(_nonneg("linear_travel", linear_travel)) / counts_per_revolution)
+
+    def _resolutions(self, n, angular):
+        ang = _per_channel("resolution", self.resolution, n)
+        lin = (ang * LINEAR_TRAVEL / (2.0 * np.pi) if self.linear_resolution is None
+               else _per_channel("linear_resolution", self.linear_resolution, n))
+        return np.where(angular, ang, lin)
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = self._resolutions(n, angular)
+        return p
+
+    def _variance(self, n, angular):
+        return self._resolutions(n, angular) ** 2 / 12.0
+
+    def _fields(self):
+        return {"resolution": self.resolution, "linear_resolution": self.linear_resolution}
+
+
+class Bias(Stage):
+    r"""Constant offset :math:`x \leftarrow x + b`.
+
+    Parameters
+    ----------
+    value : float or array_like
+        Fixed offset (default 0).
+    std : float or array_like
+        If positive, a random offset :math:`\mathcal N(0, \mathrm{std}^2)` is added, drawn once at every
+        ``reset`` (a calibration error that changes between episodes).
+    """
+
+    _kind = _BIAS
+
+    def __init__(self, value=0.0, std=0.0):
+        try:
+            self.value = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TypeError(f"expected value to be a number or an array of numbers, actual value: {value!r}") from None
+        if not np.all(np.isfinite(self.value)):
+            raise ValueError(f"expected a finite bias value, actual value: {value!r}")
+        self.std = _nonneg("std", std)
+
+    def _initial_state(self, n, rng):
+        b = _per_channel("value", self.value, n).copy()
+        std = _per_channel("std", self.std, n)
+        if np.any(std > 0):
+            b += std * rng.standard_normal(n)
+        return b
+
+    def _fields(self):
+        return {"value": self.value, "std": self.std}
+
+
+class Drift(Stage):
+    r"""Random-walk drift :math:`d_k = d_{k-1} + \sigma_d\sqrt{\tau}\,n_k`, :math:`x \leftarrow x + d_k`.
+
+    Parameters
+    ----------
+    rate_std : float or array_like
+        :math:`\sigma_d` [unit / sqrt(s)]: after ``t`` seconds the drift has standard deviation
+        :math:`\sigma_d\sqrt t` whatever the sampling step ``tau`` (given to ``reset`` as ``dt``).
+    """
+
+    _kind = _DRIFT
+
+    def __init__(self, rate_std):
+        self.rate_std = _nonneg("rate_std", rate_std)
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = _per_channel("rate_std", self.rate_std, n) * np.sqrt(dt)
+        return p
+
+    def _fields(self):
+        return {"rate_std": self.rate_std}
+
+
+class Delay(Stage):
+    """Transport delay of ``samples`` samples: :math:`x_k \\leftarrow x_{k-d}`; before that, the first value."""
+
+    _kind = _DELAY
+
+    def __init__(self, samples: int):
+        self.samples = check_int_in_range("samples", samples, 0, 10_000)
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = self.samples
+        return p
+
+    def _fields(self):
+        return {"samples": self.samples}
+
+
+class Dropout(Stage):
+    """Lost samples: with probability ``probability`` the output holds its last value.
+
+    Parameters
+    ----------
+    probability : float
+        Per sample (``per_channel=False``: the whole packet is lost, as on a field bus) or per channel.
+    per_channel : bool
+    """
+
+    _kind = _DROPOUT
+
+    def __init__(self, probability: float, per_channel: bool = False):
+        self.probability = _probability("probability", probability)
+        self.per_channel = bool(per_channel)
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = self.probability
+        p[1] = 1.0 if self.per_channel else 0.0
+        return p
+
+    def _fields(self):
+        return {"probability": self.probability, "per_channel": self.per_channel}
+
+
+class Outliers(Stage):
+    r"""Rare gross errors: with probability ``p`` per channel and sample, :math:`x \leftarrow x + s\,n_k`."""
+
+    _kind = _OUTLIER
+
+    def __init__(self, probability: float, scale):
+        self.probability = _probability("probability", probability)
+        self.scale = _nonneg("scale", scale)
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = self.probability
+        p[1] = _per_channel("scale", self.scale, n)
+        return p
+
+    def _fields(self):
+        return {"probability": self.probability, "scale": self.scale}
+
+
+class Chain(Sensor):
+    """Stages applied in order (``Chain(a, b)`` is ``a | b``); ``Chain()`` is the ideal sensor."""
+
+    def __init__(self, *stages: Sensor):
+        flat: list[Stage] = []
+        for st in stages:
+            if not isinstance(st, Sensor):
+                raise TypeError(f"expected sensor stages (smo_gym.sensors.Stage), actual value: {st!r}")
+            flat.extend(st.stages)
+        self._stages = tuple(flat)
+
+    @property
+    def stages(self) -> tuple[Stage, ...]:
+        return self._stages
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Chain):
+            return NotImplemented
+        return self.stages == other.stages
+
+    __hash__ = None
+
+
+class Encoder(Chain):
+    r"""An incremental encoder: optional electrical/interpolation noise, then quantization to counts.
+
+    .. math:: y_k = \Delta\,\lfloor (x_k + \sigma n_k)/\Delta + 1/2 \rfloor
+
+    The noise acts *before* the counter, so the output always lies on the encoder's grid, as real counts do.
+
+    Parameters
+    ----------
+    resolution : float, optional
+        :math:`\Delta` [rad]; give this or ``counts_per_revolution``.
+    noise_std : float
+        :math:`\sigma` [rad] (scaled by the linear/angular resolution ratio on linear channels).
+    counts_per_revolution : int, optional
+        Sets ``resolution = 2 pi / counts``.
+    linear_resolution : float, optional
+        Resolution of linear channels [m]; default the same encoder on a drive of 1 cm per radian.
+    """
+
+    def __init__(self, resolution=None, noise_std=0.0, *, counts_per_revolution: int | None = None,
+                 linear_resolution=None):
+        if (resolution is None) == (counts_per_revolution is None):
+            raise ValueError(
+                "expected exactly one of resolution and counts_per_revolution, actual value: "
+                f"resolution={resolution!r}, counts_per_revolution={counts_per_revolution!r}"
+            )
+        if resolution is None:
+            resolution = resolution_from_counts(counts_per_revolution)
+        self.resolution, self.noise_std = resolution, noise_std
+        self.counts_per_revolution, self.linear_resolution = counts_per_revolution, linear_resolution
+        stages: list[Stage] = []
+        if np.any(_nonneg("noise_std", noise_std) > 0):
+            stages.append(GaussianNoise(noise_std))
+        stages.append(Quantization(resolution, linear_resolution))
+        super().__init__(*stages)
+
+    def __repr__(self) -> str:
+        return f"Encoder(resolution={self.resolution!r}, noise_std={self.noise_std!r})"
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# presets
+# ----------------------------------------------------------------------------------------------------------------
+#: name -> factory of a fresh sensor (each call gives an independent object with its own stream)
+PRESETS: dict[str, Callable[[], Sensor]] = {
+    "ideal": lambda: Chain(),
+    "encoder-12bit": lambda: Encoder(counts_per_revolution=4096),
+    "encoder-12bit-noisy": lambda: Encoder(counts_per_revolution=4096, noise_std=1e-3),
+    "encoder-16bit": lambda: Encoder(counts_per_revolution=65536),
+    "low-cost": lambda: Chain(GaussianNoise(3e-3), Quantization.from_counts(1024), Delay(2), Dropout(0.02)),
+    "drifting": lambda: Chain(Bias(std=5e-3), Drift(2e-3), Encoder(counts_per_revolution=4096, noise_std=1e-3)),
+    "outliers": lambda: Chain(Encoder(counts_per_revolution=4096, noise_std=1e-3), Outliers(1e-3, 0.1)),
+}
+PRESET_DESCRIPTIONS = {
+    "ideal": "exact positions",
+    "encoder-12bit": "4096 counts/rev (1.5e-3 rad)",
+    "encoder-12bit-noisy": "4096 counts/rev with 1e-3 rad Gaussian noise before the counter",
+    "encoder-16bit": "65536 counts/rev (9.6e-5 rad)",
+    "low-cost": "3e-3 rad noise, 10-bit, 2-sample delay, 2% lost packets (held)",
+    "drifting": "per-episode bias (5e-3), random walk 2e-3/sqrt(s), noisy 12-bit encoder",
+    "outliers": "noisy 12-bit encoder with 0.1 % gross errors of 0.1 rad",
+}
+
+
+def make_sensor(sensor: str | Sensor) -> Sensor:
+    """A sensor from a preset name of :data:`PRESETS`, or ``sensor`` itself if it already is one."""
+    if isinstance(sensor, Sensor):
+        return sensor
+    try:
+        return PRESETS[sensor]()
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"expected a sensor preset in {', '.join(sorted(PRESETS))} or a smo_gym.sensors.Sensor, "
+            f"actual value: {sensor!r}"
+        ) from None

@@ -1,0 +1,204 @@
+"""Sensor models: each stage's statistics, composition, seeding and the NaN guard.
+
+Statistical checks use sample sizes whose sampling error is far below the tolerance (stated at each test), with
+fixed seeds, so they are deterministic and would fail on a wrong scale, sign or distribution.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from smo_gym import sensors
+from smo_gym.sensors import (
+    Bias,
+    Chain,
+    Delay,
+    Drift,
+    Dropout,
+    Encoder,
+    GaussianNoise,
+    Outliers,
+    Quantization,
+    UniformNoise,
+    make_sensor,
+)
+
+
+def ramp(T: int, n: int, seed: int = 0) -> np.ndarray:
+    """A moving signal (T, n): smooth random walk, so quantization errors are spread over the cell."""
+    rng = np.random.default_rng(seed)
+    return np.cumsum(rng.uniform(0.0, 1e-2, size=(T, n)), axis=0)
+
+
+def measure_all(sensor, Y, seed=0, **kwargs) -> np.ndarray:
+    first = sensor.reset(Y[0], seed=seed, **kwargs)
+    return np.concatenate([first[None], sensor.run(Y[1:])], axis=0)
+
+
+def test_ideal_is_identity():
+    Y = ramp(300, 5)
+    assert np.array_equal(measure_all(make_sensor("ideal"), Y), Y)
+
+
+def test_gaussian_noise_std():
+    # 40000 samples: the sample std has relative standard error 1/sqrt(2N) = 0.35 %, tolerance 3 %
+    Y = ramp(20000, 2)
+    err = measure_all(GaussianNoise([1e-3, 5e-3]), Y) - Y
+    np.testing.assert_allclose(err.std(axis=0), [1e-3, 5e-3], rtol=0.03)
+    assert np.all(np.abs(err.mean(axis=0)) < 4 * np.array([1e-3, 5e-3]) / np.sqrt(20000))
+
+
+def test_uniform_noise_is_bounded_with_variance_b2_over_3():
+    Y = ramp(20000, 3)
+    err = measure_all(UniformNoise(2e-3), Y) - Y
+    assert np.max(np.abs(err)) <= 2e-3
+    np.testing.assert_allclose(err.std(axis=0), 2e-3 / np.sqrt(3), rtol=0.03)
+
+
+def test_quantization_grid_and_error_bound_per_joint_kind():
+    res, lin = 2 * np.pi / 4096, 1e-5
+    Y = ramp(5000, 2)
+    out = measure_all(Quantization(res, linear_resolution=lin), Y, angular=[True, False])
+    steps = out / np.array([res, lin])
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)
+    err = out - Y
+    assert np.all(np.abs(err[:, 0]) <= res / 2 + 1e-15) and np.all(np.abs(err[:, 1]) <= lin / 2 + 1e-15)
+    np.testing.assert_allclose(err[:, 0].std(), res / np.sqrt(12), rtol=0.05)
+
+
+def test_encoder_presets_from_counts():
+    enc = Encoder(counts_per_revolution=4096)
+    assert enc.resolution == 2 * np.pi / 4096
+    assert make_sensor("encoder-12bit") == enc
+    assert make_sensor("encoder-12bit-noisy") == Encoder(resolution=2 * np.pi / 4096, noise_std=1e-3)
+    # linear channels: the same encoder on a drive of 1 cm per radian
+    q = Quantization.from_counts(4096)
+    assert np.isclose(q.linear_resolution, 2 * np.pi * 0.01 / 4096)
+    with pytest.raises(ValueError, match="exactly one of resolution and counts_per_revolution"):
+        Encoder()
+
+
+def test_noisy_encoder_output_on_grid_and_error_std():
+    Y = ramp(20000, 2)
+    sensor = make_sensor("encoder-12bit-noisy")
+    out = measure_all(sensor, Y)
+    res = 2 * np.pi / 4096
+    np.testing.assert_allclose(out / res, np.round(out / res), atol=1e-6)
+    # noise before the counter: error variance sigma^2 + res^2/12 (error_std), within 5 %
+    np.testing.assert_allclose((out - Y).std(axis=0), sensor.error_std(2), rtol=0.05)
+
+
+def test_bias_fixed_and_per_episode():
+    Y = ramp(100, 3)
+    np.testing.assert_allclose(measure_all(Bias([0.1, -0.2, 0.0]), Y) - Y, np.broadcast_to([0.1, -0.2, 0.0], Y.shape),
+                               atol=1e-12)
+    s = Bias(std=0.01)
+    e1 = measure_all(s, Y, seed=1) - Y
+    e2 = measure_all(s, Y, seed=2) - Y
+    assert np.allclose(e1, e1[0], atol=1e-12)  # constant within an episode
+    assert not np.allclose(e1[0], e2[0])  # redrawn at reset
+
+
+def test_drift_is_a_random_walk_with_sqrt_time_growth():
+    # 4000 independent channels: std of the drift after t seconds is sigma*sqrt(t); sample error ~1.1 %, tol 5 %
+    dt, sigma = 1e-3, 2e-3
+    Y = np.zeros((1001, 4000))
+    err = measure_all(Drift(sigma), Y, dt=dt)
+    np.testing.assert_allclose(err[1000].std(), sigma * np.sqrt(1.0), rtol=0.05)
+    np.testing.assert_allclose(err[250].std(), sigma * np.sqrt(0.25), rtol=0.05)
+
+
+def test_delay_shifts_by_k_samples():
+    Y = ramp(50, 2)
+    out = measure_all(Delay(3), Y)
+    np.testing.assert_array_equal(out[3:], Y[:-3])
+    np.testing.assert_array_equal(out[:3], np.broadcast_to(Y[0], (3, 2)))
+
+
+@pytest.mark.parametrize("per_channel", [False, True])
+def test_dropout_holds_last_value_at_rate_p(per_channel):
+    # 20000 samples x 4 channels at p = 0.1: the held fraction has standard error <= 0.2 %, tolerance 1 %
+    Y = ramp(20000, 4)
+    out = measure_all(Dropout(0.1, per_channel=per_channel), Y)
+    held = out[1:] == out[:-1]
+    fresh = out[1:] == Y[1:]
+    assert np.all(held | fresh)  # every output is either new or the previous one
+    assert abs(held.mean() - 0.1) < 0.01
+    if not per_channel:
+        assert np.all(held == held[:, :1])  # a lost packet freezes every channel
+    else:
+        assert not np.all(held == held[:, :1])
+
+
+def test_outliers_rate_and_scale():
+    Y = ramp(50000, 2)
+    err = measure_all(Outliers(0.01, 1.0), Y) - Y
+    gross = err != 0.0
+    assert abs(gross.mean() - 0.01) < 0.002
+    np.testing.assert_allclose(err[gross].std(), 1.0, rtol=0.1)
+
+
+def test_composition_order_and_equivalences():
+    a, b = GaussianNoise(1e-3), Quantization(1e-2)
+    assert (a | b) == Chain(a, b) and len((a | b | Delay(1)).stages) == 3
+    Y = ramp(2000, 2)
+    noisy_then_quantized = measure_all(a | b, Y)
+    quantized_then_noisy = measure_all(b | a, Y)
+    assert np.allclose(noisy_then_quantized / 1e-2, np.round(noisy_then_quantized / 1e-2))
+    assert not np.allclose(quantized_then_noisy / 1e-2, np.round(quantized_then_noisy / 1e-2))
+
+
+def test_seeding_and_batching_independence():
+    Y = ramp(3 * sensors.BLOCK + 17, 5)
+    s = make_sensor("low-cost")
+    one = measure_all(s, Y, seed=7)
+    # the same seed gives the same stream; measure() sample by sample equals run() on blocks
+    s2 = make_sensor("low-cost")
+    first = s2.reset(Y[0], seed=7)
+    rows = np.array([first] + [s2.measure(y) for y in Y[1:]])
+    np.testing.assert_array_equal(one, rows)
+    assert not np.array_equal(one, measure_all(s, Y, seed=8))
+    # generators are independent objects: two sensors from one preset do not share a stream
+    assert make_sensor("low-cost") is not make_sensor("low-cost")
+
+
+def test_batch_shape_and_pickle():
+    Y = ramp(200, 6).reshape(200, 2, 3)
+    s = make_sensor("encoder-12bit-noisy")
+    s.reset(Y[0], seed=0)
+    s2 = pickle.loads(pickle.dumps(s))
+    np.testing.assert_array_equal(s.run(Y[1:]), s2.run(Y[1:]))
+    assert s.measure(Y[0]).shape == (2, 3)
+
+
+def test_every_preset_runs_and_unknown_names_are_listed():
+    Y = ramp(100, 3)
+    for name in sensors.PRESETS:
+        out = measure_all(make_sensor(name), Y, dt=1e-3)
+        assert out.shape == Y.shape and np.all(np.isfinite(out))
+    with pytest.raises(ValueError, match="encoder-12bit-noisy.*actual value: 'nope'"):
+        make_sensor("nope")
+
+
+def test_nan_never_passes_silently():
+    s = make_sensor("encoder-12bit")
+    s.reset(np.zeros(3), seed=0)
+    with pytest.raises(ValueError, match="finite measurement.*channel 1.*true signal"):
+        s.measure(np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match="finite measurement"):
+        s.run(np.array([[0.0, 0.0, np.inf]]))
+    # an overflowing model (huge outliers on a huge signal) is caught as well
+    wild = Outliers(1.0, 1e308) | GaussianNoise(1e308)
+    wild.reset(np.full(2, 1e308), seed=0)
+    with pytest.raises(ValueError, match="sensor model"):
+        for _ in range(50):
+            wild.measure(np.full(2, 1e308))
+    with pytest.raises(ValueError, match="std >= 0"):
+        GaussianNoise(np.nan)
+    with pytest.raises(ValueError, match="probability"):
+        Dropout(1.5)
+    with pytest.raises(RuntimeError, match="reset"):
+        make_sensor("ideal").measure(np.zeros(2))
