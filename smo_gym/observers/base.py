@@ -228,6 +228,8 @@ class Observer:
         """Process a recorded block ``Y`` of shape ``(T, ...)`` (continuing from the current state) in one call.
 
         Returns the estimates, shape ``(T, ..., order + 1)``. Uses the same compiled kernel as ``update``.
+        If a sample is not finite (``ValueError``) or the state diverges (``DivergenceError``), nothing is
+        committed: the observer keeps the state it had before the call, as ``update`` does.
         """
         if self._state is None:
             raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
@@ -239,10 +241,13 @@ class Observer:
         out = np.empty((T,) + self._estimate.shape)
         if T == 0:
             return out
-        status, t = _kernels.run_offline(self._kernel, self._state, Y.reshape(T, -1), self._params,
+        # all or nothing, like update(): the kernel loop advances a copy, committed only if every sample passed
+        state = self._state.copy()
+        status, t = _kernels.run_offline(self._kernel, state, Y.reshape(T, -1), self._params,
                                          out.reshape(T, -1, m))
         if status != -1:
             self._raise_status(status, Y[t])
+        self._state = state
         self._estimate = out[-1].copy()
         self.n_updates += T
         return out
