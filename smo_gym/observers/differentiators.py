@@ -36,12 +36,19 @@ from math import comb
 
 import numpy as np
 
-from .._validation import check_int_in_range, check_positive
+from .._validation import check_int_in_range, check_positive, check_positive_array
 from ..design.gains import MAX_LEVANT_ORDER, binomial_coefficients, levant_lambdas, super_twisting_gains
 from . import _kernels
 from .base import Observer
 
 __all__ = ["Levant", "SuperTwisting", "URED", "UniformLevant", "eigenvalue_mapping_vectors"]
+
+
+def _check_optional_positive(**values) -> None:
+    """Validate positive scalar-or-array parameters at construction (``None`` means "use the default")."""
+    for name, value in values.items():
+        if value is not None:
+            check_positive_array(name, value)
 
 
 def _pack_hosm(dt: float, taylor: bool, gains: np.ndarray, powers: np.ndarray) -> np.ndarray:
@@ -136,6 +143,7 @@ class SuperTwisting(Observer):
         super().__init__(dt, 1, discretization)
         if lipschitz is None and (k1 is None or k2 is None):
             raise ValueError("expected lipschitz > 0 or both k1 and k2, actual value: lipschitz=None")
+        _check_optional_positive(lipschitz=lipschitz, k1=k1, k2=k2)  # fail at construction, not at reset
         self.lipschitz, self.k1, self.k2 = lipschitz, k1, k2
 
     def _gains(self, shape):
@@ -252,6 +260,7 @@ class URED(Observer):
     def __init__(self, dt: float, lipschitz=1.0, *, k1=None, k2=None, beta: float = 1.0,
                  discretization: str | None = None):
         super().__init__(dt, 1, discretization)
+        _check_optional_positive(lipschitz=lipschitz, k1=k1, k2=k2)  # fail at construction, not at reset
         self.lipschitz, self.k1, self.k2 = lipschitz, k1, k2
         self.beta = check_positive("beta", beta)
 
@@ -313,6 +322,7 @@ class UniformLevant(Observer):
                  discretization: str | None = None):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
         super().__init__(dt, order, discretization)
+        _check_optional_positive(lipschitz=lipschitz)  # fail at construction, not at reset
         self.lipschitz = lipschitz
         self.alpha = check_positive("alpha", alpha)
         if k is not None:
