@@ -1,0 +1,425 @@
+"""The observer contract (issue 2): batching, masked resets, offline/online equivalence, pickling, bad input.
+
+Every property is checked for every configuration of ``CONFIGS`` (each observer of issue 2 in each of its
+discretizations), with per-channel Lipschitz arrays where the observer takes one.
+"""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import numpy as np
+import pytest
+
+import smo_gym
+from smo_gym import DivergenceError
+from smo_gym.observers import (
+    OBSERVERS,
+    URED,
+    FiniteDifference,
+    HighGain,
+    KalmanCA,
+    Levant,
+    SuperTwisting,
+    UniformLevant,
+    make_observer,
+)
+
+DT = 1e-3
+BATCH = (4, 7)
+N_STEPS = 300
+
+
+def lipschitz_array(shape=BATCH) -> np.ndarray:
+    """Distinct positive bounds per channel (so a mixed-up channel would show)."""
+    return 2.0 + np.arange(np.prod(shape), dtype=float).reshape(shape) * 0.37
+
+
+#: observer name -> list of (id, kwargs builder taking the per-channel lipschitz array or None)
+CONFIGS: dict[str, list[tuple[str, dict]]] = {
+    "super-twisting": [
+        ("implicit", dict(discretization="implicit")),
+        ("euler", dict(discretization="euler")),
+    ],
+    "levant": [
+        (f"k{k}-{d}", dict(order=k, discretization=d))
+        for k, d in [(1, "taylor"), (2, "taylor"), (3, "euler"), (2, "semi-implicit"), (3, "matching"),
+                     (5, "taylor")]
+    ],
+    "ured": [("euler", dict())],
+    "uniform-levant": [("k2-euler", dict(order=2)), ("k3-taylor", dict(order=3, discretization="taylor"))],
+    "high-gain": [("implicit", dict(gain=30.0, order=2)), ("euler", dict(gain=30.0, order=1, discretization="euler"))],
+    "finite-difference": [("order1", dict(order=1)), ("order2", dict(order=2))],
+    "kalman-ca": [("default", dict(process_noise=50.0, measurement_noise=1e-6))],
+}
+TAKES_LIPSCHITZ = {"super-twisting", "levant", "ured", "uniform-levant"}
+CASES = [pytest.param(name, kw, id=f"{name}-{cid}") for name, cfgs in CONFIGS.items() for cid, kw in cfgs]
+
+
+def build(name: str, kwargs: dict, lipschitz=None):
+    """Observer ``name`` with ``kwargs``, plus ``lipschitz`` if it takes one (default: the per-channel array)."""
+    params = dict(kwargs)
+    if name in TAKES_LIPSCHITZ:
+        params["lipschitz"] = lipschitz_array() if lipschitz is None else lipschitz
+    return make_observer(name, dt=DT, **params)
+
+
+def measurements(rng, T=N_STEPS, shape=BATCH) -> np.ndarray:
+    """``(T, *shape)`` smooth signals with random amplitude, frequency and phase per channel, plus small noise."""
+    t = np.arange(T)[:, None, None] * DT
+    a, w, p = (rng.uniform(0.5, 2.0, shape), rng.uniform(1.0, 8.0, shape), rng.uniform(0, 2 * np.pi, shape))
+    return a * np.sin(w * t + p) + 1e-4 * rng.standard_normal((T,) + shape)
+
+
+def update_loop(obs, Y) -> np.ndarray:
+    """Online: ``reset(Y[0])`` then ``update`` sample by sample; estimates ``(T, ..., order + 1)``."""
+    out = [obs.reset(Y[0])]
+    out += [obs.update(y) for y in Y[1:]]
+    return np.stack(out)
+
+
+def test_configs_cover_the_issue_2_observers():
+    """Every observer of issue 2 is registered, and every registered observer of issue 2 is in ``CONFIGS``."""
+    issue2 = {"super-twisting", "levant", "ured", "uniform-levant", "high-gain", "finite-difference", "kalman-ca"}
+    assert issue2 <= set(OBSERVERS)
+    assert set(CONFIGS) == issue2
+    for name, cfgs in CONFIGS.items():
+        used = {kw.get("discretization", OBSERVERS[name].discretizations[0]) for _, kw in cfgs}
+        assert used == set(OBSERVERS[name].discretizations), name
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# batching, masked reset, offline = online, pickling
+# ----------------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_batch_equals_per_channel_loop(name, kwargs, rng):
+    """A ``(4, 7)`` batch (per-channel ``L``) gives the same estimates as 28 scalar observers, to 1e-12."""
+    Y = measurements(rng)
+    L = lipschitz_array()
+    batch = update_loop(build(name, kwargs), Y)
+    assert batch.shape == (N_STEPS,) + BATCH + (build(name, kwargs).order + 1,)
+    for i in range(BATCH[0]):
+        for j in range(BATCH[1]):
+            single = build(name, kwargs, lipschitz=L[i, j])
+            first = single.reset(Y[0, i, j][None])
+            ref = np.concatenate([first[None], single.run(Y[1:, i, j][:, None])])[:, 0]
+            np.testing.assert_allclose(batch[:, i, j], ref, rtol=1e-12, atol=1e-12, err_msg=f"channel {(i, j)}")
+
+
+@pytest.mark.parametrize("mask_shape", [(4,), (4, 7)])
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_masked_reset_restarts_only_masked_rows(name, kwargs, mask_shape, rng):
+    """After ``reset(y, mask)`` masked rows behave as a fresh observer started at ``y``, the others as if nothing
+    happened (bit for bit: channels are independent)."""
+    Y = measurements(rng)
+    n1 = N_STEPS // 2
+    mask = rng.random(mask_shape) < 0.5
+    mask.flat[0], mask.flat[1] = True, False  # both kinds present
+    full_mask = np.broadcast_to(mask[..., None], BATCH) if mask.shape == (4,) else mask
+
+    obs, untouched, fresh = build(name, kwargs), build(name, kwargs), build(name, kwargs)
+    obs.reset(Y[0])
+    untouched.reset(Y[0])
+    obs.run(Y[1:n1])
+    untouched.run(Y[1:n1])
+    before = obs.estimate.copy()
+    returned = obs.reset(Y[n1], mask=mask)
+    fresh_first = fresh.reset(Y[n1])
+    np.testing.assert_array_equal(returned[full_mask], fresh_first[full_mask])
+    np.testing.assert_array_equal(returned[~full_mask], before[~full_mask])
+
+    got, ref_untouched, ref_fresh = obs.run(Y[n1 + 1:]), untouched.run(Y[n1 + 1:]), fresh.run(Y[n1 + 1:])
+    np.testing.assert_array_equal(got[:, full_mask], ref_fresh[:, full_mask])
+    np.testing.assert_array_equal(got[:, ~full_mask], ref_untouched[:, ~full_mask])
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_differentiate_equals_online_updates(name, kwargs, rng):
+    """``smo_gym.differentiate`` returns exactly what ``reset`` + ``update`` return online, for ``(T, 4, 7)`` and
+    ``(T,)`` input."""
+    Y = measurements(rng)
+    params = dict(kwargs)
+    if name in TAKES_LIPSCHITZ:
+        params["lipschitz"] = lipschitz_array()
+    offline = smo_gym.differentiate(Y, DT, method=name, **params)
+    np.testing.assert_array_equal(offline, update_loop(build(name, kwargs), Y))
+
+    if name in TAKES_LIPSCHITZ:
+        params["lipschitz"] = 3.0
+    single = smo_gym.differentiate(Y[:, 1, 2], DT, method=name, **params)
+    online = update_loop(build(name, kwargs, lipschitz=3.0), Y[:, 1, 2:3])[:, 0]
+    assert single.shape == (N_STEPS, online.shape[-1])
+    np.testing.assert_array_equal(single, online)
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_run_equals_repeated_update(name, kwargs, rng):
+    """``run`` over blocks, interleaved with ``update``, equals ``update`` alone; bookkeeping follows."""
+    Y = measurements(rng)
+    ref = update_loop(build(name, kwargs), Y)
+    obs = build(name, kwargs)
+    obs.reset(Y[0])
+    parts = [obs.run(Y[1:100]), obs.update(Y[100])[None], obs.run(Y[101:101]), obs.run(Y[101:])]
+    got = np.concatenate(parts)
+    np.testing.assert_array_equal(got, ref[1:])
+    assert obs.n_updates == N_STEPS - 1
+    np.testing.assert_array_equal(obs.estimate, ref[-1])
+    np.testing.assert_array_equal(obs.velocity, ref[-1, ..., 1])
+    assert obs.output_error.shape == BATCH
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_pure_step_matches_update(name, kwargs, rng):
+    """``step(state, y)`` is the pure form of ``update``: same new state and estimate, ``self`` untouched."""
+    Y = measurements(rng, T=20)
+    obs = build(name, kwargs)
+    obs.reset(Y[0])
+    obs.run(Y[1:10])
+    state = obs.state
+    new_state, est = obs.step(state, Y[10])
+    np.testing.assert_array_equal(obs.state, state)
+    np.testing.assert_array_equal(est.reshape(obs.estimate.shape), obs.update(Y[10]))
+    np.testing.assert_array_equal(new_state, obs.state)
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_pickle_round_trip_mid_run(name, kwargs, rng):
+    """A pickled (or deep-copied) observer continues exactly like the original."""
+    Y = measurements(rng)
+    obs = build(name, kwargs)
+    obs.reset(Y[0])
+    obs.run(Y[1:150])
+    clones = [pickle.loads(pickle.dumps(obs)), copy.deepcopy(obs)]
+    ref = obs.run(Y[150:])
+    for clone in clones:
+        assert clone.n_updates == 149
+        np.testing.assert_array_equal(clone.run(Y[150:]), ref)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# bad input
+# ----------------------------------------------------------------------------------------------------------------
+def assert_worded(excinfo):
+    """Typed errors say what was expected and what was received."""
+    msg = str(excinfo.value)
+    assert "expected" in msg and "actual value" in msg, msg
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_nonfinite_measurement_names_channel_and_keeps_state(name, kwargs, bad, rng):
+    """NaN/inf in ``y`` raises ``ValueError`` naming the channel (and batch element); nothing changes."""
+    Y = measurements(rng, T=20)
+    obs = build(name, kwargs)
+    obs.reset(Y[0])
+    obs.run(Y[1:10])
+    state, estimate, n = obs.state, obs.estimate.copy(), obs.n_updates
+    y = Y[10].copy()
+    y[2, 5] = bad
+    with pytest.raises(ValueError, match=r"channel 5 of batch element \(2,\)") as excinfo:
+        obs.update(y)
+    assert_worded(excinfo)
+    np.testing.assert_array_equal(obs.state, state)
+    np.testing.assert_array_equal(obs.estimate, estimate)
+    assert obs.n_updates == n
+    # the observer is still usable and continues as if the bad sample never came
+    ref = build(name, kwargs)
+    ref.reset(Y[0])
+    ref.run(Y[1:10])
+    np.testing.assert_array_equal(obs.update(Y[10]), ref.update(Y[10]))
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_nonfinite_in_run_or_reset_raises(name, kwargs, rng):
+    """``run`` and ``reset`` reject non-finite samples too, naming the channel; a failed ``run`` changes nothing."""
+    Y = measurements(rng, T=20)
+    obs = build(name, kwargs)
+    with pytest.raises(ValueError, match="channel 3") as excinfo:
+        y0 = Y[0].copy()
+        y0[1, 3] = np.nan
+        obs.reset(y0)
+    assert_worded(excinfo)
+    obs.reset(Y[0])
+    obs.run(Y[1:5])
+    state, estimate, n = obs.state, obs.estimate.copy(), obs.n_updates
+    block = Y[5:15].copy()
+    block[6, 0, 4] = np.inf
+    with pytest.raises(ValueError, match="channel 4") as excinfo:
+        obs.run(block)
+    assert_worded(excinfo)
+    np.testing.assert_array_equal(obs.state, state)
+    np.testing.assert_array_equal(obs.estimate, estimate)
+    assert obs.n_updates == n
+
+
+ALL_CLASSES = [
+    (SuperTwisting, dict(lipschitz=1.0)),
+    (Levant, dict(order=2, lipschitz=1.0)),
+    (URED, dict(lipschitz=1.0)),
+    (UniformLevant, dict(order=2, lipschitz=1.0)),
+    (HighGain, dict(gain=10.0)),
+    (FiniteDifference, dict()),
+    (KalmanCA, dict(process_noise=1.0, measurement_noise=1e-6)),
+]
+
+
+@pytest.mark.parametrize("dt", [0.0, -1e-3, np.nan, np.inf])
+@pytest.mark.parametrize("cls, kwargs", ALL_CLASSES, ids=lambda c: getattr(c, "__name__", ""))
+def test_non_positive_dt(cls, kwargs, dt):
+    with pytest.raises(ValueError) as excinfo:
+        cls(dt=dt, **kwargs)
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize("cls, kwargs", ALL_CLASSES, ids=lambda c: getattr(c, "__name__", ""))
+def test_dt_of_wrong_type(cls, kwargs):
+    with pytest.raises(TypeError) as excinfo:
+        cls(dt="0.001", **kwargs)
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize("lipschitz", [0.0, -1.0, np.nan, [1.0, -2.0, 3.0], np.full((4, 7), -1.0)])
+@pytest.mark.parametrize("cls", [SuperTwisting, Levant, URED, UniformLevant])
+def test_non_positive_lipschitz_at_construction(cls, lipschitz):
+    """Bad ``L`` (scalar or any entry of an array) is rejected when the observer is built, not at reset."""
+    with pytest.raises(ValueError) as excinfo:
+        cls(dt=1e-3, lipschitz=lipschitz)
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize(
+    "factory",
+    [
+        lambda: Levant(order=0, dt=1e-3),
+        lambda: Levant(order=6, dt=1e-3),
+        lambda: UniformLevant(order=0, dt=1e-3),
+        lambda: UniformLevant(order=6, dt=1e-3),
+        lambda: HighGain(dt=1e-3, gain=1.0, order=10),
+        lambda: FiniteDifference(dt=1e-3, order=3),
+        lambda: smo_gym.design.levant_lambdas(6),
+    ],
+)
+def test_order_out_of_range(factory):
+    with pytest.raises(ValueError) as excinfo:
+        factory()
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize("order", [2.0, "2", True])
+def test_order_of_wrong_type(order):
+    with pytest.raises(TypeError) as excinfo:
+        Levant(order=order, dt=1e-3)
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_wrong_shapes(name, kwargs, rng):
+    """Measurements, blocks and masks of the wrong shape are rejected with the expected shape in the message."""
+    Y = measurements(rng, T=5)
+    obs = build(name, kwargs)
+    with pytest.raises(ValueError) as excinfo:
+        obs.reset(1.0)  # a scalar is not (..., n_channels)
+    assert_worded(excinfo)
+    obs.reset(Y[0])
+    for bad in (Y[1, :, :6], Y[1].T, Y[1, 0], Y[:2]):
+        with pytest.raises(ValueError) as excinfo:
+            obs.update(bad)
+        assert_worded(excinfo)
+    with pytest.raises(ValueError) as excinfo:
+        obs.run(Y[:, :3])
+    assert_worded(excinfo)
+    for mask in (np.ones(7, bool), np.ones((7, 4), bool), np.ones((4, 7, 1), bool)):
+        with pytest.raises(ValueError) as excinfo:
+            obs.reset(Y[1], mask=mask)
+        assert_worded(excinfo)
+    with pytest.raises(ValueError) as excinfo:
+        obs.reset(Y[1, :2], mask=np.ones(2, bool))  # masked reset needs the full-reset shape
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize("name", sorted(TAKES_LIPSCHITZ))
+def test_lipschitz_not_broadcastable(name):
+    obs = make_observer(name, dt=1e-3, lipschitz=np.ones(3))
+    with pytest.raises(ValueError) as excinfo:
+        obs.reset(np.zeros((4, 7)))
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize(
+    "factory",
+    [
+        lambda: UniformLevant(order=2, dt=1e-3, k=[1.0, 2.0]),
+        lambda: UniformLevant(order=2, dt=1e-3, k=[1.0, -2.0, 1.0]),  # not Hurwitz
+        lambda: HighGain(dt=1e-3, gain=1.0, order=2, coefficients=[1.0, 1.0]),
+        lambda: HighGain(dt=1e-3, gain=1.0, order=1, coefficients=[-1.0, 1.0]),
+        lambda: SuperTwisting(dt=1e-3),  # neither L nor (k1, k2)
+        lambda: Levant(order=2, dt=1e-3, mu=-1.0),
+        lambda: URED(dt=1e-3, beta=0.0),
+        lambda: KalmanCA(dt=1e-3, process_noise=0.0, measurement_noise=1.0),
+        lambda: KalmanCA.from_bounds(1e-3, noise_std=0.0, accel_bound=1.0),
+    ],
+)
+def test_other_bad_parameters(factory):
+    with pytest.raises(ValueError) as excinfo:
+        factory()
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize("cls, kwargs", ALL_CLASSES, ids=lambda c: getattr(c, "__name__", ""))
+def test_unknown_discretization(cls, kwargs):
+    with pytest.raises(ValueError, match="rk4") as excinfo:
+        cls(dt=1e-3, discretization="rk4", **kwargs)
+    assert_worded(excinfo)
+
+
+def test_unknown_observer_name():
+    with pytest.raises(ValueError, match="kalman-ca") as excinfo:  # the message lists the known names
+        make_observer("no-such-observer", dt=1e-3)
+    assert_worded(excinfo)
+    with pytest.raises(ValueError) as excinfo:
+        smo_gym.differentiate(np.zeros(10), 1e-3, method="no-such-observer")
+    assert_worded(excinfo)
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_use_before_reset(name, kwargs):
+    obs = build(name, kwargs)
+    calls = [lambda: obs.update(np.zeros(BATCH)), lambda: obs.run(np.zeros((3,) + BATCH)),
+             lambda: obs.step(np.zeros((28, 4)), np.zeros(28)), lambda: obs.velocity, lambda: obs.estimate,
+             lambda: obs.reset(np.zeros(BATCH), mask=np.ones(4, bool))]
+    for call in calls:
+        with pytest.raises(RuntimeError) as excinfo:
+            call()
+        assert_worded(excinfo)
+
+
+def test_diverging_explicit_ured_raises_and_keeps_state():
+    r"""Explicit URED at a huge step diverges (its high-degree terms are stiff, ``tau k_1 \beta |e|^{1/2} \gg 1``):
+    the update raises :class:`DivergenceError` (a ``RuntimeError``) naming the channel, and the previous state is
+    kept, for ``update`` and for ``run``."""
+    obs = URED(dt=0.1, lipschitz=1.0)
+    y = np.zeros((2, 3))
+    obs.reset(y)
+    y[1, 2] = 1e8
+    state = estimate = None
+    with pytest.raises(DivergenceError, match="channel 2 of batch element \\(1,\\)") as excinfo:
+        for _ in range(100):
+            state, estimate, n = obs.state, obs.estimate.copy(), obs.n_updates
+            obs.update(y)
+    assert isinstance(excinfo.value, RuntimeError)
+    assert_worded(excinfo)
+    assert n >= 1  # it took some steps to blow up: a genuine divergence, not a rejected input
+    np.testing.assert_array_equal(obs.state, state)
+    np.testing.assert_array_equal(obs.estimate, estimate)
+    assert obs.n_updates == n
+    assert np.all(np.isfinite(obs.state))
+
+    # the same through run(): nothing committed
+    obs2 = URED(dt=0.1, lipschitz=1.0)
+    obs2.reset(np.zeros((2, 3)))
+    state2 = obs2.state
+    with pytest.raises(DivergenceError):
+        obs2.run(np.repeat(y[None], 100, axis=0))
+    np.testing.assert_array_equal(obs2.state, state2)
+    assert obs2.n_updates == 0
