@@ -224,8 +224,9 @@ class Sensor:
         """
         angular = self._angular(n_channels, angular)
         var = np.zeros(n_channels)
-        for stage in self.stages:
-            var += stage._variance(n_channels, angular)
+        with np.errstate(over="ignore"):  # an absurd model gives inf here, and is caught at the first sample
+            for stage in self.stages:
+                var += stage._variance(n_channels, angular)
         return np.sqrt(var)
 
     @staticmethod

@@ -1,0 +1,14 @@
+"""Wrappers: the only layer that knows Gymnasium (and, through adapters, simulator) conventions.
+
+:class:`EstimatedVelocity` runs a MuJoCo environment through a joint sensor and a velocity observer;
+:mod:`smo_gym.wrappers.sensing` is the simulator-agnostic core it shares with the CLI and the benchmarks, and
+:mod:`smo_gym.wrappers.adapters` the small interface to a simulator's MuJoCo objects.
+"""
+
+from __future__ import annotations
+
+from . import adapters, sensing
+from .adapters import CONTACT_FORCES, GymnasiumMujocoAdapter, MujocoAdapter
+from .estimated_velocity import EstimatedVelocity
+
+__all__ = ["CONTACT_FORCES", "EstimatedVelocity", "GymnasiumMujocoAdapter", "MujocoAdapter", "adapters", "sensing"]

@@ -1,0 +1,227 @@
+r"""Small adapters between the sensing core and a simulator's MuJoCo objects.
+
+The wrapper needs five things from an environment, and nothing else:
+
+``model``, ``data``
+    the ``mujoco.MjModel`` and the *live* ``mujoco.MjData`` of the simulation;
+``frame_skip``
+    physics steps per environment step;
+``observation(qpos, qvel)``
+    the environment's own observation function evaluated at a given configuration and velocity, on a scratch
+    ``MjData`` (never the live one);
+``substeps(callback)``
+    a context manager under which ``callback()`` runs after every physics step of the environment's ``step``.
+
+:class:`GymnasiumMujocoAdapter` implements them for ``gymnasium.envs.mujoco.MujocoEnv`` (every v5 environment and
+user subclasses). A dm_control adapter (after ``shimmy.DmControlCompatibilityV0``) would take ``model``/``data``
+from ``physics.model.ptr``/``physics.data.ptr``, ``frame_skip`` from ``task`` control/physics timesteps,
+``observation`` from ``task.get_observation(physics)`` on a scratch ``Physics`` whose data holds the measured
+state, and ``substeps`` from a hook around ``physics.step``.
+
+Scratch evaluation
+------------------
+``observation`` copies into a scratch ``MjData`` the inputs a real controller knows (``ctrl``, ``act``, ``time``,
+mocap poses, applied forces) and the *measured/estimated* ``qpos``/``qvel``, runs ``mj_forward`` (so ``cinert``,
+``cvel``, ``qfrc_actuator``, ``site_xpos``, ``xpos`` of ``get_body_com``, ... are recomputed from that state) and
+calls ``_get_obs()`` with ``env.data`` temporarily pointing at the scratch data. Whether ``mj_forward`` is needed
+at all is *probed* once at construction, with no per-environment table: the observation is evaluated on scratch
+data whose computed fields are all NaN; if it comes out finite and equal to the forward-computed one at random
+states, it reads only ``qpos``/``qvel`` (plus the inputs) and the forward pass is skipped.
+
+Contact forces
+--------------
+``cfrc_ext`` (Ant's and Humanoid's observations) is not a function of the joint sensors: a real robot measures
+contact forces with force/torque sensors or foot switches. ``contact_forces`` decides:
+
+``"sensor"`` (default)
+    take them from the simulation, as from separate force sensors (the only true-state entries; documented);
+``"estimated"``
+    recompute them from the measured/estimated state (``mj_forward`` + ``mj_rnePostConstraint`` on the scratch
+    data): no true state at all, but contacts from a noisy configuration are noisy;
+``"zero"``
+    no contact sensing (the entries are 0).
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import mujoco
+import numpy as np
+
+__all__ = ["CONTACT_FORCES", "GymnasiumMujocoAdapter", "MujocoAdapter"]
+
+CONTACT_FORCES = ("sensor", "estimated", "zero")
+#: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
+_INPUTS = ("qpos", "qvel", "act", "ctrl", "qfrc_applied", "xfrc_applied", "mocap_pos", "mocap_quat", "userdata",
+           "plugin_state", "qacc_warmstart", "eq_active", "history")
+
+
+class MujocoAdapter:
+    """Interface the sensing wrapper needs (see the module docstring)."""
+
+    model: mujoco.MjModel
+    frame_skip: int
+
+    @property
+    def data(self) -> mujoco.MjData:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def substeps(self, callback):  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+def _missing_mujoco_parts(env) -> list[str]:
+    missing = []
+    if not isinstance(getattr(env, "model", None), mujoco.MjModel):
+        missing.append("model (a mujoco.MjModel)")
+    if not isinstance(getattr(env, "data", None), mujoco.MjData):
+        missing.append("data (a mujoco.MjData)")
+    if not isinstance(getattr(env, "frame_skip", None), (int, np.integer)):
+        missing.append("frame_skip (an int)")
+    if not callable(getattr(env, "_get_obs", None)):
+        missing.append("_get_obs() (the observation function)")
+    return missing
+
+
+class GymnasiumMujocoAdapter(MujocoAdapter):
+    """Adapter for ``gymnasium.envs.mujoco.MujocoEnv`` and its subclasses.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        The *unwrapped* environment.
+    contact_forces : {"sensor", "estimated", "zero"}
+
+    Raises
+    ------
+    TypeError
+        If ``env`` lacks ``model``, ``data``, ``frame_skip`` or ``_get_obs`` (the message lists what is missing).
+    """
+
+    def __init__(self, env, contact_forces: str = "sensor"):
+        missing = _missing_mujoco_parts(env)
+        if missing:
+            raise TypeError(
+                "expected a Gymnasium MuJoCo environment (gymnasium.envs.mujoco.MujocoEnv or an env with "
+                "model, data, frame_skip and _get_obs), actual value: "
+                f"{type(env).__name__} has no {', '.join(missing)}"
+            )
+        if contact_forces not in CONTACT_FORCES:
+            raise ValueError(
+                f"expected contact_forces in {', '.join(map(repr, CONTACT_FORCES))}, actual value: {contact_forces!r}"
+            )
+        self.env = env
+        self.model = env.model
+        self.frame_skip = int(env.frame_skip)
+        self.contact_forces = contact_forces
+        self._scratch = mujoco.MjData(self.model)
+        self.needs_forward = True
+        self.needs_forward = self._probe_forward()
+
+    @property
+    def data(self) -> mujoco.MjData:
+        return self.env.data
+
+    # ---- observation at a given state -----------------------------------------------------------------------
+    def _fill(self, scratch: mujoco.MjData, qpos, qvel) -> None:
+        live = self.env.data
+        scratch.qpos[:] = qpos
+        scratch.qvel[:] = qvel
+        scratch.time = live.time
+        if self.model.nu:
+            scratch.ctrl[:] = live.ctrl
+        if self.model.na:
+            scratch.act[:] = live.act
+        if self.model.nmocap:
+            scratch.mocap_pos[:] = live.mocap_pos
+            scratch.mocap_quat[:] = live.mocap_quat
+        scratch.qfrc_applied[:] = live.qfrc_applied
+        scratch.xfrc_applied[:] = live.xfrc_applied
+
+    def _evaluate(self, scratch: mujoco.MjData, forward: bool) -> np.ndarray:
+        if forward:
+            mujoco.mj_forward(self.model, scratch)
+            if self.contact_forces == "estimated":
+                mujoco.mj_rnePostConstraint(self.model, scratch)
+        if self.contact_forces == "sensor":
+            scratch.cfrc_ext[:] = self.env.data.cfrc_ext
+        elif self.contact_forces == "zero":
+            scratch.cfrc_ext[:] = 0.0
+        live = self.env.data
+        self.env.data = scratch
+        try:
+            return np.array(self.env._get_obs(), copy=True)
+        finally:
+            self.env.data = live
+
+    def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """The environment's observation at ``(qpos, qvel)``, evaluated on scratch data (see module docstring)."""
+        self._fill(self._scratch, qpos, qvel)
+        return self._evaluate(self._scratch, self.needs_forward)
+
+    def _probe_forward(self) -> bool:
+        """True unless ``_get_obs`` provably reads only qpos/qvel and the inputs (see module docstring)."""
+        rng = np.random.default_rng(12345)
+        model, live = self.model, self.env.data
+        keep = set(_INPUTS) | ({"cfrc_ext"} if self.contact_forces != "estimated" else set())
+        for _ in range(2):
+            qpos = np.array(live.qpos)
+            mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+            qvel = rng.standard_normal(model.nv)
+            reference = mujoco.MjData(model)
+            self._fill(reference, qpos, qvel)
+            expected = self._evaluate(reference, True)
+            poisoned = mujoco.MjData(model)
+            for name in dir(poisoned):
+                if name.startswith("_") or name in keep:
+                    continue
+                try:
+                    value = getattr(poisoned, name)
+                except Exception:  # noqa: BLE001 - some attributes are not readable without context
+                    continue
+                if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
+                    value[...] = np.nan
+            self._fill(poisoned, qpos, qvel)
+            try:
+                got = self._evaluate(poisoned, False)
+            except Exception:  # noqa: BLE001 - any failure on poisoned data means the forward pass is needed
+                return True
+            if got.shape != expected.shape or not np.all(np.isfinite(got)) or not np.array_equal(got, expected):
+                return True
+        return False
+
+    # ---- sampling inside frame_skip -------------------------------------------------------------------------
+    def supports_substeps(self) -> bool:
+        """Whether the env steps through ``MujocoEnv._step_mujoco_simulation`` (so substeps can be sampled)."""
+        from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+
+        method = getattr(type(self.env), "_step_mujoco_simulation", None)
+        return method is MujocoEnv._step_mujoco_simulation
+
+    @contextlib.contextmanager
+    def substeps(self, callback):
+        """Within the block, the env's physics steps run one at a time with ``callback()`` after each.
+
+        Replicates ``MujocoEnv._step_mujoco_simulation`` (set ``ctrl``, ``mj_step`` ``n_frames`` times,
+        ``mj_rnePostConstraint``) as an instance attribute that is removed on exit, so nothing of the env
+        changes outside the block (and it pickles as before).
+        """
+        env, model = self.env, self.model
+
+        def step_with_samples(ctrl, n_frames):
+            data = env.data
+            data.ctrl[:] = ctrl
+            for _ in range(n_frames):
+                mujoco.mj_step(model, data)
+                callback()
+            mujoco.mj_rnePostConstraint(model, data)
+
+        env._step_mujoco_simulation = step_with_samples
+        try:
+            yield
+        finally:
+            del env._step_mujoco_simulation

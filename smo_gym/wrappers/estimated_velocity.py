@@ -1,0 +1,252 @@
+r"""``EstimatedVelocity``: a Gymnasium MuJoCo environment seen through joint sensors and a velocity observer."""
+
+from __future__ import annotations
+
+import copy
+
+import gymnasium as gym
+import numpy as np
+
+from ..observers import OBSERVERS, Observer, make_observer
+from ..sensors import Sensor, make_sensor
+from .adapters import GymnasiumMujocoAdapter
+from .sensing import (
+    JointMeasurement,
+    VelocityEstimator,
+    bound_order,
+    cached_bounds,
+    calibrate_bounds,
+    calibration_key,
+    default_observer,
+)
+
+__all__ = ["EstimatedVelocity", "environment_key", "resolve_rate"]
+
+#: mixed into the user's seed so the sensor stream differs from the environment's own ``np_random``
+_SEED_SALT = 0x534D4F
+
+
+def resolve_rate(rate, frame_skip: int) -> int:
+    """Physics steps per sample: ``"physics"`` -> 1, ``"env"`` -> ``frame_skip``, an int ``k`` dividing it -> k."""
+    if isinstance(rate, str):
+        if rate == "physics":
+            return 1
+        if rate == "env":
+            return int(frame_skip)
+        raise ValueError(f"expected rate 'physics', 'env' or an int dividing frame_skip, actual value: {rate!r}")
+    if isinstance(rate, bool) or not isinstance(rate, (int, np.integer)):
+        raise TypeError(f"expected rate 'physics', 'env' or an int dividing frame_skip, actual value: {rate!r}")
+    k = int(rate)
+    if k < 1 or frame_skip % k != 0:
+        raise ValueError(
+            f"expected rate to be a positive divisor of frame_skip={frame_skip} (physics steps per sample), "
+            f"actual value: {rate!r}"
+        )
+    return k
+
+
+def environment_key(unwrapped) -> str:
+    """Identity of an environment for the calibration cache: its registered id and kwargs, or its class/model."""
+    spec = getattr(unwrapped, "spec", None)
+    if spec is not None and spec.id:
+        kwargs = {k: v for k, v in sorted((spec.kwargs or {}).items()) if k != "render_mode"}
+        return f"{spec.id}{kwargs}" if kwargs else spec.id
+    return f"{type(unwrapped).__module__}.{type(unwrapped).__qualname__}:{getattr(unwrapped, 'fullpath', '')}"
+
+
+class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    r"""Replace a MuJoCo environment's true state by measured positions and estimated velocities.
+
+    At every sample (every physics step with ``rate="physics"``) the sensor measures the joint positions; an
+    observer estimates the joint velocities from those measurements only. Every observation is then rebuilt by
+    the environment's *own* observation function evaluated at the measured ``qpos`` and estimated ``qvel`` on a
+    scratch ``MjData`` after ``mj_forward`` (see :mod:`smo_gym.wrappers.adapters`): positions, velocities and
+    everything derived from them (Humanoid's ``cinert``/``cvel``/``qfrc_actuator``, Pusher's body positions,
+    InvertedDoublePendulum's constraint force) come from the sensed state; the simulation itself, its rewards and
+    terminations are untouched. Works for every ``gymnasium.envs.mujoco`` v5 environment and user ``MujocoEnv``
+    subclasses, with no per-environment table.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A MuJoCo environment (possibly wrapped).
+    sensor : str or smo_gym.sensors.Sensor
+        Preset name (:data:`smo_gym.sensors.PRESETS`) or a sensor (copied: each wrapper has its own).
+    observer : str or smo_gym.observers.Observer
+        Observer name (:data:`smo_gym.observers.OBSERVERS`), with gains from a calibration rollout unless
+        ``observer_kwargs`` sets them, or an observer object whose ``dt`` is the sampling step (copied).
+    rate : "physics", "env" or int
+        Sample every physics step, once per environment step, or every ``k`` physics steps (``k`` divides
+        ``frame_skip``).
+    observer_kwargs : dict, optional
+        Constructor arguments overriding the calibrated defaults (e.g. ``{"lipschitz": 200.0}``).
+    positions : {"measured", "filtered"}
+        Positions in the observation: the raw measurement or the observer's filtered value.
+    contact_forces : {"sensor", "estimated", "zero"}
+        Where ``cfrc_ext`` entries come from (see :mod:`smo_gym.wrappers.adapters`; default: separate force
+        sensors, i.e. the simulator's values).
+    calibration_safety, calibration_quantile, calibration_steps : float, float, int
+        Default gains: ``safety * quantile(|z^(r)|)`` over a rollout of ``calibration_steps`` physics steps
+        (:func:`smo_gym.wrappers.sensing.calibrate_bounds`), cached per environment id.
+    disk_cache : bool
+        Also cache calibrations on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
+
+    Attributes
+    ----------
+    sample_every : int
+        Physics steps per sample.
+    sample_dt : float
+        Sampling step of sensor and observer [s].
+    bounds : ndarray, shape (nv,) or None
+        Calibrated derivative bounds (None when an observer object was given).
+
+    Notes
+    -----
+    ``info["smo"]`` holds ``qpos`` and ``qvel`` (true), ``qvel_estimate`` and ``qpos_measured`` at the last
+    sample. Observers
+    start from the first measurement at ``reset()`` with zero velocity. The sensor's random stream is seeded from
+    ``reset(seed=...)`` (so a vector env's environments, seeded ``seed + i``, get different noise); without a
+    seed it continues, or starts from fresh entropy.
+
+    Raises
+    ------
+    TypeError
+        ``env`` is not a MuJoCo environment (the message says what is missing); ``rate`` of a wrong type.
+    ValueError
+        Unknown sensor preset or observer name (the valid ones are listed), ``rate`` not dividing
+        ``frame_skip``, bad option values; at run time a non-finite measurement or observation.
+    """
+
+    def __init__(self, env: gym.Env, sensor: str | Sensor = "encoder-12bit-noisy",
+                 observer: str | Observer = "super-twisting", rate: str | int = "physics",
+                 observer_kwargs: dict | None = None, *, positions: str = "measured", contact_forces: str = "sensor",
+                 calibration_safety: float = 2.0, calibration_quantile: float = 0.99, calibration_steps: int = 2000,
+                 disk_cache: bool = True):
+        gym.utils.RecordConstructorArgs.__init__(
+            self, sensor=sensor, observer=observer, rate=rate, observer_kwargs=observer_kwargs, positions=positions,
+            contact_forces=contact_forces, calibration_safety=calibration_safety,
+            calibration_quantile=calibration_quantile, calibration_steps=calibration_steps, disk_cache=disk_cache,
+        )
+        gym.Wrapper.__init__(self, env)
+        if positions not in ("measured", "filtered"):
+            raise ValueError(f"expected positions 'measured' or 'filtered', actual value: {positions!r}")
+        self.adapter = GymnasiumMujocoAdapter(env.unwrapped, contact_forces=contact_forces)
+        model = self.adapter.model
+        self.sample_every = resolve_rate(rate, self.adapter.frame_skip)
+        if self.sample_every < self.adapter.frame_skip and not self.adapter.supports_substeps():
+            raise ValueError(
+                f"expected an environment stepping through MujocoEnv._step_mujoco_simulation for rate={rate!r} "
+                f"(samples inside frame_skip), actual value: {type(env.unwrapped).__name__} overrides it; "
+                "use rate='env'"
+            )
+        self.sample_dt = float(model.opt.timestep) * self.sample_every
+        self.positions = positions
+        self.measurement = JointMeasurement(model, copy.deepcopy(make_sensor(sensor)), self.sample_dt)
+        self.bounds = None
+        if isinstance(observer, Observer):
+            if not np.isclose(observer.dt, self.sample_dt, rtol=1e-9, atol=0.0):
+                raise ValueError(
+                    f"expected an observer with dt equal to the sampling step {self.sample_dt}, "
+                    f"actual value: {observer.dt}"
+                )
+            obs_object = copy.deepcopy(observer)
+        else:
+            if observer not in OBSERVERS:
+                make_observer(observer)  # raises ValueError listing the valid names
+            self.bounds = self._calibrated_bounds(observer, observer_kwargs, calibration_safety,
+                                                  calibration_quantile, calibration_steps, disk_cache)
+            obs_object = default_observer(observer, self.sample_dt, self.bounds, self.measurement.noise_std(),
+                                          observer_kwargs)
+        self.estimator = VelocityEstimator(obs_object)
+        self._rng: np.random.Generator | None = None
+        n_samples = max(1, self.adapter.frame_skip // self.sample_every)
+        self._samples = np.zeros((n_samples, model.nq))
+        self._n_samples = 0
+        self._substep_count = 0
+
+    # ---- set-up ---------------------------------------------------------------------------------------------
+    def _calibrated_bounds(self, name, observer_kwargs, safety, quantile, steps, disk) -> np.ndarray:
+        unwrapped = self.env.unwrapped
+        model = self.adapter.model
+        derivative = bound_order(name, observer_kwargs)
+        qpos0 = np.array(getattr(unwrapped, "init_qpos", self.adapter.data.qpos), dtype=float)
+        qvel0 = np.array(getattr(unwrapped, "init_qvel", self.adapter.data.qvel), dtype=float)
+        settings = dict(derivative=derivative, every=self.sample_every, frame_skip=self.adapter.frame_skip,
+                        safety=float(safety), quantile=float(quantile), steps=int(steps), v=1)
+        key = calibration_key(environment_key(unwrapped), model, **settings)
+        return cached_bounds(
+            key,
+            lambda: calibrate_bounds(model, qpos0, qvel0, self.adapter.frame_skip, self.sample_every,
+                                     derivative=derivative, steps=int(steps), quantile=float(quantile),
+                                     safety=float(safety)),
+            disk=disk,
+        )
+
+    @property
+    def sensor(self) -> Sensor:
+        return self.measurement.sensor
+
+    @property
+    def observer(self) -> Observer:
+        return self.estimator.observer
+
+    # ---- the sensed observation -----------------------------------------------------------------------------
+    def _observation_qpos(self) -> np.ndarray:
+        q_meas = self.measurement.measured_qpos()
+        if self.positions == "measured":
+            return q_meas
+        return self.measurement.tangent.to_qpos(q_meas, self.measurement.z_measured, self.estimator.filtered)
+
+    def _observe(self, info: dict) -> np.ndarray:
+        qvel_hat = self.estimator.velocity
+        obs = self.adapter.observation(self._observation_qpos(), qvel_hat)
+        if not np.all(np.isfinite(obs)):
+            bad = int(np.flatnonzero(~np.isfinite(obs))[0])
+            raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
+        info["smo"] = {
+            "qpos": np.array(self.adapter.data.qpos),
+            "qvel": np.array(self.adapter.data.qvel),
+            "qvel_estimate": np.array(qvel_hat),
+            "qpos_measured": np.array(self.measurement.measured_qpos()),
+        }
+        return obs
+
+    def _record(self) -> None:
+        self._substep_count += 1
+        if self._substep_count % self.sample_every == 0:
+            if self._n_samples == self._samples.shape[0]:  # an env that steps more than frame_skip frames
+                self._samples = np.concatenate([self._samples, np.zeros_like(self._samples)])
+            self._samples[self._n_samples] = self.adapter.data.qpos
+            self._n_samples += 1
+
+    # ---- Gymnasium API --------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        _, info = self.env.reset(seed=seed, options=options)
+        if seed is not None:
+            self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
+        elif self._rng is None:
+            self._rng = np.random.default_rng()
+        self.measurement.reset(self.adapter.data.qpos, self._rng)
+        self.estimator.reset(self.measurement.z_measured)
+        return self._observe(info), info
+
+    def step(self, action):
+        if self._rng is None:
+            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        if self.sample_every < self.adapter.frame_skip:
+            self._n_samples = 0
+            self._substep_count = 0
+            with self.adapter.substeps(self._record):
+                _, reward, terminated, truncated, info = self.env.step(action)
+            if self._substep_count == 0:
+                raise RuntimeError(
+                    "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
+                    "actual value: no physics step was observed during step(); use rate='env'"
+                )
+            samples = self._samples[:self._n_samples]
+        else:
+            _, reward, terminated, truncated, info = self.env.step(action)
+            samples = [np.array(self.adapter.data.qpos)]
+        for qpos in samples:
+            self.estimator.update(self.measurement.measure(qpos))
+        return self._observe(info), reward, terminated, truncated, info

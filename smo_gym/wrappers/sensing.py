@@ -1,0 +1,400 @@
+r"""The sensing core shared by the wrappers, the CLI and the benchmarks: measure ``qpos``, estimate ``qvel``.
+
+Nothing here knows Gymnasium or dm_control; it needs a ``mujoco.MjModel`` (joint types, for the manifold) and
+works on arrays of ``qpos``.
+
+Tangent coordinates
+-------------------
+A velocity observer differentiates a real-valued signal. Hinge and slide joints give one directly (``qpos``).
+Free and ball joints store orientations as unit quaternions (``nq != nv``), whose derivative is not ``qvel``.
+:class:`TangentCoordinates` turns a stream of configurations into a continuous signal ``z`` of size ``nv``:
+
+.. math:: z_k = z_{k-1} + \ominus(q_{k-1}, q_k),
+
+with :math:`\ominus` MuJoCo's ``mj_differentiatePos`` (for hinge/slide dofs a plain difference, for a free/ball
+rotation the body-frame rotation vector :math:`\log(q_{k-1}^{-1} q_k)`). Then :math:`\dot z = ` ``qvel`` exactly
+in the limit of small steps (MuJoCo's angular velocity of a free/ball joint is in the local frame, like the
+increment), so any observer of :math:`\dot z` estimates ``qvel``. Hinge/slide coordinates are taken from ``qpos``
+directly (no accumulated round-off); ``z`` of a rotation is unwrapped, so it never jumps.
+
+Sensor on the manifold
+----------------------
+:class:`JointMeasurement` applies a :class:`smo_gym.sensors.Sensor` to the *true* tangent coordinates and maps the
+result back: :math:`q^{meas} = q \oplus (z^{meas} - z)` (``mj_integratePos``), i.e. the orientation error is a
+rotation vector, noise on the manifold, and a measured quaternion is always a unit quaternion.
+
+Default gains
+-------------
+An order-``r`` differentiator needs a bound on :math:`|z^{(r+1)}|` (acceleration for super-twisting, jerk for
+the second-order Levant differentiator). :func:`calibrate_bounds` measures it on a short rollout of the model
+itself (random actions held over one control period, as a random policy does) at the observer's sampling step,
+takes a high quantile per dof (contacts produce rare impulsive peaks that a global maximum would turn into a
+huge, noise-amplifying gain) and multiplies by a safety factor. Results are cached per environment in memory and
+on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from ..observers import OBSERVERS, Observer, make_observer
+from ..sensors import Sensor, make_sensor
+
+__all__ = [
+    "JointMeasurement",
+    "TangentCoordinates",
+    "VelocityEstimator",
+    "angular_dofs",
+    "bound_order",
+    "calibrate_bounds",
+    "cached_bounds",
+    "default_observer",
+]
+
+_FREE, _BALL, _SLIDE, _HINGE = (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL),
+                                int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE))
+
+
+def angular_dofs(model: mujoco.MjModel) -> np.ndarray:
+    """Boolean mask ``(nv,)``: True for rotational dofs (hinge, ball, free rotation), False for translations."""
+    mask = np.ones(model.nv, dtype=bool)
+    for j in range(model.njnt):
+        adr = model.jnt_dofadr[j]
+        if model.jnt_type[j] == _SLIDE:
+            mask[adr] = False
+        elif model.jnt_type[j] == _FREE:
+            mask[adr:adr + 3] = False
+    return mask
+
+
+class TangentCoordinates:
+    r"""Continuous tangent coordinates ``z`` (size ``nv``) of a stream of configurations ``q`` (size ``nq``).
+
+    See the module docstring: :math:`z_k = z_{k-1} + \ominus(q_{k-1}, q_k)`, hinge/slide dofs copied from
+    ``qpos``. Models without free or ball joints take a fast path (``z = qpos``).
+    """
+
+    def __init__(self, model: mujoco.MjModel):
+        self.model = model
+        self.nq, self.nv = model.nq, model.nv
+        types = np.asarray(model.jnt_type)
+        self.manifold = bool(np.any((types == _FREE) | (types == _BALL)))
+        # hinge/slide dofs and their qpos addresses (copied exactly)
+        scalar = (types == _HINGE) | (types == _SLIDE)
+        self._dof = np.asarray(model.jnt_dofadr)[scalar]
+        self._qadr = np.asarray(model.jnt_qposadr)[scalar]
+        self._prev = np.zeros(self.nq)
+        self._z = np.zeros(self.nv)
+        self._dz = np.zeros(self.nv)
+
+    def reset(self, q0: np.ndarray) -> np.ndarray:
+        """Start at ``q0``: ``z0`` has the hinge/slide values of ``q0`` and zero for free/ball rotations."""
+        q0 = np.asarray(q0, dtype=np.float64)
+        if not self.manifold:
+            self._z = q0.copy()
+            return self._z.copy()
+        self._prev[:] = q0
+        self._z = np.zeros(self.nv)
+        # translations of free joints are copied like slides
+        for j in range(self.model.njnt):
+            if self.model.jnt_type[j] == _FREE:
+                a, d = self.model.jnt_qposadr[j], self.model.jnt_dofadr[j]
+                self._z[d:d + 3] = q0[a:a + 3]
+        self._z[self._dof] = q0[self._qadr]
+        return self._z.copy()
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        """Advance to the configuration ``q`` and return ``z`` (a new array)."""
+        if not self.manifold:
+            self._z = np.array(q, dtype=np.float64)
+            return self._z.copy()
+        mujoco.mj_differentiatePos(self.model, self._dz, 1.0, self._prev, q)
+        self._z += self._dz
+        self._z[self._dof] = q[self._qadr]
+        self._prev[:] = q
+        return self._z.copy()
+
+    def to_qpos(self, q_ref: np.ndarray, z_ref: np.ndarray, z: np.ndarray) -> np.ndarray:
+        r"""Configuration at tangent coordinates ``z``: :math:`q_{ref} \oplus (z - z_{ref})` (``mj_integratePos``)."""
+        if not self.manifold:
+            return np.array(z, dtype=np.float64)
+        q = np.array(q_ref, dtype=np.float64)
+        mujoco.mj_integratePos(self.model, q, np.asarray(z - z_ref, dtype=np.float64), 1.0)
+        return q
+
+
+class JointMeasurement:
+    r"""A sensor on the joint positions of a MuJoCo model, with noise on the manifold for free/ball joints.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+    sensor : str or smo_gym.sensors.Sensor
+        A preset name of :data:`smo_gym.sensors.PRESETS` or a sensor object (used as is).
+    dt : float
+        Sampling step [s].
+
+    Attributes
+    ----------
+    z_true, z_measured : ndarray, shape (nv,)
+        Tangent coordinates of the true and of the measured configuration at the last sample.
+    qpos_measured : ndarray, shape (nq,)
+        The measured configuration :math:`q \oplus (z^{meas} - z)`.
+    """
+
+    def __init__(self, model: mujoco.MjModel, sensor: str | Sensor, dt: float):
+        self.model = model
+        self.sensor = make_sensor(sensor)
+        self.dt = float(dt)
+        self.tangent = TangentCoordinates(model)
+        self.angular = angular_dofs(model)
+        self.z_true = self.z_measured = self.qpos_measured = None
+
+    def noise_std(self) -> np.ndarray:
+        """Per-dof standard deviation of the sensor's random error, shape ``(nv,)``."""
+        return self.sensor.error_std(self.model.nv, self.angular)
+
+    def reset(self, qpos: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """First measurement of the configuration ``qpos`` (the sensor's stream comes from ``rng``)."""
+        qpos = np.asarray(qpos, dtype=np.float64)
+        self.z_true = self.tangent.reset(qpos)
+        self.z_measured = self.sensor.reset(self.z_true, rng=rng, dt=self.dt, angular=self.angular)
+        self.qpos_measured = self.tangent.to_qpos(qpos, self.z_true, self.z_measured)
+        return self.qpos_measured
+
+    def measure(self, qpos: np.ndarray) -> np.ndarray:
+        """Measure the next sample; returns (and stores) the measured tangent coordinates ``z_measured``."""
+        self.z_true = self.tangent(qpos)
+        self.z_measured = self.sensor.measure(self.z_true)
+        self._last_qpos = qpos
+        self.qpos_measured = None  # mapped back lazily: only the last sample of a control period is needed
+        return self.z_measured
+
+    def measured_qpos(self) -> np.ndarray:
+        """The measured configuration at the last sample, shape ``(nq,)``."""
+        if self.qpos_measured is None:
+            self.qpos_measured = self.tangent.to_qpos(self._last_qpos, self.z_true, self.z_measured)
+        return self.qpos_measured
+
+
+class VelocityEstimator:
+    """An observer on the measured tangent coordinates; its velocity estimates ``qvel``.
+
+    Parameters
+    ----------
+    observer : smo_gym.observers.Observer
+        Any observer; its ``dt`` must be the sampling step.
+    """
+
+    def __init__(self, observer: Observer):
+        if not isinstance(observer, Observer):
+            raise TypeError(f"expected a smo_gym.observers.Observer, actual value: {observer!r}")
+        self.observer = observer
+
+    def reset(self, z0: np.ndarray) -> np.ndarray:
+        """Start at the first measurement (velocity zero); returns the velocity estimate ``(nv,)``."""
+        return self.observer.reset(z0)[..., 1]
+
+    def update(self, z: np.ndarray) -> np.ndarray:
+        """One sample; returns the velocity estimate ``(nv,)``."""
+        return self.observer.update(z)[..., 1]
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.observer.velocity
+
+    @property
+    def filtered(self) -> np.ndarray:
+        """Filtered tangent coordinates (the observer's value estimate), shape ``(nv,)``."""
+        return self.observer.estimate[..., 0]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# calibration of the default gains
+# ----------------------------------------------------------------------------------------------------------------
+#: observer name -> default differentiation order (their constructors' defaults)
+_DEFAULT_ORDER = {"levant": 2, "uniform-levant": 2}
+
+
+def bound_order(name: str, observer_kwargs: dict | None = None) -> int:
+    """Order of the derivative an observer's gain must bound: ``order + 1`` (2 = acceleration, 3 = jerk)."""
+    kwargs = observer_kwargs or {}
+    if name in ("finite-difference", "kalman-ca", "high-gain", "super-twisting", "ured"):
+        return 2
+    return int(kwargs.get("order", _DEFAULT_ORDER.get(name, 1))) + 1
+
+
+def calibrate_bounds(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray, frame_skip: int, sample_every: int,
+                     *, derivative: int = 2, steps: int = 2000, episode: int = 500, quantile: float = 0.99,
+                     safety: float = 2.0, seed: int = 0) -> np.ndarray:
+    r"""Bounds on :math:`|z^{(r)}|` per dof from a rollout of ``model`` under a random policy.
+
+    From ``(qpos0, qvel0)`` the model is stepped ``steps`` physics steps with actions drawn uniformly from the
+    actuators' control ranges and held for ``frame_skip`` steps, restarting every ``episode`` steps (and on a
+    non-finite state). The velocity ``qvel`` is sampled every ``sample_every`` steps (the observer's step
+    :math:`\tau`); its backward differences give the acceleration (``derivative=2``) and jerk (``3``) at that
+    step. The bound is ``safety * quantile(|z^(r)|)`` per dof; dofs that did not move in the rollout (objects,
+    goals) get the largest bound of the model, and every bound is floored at ``1e-3``.
+
+    Returns
+    -------
+    ndarray, shape (nv,)
+    """
+    if derivative < 1:
+        raise ValueError(f"expected derivative >= 1, actual value: {derivative}")
+    rng = np.random.default_rng(seed)
+    data = mujoco.MjData(model)
+    lo, hi = np.array(model.actuator_ctrlrange, dtype=float).T if model.nu else (np.zeros(0), np.zeros(0))
+    limited = np.asarray(model.actuator_ctrllimited, dtype=bool) if model.nu else np.zeros(0, dtype=bool)
+    lo = np.where(limited, lo, -1.0)
+    hi = np.where(limited, hi, 1.0)
+    dt = model.opt.timestep * sample_every
+    samples: list[np.ndarray] = []
+    episodes: list[np.ndarray] = []
+
+    def restart():
+        mujoco.mj_resetData(model, data)
+        data.qpos[:] = qpos0
+        data.qvel[:] = qvel0
+        mujoco.mj_forward(model, data)
+
+    restart()
+    for k in range(steps):
+        if k % frame_skip == 0:
+            data.ctrl[:] = rng.uniform(lo, hi)
+        mujoco.mj_step(model, data)
+        if not np.all(np.isfinite(data.qvel)) or (k + 1) % episode == 0:
+            if samples:
+                episodes.append(np.array(samples))
+            samples = []
+            restart()
+            continue
+        if (k + 1) % sample_every == 0:
+            samples.append(data.qvel.copy())
+    if samples:
+        episodes.append(np.array(samples))
+    diffs = [np.diff(V, n=derivative - 1, axis=0) / dt ** (derivative - 1) for V in episodes if len(V) >= derivative]
+    if not diffs:
+        raise ValueError(f"expected a rollout long enough to calibrate, actual value: steps={steps}")
+    D = np.abs(np.concatenate(diffs, axis=0))
+    bound = safety * np.quantile(D, quantile, axis=0)
+    # dofs the random policy cannot move (a pushed object, a goal) get the largest bound of the model: they may
+    # be hit later, and a tiny gain would never catch up
+    untouched = bound <= 1e-6 * max(float(np.max(bound)), 1e-300)
+    bound[untouched] = np.max(bound)
+    return np.maximum(bound, 1e-3)
+
+
+_MEMORY_CACHE: dict[str, list[float]] = {}
+
+
+def _cache_file() -> Path:
+    root = os.environ.get("SMO_GYM_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "smo_gym")
+    return Path(root) / "calibration.json"
+
+
+def cached_bounds(key: str, compute, *, disk: bool = True) -> np.ndarray:
+    """``compute()`` memoized under ``key`` in memory and (``disk=True``) in the user cache file."""
+    if key in _MEMORY_CACHE:
+        return np.array(_MEMORY_CACHE[key])
+    path = _cache_file()
+    if disk:
+        try:
+            stored = json.loads(path.read_text())
+            if key in stored:
+                _MEMORY_CACHE[key] = stored[key]
+                return np.array(stored[key])
+        except (OSError, ValueError):
+            pass
+    value = np.asarray(compute(), dtype=float)
+    _MEMORY_CACHE[key] = value.tolist()
+    if disk:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                stored = json.loads(path.read_text())
+            except (OSError, ValueError):
+                stored = {}
+            stored[key] = value.tolist()
+            fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+            with os.fdopen(fd, "w") as fh:
+                json.dump(stored, fh)
+            os.replace(tmp, path)
+        except OSError:  # a read-only home is not an error: the memory cache still works
+            pass
+    return value
+
+
+def calibration_key(env_key: str, model: mujoco.MjModel, **settings) -> str:
+    """Cache key: the environment's identity, the model's sizes and step, and the calibration settings."""
+    text = json.dumps([env_key, model.nq, model.nv, model.nu, float(model.opt.timestep), sorted(settings.items())],
+                      default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:16] + ":" + env_key
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# default observers
+# ----------------------------------------------------------------------------------------------------------------
+def default_observer(name: str, dt: float, bounds: np.ndarray, noise_std: np.ndarray,
+                     observer_kwargs: dict | None = None) -> Observer:
+    r"""An observer of :data:`smo_gym.observers.OBSERVERS` with gains from the calibrated bounds.
+
+    Parameters
+    ----------
+    name : str
+    dt : float
+        Sampling step.
+    bounds : ndarray, shape (nv,)
+        Per-dof bound on the derivative :func:`bound_order` names (acceleration or jerk).
+    noise_std : ndarray, shape (nv,)
+        The sensor's random error per dof (floored at 1e-6 where a gain formula divides by it).
+    observer_kwargs : dict, optional
+        Override any constructor argument.
+
+    Gains: ``lipschitz = bounds`` (per dof) for the sliding-mode differentiators; ``HighGain.from_bounds``
+    (:math:`\ell = \sqrt{L/\epsilon}`, largest ``L``, mean noise) and ``KalmanCA.from_bounds`` (``q = L^2/\tau``,
+    ``r`` from the noise) for the linear ones; finite differences need nothing. Other observers are matched by
+    their constructor's parameters: ``disturbance``/``noise`` (largest bound, mean noise), or a required ``gain``
+    (:math:`\ell = \sqrt{L/\epsilon}`, the high-gain balance).
+    """
+    if name not in OBSERVERS:
+        make_observer(name)  # raises the ValueError that lists the valid names
+    kw = dict(observer_kwargs or {})
+    cls = OBSERVERS[name]
+    noise = float(max(np.mean(noise_std), 1e-6))
+    if name == "finite-difference":
+        return cls(dt, **kw)
+    if name == "high-gain":
+        if "gain" in kw:
+            return cls(dt, **kw)
+        order = kw.pop("order", 1)
+        return cls.from_bounds(dt, float(np.max(bounds)), noise, order=order, **kw)
+    if name == "kalman-ca":
+        if "process_noise" in kw and "measurement_noise" in kw:
+            return cls(dt, **kw)
+        return cls.from_bounds(dt, noise, float(np.max(bounds)), **kw)
+    params = inspect.signature(cls).parameters
+    try:
+        if "lipschitz" in params:
+            if "k1" not in kw or "k2" not in kw:
+                kw.setdefault("lipschitz", np.asarray(bounds, dtype=float))
+        elif "disturbance" in params and "noise" in params:
+            kw.setdefault("disturbance", float(np.max(bounds)))
+            kw.setdefault("noise", noise)
+        elif "gain" in params and params["gain"].default is inspect.Parameter.empty:
+            kw.setdefault("gain", float(np.sqrt(np.max(bounds) / noise)))
+        return cls(dt=dt, **kw)
+    except TypeError as exc:
+        raise ValueError(
+            f"expected observer_kwargs completing the parameters of {cls.__name__} (no default gains are known "
+            f"for it), actual value: {observer_kwargs!r} ({exc})"
+        ) from None
