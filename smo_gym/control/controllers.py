@@ -1,0 +1,399 @@
+r"""Output-feedback controllers built on the observers of :mod:`smo_gym.control.estimators`.
+
+Every controller owns its observer and is stepped once per sample::
+
+    u_k = controller.step(y_k, t_k)      # observer update, control law, observer prediction with u_k
+
+:class:`StateFeedback`
+    nominal :math:`u = -K\hat x` (with :func:`lqr` for ``K``); with a :class:`LuenbergerObserver` it is the
+    baseline "LQR with a Luenberger observer".
+:class:`CompensationController`
+    HOSM identification and compensation, continuous: :math:`u = -K\hat x - \hat w` (paper 004, section 6).
+:class:`IntegralSlidingModeController`
+    output-based integral sliding mode, discontinuous (paper 004, section 6).
+:class:`UnmatchedCompensationController`
+    unmatched disturbances compensated through the sliding surface (Ferreira et al. 2013, and its extension to
+    disturbances that need derivatives of ``w_hat``, the linear form of Ferreira et al. 2015).
+
+Discontinuous terms: ``"unit"`` (unit vector :math:`-\rho s/\|s\|`, the slides' law) or ``"super-twisting"``
+(:math:`-k_1\lceil s\rfloor^{1/2} + v,\ \dot v = -k_2\,\mathrm{sign}(s)`, componentwise, explicit Euler), which
+is continuous and needs a bound on the *derivative* of what it rejects.
+
+References
+----------
+.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides (paper 004), section 6.
+.. [FBF11] A. Ferreira de Loza, F. J. Bejarano and L. Fridman, "Unmatched uncertainties compensation based on
+   high-order sliding mode observation", Int. J. Robust Nonlinear Control, 2013 (and Ferreira et al., 2011,
+   on compensation vs integral sliding mode).
+.. [FPU15] A. Ferreira de Loza, J. Punta, L. Fridman, G. Bartolini and S. Delprat, "Output tracking of systems
+   subjected to perturbations and a class of actuator faults based on HOSM observation and identification",
+   Automatica 59, 2015.
+.. [Utk96] V. Utkin and J. Shi, "Integral sliding mode in systems operating under uncertainty conditions",
+   CDC 1996.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+from .._validation import check_choice, check_positive
+from .plants import LinearPlant, left_annihilator
+
+__all__ = [
+    "CompensationController",
+    "IntegralSlidingModeController",
+    "StateFeedback",
+    "UnmatchedCompensationController",
+    "lqr",
+    "regular_form",
+]
+
+
+def lqr(A, B, Q=None, R=None) -> np.ndarray:
+    r"""Continuous-time LQR gain :math:`K = R^{-1}B^T P` from ``scipy.linalg.solve_continuous_are``.
+
+    Minimizes :math:`\int x^TQx + u^TRu`; defaults ``Q = I``, ``R = I``. Returns ``K`` of shape ``(q, n)`` with
+    ``A - B K`` Hurwitz (checked).
+    """
+    A, B = np.asarray(A, float), np.asarray(B, float)
+    if B.ndim == 1:
+        B = B[:, None]
+    Q = np.eye(A.shape[0]) if Q is None else np.asarray(Q, float)
+    R = np.eye(B.shape[1]) if R is None else np.atleast_2d(np.asarray(R, float))
+    P = sla.solve_continuous_are(A, B, Q, R)
+    K = np.linalg.solve(R, B.T @ P)
+    ev = np.linalg.eigvals(A - B @ K)
+    if np.any(ev.real >= 0):
+        raise ValueError(f"expected a stabilizing LQR gain, actual value: eigenvalues of A - BK {ev}")
+    return K
+
+
+def regular_form(B) -> tuple[np.ndarray, np.ndarray]:
+    r"""The transform :math:`T_r = [B^\perp; B^+]` of Ferreira et al. (2013) and its inverse.
+
+    :math:`B^\perp B = 0` (orthonormal rows), :math:`B^+ = (B^TB)^{-1}B^T`, so :math:`\bar x = T_r x` splits into
+    the unactuated :math:`x_1 = B^\perp x` (``n - q``) and :math:`x_2 = B^+ x` with :math:`\dot x_2 = \ldots + u`.
+    """
+    B = np.asarray(B, float)
+    if np.linalg.matrix_rank(B) < B.shape[1]:
+        raise ValueError(f"expected B with full column rank, actual value: rank {np.linalg.matrix_rank(B)} < "
+                         f"{B.shape[1]}")
+    Tr = np.vstack([left_annihilator(B), np.linalg.pinv(B)])
+    return Tr, np.linalg.inv(Tr)
+
+
+class _Discontinuous:
+    """The discontinuous term: unit vector or super-twisting, with its own integrator state."""
+
+    def __init__(self, kind: str, rho, k1, k2, dt: float, q: int):
+        self.kind = check_choice("discontinuity", kind, ("unit", "super-twisting"))
+        if self.kind == "unit":
+            self.rho = check_positive("rho", rho)
+        else:
+            if k1 is None or k2 is None:
+                raise ValueError("expected k1 and k2 for the super-twisting discontinuity, actual value: "
+                                 f"k1={k1!r}, k2={k2!r}")
+            self.k1, self.k2 = check_positive("k1", k1), check_positive("k2", k2)
+        self.dt = dt
+        self.v = np.zeros(q)
+
+    def reset(self):
+        self.v[:] = 0.0
+
+    def __call__(self, s: np.ndarray) -> np.ndarray:
+        if self.kind == "unit":
+            ns = np.linalg.norm(s)
+            return -self.rho * s / ns if ns > 0 else np.zeros_like(s)
+        out = -self.k1 * np.sqrt(np.abs(s)) * np.sign(s) + self.v
+        self.v = self.v - self.dt * self.k2 * np.sign(s)
+        return out
+
+
+class StateFeedback:
+    r"""Observer-based state feedback :math:`u_k = -K\hat x_k` (``K`` from :func:`lqr` by default).
+
+    Parameters
+    ----------
+    observer : LuenbergerObserver or CascadedHOSMObserver
+    K : array_like, shape (q, n), optional
+        Default ``lqr(A, B, Q, R)``.
+    Q, R : array_like, optional
+        LQR weights when ``K`` is not given.
+    """
+
+    def __init__(self, observer, K=None, *, Q=None, R=None):
+        self.observer = observer
+        self.plant: LinearPlant = observer.plant
+        self.K = lqr(self.plant.A, self.plant.B, Q, R) if K is None else np.atleast_2d(np.asarray(K, float))
+        self.u = np.zeros(self.plant.n_inputs)
+
+    @property
+    def dt(self) -> float:
+        return self.observer.dt
+
+    def reset(self, y0, x_hat0=None) -> None:
+        self.observer.reset(y0, x_hat0)
+        self.u = np.zeros(self.plant.n_inputs)
+        self._reset_law()
+
+    def _reset_law(self) -> None:
+        pass
+
+    def nominal(self) -> np.ndarray:
+        return -self.K @ self.observer.x_hat
+
+    def law(self, t: float) -> np.ndarray:
+        return self.nominal()
+
+    def step(self, y, t: float) -> np.ndarray:
+        """Update the observer with ``y_k``, compute ``u_k``, predict the observer with it; return ``u_k``."""
+        self.observer.update(y)
+        self.u = np.atleast_1d(self.law(t))
+        self.observer.advance(self.u)
+        return self.u
+
+
+class CompensationController(StateFeedback):
+    r"""HOSM identification and compensation control (continuous; paper 004, section 6).
+
+    .. math:: u = -K\hat x - B^+ D\,\hat w,
+
+    i.e. :math:`u = -K\hat x - \hat w` for the slides' matched case ``D = B``. Closed-loop accuracy
+    :math:`O(\Delta^{\alpha+1}) + O(\Delta^\alpha) + O(\mu)` (observation, identification, actuator).
+
+    Parameters
+    ----------
+    observer : CascadedHOSMObserver
+    K, Q, R : see :class:`StateFeedback`.
+    t_start : float
+        Time ``T`` after which the observer has converged; before it ``w_hat`` is not used.
+    """
+
+    def __init__(self, observer, K=None, *, Q=None, R=None, t_start: float = 0.0):
+        super().__init__(observer, K, Q=Q, R=R)
+        P = self.plant
+        self.Bw = np.linalg.pinv(P.B) @ P.D
+        if np.linalg.norm(P.B @ self.Bw - P.D) > 1e-9 * max(np.linalg.norm(P.D), 1.0):
+            raise ValueError("expected a matched unknown input (span D inside span B) for compensation through u, "
+                             f"actual value: ||B B^+ D - D|| = {np.linalg.norm(P.B @ self.Bw - P.D):.3g}; use "
+                             "UnmatchedCompensationController")
+        self.t_start = float(t_start)
+
+    def law(self, t: float) -> np.ndarray:
+        u = self.nominal()
+        if t >= self.t_start:
+            u = u - self.Bw @ self.observer.w_hat
+        return u
+
+
+class IntegralSlidingModeController(StateFeedback):
+    r"""Output-based integral sliding mode control (discontinuous; paper 004, section 6).
+
+    .. math::
+        s(t) = B^+\Big[\hat x(t) - \hat x(T) - \int_T^t \big(A\hat x(\tau) + Bu_n(\tau)\big)\,d\tau\Big],\qquad
+        u = u_n - \rho\,\frac{s}{\|s\|},\quad u_n = -K\hat x,\quad \rho > w^+ .
+
+    In the sliding mode :math:`\dot s = u - u_n + B^+Dw = 0`: the equivalent control cancels the matched
+    disturbance without identifying it. Closed-loop accuracy :math:`O(\Delta^{\alpha+1}) + O(\mu)`.
+
+    Sampled form: over each sampling interval the integral is that of the nominal model started at
+    :math:`\hat x_{k-1}` with :math:`u_{n,k-1}` held, i.e. the exact ZOH map,
+    :math:`s_k = s_{k-1} + B^+(\hat x_k - \Phi\hat x_{k-1} - \Gamma u_{n,k-1})`, :math:`s(T) = 0`.
+
+    Parameters
+    ----------
+    observer : CascadedHOSMObserver (or any observer with ``x_hat``)
+    rho : float
+        Gain of the unit-vector term (``discontinuity="unit"``).
+    discontinuity : {"unit", "super-twisting"}
+    k1, k2 : float
+        Super-twisting gains (``k1 = 1.5 sqrt(L)``, ``k2 = 1.1 L`` for ``|d/dt w| <= L``).
+    t_start : float
+        ``T``: the surface is integrated from there; before it ``u = u_n``.
+    """
+
+    def __init__(self, observer, K=None, *, rho: float | None = None, discontinuity: str = "unit", k1=None, k2=None,
+                 Q=None, R=None, t_start: float = 0.0):
+        super().__init__(observer, K, Q=Q, R=R)
+        self.switch = _Discontinuous(discontinuity, rho, k1, k2, observer.dt, self.plant.n_inputs)
+        self.Phi, self.Gamma = self.plant.discretize(observer.dt)
+        self.Bpinv = np.linalg.pinv(self.plant.B)
+        self.t_start = float(t_start)
+        self._reset_law()
+
+    def _reset_law(self) -> None:
+        self.s = np.zeros(self.plant.n_inputs)
+        self._last = None  # (x_hat_{k-1}, u_n,{k-1})
+        self.switch.reset()
+
+    def law(self, t: float) -> np.ndarray:
+        x_hat = self.observer.x_hat
+        u_n = self.nominal()
+        if t < self.t_start:
+            return u_n
+        if self._last is not None:
+            x_prev, un_prev = self._last
+            self.s = self.s + self.Bpinv @ (x_hat - self.Phi @ x_prev - self.Gamma @ un_prev)
+        self._last = (x_hat.copy(), u_n.copy())
+        return u_n + self.switch(self.s)
+
+
+class UnmatchedCompensationController(StateFeedback):
+    r"""Compensation of unmatched disturbances through the sliding surface ([FBF11]; paper 004, section 6).
+
+    In the regular form :math:`x_1 = B^\perp x,\ x_2 = B^+ x` (:func:`regular_form`),
+
+    .. math::
+        \dot x_1 = A_{11}x_1 + A_{12}x_2 + D_1 w,\qquad \dot x_2 = A_{21}x_1 + A_{22}x_2 + D_2 w + u,
+
+    the surface :math:`s = K\hat x_1 + \hat x_2 + G\hat w`, :math:`G = A_{12}^+ D_1`, gives on :math:`s = 0`
+    the disturbance-free reduced dynamics :math:`\dot x_1 = (A_{11} - A_{12}K)x_1` when
+    :math:`\mathrm{span}\,D_1 \subset \mathrm{span}\,A_{12}` (assumption A4). The control is
+    :math:`u = u_n - \rho s/\|s\|` (or super-twisting) with the nominal part cancelling the known terms of
+    :math:`\dot s`.
+
+    Extension (when A4 fails, e.g. the slides' helicopter): with a regulated output :math:`z = E x` (``E B = 0``),
+    the surface becomes
+
+    .. math::
+        s = K(\hat x_1 - x_1^*) + \hat x_2 - x_2^*,\qquad
+        x_1^* = \sum_{j=0}^{J}\Pi_j \hat w^{(j)},\quad x_2^* = \sum_{j=0}^{J}\Gamma_j \hat w^{(j)},
+
+    where :math:`(x_1^*, x_2^*)` is a trajectory of the regular form driven by ``w`` along which ``z = 0``:
+    :math:`\Pi_{j-1} = A_{11}\Pi_j + A_{12}\Gamma_j + D_1\delta_{j0}`, :math:`\Pi_J = 0`, :math:`E_1\Pi_j = 0`
+    (coefficients of :math:`w^{(j)}`, solved by least squares for the smallest ``J``). On ``s = 0``,
+    :math:`\frac{d}{dt}(x_1 - x_1^*) = (A_{11} - A_{12}K)(x_1 - x_1^*)`, so ``z -> 0`` exponentially whatever
+    ``w`` is. With ``E = I`` (default) ``J = 0``, :math:`\Pi_0 = 0`, :math:`\Gamma_0 = -G`: the 2013 surface.
+    This is the linear, single-surface form of the dynamic sliding surface of [FPU15] (which needs
+    :math:`\hat w` derivatives up to the relative degree of the disturbance to the actuated block); the observer
+    must provide ``n_w_derivatives >= J``.
+
+    Parameters
+    ----------
+    observer : CascadedHOSMObserver
+    K : array_like, shape (q, n - q), optional
+        Reduced-order gain; default LQR on ``(A11, A12)``.
+    rho : float
+        Unit-vector gain (``discontinuity="unit"``).
+    regulated : array_like, shape (r, n), optional
+        ``E``; default all of ``x_1``.
+    feedforward : bool
+        Cancel the identified terms of :math:`\dot s` in the nominal control (:math:`-(KD_1 + D_2)\hat w` and the
+        :math:`\hat w` derivatives the observer provides). ``False`` gives the slides' law
+        :math:`u = -\Phi x - \rho s/\|s\|`, which needs :math:`\rho > (\|KD_1 + D_2\| + \|G\|)w^+`.
+    discontinuity, k1, k2 : see :class:`IntegralSlidingModeController`.
+    t_start : float
+        Before ``T`` the disturbance terms are not used.
+
+    Notes
+    -----
+    The slides print the reduced dynamics as :math:`(A_{11} - A_{22}K)x_1`; substituting
+    :math:`x_2 = -Kx_1 - Gw` gives :math:`(A_{11} - A_{12}K)x_1`, which is what ``K`` is designed for here.
+    """
+
+    def __init__(self, observer, K=None, *, rho: float | None = None, regulated=None, feedforward: bool = True,
+                 discontinuity: str = "unit", k1=None, k2=None, Qr=None, Rr=None, t_start: float = 0.0):
+        self.observer = observer
+        P = self.plant = observer.plant
+        q, n = P.n_inputs, P.n
+        self.Tr, self.Tr_inv = regular_form(P.B)
+        Ab = self.Tr @ P.A @ self.Tr_inv
+        Db = self.Tr @ P.D
+        r = n - q
+        self.A11, self.A12, self.A21, self.A22 = Ab[:r, :r], Ab[:r, r:], Ab[r:, :r], Ab[r:, r:]
+        self.D1, self.D2 = Db[:r], Db[r:]
+        self.Kr = lqr(self.A11, self.A12, Qr, Rr) if K is None else np.atleast_2d(np.asarray(K, float))
+        if regulated is None:
+            E1 = np.eye(r)
+        else:
+            E = np.atleast_2d(np.asarray(regulated, float))
+            if np.linalg.norm(E @ P.B) > 1e-9 * max(np.linalg.norm(E), 1.0):
+                raise ValueError(f"expected a regulated output z = E x not directly actuated (E B = 0), actual "
+                                 f"value: ||E B|| = {np.linalg.norm(E @ P.B):.3g}")
+            E1 = E @ self.Tr_inv[:, :r]
+        self.Pi, self.Gam = self._solve_surface(E1)
+        self.J = len(self.Pi) - 1
+        if observer.n_w_derivatives < self.J:
+            raise ValueError(f"expected an observer with n_w_derivatives >= {self.J} (the surface uses w_hat "
+                             f"derivatives up to order {self.J}), actual value: {observer.n_w_derivatives}")
+        self.G = -self.Gam[0] if self.J == 0 else None
+        self.feedforward = bool(feedforward)
+        self.switch = _Discontinuous(discontinuity, rho, k1, k2, observer.dt, q)
+        self.t_start = float(t_start)
+        self.K = None
+        self.u = np.zeros(q)
+        self.s = np.zeros(q)
+
+    def _solve_surface(self, E1):
+        r"""Smallest ``J`` and ``(Pi_j, Gamma_j)`` with ``Pi_{j-1} = A11 Pi_j + A12 Gamma_j + D1 delta_j0``,
+        ``Pi_J = 0``, ``E1 Pi_j = 0``."""
+        A11, A12, D1 = self.A11, self.A12, self.D1
+        r, q = A12.shape
+        m = D1.shape[1]
+        for J in range(r + 1):
+            nv = (J + 1) * (r + q)  # unknowns per column of w: Pi_0..Pi_J, Gamma_0..Gamma_J
+            rows = []
+            rhs = []
+            for j in range(J + 2):  # coefficient of w^(j)
+                row = np.zeros((r, nv))
+                if j <= J:
+                    row[:, j * r:(j + 1) * r] += A11
+                    row[:, (J + 1) * r + j * q:(J + 1) * r + (j + 1) * q] += A12
+                if j >= 1:
+                    row[:, (j - 1) * r:j * r] -= np.eye(r)
+                rows.append(row)
+                rhs.append(-D1 if j == 0 else np.zeros((r, m)))
+            for j in range(J + 1):
+                row = np.zeros((E1.shape[0], nv))
+                row[:, j * r:(j + 1) * r] = E1
+                rows.append(row)
+                rhs.append(np.zeros((E1.shape[0], m)))
+            M, R = np.vstack(rows), np.vstack(rhs)
+            X = np.linalg.lstsq(M, R, rcond=None)[0]
+            if np.linalg.norm(M @ X - R) <= 1e-9 * max(np.linalg.norm(R), 1.0):
+                Pi = [X[j * r:(j + 1) * r] for j in range(J + 1)]
+                Gam = [X[(J + 1) * r + j * q:(J + 1) * r + (j + 1) * q] for j in range(J + 1)]
+                return Pi, Gam
+        raise ValueError("expected a disturbance that can be compensated on the regulated output through the "
+                         "sliding surface (span D1 inside span A12 for the full x1, or a regulated output E that "
+                         "the pseudo-control x2 can keep at zero), actual value: no solution for any J <= n - q; "
+                         "pass a smaller regulated output")
+
+    def _reset_law(self) -> None:
+        self.s = np.zeros(self.plant.n_inputs)
+        self.switch.reset()
+
+    def reset(self, y0, x_hat0=None) -> None:
+        self.observer.reset(y0, x_hat0)
+        self.u = np.zeros(self.plant.n_inputs)
+        self._reset_law()
+
+    def targets(self, use_w: bool):
+        """``(x1*, x2*)`` from the identified disturbance and its derivatives, and the derivative parts."""
+        r, q = self.A12.shape
+        x1s, x2s, dx1s, dx2s = np.zeros(r), np.zeros(q), np.zeros(r), np.zeros(q)
+        if not use_w:
+            return x1s, x2s, dx1s, dx2s
+        W = self.observer.w_hat_derivatives
+        for j in range(self.J + 1):
+            x1s += self.Pi[j] @ W[j]
+            x2s += self.Gam[j] @ W[j]
+            if j + 1 < W.shape[0]:
+                dx1s += self.Pi[j] @ W[j + 1]
+                dx2s += self.Gam[j] @ W[j + 1]
+        return x1s, x2s, dx1s, dx2s
+
+    def law(self, t: float) -> np.ndarray:
+        r = self.A11.shape[0]
+        xb = self.Tr @ self.observer.x_hat
+        x1, x2 = xb[:r], xb[r:]
+        use_w = t >= self.t_start
+        x1s, x2s, dx1s, dx2s = self.targets(use_w)
+        Kr = self.Kr
+        self.s = Kr @ (x1 - x1s) + x2 - x2s
+        # s' = K(A11 x1 + A12 x2 + D1 w - x1*') + A21 x1 + A22 x2 + D2 w + u - x2*'
+        u_n = -(Kr @ self.A11 + self.A21) @ x1 - (Kr @ self.A12 + self.A22) @ x2
+        if self.feedforward and use_w:
+            u_n = u_n - (Kr @ self.D1 + self.D2) @ self.observer.w_hat + Kr @ dx1s + dx2s
+        return u_n + self.switch(self.s)

@@ -1,0 +1,302 @@
+r"""Sampled-data state observers for linear plants with unknown inputs.
+
+:class:`LuenbergerObserver`
+    the classical observer (the baseline, and the first stage of the cascade).
+:class:`CascadedHOSMObserver`
+    Fridman, Levant and Davila's cascade (paper 004, section 3, eq. (10)-(11); the "HOSM algebraic observer" of
+    section 6): a Luenberger observer bounds the estimation error, a HOSM differentiator
+    (:class:`smo_gym.observers.Levant`, the same one the rest of smo_gym uses) differentiates the output error,
+    Molinari's algebraic relation turns those derivatives into the state error, and the unknown input is
+    identified from the error's derivative.
+
+Sampled-data form of the cascade
+--------------------------------
+In continuous time the Luenberger copy :math:`\dot{\tilde x} = A\tilde x + Bu + L(y - C\tilde x)` gives
+:math:`\dot e = (A - LC)e + Dw` for :math:`e = x - \tilde x`, and the slides identify
+:math:`\hat w = D^+(\dot e - (A - LC)e)`. A sampled controller only has :math:`y_k = y(t_k)`: holding
+:math:`y_k` inside the injection adds :math:`LC(x(t) - x(t_k))`, an ``O(tau)`` sawtooth in :math:`\dot e`
+that would cap the identification accuracy at ``O(tau)`` whatever the differentiator's order. Here the
+injection is applied at the sampling instants instead (the "current" observer
+:math:`\tilde x_k^+ = \tilde x_k^- + L_d(y_k - C\tilde x_k^-)`, exact ZOH prediction between samples), so that
+*between samples* the error obeys exactly
+
+.. math:: \dot e = A e + D w,
+
+and it jumps by the known :math:`\Delta e_k = -L_d (y_k - C\tilde x_k^-)` at the samples. The differentiator's
+predictor (its state estimates the output error and its derivatives at the next sample, see
+:mod:`smo_gym.observers._kernels`) is shifted by the exactly known effect of that jump,
+:math:`C A^j e^{A\tau}\Delta e_k` on the ``j``-th derivative, so the differentiator sees a smooth signal and keeps
+its accuracy ``O(L tau^(k+1-j))``. The identification then uses ``A`` (not ``A - LC``):
+:math:`\hat w = D^+(\hat{\dot e} - A\hat e)`; as ``tau -> 0`` with :math:`L_d = \tau L` this is the slides'
+formula. ``L_d`` puts the eigenvalues of :math:`e^{A\tau}(I - L_d C)` at :math:`e^{\lambda_i\tau}` for the
+continuous-time poles :math:`\lambda_i` requested.
+
+Accuracy (paper 004, section 6, after Angulo et al. 2011)
+---------------------------------------------------------
+With Molinari's relation needing output derivatives up to ``N`` and the differentiator of order
+``k = N + alpha`` (``alpha >= 1``: the number of bounded derivatives of ``w`` the estimate exploits), the state
+error is ``O(tau^(alpha + 1))`` and the identification error ``O(tau^alpha)`` for noise-free samples;
+with noise of amplitude ``eta`` they are ``O(eta^((alpha+1)/(k+1)))`` and ``O(eta^(alpha/(k+1)))``.
+
+References
+----------
+.. [FLD07] L. Fridman, A. Levant and J. Davila, "Observation of linear systems with unknown inputs via high-order
+   sliding-modes", Int. J. Systems Science 38(10), 2007.
+.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides (paper 004), sections 3 and 6.
+.. [AMF11] M. T. Angulo, L. Fridman and A. Levant, "Robust exact finite-time output based control using high-order
+   sliding modes", Int. J. Systems Science 42(11), 2011.
+.. [Mol76] B. P. Molinari, "A strong controllability and observability in linear multivariable control",
+   IEEE TAC 21(5), 1976.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.signal import place_poles
+
+from .._validation import check_int_in_range, check_positive
+from ..design.gains import MAX_LEVANT_ORDER
+from ..observers import Levant
+from .plants import LinearPlant
+
+__all__ = ["CascadedHOSMObserver", "LuenbergerObserver", "output_error_lipschitz", "sampled_observer_gain"]
+
+
+def _default_poles(A: np.ndarray) -> np.ndarray:
+    n = A.shape[0]
+    speed = max(10.0, 2.0 * np.abs(np.linalg.eigvals(A).real).max())
+    return -speed * (1.0 + 0.15 * np.arange(n))
+
+
+def sampled_observer_gain(A, C, dt: float, poles=None) -> np.ndarray:
+    r"""Gain ``L_d`` of the current observer :math:`\tilde x^+ = \tilde x^- + L_d(y - C\tilde x^-)`.
+
+    Places the eigenvalues of :math:`\Phi(I - L_d C)`, :math:`\Phi = e^{A\tau}` (the error map from one sample's
+    prior to the next), at :math:`e^{\lambda_i \tau}` for the continuous-time ``poles`` :math:`\lambda_i` (default
+    distinct reals at least twice as fast as the plant). With :math:`L' = \Phi L_d` this is the standard
+    placement for :math:`\Phi - L'C` (``scipy.signal.place_poles`` on the dual pair).
+
+    Returns
+    -------
+    ndarray, shape (n, p)
+    """
+    A, C = np.asarray(A, float), np.asarray(C, float)
+    poles = _default_poles(A) if poles is None else np.asarray(poles, dtype=complex)
+    if poles.shape != (A.shape[0],) or np.any(poles.real >= 0):
+        raise ValueError(f"expected {A.shape[0]} continuous-time observer poles with negative real parts, actual "
+                         f"value: {poles!r}")
+    Phi = sla.expm(A * dt)
+    res = place_poles(Phi.T, C.T, np.exp(poles * dt))
+    Lp = res.gain_matrix.T  # Phi - Lp C has the requested eigenvalues
+    return np.linalg.solve(Phi, Lp)
+
+
+def output_error_lipschitz(plant: LinearPlant, order: int, *, e_bound: float = 0.0, w_bounds=(1.0,)) -> np.ndarray:
+    r"""Per-output bound ``L`` on the ``(order + 1)``-th derivative of the output error, for the differentiator.
+
+    Between samples :math:`\dot e = Ae + Dw`, hence
+
+    .. math:: y_e^{(k+1)} = C A^{k+1} e + \sum_{i=0}^{k} C A^{k-i} D\, w^{(i)},\qquad
+              |y_{e,j}^{(k+1)}| \le \|c_j A^{k+1}\|\, e^+ + \sum_i \|c_j A^{k-i} D\|\, w_i^+ ,
+
+    with ``e_bound`` :math:`=e^+ \ge \|e\|` (the Luenberger error after its transient) and ``w_bounds[i]``
+    :math:`=w_i^+ \ge \|w^{(i)}\|` (the last entry is reused for higher derivatives).
+
+    Returns
+    -------
+    ndarray, shape (p,)
+    """
+    A, C, D = plant.A, plant.C, plant.D
+    wb = list(w_bounds)
+    L = np.linalg.norm(C @ np.linalg.matrix_power(A, order + 1), axis=1) * float(e_bound)
+    for i in range(order + 1):
+        wi = wb[min(i, len(wb) - 1)]
+        L = L + np.linalg.norm(C @ np.linalg.matrix_power(A, order - i) @ D, axis=1) * wi
+    return L
+
+
+class LuenbergerObserver:
+    r"""Sampled-data Luenberger observer (the "current" form), the baseline of the experiments.
+
+    .. math::
+        \tilde x_k^+ = \tilde x_k^- + L_d\,(y_k - C\tilde x_k^-),\qquad
+        \tilde x_{k+1}^- = \Phi\,\tilde x_k^+ + \Gamma u_k,
+
+    with the exact ZOH pair :math:`(\Phi, \Gamma)`. ``update(y)`` returns :math:`\hat x_k = \tilde x_k^+`;
+    ``advance(u)`` applies the prediction with the control actually commanded over the next interval. Unknown
+    inputs are ignored (so the estimate is biased under a persistent ``w``): ``w_hat`` is always zero.
+
+    Parameters
+    ----------
+    plant : LinearPlant
+    dt : float
+        Sampling step ``tau``.
+    poles : array_like, shape (n,), optional
+        Continuous-time poles of the error dynamics (see :func:`sampled_observer_gain`).
+    """
+
+    n_w_derivatives = 0
+
+    def __init__(self, plant: LinearPlant, dt: float, *, poles=None):
+        self.plant = plant
+        self.dt = check_positive("dt", dt)
+        self.Phi, self.Gamma = plant.discretize(self.dt)
+        self.L = sampled_observer_gain(plant.A, plant.C, self.dt, poles)
+        self._prior = None
+        self.x_hat = None
+        self.w_hat = np.zeros(plant.n_unknown)
+        self.w_hat_derivatives = np.zeros((1, plant.n_unknown))
+
+    def reset(self, y0, x_hat0=None) -> np.ndarray:
+        """Start from ``x_hat0`` (default: the least-squares state matching ``y0``, zero elsewhere)."""
+        y0 = np.asarray(y0, dtype=float)
+        self._prior = (np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None
+                       else np.array(x_hat0, dtype=float))
+        self.x_hat = self._prior.copy()
+        return self.x_hat
+
+    def _require(self):
+        if self._prior is None:
+            raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
+
+    def update(self, y) -> np.ndarray:
+        """Correct with the sample ``y_k`` and return :math:`\\hat x_k`."""
+        self._require()
+        innov = np.asarray(y, dtype=float) - self.plant.C @ self._prior
+        self.x_hat = self._prior + self.L @ innov
+        return self.x_hat
+
+    def advance(self, u) -> None:
+        """Predict to the next sample with the control ``u`` held over the interval."""
+        self._require()
+        self._prior = self.Phi @ self.x_hat + self.Gamma @ np.atleast_1d(np.asarray(u, dtype=float))
+
+
+class CascadedHOSMObserver:
+    r"""Cascaded HOSM observer with unknown-input identification ([FLD07]; paper 004, sections 3 and 6).
+
+    .. math::
+        \hat x_k = \tilde x_k^- + \hat e_k,\qquad \hat e_k = M^+ Q\,\hat Y_k,\qquad
+        \hat w_k = D^+\big(\hat{\dot e}_k - A\hat e_k\big),
+
+    where :math:`\tilde x` is the sampled Luenberger observer (module docstring), :math:`\hat Y_k` stacks the
+    HOSM differentiator's estimates of the output error :math:`y_e = y - C\tilde x^-` and its derivatives, and
+    :math:`M x = Q Y` is Molinari's decoupling relation (:func:`smo_gym.control.molinari_decoupling`). When every
+    output has relative degree ``>= 2`` and ``C`` has full rank ``n/2`` (mechanical systems, positions measured)
+    Molinari's relation is simply :math:`e = [C; CA]^{-1}[y_e; \dot y_e]`, the slides' :math:`K^{-1}` of (10);
+    otherwise (``CD != 0``, ``sum r_i < n``) it is the decoupled relation. :math:`\hat{\dot e}` uses the same
+    relation on the derivative-shifted stack, and derivatives of :math:`\hat w` (for
+    :class:`UnmatchedCompensationController`) the stack shifted further.
+
+    Parameters
+    ----------
+    plant : LinearPlant
+        Must be strongly observable (raises :class:`~smo_gym.control.NotStronglyObservableError` saying why not).
+    dt : float
+        Sampling step ``tau``.
+    lipschitz : float or array_like, shape (p,)
+        Bound on the ``(k+1)``-th derivative of each output error, ``k`` the differentiator order (see
+        :func:`output_error_lipschitz`).
+    alpha : int
+        Smoothness exploited: differentiator order ``k = N + n_w_derivatives + alpha``, ``N`` the highest output
+        derivative Molinari's relation needs. State error ``O(tau^(alpha+1))``, identification ``O(tau^alpha)``.
+    n_w_derivatives : int
+        Also estimate :math:`\dot{\hat w}, \ldots` up to this order.
+    poles : array_like, optional
+        Continuous-time poles of the Luenberger stage.
+    discretization : {"taylor", "euler"}
+        Of the Levant differentiator (``"taylor"``: Livne & Levant 2014, needed for the orders above).
+
+    Attributes
+    ----------
+    x_hat : ndarray, shape (n,)
+    w_hat : ndarray, shape (m,)
+    w_hat_derivatives : ndarray, shape (n_w_derivatives + 1, m)
+        ``w_hat`` and its estimated derivatives.
+    e_hat : ndarray, shape (n,)
+        Estimated error of the Luenberger stage.
+    order : int
+        Differentiator order ``k``.
+    """
+
+    def __init__(self, plant: LinearPlant, dt: float, lipschitz, *, alpha: int = 1, n_w_derivatives: int = 0,
+                 poles=None, discretization: str = "taylor"):
+        self.plant = plant
+        self.report = plant.require_strongly_observable()
+        self.dt = check_positive("dt", dt)
+        alpha = check_int_in_range("alpha", alpha, 1, MAX_LEVANT_ORDER)
+        n_w_derivatives = check_int_in_range("n_w_derivatives", n_w_derivatives, 0, MAX_LEVANT_ORDER)
+        if discretization not in ("taylor", "euler"):
+            raise ValueError(f"expected discretization to be one of 'taylor', 'euler', actual value: "
+                             f"{discretization!r}")
+        mol = self.report.molinari
+        self.molinari = mol
+        N = mol.n_derivatives
+        self.order = N + n_w_derivatives + alpha
+        if self.order > MAX_LEVANT_ORDER:
+            raise ValueError(f"expected a differentiator order N + n_w_derivatives + alpha <= {MAX_LEVANT_ORDER} "
+                             f"(N={N} from Molinari's relation), actual value: {self.order}")
+        self.alpha, self.n_w_derivatives = alpha, n_w_derivatives
+        p = plant.n_outputs
+        self.lipschitz = np.broadcast_to(np.asarray(lipschitz, dtype=float), (p,)).copy()
+        self.differentiator = Levant(self.order, self.dt, self.lipschitz, discretization=discretization)
+        self.Phi, self.Gamma = plant.discretize(self.dt)
+        self.L = sampled_observer_gain(plant.A, plant.C, self.dt, poles)
+        # state map e = S Y, Y = [y_e; y_e'; ...; y_e^(N)]
+        self._S = mol.state_map()
+        self._N = N
+        self._Dpinv = np.linalg.pinv(plant.D)
+        # effect of a unit jump of e on the j-th derivative of y_e at the next sample: C A^j Phi
+        self._jump = np.vstack([plant.C @ np.linalg.matrix_power(plant.A, j) @ self.Phi
+                                for j in range(self.order + 1)])  # ((k+1) p, n), derivative-major
+        self._prior = None
+        self._dstate = None
+        self.x_hat = self.e_hat = None
+        self.w_hat = np.zeros(plant.n_unknown)
+        self.w_hat_derivatives = np.zeros((n_w_derivatives + 1, plant.n_unknown))
+        self.output_error = None
+
+    @property
+    def theoretical_orders(self) -> dict[str, int]:
+        """Orders in ``tau`` of the state and identification errors (paper 004, section 6)."""
+        return {"state": self.alpha + 1, "identification": self.alpha}
+
+    def reset(self, y0, x_hat0=None) -> np.ndarray:
+        """Start the Luenberger stage at ``x_hat0`` (default ``C^+ y0``) and the differentiator at its output error."""
+        y0 = np.asarray(y0, dtype=float)
+        self._prior = (np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None
+                       else np.array(x_hat0, dtype=float))
+        ye0 = y0 - self.plant.C @ self._prior
+        self.differentiator.reset(ye0)
+        self._dstate = self.differentiator.state
+        self.x_hat = self._prior.copy()
+        self.e_hat = np.zeros(self.plant.n)
+        return self.x_hat
+
+    def update(self, y) -> np.ndarray:
+        """Process the sample ``y_k``: return :math:`\\hat x_k` and set ``w_hat`` (and its derivatives)."""
+        if self._prior is None:
+            raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
+        ye = np.asarray(y, dtype=float) - self.plant.C @ self._prior
+        self.output_error = ye
+        new_state, Z = self.differentiator.step(self._dstate, ye)  # Z: (p, k+1), estimates at t_k (pre-jump)
+        # e, e', e'', ...: Molinari's relation on the derivative stack shifted by j
+        E = [self._S @ Z[:, j:j + self._N + 1].T.reshape(-1) for j in range(self.n_w_derivatives + 2)]
+        self.e_hat = E[0]
+        self.x_hat = self._prior + E[0]
+        for j in range(self.n_w_derivatives + 1):
+            self.w_hat_derivatives[j] = self._Dpinv @ (E[j + 1] - self.plant.A @ E[j])
+        self.w_hat = self.w_hat_derivatives[0].copy()
+        # Luenberger correction at the sample, and its exactly known effect on the differentiated signal
+        correction = self.L @ ye
+        self._posterior = self._prior + correction
+        new_state[:, : self.order + 1] -= (self._jump @ correction).reshape(self.order + 1, -1).T
+        self._dstate = new_state
+        return self.x_hat
+
+    def advance(self, u) -> None:
+        """Predict the Luenberger stage to the next sample with the control ``u`` held over the interval."""
+        if self._prior is None:
+            raise RuntimeError("expected reset(y0) before advance(u), actual value: the observer was never reset")
+        self._prior = self.Phi @ self._posterior + self.Gamma @ np.atleast_1d(np.asarray(u, dtype=float))
