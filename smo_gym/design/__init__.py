@@ -3,6 +3,7 @@
 No Gymnasium or MuJoCo imports here: design works on numbers only.
 """
 
+from .apaza import ApazaGains, InfeasibleGainsError, apaza_gains, apaza_lmi_matrix
 from .gains import (
     LEVANT_LAMBDAS,
     MAX_LEVANT_ORDER,
@@ -14,6 +15,10 @@ from .gains import (
 )
 
 __all__ = [
+    "ApazaGains",
+    "InfeasibleGainsError",
+    "apaza_gains",
+    "apaza_lmi_matrix",
     "LEVANT_LAMBDAS",
     "MAX_LEVANT_ORDER",
     "ackermann_observer_gain",

@@ -9,6 +9,7 @@ from .._validation import DivergenceError
 from .base import Observer
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .linear import FiniteDifference, HighGain, KalmanCA
+from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
 
 #: name -> class, for the wrapper, the CLI and :func:`smo_gym.differentiate`
 OBSERVERS: dict[str, type[Observer]] = {
@@ -27,7 +28,17 @@ def make_observer(name: str, **params) -> Observer:
     return cls(**params)
 
 
+#: model-based observers (built with a dynamics object, updated with ``update(y, u)``); not in OBSERVERS
+MODEL_BASED_OBSERVERS: dict[str, type[Observer]] = {
+    cls.name: cls for cls in (MechanicalSuperTwisting, DissipativeSuperTwisting)
+}
+
 __all__ = [
+    "CoordinateTransform",
+    "DissipativeSuperTwisting",
+    "Dynamics",
+    "MODEL_BASED_OBSERVERS",
+    "MechanicalSuperTwisting",
     "OBSERVERS",
     "URED",
     "DivergenceError",

@@ -1,0 +1,123 @@
+"""Shared base of the smo_gym MuJoCo environments: package-data models, an external-torque disturbance input.
+
+The disturbance is a generalized force written into ``data.qfrc_applied`` at *every physics step* (not once per
+environment step), on the joints listed in ``disturbance_joints``. It is either constant (:meth:`set_disturbance`)
+or a function of simulation time passed as ``disturbance=`` (``f(t) -> array of shape (n_disturbance,)``). The
+force actually applied during the last step is reported as ``info["disturbance"]``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+
+import mujoco
+import numpy as np
+from gymnasium import utils
+from gymnasium.envs.mujoco import MujocoEnv
+from gymnasium.spaces import Box
+
+__all__ = ["ASSETS", "SmoMujocoEnv", "asset_path"]
+
+#: directory of the packaged MJCF models
+ASSETS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "assets")
+
+
+def asset_path(name: str) -> str:
+    """Absolute path of a packaged model (works from an installed package, not only a checkout)."""
+    return os.path.join(ASSETS, name)
+
+
+class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
+    """Base class: observation ``[qpos, qvel]``, reset noise, and a joint-torque disturbance input.
+
+    Subclasses set ``xml_file``, ``disturbance_joints`` and implement ``_reward_terminated(obs, action)`` and
+    ``_initial_state()``.
+    """
+
+    xml_file: str = ""
+    disturbance_joints: Sequence[str] = ()
+
+    def __init__(self, frame_skip: int, *, disturbance: Callable[[float], np.ndarray] | None = None,
+                 reset_noise_scale: float = 0.01, render_mode: str | None = None, **kwargs):
+        utils.EzPickle.__init__(self, frame_skip=frame_skip, disturbance=disturbance,
+                                reset_noise_scale=reset_noise_scale, render_mode=render_mode, **kwargs)
+        self._reset_noise_scale = float(reset_noise_scale)
+        path = asset_path(self.xml_file)
+        model = mujoco.MjModel.from_xml_path(path)
+        n_obs = model.nq + model.nv
+        MujocoEnv.__init__(self, path, frame_skip,
+                           observation_space=Box(-np.inf, np.inf, shape=(n_obs,), dtype=np.float64),
+                           render_mode=render_mode, **kwargs)
+        self.metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"],
+                         "render_fps": int(np.round(1.0 / self.dt))}
+        self.disturbance_dofs = np.array(
+            [self.model.jnt_dofadr[self.model.joint(name).id] for name in self.disturbance_joints], dtype=int)
+        if disturbance is not None and not callable(disturbance):
+            raise TypeError(f"expected disturbance to be callable f(t) -> array, actual value: {disturbance!r}")
+        self._disturbance_fn = disturbance
+        self._disturbance_const = np.zeros(len(self.disturbance_dofs))
+        self._last_disturbance = np.zeros(len(self.disturbance_dofs))
+
+    # ---- disturbance input ---------------------------------------------------------------------------------
+    def set_disturbance(self, torque) -> None:
+        """Apply a constant generalized force on ``disturbance_joints`` from now on (added to ``disturbance=``)."""
+        torque = np.asarray(torque, dtype=np.float64)
+        if torque.shape not in ((), self._disturbance_const.shape):
+            raise ValueError(f"expected a disturbance of shape {self._disturbance_const.shape}, actual value: "
+                             f"{torque.shape}")
+        if not np.all(np.isfinite(torque)):
+            raise ValueError(f"expected a finite disturbance, actual value: {torque!r}")
+        self._disturbance_const = np.broadcast_to(torque, self._disturbance_const.shape).copy()
+
+    def _disturbance_at(self, t: float) -> np.ndarray:
+        d = self._disturbance_const
+        if self._disturbance_fn is not None:
+            d = d + np.broadcast_to(np.asarray(self._disturbance_fn(t), dtype=np.float64), d.shape)
+        return d
+
+    def _step_mujoco_simulation(self, ctrl, n_frames):
+        self.data.ctrl[:] = ctrl
+        if self._disturbance_fn is None and not np.any(self._disturbance_const):
+            self.data.qfrc_applied[:] = 0.0
+            mujoco.mj_step(self.model, self.data, nstep=n_frames)
+            self._last_disturbance = np.zeros_like(self._disturbance_const)
+        else:
+            for _ in range(n_frames):
+                d = self._disturbance_at(self.data.time)
+                self.data.qfrc_applied[:] = 0.0
+                self.data.qfrc_applied[self.disturbance_dofs] = d
+                mujoco.mj_step(self.model, self.data)
+            self._last_disturbance = d
+        mujoco.mj_rnePostConstraint(self.model, self.data)
+
+    # ---- gymnasium API -------------------------------------------------------------------------------------
+    def _get_obs(self) -> np.ndarray:
+        return np.concatenate([self.data.qpos, self.data.qvel]).ravel()
+
+    def _reward_terminated(self, obs: np.ndarray, action: np.ndarray) -> tuple[float, bool]:  # pragma: no cover
+        raise NotImplementedError
+
+    def _initial_state(self) -> tuple[np.ndarray, np.ndarray]:
+        s = self._reset_noise_scale
+        qpos = self.init_qpos + self.np_random.uniform(-s, s, size=self.model.nq)
+        qvel = self.init_qvel + self.np_random.uniform(-s, s, size=self.model.nv)
+        return qpos, qvel
+
+    def step(self, action):
+        action = np.asarray(action, dtype=np.float64)
+        self.do_simulation(action, self.frame_skip)
+        obs = self._get_obs()
+        reward, terminated = self._reward_terminated(obs, action)
+        if not np.all(np.isfinite(obs)):
+            terminated = True
+        info = {"disturbance": self._last_disturbance.copy(), "time": float(self.data.time)}
+        if self.render_mode == "human":
+            self.render()
+        return obs, float(reward), bool(terminated), False, info
+
+    def reset_model(self):
+        qpos, qvel = self._initial_state()
+        self.set_state(qpos, qvel)
+        self.data.qfrc_applied[:] = 0.0
+        return self._get_obs()

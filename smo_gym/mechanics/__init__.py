@@ -1,0 +1,9 @@
+"""MuJoCo-backed model terms (inertia, bias, passive and actuator forces) for the model-based observers.
+
+This layer may import MuJoCo but not Gymnasium. It implements the dynamics protocol of
+:mod:`smo_gym.observers.mechanical` so that the observers themselves stay free of MuJoCo.
+"""
+
+from .dynamics import MujocoDynamics
+
+__all__ = ["MujocoDynamics"]

@@ -1,0 +1,353 @@
+r"""MuJoCo-backed model terms of a mechanical system, for the model-based observers.
+
+:class:`MujocoDynamics` implements the :class:`smo_gym.observers.mechanical.Dynamics` protocol on a *private
+copy* of an ``MjModel`` with its own scratch ``MjData``: evaluating the model never touches the environment's
+``MjData``, and the copy can carry a deliberate model mismatch (scaled masses, inertias, damping) for honest
+experiments.
+
+For the measured coordinates :math:`q \in \mathbb R^n` (hinge and slide joints) it provides
+
+.. math::
+    M(q)\,\ddot q + b(q, \dot q) = \tau_{act}(u) + \tau_{pas}(q, \dot q) \;(+\ \tau_{c}),\qquad
+    f(q, \dot q, u) = M(q)^{-1}\bigl(\tau_{act}(u) + \tau_{pas}(q, \dot q) - b(q, \dot q)\bigr),
+
+with :math:`M` from ``mj_fullM``, :math:`b` = ``qfrc_bias`` (Coriolis, centrifugal, gravity), :math:`\tau_{pas}` =
+``qfrc_passive`` (springs, damping) and :math:`\tau_{act}` = ``qfrc_actuator`` (``ctrl`` through the actuator
+moment arms, ``mj_fwdActuation``). ``qfrc_applied`` is always zero in the scratch data: external forces are what
+the observer has to estimate.
+
+Constraints
+-----------
+``contact="unknown"`` (default) disables the constraint solver on the copy (``mjDSBL_CONSTRAINT``,
+``mjDSBL_CONTACT``): contacts, joint limits and dry friction (``frictionloss``, which MuJoCo implements as a
+constraint) are *not* in ``f``; the observer sees them as an unknown input that its gain must dominate.
+``contact="measured"`` keeps the solver and returns MuJoCo's constrained ``qacc``: the contact model is evaluated
+at the measured configuration and the *estimated* velocity (soft contacts depend on both), i.e. the contact
+forces are predicted rather than treated as a disturbance.
+
+Joint equality constraints (``<equality><joint joint1=.. joint2=.. polycoef=..>``), which couple a dependent joint
+to a measured one by :math:`y - y_0 = \sum_{i=0}^4 a_i (x - x_0)^i`, are eliminated exactly in the ``"unknown"``
+mode: with :math:`q_{full} = \phi(q)`, :math:`J = \partial\phi/\partial q` and :math:`\dot J\dot q` from the second
+derivative of the polynomial,
+
+.. math::
+    M_r = J^\top M J,\qquad f = M_r^{-1} J^\top\bigl(\tau_{act} + \tau_{pas} - b - M \dot J \dot q\bigr),
+
+the rigid-constraint (Lagrangian) reduction. MuJoCo simulates the same constraint softly, so the plant deviates
+from it by the constraint's softness (``solref``); that deviation is part of what the observer treats as unknown.
+
+Only hinge and slide joints are supported (``nq == nv`` coordinate by coordinate); free and ball joints raise
+``ValueError`` (their positions live on a manifold and would need ``mj_integratePos`` in the observer).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+__all__ = ["MujocoDynamics"]
+
+_HINGE_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+
+
+def _scale(name: str, value, size: int) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    try:
+        arr = np.broadcast_to(arr, (size,))
+    except ValueError:
+        raise ValueError(f"expected {name} scalar or of shape ({size},), actual value: shape {arr.shape}") from None
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"expected {name} >= 0 and finite, actual value: {value!r}")
+    return arr
+
+
+class MujocoDynamics:
+    r"""Joint-space model terms of a MuJoCo model, evaluated on a private copy.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+        The model; it is deep-copied, never modified.
+    joints : sequence of str, optional
+        Names of the measured joints (hinge or slide), in the order of the observer's channels. Default: every
+        joint that is not the dependent side of an active joint equality constraint.
+    mass_scale : float or array_like, shape (nbody,)
+        Multiplies ``body_mass`` of the copy (model mismatch). ``inertia_scale`` defaults to the same value, so
+        the bodies keep their radii of gyration.
+    inertia_scale : float or array_like, optional
+    damping_scale : float
+        Multiplies ``dof_damping``.
+    contact : {"unknown", "measured"}
+        How constraints (contacts, limits, dry friction) enter ``f``; see the module notes.
+    input : {"ctrl", "qfrc"}
+        What ``u`` is in :meth:`acceleration`: actuator controls ``(nu,)``, or generalized forces on the measured
+        coordinates ``(n,)``.
+
+    Attributes
+    ----------
+    n : int
+        Number of measured coordinates (the observer's channels).
+    model, data : the private ``MjModel`` copy and scratch ``MjData``.
+    dof : ndarray of int, shape (n,)
+        ``qvel`` address of each measured coordinate (equal to its ``qpos`` address for hinge/slide joints).
+    timestep : float
+        ``model.opt.timestep``.
+    """
+
+    def __init__(self, model: mujoco.MjModel, *, joints: Sequence[str] | None = None, mass_scale=1.0,
+                 inertia_scale=None, damping_scale=1.0, contact: str = "unknown", input: str = "ctrl"):
+        if not isinstance(model, mujoco.MjModel):
+            raise TypeError(f"expected a mujoco.MjModel, actual value: {type(model).__name__}")
+        if contact not in ("unknown", "measured"):
+            raise ValueError(f"expected contact to be 'unknown' or 'measured', actual value: {contact!r}")
+        if input not in ("ctrl", "qfrc"):
+            raise ValueError(f"expected input to be 'ctrl' or 'qfrc', actual value: {input!r}")
+        m = copy.deepcopy(model)
+        for j in range(m.njnt):
+            if int(m.jnt_type[j]) not in _HINGE_SLIDE:
+                name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+                raise ValueError(
+                    "expected a model with hinge and slide joints only, actual value: joint "
+                    f"{name or j!r} of type {mujoco.mjtJoint(int(m.jnt_type[j])).name}; free and ball joints are "
+                    "not supported by the model-based observers"
+                )
+        ms = _scale("mass_scale", mass_scale, m.nbody)
+        isc = ms if inertia_scale is None else _scale("inertia_scale", inertia_scale, m.nbody)
+        m.body_mass[:] = m.body_mass * ms
+        m.body_inertia[:] = m.body_inertia * isc[:, None]
+        m.dof_damping[:] = m.dof_damping * float(_scale("damping_scale", damping_scale, 1)[0])
+        self.contact = contact
+        self.input = input
+        # joint equality couplings: dependent joint -> (independent joint, polycoef)
+        self._couplings: dict[int, tuple[int, np.ndarray]] = {}
+        for e in range(m.neq):
+            if int(m.eq_type[e]) == int(mujoco.mjtEq.mjEQ_JOINT) and m.eq_active0[e] and m.eq_obj2id[e] >= 0:
+                self._couplings[int(m.eq_obj1id[e])] = (int(m.eq_obj2id[e]), np.array(m.eq_data[e, :5]))
+        if contact == "unknown":
+            m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        self.model = m
+        self.data = mujoco.MjData(m)
+        if joints is None:
+            jids = [j for j in range(m.njnt) if j not in self._couplings]
+        else:
+            jids = []
+            for name in joints:
+                j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+                if j < 0:
+                    raise ValueError(f"expected a joint name of the model, actual value: {name!r}")
+                jids.append(j)
+        covered = set(jids) | set(self._couplings)
+        missing = [j for j in range(m.njnt) if j not in covered]
+        if missing:
+            names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in missing]
+            raise ValueError(f"expected every joint measured or coupled by a joint equality, actual value: "
+                             f"joints {names} are neither")
+        for dep, (ind, _) in self._couplings.items():
+            if ind not in jids:
+                raise ValueError(f"expected the independent joint of equality on joint {dep} among the measured "
+                                 f"joints, actual value: joint {ind} is not measured")
+        self._jids = np.array(jids, dtype=int)
+        self.dof = np.array([m.jnt_dofadr[j] for j in jids], dtype=int)
+        self._qadr = np.array([m.jnt_qposadr[j] for j in jids], dtype=int)
+        self.n = len(jids)
+        self.timestep = float(m.opt.timestep)
+        self._reduce = bool(self._couplings) and contact == "unknown"
+        self._fullM = np.zeros((m.nv, m.nv))
+        self._chan_of_joint = {int(j): i for i, j in enumerate(jids)}
+        self._u_width = m.nu if input == "ctrl" else self.n
+        self._fast = (not self._couplings and m.nq == m.nv == self.n and np.array_equal(self.dof, np.arange(self.n))
+                      and np.array_equal(self._qadr, np.arange(self.n)))
+
+    # ---- coordinates --------------------------------------------------------------------------------------
+    def _set_state(self, q: np.ndarray, v: np.ndarray | None, u: np.ndarray | None) -> np.ndarray | None:
+        """Write ``(q, v, u)`` into the scratch data; return ``Jdot v`` (nv,) when couplings are eliminated."""
+        m, d = self.model, self.data
+        d.qpos[self._qadr] = q
+        if v is not None:
+            d.qvel[self.dof] = v
+        jdv = None
+        if self._couplings:
+            jdv = np.zeros(m.nv)
+            for dep, (ind, c) in self._couplings.items():
+                x = q[self._chan_of_joint[ind]] - m.qpos0[m.jnt_qposadr[ind]]
+                d.qpos[m.jnt_qposadr[dep]] = m.qpos0[m.jnt_qposadr[dep]] + c[0] + x * (c[1] + x * (c[2] + x * (c[3] + x * c[4])))
+                if v is not None:
+                    xd = v[self._chan_of_joint[ind]]
+                    d1 = c[1] + x * (2 * c[2] + x * (3 * c[3] + x * 4 * c[4]))
+                    d2 = 2 * c[2] + x * (6 * c[3] + x * 12 * c[4])
+                    d.qvel[m.jnt_dofadr[dep]] = d1 * xd
+                    jdv[m.jnt_dofadr[dep]] = d2 * xd * xd
+        if u is not None:
+            if self.input == "ctrl":
+                d.ctrl[:] = u
+            else:
+                d.qfrc_applied[:] = 0.0
+                d.qfrc_applied[self.dof] = u
+        return jdv
+
+    def jacobian(self, q) -> np.ndarray:
+        r"""``J = d q_full / d q``, shape ``(nv, n)``: identity rows for measured joints, polynomial slopes for
+        coupled ones."""
+        q = np.asarray(q, dtype=np.float64)
+        m = self.model
+        J = np.zeros((m.nv, self.n))
+        J[self.dof, np.arange(self.n)] = 1.0
+        for dep, (ind, c) in self._couplings.items():
+            i = self._chan_of_joint[ind]
+            x = q[i] - m.qpos0[m.jnt_qposadr[ind]]
+            J[m.jnt_dofadr[dep], i] = c[1] + x * (2 * c[2] + x * (3 * c[3] + x * 4 * c[4]))
+        return J
+
+    # ---- protocol -------------------------------------------------------------------------------------------
+    def _check(self, name, arr, width):
+        arr = np.asarray(arr, dtype=np.float64)
+        if arr.ndim == 0 or arr.shape[-1] != width:
+            raise ValueError(f"expected {name} with shape (..., {width}), actual value: {arr.shape}")
+        return arr
+
+    def _accel_one(self, q, v, u) -> np.ndarray:
+        m, d = self.model, self.data
+        jdv = self._set_state(q, v, u)
+        mujoco.mj_forward(m, d)
+        if not self._reduce:
+            return d.qacc[self.dof].copy()
+        J = self.jacobian(q)
+        mujoco.mj_fullM(m, d, self._fullM)
+        rhs = J.T @ (d.qfrc_smooth - self._fullM @ jdv)
+        return np.linalg.solve(J.T @ self._fullM @ J, rhs)
+
+    def acceleration(self, q, v, u=None) -> np.ndarray:
+        r"""Model acceleration :math:`f(q, \dot q, u)` of the measured coordinates.
+
+        Parameters
+        ----------
+        q, v : array_like, shape (..., n)
+            Positions and velocities of the measured coordinates (any leading batch shape).
+        u : array_like, shape (..., nu) or (..., n), optional
+            Controls (``input="ctrl"``) or generalized forces (``input="qfrc"``); zero if omitted.
+
+        Returns
+        -------
+        ndarray, shape (..., n)
+        """
+        if self._fast and type(q) is np.ndarray and type(v) is np.ndarray and q.shape == v.shape == (self.n,) \
+                and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,))):
+            # hot path (one environment, all joints measured in model order): no index arithmetic
+            d = self.data
+            d.qpos[:] = q
+            d.qvel[:] = v
+            if u is not None:
+                if self.input == "ctrl":
+                    d.ctrl[:] = u
+                else:
+                    d.qfrc_applied[:] = u
+            mujoco.mj_forward(self.model, d)
+            return d.qacc.copy()
+        q = self._check("q", q, self.n)
+        v = self._check("v", v, self.n)
+        width = self._u_width
+        if u is None:
+            u = np.zeros(q.shape[:-1] + (width,))
+        else:
+            u = self._check("u", u, width)
+        if q.ndim == 1 and v.ndim == 1 and u.ndim == 1:
+            return self._accel_one(q, v, u)
+        shape = np.broadcast_shapes(q.shape[:-1], v.shape[:-1], u.shape[:-1])
+        qb = np.broadcast_to(q, shape + (self.n,)).reshape(-1, self.n)
+        vb = np.broadcast_to(v, shape + (self.n,)).reshape(-1, self.n)
+        ub = np.broadcast_to(u, shape + (width,)).reshape(-1, width)
+        out = np.empty_like(qb)
+        for b in range(qb.shape[0]):
+            out[b] = self._accel_one(qb[b], vb[b], ub[b])
+        return out.reshape(shape + (self.n,))
+
+    def _inertia_one(self, q) -> np.ndarray:
+        m, d = self.model, self.data
+        self._set_state(q, None, None)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_makeM(m, d)
+        mujoco.mj_fullM(m, d, self._fullM)
+        if not self._couplings:
+            return self._fullM[np.ix_(self.dof, self.dof)].copy()
+        J = self.jacobian(q)
+        return J.T @ self._fullM @ J
+
+    def inertia(self, q) -> np.ndarray:
+        r"""Joint-space inertia :math:`M(q)` of the measured coordinates (reduced by couplings), shape
+        ``(..., n, n)``."""
+        q = self._check("q", q, self.n)
+        if q.ndim == 1:
+            return self._inertia_one(q)
+        flat = q.reshape(-1, self.n)
+        return np.stack([self._inertia_one(r) for r in flat]).reshape(q.shape[:-1] + (self.n, self.n))
+
+    def terms(self, q, v, u=None) -> dict[str, np.ndarray]:
+        r"""The individual terms at one state (unbatched): ``inertia`` (n, n), ``bias``, ``passive``,
+        ``actuator`` (n,), projected on the measured coordinates by :math:`J^\top`, and ``acceleration``."""
+        q = self._check("q", q, self.n)
+        v = self._check("v", v, self.n)
+        acc = self.acceleration(q, v, u)
+        d = self.data
+        J = self.jacobian(q)
+        return {"inertia": self.inertia(q), "bias": J.T @ d.qfrc_bias, "passive": J.T @ d.qfrc_passive,
+                "actuator": J.T @ d.qfrc_actuator, "acceleration": acc}
+
+    def self_quadratic_coefficient(self, q, step: float = 1e-5) -> np.ndarray:
+        r"""Coefficient :math:`\alpha_i(q)` of the self-quadratic velocity term :math:`\alpha_i\dot q_i^2` in
+        :math:`\ddot q_i`, shape ``(..., n)``.
+
+        From :math:`\ddot q = M^{-1}(\ldots - C(q,\dot q)\dot q)` with Christoffel symbols
+        :math:`c_{jii} = \partial_i M_{ji} - \tfrac12 \partial_j M_{ii}`,
+
+        .. math:: \alpha_i(q) = -\sum_j (M^{-1})_{ij}\, c_{jii}(q),
+
+        with :math:`\partial M` by central differences of :meth:`inertia` (step ``step``). For one coordinate
+        this is :math:`\alpha = -M'(q)/(2M(q))`, the term Apaza et al.'s transform removes.
+        """
+        q = self._check("q", q, self.n)
+        flat = q.reshape(-1, self.n)
+        out = np.empty_like(flat)
+        for b, qb in enumerate(flat):
+            Minv = np.linalg.inv(self._inertia_one(qb))
+            dM = np.empty((self.n, self.n, self.n))  # dM[k] = dM/dq_k
+            for k in range(self.n):
+                dq = np.zeros(self.n)
+                dq[k] = step
+                dM[k] = (self._inertia_one(qb + dq) - self._inertia_one(qb - dq)) / (2 * step)
+            for i in range(self.n):
+                c = np.array([dM[i][j, i] - 0.5 * dM[j][i, i] for j in range(self.n)])
+                out[b, i] = -Minv[i] @ c
+        return out.reshape(q.shape)
+
+    def alpha_function(self, reference=None, step: float = 1e-5):
+        r"""Per-channel self-quadratic coefficient as a function of the channel's own coordinate.
+
+        Returns a callable ``alpha(Y) -> A`` (``Y, A`` of shape ``(G, n)``) for
+        :class:`smo_gym.observers.CoordinateTransform`: ``A[g, i]`` is :meth:`self_quadratic_coefficient`'s entry
+        ``i`` at the configuration ``reference`` with coordinate ``i`` replaced by ``Y[g, i]``. For one DOF this
+        is exactly :math:`-M'(q)/(2M(q))`; for several DOF the other joints are frozen at ``reference`` (default
+        the model's ``qpos0``), see :class:`smo_gym.observers.DissipativeSuperTwisting` for what that leaves in
+        the model term.
+        """
+        ref = self.model.qpos0[self._qadr].copy() if reference is None else np.array(reference, dtype=float)
+        if ref.shape != (self.n,):
+            raise ValueError(f"expected reference with shape ({self.n},), actual value: {ref.shape}")
+
+        def alpha(Y):
+            Y = np.asarray(Y, dtype=np.float64)
+            out = np.empty_like(Y)
+            for g in range(Y.shape[0]):
+                for i in range(self.n):
+                    q = ref.copy()
+                    q[i] = Y[g, i]
+                    out[g, i] = self.self_quadratic_coefficient(q, step)[i]
+            return out
+
+        return alpha
+
+    def __repr__(self) -> str:
+        return f"MujocoDynamics(n={self.n}, contact={self.contact!r}, input={self.input!r})"

@@ -1,0 +1,545 @@
+r"""Model-based super-twisting velocity observers for mechanical systems.
+
+A mechanical system with measured positions :math:`q \in \mathbb R^n`,
+
+.. math:: \dot q = v,\qquad \dot v = f(q, v, u) + w,\qquad y = q,
+
+where ``f`` is what a model knows (inertia, Coriolis, gravity, springs, damping, actuators) and ``w`` what it does
+not (contacts, model mismatch, external forces). The observers here get ``f`` from a *dynamics object* (the
+:class:`Dynamics` protocol, implemented for MuJoCo by :class:`smo_gym.mechanics.MujocoDynamics`), so their
+discontinuous gain bounds only ``w`` instead of the whole acceleration, and the equivalent output injection
+estimates ``w`` itself (external joint torques :math:`M(q) w`).
+
+Discretizations
+---------------
+Both observers share one recursion (:mod:`smo_gym.observers._mechanical_kernels`), per joint, with the model term
+``m`` evaluated *explicitly* at the previous sample and the sliding-mode injection treated either
+
+``"semi-implicit"`` (default)
+    implicitly, in closed form (the set-valued implicit Euler of the super-twisting part, Brogliato, Polyakov and
+    Efimov 2020, with the model term as a known drift): no discretization chattering; inside the sliding set the
+    injection takes the exact equivalent value.
+``"euler"``
+    explicitly (forward Euler of the injection): chattering of amplitude :math:`O(k_2 h)` in the velocity.
+
+The model prediction is :math:`\hat q^- = \hat q + h\hat v + c h^2 m`, :math:`\hat v^- = \hat v + h m`, with
+:math:`c = 1/2` (Taylor, consistent with the continuous-time plant; RK4 plants) or, for a plant integrated by
+MuJoCo's semi-implicit Euler with ``n`` physics steps per sample, :math:`c = (n+1)/(2n)` (``euler_substeps=n``),
+which reproduces that integrator's discrete flow exactly when the model is exact and the acceleration constant
+over the sample.
+
+Saturation (paper 003, eq. (33))
+--------------------------------
+With ``accel_bound`` the model term is clipped, :math:`\mathrm{sat}_{L_\gamma}(m)`: a large velocity error then
+cannot drive the model term (quadratic in velocity through the Coriolis terms) to a finite escape time, which is
+what makes an unsaturated model-based observer fail from large initial errors on multi-DOF systems.
+
+References
+----------
+.. [DFL05] J. Davila, L. Fridman and A. Levant, "Second-order sliding-mode observer for mechanical systems",
+   IEEE TAC 50(11), 2005 (paper 004, section 4; the slide prints the correction signs flipped, see
+   ``shared/papers/README.md``: the correct injections use ``y - xhat_1`` with positive gains).
+.. [AMFA18] J. C. Apaza-Perez, J. A. Moreno and L. Fridman, "Dissipative approach to sliding mode observers
+   design for uncertain mechanical systems", Automatica 87, 2018 (paper 004, "Dissipative approach").
+.. [WRH] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear
+   discrete-time observer" (paper 003), eq. (33).
+.. [BPE20] B. Brogliato, A. Polyakov and D. Efimov, "The implicit discretization of the super-twisting
+   sliding-mode control algorithm", IEEE TAC 65(8), 2020.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .._validation import check_int_in_range, check_positive
+from ..design.gains import super_twisting_gains
+from . import _mechanical_kernels as _mk
+from .base import Observer
+
+__all__ = ["CoordinateTransform", "Dynamics", "DissipativeSuperTwisting", "MechanicalSuperTwisting"]
+
+
+@runtime_checkable
+class Dynamics(Protocol):
+    r"""What a model-based observer needs from a mechanical model.
+
+    Attributes
+    ----------
+    n : int
+        Number of measured coordinates (the observer's channels).
+
+    Methods
+    -------
+    acceleration(q, v, u=None) -> ndarray, shape (..., n)
+        :math:`f(q, v, u)`, the model acceleration; ``q, v`` of shape ``(..., n)`` (batched over leading
+        dimensions), ``u`` the input in the object's own convention (controls, torques) or ``None``.
+    inertia(q) -> ndarray, shape (..., n, n)
+        :math:`M(q)`, to turn acceleration disturbances into joint torques.
+    """
+
+    n: int
+
+    def acceleration(self, q, v, u=None) -> np.ndarray: ...
+
+    def inertia(self, q) -> np.ndarray: ...
+
+
+def _check_dynamics(dynamics) -> int:
+    if not isinstance(dynamics, Dynamics):
+        raise TypeError("expected a dynamics object with n, acceleration(q, v, u) and inertia(q), actual value: "
+                        f"{type(dynamics).__name__}")
+    return check_int_in_range("dynamics.n", int(dynamics.n), 1, 10_000)
+
+
+def _signed_root(e: np.ndarray) -> np.ndarray:
+    return np.sign(e) * np.sqrt(np.abs(e))
+
+
+class _ModelBasedSuperTwisting(Observer):
+    """Shared shell: model term in Python (dynamics object), injection in the compiled kernel."""
+
+    discretizations = ("semi-implicit", "euler")
+
+    def __init__(self, dt, dynamics, *, accel_bound, discretization, euler_substeps, disturbance_time_constant):
+        super().__init__(dt, 1, discretization)
+        self.dynamics = dynamics
+        self.n = _check_dynamics(dynamics)
+        self.accel_bound = None if accel_bound is None else self._per_channel("accel_bound", accel_bound, (self.n,))
+        if euler_substeps is None:
+            self.position_weight = 0.5
+        else:
+            ns = check_int_in_range("euler_substeps", euler_substeps, 1, 1_000_000)
+            self.position_weight = (ns + 1) / (2.0 * ns)
+        self.euler_substeps = euler_substeps
+        self.disturbance_time_constant = check_positive("disturbance_time_constant", disturbance_time_constant)
+        self._y_prev: np.ndarray | None = None
+        self._v0 = None
+
+    # ---- hooks -------------------------------------------------------------------------------------------
+    def _gains_row(self) -> np.ndarray:  # pragma: no cover - abstract
+        """``(g11, g12, g20, g21, g22)`` per channel, shape ``(n, 5)``."""
+        raise NotImplementedError
+
+    def _measure(self, y: np.ndarray) -> np.ndarray:
+        """Measurement in observer coordinates (identity unless transformed)."""
+        return y
+
+    def _model_term(self, y_prev: np.ndarray, x2: np.ndarray, e: np.ndarray, u) -> np.ndarray:  # pragma: no cover
+        raise NotImplementedError
+
+    def _to_estimate(self, x1: np.ndarray, x2: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return x1, x2
+
+    def _from_estimate(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return q, v
+
+    # ---- Observer plumbing -------------------------------------------------------------------------------
+    @property
+    def _kernel(self):
+        return _mk.mechanical_kernel
+
+    def _state_width(self) -> int:
+        return _mk.STATE_WIDTH
+
+    def _innovation_column(self) -> int:
+        return _mk.INNOVATION
+
+    def _channel_params(self, shape):
+        if shape[-1] != self.n:
+            raise ValueError(f"expected measurements with {self.n} channels (dynamics.n), actual value: shape {shape}")
+        N = int(np.prod(shape))
+        beta = self.dt / (self.disturbance_time_constant + self.dt)
+        head = np.array([self.dt, self.position_weight])
+        tail = np.array([1.0 if self.discretization == "semi-implicit" else 0.0, beta])
+        rows = np.hstack([np.tile(head, (self.n, 1)), self._gains_row(), np.tile(tail, (self.n, 1))])
+        return np.tile(rows, (N // self.n, 1))
+
+    def _initial_state(self, y0, params):
+        y0s = y0.reshape(self._shape)
+        v0 = np.zeros(self._shape) if self._v0 is None else np.broadcast_to(self._v0, self._shape)
+        x1, x2 = self._from_estimate(y0s, v0)
+        state = np.zeros((y0.shape[0], _mk.STATE_WIDTH))
+        state[:, 0] = np.reshape(x1, -1)
+        state[:, 1] = np.reshape(x2, -1)
+        state[:, _mk.X1_PREV] = np.reshape(self._measure(y0s), -1)
+        return state
+
+    def reset(self, y0, mask=None, v0=None) -> np.ndarray:
+        """Start at the measurement ``y0`` (shape ``(..., n)``) with velocity estimate ``v0`` (default zero).
+
+        ``mask`` restarts only some batch elements (see :meth:`Observer.reset`).
+        """
+        y0 = self._as_measurement(y0, "y0")
+        self._v0 = None if v0 is None else np.asarray(v0, dtype=np.float64)
+        if mask is None:
+            self._shape = y0.shape
+        out = super().reset(y0, mask)
+        self._v0 = None
+        if mask is None:
+            self._y_prev = y0.copy()
+        else:
+            mk = np.asarray(mask, dtype=bool)
+            if mk.shape == self._shape[:-1]:
+                mk = np.broadcast_to(mk[..., None], self._shape)
+            self._y_prev[mk] = y0[mk]
+        q, v = self._to_estimate(self._state[:, 0].reshape(self._shape), self._state[:, 1].reshape(self._shape),
+                                 self._y_prev)
+        self._estimate = np.stack([q, v], axis=-1)
+        return self._estimate.copy()
+
+    def update(self, y, u=None) -> np.ndarray:
+        """Process one sample.
+
+        Parameters
+        ----------
+        y : array_like, shape (..., n)
+            Measured positions at the new sample.
+        u : array_like, optional
+            The input that acted during the sample interval ending at ``y`` (for an environment: the action passed
+            to the ``step`` that returned ``y``), in the dynamics object's convention.
+
+        Returns
+        -------
+        ndarray, shape (..., n, 2)
+            ``[..., 0]`` position estimate, ``[..., 1]`` velocity estimate.
+        """
+        state = self._state
+        if state is None:
+            raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
+        if type(y) is not np.ndarray or y.dtype != np.float64 or not y.flags.c_contiguous:
+            y = np.ascontiguousarray(self._as_measurement(y, "y"))
+        if y.shape != self._shape:
+            raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
+        if not np.all(np.isfinite(y)):
+            self._raise_nonfinite(y, "y")
+        m = self._model_term(self._y_prev, state[:, 1].reshape(self._shape), state[:, _mk.ERROR].reshape(self._shape),
+                             u)
+        if self.accel_bound is not None:
+            m = np.clip(m, -self.accel_bound, self.accel_bound)
+        if not np.all(np.isfinite(m)):
+            raise _divergence(self)
+        state[:, _mk.MODEL] = m.reshape(-1)
+        X = np.ascontiguousarray(self._measure(y))
+        out = np.empty(self._shape + (2,))
+        status = self._kernel(state, X, self._params, self._scratch, out)
+        if status != -1:
+            self._raise_status(status, y)
+        self._state, self._scratch = self._scratch, state
+        self._y_prev = y.copy()
+        if type(self)._to_estimate is not _ModelBasedSuperTwisting._to_estimate:
+            q, v = self._to_estimate(out[..., 0], out[..., 1], y)
+            out[..., 0] = q
+            out[..., 1] = v
+        self._estimate = out
+        self.n_updates += 1
+        return out
+
+    def run(self, Y, U=None) -> np.ndarray:
+        """Process a recorded block ``Y`` (T, ..., n) with inputs ``U`` (T, ...) sample by sample."""
+        self._require_reset()
+        Y = np.asarray(Y, dtype=np.float64)
+        out = np.empty((Y.shape[0],) + self._shape + (2,))
+        for t in range(Y.shape[0]):
+            out[t] = self.update(Y[t], None if U is None else U[t])
+        return out
+
+    def step(self, state, y):  # pragma: no cover - the model term needs the dynamics and the input
+        raise NotImplementedError("model-based observers are stepped with update(y, u)")
+
+    # ---- disturbance estimate -----------------------------------------------------------------------------
+    def _injection_scale(self) -> np.ndarray:
+        """Factor turning the x2-channel injection into an acceleration (1, or 1/Upsilon(y))."""
+        return 1.0
+
+    @property
+    def disturbance(self) -> np.ndarray:
+        r"""Low-pass filtered equivalent output injection: the estimate of the unknown acceleration ``w``,
+        shape ``(..., n)`` (first-order filter of time constant ``disturbance_time_constant``)."""
+        self._require_reset()
+        return self._state[:, _mk.FILTERED].reshape(self._shape) * self._injection_scale()
+
+    @property
+    def disturbance_raw(self) -> np.ndarray:
+        """The unfiltered injection of the last step (the per-sample equivalent value), shape ``(..., n)``."""
+        self._require_reset()
+        return self._state[:, _mk.INJECTION].reshape(self._shape) * self._injection_scale()
+
+    @property
+    def external_torque(self) -> np.ndarray:
+        r"""Estimated external generalized forces :math:`\hat\tau_{ext} = M(y)\,\hat w`, shape ``(..., n)``."""
+        d = self.disturbance
+        M = np.asarray(self.dynamics.inertia(self._y_prev))
+        return np.einsum("...ij,...j->...i", M, d)
+
+
+def _divergence(obs):
+    from .._validation import DivergenceError
+
+    return DivergenceError(
+        "expected a finite model term, actual value: non-finite model acceleration at the current velocity "
+        f"estimate (dt={obs.dt}); the step was rejected. Bound the model term with accel_bound (paper 003, eq. (33))"
+        " or use the dissipative observer."
+    )
+
+
+class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
+    r"""Super-twisting velocity observer for mechanical systems (Davila, Fridman and Levant 2005).
+
+    Per joint, with :math:`e = y - \hat q`,
+
+    .. math::
+        \dot{\hat q} = \hat v + k_1 |e|^{1/2}\mathrm{sign}(e),\qquad
+        \dot{\hat v} = \mathrm{sat}\bigl(f(y, \hat v, u)\bigr) + k_2\,\mathrm{sign}(e),
+
+    with :math:`k_1 = 1.5\sqrt L,\ k_2 = 1.1 L` where ``L`` bounds
+    :math:`|f(y, \hat v, u) - f(y, v, u) + w|`, i.e. only what the model does *not* know plus the model's
+    sensitivity to the velocity error. After convergence :math:`\hat v = v` and the equivalent value of
+    :math:`k_2\,\mathrm{sign}(e)` equals ``w``; its low-pass filtered value is :attr:`disturbance`, and
+    :attr:`external_torque` is :math:`M(y)\,\hat w`.
+
+    Parameters
+    ----------
+    dt : float
+        Sampling step [s].
+    dynamics : Dynamics
+        The model (e.g. :class:`smo_gym.mechanics.MujocoDynamics`), with ``dynamics.n`` channels.
+    lipschitz : float or array_like, shape (n,), optional
+        ``L`` per joint; required unless ``k1`` and ``k2`` are both given.
+    k1, k2 : float or array_like, optional
+        Override the gains.
+    accel_bound : float or array_like, optional
+        :math:`L_\gamma`: clip the model term to ``[-accel_bound, accel_bound]`` (paper 003, eq. (33)). Default
+        ``None``: no saturation (not recommended from large initial errors).
+    discretization : {"semi-implicit", "euler"}
+        See the module docstring.
+    euler_substeps : int, optional
+        Match a semi-implicit-Euler plant with this many physics steps per sample (see the module docstring).
+    disturbance_time_constant : float
+        Time constant [s] of the filter on the equivalent output injection.
+
+    Notes
+    -----
+    Shapes: measurements ``(..., n)``, estimates ``(..., n, 2)``. ``update(y, u)`` takes the input that acted over
+    the interval ending at ``y``. Inside the sliding set of the implicit step the velocity estimate is
+    :math:`(y_{k+1} - \hat q_k)/h + (1 - c) h m_k`: a model-corrected backward difference; outside it, the
+    correction is bounded by :math:`k_2 h` per step, which is what filters the measurement noise.
+    """
+
+    name = "mechanical-super-twisting"
+
+    def __init__(self, dt: float, dynamics: Dynamics, lipschitz=None, *, k1=None, k2=None, accel_bound=None,
+                 discretization: str | None = None, euler_substeps: int | None = None,
+                 disturbance_time_constant: float = 0.02):
+        super().__init__(dt, dynamics, accel_bound=accel_bound, discretization=discretization,
+                         euler_substeps=euler_substeps, disturbance_time_constant=disturbance_time_constant)
+        if lipschitz is None and (k1 is None or k2 is None):
+            raise ValueError("expected lipschitz > 0 or both k1 and k2, actual value: lipschitz=None")
+        shape = (self.n,)
+        L = None if lipschitz is None else self._per_channel("lipschitz", lipschitz, shape)
+        self.lipschitz = L
+        self.k1 = super_twisting_gains(L)[0] * np.ones(self.n) if k1 is None else self._per_channel("k1", k1, shape)
+        self.k2 = super_twisting_gains(L)[1] * np.ones(self.n) if k2 is None else self._per_channel("k2", k2, shape)
+
+    def _gains_row(self):
+        z = np.zeros(self.n)
+        return np.column_stack([self.k1, z, self.k2, z, z])
+
+    def _model_term(self, y_prev, x2, e, u):
+        return np.asarray(self.dynamics.acceleration(y_prev, x2, u), dtype=np.float64)
+
+
+class CoordinateTransform:
+    r"""Apaza et al.'s state transform removing a self-quadratic velocity term, tabulated per channel.
+
+    For :math:`\ddot\xi_1 = \psi(\xi_1, \xi_2) + \alpha(\xi_1)\xi_2^2 + \ldots`,
+
+    .. math::
+        \Upsilon(y) = \exp\Bigl(-\int_a^y \alpha(s)\,ds\Bigr),\qquad
+        x_1 = T_1(\xi_1) = \int_a^{\xi_1}\Upsilon(\mu)\,d\mu,\qquad x_2 = \Upsilon(\xi_1)\,\xi_2,
+
+    gives :math:`\dot x_2 = \Upsilon(\psi + u + w)`: the quadratic term is gone. For a one-DOF system
+    :math:`M(q)\ddot q + \tfrac12 M'(q)\dot q^2 + \ldots = \tau`, :math:`\alpha = -M'/(2M)` and
+    :math:`\Upsilon = \sqrt{M(q)/M(a)}`, so :math:`x_2^2 M(a)/2` is the kinetic energy.
+
+    ``alpha`` is integrated by the trapezoidal rule on a uniform grid of ``grid`` points over
+    ``[lower, upper]`` per channel; :math:`\Upsilon` is held constant outside the range and :math:`T_1` continued
+    linearly, so :math:`T_1` stays strictly increasing and invertible everywhere (assumption A-2 of the paper,
+    :math:`|\int_a^y\alpha| \le L_\alpha`, holds on the tabulated range by construction).
+
+    Parameters
+    ----------
+    alpha : callable
+        ``alpha(Y) -> A`` with ``Y, A`` of shape ``(G, n)``: column ``i`` of ``A`` is :math:`\alpha_i` evaluated at
+        column ``i`` of ``Y`` (per-channel functions of the channel's own coordinate).
+    lower, upper : array_like, shape (n,)
+    reference : array_like, shape (n,), optional
+        ``a``, where :math:`T_1(a) = 0` and :math:`\Upsilon(a) = 1`; default the midpoint.
+    grid : int
+    """
+
+    def __init__(self, alpha: Callable[[np.ndarray], np.ndarray], lower, upper, reference=None, grid: int = 1001):
+        lower = np.atleast_1d(np.asarray(lower, dtype=np.float64))
+        upper = np.atleast_1d(np.asarray(upper, dtype=np.float64))
+        if lower.shape != upper.shape or lower.ndim != 1 or np.any(~(upper > lower)):
+            raise ValueError(f"expected lower < upper of equal shape (n,), actual value: {lower!r}, {upper!r}")
+        n = lower.size
+        a = (lower + upper) / 2 if reference is None else np.broadcast_to(np.asarray(reference, float), (n,))
+        if np.any((a < lower) | (a > upper)):
+            raise ValueError(f"expected lower <= reference <= upper, actual value: {a!r}")
+        G = check_int_in_range("grid", grid, 11, 10**7)
+        Y = lower + (upper - lower) * np.linspace(0.0, 1.0, G)[:, None]
+        A = np.asarray(alpha(Y), dtype=np.float64)
+        if A.shape != Y.shape or not np.all(np.isfinite(A)):
+            raise ValueError(f"expected alpha(Y) finite with shape {Y.shape}, actual value: shape {A.shape}")
+        dy = (upper - lower) / (G - 1)
+        cum = np.vstack([np.zeros(n), np.cumsum((A[1:] + A[:-1]) / 2 * dy, axis=0)])  # int_lower^y alpha
+        cum_a = np.array([np.interp(a[i], Y[:, i], cum[:, i]) for i in range(n)])
+        ups = np.exp(-(cum - cum_a))
+        T = np.vstack([np.zeros(n), np.cumsum((ups[1:] + ups[:-1]) / 2 * dy, axis=0)])
+        T_a = np.array([np.interp(a[i], Y[:, i], T[:, i]) for i in range(n)])
+        self.n, self.lower, self.upper, self.reference = n, lower, upper, a
+        self.grid_y, self.grid_alpha, self.grid_upsilon, self.grid_T = Y, A, ups, T - T_a
+        #: :math:`L_\alpha = \max|\int_a^y \alpha|` over the range (assumption A-2)
+        self.l_alpha = float(np.max(np.abs(cum - cum_a)))
+
+    def _per_channel(self, fn, y):
+        y = np.asarray(y, dtype=np.float64)
+        out = np.empty_like(y)
+        for i in range(self.n):
+            out[..., i] = fn(i, y[..., i])
+        return out
+
+    def alpha(self, y) -> np.ndarray:
+        r""":math:`\alpha_i(y_i)` (interpolated, zero outside the range), shape ``(..., n)``."""
+        return self._per_channel(lambda i, yi: np.interp(yi, self.grid_y[:, i], self.grid_alpha[:, i], 0.0, 0.0), y)
+
+    def upsilon(self, y) -> np.ndarray:
+        r""":math:`\Upsilon_i(y_i)`, shape ``(..., n)``."""
+        return self._per_channel(lambda i, yi: np.interp(yi, self.grid_y[:, i], self.grid_upsilon[:, i]), y)
+
+    def position(self, y) -> np.ndarray:
+        r""":math:`T_1(y)` per channel (linear continuation outside the range), shape ``(..., n)``."""
+        def f(i, yi):
+            gy, gT, gu = self.grid_y[:, i], self.grid_T[:, i], self.grid_upsilon[:, i]
+            base = np.interp(yi, gy, gT)
+            return base + np.where(yi < gy[0], (yi - gy[0]) * gu[0], 0.0) + np.where(yi > gy[-1],
+                                                                                     (yi - gy[-1]) * gu[-1], 0.0)
+        return self._per_channel(f, y)
+
+    def position_inverse(self, x) -> np.ndarray:
+        r""":math:`T_1^{-1}(x)` per channel, shape ``(..., n)``."""
+        def f(i, xi):
+            gy, gT, gu = self.grid_y[:, i], self.grid_T[:, i], self.grid_upsilon[:, i]
+            base = np.interp(xi, gT, gy)
+            return base + np.where(xi < gT[0], (xi - gT[0]) / gu[0], 0.0) + np.where(xi > gT[-1],
+                                                                                     (xi - gT[-1]) / gu[-1], 0.0)
+        return self._per_channel(f, x)
+
+    def forward(self, q, v) -> tuple[np.ndarray, np.ndarray]:
+        """``T(q, v) = (T1(q), Upsilon(q) v)``."""
+        return self.position(q), self.upsilon(q) * np.asarray(v, dtype=np.float64)
+
+    def inverse(self, x1, x2) -> tuple[np.ndarray, np.ndarray]:
+        """``T^-1(x1, x2) = (q, x2 / Upsilon(q))``."""
+        q = self.position_inverse(x1)
+        return q, np.asarray(x2, dtype=np.float64) / self.upsilon(q)
+
+
+def _gain_value(gains, key):
+    if isinstance(gains, Mapping):
+        if key not in gains:
+            raise ValueError(f"expected gains with keys k1, k2, k3, mu1, mu2, actual value: missing {key!r}")
+        return gains[key]
+    if not hasattr(gains, key):
+        raise TypeError(f"expected gains as a mapping or an ApazaGains, actual value: {type(gains).__name__}")
+    return getattr(gains, key)
+
+
+class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
+    r"""Dissipative super-twisting observer with the Coriolis-removing transform (Apaza-Perez, Moreno and
+    Fridman 2018; paper 004, "Dissipative approach").
+
+    In the coordinates :math:`x = T(\xi)` of :class:`CoordinateTransform` (``y_T = y`` the measured position,
+    :math:`X = T_1(y)` the transformed measurement, :math:`e = X - \hat x_1`),
+
+    .. math::
+        \dot{\hat x}_1 &= \hat x_2 + k_1\phi_1(e),\\
+        \dot{\hat x}_2 &= \Upsilon(y)\,\psi\bigl(y, \Upsilon(y)^{-1}(\hat x_2 - k_3\phi_1(e))\bigr) + k_2\phi_2(e),\\
+        \phi_1(e) &= \mu_1\lceil e\rfloor^{1/2} + \mu_2 e,\qquad
+        \phi_2(e) = \tfrac{\mu_1^2}{2}\lceil e\rfloor^{0} + \tfrac{3\mu_1\mu_2}{2}\lceil e\rfloor^{1/2} + \mu_2^2 e,
+
+    which is the slide's observer with :math:`\phi(\hat x_1 - x_1) = -\phi(e)` (the injections are odd). ``psi``
+    is the model acceleration *without* the removed term,
+    :math:`\psi_i(y, v) = f_i(y, v, u) - \alpha_i(y_i) v_i^2`, with ``f`` from the dynamics object (it includes
+    the input). Estimates are reported in the original coordinates, :math:`\hat q = T_1^{-1}(\hat x_1)`,
+    :math:`\hat v = \hat x_2/\Upsilon(y)`; :attr:`disturbance` is the filtered :math:`k_2\phi_2` divided by
+    :math:`\Upsilon(y)`, i.e. an acceleration.
+
+    What is removed, and what is not
+    --------------------------------
+    Exactly :math:`\alpha_i(y_i)\,v_i^2`, per channel, with :math:`\alpha_i` a function of that channel's own
+    coordinate (for one DOF: :math:`-M'/(2M)`, all of the Coriolis/centrifugal term). For several DOF use
+    :meth:`smo_gym.mechanics.MujocoDynamics.alpha_function`, which evaluates the self-quadratic coefficient
+    :math:`\alpha_i` with the other joints frozen at a reference configuration. The model term still contains
+    everything else computed from the full model: cross terms :math:`v_iv_j`, the dependence of
+    :math:`\alpha_i` on the other joints, and the difference between the frozen and actual coefficient. Those
+    stay quadratic in the velocity error and act as the bounded perturbation of the theory only while the
+    velocity errors are bounded; ``accel_bound`` guarantees that bound.
+
+    Parameters
+    ----------
+    dt : float
+    dynamics : Dynamics
+    transform : CoordinateTransform
+    gains : ApazaGains or mapping
+        ``k1, k2, k3, mu1, mu2`` (e.g. from :func:`smo_gym.design.apaza_gains`).
+    accel_bound, discretization, euler_substeps, disturbance_time_constant :
+        As :class:`MechanicalSuperTwisting`; ``accel_bound`` clips the transformed model term
+        :math:`\Upsilon\psi`.
+    """
+
+    name = "dissipative-super-twisting"
+
+    def __init__(self, dt: float, dynamics: Dynamics, transform: CoordinateTransform, gains, *,
+                 accel_bound=None, discretization: str | None = None, euler_substeps: int | None = None,
+                 disturbance_time_constant: float = 0.02):
+        super().__init__(dt, dynamics, accel_bound=accel_bound, discretization=discretization,
+                         euler_substeps=euler_substeps, disturbance_time_constant=disturbance_time_constant)
+        if not isinstance(transform, CoordinateTransform) or transform.n != self.n:
+            raise TypeError(f"expected a CoordinateTransform with n={self.n}, actual value: {transform!r}")
+        self.transform = transform
+        shape = (self.n,)
+        self.k1 = self._per_channel("k1", _gain_value(gains, "k1"), shape)
+        self.k2 = self._per_channel("k2", _gain_value(gains, "k2"), shape)
+        self.mu1 = self._per_channel("mu1", _gain_value(gains, "mu1"), shape)
+        mu2 = np.broadcast_to(np.asarray(_gain_value(gains, "mu2"), dtype=float), shape)
+        k3 = np.broadcast_to(np.asarray(_gain_value(gains, "k3"), dtype=float), shape)
+        if np.any(mu2 < 0) or not np.all(np.isfinite(mu2)) or not np.all(np.isfinite(k3)):
+            raise ValueError(f"expected mu2 >= 0 and finite k3, actual value: mu2={mu2!r}, k3={k3!r}")
+        self.mu2, self.k3 = mu2.copy(), k3.copy()
+
+    def _gains_row(self):
+        k1, k2, m1, m2 = self.k1, self.k2, self.mu1, self.mu2
+        return np.column_stack([k1 * m1, k1 * m2, k2 * m1**2 / 2, 1.5 * k2 * m1 * m2, k2 * m2**2])
+
+    def _measure(self, y):
+        return self.transform.position(y)
+
+    def _from_estimate(self, q, v):
+        return self.transform.forward(q, v)
+
+    def _to_estimate(self, x1, x2, y):
+        return self.transform.position_inverse(x1), x2 / self.transform.upsilon(y)
+
+    def _model_term(self, y_prev, x2, e, u):
+        ups = self.transform.upsilon(y_prev)
+        phi1 = self.mu1 * _signed_root(e) + self.mu2 * e
+        v = (x2 - self.k3 * phi1) / ups
+        f = np.asarray(self.dynamics.acceleration(y_prev, v, u), dtype=np.float64)
+        return ups * (f - self.transform.alpha(y_prev) * v * v)
+
+    def _injection_scale(self):
+        return 1.0 / self.transform.upsilon(self._y_prev)

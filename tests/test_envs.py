@@ -1,0 +1,101 @@
+"""The smo_gym environments: registration, package data, Gymnasium's checker, the disturbance input."""
+
+from __future__ import annotations
+
+import importlib.resources
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import smo_gym.envs
+from smo_gym.envs import ENV_IDS
+
+IDS = sorted(ENV_IDS)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_registered_and_passes_check_env(env_id):
+    env = gym.make(env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the checker's advice on unbounded Box spaces and unnormalised actions
+        check_env(env.unwrapped, skip_render_check=True)
+    obs, info = env.reset(seed=3)
+    assert obs.shape == env.observation_space.shape == (env.unwrapped.model.nq + env.unwrapped.model.nv,)
+    obs2, *_ = env.step(env.action_space.sample())
+    assert np.all(np.isfinite(obs2))
+    assert env.spec.max_episode_steps == 1000
+    # the documented time step
+    assert env.unwrapped.dt == pytest.approx(0.01)
+    env.close()
+
+
+def test_models_are_package_data():
+    root = importlib.resources.files("smo_gym.envs") / "assets"
+    for name in ("variable_inertia.xml", "two_link_arm.xml", "furuta_pendulum.xml"):
+        assert (root / name).is_file()
+    # 'module:id' form registers on demand
+    env = gym.make("smo_gym.envs:smo_gym/FurutaPendulum-v0")
+    env.reset(seed=0)
+
+
+def test_disturbance_input_acts_like_a_joint_torque():
+    """Action a with no disturbance and action 0 with disturbance a (motor gear 1) give the same trajectory."""
+    a = np.array([1.5, -0.7])
+    e1 = gym.make("smo_gym/TwoLinkArm-v0").unwrapped
+    e2 = gym.make("smo_gym/TwoLinkArm-v0", disturbance=lambda t: a).unwrapped
+    o1, _ = e1.reset(seed=5)
+    o2, _ = e2.reset(seed=5)
+    np.testing.assert_array_equal(o1, o2)
+    for _ in range(30):
+        o1, *_ = e1.step(a)
+        o2, _, _, _, info = e2.step(np.zeros(2))
+    np.testing.assert_allclose(o1, o2, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(info["disturbance"], a)
+    # a constant disturbance set later adds to it
+    e2.unwrapped.set_disturbance([0.1, 0.0])
+    *_, info = e2.step(np.zeros(2))
+    np.testing.assert_allclose(info["disturbance"], a + [0.1, 0.0])
+    with pytest.raises(ValueError, match="shape"):
+        e2.unwrapped.set_disturbance([1.0, 2.0, 3.0])
+    with pytest.raises(TypeError, match="callable"):
+        gym.make("smo_gym/TwoLinkArm-v0", disturbance=3.0)
+
+
+def test_time_varying_disturbance_uses_physics_time():
+    f = lambda t: np.array([0.5 * np.sin(2 * t) + 0.2])  # noqa: E731
+    env = gym.make("smo_gym/FurutaPendulum-v0", disturbance=f).unwrapped
+    env.reset(seed=0)
+    *_, info = env.step(np.zeros(1))
+    # applied during the last physics step, which started at t = dt - timestep
+    np.testing.assert_allclose(info["disturbance"], f(env.dt - env.model.opt.timestep))
+    assert env.data.qfrc_applied[1] == 0.0  # matched: only the arm joint
+
+
+def test_variable_inertia_reset_respects_the_coupling():
+    env = gym.make("smo_gym/VariableInertia-v0").unwrapped
+    obs, _ = env.reset(seed=2)
+    th, r, thd, rd = obs
+    assert r == pytest.approx(0.3 * th**2)
+    assert rd == pytest.approx(0.6 * th * thd)
+    for _ in range(100):
+        obs, *_ = env.step(env.action_space.sample())
+    assert obs[1] == pytest.approx(0.3 * obs[0] ** 2, abs=1e-3)
+
+
+def test_furuta_terminates_when_the_pendulum_falls():
+    env = gym.make("smo_gym/FurutaPendulum-v0")
+    env.reset(seed=0)
+    terminated = False
+    for _ in range(500):
+        _, reward, terminated, _, _ = env.step(np.array([0.5]))
+        if terminated:
+            break
+    assert terminated and reward == 0.0
+
+
+def test_import_registers_once():
+    smo_gym.envs.register_envs()  # idempotent
+    assert all(env_id in gym.registry for env_id in ENV_IDS)
