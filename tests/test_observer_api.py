@@ -170,6 +170,34 @@ def test_run_equals_repeated_update(name, kwargs, rng):
 
 
 @pytest.mark.parametrize("name, kwargs", CASES)
+def test_update_accepts_any_array_like(name, kwargs, rng):
+    """Lists, float32, Fortran-ordered and strided views give the same estimates as C-contiguous float64 (the
+    fast path of ``update`` must not skip a conversion); returned arrays are fresh, not views of the state."""
+    Y = measurements(rng, T=12)
+    ref = update_loop(build(name, kwargs), Y)
+    big = np.zeros((12, 8, 14))
+    big[:, ::2, ::2] = Y
+    variants = [
+        lambda y, k: y.tolist(),
+        lambda y, k: np.asfortranarray(y),
+        lambda y, k: big[k, ::2, ::2],  # strided view
+        lambda y, k: y.astype(np.float32).astype(np.float64),  # exact float32 values, checked below
+    ]
+    for variant in variants[:3]:
+        obs = build(name, kwargs)
+        got = [obs.reset(variant(Y[0], 0))] + [obs.update(variant(Y[k], k)) for k in range(1, 12)]
+        np.testing.assert_array_equal(np.stack(got), ref)
+    y32 = Y.astype(np.float32)
+    obs32, obs64 = build(name, kwargs), build(name, kwargs)
+    got32 = [obs32.reset(y32[0])] + [obs32.update(y32[k]) for k in range(1, 12)]
+    got64 = update_loop(obs64, variants[3](Y, None))
+    np.testing.assert_array_equal(np.stack(got32), got64)
+    kept = got32[-1].copy()
+    obs32.update(y32[11])
+    np.testing.assert_array_equal(got32[-1], kept)
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
 def test_pure_step_matches_update(name, kwargs, rng):
     """``step(state, y)`` is the pure form of ``update``: same new state and estimate, ``self`` untouched."""
     Y = measurements(rng, T=20)
