@@ -188,7 +188,8 @@ class Levant(Observer):
         ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under noise of amplitude ``eps``. ``"euler"``: the same without the
         Taylor terms, hence first order (``O(tau^2)`` in ``z_0``, ``O(tau)`` in every derivative; measured in
         ``tests/test_differentiators.py``). ``"semi-implicit"`` / ``"matching"``: the discrete-time observer of
-        paper 003 with eigenvalue mapping (15) / (16); its continuous-time counterpart (11) is a Levant-type differentiator with gains from ``(s + p1)^(k+1)``.
+        paper 003 with eigenvalue mapping (15) / (16); its continuous-time counterpart (11) is a Levant-type
+        differentiator with gains from ``(s + p1)^(k+1)``.
     p1 : float, optional
         Eigenvalue-mapping rate of paper 003; default ``(1.1 L)^(1/(k+1))`` so that the last gain
         ``p1^(k+1)`` equals Levant's ``lambda_0 L``.
