@@ -20,7 +20,7 @@ from .sensing import (
     default_observer,
 )
 
-__all__ = ["EstimatedVelocity", "environment_key", "resolve_rate"]
+__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "resolve_rate"]
 
 #: mixed into the user's seed so the sensor stream differs from the environment's own ``np_random``
 _SEED_SALT = 0x534D4F
@@ -52,6 +52,26 @@ def environment_key(unwrapped) -> str:
         kwargs = {k: v for k, v in sorted((spec.kwargs or {}).items()) if k != "render_mode"}
         return f"{spec.id}{kwargs}" if kwargs else spec.id
     return f"{type(unwrapped).__module__}.{type(unwrapped).__qualname__}:{getattr(unwrapped, 'fullpath', '')}"
+
+
+def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *, safety: float = 2.0,
+                      quantile: float = 0.99, steps: int = 2000, disk: bool = True) -> np.ndarray:
+    """Per-dof bounds on the ``derivative``-th derivative of the joint coordinates, sampled every ``sample_every``
+    physics steps, from :func:`~smo_gym.wrappers.sensing.calibrate_bounds` on the environment's model and initial
+    state, cached per environment id (:func:`environment_key`) in memory and, with ``disk``, on disk."""
+    model = adapter.model
+    qpos0 = np.array(getattr(unwrapped, "init_qpos", adapter.data.qpos), dtype=float)
+    qvel0 = np.array(getattr(unwrapped, "init_qvel", adapter.data.qvel), dtype=float)
+    settings = dict(derivative=int(derivative), every=int(sample_every), frame_skip=adapter.frame_skip,
+                    safety=float(safety), quantile=float(quantile), steps=int(steps), v=2)
+    key = calibration_key(environment_key(unwrapped), model, **settings)
+    return cached_bounds(
+        key,
+        lambda: calibrate_bounds(model, qpos0, qvel0, adapter.frame_skip, int(sample_every),
+                                 derivative=int(derivative), steps=int(steps), quantile=float(quantile),
+                                 safety=float(safety)),
+        disk=disk,
+    )
 
 
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -153,8 +173,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             if observer not in OBSERVERS:
                 make_observer(observer)  # raises ValueError listing the valid names
-            self.bounds = self._calibrated_bounds(observer, observer_kwargs, calibration_safety,
-                                                  calibration_quantile, calibration_steps, disk_cache)
+            self.bounds = calibrated_bounds(env.unwrapped, self.adapter, self.sample_every,
+                                            bound_order(observer, observer_kwargs), safety=calibration_safety,
+                                            quantile=calibration_quantile, steps=calibration_steps, disk=disk_cache)
             obs_object = default_observer(observer, self.sample_dt, self.bounds, self.measurement.noise_std(),
                                           observer_kwargs)
         self.estimator = VelocityEstimator(obs_object)
@@ -163,24 +184,6 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._samples = np.zeros((n_samples, model.nq))
         self._n_samples = 0
         self._substep_count = 0
-
-    # ---- set-up ---------------------------------------------------------------------------------------------
-    def _calibrated_bounds(self, name, observer_kwargs, safety, quantile, steps, disk) -> np.ndarray:
-        unwrapped = self.env.unwrapped
-        model = self.adapter.model
-        derivative = bound_order(name, observer_kwargs)
-        qpos0 = np.array(getattr(unwrapped, "init_qpos", self.adapter.data.qpos), dtype=float)
-        qvel0 = np.array(getattr(unwrapped, "init_qvel", self.adapter.data.qvel), dtype=float)
-        settings = dict(derivative=derivative, every=self.sample_every, frame_skip=self.adapter.frame_skip,
-                        safety=float(safety), quantile=float(quantile), steps=int(steps), v=1)
-        key = calibration_key(environment_key(unwrapped), model, **settings)
-        return cached_bounds(
-            key,
-            lambda: calibrate_bounds(model, qpos0, qvel0, self.adapter.frame_skip, self.sample_every,
-                                     derivative=derivative, steps=int(steps), quantile=float(quantile),
-                                     safety=float(safety)),
-            disk=disk,
-        )
 
     @property
     def sensor(self) -> Sensor:
