@@ -40,8 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--seed", type=int, default=0, help="seed of policy, environment and sensor (default 0)")
     cmp_.add_argument("--joints", default="",
                       help="comma-separated dof names or indices to plot (default: the two most active)")
-    cmp_.add_argument("--out", default="smo_gym_compare.png", help="PNG file (default %(default)s)")
-    cmp_.add_argument("--plot-seconds", type=float, default=3.0, help="time window of the plot (default 3 s)")
+    cmp_.add_argument("--out", default="outputs/smo_gym_compare.png", help="PNG file (default %(default)s)")
+    cmp_.add_argument("--plot-seconds", type=float, default=1.0, help="time window of the plot (default 1 s)")
     cmp_.add_argument("--per-joint", action="store_true", help="also print the RMSE of every dof")
     cmp_.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import gymnasium as gym
 import mujoco
@@ -347,7 +348,7 @@ def resolve_joints(rec: Recording, joints) -> list[int]:
     return out
 
 
-def plot_velocities(rec: Recording, results: list[ObserverResult], joints, out: str, *, seconds: float = 3.0) -> str:
+def plot_velocities(rec: Recording, results: list[ObserverResult], joints, out: str, *, seconds: float = 1.0) -> str:
     """Write a PNG of true vs estimated velocities of the dofs ``joints`` over the first ``seconds``."""
     import matplotlib
 
@@ -359,15 +360,16 @@ def plot_velocities(rec: Recording, results: list[ObserverResult], joints, out: 
     t = np.arange(n) * rec.dt
     fig, axes = plt.subplots(len(dofs), 1, figsize=(9, 2.8 * len(dofs)), sharex=True, squeeze=False)
     for ax, d in zip(axes[:, 0], dofs, strict=True):
-        ax.plot(t, rec.qvel[:n, d], color="k", lw=2.0, label="true")
         for r in results:
-            ax.plot(t, r.velocity[:n, d], lw=0.9, label=r.name)
+            ax.plot(t, r.velocity[:n, d], lw=0.8, alpha=0.8, label=f"{r.name} (RMSE {r.rmse:.3g})")
+        ax.plot(t, rec.qvel[:n, d], color="k", lw=1.6, label="true", zorder=10)
         ax.set_ylabel(f"{rec.names[d]} velocity")
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(ncol=3, fontsize=8)
+    axes[0, 0].legend(ncol=2, fontsize=7, loc="upper right")
     axes[0, 0].set_title(f"{rec.env_id}: sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s)")
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
