@@ -4,12 +4,13 @@ Same calling convention as :mod:`smo_gym.observers._kernels`: ``status = kernel(
 The model term is *not* evaluated here (it needs the dynamics object): the observer class computes it before the
 call and writes it into the state column ``MODEL``.
 
-State row (per channel): ``[x1, x2, innovation, x1_meas_prev, model, injection, injection_filtered, e]``
-Params row: ``[dt, c, g11, g12, g20, g21, g22, implicit, filter_coefficient]``
+State row (per channel): ``[x1, x2, innovation, x1_meas_prev, model, injection, injection_filtered, e, model_pos]``
+Params row: ``[dt, c, g11, g12, g20, g21, g22, implicit, filter_coefficient, pos_from_state]``
 
 The recursion, for a sample interval ``h`` with the model term ``m`` (explicit, evaluated at the previous sample)::
 
     prediction      p1 = x1 + h x2 + c h^2 m,   p2 = x2 + h m,   w = X - p1
+                    (with pos_from_state: p1 = x1 + h x2 + h^2 model_pos, a prediction integrated outside)
     x1 injection    g11 |e|^(1/2) sign(e) + g12 e
     x2 injection    g20 s + g21 |e|^(1/2) sign(e) + g22 e,   s in Sign(e)
     update          x1+ = p1 + h (x1 injection),  x2+ = p2 + h (x2 injection),  e = X - x1+   ("implicit")
@@ -30,16 +31,17 @@ from numba import njit
 
 from ._kernels import CACHE, _check_state, _first_nonfinite, sta_implicit_channel_step
 
-__all__ = ["STATE_WIDTH", "X1_PREV", "MODEL", "INJECTION", "FILTERED", "ERROR", "mechanical_kernel",
+__all__ = ["STATE_WIDTH", "X1_PREV", "MODEL", "INJECTION", "FILTERED", "ERROR", "MODEL_POS", "mechanical_kernel",
            "mechanical_channel_step"]
 
-STATE_WIDTH = 8
+STATE_WIDTH = 9
 INNOVATION = 2
 X1_PREV = 3
 MODEL = 4
 INJECTION = 5
 FILTERED = 6
 ERROR = 7
+MODEL_POS = 8
 
 
 @njit(cache=CACHE)
@@ -59,7 +61,10 @@ def mechanical_channel_step(x, X, params, x_new):
     implicit = params[7] != 0.0
     beta = params[8]
     m = x[4]
-    p1 = x[0] + h * x[1] + c * h * h * m
+    if params[9] != 0.0:
+        p1 = x[0] + h * x[1] + h * h * x[8]
+    else:
+        p1 = x[0] + h * x[1] + c * h * h * m
     p2 = x[1] + h * m
     w = X - p1
     if implicit:
@@ -99,6 +104,7 @@ def mechanical_channel_step(x, X, params, x_new):
     x_new[5] = inj2
     x_new[6] = x[6] + beta * (inj2 - x[6])
     x_new[7] = e if implicit else X - x_new[0]
+    x_new[8] = x[8]
     return w
 
 

@@ -75,7 +75,8 @@ class Dynamics(Protocol):
     -------
     acceleration(q, v, u=None) -> ndarray, shape (..., n)
         :math:`f(q, v, u)`, the model acceleration; ``q, v`` of shape ``(..., n)`` (batched over leading
-        dimensions), ``u`` the input in the object's own convention (controls, torques) or ``None``.
+        dimensions), ``u`` the input in the object's own convention (controls, torques) or ``None``. Must return
+        a new array (the observer saturates it in place).
     inertia(q) -> ndarray, shape (..., n, n)
         :math:`M(q)`, to turn acceleration disturbances into joint torques.
     """
@@ -117,6 +118,11 @@ class _ModelBasedSuperTwisting(Observer):
         self.disturbance_time_constant = check_positive("disturbance_time_constant", disturbance_time_constant)
         self._y_prev: np.ndarray | None = None
         self._v0 = None
+        self._model_call = None
+        self._out_shape = None
+        self._neg_bound = None if self.accel_bound is None else -self.accel_bound
+        self._transformed = type(self)._to_estimate is not _ModelBasedSuperTwisting._to_estimate
+        self.model_substeps = 1
 
     # ---- hooks -------------------------------------------------------------------------------------------
     def _gains_row(self) -> np.ndarray:  # pragma: no cover - abstract
@@ -127,7 +133,8 @@ class _ModelBasedSuperTwisting(Observer):
         """Measurement in observer coordinates (identity unless transformed)."""
         return y
 
-    def _model_term(self, y_prev: np.ndarray, x2: np.ndarray, e: np.ndarray, u) -> np.ndarray:  # pragma: no cover
+    def _model_term(self, y_prev: np.ndarray, state: np.ndarray, u) -> np.ndarray:  # pragma: no cover
+        """Model term ``m`` (a new array of the measurement shape) from the previous measurement and the state."""
         raise NotImplementedError
 
     def _to_estimate(self, x1: np.ndarray, x2: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,7 +160,8 @@ class _ModelBasedSuperTwisting(Observer):
         N = int(np.prod(shape))
         beta = self.dt / (self.disturbance_time_constant + self.dt)
         head = np.array([self.dt, self.position_weight])
-        tail = np.array([1.0 if self.discretization == "semi-implicit" else 0.0, beta])
+        tail = np.array([1.0 if self.discretization == "semi-implicit" else 0.0, beta,
+                         1.0 if self.model_substeps > 1 else 0.0])
         rows = np.hstack([np.tile(head, (self.n, 1)), self._gains_row(), np.tile(tail, (self.n, 1))])
         return np.tile(rows, (N // self.n, 1))
 
@@ -179,7 +187,9 @@ class _ModelBasedSuperTwisting(Observer):
         out = super().reset(y0, mask)
         self._v0 = None
         if mask is None:
-            self._y_prev = y0.copy()
+            self._y_prev = np.ascontiguousarray(y0, dtype=np.float64).copy()
+            self._out_shape = self._shape + (2,)
+            self._model_call = None
         else:
             mk = np.asarray(mask, dtype=bool)
             if mk.shape == self._shape[:-1]:
@@ -213,29 +223,54 @@ class _ModelBasedSuperTwisting(Observer):
             y = np.ascontiguousarray(self._as_measurement(y, "y"))
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
-        if not np.all(np.isfinite(y)):
-            self._raise_nonfinite(y, "y")
-        m = self._model_term(self._y_prev, state[:, 1].reshape(self._shape), state[:, _mk.ERROR].reshape(self._shape),
-                             u)
-        if self.accel_bound is not None:
-            m = np.clip(m, -self.accel_bound, self.accel_bound)
-        if not np.all(np.isfinite(m)):
-            raise _divergence(self)
-        state[:, _mk.MODEL] = m.reshape(-1)
-        X = np.ascontiguousarray(self._measure(y))
-        out = np.empty(self._shape + (2,))
-        status = self._kernel(state, X, self._params, self._scratch, out)
+        # model term at the previous sample (explicit), optionally saturated (paper 003, eq. (33))
+        if self.model_substeps == 1:
+            m = self._model_term(self._y_prev, state, u)
+            if self.accel_bound is not None:
+                np.minimum(m, self.accel_bound, out=m)
+                np.maximum(m, self._neg_bound, out=m)
+            state[:, _mk.MODEL] = m if m.ndim == 1 else m.reshape(-1)
+        else:
+            m, m_pos = self._substep_prediction(self._y_prev, state, u)
+            state[:, _mk.MODEL] = m.reshape(-1)
+            state[:, _mk.MODEL_POS] = m_pos.reshape(-1)
+        X = self._measure(y)
+        out = np.empty(self._out_shape)
+        call = self._model_call
+        if call is None:
+            call = self._bind_model_kernel(state, X, out)
+        status = call(state, X, self._params, self._scratch, out)
         if status != -1:
-            self._raise_status(status, y)
+            if status >= 0:
+                self._raise_nonfinite(y, "y")
+            raise _divergence(self)
         self._state, self._scratch = self._scratch, state
-        self._y_prev = y.copy()
-        if type(self)._to_estimate is not _ModelBasedSuperTwisting._to_estimate:
+        np.copyto(self._y_prev, y)
+        if self._transformed:
             q, v = self._to_estimate(out[..., 0], out[..., 1], y)
             out[..., 0] = q
             out[..., 1] = v
         self._estimate = out
         self.n_updates += 1
         return out
+
+    def _bind_model_kernel(self, state, X, out):
+        """Compiled entry point of the kernel for these argument types (skips numba's per-call dispatch)."""
+        kernel = self._kernel
+        try:
+            import numba
+
+            sig = tuple(numba.typeof(a) for a in (state, X, self._params, self._scratch, out))
+            if sig not in kernel.overloads:
+                kernel.compile(sig)
+            self._model_call = kernel.overloads[sig].entry_point
+        except Exception:  # numba internals changed: the dispatcher is always correct
+            self._model_call = kernel
+        return self._model_call
+
+    def _x2(self, state) -> np.ndarray:
+        """The x2 column as an array of the measurement shape (a view for a single environment)."""
+        return state[:, 1] if len(self._shape) == 1 else state[:, 1].reshape(self._shape)
 
     def run(self, Y, U=None) -> np.ndarray:
         """Process a recorded block ``Y`` (T, ..., n) with inputs ``U`` (T, ...) sample by sample."""
@@ -279,9 +314,10 @@ def _divergence(obs):
     from .._validation import DivergenceError
 
     return DivergenceError(
-        "expected a finite model term, actual value: non-finite model acceleration at the current velocity "
-        f"estimate (dt={obs.dt}); the step was rejected. Bound the model term with accel_bound (paper 003, eq. (33))"
-        " or use the dissipative observer."
+        "expected a finite observer state, actual value: non-finite model term or state after the update "
+        f"(dt={obs.dt}); the step was rejected and the previous state kept. An unsaturated model term can escape "
+        "in finite time from large velocity errors (Coriolis terms): bound it with accel_bound (paper 003, eq. (33)),"
+        " use the dissipative observer, or reduce dt."
     )
 
 
@@ -317,6 +353,12 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
         See the module docstring.
     euler_substeps : int, optional
         Match a semi-implicit-Euler plant with this many physics steps per sample (see the module docstring).
+    model_substeps : int
+        Integrate the model over the sample interval with this many semi-implicit Euler substeps (one dynamics
+        evaluation each, each saturated) instead of one Taylor step: for observers sampled slower than the
+        physics (``rate="env"``), where a single model evaluation per sample misses the variation of ``f``
+        within the sample. With ``model_substeps = frame_skip`` the cost per physics step equals that of the
+        physics-rate observer. ``euler_substeps`` is then ignored.
     disturbance_time_constant : float
         Time constant [s] of the filter on the equivalent output injection.
 
@@ -331,10 +373,11 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
     name = "mechanical-super-twisting"
 
     def __init__(self, dt: float, dynamics: Dynamics, lipschitz=None, *, k1=None, k2=None, accel_bound=None,
-                 discretization: str | None = None, euler_substeps: int | None = None,
+                 discretization: str | None = None, euler_substeps: int | None = None, model_substeps: int = 1,
                  disturbance_time_constant: float = 0.02):
         super().__init__(dt, dynamics, accel_bound=accel_bound, discretization=discretization,
                          euler_substeps=euler_substeps, disturbance_time_constant=disturbance_time_constant)
+        self.model_substeps = check_int_in_range("model_substeps", model_substeps, 1, 100_000)
         if lipschitz is None and (k1 is None or k2 is None):
             raise ValueError("expected lipschitz > 0 or both k1 and k2, actual value: lipschitz=None")
         shape = (self.n,)
@@ -347,8 +390,32 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
         z = np.zeros(self.n)
         return np.column_stack([self.k1, z, self.k2, z, z])
 
-    def _model_term(self, y_prev, x2, e, u):
-        return np.asarray(self.dynamics.acceleration(y_prev, x2, u), dtype=np.float64)
+    def _model_term(self, y_prev, state, u):
+        m = self.dynamics.acceleration(y_prev, self._x2(state), u)
+        if type(m) is not np.ndarray or m.dtype != np.float64 or not m.flags.writeable:
+            m = np.array(m, dtype=np.float64)
+        return m
+
+    def _substep_prediction(self, y_prev, state, u):
+        r"""Model flow over the sample by ``model_substeps`` semi-implicit Euler steps from ``(y_prev, v_hat)``.
+
+        Returns ``m = (v^- - \hat v)/h`` and ``m_pos = (q^- - y_{prev} - h\hat v)/h^2`` so that the kernel's
+        prediction is :math:`\hat q^- = \hat q + h\hat v + h^2 m_{pos}`, :math:`\hat v^- = \hat v + h m`.
+        """
+        x2 = state[:, 1].reshape(self._shape)
+        ns = self.model_substeps
+        hs = self.dt / ns
+        q = y_prev.copy()
+        v = x2.copy()
+        dpos = np.zeros(self._shape)
+        for _ in range(ns):
+            a = np.array(self.dynamics.acceleration(q, v, u), dtype=np.float64)
+            if self.accel_bound is not None:
+                np.clip(a, self._neg_bound, self.accel_bound, out=a)
+            v = v + hs * a
+            q = q + hs * v
+            dpos += hs * (v - x2)
+        return (v - x2) / self.dt, dpos / (self.dt * self.dt)
 
 
 class CoordinateTransform:
@@ -534,7 +601,9 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
     def _to_estimate(self, x1, x2, y):
         return self.transform.position_inverse(x1), x2 / self.transform.upsilon(y)
 
-    def _model_term(self, y_prev, x2, e, u):
+    def _model_term(self, y_prev, state, u):
+        x2 = state[:, 1].reshape(self._shape)
+        e = state[:, _mk.ERROR].reshape(self._shape)
         ups = self.transform.upsilon(y_prev)
         phi1 = self.mu1 * _signed_root(e) + self.mu2 * e
         v = (x2 - self.k3 * phi1) / ups
