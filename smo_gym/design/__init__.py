@@ -13,6 +13,13 @@ from .gains import (
     levant_lambdas,
     super_twisting_gains,
 )
+from .lmi import (
+    LMIInfeasibleError,
+    SwitchedGainCertificate,
+    certify_switched_gain,
+    switched_gain_lmi,
+    switched_gain_lmi_matrix,
+)
 
 __all__ = [
     "ApazaGains",
@@ -20,10 +27,15 @@ __all__ = [
     "apaza_gains",
     "apaza_lmi_matrix",
     "LEVANT_LAMBDAS",
+    "LMIInfeasibleError",
     "MAX_LEVANT_ORDER",
     "ackermann_observer_gain",
     "binomial_coefficients",
+    "certify_switched_gain",
     "levant_gains",
     "levant_lambdas",
     "super_twisting_gains",
+    "switched_gain_lmi",
+    "switched_gain_lmi_matrix",
+    "SwitchedGainCertificate",
 ]

@@ -10,11 +10,14 @@ from .base import Observer
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .linear import FiniteDifference, HighGain, KalmanCA
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
+from .low_power import LowPowerHighGain
+from .switched_gain import SwitchedGain
 
 #: name -> class, for the wrapper, the CLI and :func:`smo_gym.differentiate`
 OBSERVERS: dict[str, type[Observer]] = {
     cls.name: cls for cls in (SuperTwisting, Levant, URED, UniformLevant, HighGain, FiniteDifference, KalmanCA)
 }
+OBSERVERS.update({cls.name: cls for cls in (SwitchedGain, LowPowerHighGain)})
 
 
 def make_observer(name: str, **params) -> Observer:
@@ -46,8 +49,10 @@ __all__ = [
     "HighGain",
     "KalmanCA",
     "Levant",
+    "LowPowerHighGain",
     "Observer",
     "SuperTwisting",
+    "SwitchedGain",
     "UniformLevant",
     "make_observer",
 ]

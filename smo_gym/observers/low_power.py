@@ -1,0 +1,403 @@
+r"""Low-power, peaking-free high-gain observer (Astolfi, Marconi, Praly and Teel 2018; paper 002).
+
+The standard high-gain observer (2) of an ``n``-dimensional integrator chain uses the gains
+:math:`\ell, \ell^2, \ldots, \ell^n` and its estimate :math:`\hat x_i` peaks like :math:`\ell^{i-1}` after a
+reset. The *low-power* observer of Astolfi and Marconi (2015) replaces it by a chain of ``n - 1`` second-order
+high-gain observers that only use :math:`\ell` and :math:`\ell^2`; the *peaking-free* version of Astolfi, Marconi,
+Praly and Teel (2018) saturates the interconnection terms and adds one first-order filter, for a state of
+dimension ``2n - 1``:
+
+.. math::
+    \dot\xi_i &= A\xi_i + N\,\sigma(\xi_{i+1}) + D(\ell) K_i\,\bigl(\sigma_i(\xi_{i-1,2}) - \xi_{i,1}\bigr),
+        \qquad i = 1, \ldots, n-1,\quad \sigma_1(\xi_{0,2}) := y,\\
+    \dot\xi_{n-1} &= A\xi_{n-1} + B\varphi_s(\hat x) + D(\ell)K_{n-1}\bigl(\sigma_{n-1}(\xi_{n-2,2})
+        - \xi_{n-1,1}\bigr),\\
+    \dot\eta &= \varphi_s(\hat x) + \ell k_n\bigl(\sigma_n(\xi_{n-1,2}) - \eta\bigr),
+
+with :math:`A = \begin{bmatrix}0&1\\0&0\end{bmatrix}`, :math:`N = \begin{bmatrix}0&0\\0&1\end{bmatrix}`,
+:math:`B = (0, 1)^T`, :math:`D(\ell) = \mathrm{diag}(\ell, \ell^2)`, :math:`K_i = (k_{i,1}, k_{i,2})^T`, and
+:math:`N\sigma(\xi_{i+1}) = (0, \sigma_{i+2}(\xi_{i+1,2}))^T`. :math:`\xi_{i,1}` and :math:`\xi_{i,2}` estimate
+:math:`x_i` and :math:`x_{i+1}`; :math:`\sigma_j` saturates an estimate of :math:`x_j` at the known bound
+:math:`r_j \ge \sup_t|x_j(t)|` (``bounds``). Here :math:`\varphi_s = 0` (model-free: a differentiator of
+``y = f + noise``, :math:`x_j = f^{(j-1)}`).
+
+Estimates (``readout``):
+
+``"peaking-free"`` (default)
+    :math:`\hat x_1 = \xi_{1,1}`, :math:`\hat x_i = \xi_{i,1}` (``2 <= i <= n-1``), :math:`\hat x_n = \eta`
+    [AMPT18]. Each is the output of a second-order (or first-order) filter with :math:`\ell`-scaled dynamics driven
+    by a *saturated* signal, so its transient is bounded independently of :math:`\ell`; only the ``n - 1``
+    auxiliary states :math:`\xi_{i,2}` may reach values of order :math:`\ell` (not :math:`\ell^{n-1}`).
+``"low-power"``
+    :math:`\hat x_1 = \xi_{1,1}`, :math:`\hat x_{i+1} = \xi_{i,2}`: the estimates of Astolfi and Marconi (2015).
+
+Gains
+-----
+The default :math:`k_{i,1} = 2`, :math:`k_{i,2} = (n-i)/i`, :math:`k_n = 1` places *all* ``2n - 1`` eigenvalues
+of the (unsaturated) error dynamics at :math:`-\ell` (found by pole placement on the characteristic polynomial and
+verified to :math:`10^{-14}` for ``n <= 10``; :func:`low_power_matrices` lets a test check it). So with the same
+:math:`\ell` this observer and :class:`~smo_gym.observers.HighGain` with its default binomial coefficients (all
+``n`` poles at :math:`-\ell`) have the same convergence rate. Any other ``K`` is accepted if the unsaturated
+error matrix is Hurwitz.
+
+Discretization
+--------------
+``"implicit"`` (only choice): implicit Euler of the saturated system,
+:math:`s_k = s_{k-1} + h\,F(s_k, y_k)`. :math:`F` is piecewise linear; the step first solves the unsaturated
+linear system (a precomputed inverse), and if a saturated argument leaves its linear zone it solves the
+piecewise-linear equation by an active-set iteration (each pass fixes the clamped terms, solves the linear
+system, and recomputes which terms are clamped). The linear part is therefore stable at every :math:`\ell h`
+(the implicit Euler map of a Hurwitz matrix), which the explicit Euler step is not for :math:`\ell h \gtrsim 1`.
+The saturation is the hard clip :math:`\sigma_r(s) = \max(-r, \min(r, s))`; the papers ask for a strictly
+increasing :math:`C^1` function with :math:`|\sigma_r| \le r + 1` for the proofs, which changes nothing once the
+estimates are inside their bounds.
+
+References
+----------
+.. [AM15] D. Astolfi and L. Marconi, "A high-gain nonlinear observer with limited gain power", IEEE Transactions
+   on Automatic Control 60(11), 3059-3064, 2015.
+.. [AMPT18] D. Astolfi, L. Marconi, L. Praly and A. R. Teel, "Low-power peaking-free high-gain observers",
+   Automatica 98, 169-179, 2018 (paper 002; the shared text stops after Section 2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .._validation import check_choice, check_int_in_range, check_positive
+from . import _kernels
+from ._driver import run_block
+from .base import Observer
+
+__all__ = ["LowPowerHighGain", "low_power_default_coefficients", "low_power_matrices", "polynomial_powers"]
+
+CACHE = True
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# pure maths
+# ----------------------------------------------------------------------------------------------------------------
+def low_power_default_coefficients(n: int) -> tuple[np.ndarray, float]:
+    r"""``(K, k_n)`` with :math:`K_i = (2, (n-i)/i)`, ``k_n = 1``: every error eigenvalue at :math:`-\ell`.
+
+    Returns ``K`` of shape ``(n - 1, 2)`` and the scalar ``k_n``.
+    """
+    n = check_int_in_range("n", n, 2, 10)
+    i = np.arange(1, n)
+    return np.column_stack([np.full(n - 1, 2.0), (n - i) / i]), 1.0
+
+
+def low_power_matrices(n: int, ell: float, K, k_n: float) -> dict[str, np.ndarray]:
+    r"""Matrices of the low-power observer, state :math:`s = (\xi_{1,1}, \xi_{1,2}, \ldots, \xi_{n-1,2}, \eta)`.
+
+    .. math:: \dot s = F_0 s + F_c\,\sigma(P s) + G y,
+
+    where :math:`Ps = (\xi_{1,2}, \ldots, \xi_{n-1,2})` are the interconnection signals (:math:`\xi_{j,2}` estimates
+    :math:`x_{j+1}` and is saturated at :math:`r_{j+1}`), :math:`F_c` holds the columns through which they enter, and
+    :math:`F_0` the rest. Without saturation the observer is :math:`\dot s = (F_0 + F_c P)s + Gy`.
+
+    Returns
+    -------
+    dict with ``F0`` (N, N), ``Fc`` (N, n-1), ``P`` (n-1, N) selection, ``G`` (N,), ``F = F0 + Fc P`` and the
+    read-out matrices ``R_peaking_free`` and ``R_low_power`` (n, N); ``N = 2n - 1``.
+    """
+    K = np.asarray(K, dtype=float)
+    N = 2 * n - 1
+    F0 = np.zeros((N, N))
+    Fc = np.zeros((N, n - 1))
+    P = np.zeros((n - 1, N))
+    G = np.zeros(N)
+    for j in range(n - 1):
+        P[j, 2 * j + 1] = 1.0
+    for i in range(n - 1):  # block i (0-based) = xi_{i+1}
+        a, b = 2 * i, 2 * i + 1
+        k1, k2 = K[i]
+        F0[a, b] += 1.0  # A xi_i: d xi_{i,1} = xi_{i,2}
+        F0[a, a] -= ell * k1  # D K_i (- xi_{i,1})
+        F0[b, a] -= ell**2 * k2
+        if i == 0:  # D K_1 y
+            G[a] += ell * k1
+            G[b] += ell**2 * k2
+        else:  # D K_i sigma(xi_{i-1,2})
+            Fc[a, i - 1] += ell * k1
+            Fc[b, i - 1] += ell**2 * k2
+        if i < n - 2:  # N sigma(xi_{i+1}): d xi_{i,2} += sigma(xi_{i+1,2})
+            Fc[b, i + 1] += 1.0
+    F0[N - 1, N - 1] -= ell * k_n  # eta
+    Fc[N - 1, n - 2] += ell * k_n
+    R_pf = np.zeros((n, N))
+    R_lp = np.zeros((n, N))
+    R_pf[0, 0] = R_lp[0, 0] = 1.0
+    for i in range(1, n - 1):
+        R_pf[i, 2 * i] = 1.0
+    R_pf[n - 1, N - 1] = 1.0
+    for i in range(1, n):
+        R_lp[i, 2 * (i - 1) + 1] = 1.0
+    return {"F0": F0, "Fc": Fc, "P": P, "G": G, "F": F0 + Fc @ P, "R_peaking_free": R_pf, "R_low_power": R_lp}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# compiled recursion
+# params row: [dt, Minv (N*N), b (N), Aimp (N*N), hFc (N*(n-1)), r (n-1), R (n*N)]
+# state row:  [s (N), innovation]
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=CACHE)
+def low_power_channel_step(x, y, p, n, x_new, out_row):
+    r"""Implicit Euler step :math:`(I - hF)s_k = s_{k-1} + hGy_k` with the saturations handled by active sets."""
+    N = 2 * n - 1
+    o_minv = 1
+    o_b = o_minv + N * N
+    o_aimp = o_b + N
+    o_fc = o_aimp + N * N
+    o_r = o_fc + N * (n - 1)
+    o_R = o_r + (n - 1)
+    # unsaturated solution s = Minv s_prev + b y
+    for i in range(N):
+        acc = p[o_b + i] * y
+        for j in range(N):
+            acc += p[o_minv + i * N + j] * x[j]
+        x_new[i] = acc
+    # active set: clamp[j] = 0 (linear), +1 / -1 (clamped at +-r_j); xi_{j,2} sits at index 2j+1
+    clamp = np.zeros(n - 1)
+    violated = False
+    for j in range(n - 1):
+        v = x_new[2 * j + 1]
+        r = p[o_r + j]
+        if v > r:
+            clamp[j] = 1.0
+            violated = True
+        elif v < -r:
+            clamp[j] = -1.0
+            violated = True
+    if violated:
+        M = np.empty((N, N))
+        rhs = np.empty(N)
+        # h G y = (I - hF) b y, since b = (I - hF)^{-1} h G
+        hgy = np.empty(N)
+        for i in range(N):
+            acc = 0.0
+            for j in range(N):
+                acc += p[o_aimp + i * N + j] * p[o_b + j]
+            hgy[i] = acc * y
+        for _ in range(2 * n + 2):
+            for i in range(N):
+                for j in range(N):
+                    M[i, j] = p[o_aimp + i * N + j]
+                rhs[i] = x[i] + hgy[i]
+            for j in range(n - 1):
+                if clamp[j] != 0.0:
+                    col = 2 * j + 1
+                    r = p[o_r + j]
+                    for i in range(N):
+                        hfc = p[o_fc + i * (n - 1) + j]
+                        M[i, col] += hfc  # remove -h Fc_j xi_{j,2} from (I - hF)
+                        rhs[i] += hfc * clamp[j] * r  # add h Fc_j sigma = h Fc_j (+-r)
+            sol = np.linalg.solve(M, rhs)
+            changed = False
+            for j in range(n - 1):
+                v = sol[2 * j + 1]
+                r = p[o_r + j]
+                new = 1.0 if v > r else (-1.0 if v < -r else 0.0)
+                if new != clamp[j]:
+                    clamp[j] = new
+                    changed = True
+            for i in range(N):
+                x_new[i] = sol[i]
+            if not changed:
+                break
+    for i in range(n):
+        acc = 0.0
+        for j in range(N):
+            acc += p[o_R + i * N + j] * x_new[j]
+        out_row[i] = acc
+    return y - x[0]
+
+
+@njit(cache=CACHE)
+def low_power_kernel(state, y, params, new_state, out):
+    """Batch kernel with the calling convention of :mod:`smo_gym.observers._kernels`."""
+    y, out = _kernels._flat(y, out)
+    bad = _kernels._first_nonfinite(y)
+    if bad >= 0:
+        return bad
+    n = out.shape[1]
+    N = 2 * n - 1
+    for c in range(y.shape[0]):
+        new_state[c, N] = low_power_channel_step(state[c], y[c], params[c], n, new_state[c], out[c])
+    return _kernels._check_state(new_state)
+
+
+@njit(cache=CACHE)
+def _low_power_run(state, Y, params, out):
+    """:func:`smo_gym.observers._kernels.run_offline` specialised to :func:`low_power_kernel`.
+
+    The generic driver takes the kernel as an argument, and numba's on-disk cache misses for function-typed
+    arguments in a new process (it recompiles for seconds); a driver that calls the kernel directly caches.
+    """
+    scratch = np.empty_like(state)
+    for t in range(Y.shape[0]):
+        status = low_power_kernel(state, Y[t], params, scratch, out[t])
+        if status != -1:
+            return status, t
+        state[:, :] = scratch
+    return -1, Y.shape[0]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# class
+# ----------------------------------------------------------------------------------------------------------------
+class LowPowerHighGain(Observer):
+    r"""Low-power (gains :math:`\ell, \ell^2` only), peaking-free high-gain differentiator [AMPT18], [AM15].
+
+    Parameters
+    ----------
+    dt : float
+        Sampling step.
+    gain : float
+        The high gain :math:`\ell > 0` (1/s); with the default coefficients every error eigenvalue is at
+        :math:`-\ell`.
+    order : int
+        Derivatives estimated, ``n = order + 1`` (``1 <= order <= 9``). Observer dimension ``2n - 1``.
+    bounds : float or array_like, shape (order,), optional
+        Saturation levels :math:`r_2, \ldots, r_n`: known bounds of :math:`|f^{(1)}|, \ldots, |f^{(n-1)}|`.
+        ``None``: no saturation (the low-power observer of [AM15] plus the output filter).
+    coefficients : array_like, shape (order, 2), optional
+        :math:`K_i = (k_{i,1}, k_{i,2})`; default :func:`low_power_default_coefficients`.
+    filter_coefficient : float, optional
+        :math:`k_n` of the last estimate's filter (default 1).
+    readout : {"peaking-free", "low-power"}
+        Which states are reported as estimates (see the module docstring).
+    discretization : {"implicit"}
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from smo_gym.observers import LowPowerHighGain
+    >>> obs = LowPowerHighGain(dt=1e-3, gain=50.0, order=2, bounds=[2.0, 2.0])
+    >>> obs.powers_of_gain()
+    [0, 1, 2]
+    """
+
+    discretizations = ("implicit",)
+    name = "low-power-high-gain"
+
+    def __init__(self, dt: float, gain: float, order: int = 1, *, bounds=None, coefficients=None,
+                 filter_coefficient: float | None = None, readout: str = "peaking-free",
+                 discretization: str | None = None):
+        order = check_int_in_range("order", order, 1, 9)
+        super().__init__(dt, order, discretization)
+        n = order + 1
+        self.gain = check_positive("gain", gain)
+        self.readout = check_choice("readout", readout, ("peaking-free", "low-power"))
+        K, k_n = low_power_default_coefficients(n)
+        if coefficients is not None:
+            K = np.asarray(coefficients, dtype=float)
+            if K.shape != (n - 1, 2) or not np.all(np.isfinite(K)):
+                raise ValueError(f"expected coefficients with shape ({n - 1}, 2), actual value: {coefficients!r}")
+        if filter_coefficient is not None:
+            k_n = check_positive("filter_coefficient", filter_coefficient)
+        self.coefficients, self.filter_coefficient = K, float(k_n)
+        unit = low_power_matrices(n, 1.0, K, k_n)["F"]
+        if np.max(np.linalg.eigvals(unit).real) >= 0:
+            raise ValueError(
+                f"expected coefficients making the error dynamics Hurwitz, actual value: {K.tolist()} "
+                f"(eigenvalues {np.round(np.linalg.eigvals(unit), 4).tolist()})"
+            )
+        if bounds is None:
+            self.bounds = np.full(order, np.inf)
+        else:
+            b = np.asarray(bounds, dtype=float)
+            try:
+                b = np.broadcast_to(b, (order,)).astype(float)
+            except ValueError:
+                raise ValueError(
+                    f"expected bounds with shape ({order},) or a scalar, actual value: {bounds!r}") from None
+            if np.any(~(b > 0)) or np.any(np.isnan(b)):
+                raise ValueError(f"expected bounds > 0, actual value: {bounds!r}")
+            self.bounds = b
+
+    def system_matrices(self) -> dict[str, np.ndarray]:
+        """The continuous-time matrices at this ``gain`` (see :func:`low_power_matrices`)."""
+        return low_power_matrices(self.order + 1, self.gain, self.coefficients, self.filter_coefficient)
+
+    def powers_of_gain(self) -> list[int]:
+        r"""Powers of :math:`\ell` that appear in the observer's matrices, found numerically.
+
+        Fits every entry of :math:`(F_0, F_c, G)` evaluated at several :math:`\ell` with a polynomial in
+        :math:`\ell` of degree ``n`` and returns the degrees with a nonzero coefficient. For this observer the
+        answer is ``[0, 1, 2]`` whatever ``order``; for the standard high-gain observer it is ``[0, 1, ..., n]``.
+        """
+        n = self.order + 1
+        probes = 1.0 + 0.5 * np.cos(np.pi * (np.arange(n + 3) + 0.5) / (n + 3))  # Chebyshev points in [0.5, 1.5]
+        rows = []
+        for ell in probes:
+            M = low_power_matrices(n, ell, self.coefficients, self.filter_coefficient)
+            rows.append(np.concatenate([M["F0"].ravel(), M["Fc"].ravel(), M["G"]]))
+        return polynomial_powers(np.asarray(probes), np.asarray(rows), n)
+
+    # ---- Observer plumbing ------------------------------------------------------------------------------------
+    @property
+    def internal_state(self) -> np.ndarray:
+        r"""The observer state :math:`s = (\xi_{1,1}, \xi_{1,2}, \ldots, \xi_{n-1,2}, \eta)` of every channel in
+        the papers' coordinates, shape ``(..., n_channels, 2n - 1)``."""
+        self._require_reset()
+        n = self.order + 1
+        return (self._state[:, : 2 * n - 1] * self.state_scale()).reshape(self._shape + (2 * n - 1,))
+
+    @property
+    def _kernel(self):
+        return low_power_kernel
+
+    def _state_width(self) -> int:
+        return 2 * (self.order + 1)
+
+    def _innovation_column(self) -> int:
+        return 2 * (self.order + 1) - 1
+
+    def state_scale(self) -> np.ndarray:
+        r"""Diagonal ``T`` of the internal coordinates: the kernel's state is :math:`\zeta = T^{-1}s` with
+        :math:`\zeta_{i,1} = \xi_{i,1}/\ell^{i-1}`, :math:`\zeta_{i,2} = \xi_{i,2}/\ell^{i}`,
+        :math:`\zeta_\eta = \eta/\ell^{n-1}`, in which the observer matrix is :math:`\ell F|_{\ell=1}`; the implicit
+        step is solved there (condition number of order :math:`(\ell h)^{2}` instead of :math:`\ell^{2n}`)."""
+        n = self.order + 1
+        powers = np.concatenate([[i, i + 1] for i in range(n - 1)] + [[n - 1]])
+        return self.gain ** powers.astype(float)
+
+    def _channel_params(self, shape):
+        n = self.order + 1
+        N = 2 * n - 1
+        h = self.dt
+        M = self.system_matrices()
+        T = self.state_scale()
+        cols = 2 * np.arange(n - 1) + 1  # xi_{j,2}, the saturated interconnection signals
+        F = M["F"] * T[None, :] / T[:, None]  # T^-1 F T
+        Aimp = np.eye(N) - h * F
+        Minv = np.linalg.inv(Aimp)
+        b = Minv @ (h * M["G"] / T)
+        fc = h * M["Fc"] / T[:, None] * T[cols][None, :]  # column j acts on zeta_{j,2} = xi_{j,2} / T
+        levels = self.bounds / T[cols]  # r_j in zeta units
+        R = (M["R_peaking_free"] if self.readout == "peaking-free" else M["R_low_power"]) * T[None, :]
+        row = np.concatenate([[h], Minv.ravel(), b, Aimp.ravel(), fc.ravel(), levels, R.ravel()])
+        return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
+
+    def run(self, Y) -> np.ndarray:
+        """Process a recorded block ``Y`` of shape ``(T, ...)``; see :meth:`Observer.run`."""
+        return run_block(self, Y, _low_power_run)
+
+    def __repr__(self) -> str:
+        return (f"LowPowerHighGain(dt={self.dt}, gain={self.gain}, order={self.order}, "
+                f"bounds={self.bounds.tolist()}, readout={self.readout!r})")
+
+
+def polynomial_powers(ells: np.ndarray, values: np.ndarray, max_degree: int, rtol: float = 1e-6) -> list[int]:
+    """Degrees ``d`` such that some column of ``values`` (rows indexed by ``ells``) has a nonzero ``ell**d`` term.
+
+    Exact polynomial fit (Vandermonde least squares) of each column up to ``max_degree``; coefficients below
+    ``rtol`` times the column's scale count as zero.
+    """
+    V = np.vander(ells, max_degree + 1, increasing=True)
+    coef, *_ = np.linalg.lstsq(V, values, rcond=None)
+    scale = np.maximum(np.abs(values).max(axis=0), 1.0)
+    present = np.abs(coef) > rtol * scale  # (deg, cols)
+    return [int(d) for d in range(max_degree + 1) if np.any(present[d])]

@@ -1,0 +1,82 @@
+"""LMI design of paper 000 (Assumption 1 / Remark 2): solution, NumPy re-verification, infeasibility."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from smo_gym.design import (
+    LMIInfeasibleError,
+    SwitchedGainCertificate,
+    certify_switched_gain,
+    switched_gain_lmi,
+)
+
+
+def _assumption1(P, l, kappa, rho_d, rho_v, gamma):
+    """The block matrix of Assumption 1 written out here, independently of ``smo_gym.design.lmi``."""
+    n = P.shape[0]
+    A = np.diag(np.ones(n - 1), 1)
+    b = np.eye(n)[:, [-1]]
+    c = np.eye(n)[:, [0]]
+    w = (P @ l).reshape(n, 1)
+    S = A.T @ P + P @ A - c @ w.T - w @ c.T + kappa * P + (np.eye(n) if gamma > 0 else 0.0)
+    z = np.zeros((1, 1))
+    rows = [[S, P @ b, -w], [b.T @ P, -(rho_d**2) + z, z], [-w.T, z, -(rho_v**2) + z]]
+    if gamma > 0:
+        rows = [r + [extra] for r, extra in zip(rows, [-P @ b, z, z])]
+        rows.append([-b.T @ P, z, z, -(gamma**-2) + z])
+    return np.block(rows)
+
+
+def test_reproduces_the_printed_gain_of_section_6():
+    """Paper 000, Section 6: kappa = rho_d = rho_v = 1 gives l = [2.6 2.1], P = [[0.76 -0.48] [-0.48 0.6]]."""
+    l, P, cert = switched_gain_lmi(2, kappa=1.0, rho_d=1.0, rho_v=1.0)
+    assert np.allclose(l, [2.6, 2.1], atol=0.05)
+    assert np.allclose(P, [[0.76, -0.48], [-0.48, 0.6]], atol=0.02)
+    assert isinstance(cert, SwitchedGainCertificate) and cert.status == "optimal"
+
+
+@pytest.mark.parametrize("n, kappa, rho_d, rho_v, gamma", [
+    (2, 1.0, 1.0, 1.0, 0.0), (3, 1.0, 1.0, 1.0, 0.0), (4, 2.0, 1.0, 0.5, 0.0), (2, 0.1, 2.0, 2.0, 0.2),
+    (3, 0.2, 5.0, 5.0, 0.1),
+])
+def test_solution_is_reverified_in_numpy(n, kappa, rho_d, rho_v, gamma):
+    l, P, cert = switched_gain_lmi(n, kappa, rho_d, rho_v, gamma)
+    assert np.allclose(P, P.T)
+    eig_P = np.linalg.eigvalsh(P)
+    M = _assumption1(P, l, kappa, rho_d, rho_v, gamma)
+    assert np.allclose(M, M.T)
+    assert eig_P[0] > 0 and np.linalg.eigvalsh(M).max() <= 1e-7
+    assert cert.min_eig_P == pytest.approx(eig_P[0]) and cert.max_eig_lmi <= 1e-7
+    # the leading block implies (A - l c^T)^T P + P (A - l c^T) <= -kappa P: spectral abscissa <= -kappa / 2
+    A = np.diag(np.ones(n - 1), 1)
+    assert np.linalg.eigvals(A - np.outer(l, np.eye(n)[0])).real.max() <= -kappa / 2 + 1e-6
+
+
+@pytest.mark.parametrize("spec", [(2, 100.0, 0.01, 0.01, 0.0), (2, 1.0, 1.0, 1.0, 10.0), (3, 1.0, 1.0, 1.0, 0.5)])
+def test_infeasible_specification_raises(spec):
+    with pytest.raises(LMIInfeasibleError, match="expected a feasible specification"):
+        switched_gain_lmi(*spec)
+    assert issubclass(LMIInfeasibleError, ValueError)
+
+
+def test_printed_rounded_values_fail_the_strict_check():
+    """Measured: the two-digit values printed in Section 6 violate the LMI by about 3e-3 (rounding)."""
+    l, P = np.array([2.6, 2.1]), np.array([[0.76, -0.48], [-0.48, 0.6]])
+    top = np.linalg.eigvalsh(_assumption1(P, l, 1.0, 1.0, 1.0, 0.0)).max()
+    assert 1e-3 < top < 1e-2
+    with pytest.raises(LMIInfeasibleError):
+        certify_switched_gain(l, P, 1.0, 1.0, 1.0)
+
+
+@pytest.mark.parametrize("kwargs, exc", [
+    (dict(n=1, kappa=1.0, rho_d=1.0, rho_v=1.0), ValueError),
+    (dict(n=2.0, kappa=1.0, rho_d=1.0, rho_v=1.0), TypeError),
+    (dict(n=2, kappa=-1.0, rho_d=1.0, rho_v=1.0), ValueError),
+    (dict(n=2, kappa=1.0, rho_d="a", rho_v=1.0), TypeError),
+    (dict(n=2, kappa=1.0, rho_d=1.0, rho_v=1.0, gamma=-0.1), ValueError),
+])
+def test_bad_input_raises_typed_errors(kwargs, exc):
+    with pytest.raises(exc, match="expected"):
+        switched_gain_lmi(**kwargs)
