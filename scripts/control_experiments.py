@@ -1,4 +1,4 @@
-"""Output-feedback control experiments of paper 004, section 6 (issue 6), on the slides' linear models.
+"""Output-feedback control experiments of paper 004, section 6 (issue 6).
 
 Prints the tables and writes the plots of :func:`smo_gym.control.experiments.run_all`:
 
@@ -8,9 +8,11 @@ Prints the tables and writes the plots of :func:`smo_gym.control.experiments.run
   Luenberger observer vs HOSM compensation vs output integral sliding mode (unit vector, super-twisting), exact
   and 12-bit encoders, over a sweep of sampling steps, with the control's total variation per second;
 - an unknown actuator lag mu (execution error O(mu)), compensation vs ISM;
-- the unmatched case on the slides' three-DOF helicopter: compensation through the sliding surface vs LQR.
+- the unmatched case on the slides' three-DOF helicopter: compensation through the sliding surface vs LQR;
+- the Furuta pendulum in MuJoCo (``smo_gym/FurutaPendulum-v0``) through ``EstimatedVelocity``.
 
-Usage: ``python scripts/control_experiments.py [--out outputs/control] [--quick] [--no-plots]``
+Usage: ``python scripts/control_experiments.py [--out outputs/control] [--quick] [--no-plots]`` (the same as
+``smo-gym control``).
 """
 
 from __future__ import annotations
@@ -18,19 +20,17 @@ from __future__ import annotations
 import argparse
 import time
 
-from smo_gym.control.experiments import run_all
+from smo_gym.control.experiments import add_arguments, cli
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="outputs/control", help="directory for the plots")
-    ap.add_argument("--quick", action="store_true", help="fewer steps and shorter runs")
-    ap.add_argument("--no-plots", action="store_true")
-    args = ap.parse_args(argv)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    args = parser.parse_args(argv)
     t0 = time.time()
-    run_all(args.out, quick=args.quick, plots=not args.no_plots)
+    status = cli(args)
     print(f"\ndone in {time.time() - t0:.0f} s")
-    return 0
+    return status
 
 
 if __name__ == "__main__":

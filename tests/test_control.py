@@ -264,3 +264,16 @@ def test_unmatched_compensation_beats_lqr_tenfold():
     # the pitch is used as a pseudo-control: it settles where it cancels the travel disturbance, 0.49 e2 = nu
     sel = res.after(8.0)
     np.testing.assert_allclose(0.49 * res.x[sel, 1], helicopter_w(res.t[sel])[:, 2], atol=0.01)
+
+
+@pytest.mark.slow
+def test_mujoco_furuta_compensation_beats_lqr_tenfold():
+    """The MuJoCo environment (nonlinear, RK4) through EstimatedVelocity, linearized model, 12-bit encoders."""
+    pytest.importorskip("gymnasium")
+    from smo_gym.control.experiments import furuta_mujoco_experiment
+
+    rows, _ = furuta_mujoco_experiment(frame_skips=(1,), t_final=7.0, t_steady=4.0)
+    sse = {r["controller"]: r["max |theta|,|alpha|"] for r in rows}
+    assert not any(r["fell"] for r in rows)
+    for name in ("compensation", "ISM (unit vector)", "ISM (super-twisting)"):
+        assert sse[name] * 10 <= sse["LQR + Luenberger"], sse

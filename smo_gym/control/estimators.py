@@ -250,7 +250,7 @@ class CascadedHOSMObserver:
         # effect of a unit jump of e on the j-th derivative of y_e at the next sample: C A^j Phi
         self._jump = np.vstack([plant.C @ np.linalg.matrix_power(plant.A, j) @ self.Phi
                                 for j in range(self.order + 1)])  # ((k+1) p, n), derivative-major
-        self._prior = None
+        self._prior = self._posterior = None
         self._dstate = None
         self.x_hat = self.e_hat = None
         self.w_hat = np.zeros(plant.n_unknown)
@@ -270,6 +270,7 @@ class CascadedHOSMObserver:
         ye0 = y0 - self.plant.C @ self._prior
         self.differentiator.reset(ye0)
         self._dstate = self.differentiator.state
+        self._posterior = self._prior.copy()
         self.x_hat = self._prior.copy()
         self.e_hat = np.zeros(self.plant.n)
         return self.x_hat

@@ -489,6 +489,8 @@ def linearize(model, qpos0=None, ctrl0=None, *, data=None, eps: float = 1e-6, ce
     Parameters
     ----------
     model : mujoco.MjModel
+        Not modified. ``mjd_transitionFD`` does not support the RK4 integrator: such models are linearized on a
+        copy with the Euler integrator (the same continuous dynamics; only ``"logm"`` depends on the step).
     qpos0 : array_like, shape (nq,), optional
         Equilibrium configuration (default ``model.qpos0``); ignored when ``data`` is given.
     ctrl0 : array_like, shape (nu,), optional
@@ -504,6 +506,12 @@ def linearize(model, qpos0=None, ctrl0=None, *, data=None, eps: float = 1e-6, ce
     """
     import mujoco  # lazy: the rest of smo_gym.control does not need MuJoCo
 
+    if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
+        # mjd_transitionFD does not support RK4: differentiate the same dynamics with the Euler step
+        import copy
+
+        model = copy.deepcopy(model)
+        model.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
     if method not in ("difference", "logm"):
         raise ValueError(f"expected method to be one of 'difference', 'logm', actual value: {method!r}")
     if data is None:
