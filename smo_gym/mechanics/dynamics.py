@@ -175,7 +175,7 @@ class MujocoDynamics:
                 x = q[self._chan_of_joint[ind]] - m.qpos0[m.jnt_qposadr[ind]]
                 d.qpos[m.jnt_qposadr[dep]] = m.qpos0[m.jnt_qposadr[dep]] + c[0] + x * (c[1] + x * (c[2] + x * (c[3] + x * c[4])))
                 if v is not None:
-                    xd = v[self._chan_of_joint[ind]]
+                    xd = min(max(float(v[self._chan_of_joint[ind]]), -1e150), 1e150)
                     d1 = c[1] + x * (2 * c[2] + x * (3 * c[3] + x * 4 * c[4]))
                     d2 = 2 * c[2] + x * (6 * c[3] + x * 12 * c[4])
                     d.qvel[m.jnt_dofadr[dep]] = d1 * xd
@@ -216,7 +216,8 @@ class MujocoDynamics:
             return d.qacc[self.dof].copy()
         J = self.jacobian(q)
         mujoco.mj_fullM(m, d, self._fullM)
-        rhs = J.T @ (d.qfrc_smooth - self._fullM @ jdv)
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging estimate is reported by the observer
+            rhs = J.T @ (d.qfrc_smooth - self._fullM @ jdv)
         return np.linalg.solve(J.T @ self._fullM @ J, rhs)
 
     def acceleration(self, q, v, u=None) -> np.ndarray:
