@@ -23,10 +23,12 @@ Scratch evaluation
 ``observation`` copies into a scratch ``MjData`` the inputs a real controller knows (``ctrl``, ``act``, ``time``,
 mocap poses, applied forces) and the *measured/estimated* ``qpos``/``qvel``, runs ``mj_forward`` (so ``cinert``,
 ``cvel``, ``qfrc_actuator``, ``site_xpos``, ``xpos`` of ``get_body_com``, ... are recomputed from that state) and
-calls ``_get_obs()`` with ``env.data`` temporarily pointing at the scratch data. Whether ``mj_forward`` is needed
-at all is *probed* once at construction, with no per-environment table: the observation is evaluated on scratch
-data whose computed fields are all NaN; if it comes out finite and equal to the forward-computed one at random
-states, it reads only ``qpos``/``qvel`` (plus the inputs) and the forward pass is skipped.
+calls ``_get_obs()`` with ``env.data`` temporarily pointing at the scratch data. How much of the forward pass is
+needed is *probed* once at construction, with no per-environment table: the observation is evaluated on scratch
+data whose other fields are all NaN, after no computation, then after the kinematic stages only (no collision
+detection or constraint solver); the first that comes out finite and equal to the ``mj_forward`` result at
+random states is used (Hopper, HalfCheetah, Ant: none; Humanoid: kinematics; InvertedDoublePendulum, whose
+observation has a constraint force: the full forward pass).
 
 Contact forces
 --------------
@@ -119,18 +121,37 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self.frame_skip = int(env.frame_skip)
         self.contact_forces = contact_forces
         self._scratch = mujoco.MjData(self.model)
-        self.needs_forward = True
-        self.needs_forward = self._probe_forward()
+        self.pipeline, self.copies_inputs = "forward", True
+        self.pipeline, self.copies_inputs = self._probe_pipeline()
+        self._views()
+
+    def _views(self) -> None:
+        # cached views of the scratch arrays written at every observation (MjData builds a view per access)
+        self._scratch_qpos, self._scratch_qvel = self._scratch.qpos, self._scratch.qvel
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state.pop("_scratch_qpos", None)
+        state.pop("_scratch_qvel", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._views()
 
     @property
     def data(self) -> mujoco.MjData:
         return self.env.data
 
     # ---- observation at a given state -----------------------------------------------------------------------
-    def _fill(self, scratch: mujoco.MjData, qpos, qvel) -> None:
-        live = self.env.data
+    def _fill(self, scratch: mujoco.MjData, qpos, qvel, inputs: bool = True) -> None:
         scratch.qpos[:] = qpos
         scratch.qvel[:] = qvel
+        if inputs:
+            self._fill_inputs(scratch)
+
+    def _fill_inputs(self, scratch: mujoco.MjData) -> None:
+        live = self.env.data
         scratch.time = live.time
         if self.model.nu:
             scratch.ctrl[:] = live.ctrl
@@ -142,11 +163,24 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         scratch.qfrc_applied[:] = live.qfrc_applied
         scratch.xfrc_applied[:] = live.xfrc_applied
 
-    def _evaluate(self, scratch: mujoco.MjData, forward: bool) -> np.ndarray:
-        if forward:
-            mujoco.mj_forward(self.model, scratch)
+    @property
+    def needs_forward(self) -> bool:
+        """Whether the observation needs computed quantities (a partial or full forward pass)."""
+        return self.pipeline != "none"
+
+    def _evaluate(self, scratch: mujoco.MjData, pipeline: str) -> np.ndarray:
+        model = self.model
+        if pipeline == "forward":
+            mujoco.mj_forward(model, scratch)
             if self.contact_forces == "estimated":
-                mujoco.mj_rnePostConstraint(self.model, scratch)
+                mujoco.mj_rnePostConstraint(model, scratch)
+        elif pipeline == "kinematics":  # positions, com frames, tendons, transmissions, com velocities, actuation
+            mujoco.mj_kinematics(model, scratch)
+            mujoco.mj_comPos(model, scratch)
+            mujoco.mj_tendon(model, scratch)
+            mujoco.mj_transmission(model, scratch)
+            mujoco.mj_comVel(model, scratch)
+            mujoco.mj_fwdActuation(model, scratch)
         if self.contact_forces == "sensor":
             scratch.cfrc_ext[:] = self.env.data.cfrc_ext
         elif self.contact_forces == "zero":
@@ -160,39 +194,56 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
 
     def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """The environment's observation at ``(qpos, qvel)``, evaluated on scratch data (see module docstring)."""
-        self._fill(self._scratch, qpos, qvel)
-        return self._evaluate(self._scratch, self.needs_forward)
+        self._scratch_qpos[:] = qpos
+        self._scratch_qvel[:] = qvel
+        if self.copies_inputs:
+            self._fill_inputs(self._scratch)
+        return self._evaluate(self._scratch, self.pipeline)
 
-    def _probe_forward(self) -> bool:
-        """True unless ``_get_obs`` provably reads only qpos/qvel and the inputs (see module docstring)."""
+    def _probe_pipeline(self) -> tuple[str, bool]:
+        """``(pipeline, copies_inputs)``: the cheapest evaluation that reproduces the forward-computed observation
+        at random states (see module docstring): ``"none"`` (qpos/qvel only, with or without the inputs),
+        ``"kinematics"`` (kinematics, com frames and velocities, tendons, actuation: no collision or constraint
+        solver) or ``"forward"``. Fields not copied or computed are NaN in the probe, so any read of them shows."""
         rng = np.random.default_rng(12345)
         model, live = self.model, self.env.data
-        keep = set(_INPUTS) | ({"cfrc_ext"} if self.contact_forces != "estimated" else set())
+        keep = {"qpos", "qvel"} | ({"cfrc_ext"} if self.contact_forces != "estimated" else set())
+        states = []
         for _ in range(2):
             qpos = np.array(live.qpos)
             mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
-            qvel = rng.standard_normal(model.nv)
+            states.append((qpos, rng.standard_normal(model.nv)))
+        expected = []
+        for qpos, qvel in states:
             reference = mujoco.MjData(model)
             self._fill(reference, qpos, qvel)
-            expected = self._evaluate(reference, True)
-            poisoned = mujoco.MjData(model)
-            for name in dir(poisoned):
-                if name.startswith("_") or name in keep:
-                    continue
+            expected.append(self._evaluate(reference, "forward"))
+        for pipeline, inputs in (("none", False), ("none", True), ("kinematics", True)):
+            ok = True
+            for (qpos, qvel), want in zip(states, expected, strict=True):
+                poisoned = mujoco.MjData(model)
+                skip = keep | (set(_INPUTS) if inputs else set())
+                for name in dir(poisoned):
+                    if name.startswith("_") or name in skip:
+                        continue
+                    try:
+                        value = getattr(poisoned, name)
+                    except Exception:  # noqa: BLE001 - some attributes are not readable without context
+                        continue
+                    if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
+                        value[...] = np.nan
+                self._fill(poisoned, qpos, qvel, inputs=inputs)
                 try:
-                    value = getattr(poisoned, name)
-                except Exception:  # noqa: BLE001 - some attributes are not readable without context
-                    continue
-                if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
-                    value[...] = np.nan
-            self._fill(poisoned, qpos, qvel)
-            try:
-                got = self._evaluate(poisoned, False)
-            except Exception:  # noqa: BLE001 - any failure on poisoned data means the forward pass is needed
-                return True
-            if got.shape != expected.shape or not np.all(np.isfinite(got)) or not np.array_equal(got, expected):
-                return True
-        return False
+                    got = self._evaluate(poisoned, pipeline)
+                except Exception:  # noqa: BLE001 - any failure on poisoned data means more is needed
+                    ok = False
+                    break
+                if got.shape != want.shape or not np.all(np.isfinite(got)) or not np.array_equal(got, want):
+                    ok = False
+                    break
+            if ok:
+                return pipeline, inputs
+        return "forward", True
 
     # ---- sampling inside frame_skip -------------------------------------------------------------------------
     def supports_substeps(self) -> bool:

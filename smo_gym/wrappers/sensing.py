@@ -174,9 +174,26 @@ class JointMeasurement:
         """Measure the next sample; returns (and stores) the measured tangent coordinates ``z_measured``."""
         self.z_true = self.tangent(qpos)
         self.z_measured = self.sensor.measure(self.z_true)
-        self._last_qpos = qpos
+        self._last_qpos = np.array(qpos)
         self.qpos_measured = None  # mapped back lazily: only the last sample of a control period is needed
         return self.z_measured
+
+    def measure_block(self, Q: np.ndarray) -> np.ndarray:
+        """Measure consecutive samples ``Q`` (T, nq) with one compiled sensor call; returns ``Z_meas`` (T, nv).
+
+        Same numbers as ``measure`` row by row (the sensor's stream does not depend on batching).
+        """
+        if len(Q) == 1:
+            return self.measure(Q[0])[None]
+        if self.tangent.manifold:
+            Z = np.array([self.tangent(q) for q in Q])
+        else:
+            Z = np.ascontiguousarray(Q, dtype=np.float64)
+        Zm = self.sensor.run(Z)
+        self.z_true, self.z_measured = Z[-1].copy(), Zm[-1]
+        self._last_qpos = np.array(Q[-1])
+        self.qpos_measured = None
+        return Zm
 
     def measured_qpos(self) -> np.ndarray:
         """The measured configuration at the last sample, shape ``(nq,)``."""
