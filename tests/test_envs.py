@@ -69,9 +69,19 @@ def test_time_varying_disturbance_uses_physics_time():
     env = gym.make("smo_gym/FurutaPendulum-v0", disturbance=f).unwrapped
     env.reset(seed=0)
     *_, info = env.step(np.zeros(1))
-    # applied during the last physics step, which started at t = dt - timestep
-    np.testing.assert_allclose(info["disturbance"], f(env.dt - env.model.opt.timestep))
-    assert env.data.qfrc_applied[1] == 0.0  # matched: only the arm joint
+    # held over the step from its start time t = 0
+    np.testing.assert_allclose(info["disturbance"], f(0.0))
+    np.testing.assert_allclose(env.data.qfrc_applied, [f(0.0)[0], 0.0])  # matched: only the arm joint
+    *_, info = env.step(np.zeros(1))
+    np.testing.assert_allclose(info["disturbance"], f(env.dt))
+
+
+def test_envs_keep_mujoco_env_stepping_for_the_wrapper():
+    """The wrapper samples inside frame_skip only through MujocoEnv._step_mujoco_simulation."""
+    from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+
+    for cls in (smo_gym.envs.VariableInertiaEnv, smo_gym.envs.TwoLinkArmEnv, smo_gym.envs.FurutaPendulumEnv):
+        assert cls._step_mujoco_simulation is MujocoEnv._step_mujoco_simulation
 
 
 def test_variable_inertia_reset_respects_the_coupling():

@@ -1,9 +1,12 @@
 """Shared base of the smo_gym MuJoCo environments: package-data models, an external-torque disturbance input.
 
-The disturbance is a generalized force written into ``data.qfrc_applied`` at *every physics step* (not once per
-environment step), on the joints listed in ``disturbance_joints``. It is either constant (:meth:`set_disturbance`)
-or a function of simulation time passed as ``disturbance=`` (``f(t) -> array of shape (n_disturbance,)``). The
-force actually applied during the last step is reported as ``info["disturbance"]``.
+The disturbance is a generalized force written into ``data.qfrc_applied`` on the joints listed in
+``disturbance_joints`` at the start of every environment step and held over its ``frame_skip`` physics steps
+(zero-order hold at the environment rate; use ``frame_skip=1`` for a disturbance that changes at every physics
+step). It is either constant (:meth:`set_disturbance`) or a function of simulation time passed as ``disturbance=``
+(``f(t) -> array of shape (n_disturbance,)``, evaluated at the step's start time), and is reported as
+``info["disturbance"]``. The physics is stepped by ``MujocoEnv``'s own ``_step_mujoco_simulation`` (not
+overridden), so :class:`smo_gym.wrappers.EstimatedVelocity` can sample inside ``frame_skip``.
 """
 
 from __future__ import annotations
@@ -76,21 +79,6 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
             d = d + np.broadcast_to(np.asarray(self._disturbance_fn(t), dtype=np.float64), d.shape)
         return d
 
-    def _step_mujoco_simulation(self, ctrl, n_frames):
-        self.data.ctrl[:] = ctrl
-        if self._disturbance_fn is None and not np.any(self._disturbance_const):
-            self.data.qfrc_applied[:] = 0.0
-            mujoco.mj_step(self.model, self.data, nstep=n_frames)
-            self._last_disturbance = np.zeros_like(self._disturbance_const)
-        else:
-            for _ in range(n_frames):
-                d = self._disturbance_at(self.data.time)
-                self.data.qfrc_applied[:] = 0.0
-                self.data.qfrc_applied[self.disturbance_dofs] = d
-                mujoco.mj_step(self.model, self.data)
-            self._last_disturbance = d
-        mujoco.mj_rnePostConstraint(self.model, self.data)
-
     # ---- gymnasium API -------------------------------------------------------------------------------------
     def _get_obs(self) -> np.ndarray:
         return np.concatenate([self.data.qpos, self.data.qvel]).ravel()
@@ -106,6 +94,10 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
 
     def step(self, action):
         action = np.asarray(action, dtype=np.float64)
+        d = self._disturbance_at(self.data.time)
+        self.data.qfrc_applied[:] = 0.0
+        self.data.qfrc_applied[self.disturbance_dofs] = d
+        self._last_disturbance = d
         self.do_simulation(action, self.frame_skip)
         obs = self._get_obs()
         reward, terminated = self._reward_terminated(obs, action)
