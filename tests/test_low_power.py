@@ -110,6 +110,17 @@ def test_peaking_bounded_for_low_power_and_growing_like_ell_power_for_high_gain(
     assert hg["peaks"][-1, 1] > 300 * lp["peaks"][-1, 1]
 
 
+@pytest.mark.parametrize("order", [2, 3])
+def test_auxiliary_states_peak_like_ell_not_ell_power_n_minus_1(order):
+    """Astolfi et al. 2018, Introduction: with the saturations the n - 1 auxiliary states xi_(i,2) may reach values
+    proportional to ell, not ell^(n-1). Measured exponents 0.99-1.11 for n = 3, 4."""
+    compare = _load_compare()
+    peaks = np.array([compare.transient_peaks(LowPowerHighGain, ell, order, bounds=1.5, readout="low-power")
+                      for ell in compare.ELLS])
+    exponents = np.polyfit(np.log(compare.ELLS), np.log(peaks), 1)[0]
+    assert np.all(np.abs(exponents[1:] - 1.0) < 0.2), exponents
+
+
 def test_without_saturation_the_low_power_estimates_peak():
     """The saturations do the work: the same observer without bounds peaks like ell in xi_(1,2)."""
     compare = _load_compare()
