@@ -63,6 +63,12 @@ from .plants import LinearPlant
 __all__ = ["CascadedHOSMObserver", "LuenbergerObserver", "output_error_lipschitz", "sampled_observer_gain"]
 
 
+def _highest_block(M: np.ndarray, p: int) -> int:
+    """Index of the last block of ``p`` columns of ``M`` with a non-negligible entry."""
+    col = np.nonzero(np.abs(M).max(axis=0) > 1e-9 * max(np.abs(M).max(), 1e-300))[0]
+    return int(col.max() // p) if col.size else 0
+
+
 def _default_poles(A: np.ndarray) -> np.ndarray:
     n = A.shape[0]
     speed = max(10.0, 2.0 * np.abs(np.linalg.eigvals(A).real).max())
@@ -200,7 +206,8 @@ class CascadedHOSMObserver:
         :func:`output_error_lipschitz`).
     alpha : int
         Smoothness exploited: differentiator order ``k = N + n_w_derivatives + alpha``, ``N`` the highest output
-        derivative Molinari's relation needs. State error ``O(tau^(alpha+1))``, identification ``O(tau^alpha)``.
+        derivative Molinari's relation needs. State error ``O(tau^(alpha+1))``, identification ``O(tau^alpha)``
+        when the outputs have relative degree 2 (see :attr:`theoretical_orders`).
     n_w_derivatives : int
         Also estimate :math:`\dot{\hat w}, \ldots` up to this order.
     poles : array_like, optional
@@ -247,6 +254,10 @@ class CascadedHOSMObserver:
         self._S = mol.state_map()
         self._N = N
         self._Dpinv = np.linalg.pinv(plant.D)
+        # w = D^+ (e' - A e) as a map of the stack [y_e; ...; y_e^(N+1)] (for the accuracy orders)
+        S_ext = np.hstack([self._S, np.zeros((plant.n, p))])
+        S_shift = np.hstack([np.zeros((plant.n, p)), self._S])
+        self._W_map = self._Dpinv @ (S_shift - plant.A @ S_ext)
         # effect of a unit jump of e on the j-th derivative of y_e at the next sample: C A^j Phi
         self._jump = np.vstack([plant.C @ np.linalg.matrix_power(plant.A, j) @ self.Phi
                                 for j in range(self.order + 1)])  # ((k+1) p, n), derivative-major
@@ -259,8 +270,17 @@ class CascadedHOSMObserver:
 
     @property
     def theoretical_orders(self) -> dict[str, int]:
-        """Orders in ``tau`` of the state and identification errors (paper 004, section 6)."""
-        return {"state": self.alpha + 1, "identification": self.alpha}
+        r"""Orders in ``tau`` of the state and identification errors for noise-free samples.
+
+        The differentiator's ``j``-th derivative has error ``O(L tau^(k+1-j))`` (Livne & Levant 2014), so an
+        estimate that is a linear map of the derivative stack has the order of the highest derivative it weights.
+        For outputs of relative degree 2 (positions of a mechanical system, the slides' examples) the state uses
+        ``y_e'`` and the identification ``y_e''``: orders ``alpha + 1`` and ``alpha``, the table of paper 004,
+        section 6. With an output of relative degree 1, ``w`` may be read from ``y_e'`` alone and the
+        identification gains one order; the maps below say which.
+        """
+        return {"state": self.order + 1 - _highest_block(self._S, self.plant.n_outputs),
+                "identification": self.order + 1 - _highest_block(self._W_map, self.plant.n_outputs)}
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start the Luenberger stage at ``x_hat0`` (default ``C^+ y0``) and the differentiator at its output error."""
