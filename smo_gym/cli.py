@@ -1,5 +1,7 @@
 """Command line: ``smo-gym compare`` (observers side by side on the same measurements of a MuJoCo rollout).
 
+``smo-gym control``: the output-feedback control experiments of :mod:`smo_gym.control.experiments`.
+
 Thin by design: parsing and printing only; the work is :mod:`smo_gym.wrappers.compare`.
 """
 
@@ -44,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--plot-seconds", type=float, default=1.0, help="time window of the plot (default 1 s)")
     cmp_.add_argument("--per-joint", action="store_true", help="also print the RMSE of every dof")
     cmp_.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from .control.experiments import add_subcommand as add_control
+
+    add_control(sub)
     return parser
 
 
@@ -73,6 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "compare":
             return compare(args)
+        if args.command == "control":
+            from .control.experiments import cli as control
+
+            return control(args)
     except (ValueError, TypeError) as exc:
         print(f"smo-gym {args.command}: error: {exc}", file=sys.stderr)
         return 2

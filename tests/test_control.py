@@ -341,3 +341,10 @@ def test_simulate_matches_an_ode_solver_with_zoh_input_and_actuator_lag():
         z = solve_ivp(f, (tk, tk + dt), z, rtol=1e-11, atol=1e-13, method="DOP853").y[:, -1]
         np.testing.assert_allclose(res.x[k + 1], z[:2], atol=1e-9)
         np.testing.assert_allclose(res.u_applied[k + 1], z[2], atol=1e-9)
+
+
+def test_cli_registers_the_control_command():
+    from smo_gym.cli import build_parser
+
+    args = build_parser().parse_args(["control", "--quick", "--no-plots", "--out", "somewhere"])
+    assert (args.command, args.quick, args.no_plots, args.out) == ("control", True, True, "somewhere")

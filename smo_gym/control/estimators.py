@@ -53,7 +53,6 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.signal import place_poles
 
 from .._validation import check_int_in_range, check_positive
 from ..design.gains import MAX_LEVANT_ORDER
@@ -92,6 +91,8 @@ def sampled_observer_gain(A, C, dt: float, poles=None) -> np.ndarray:
     if poles.shape != (A.shape[0],) or np.any(poles.real >= 0):
         raise ValueError(f"expected {A.shape[0]} continuous-time observer poles with negative real parts, actual "
                          f"value: {poles!r}")
+    from scipy.signal import place_poles  # lazy: scipy.signal is slow to import
+
     Phi = sla.expm(A * dt)
     res = place_poles(Phi.T, C.T, np.exp(poles * dt))
     Lp = res.gain_matrix.T  # Phi - Lp C has the requested eigenvalues
