@@ -294,8 +294,11 @@ class SwitchedGain(Observer):
     q, alpha : float
         Tuning of (7)-(9): :math:`q > 1`, :math:`0 < \alpha \le 1/(n-1)` (Theorem 6); default ``q = 2``,
         ``alpha = 1/(n-1)`` (``alpha = 1`` for ``order = 1``, as in Section 6).
-    mu0 : float
+    mu0 : float, optional
         Initial gain :math:`\mu_0 \ge 1` ((8) for 1, (9) above 1). With ``supervise=False`` the fixed gain.
+        Default: :math:`\mu_{\min}` when ``disturbance`` and ``noise`` are given (Section 6 starts at
+        :math:`\mu_0 = 10 \approx \mu_{\min} = 10.42`: start at the asymptotically best gain, accelerate, come
+        back), else 1.
     disturbance, noise : float, optional
         Bounds ``D`` on :math:`|f^{(n)}|` and ``V`` on the noise; when both are given, ``mu_min`` and ``mu_max`` of
         Section 5.2 are computed (:func:`noise_optimal_gains`) unless given explicitly.
@@ -337,7 +340,7 @@ class SwitchedGain(Observer):
     name = "switched-gain"
 
     def __init__(self, dt: float, order: int = 1, *, gain=None, P=None, kappa: float = 1.0, rho_d: float = 1.0,
-                 rho_v: float = 1.0, q: float = 2.0, alpha: float | None = None, mu0: float = 1.0,
+                 rho_v: float = 1.0, q: float = 2.0, alpha: float | None = None, mu0: float | None = None,
                  disturbance: float | None = None, noise: float | None = None, mu_max: float | None = None,
                  mu_min: float | None = None, T_min: float | None = None, supervise: bool = True,
                  restart_threshold: float | None = None, discretization: str | None = None):
@@ -354,9 +357,10 @@ class SwitchedGain(Observer):
         if self.alpha > 1.0 / (n - 1) + 1e-12:
             raise ValueError(
                 f"expected 0 < alpha <= 1/(n-1) = {1.0 / (n - 1):.6g} (Theorem 6), actual value: {alpha!r}")
-        self.mu0 = check_positive("mu0", mu0)
-        if self.mu0 < 1.0:
-            raise ValueError(f"expected mu0 >= 1, actual value: {mu0!r}")
+        if mu0 is not None:
+            check_positive("mu0", mu0)
+            if mu0 < 1.0:
+                raise ValueError(f"expected mu0 >= 1, actual value: {mu0!r}")
         if not isinstance(supervise, (bool, np.bool_)):
             raise TypeError(f"expected supervise to be a bool, actual value: {supervise!r}")
         self.supervise = bool(supervise)
@@ -395,6 +399,7 @@ class SwitchedGain(Observer):
             computed = noise_optimal_gains(n, self.rho_d, self.rho_v, self.disturbance, self.noise)
         elif (disturbance is None) != (noise is None):
             raise ValueError("expected both disturbance and noise, or neither, actual value: only one given")
+        self.mu0 = float(mu0) if mu0 is not None else computed[0] if computed[0] is not None else 1.0
         self.mu_min = (check_positive("mu_min", mu_min) if mu_min is not None
                        else computed[0] if computed[0] is not None else self.mu0)
         self.mu_max = (check_positive("mu_max", mu_max) if mu_max is not None
