@@ -191,7 +191,7 @@ def furuta_sweep(steps=(5e-4, 1e-3, 2e-3, 4e-3), resolutions=(0.0, ENCODER_12BIT
 
 
 def actuator_sweep(mus=(1e-3, 2e-3, 5e-3, 1e-2), dt: float = 1e-3, t_final: float = 10.0, t_steady: float = 6.0):
-    """Execution error: an actuator lag ``mu`` the controllers do not know, compensation vs ISM (noise-free).
+    r"""Execution error: an actuator lag ``mu`` the controllers do not know, compensation vs ISM (noise-free).
 
     Notes
     -----
