@@ -86,7 +86,7 @@ def test_semi_implicit_step_solves_its_implicit_equation(g):
     """w = e + h(g11 [e]^1/2 + g12 e) + h^2 (g20 s + g21 [e]^1/2 + g22 e), s in Sign(e), checked independently."""
     rng = np.random.default_rng(0)
     h, c = 0.01, 0.5
-    params = np.array([h, c, *g, 1.0, 0.1, 0.0])
+    params = np.array([h, c, *g, 1.0, 0.1, 0.0, np.inf])
     for _ in range(200):
         x = np.zeros(STATE_WIDTH)
         x[0], x[1], x[4] = rng.normal(), rng.normal(), rng.normal() * 10
@@ -351,3 +351,15 @@ def test_substep_prediction_reproduces_mujoco_euler_integrator():
         errs[ms] = np.abs(obs.run(Q[n::n], U[n::n])[..., 1] - V[n::n]).max()
     assert errs[n] < 1e-8
     assert errs[1] > 1e-3
+
+
+def test_pickle_and_copy_continue_identically(arm_run):
+    import copy
+    import pickle
+
+    env, Q, V, U = arm_run
+    obs = MechanicalSuperTwisting(env.dt, MujocoDynamics(env.model), lipschitz=20.0, accel_bound=500.0)
+    obs.reset(Q[0])
+    obs.run(Q[1:20], U[1:20])
+    for other in (copy.deepcopy(obs), pickle.loads(pickle.dumps(obs))):
+        np.testing.assert_array_equal(other.run(Q[20:40], U[20:40]), copy.deepcopy(obs).run(Q[20:40], U[20:40]))

@@ -146,3 +146,18 @@ def test_rejects_free_joints_and_bad_arguments(arm):
     dyn = MujocoDynamics(arm.model)
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 2\)"):
         dyn.acceleration(np.zeros(3), np.zeros(3))
+
+
+def test_copies_evaluate_on_their_own_data(arm):
+    import copy
+    import pickle
+
+    dyn = MujocoDynamics(arm.model)
+    q, v, u = np.array([0.3, -0.2]), np.array([1.0, 2.0]), np.array([0.5, 0.1])
+    ref = dyn.acceleration(q, v, u)
+    for other in (copy.deepcopy(dyn), pickle.loads(pickle.dumps(dyn))):
+        assert other.data is not dyn.data
+        np.testing.assert_allclose(other.acceleration(q, v, u), ref, rtol=1e-12)
+        other.acceleration(q + 1.0, v, u)
+        np.testing.assert_allclose(other.data.qpos, q + 1.0)  # the hot path writes into the copy's own data
+        assert not np.allclose(dyn.data.qpos, q + 1.0)

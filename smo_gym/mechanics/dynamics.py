@@ -160,6 +160,23 @@ class MujocoDynamics:
         self._u_width = m.nu if input == "ctrl" else self.n
         self._fast = (not self._couplings and m.nq == m.nv == self.n and np.array_equal(self.dof, np.arange(self.n))
                       and np.array_equal(self._qadr, np.arange(self.n)))
+        self._bind_views()
+
+    def _bind_views(self) -> None:
+        """Cached views into the scratch data (hot path); rebuilt after copy/unpickling."""
+        d = self.data
+        self._qpos, self._qvel, self._qacc = d.qpos, d.qvel, d.qacc
+        self._uview = d.ctrl if self.input == "ctrl" else d.qfrc_applied
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        for key in ("_qpos", "_qvel", "_qacc", "_uview"):
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._bind_views()
 
     # ---- coordinates --------------------------------------------------------------------------------------
     def _set_state(self, q: np.ndarray, v: np.ndarray | None, u: np.ndarray | None) -> np.ndarray | None:
@@ -237,16 +254,12 @@ class MujocoDynamics:
         if self._fast and type(q) is np.ndarray and type(v) is np.ndarray and q.shape == v.shape == (self.n,) \
                 and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,))):
             # hot path (one environment, all joints measured in model order): no index arithmetic
-            d = self.data
-            d.qpos[:] = q
-            d.qvel[:] = v
+            self._qpos[:] = q
+            self._qvel[:] = v
             if u is not None:
-                if self.input == "ctrl":
-                    d.ctrl[:] = u
-                else:
-                    d.qfrc_applied[:] = u
-            mujoco.mj_forward(self.model, d)
-            return d.qacc.copy()
+                self._uview[:] = u
+            mujoco.mj_forward(self.model, self.data)
+            return self._qacc.copy()
         q = self._check("q", q, self.n)
         v = self._check("v", v, self.n)
         width = self._u_width

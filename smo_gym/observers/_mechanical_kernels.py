@@ -5,7 +5,9 @@ The model term is *not* evaluated here (it needs the dynamics object): the obser
 call and writes it into the state column ``MODEL``.
 
 State row (per channel): ``[x1, x2, innovation, x1_meas_prev, model, injection, injection_filtered, e, model_pos]``
-Params row: ``[dt, c, g11, g12, g20, g21, g22, implicit, filter_coefficient, pos_from_state]``
+Params row: ``[dt, c, g11, g12, g20, g21, g22, implicit, filter_coefficient, pos_from_state, model_bound]``
+(``model_bound``: the model term is clipped to ``[-model_bound, model_bound]``, paper 003 eq. (33); ``inf`` for
+none; not applied to a prediction integrated outside, which saturates its own substeps)
 
 The recursion, for a sample interval ``h`` with the model term ``m`` (explicit, evaluated at the previous sample)::
 
@@ -61,6 +63,11 @@ def mechanical_channel_step(x, X, params, x_new):
     implicit = params[7] != 0.0
     beta = params[8]
     m = x[4]
+    bound = params[10]
+    if m > bound:
+        m = bound
+    elif m < -bound:
+        m = -bound
     if params[9] != 0.0:
         p1 = x[0] + h * x[1] + h * h * x[8]
     else:

@@ -76,7 +76,7 @@ class Dynamics(Protocol):
     acceleration(q, v, u=None) -> ndarray, shape (..., n)
         :math:`f(q, v, u)`, the model acceleration; ``q, v`` of shape ``(..., n)`` (batched over leading
         dimensions), ``u`` the input in the object's own convention (controls, torques) or ``None``. Must return
-        a new array (the observer saturates it in place).
+        an array (it is copied into the observer's state).
     inertia(q) -> ndarray, shape (..., n, n)
         :math:`M(q)`, to turn acceleration disturbances into joint torques.
     """
@@ -119,7 +119,7 @@ class _ModelBasedSuperTwisting(Observer):
         self._y_prev: np.ndarray | None = None
         self._v0 = None
         self._model_call = None
-        self._out_shape = None
+        self._mb_out_shape = None
         self._neg_bound = None if self.accel_bound is None else -self.accel_bound
         self._transformed = type(self)._to_estimate is not _ModelBasedSuperTwisting._to_estimate
         self.model_substeps = 1
@@ -162,7 +162,9 @@ class _ModelBasedSuperTwisting(Observer):
         head = np.array([self.dt, self.position_weight])
         tail = np.array([1.0 if self.discretization == "semi-implicit" else 0.0, beta,
                          1.0 if self.model_substeps > 1 else 0.0])
-        rows = np.hstack([np.tile(head, (self.n, 1)), self._gains_row(), np.tile(tail, (self.n, 1))])
+        bound = np.full(self.n, np.inf) if self.accel_bound is None else self.accel_bound
+        rows = np.hstack([np.tile(head, (self.n, 1)), self._gains_row(), np.tile(tail, (self.n, 1)),
+                          bound[:, None]])
         return np.tile(rows, (N // self.n, 1))
 
     def _initial_state(self, y0, params):
@@ -188,7 +190,7 @@ class _ModelBasedSuperTwisting(Observer):
         self._v0 = None
         if mask is None:
             self._y_prev = np.ascontiguousarray(y0, dtype=np.float64).copy()
-            self._out_shape = self._shape + (2,)
+            self._mb_out_shape = self._shape + (2,)
             self._model_call = None
         else:
             mk = np.asarray(mask, dtype=bool)
@@ -225,17 +227,14 @@ class _ModelBasedSuperTwisting(Observer):
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
         # model term at the previous sample (explicit), optionally saturated (paper 003, eq. (33))
         if self.model_substeps == 1:
-            m = self._model_term(self._y_prev, state, u)
-            if self.accel_bound is not None:
-                np.minimum(m, self.accel_bound, out=m)
-                np.maximum(m, self._neg_bound, out=m)
+            m = self._model_term(self._y_prev, state, u)  # saturated in the kernel
             state[:, _mk.MODEL] = m if m.ndim == 1 else m.reshape(-1)
         else:
             m, m_pos = self._substep_prediction(self._y_prev, state, u)
             state[:, _mk.MODEL] = m.reshape(-1)
             state[:, _mk.MODEL_POS] = m_pos.reshape(-1)
         X = self._measure(y)
-        out = np.empty(self._out_shape)
+        out = np.empty(self._mb_out_shape)
         call = self._model_call
         if call is None:
             call = self._bind_model_kernel(state, X, out)
@@ -253,6 +252,11 @@ class _ModelBasedSuperTwisting(Observer):
         self._estimate = out
         self.n_updates += 1
         return out
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        state["_model_call"] = None  # compiled entry points do not pickle; rebound on the next update
+        return state
 
     def _bind_model_kernel(self, state, X, out):
         """Compiled entry point of the kernel for these argument types (skips numba's per-call dispatch)."""
@@ -391,10 +395,7 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
         return np.column_stack([self.k1, z, self.k2, z, z])
 
     def _model_term(self, y_prev, state, u):
-        m = self.dynamics.acceleration(y_prev, self._x2(state), u)
-        if type(m) is not np.ndarray or m.dtype != np.float64 or not m.flags.writeable:
-            m = np.array(m, dtype=np.float64)
-        return m
+        return self.dynamics.acceleration(y_prev, self._x2(state), u)
 
     def _substep_prediction(self, y_prev, state, u):
         r"""Model flow over the sample by ``model_substeps`` semi-implicit Euler steps from ``(y_prev, v_hat)``.
