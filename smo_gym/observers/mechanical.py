@@ -120,6 +120,7 @@ class _ModelBasedSuperTwisting(Observer):
         self._v0 = None
         self._model_call = None
         self._mb_out_shape = None
+        self._direct = False
         self._neg_bound = None if self.accel_bound is None else -self.accel_bound
         self._transformed = type(self)._to_estimate is not _ModelBasedSuperTwisting._to_estimate
         self.model_substeps = 1
@@ -191,6 +192,8 @@ class _ModelBasedSuperTwisting(Observer):
         if mask is None:
             self._y_prev = np.ascontiguousarray(y0, dtype=np.float64).copy()
             self._mb_out_shape = self._shape + (2,)
+            self._direct = (len(self._shape) == 1 and self.model_substeps == 1
+                            and type(self)._model_term is MechanicalSuperTwisting._model_term)
             self._model_call = None
         else:
             mk = np.asarray(mask, dtype=bool)
@@ -226,14 +229,16 @@ class _ModelBasedSuperTwisting(Observer):
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
         # model term at the previous sample (explicit), optionally saturated (paper 003, eq. (33))
-        if self.model_substeps == 1:
+        if self._direct:  # one environment, plain model term: the hot path of rate="physics"
+            state[:, _mk.MODEL] = self.dynamics.acceleration(self._y_prev, state[:, 1], u)
+        elif self.model_substeps == 1:
             m = self._model_term(self._y_prev, state, u)  # saturated in the kernel
             state[:, _mk.MODEL] = m if m.ndim == 1 else m.reshape(-1)
         else:
             m, m_pos = self._substep_prediction(self._y_prev, state, u)
             state[:, _mk.MODEL] = m.reshape(-1)
             state[:, _mk.MODEL_POS] = m_pos.reshape(-1)
-        X = self._measure(y)
+        X = self._measure(y) if self._transformed else y
         out = np.empty(self._mb_out_shape)
         call = self._model_call
         if call is None:
