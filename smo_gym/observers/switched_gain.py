@@ -229,12 +229,15 @@ def switched_gain_channel_step(x, y, params, m, x_new, out_row):
                 mu = mu_next
                 T = T_next
         elif abs(innovation) > params[_P_RESTART]:
-            # re-acceleration: the measured part of the error grew, restart the schedule (end of Section 5.2)
-            phase = 0.0
-            mu = params[_P_MU0]
-            T = _dwell(mu, n, kappa, s, q)
-            elapsed = 0.0
-            count = 0.0
+            # re-acceleration: the measured part of the error grew, restart the schedule (end of Section 5.2),
+            # unless mu0 itself already violates the stop conditions (as at reset)
+            T0 = _dwell(params[_P_MU0], n, kappa, s, q)
+            if params[_P_MU0] < params[_P_MUMAX] and T0 > params[_P_TMIN]:
+                phase = 0.0
+                mu = params[_P_MU0]
+                T = T0
+                elapsed = 0.0
+                count = 0.0
     x_new[m + 1] = elapsed
     x_new[m + 2] = mu
     x_new[m + 3] = T
