@@ -9,6 +9,8 @@ for ``(h, omega) = (0.01, 25)`` (Fig. 1) and ``(0.001, 250)`` (Fig. 2), by
 * the super-twisting differentiator with ``D = 1 + pi^2``, gains ``1.5 D^(1/2)`` (the paper prints ``1.5 D^1.5``,
   a typo: see the errata in ``shared/papers/README.md``) and ``1.1 D``, explicit Euler.
 
+The paper says "continue switching while T_i <= T_min = 3h and mu_i <= mu_max"; the first inequality is
+reversed (Section 5.2 stops when T_(i*+1) <= T_min), and with these values only mu_max stops the schedule.
 All observers start from zero. :func:`reproduce_000` returns one dict per printed claim with what was measured;
 ``python scripts/repro_000.py [out_dir]`` prints them and writes the figures.
 """

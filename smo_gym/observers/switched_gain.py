@@ -33,6 +33,10 @@ Discretization
 
 :math:`S` is the upper-triangular matrix :math:`S_{ij} = h^{j-i}` (``j >= i``), applied by back substitution, so a
 step costs :math:`O(n)`. The step is stable for every :math:`\mu h` (the implicit Euler map of a Hurwitz matrix).
+The paper writes (11) with :math:`y(h\ell)` in place of :math:`y(h(\ell+1))` "to ensure causality": its
+estimate at :math:`t_{\ell+1}` uses samples up to :math:`t_\ell`. Here ``update(y_k)`` returns the estimate at
+:math:`t_k` from samples up to :math:`t_k`, which is the same recursion with the output labelled one sample
+earlier (no delay); the supervisor's clock advances by ``h`` per sample.
 
 References
 ----------
