@@ -8,7 +8,16 @@
 from __future__ import annotations
 
 from . import adapters, sensing
-from .adapters import CONTACT_FORCES, GymnasiumMujocoAdapter, MujocoAdapter
+from .adapters import CONTACT_FORCES, GymnasiumMujocoAdapter, MujocoAdapter, make_adapter, register_adapter
 from .estimated_velocity import EstimatedVelocity
 
-__all__ = ["CONTACT_FORCES", "EstimatedVelocity", "GymnasiumMujocoAdapter", "MujocoAdapter", "adapters", "sensing"]
+__all__ = [
+    "CONTACT_FORCES",
+    "EstimatedVelocity",
+    "GymnasiumMujocoAdapter",
+    "MujocoAdapter",
+    "adapters",
+    "make_adapter",
+    "register_adapter",
+    "sensing",
+]

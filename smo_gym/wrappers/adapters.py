@@ -13,10 +13,20 @@ The wrapper needs five things from an environment, and nothing else:
     a context manager under which ``callback()`` runs after every physics step of the environment's ``step``.
 
 :class:`GymnasiumMujocoAdapter` implements them for ``gymnasium.envs.mujoco.MujocoEnv`` (every v5 environment and
-user subclasses). A dm_control adapter (after ``shimmy.DmControlCompatibilityV0``) would take ``model``/``data``
-from ``physics.model.ptr``/``physics.data.ptr``, ``frame_skip`` from ``task`` control/physics timesteps,
-``observation`` from ``task.get_observation(physics)`` on a scratch ``Physics`` whose data holds the measured
-state, and ``substeps`` from a hook around ``physics.step``.
+user subclasses). What a dm_control adapter (behind ``shimmy.DmControlCompatibilityV0``) needs, with
+``dm = env.unwrapped._env`` (the ``dm_control.rl.control.Environment``) and ``physics = dm.physics``:
+
+- ``model``/``data``: ``physics.model.ptr`` / ``physics.data.ptr`` (shimmy itself reads them so);
+- ``frame_skip``: ``dm._n_sub_steps`` (control step / physics step);
+- ``observation(qpos, qvel)``: a scratch ``physics.copy(share_model=True)``; inside its ``reset_context()`` set
+  ``qpos``/``qvel`` (the context runs ``mj_forward`` on exit), copy ``ctrl``/``act``; then
+  ``shimmy.utils.dm_env.dm_obs2gym_obs(dm.task.get_observation(scratch))`` (tasks read ``physics.named.data``,
+  so the scratch physics is the whole swap; no ``_get_obs`` trick needed);
+- ``substeps(callback)``: replace ``physics.step`` on the instance by ``lambda n=1: [orig(1), callback()] * n``
+  inside the context (dm_control's own step keeps its mj_step2/mj_step1 split), then delete the attribute;
+- ``supports_substeps()`` True, and the calibration key: the domain/task names.
+
+Everything else (tangent coordinates, sensor, observer, default gains, ``info["smo"]``) is the same code.
 
 Scratch evaluation
 ------------------
@@ -51,7 +61,7 @@ import contextlib
 import mujoco
 import numpy as np
 
-__all__ = ["CONTACT_FORCES", "GymnasiumMujocoAdapter", "MujocoAdapter"]
+__all__ = ["ADAPTERS", "CONTACT_FORCES", "GymnasiumMujocoAdapter", "MujocoAdapter", "make_adapter", "register_adapter"]
 
 CONTACT_FORCES = ("sensor", "estimated", "zero")
 #: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
@@ -73,6 +83,9 @@ class MujocoAdapter:
         raise NotImplementedError
 
     def substeps(self, callback):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def supports_substeps(self) -> bool:  # pragma: no cover - interface
         raise NotImplementedError
 
 
@@ -276,3 +289,22 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             yield
         finally:
             del env._step_mujoco_simulation
+
+
+#: ``(predicate(unwrapped_env) -> bool, factory(unwrapped_env, contact_forces) -> MujocoAdapter)``, tried in order
+#: before the Gymnasium adapter (which raises the ``TypeError`` listing what is missing)
+ADAPTERS: list = []
+
+
+def register_adapter(predicate, factory) -> None:
+    """Teach :func:`make_adapter` (hence ``EstimatedVelocity``) a new simulator, e.g. dm_control via shimmy."""
+    ADAPTERS.append((predicate, factory))
+
+
+def make_adapter(env, contact_forces: str = "sensor") -> MujocoAdapter:
+    """The adapter of the first registered simulator that recognises ``env.unwrapped``, else the Gymnasium one."""
+    unwrapped = getattr(env, "unwrapped", env)
+    for predicate, factory in ADAPTERS:
+        if predicate(unwrapped):
+            return factory(unwrapped, contact_forces)
+    return GymnasiumMujocoAdapter(unwrapped, contact_forces=contact_forces)

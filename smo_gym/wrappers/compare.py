@@ -37,7 +37,7 @@ import numpy as np
 from .._validation import DivergenceError
 from ..observers import OBSERVERS, make_observer
 from ..sensors import make_sensor
-from .adapters import GymnasiumMujocoAdapter
+from .adapters import make_adapter
 from .estimated_velocity import calibrated_bounds, resolve_rate
 from .sensing import JointMeasurement, VelocityEstimator, angular_dofs, bound_order, default_observer
 
@@ -131,7 +131,7 @@ def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-no
     wrapper takes them.
     """
     env = gym.make(env_id, **(env_kwargs or {}))
-    adapter = GymnasiumMujocoAdapter(env.unwrapped)
+    adapter = make_adapter(env)
     k = resolve_rate(rate, adapter.frame_skip)
     if k < adapter.frame_skip and not adapter.supports_substeps():
         raise ValueError(f"expected an environment whose substeps can be sampled for rate={rate!r}, "

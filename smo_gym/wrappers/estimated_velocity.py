@@ -10,7 +10,7 @@ import numpy as np
 
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
-from .adapters import GymnasiumMujocoAdapter
+from .adapters import make_adapter
 from .sensing import (
     JointMeasurement,
     VelocityEstimator,
@@ -151,7 +151,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.Wrapper.__init__(self, env)
         if positions not in ("measured", "filtered"):
             raise ValueError(f"expected positions 'measured' or 'filtered', actual value: {positions!r}")
-        self.adapter = GymnasiumMujocoAdapter(env.unwrapped, contact_forces=contact_forces)
+        self.adapter = make_adapter(env, contact_forces=contact_forces)
         model = self.adapter.model
         self.sample_every = resolve_rate(rate, self.adapter.frame_skip)
         if self.sample_every < self.adapter.frame_skip and not self.adapter.supports_substeps():
