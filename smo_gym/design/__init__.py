@@ -13,6 +13,14 @@ from .gains import (
     levant_lambdas,
     super_twisting_gains,
 )
+from .ilf import (
+    BlockDecomposition,
+    ILFCertificate,
+    ILFDesign,
+    block_decomposition,
+    certify_ilf,
+    ilf_gains,
+)
 from .lmi import (
     LMIInfeasibleError,
     SwitchedGainCertificate,
@@ -26,12 +34,18 @@ __all__ = [
     "InfeasibleGainsError",
     "apaza_gains",
     "apaza_lmi_matrix",
+    "BlockDecomposition",
+    "ILFCertificate",
+    "ILFDesign",
     "LEVANT_LAMBDAS",
     "LMIInfeasibleError",
     "MAX_LEVANT_ORDER",
     "ackermann_observer_gain",
     "binomial_coefficients",
+    "block_decomposition",
+    "certify_ilf",
     "certify_switched_gain",
+    "ilf_gains",
     "levant_gains",
     "levant_lambdas",
     "super_twisting_gains",

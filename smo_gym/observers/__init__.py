@@ -12,12 +12,15 @@ from .linear import FiniteDifference, HighGain, KalmanCA
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
 from .low_power import LowPowerHighGain
 from .switched_gain import SwitchedGain
+from .discrete_hosm import DiscreteTimeHOSM
+from .ilf import ILFDifferentiator, ILFFixedDifferentiator, ILFObserver
 
 #: name -> class, for the wrapper, the CLI and :func:`smo_gym.differentiate`
 OBSERVERS: dict[str, type[Observer]] = {
     cls.name: cls for cls in (SuperTwisting, Levant, URED, UniformLevant, HighGain, FiniteDifference, KalmanCA)
 }
 OBSERVERS.update({cls.name: cls for cls in (SwitchedGain, LowPowerHighGain)})
+OBSERVERS.update({cls.name: cls for cls in (ILFDifferentiator, ILFFixedDifferentiator)})  # paper 001 on chains
 
 
 def make_observer(name: str, **params) -> Observer:
@@ -38,6 +41,7 @@ MODEL_BASED_OBSERVERS: dict[str, type[Observer]] = {
 
 __all__ = [
     "CoordinateTransform",
+    "DiscreteTimeHOSM",
     "DissipativeSuperTwisting",
     "Dynamics",
     "MODEL_BASED_OBSERVERS",
@@ -47,6 +51,9 @@ __all__ = [
     "DivergenceError",
     "FiniteDifference",
     "HighGain",
+    "ILFDifferentiator",
+    "ILFFixedDifferentiator",
+    "ILFObserver",
     "KalmanCA",
     "Levant",
     "LowPowerHighGain",

@@ -1,0 +1,517 @@
+r"""Finite-time and fixed-time observers of MIMO LTI systems designed by implicit Lyapunov functions (paper 001).
+
+For :math:`\dot x = Ax + Bu,\ y = Cx` in the block coordinates of :func:`smo_gym.design.block_decomposition`
+(:math:`\Phi A\Phi^{-1} = F\tilde C + \tilde A`, :math:`C\Phi^{-1} = [C_0\ 0]`), the observers (6) and (17) are
+
+.. math::
+    \dot{\hat x} = A\hat x + Bu - \Phi^{-1}\big[\mathcal D(\|s\|)L - F\big]s,\qquad s = C_0^{-1}(y - C\hat x),
+
+with :math:`\mathcal D(\rho) = D_{\tilde r}(\rho^{-1})` (finite time, (7)) or
+:math:`\mathcal D(\rho) = \tfrac12\{D_{\tilde r}(\rho^{-1}) + D_{\tilde r}(\rho)\}` (fixed time, (17)), and the
+error :math:`e = \Phi(x - \hat x)` obeys the autonomous equations (9) / (18),
+:math:`\dot e = (\tilde A + \mathcal D(\|\tilde Ce\|)L\tilde C)e`.
+
+Discretization (how a sampled implementation stays stable)
+----------------------------------------------------------
+The injection gains :math:`\rho^{\mp\tilde r_i}` are unbounded as :math:`\rho\to0` (finite time) and as
+:math:`\rho\to\infty` (fixed time): explicit Euler is unstable for large errors at any fixed step. The step used
+here is an *exact plant prediction followed by an implicit-Euler injection*:
+
+.. math::
+    \hat x^- = A_d\hat x_k + B_du_k,\qquad
+    \hat x_{k+1} = \hat x^- + h\,(I - hA)^{-1}\,G(y_{k+1} - C\hat x_{k+1}),
+
+with :math:`A_d = e^{Ah}`, :math:`B_d = \int_0^h e^{As}B\,ds` (zero-order-hold input). Because the prediction is
+exact, the error of the sampled observer is autonomous (independent of the plant trajectory and of ``u``):
+
+.. math:: (I - h\tilde A - h\mathcal D(\rho_{k+1})L\tilde C)\,e_{k+1} = (I - hA_w)e^{hA_w}\,e_k,
+          \qquad A_w = \Phi A\Phi^{-1},
+
+i.e. the implicit Euler step of (9) / (18) up to the factor :math:`(I - hA_w)e^{hA_w} = I + O(h^2)` that does not
+grow with the gains. The implicit equation reduces to one scalar unknown, :math:`\rho = \|s_{k+1}\|` — the
+level of the implicit Lyapunov function's argument — since for a frozen :math:`\rho` it is linear:
+
+.. math:: \big(I_k - h\,\tilde C R_w(\mathcal D(\rho)L - F)\big)\,s_{k+1} = s^-,\qquad
+          R_w = (I - hA_w)^{-1},\quad s^- = C_0^{-1}(y_{k+1} - C\hat x^-).
+
+It is solved on :math:`\log\rho` by the Illinois method (regula falsi kept bracketing, vectorised over the
+batch) after an expanding bracket. With :math:`\tilde r_m = 1` (finite time, :math:`\mu = 1`) the last injection is
+discontinuous and the exact solution can be :math:`s_{k+1} = 0`; the scheme then returns the solution with
+:math:`\rho = \rho_{\min}` (a regularisation at ``rho_min``, the set-valued limit to that precision).
+
+References
+----------
+.. [LPEP16] F. Lopez-Ramirez, A. Polyakov, D. Efimov and W. Perruquetti, "Finite-time and fixed-time observers
+   design via implicit Lyapunov function", European Control Conference (ECC), 2016 (paper 001).
+.. [PEB19] A. Polyakov, D. Efimov and B. Brogliato, "Consistent discretization of finite-time and fixed-time
+   stable systems", SIAM J. Control Optim. 57(1), 2019.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from scipy.linalg import expm
+
+from .._validation import DivergenceError, check_choice, check_int_in_range, check_positive
+from ..design.ilf import BlockDecomposition, block_decomposition, ilf_degrees, ilf_gains
+from .base import Observer
+
+__all__ = ["ILFDifferentiator", "ILFObserver", "injection_weights", "solve_implicit_output_error"]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# pure maths
+# ----------------------------------------------------------------------------------------------------------------
+def injection_weights(rho, r_full: np.ndarray, kind: str) -> np.ndarray:
+    r"""Diagonal of :math:`\mathcal D(\rho)`, shape ``rho.shape + (n,)``.
+
+    ``"finite"``: :math:`\rho^{-\tilde r_i}` (7); ``"fixed"``: :math:`\tfrac12(\rho^{-\tilde r_i}+\rho^{\tilde r_i})`
+    (17). ``r_full`` holds one weight per coordinate.
+    """
+    logr = np.log(np.asarray(rho, dtype=float))[..., None]
+    if kind == "finite":
+        return np.exp(-r_full * logr)
+    return 0.5 * (np.exp(-r_full * logr) + np.exp(r_full * logr))
+
+
+def _output_error_at(rho, s_pred, Q, QF, L, h, r_full, kind):
+    """``s(rho)`` solving ``(I - h Q (D(rho) L - F)) s = s_pred``; batch ``(B, k)``."""
+    d = injection_weights(rho, r_full, kind)  # (B, n)
+    k = s_pred.shape[-1]
+    if k == 1:  # scalar output: closed form
+        QDL = np.sum(Q[..., 0, :] * d * L[..., :, 0], axis=-1)
+        return s_pred / (1.0 - h * (QDL - QF[..., 0, 0]))[..., None]
+    N = np.eye(k) - h[..., None, None] * (np.einsum("...in,...n,...nj->...ij", Q, d, L) - QF)
+    return np.linalg.solve(N, s_pred[..., None])[..., 0]
+
+
+def solve_implicit_output_error(s_pred, Q, QF, L, h, r_full, kind: str, *, rho_min: float = 1e-14,
+                                iterations: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    r"""Solve the implicit injection of the ILF observers for :math:`s_{k+1}` and :math:`\rho = \|s_{k+1}\|`.
+
+    .. math:: \big(I_k - hQ(\mathcal D(\rho)L - F)\big)s = s^-,\qquad \rho = \|s\|,\qquad Q = \tilde CR_w.
+
+    Parameters
+    ----------
+    s_pred : ndarray, shape (B, k)
+        Predicted output error :math:`s^-`.
+    Q : ndarray, shape (B or 1, k, n)
+    QF : ndarray, shape (B or 1, k, k)
+        :math:`QF`.
+    L : ndarray, shape (B or 1, n, k)
+    h : ndarray, shape (B,)
+        Step (per batch row).
+    r_full : ndarray, shape (n,)
+        Homogeneity weights per coordinate.
+    kind : {"finite", "fixed"}
+    rho_min : float
+        Lower end of the bracket; below it the discontinuous case is regularised.
+    iterations : int
+        Largest number of Illinois (safeguarded regula falsi) iterations on :math:`\log\rho`; it stops earlier
+        once :math:`|\log\|s(\rho)\| - \log\rho| < 10^{-14}`.
+
+    Returns
+    -------
+    s_new : ndarray, shape (B, k)
+    rho : ndarray, shape (B,)
+    """
+    B = s_pred.shape[0]
+    norm0 = np.linalg.norm(s_pred, axis=-1)
+    s_new = np.zeros_like(s_pred)
+    rho = np.zeros(B)
+    live = norm0 > 0.0  # s_pred = 0: nothing to correct
+    if not np.any(live):
+        return s_new, rho
+    idx = np.flatnonzero(live)
+
+    def take(a):
+        return a if a.shape[0] == 1 else a[idx]
+
+    sp, Qi, QFi, Li, hi = s_pred[idx], take(Q), take(QF), take(L), h[idx]
+
+    def phi(t):  # log||s(e^t)|| - t, decreasing through its root
+        s = _output_error_at(np.exp(t), sp, Qi, QFi, Li, hi, r_full, kind)
+        with np.errstate(divide="ignore"):
+            return np.log(np.linalg.norm(s, axis=-1)) - t, s
+
+    lo = np.full(idx.size, math.log(rho_min))
+    f_lo, s_lo = phi(lo)
+    hi_t = np.log(np.maximum(norm0[idx], rho_min)) + 1.0
+    f_hi, _ = phi(hi_t)
+    for _ in range(80):  # expand the bracket upwards until phi <= 0
+        bad = f_hi > 0
+        if not np.any(bad):
+            break
+        hi_t = np.where(bad, hi_t + 5.0, hi_t)
+        f_hi, _ = phi(hi_t)
+    set_valued = f_lo <= 0  # no root above rho_min: the discontinuous injection zeroes s
+    # Illinois (modified regula falsi) on the bracket [a, b], phi(a) > 0 >= phi(b), vectorised
+    a, b, fa, fb = lo.copy(), hi_t.copy(), f_lo.copy(), f_hi.copy()
+    todo = ~set_valued
+    side = np.zeros(idx.size, dtype=int)
+    for _ in range(iterations):
+        if not np.any(todo):
+            break
+        denom = fb - fa
+        t_new = np.where(denom != 0, b - fb * (b - a) / np.where(denom != 0, denom, 1.0), 0.5 * (a + b))
+        t_new = np.clip(t_new, np.minimum(a, b), np.maximum(a, b))
+        f_new, _ = phi(t_new)
+        pos = f_new > 0
+        # keep the bracket: replace the end with the same sign; halve the other's value if it stayed twice
+        fb = np.where(todo & pos & (side == -1), 0.5 * fb, fb)
+        fa = np.where(todo & ~pos & (side == 1), 0.5 * fa, fa)
+        a = np.where(todo & pos, t_new, a)
+        fa = np.where(todo & pos, f_new, fa)
+        b = np.where(todo & ~pos, t_new, b)
+        fb = np.where(todo & ~pos, f_new, fb)
+        side = np.where(todo, np.where(pos, -1, 1), side)
+        todo &= (np.abs(f_new) > 1e-14) & (np.abs(b - a) > 1e-14 * (1.0 + np.abs(b)))
+    a = np.where(np.abs(fa) < np.abs(fb), a, b)  # the better end
+    t = np.where(set_valued, lo, a)
+    _, s_t = phi(t)
+    s_new[idx] = s_t
+    rho[idx] = np.exp(t)
+    return s_new, rho
+
+
+def _zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation ``(A_d, B_d)`` (block matrix exponential)."""
+    n, s = B.shape
+    M = np.zeros((n + s, n + s))
+    M[:n, :n], M[:n, n:] = A, B
+    E = expm(M * h)
+    return E[:n, :n], E[:n, n:]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# MIMO observer
+# ----------------------------------------------------------------------------------------------------------------
+class ILFObserver:
+    r"""Finite-time (6)-(9) or fixed-time (17)-(18) observer of paper 001 for :math:`\dot x = Ax + Bu,\ y = Cx`.
+
+    See the module docstring for the equations and the discretization (exact ZOH prediction + implicit-Euler
+    injection solved for the scalar :math:`\rho = \|s_{k+1}\|` by a bracketing root finder): stable at any step ``dt`` and for
+    any initial error, and its error sequence is independent of the plant trajectory.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    C : array_like, shape (k, n)
+        Full row rank, ``(A, C)`` observable.
+    L : array_like, shape (n, k)
+        Gain in the block coordinates (from :func:`smo_gym.design.ilf_gains`, or printed in the paper), with
+        :math:`\tilde A + L\tilde C` Hurwitz.
+    mu : float
+        Homogeneity parameter of the design (``0 < mu <= 1`` finite, ``0 < mu < 1`` fixed).
+    kind : {"finite", "fixed"}
+    dt : float
+        Sampling step ``h``.
+    B : array_like, shape (n, s), optional
+        Input matrix (default: no input).
+    decomposition : BlockDecomposition, optional
+        Default :func:`smo_gym.design.block_decomposition` of ``(A, C)``; pass the paper's (or the design's) to
+        match the coordinates ``L`` was computed in.
+    rho_min : float
+        Regularisation of the discontinuous case (see Notes of the module).
+    iterations : int
+        Largest number of root-finder iterations per step.
+
+    Attributes
+    ----------
+    n_updates : int
+    rho : ndarray, shape (...)
+        :math:`\|s_{k+1}\|` of the last step (the injection's level).
+
+    Notes
+    -----
+    Shapes: ``reset(x0_hat)`` with ``x0_hat`` of shape ``(..., n)`` fixes the batch shape ``(...)``; then
+    ``update(y, u)`` takes ``y`` of shape ``(..., k)`` (and ``u`` ``(..., s)``) measured at the *end* of the step
+    (``u`` held over it) and returns :math:`\hat x_{k+1}`, shape ``(..., n)``.
+    """
+
+    def __init__(self, A, C, L, mu: float, kind: str = "finite", *, dt: float, B=None,
+                 decomposition: BlockDecomposition | None = None, rho_min: float = 1e-14, iterations: int = 60):
+        self.kind = check_choice("kind", kind, ("finite", "fixed"))
+        self.mu = check_positive("mu", mu)
+        if self.kind == "finite" and self.mu > 1:
+            raise ValueError(f"expected 0 < mu <= 1 for the finite-time observer, actual value: {mu!r}")
+        if self.kind == "fixed" and self.mu >= 1:
+            raise ValueError(f"expected 0 < mu < 1 for the fixed-time observer, actual value: {mu!r}")
+        self.dt = check_positive("dt", dt)
+        self.rho_min = check_positive("rho_min", rho_min)
+        self.iterations = check_int_in_range("iterations", iterations, 1, 200)
+        if decomposition is None:
+            decomposition = block_decomposition(A, C)
+        elif not isinstance(decomposition, BlockDecomposition):
+            raise TypeError(f"expected a BlockDecomposition, actual value: {type(decomposition).__name__}")
+        dec = decomposition
+        self.decomposition = dec
+        A = np.asarray(A, dtype=float)
+        C = np.asarray(C, dtype=float).reshape(-1, A.shape[0])
+        n, k = dec.n, dec.C0.shape[0]
+        if A.shape != (n, n) or C.shape != (k, n):
+            raise ValueError(f"expected A ({n}, {n}) and C ({k}, {n}) matching the decomposition, actual value: "
+                             f"A {A.shape}, C {C.shape}")
+        try:
+            L = np.asarray(L, dtype=float)
+        except (TypeError, ValueError):
+            raise TypeError(f"expected L to be a real matrix, actual value: {L!r}") from None
+        if L.shape != (n, k) or not np.all(np.isfinite(L)):
+            raise ValueError(f"expected a finite L with shape ({n}, {k}), actual value: shape {L.shape}")
+        abscissa = float(np.max(np.linalg.eigvals(dec.A_tilde + L @ dec.C_tilde).real))
+        if abscissa >= 0:
+            raise ValueError(f"expected L with A_tilde + L C_tilde Hurwitz, actual value: spectral abscissa "
+                             f"{abscissa:.3g}")
+        B = np.zeros((n, 0)) if B is None else np.asarray(B, dtype=float).reshape(n, -1)
+        self.A, self.C, self.B, self.L = A, C, B, L
+        h = self.dt
+        self._Ad, self._Bd = _zoh(A, B, h)
+        Aw = dec.Phi @ A @ np.linalg.inv(dec.Phi)
+        Rw = np.linalg.inv(np.eye(n) - h * Aw)
+        self._Q = (dec.C_tilde @ Rw)[None]  # (1, k, n)
+        self._QF = (self._Q[0] @ dec.F)[None]
+        self._L = L[None]
+        self._Psi = np.linalg.inv(np.eye(n) - h * A) @ np.linalg.inv(dec.Phi)  # (I - hA)^-1 Phi^-1
+        self._C0inv = np.linalg.inv(dec.C0)
+        self._r = np.repeat(ilf_degrees(dec.m, self.mu), dec.block_sizes)
+        self._x: np.ndarray | None = None
+        self.rho: np.ndarray | None = None
+        self.n_updates = 0
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+    @classmethod
+    def from_design(cls, A, C, design, *, dt: float, B=None, **kwargs) -> ILFObserver:
+        """Build from an :class:`smo_gym.design.ILFDesign` (its gain, ``mu``, kind and decomposition)."""
+        return cls(A, C, design.L, design.mu, design.kind, dt=dt, B=B, decomposition=design.decomposition,
+                   **kwargs)
+
+    def reset(self, x0_hat) -> np.ndarray:
+        """Start at the estimate ``x0_hat`` (shape ``(..., n)``); returns a copy of it."""
+        x0 = self._array(x0_hat, "x0_hat", self.n)
+        self._x = x0.copy()
+        self.rho = np.zeros(x0.shape[:-1])
+        self.n_updates = 0
+        return x0.copy()
+
+    def _array(self, value, name: str, width: int) -> np.ndarray:
+        try:
+            arr = np.array(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TypeError(f"expected {name} to be an array of real numbers, actual value: {value!r}") from None
+        if arr.ndim == 0 or arr.shape[-1] != width:
+            raise ValueError(f"expected {name} with shape (..., {width}), actual value: shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"expected finite values in {name}, actual value: {arr!r}")
+        return arr
+
+    def update(self, y, u=None) -> np.ndarray:
+        r"""One step: ``y`` measured at :math:`t_{k+1}`, ``u`` held on :math:`[t_k, t_{k+1})`; returns :math:`\hat x_{k+1}`."""
+        if self._x is None:
+            raise RuntimeError("expected reset(x0_hat) before update(y), actual value: the observer was never reset")
+        batch = self._x.shape[:-1]
+        y = self._array(y, "y", self.C.shape[0])
+        if y.shape[:-1] != batch:
+            raise ValueError(f"expected y with shape {batch + (self.C.shape[0],)}, actual value: {y.shape}")
+        s_dim = self.B.shape[1]
+        x = self._x.reshape(-1, self.n)
+        x_pred = x @ self._Ad.T
+        if u is not None:
+            if s_dim == 0:
+                raise ValueError("expected u=None for an observer built without B, actual value: an input")
+            u = self._array(u, "u", s_dim)
+            u = np.broadcast_to(u, batch + (s_dim,)).reshape(-1, s_dim)
+            x_pred = x_pred + u @ self._Bd.T
+        s_pred = (y.reshape(-1, y.shape[-1]) - x_pred @ self.C.T) @ self._C0inv.T
+        h = np.full(x.shape[0], self.dt)
+        s_new, rho = solve_implicit_output_error(s_pred, self._Q, self._QF, self._L, h, self._r, self.kind,
+                                                 rho_min=self.rho_min, iterations=self.iterations)
+        d = injection_weights(np.where(rho > 0, rho, 1.0), self._r, self.kind)
+        inj = d * (s_new @ self.L.T) - s_new @ self.decomposition.F.T  # (D L - F) s, in block coordinates
+        x_new = x_pred - self.dt * inj @ self._Psi.T
+        if not np.all(np.isfinite(x_new)):
+            raise DivergenceError("expected a finite observer state, actual value: non-finite after update "
+                                  f"(dt={self.dt}); the previous state was kept")
+        self._x = x_new.reshape(batch + (self.n,))
+        self.rho = rho.reshape(batch)
+        self.n_updates += 1
+        return self._x.copy()
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """Last estimate :math:`\\hat x`, shape ``(..., n)``."""
+        if self._x is None:
+            raise RuntimeError("expected reset(x0_hat) first, actual value: the observer was never reset")
+        return self._x.copy()
+
+    def error_coordinates(self, x) -> np.ndarray:
+        r""":math:`e = \Phi(x - \hat x)` for a true state ``x`` of shape ``(..., n)``."""
+        return (np.asarray(x, dtype=float) - self.estimate) @ self.decomposition.Phi.T
+
+    def __repr__(self) -> str:
+        return f"ILFObserver(kind={self.kind!r}, mu={self.mu}, dt={self.dt}, n={self.n}, k={self.C.shape[0]})"
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# integrator-chain adapter (the differentiator registered as "ilf-finite" / "ilf-fixed")
+# ----------------------------------------------------------------------------------------------------------------
+_DEFAULT_MU = {"finite": 1.0, "fixed": 0.5}
+
+
+@lru_cache(maxsize=32)
+def chain_gain(n: int, mu: float, kind: str, alpha: float | None) -> tuple[float, ...]:
+    r"""ILF gain of the ``n``-integrator chain (``C = e_1``), from :func:`smo_gym.design.ilf_gains` (cached).
+
+    For the chain :math:`\Phi = I`, ``F = 0``, every block is scalar and :math:`\tilde r_i = i\mu/(1+(n-1)\mu)`; with
+    ``mu = 1`` the finite-time observer is Levant's differentiator in the non-recursive form (exponents
+    :math:`1 - i/n`), with gains from the LMIs.
+    """
+    A = np.diag(np.ones(n - 1), 1)
+    C = np.eye(1, n)
+    dec = block_decomposition(A, C, Phi=np.eye(n))  # the chain is its own block form: Phi = I, F = 0
+    design = ilf_gains(A, C, mu, kind, alpha=alpha, condition="points", decomposition=dec)
+    return tuple(design.L[:, 0])
+
+
+def _ilf_chain_kernel(state, y, params, new_state, out):
+    r"""Batch step of the chain observer in the time scale :math:`\tau = \omega t` (same convention as the kernels).
+
+    ``state`` rows ``[x~_1..x~_n, innovation]`` with :math:`\tilde x_i = \hat x_i/\omega^{i-1}`; ``params`` rows
+    ``[h, omega, kind(0 finite/1 fixed), mu, rho_min, L_1..L_n]``. The step is the one of :class:`ILFObserver`
+    with :math:`A` the shift matrix, :math:`\Phi = I`, ``F = 0`` and step :math:`\omega h`.
+    """
+    y = y.reshape(-1)
+    bad = np.flatnonzero(~np.isfinite(y))
+    if bad.size:
+        return int(bad[0])
+    m = out.shape[-1]
+    N = y.shape[0]
+    h = params[:, 0] * params[:, 1]  # step in tau
+    omega = params[:, 1]
+    kind = "finite" if params[0, 2] == 0.0 else "fixed"
+    mu = params[0, 3]
+    L = params[:, 5:5 + m]
+    x = state[:, :m]
+    # exact prediction e^{hN} x (Taylor matrix) and first row of R = (I - hN)^-1: [1, h, h^2, ...]
+    j = np.arange(m)
+    hp = h[:, None] ** j[None, :]  # (N, m)
+    fact = np.array([math.factorial(i) for i in range(m)], dtype=float)
+    x_pred = np.empty_like(x)
+    for i in range(m):
+        x_pred[:, i] = np.sum(x[:, i:] * hp[:, : m - i] / fact[: m - i], axis=1)
+    s_pred = (y - x_pred[:, 0])[:, None]
+    r = ilf_degrees(m, mu)
+    s_new, rho = solve_implicit_output_error(s_pred, hp[:, None, :], np.zeros((1, 1, 1)), L[:, :, None], h, r,
+                                             kind, rho_min=params[0, 4])
+    d = injection_weights(np.where(rho > 0, rho, 1.0), r, kind)
+    inj = d * L * s_new  # (N, m): D L s
+    # x_new = x_pred - h R inj, R_ij = h^(j-i) for j >= i
+    x_new = np.empty_like(x)
+    for i in range(m):
+        x_new[:, i] = x_pred[:, i] - h * np.sum(inj[:, i:] * hp[:, : m - i], axis=1)
+    new_state[:, :m] = x_new
+    new_state[:, m] = y - x_pred[:, 0]
+    out.reshape(N, m)[:] = x_new * omega[:, None] ** j[None, :]
+    if not np.all(np.isfinite(new_state)):
+        return -2 - int(np.flatnonzero(~np.all(np.isfinite(new_state), axis=1))[0])
+    return -1
+
+
+class ILFDifferentiator(Observer):
+    r"""Paper 001's finite-time / fixed-time observer applied to each channel as an integrator chain.
+
+    Each channel's signal ``f`` is the output of the chain :math:`x_1 = f,\ \dot x_i = x_{i+1}` of ``order + 1``
+    states. The observer of :class:`ILFObserver` for that chain (:math:`\Phi = I`, ``F = 0``, gains ``L`` from
+    :func:`smo_gym.design.ilf_gains`) runs in the time scale :math:`\tau = \omega t` (so one LMI design serves every
+    channel): in the original time the correction of :math:`\hat x_i` is
+    :math:`-\omega^i L_i\,\mathcal D_i(|s|)\,s`. For ``kind="finite"`` with ``mu = 1`` this is Levant's
+    differentiator in non-recursive form; the default rate
+    :math:`\omega = (1.1\,L_f/|L_n|)^{1/n}` makes its discontinuous last gain :math:`\omega^n|L_n|` equal to
+    Levant's :math:`\lambda_0 L_f = 1.1 L_f` for :math:`|f^{(n)}| \le L_f` (``lipschitz``). For ``mu < 1`` (and the
+    fixed-time kind) the injections are continuous: exact for polynomial signals of degree ``< n`` only, with an
+    error of order :math:`L_f` otherwise.
+
+    Parameters
+    ----------
+    dt : float
+    lipschitz : float or array_like, optional
+        :math:`L_f`, per channel; sets the default ``rate``.
+    order : int
+        Derivatives estimated, ``1 <= order <= 4``.
+    kind : {"finite", "fixed"}
+    mu : float, optional
+        Default 1 (finite) or 0.5 (fixed).
+    alpha : float, optional
+        Fixed-time rate of Theorem 10 in the :math:`\tau` scale (default 2).
+    rate : float or array_like, optional
+        :math:`\omega` (1/s), overrides the default from ``lipschitz``.
+    gain : array_like, shape (order + 1,), optional
+        ``L`` in the :math:`\tau` scale (default: :func:`chain_gain`).
+    discretization : {"implicit"}
+        Exact chain prediction plus implicit-Euler injection (see :mod:`smo_gym.observers.ilf`); stable at any
+        step and any error. Not a compiled kernel: a NumPy step of about a millisecond.
+    """
+
+    discretizations = ("implicit",)
+    name = "ilf-finite"
+    kind = "finite"
+
+    def __init__(self, dt: float, lipschitz=None, *, order: int = 1, mu: float | None = None,
+                 alpha: float | None = None, rate=None, gain=None, rho_min: float = 1e-14,
+                 discretization: str | None = None):
+        order = check_int_in_range("order", order, 1, 4)
+        super().__init__(dt, order, discretization)
+        n = order + 1
+        self.mu = _DEFAULT_MU[self.kind] if mu is None else check_positive("mu", mu)
+        if (self.kind == "finite" and self.mu > 1) or (self.kind == "fixed" and self.mu >= 1):
+            raise ValueError(f"expected 0 < mu {'<=' if self.kind == 'finite' else '<'} 1 for the {self.kind}-time "
+                             f"observer, actual value: {mu!r}")
+        self.alpha = None if self.kind == "finite" else (2.0 if alpha is None else check_positive("alpha", alpha))
+        if lipschitz is None and rate is None:
+            raise ValueError("expected lipschitz > 0 or rate > 0, actual value: both None")
+        self.lipschitz, self.rate = lipschitz, rate
+        if gain is None:
+            gain = chain_gain(n, self.mu, self.kind, self.alpha)
+        gain = np.asarray(gain, dtype=float)
+        if gain.shape != (n,):
+            raise ValueError(f"expected gain with shape ({n},), actual value: {gain.shape}")
+        self.gain = gain
+        self.rho_min = check_positive("rho_min", rho_min)
+
+    @property
+    def _kernel(self):
+        return _ilf_chain_kernel
+
+    def _channel_params(self, shape):
+        n = self.order + 1
+        if self.rate is not None:
+            omega = self._per_channel("rate", self.rate, shape)
+        else:
+            omega = (1.1 * self._per_channel("lipschitz", self.lipschitz, shape) / abs(self.gain[-1])) ** (1.0 / n)
+        N = omega.size
+        head = np.column_stack([np.full(N, self.dt), omega, np.full(N, 0.0 if self.kind == "finite" else 1.0),
+                                np.full(N, self.mu), np.full(N, self.rho_min)])
+        return np.hstack([head, np.broadcast_to(self.gain, (N, n))])
+
+    def run(self, Y) -> np.ndarray:
+        """Process ``Y`` of shape ``(T, ...)`` sample by sample (a Python loop over :meth:`update`)."""
+        if self._state is None:
+            raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
+        Y = np.asarray(Y, dtype=np.float64)
+        if Y.shape[1:] != self._shape:
+            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        out = np.empty((Y.shape[0],) + self._estimate.shape)
+        for t in range(Y.shape[0]):
+            out[t] = self.update(np.ascontiguousarray(Y[t]))
+        return out
+
+
+class ILFFixedDifferentiator(ILFDifferentiator):
+    __doc__ = ILFDifferentiator.__doc__
+    name = "ilf-fixed"
+    kind = "fixed"
