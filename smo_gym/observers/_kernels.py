@@ -447,17 +447,85 @@ def finite_difference_kernel(state, y, params, new_state, out):
 # ----------------------------------------------------------------------------------------------------------------
 # offline driver
 # ----------------------------------------------------------------------------------------------------------------
+@njit(error_model="numpy", inline="always")
+def _drive(kernel, state, Y, params, out):
+    """The time loop of :func:`run_offline`, inlined into each kernel's compiled driver.
+
+    Ping-pong between ``state`` and one scratch buffer (no copy per sample); ``state`` receives the last accepted
+    state at the end, also when a sample fails.
+    """
+    cur = state
+    nxt = np.empty_like(state)
+    done = Y.shape[0]
+    status = -1
+    for t in range(Y.shape[0]):
+        status = kernel(cur, Y[t], params, nxt, out[t])
+        if status != -1:
+            done = t
+            break
+        cur, nxt = nxt, cur
+    if done % 2 == 1:
+        state[:, :] = cur
+    return status, done
+
+
+# One cached driver per kernel. A compiled function that takes a kernel as an argument is specialised on the
+# dispatcher's type, which numba's on-disk cache cannot reuse across processes (it recompiled for seconds in every
+# new process and could fail while re-saving its index); drivers that name their kernel cache normally.
 @njit(cache=CACHE, error_model="numpy")
+def _run_hosm(state, Y, params, out):
+    return _drive(hosm_kernel, state, Y, params, out)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_sta_implicit(state, Y, params, out):
+    return _drive(sta_implicit_kernel, state, Y, params, out)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_eigmap(state, Y, params, out):
+    return _drive(eigmap_kernel, state, Y, params, out)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_linear(state, Y, params, out):
+    return _drive(linear_kernel, state, Y, params, out)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_kalman_ca(state, Y, params, out):
+    return _drive(kalman_ca_kernel, state, Y, params, out)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_finite_difference(state, Y, params, out):
+    return _drive(finite_difference_kernel, state, Y, params, out)
+
+
+@njit(error_model="numpy")  # not cached: specialised per kernel type (see above)
+def _run_any(kernel, state, Y, params, out):
+    return _drive(kernel, state, Y, params, out)
+
+
+_DRIVERS = {
+    hosm_kernel: _run_hosm,
+    sta_implicit_kernel: _run_sta_implicit,
+    eigmap_kernel: _run_eigmap,
+    linear_kernel: _run_linear,
+    kalman_ca_kernel: _run_kalman_ca,
+    finite_difference_kernel: _run_finite_difference,
+}
+
+
 def run_offline(kernel, state, Y, params, out):
     """Apply ``kernel`` to every row of ``Y`` (T, N); write estimates into ``out`` (T, N, m).
 
     Returns ``(status, t)``: ``status`` as the kernel's, ``t`` the sample at which it failed (or ``T``).
-    ``state`` holds the final state on return.
+    ``state`` holds the last accepted state on return (the final state on success). Kernels of this module run
+    through their own cached compiled driver; any other kernel through a generic compiled loop (compiled once per
+    process and kernel).
     """
-    scratch = np.empty_like(state)
-    for t in range(Y.shape[0]):
-        status = kernel(state, Y[t], params, scratch, out[t])
-        if status != -1:
-            return status, t
-        state[:, :] = scratch
-    return -1, Y.shape[0]
+    driver = _DRIVERS.get(kernel)
+    if driver is not None:
+        return driver(state, Y, params, out)
+    return _run_any(kernel, state, Y, params, out)
