@@ -79,7 +79,10 @@ class MujocoDynamics:
         the bodies keep their radii of gyration.
     inertia_scale : float or array_like, optional
     damping_scale : float
-        Multiplies ``dof_damping``.
+        Multiplies ``dof_damping`` (viscous joint friction).
+    frictionloss_scale : float
+        Multiplies ``dof_frictionloss`` (dry joint friction; a constraint in MuJoCo, so it only enters ``f`` with
+        ``contact="measured"``).
     contact : {"unknown", "measured"}
         How constraints (contacts, limits, dry friction) enter ``f``; see the module notes.
     input : {"ctrl", "qfrc"}
@@ -98,7 +101,8 @@ class MujocoDynamics:
     """
 
     def __init__(self, model: mujoco.MjModel, *, joints: Sequence[str] | None = None, mass_scale=1.0,
-                 inertia_scale=None, damping_scale=1.0, contact: str = "unknown", input: str = "ctrl"):
+                 inertia_scale=None, damping_scale=1.0, frictionloss_scale=1.0, contact: str = "unknown",
+                 input: str = "ctrl"):
         if not isinstance(model, mujoco.MjModel):
             raise TypeError(f"expected a mujoco.MjModel, actual value: {type(model).__name__}")
         if contact not in ("unknown", "measured"):
@@ -119,6 +123,7 @@ class MujocoDynamics:
         m.body_mass[:] = m.body_mass * ms
         m.body_inertia[:] = m.body_inertia * isc[:, None]
         m.dof_damping[:] = m.dof_damping * float(_scale("damping_scale", damping_scale, 1)[0])
+        m.dof_frictionloss[:] = m.dof_frictionloss * float(_scale("frictionloss_scale", frictionloss_scale, 1)[0])
         self.contact = contact
         self.input = input
         # joint equality couplings: dependent joint -> (independent joint, polycoef)
