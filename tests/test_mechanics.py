@@ -161,3 +161,19 @@ def test_copies_evaluate_on_their_own_data(arm):
         other.acceleration(q + 1.0, v, u)
         np.testing.assert_allclose(other.data.qpos, q + 1.0)  # the hot path writes into the copy's own data
         assert not np.allclose(dyn.data.qpos, q + 1.0)
+
+
+def test_self_quadratic_coefficient_is_the_v_i_squared_coefficient_of_f(arm):
+    """Independent check of the Christoffel formula: the second difference of f_i along v_i e_i (the damping is
+    linear in v, gravity and input constant) is 2 alpha_i."""
+    dyn = MujocoDynamics(arm.model)
+    rng = np.random.default_rng(3)
+    s = 3.0
+    for _ in range(3):
+        q = rng.uniform(-2, 2, size=2)
+        alpha = dyn.self_quadratic_coefficient(q)
+        for i in range(2):
+            e = np.zeros(2)
+            e[i] = s
+            second = dyn.acceleration(q, e) - 2 * dyn.acceleration(q, np.zeros(2)) + dyn.acceleration(q, -e)
+            assert second[i] / (2 * s * s) == pytest.approx(alpha[i], rel=1e-6, abs=1e-8)
