@@ -10,14 +10,27 @@ from __future__ import annotations
 from . import adapters, sensing
 from .adapters import CONTACT_FORCES, GymnasiumMujocoAdapter, MujocoAdapter, make_adapter, register_adapter
 from .estimated_velocity import EstimatedVelocity
+from .vec import JointSensor, VectorEstimatedVelocity, sensing_config
 
 __all__ = [
     "CONTACT_FORCES",
     "EstimatedVelocity",
     "GymnasiumMujocoAdapter",
+    "JointSensor",
     "MujocoAdapter",
+    "VecEstimatedVelocity",
+    "VectorEstimatedVelocity",
     "adapters",
     "make_adapter",
     "register_adapter",
     "sensing",
+    "sensing_config",
 ]
+
+
+def __getattr__(name):  # VecEstimatedVelocity imports Stable-Baselines3 (and torch): only when asked for
+    if name == "VecEstimatedVelocity":
+        from .sb3 import VecEstimatedVelocity
+
+        return VecEstimatedVelocity
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

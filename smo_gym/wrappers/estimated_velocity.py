@@ -15,13 +15,14 @@ from .sensing import (
     JointMeasurement,
     VelocityEstimator,
     bound_order,
+    bounds_from_velocities,
     cached_bounds,
     calibrate_bounds,
     calibration_key,
     default_observer,
 )
 
-__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "resolve_rate"]
+__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "resolve_rate", "rollout_velocities"]
 
 #: mixed into the user's seed so the sensor stream differs from the environment's own ``np_random``
 _SEED_SALT = 0x534D4F
@@ -55,24 +56,80 @@ def environment_key(unwrapped) -> str:
     return f"{type(unwrapped).__module__}.{type(unwrapped).__qualname__}:{getattr(unwrapped, 'fullpath', '')}"
 
 
+def rollout_velocities(unwrapped, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
+    """``qvel`` sampled every ``sample_every`` physics steps on a *copy* of the environment under uniform random
+    actions, with the environment's own (seeded) resets at episode ends: its reset distribution, actions and
+    terminations, for about ``steps`` physics steps. Returns one array ``(T_i, nv)`` per episode, or None if the
+    environment cannot be copied."""
+    try:
+        sim = copy.deepcopy(unwrapped)  # MujocoEnv pickles (and copies) by its constructor arguments
+        adapter = make_adapter(sim)
+    except Exception:  # noqa: BLE001 - any failure: the caller falls back to a rollout of the bare model
+        return None
+    space = sim.action_space
+    space.seed(seed)
+    hook = adapter.supports_substeps()
+    frame_skip = adapter.frame_skip
+    episodes: list[np.ndarray] = []
+    samples: list[np.ndarray] = []
+    counter = [0]
+
+    def record():
+        counter[0] += 1
+        if counter[0] % sample_every == 0:
+            samples.append(np.array(adapter.data.qvel))
+
+    sim.reset(seed=seed)
+    samples.append(np.array(adapter.data.qvel))
+    for k in range(max(1, int(steps) // frame_skip)):
+        if hook:
+            with adapter.substeps(record):
+                _, _, terminated, truncated, _ = sim.step(space.sample())
+        else:
+            _, _, terminated, truncated, _ = sim.step(space.sample())
+            samples.append(np.array(adapter.data.qvel))
+        if terminated or truncated or not np.all(np.isfinite(adapter.data.qvel)):
+            episodes.append(np.array(samples))
+            sim.reset()
+            samples, counter[0] = [np.array(adapter.data.qvel)], 0
+    episodes.append(np.array(samples))
+    sim.close()
+    if not hook and sample_every < frame_skip:  # only end-of-step samples: rescale at the caller's step
+        return None
+    return [V for V in episodes if np.all(np.isfinite(V))]
+
+
 def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *, safety: float = 2.0,
                       quantile: float = 0.99, steps: int = 2000, disk: bool = True) -> np.ndarray:
     """Per-dof bounds on the ``derivative``-th derivative of the joint coordinates, sampled every ``sample_every``
-    physics steps, from :func:`~smo_gym.wrappers.sensing.calibrate_bounds` on the environment's model and initial
-    state, cached per environment id (:func:`environment_key`) in memory and, with ``disk``, on disk."""
+    physics steps, cached per environment id (:func:`environment_key`) in memory and, with ``disk``, on disk.
+
+    The velocities come from :func:`rollout_velocities` (a copy of the environment itself: its resets, random
+    actions, terminations), or, if the environment cannot be copied, from
+    :func:`~smo_gym.wrappers.sensing.calibrate_bounds` on the bare model from its initial state; the bound is
+    :func:`~smo_gym.wrappers.sensing.bounds_from_velocities`.
+    """
     model = adapter.model
-    qpos0 = np.array(getattr(unwrapped, "init_qpos", adapter.data.qpos), dtype=float)
-    qvel0 = np.array(getattr(unwrapped, "init_qvel", adapter.data.qvel), dtype=float)
     settings = dict(derivative=int(derivative), every=int(sample_every), frame_skip=adapter.frame_skip,
-                    safety=float(safety), quantile=float(quantile), steps=int(steps), v=2)
+                    safety=float(safety), quantile=float(quantile), steps=int(steps), v=3)
     key = calibration_key(environment_key(unwrapped), model, **settings)
-    return cached_bounds(
-        key,
-        lambda: calibrate_bounds(model, qpos0, qvel0, adapter.frame_skip, int(sample_every),
-                                 derivative=int(derivative), steps=int(steps), quantile=float(quantile),
-                                 safety=float(safety)),
-        disk=disk,
-    )
+    dt = float(model.opt.timestep) * int(sample_every)
+
+    def compute():
+        episodes = rollout_velocities(unwrapped, int(sample_every), int(steps))
+        if episodes:
+            try:
+                return bounds_from_velocities(episodes, dt, derivative=int(derivative), quantile=float(quantile),
+                                              safety=float(safety))
+            except ValueError:
+                pass
+        qpos0 = np.array(getattr(unwrapped, "init_qpos", adapter.data.qpos), dtype=float)
+        qvel0 = np.array(getattr(unwrapped, "init_qvel", adapter.data.qvel), dtype=float)
+        return calibrate_bounds(model, qpos0, qvel0, adapter.frame_skip, int(sample_every),
+                                derivative=int(derivative), steps=int(steps), quantile=float(quantile),
+                                safety=float(safety))
+
+    return cached_bounds(key, compute, disk=disk)
 
 
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -107,8 +164,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Where ``cfrc_ext`` entries come from (see :mod:`smo_gym.wrappers.adapters`; default: separate force
         sensors, i.e. the simulator's values).
     calibration_safety, calibration_quantile, calibration_steps : float, float, int
-        Default gains: ``safety * quantile(|z^(r)|)`` over a rollout of ``calibration_steps`` physics steps
-        (:func:`smo_gym.wrappers.sensing.calibrate_bounds`), cached per environment id.
+        Default gains: ``safety * quantile(|z^(r)|)`` per dof over about ``calibration_steps`` physics steps of a
+        copy of the environment under random actions, with its own resets (:func:`calibrated_bounds`), cached
+        per environment id.
     disk_cache : bool
         Also cache calibrations on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
 

@@ -27,7 +27,8 @@ Default gains
 -------------
 An order-``r`` differentiator needs a bound on :math:`|z^{(r+1)}|` (acceleration for super-twisting, jerk for
 the second-order Levant differentiator). :func:`calibrate_bounds` measures it on a short rollout of the model
-itself (random actions held over one control period, as a random policy does) at the observer's sampling step,
+itself (the environment's own resets and random actions, as a random policy explores; see
+``EstimatedVelocity``) at the observer's sampling step,
 takes a high quantile per dof (contacts produce rare impulsive peaks that a global maximum would turn into a
 huge, noise-amplifying gain) and multiplies by a safety factor. Results are cached per environment in memory and
 on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
@@ -54,6 +55,7 @@ __all__ = [
     "VelocityEstimator",
     "angular_dofs",
     "bound_order",
+    "bounds_from_velocities",
     "calibrate_bounds",
     "cached_bounds",
     "default_observer",
@@ -298,9 +300,23 @@ def calibrate_bounds(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray
             samples.append(data.qvel.copy())
     if samples:
         episodes.append(np.array(samples))
+    return bounds_from_velocities(episodes, dt, derivative=derivative, quantile=quantile, safety=safety)
+
+
+def bounds_from_velocities(episodes: list[np.ndarray], dt: float, *, derivative: int = 2, quantile: float = 0.99,
+                           safety: float = 2.0) -> np.ndarray:
+    r"""``safety * quantile(|z^(r)|)`` per dof from sampled velocities.
+
+    ``episodes`` holds arrays ``(T_i, nv)`` of ``qvel`` sampled every ``dt``; backward differences give
+    :math:`z^{(r)}` (``r = derivative``). Dofs that never moved get the largest bound of the model, and every
+    bound is floored at ``1e-3``.
+    """
+    if derivative < 1:
+        raise ValueError(f"expected derivative >= 1, actual value: {derivative}")
     diffs = [np.diff(V, n=derivative - 1, axis=0) / dt ** (derivative - 1) for V in episodes if len(V) >= derivative]
     if not diffs:
-        raise ValueError(f"expected a rollout long enough to calibrate, actual value: steps={steps}")
+        raise ValueError(f"expected a rollout long enough to calibrate, actual value: {len(episodes)} episode(s) "
+                         f"shorter than {derivative} samples")
     D = np.abs(np.concatenate(diffs, axis=0))
     bound = safety * np.quantile(D, quantile, axis=0)
     # dofs the random policy cannot move (a pushed object, a goal) get the largest bound of the model: they may
