@@ -182,7 +182,7 @@ def hosm_channel_step(x, y, params, m, x_new, out_row):
     return -e
 
 
-@njit(cache=CACHE, error_model="numpy")
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def hosm_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
@@ -231,7 +231,7 @@ def sta_implicit_channel_step(x, y, params, x_new):
     return w
 
 
-@njit(cache=CACHE, error_model="numpy")
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def sta_implicit_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
@@ -291,7 +291,7 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
     return sigma
 
 
-@njit(cache=CACHE, error_model="numpy")
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def eigmap_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
@@ -310,7 +310,7 @@ def eigmap_kernel(state, y, params, new_state, out):
 # Linear time-invariant observers (high-gain): s_new = F s + g y, out = R s_new
 # params row: [F (m * m), g (m), R (m * m)]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy")
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def linear_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
@@ -398,7 +398,7 @@ def kalman_ca_channel_step(s, y, params, s_new):
     return nu
 
 
-@njit(cache=CACHE, error_model="numpy")
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def kalman_ca_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
@@ -419,7 +419,7 @@ def kalman_ca_kernel(state, y, params, new_state, out):
 # Backward finite differences (order 1 or 2)
 # state row: [y, v, (a), innovation, samples since reset]; params row: [dt]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy")
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def finite_difference_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
