@@ -134,8 +134,7 @@ def solve_implicit_output_error(s_pred, Q, QF, L, h, r_full, kind: str, *, rho_m
 
     def phi(t):  # log||s(e^t)|| - t, decreasing through its root
         s = _output_error_at(np.exp(t), sp, Qi, QFi, Li, hi, r_full, kind)
-        with np.errstate(divide="ignore"):
-            return np.log(np.linalg.norm(s, axis=-1)) - t, s
+        return np.log(np.maximum(np.linalg.norm(s, axis=-1), 1e-300)) - t, s
 
     lo = np.full(idx.size, math.log(rho_min))
     f_lo, s_lo = phi(lo)
