@@ -63,6 +63,7 @@ def rollout_velocities(unwrapped, sample_every: int, steps: int, seed: int = 0) 
     environment cannot be copied."""
     try:
         sim = copy.deepcopy(unwrapped)  # MujocoEnv pickles (and copies) by its constructor arguments
+        sim.render_mode = None  # never open a window for the calibration
         adapter = make_adapter(sim)
     except Exception:  # noqa: BLE001 - any failure: the caller falls back to a rollout of the bare model
         return None
@@ -182,10 +183,19 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Notes
     -----
     ``info["smo"]`` holds ``qpos`` and ``qvel`` (true), ``qvel_estimate`` and ``qpos_measured`` at the last
-    sample. Observers
-    start from the first measurement at ``reset()`` with zero velocity. The sensor's random stream is seeded from
-    ``reset(seed=...)`` (so a vector env's environments, seeded ``seed + i``, get different noise); without a
-    seed it continues, or starts from fresh entropy.
+    sample. Observers start from the first measurement at ``reset()`` with zero velocity. The sensor's random
+    stream is seeded from ``reset(seed=...)`` (so a vector env's environments, seeded ``seed + i``, get
+    different noise); without a seed it continues, or starts from fresh entropy.
+
+    Sampling inside ``frame_skip``: during ``step`` the environment's ``_step_mujoco_simulation`` is replaced
+    (on the instance, for the duration of the call) by an identical loop of single ``mj_step`` calls that records
+    ``qpos`` after each (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.substeps`); the trajectory,
+    rewards and terminations are bit-identical to the unwrapped environment's (tested on every v5 environment).
+    The samples of one control period go through the sensor in one compiled call, then the observer.
+
+    Pickling follows Gymnasium's MuJoCo environments, which pickle by their constructor arguments (``EzPickle``):
+    an unpickled copy is a freshly constructed simulation with this wrapper's configuration, sensor and observer;
+    ``reset(seed=...)`` on both gives identical observations.
 
     Raises
     ------
