@@ -319,7 +319,10 @@ class Sensor:
 
     def measure(self, y) -> np.ndarray:
         """Measure one sample of the true signal ``y`` (shape as at ``reset``); returns a new array."""
-        y = self._check_ready(y)
+        if type(y) is not np.ndarray or y.dtype != np.float64 or not y.flags.c_contiguous:
+            y = self._check_ready(y)
+        elif getattr(self, "_kinds", None) is None:
+            self._check_ready(y)  # raises: never reset
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
         t = self._t

@@ -117,7 +117,7 @@ class TangentCoordinates:
         """Advance to the configuration ``q`` and return ``z`` (a new array)."""
         if not self.manifold:
             self._z = np.array(q, dtype=np.float64)
-            return self._z.copy()
+            return self._z  # a fresh copy already: callers may keep it
         mujoco.mj_differentiatePos(self.model, self._dz, 1.0, self._prev, q)
         self._z += self._dz
         self._z[self._dof] = q[self._qadr]
