@@ -3,12 +3,26 @@
 Joint positions come from a sensor model; velocities are estimated online by sliding-mode, higher-order
 sliding-mode and high-gain observers, the way a real controller would have to.
 
-``smo_gym.wrappers`` (Gymnasium/MuJoCo) is imported on demand: ``from smo_gym import wrappers``.
+``smo_gym.wrappers``, ``smo_gym.control``, ``smo_gym.mechanics`` and ``smo_gym.envs`` import Gymnasium and/or
+MuJoCo, so they load on first access (``from smo_gym import wrappers`` or ``smo_gym.wrappers``), keeping
+``import smo_gym`` light for pure signal processing.
 """
 
 from . import design, observers, sensors
 from ._validation import DivergenceError
 from .offline import differentiate
+
+_LAZY_SUBMODULES = ("control", "envs", "mechanics", "wrappers")
+
+
+def __getattr__(name: str):
+    """Load the heavy submodules on first attribute access (PEP 562)."""
+    if name in _LAZY_SUBMODULES:
+        import importlib
+
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __version__ = "0.1.0"
 __all__ = ["DivergenceError", "__version__", "design", "differentiate", "observers", "sensors"]
