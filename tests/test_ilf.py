@@ -139,6 +139,17 @@ def test_proposition_8_is_infeasible_at_mu_1_and_feasible_below():
     assert d.certificate.ok and d.condition == "proposition"
 
 
+def test_algorithm_12_with_proposition_11_is_feasible_for_the_example():
+    """Algorithm 12 as printed (Proposition 11 on refined grids) with beta = 1/8 < 2 r_1 finds a certified gain for
+    mu = 0.5, alpha = 32/7, of the paper's magnitude (measured |L|max 322 against the printed 235); beta >= 2 r_1
+    makes (27) infeasible and is rejected up front."""
+    d = ilf_gains(A, C, 0.5, "fixed", alpha=32.0 / 7.0, beta=0.125)
+    assert d.certificate.ok and d.condition == "proposition"
+    assert 0.5 < np.abs(d.L).max() / np.abs(EX["L_fixed"]).max() < 2.0
+    with pytest.raises(ValueError, match="beta"):
+        ilf_gains(A, C, 0.5, "fixed", alpha=1.0, beta=0.5)
+
+
 def test_infeasible_specification_raises():
     """A fixed-time rate far beyond what (21)-(22) allow raises instead of returning a gain."""
     with pytest.raises(LMIInfeasibleError, match="expected feasible"):

@@ -25,6 +25,7 @@ References
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -525,7 +526,9 @@ def _solve(constraints: dict, variables: dict) -> tuple[str, dict]:
         cons.append(_sym(M) << 0)
     problem = cp.Problem(cp.Minimize(0), cons)
     try:
-        problem.solve(solver=cp.CLARABEL)
+        with warnings.catch_warnings():  # "solution may be inaccurate": the status below says so, and we refine
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL)
     except cp.error.SolverError as exc:  # pragma: no cover - reported as infeasibility
         return f"solver error: {exc}", {}
     if problem.status != "optimal":
@@ -534,7 +537,7 @@ def _solve(constraints: dict, variables: dict) -> tuple[str, dict]:
 
 
 def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001_DELTA, alpha: float | None = None,
-              beta: float = 1.0, eps: float = 1e-6, max_refinements: int = 5, dense_points: int = 401,
+              beta: float | None = None, eps: float = 1e-6, max_refinements: int = 5, dense_points: int = 401,
               tol: float = 1e-7, decomposition: BlockDecomposition | None = None,
               condition: str = "proposition") -> ILFDesign:
     r"""Observer gain of paper 001 by Algorithm 9 (``kind="finite"``) or Algorithm 12 (``kind="fixed"``).
@@ -567,9 +570,10 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
         ``0 < delta < 1``; default the paper's :math:`(1+\sqrt5)/(3+\sqrt5)`.
     alpha : float, optional
         Fixed time only (required): convergence rate, :math:`T_{\max}\le 2(1+(m-1)\mu)/(\alpha\mu)`.
-    beta : float
+    beta : float, optional
         Fixed time only: the number :math:`\beta>0` of Proposition 11 (it multiplies ``Z`` in (27) and is an
-        exponent in (29), so it is fixed, not a decision variable).
+        exponent in (29), so it is fixed, not a decision variable). (27) forces :math:`\beta < 2\tilde r_1`;
+        default :math:`\tilde r_1`.
     eps : float
         Margin replacing the strict inequalities.
     max_refinements : int
@@ -611,6 +615,7 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
     import cvxpy as cp
 
     kind = check_choice("kind", kind, ("finite", "fixed"))
+    condition = check_choice("condition", condition, ("proposition", "points"))
     mu = check_positive("mu", mu)
     if kind == "finite" and mu > 1.0:
         raise ValueError(f"expected 0 < mu <= 1 for the finite-time observer, actual value: {mu!r}")
@@ -625,12 +630,16 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
         if alpha is None:
             raise ValueError("expected alpha > 0 for the fixed-time design, actual value: None")
         alpha = check_positive("alpha", alpha)
-        beta = check_positive("beta", beta)
     dec = block_decomposition(A, C) if decomposition is None else decomposition
-    if decomposition is not None and not isinstance(decomposition, BlockDecomposition):
+    if not isinstance(dec, BlockDecomposition):
         raise TypeError(f"expected a BlockDecomposition, actual value: {type(decomposition).__name__}")
+    if kind == "fixed":
+        r1 = float(ilf_degrees(dec.m, mu)[0])
+        beta = r1 if beta is None else check_positive("beta", beta)
+        if condition == "proposition" and beta >= 2.0 * r1:
+            raise ValueError(f"expected beta < 2 r_1 = {2 * r1:.4g} (LMI (27) needs Z H + H Z >= beta Z, which fails "
+                             f"at x = Z^-1 e_1 otherwise), actual value: {beta!r}")
     n, k = dec.n, dec.C0.shape[0]
-    condition = check_choice("condition", condition, ("proposition", "points"))
     proposition = condition == "proposition"
     lgrid = np.array([0.0, delta**-0.5])
     ggrid = np.array([0.0, 1.0])
@@ -681,8 +690,10 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
             f"{cert.hurwitz_abscissa:.3g} (after {p} refinements)"
         )
     grid = lgrid if kind == "finite" else (lgrid, ggrid)
-    return ILFDesign(L, values["P"], kind, mu, delta, alpha, dec, grid, p, cert,
-                     {k_: v_ for k_, v_ in values.items() if k_ != "P"}, condition)
+    extra = {k_: v_ for k_, v_ in values.items() if k_ != "P"}
+    if kind == "fixed":
+        extra["beta"] = beta
+    return ILFDesign(L, values["P"], kind, mu, delta, alpha, dec, grid, p, cert, extra, condition)
 
 
 def certify_ilf(dec: BlockDecomposition, L, values: dict, kind: str, mu: float, delta: float, alpha, beta,
