@@ -10,10 +10,12 @@ from __future__ import annotations
 from . import adapters, sensing
 from .adapters import CONTACT_FORCES, GymnasiumMujocoAdapter, MujocoAdapter, make_adapter, register_adapter
 from .estimated_velocity import EstimatedVelocity
+from .dm_control import DmControlAdapter, make_dm_control  # registers the dm_control adapter (lazy imports)
 from .vec import JointSensor, VectorEstimatedVelocity, sensing_config
 
 __all__ = [
     "CONTACT_FORCES",
+    "DmControlAdapter",
     "EstimatedVelocity",
     "GymnasiumMujocoAdapter",
     "JointSensor",
@@ -22,6 +24,7 @@ __all__ = [
     "VectorEstimatedVelocity",
     "adapters",
     "make_adapter",
+    "make_dm_control",
     "register_adapter",
     "sensing",
     "sensing_config",

@@ -74,6 +74,9 @@ class MujocoAdapter:
 
     model: mujoco.MjModel
     frame_skip: int
+    #: ``unflatten(flat) -> observation`` for structured (``Dict``) observation spaces (dm_control), else None:
+    #: ``observation`` always returns a flat float array, which the wrapper checks and then unflattens
+    unflatten = None
 
     @property
     def data(self) -> mujoco.MjData:  # pragma: no cover - interface

@@ -113,7 +113,7 @@ def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *,
     model = adapter.model
     settings = dict(derivative=int(derivative), every=int(sample_every), frame_skip=adapter.frame_skip,
                     safety=float(safety), quantile=float(quantile), steps=int(steps), v=3)
-    key = calibration_key(environment_key(unwrapped), model, **settings)
+    key = calibration_key(getattr(adapter, "environment_key", None) or environment_key(unwrapped), model, **settings)
     dt = float(model.opt.timestep) * int(sample_every)
 
     def compute():
@@ -275,6 +275,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if not math.isfinite(obs.sum()) and not np.all(np.isfinite(obs)):  # the sum: one cheap check first
             bad = int(np.flatnonzero(~np.isfinite(obs))[0])
             raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
+        if self.adapter.unflatten is not None:  # Dict observation spaces (dm_control): the env's own structure
+            obs = self.adapter.unflatten(obs)
         data = self.adapter.data
         info["smo"] = {
             "qpos": data.qpos.copy(),
