@@ -611,6 +611,12 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
     LMIs of the finite-time case ("(11), (12), (15)"); it means (21), (22), (29). Whatever the reading, the
     returned certificate checks (14) / (24) themselves on a dense grid, so a wrong reading could only make the
     design fail, never return an uncertified gain.
+
+    Measured on the example of section V: Proposition 8 is infeasible for the paper's ``mu = 1`` (provably: with
+    :math:`\tilde r_m = 1` the block :math:`(I-H_{\tilde r})Z + Z(I-H_{\tilde r})` of (16) has a zero diagonal
+    block, so (16) cannot be positive definite), while ``condition="points"`` certifies a gain close to the
+    printed one; Proposition 11 with the default :math:`\beta = \tilde r_1` is feasible for ``mu = 0.5``,
+    ``alpha = 32/7`` after three refinements (gains of the printed magnitude).
     """
     import cvxpy as cp
 

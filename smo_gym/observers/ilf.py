@@ -453,7 +453,14 @@ class ILFDifferentiator(Observer):
         ``L`` in the :math:`\tau` scale (default: :func:`chain_gain`).
     discretization : {"implicit"}
         Exact chain prediction plus implicit-Euler injection (see :mod:`smo_gym.observers.ilf`); stable at any
-        step and any error. Not a compiled kernel: a NumPy step of about a millisecond.
+        step and any error. Not a compiled kernel: a NumPy step of about 0.5-1 ms.
+
+    Notes
+    -----
+    The first construction for a given ``(order, mu, kind, alpha)`` solves the LMIs (1-5 s, cvxpy); the gain is
+    cached for the process. The default rate suits ``kind="finite", mu=1`` (Levant-like, exact under
+    :math:`|f^{(n)}|\le L_f`); for ``kind="fixed"`` it is usually slow and the error under :math:`f^{(n)}\ne0`
+    is of order :math:`L_f/\omega^n` — pass a larger ``rate`` for tracking.
     """
 
     discretizations = ("implicit",)
