@@ -281,7 +281,9 @@ def _expand(values, sizes) -> np.ndarray:
 
 
 def dilation(lam, r_blocks, sizes) -> np.ndarray:
-    r"""Diagonal of the dilation (4), :math:`D_r(\lambda) = \mathrm{diag}(\lambda^{r_i}I_{n_i})`, shape ``lam.shape + (n,)``.
+    r"""Diagonal of the dilation (4), :math:`D_r(\lambda) = \mathrm{diag}(\lambda^{r_i}I_{n_i})`.
+
+    Shape ``lam.shape + (n,)``.
 
     ``lam`` may be an array (broadcast); ``lam = 0`` gives zeros (all ``r_i > 0``).
     """
@@ -304,7 +306,10 @@ def ilf_homogeneity_matrices(m: int, mu: float, sizes) -> dict[str, np.ndarray]:
 
 
 def xi_finite(lam, r_blocks, sizes) -> np.ndarray:
-    r"""Diagonal of (10), :math:`\Xi(\lambda) = \lambda(D_{\tilde r}(1/\lambda) - I) = \mathrm{diag}(\lambda^{1-\tilde r_i} - \lambda)`."""
+    r"""Diagonal of (10), :math:`\Xi(\lambda) = \lambda(D_{\tilde r}(1/\lambda) - I)`.
+
+    That is :math:`\mathrm{diag}(\lambda^{1-\tilde r_i} - \lambda)`, shape ``lam.shape + (n,)``.
+    """
     lam = np.asarray(lam, dtype=float)[..., None]
     p = _expand(r_blocks, sizes)
     return lam ** (1.0 - p) - lam

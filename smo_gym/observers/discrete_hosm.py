@@ -282,7 +282,8 @@ class DiscreteTimeHOSM:
         return self.PROVEN_Z_BOUND[self.n] - max_eigenvalue(self.n, self.dt, p, self.mu, self.mapping)
 
     def model_terms(self, xi: np.ndarray, u) -> np.ndarray:
-        r"""The vector multiplying :math:`\mathbf B` in (33): :math:`\gamma_1` and the saturated :math:`\hat\gamma_i`."""
+        r"""The vector multiplying :math:`\mathbf B` in (33): :math:`\gamma_1`, then the saturated
+        :math:`\hat\gamma_i`."""
         out = np.zeros(xi.shape)
         if self.gamma is None:
             return out
@@ -357,7 +358,9 @@ class DiscreteTimeHOSM:
         return self._x.copy()
 
     def update(self, y, u=None) -> np.ndarray:
-        r"""Process :math:`y_k` (and :math:`u_k`); returns the predictor :math:`\hat\xi_{k+1}`, ``(..., n_channels, n)``.
+        r"""Process :math:`y_k` (and :math:`u_k`); returns the predictor :math:`\hat\xi_{k+1}`.
+
+        Shape ``(..., n_channels, n)``.
 
         Raises ``RuntimeError`` before ``reset``, ``ValueError`` on a wrong shape or a non-finite sample (state
         unchanged), ``DivergenceError`` if the new state is not finite (state unchanged).

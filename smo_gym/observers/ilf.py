@@ -192,8 +192,8 @@ class ILFObserver:
     r"""Finite-time (6)-(9) or fixed-time (17)-(18) observer of paper 001 for :math:`\dot x = Ax + Bu,\ y = Cx`.
 
     See the module docstring for the equations and the discretization (exact ZOH prediction + implicit-Euler
-    injection solved for the scalar :math:`\rho = \|s_{k+1}\|` by a bracketing root finder): stable at any step ``dt`` and for
-    any initial error, and its error sequence is independent of the plant trajectory.
+    injection solved for the scalar :math:`\rho = \|s_{k+1}\|` by a bracketing root finder): stable at any step
+    ``dt`` and for any initial error, and its error sequence is independent of the plant trajectory.
 
     Parameters
     ----------
@@ -310,7 +310,10 @@ class ILFObserver:
         return arr
 
     def update(self, y, u=None) -> np.ndarray:
-        r"""One step: ``y`` measured at :math:`t_{k+1}`, ``u`` held on :math:`[t_k, t_{k+1})`; returns :math:`\hat x_{k+1}`."""
+        r"""One step: ``y`` measured at :math:`t_{k+1}`, ``u`` held on :math:`[t_k, t_{k+1})`.
+
+        Returns :math:`\hat x_{k+1}`, shape ``(..., n)``.
+        """
         if self._x is None:
             raise RuntimeError("expected reset(x0_hat) before update(y), actual value: the observer was never reset")
         batch = self._x.shape[:-1]
