@@ -211,8 +211,8 @@ def test_section6_band_of_sigma3(section6):
 
 def test_section6_ratio_to_sigma1_and_sigma3(section6):
     r"""The band of :math:`\sigma_3` grows "by the factor 500" with the dead-beat observer Sigma1 and the
-    linearised Luenberger observer Sigma3. Measured (T = 5 s): about 530 and 410-700 depending on the horizon
-    (Sigma3's error drifts as the state leaves the linearisation point), so the test asserts [250, 1000]."""
+    linearised Luenberger observer Sigma3. Measured: 530 (Sigma1) and 695 (Sigma3), the same for T = 5 and 10 s;
+    the paper's single factor is read off a log plot, so the test asserts the range [250, 1000] for both."""
     t = section6["t"]
     b1, b2, b3 = (repro.band(section6[k], t, 1.0) for k in ("Sigma1", "Sigma2", "Sigma3"))
     assert 250 <= b1[2] / b2[2] <= 1000
