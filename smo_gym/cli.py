@@ -49,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .control.experiments import add_subcommand as add_control
 
     add_control(sub)
+    from .cli_rl import add_subcommands as add_rl
+
+    add_rl(sub)
     return parser
 
 
@@ -78,6 +81,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "compare":
             return compare(args)
+        if args.command in ("train", "evaluate"):
+            from .cli_rl import run as rl
+
+            return rl(args)
         if args.command == "control":
             from .control.experiments import cli as control
 

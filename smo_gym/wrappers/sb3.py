@@ -1,0 +1,146 @@
+r"""``VecEstimatedVelocity``: the Stable-Baselines3 vector-env form of the sensing wrapper (see :mod:`.vec`).
+
+Its own module so that ``import smo_gym.wrappers`` does not import Stable-Baselines3 (and torch); the name is
+exported lazily by :mod:`smo_gym.wrappers`.
+"""
+
+from __future__ import annotations
+
+import inspect
+import pickle
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
+
+from .vec import JointSensor, _find_sensor, _Sensing, sensing_config
+
+__all__ = ["VecEstimatedVelocity"]
+
+
+class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
+    r"""SB3 vector-env wrapper: measured positions and batched velocity estimates for every environment.
+
+    One observer of batch shape ``(n_envs, nv)`` is updated once per vector step (``rate="env"``: one sample per
+    environment step). The observation space is the wrapped one, unchanged.
+
+    Parameters
+    ----------
+    venv : stable_baselines3.common.vec_env.VecEnv
+        Vector env of Gymnasium MuJoCo environments. With a ``DummyVecEnv`` its environments are wrapped in
+        :class:`JointSensor` here if they are not already; any other vector env (``SubprocVecEnv``) must be
+        built with ``JointSensor`` inside (``make_vec_env(..., wrapper_class=JointSensor,
+        wrapper_kwargs=sensing_config(...))``).
+    sensor, observer, observer_kwargs, **kwargs
+        The sensing (:func:`sensing_config`, :class:`EstimatedVelocity`'s options); ``None`` (default when the
+        sub-environments already have ``JointSensor``) takes theirs. Given and different: ``ValueError``.
+
+    Notes
+    -----
+    ``infos[i]["smo"]`` holds the true ``qpos``/``qvel`` and ``qvel_estimate``; ``infos[i]["smo_z"]`` the
+    measurement. Pickles without ``venv`` (``__getstate__`` drops it; :meth:`set_venv` attaches one, as SB3's
+    ``VecNormalize``); :meth:`save` / :meth:`load`. Stack ``VecNormalize`` *on top*: it then normalizes the
+    sensed observations and the rewritten terminal observations.
+    """
+
+    def __init__(self, venv, sensor=None, observer=None, observer_kwargs=None, **kwargs):
+        VecEnvWrapper.__init__(self, venv)
+        self._requested = None if sensor is None and observer is None and not kwargs and observer_kwargs is None \
+            else sensing_config(sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs,
+                                **kwargs)
+        self._attach(venv)
+
+    def _attach(self, venv) -> None:
+        if not isinstance(venv.observation_space, gym.spaces.Box):
+            raise TypeError(f"expected a Box observation space, actual value: {venv.observation_space}")
+        base = venv.unwrapped
+        sensors = None
+        if isinstance(base, DummyVecEnv):
+            sensors = []
+            for i, env in enumerate(base.envs):
+                s = _find_sensor(env)
+                if s is None:
+                    s = JointSensor(env, **(self._requested or sensing_config()))
+                    base.envs[i] = s
+                sensors.append(s)
+        self._setup_sensing(self._requested, venv.num_envs, sensors, lambda name, *a: venv.env_method(name, *a),
+                            venv.has_attr)
+        self._estimate = None
+
+    # ---- VecEnv API -----------------------------------------------------------------------------------------
+    def _reset_infos(self):
+        return self.venv.unwrapped.reset_infos
+
+    def reset(self):
+        self.venv.reset()
+        Z = np.stack([info["smo_z"] for info in self._reset_infos()])
+        est = self._full_reset(Z)
+        obs, _ = self._observe_all(est)
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self.venv.step_async(actions)
+
+    def step_wait(self):
+        if self.observer.shape is None:
+            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        _, rewards, dones, infos = self.venv.step_wait()
+        Z = np.stack([info["smo_z"] for info in infos])
+        est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
+        done = np.asarray(dones, dtype=bool)
+        terminal = None
+        if done.any():
+            terminal = est.copy()  # the masked reset below rewrites the observer's estimate in place
+            reset_infos = self._reset_infos()
+            Z0 = Z.copy()
+            for i in np.flatnonzero(done):
+                Z0[i] = reset_infos[i]["smo_z"]
+            self.observer.reset(Z0, mask=done)  # those environments' observers restart at their new first sample
+            est = self.observer.estimate
+        obs, terms = self._observe_all(est, terminal, done if terminal is not None else None)
+        vel = (terminal if terminal is not None else est)[..., 1]
+        for i, info in enumerate(infos):
+            info.setdefault("smo", {})["qvel_estimate"] = vel[i].copy()
+            if terms[i] is not None:
+                info["terminal_observation"] = terms[i]
+        return obs, rewards, dones, infos
+
+    # ---- pickling without the venv (SB3 VecNormalize style) -------------------------------------------------
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        for key in ("venv", "class_attributes", "_call", "_local", "_index"):
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.venv = None
+
+    def set_venv(self, venv) -> None:
+        """Attach a vector env after unpickling/loading (its observation space must match); then ``reset()``."""
+        if self.venv is not None:
+            raise ValueError("expected a wrapper without a venv (unpickled or loaded), actual value: it has one")
+        if venv.observation_space.shape != self.observation_space.shape:
+            raise ValueError(f"expected a venv with observation shape {self.observation_space.shape}, actual value: "
+                             f"{venv.observation_space.shape}")
+        self.venv = venv
+        self.num_envs = venv.num_envs
+        self.class_attributes = dict(inspect.getmembers(self.__class__))
+        self.render_mode = venv.render_mode
+        self._requested = self.config
+        self._attach(venv)
+
+    def save(self, path) -> None:
+        """Pickle the wrapper (sensing options and observer, no venv) to ``path``."""
+        with open(path, "wb") as fh:
+            pickle.dump(self, fh)
+
+    @staticmethod
+    def load(path, venv) -> VecEstimatedVelocity:
+        """Load a wrapper saved by :meth:`save` onto ``venv``."""
+        with open(path, "rb") as fh:
+            wrapper = pickle.load(fh)
+        if not isinstance(wrapper, VecEstimatedVelocity):
+            raise TypeError(f"expected a saved VecEstimatedVelocity, actual value: {type(wrapper).__name__}")
+        wrapper.set_venv(venv)
+        return wrapper

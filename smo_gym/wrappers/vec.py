@@ -1,0 +1,346 @@
+r"""Vectorized sensing: one batched observer call for all environments of a vector env (``rate="env"``).
+
+The per-environment :class:`~smo_gym.wrappers.EstimatedVelocity` runs one observer per environment. With ``n``
+environments stepped in lock step, the observers can run as *one* observer over a batch: its state has shape
+``(n_envs, n_dofs, ...)`` (leading batch dimension, :class:`smo_gym.observers.Observer` supports any), one
+compiled call updates every environment, and ``reset(y0, mask=...)`` restarts one environment alone.
+
+The work splits in two halves:
+
+:class:`JointSensor` (in each sub-environment, also inside a ``SubprocVecEnv`` / ``AsyncVectorEnv`` worker)
+    the sensor with its own random stream (seeded like :class:`EstimatedVelocity`), the MuJoCo state and the
+    environment's observation function. After every ``step``/``reset`` it measures the joint positions and puts
+    the measured tangent coordinates in ``info["smo_z"]`` (so measurements travel back with the step results,
+    no extra round trip); ``observe(velocity, filtered)`` rebuilds the observation from the measured positions
+    and a given velocity estimate. When an episode ends, it keeps a copy of the final ``MjData`` and
+    measurement, so the terminal observation can be rebuilt after the environment was already reset.
+:class:`~smo_gym.wrappers.sb3.VecEstimatedVelocity` (SB3 ``VecEnvWrapper``, module :mod:`smo_gym.wrappers.sb3`) and :class:`VectorEstimatedVelocity` (Gymnasium)
+    the batched observer: stack the ``n`` measurements, one ``update``, masked restarts, then ask the
+    sub-environments to rebuild their observations (one call per environment with ``DummyVecEnv`` /
+    ``SyncVectorEnv``; one parallel round trip to all workers with ``SubprocVecEnv`` / ``AsyncVectorEnv``).
+
+Each sub-environment's measurement and observation are computed by exactly the code of
+:class:`EstimatedVelocity` (``JointSensor`` subclasses it), and channels of a batched observer are independent,
+so the vectorized wrappers reproduce per-environment wrappers at ``rate="env"`` with the same seeds
+bit for bit (tested to 1e-12).
+
+Autoreset
+---------
+SB3 (``DummyVecEnv``, ``SubprocVecEnv``) resets a finished environment inside the same ``step``:
+``infos[i]["terminal_observation"]`` holds the finished episode's last observation and the returned observation
+is the new episode's first. :class:`VecEstimatedVelocity` rewrites both: the terminal observation from the
+finished episode's last measurement and its estimate after the last update, the new one from the new first
+measurement, where that environment's observer restarts (``reset(mask=dones)``). Gymnasium's modes
+(``metadata["autoreset_mode"]``) are handled by :class:`VectorEstimatedVelocity`: ``next-step`` (restart at the
+step after the end, from the reset's measurement), ``same-step`` (as SB3, with ``infos["final_obs"]``) and
+``disabled`` (restart on ``reset(options={"reset_mask": ...})``).
+
+Cost with subprocesses
+----------------------
+With a ``SubprocVecEnv`` the observation rebuild must run where the MuJoCo state is, so each step costs one
+extra parallel ``env_method`` round trip (pipe + pickle of the ``(n_envs, nv)`` estimates and the observations)
+on top of SB3's own; ``scripts/bench_rl_throughput.py`` measures it against per-environment wrappers inside the
+workers (which need no round trip). Prefer per-environment wrappers with subprocesses and ``rate="physics"``;
+the batched wrapper pays off with ``DummyVecEnv`` (no process boundary).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import uuid
+
+import gymnasium as gym
+import numpy as np
+
+from .estimated_velocity import _SEED_SALT, EstimatedVelocity
+
+__all__ = ["JointSensor", "VectorEstimatedVelocity", "sensing_config"]
+
+#: keyword arguments of EstimatedVelocity that define the sensing (rate is always "env" here)
+_CONFIG_KEYS = ("sensor", "observer", "observer_kwargs", "positions", "contact_forces", "calibration_safety",
+                "calibration_quantile", "calibration_steps", "disk_cache")
+
+
+def sensing_config(sensor="encoder-12bit-noisy", observer="super-twisting", observer_kwargs=None, *,
+                   positions="measured", contact_forces="sensor", calibration_safety=2.0, calibration_quantile=0.99,
+                   calibration_steps=2000, disk_cache=True) -> dict:
+    """The sensing options (those of :class:`EstimatedVelocity` except ``rate``) as a dict."""
+    return dict(sensor=sensor, observer=observer, observer_kwargs=observer_kwargs, positions=positions,
+                contact_forces=contact_forces, calibration_safety=calibration_safety,
+                calibration_quantile=calibration_quantile, calibration_steps=calibration_steps, disk_cache=disk_cache)
+
+
+class JointSensor(EstimatedVelocity):
+    r"""The sub-environment half of the vectorized wrappers: measure ``qpos`` once per step, rebuild observations.
+
+    Same constructor as :class:`EstimatedVelocity` without ``rate`` (always ``"env"``). It does *not* estimate:
+    it returns the environment's own observation unchanged and adds ``info["smo_z"]``, shape ``(nv,)``, the
+    measured tangent coordinates of the sample (and ``info["smo"]`` with the true ``qpos``/``qvel``). The owner
+    (:class:`VecEstimatedVelocity`, :class:`VectorEstimatedVelocity`) runs the observer on those measurements
+    and calls :meth:`observe`.
+
+    Attributes
+    ----------
+    token : str
+        A random identifier; the vector wrappers map tokens to environment indices, so one broadcast call can
+        carry every environment's estimate (``observe_rows``).
+    """
+
+    def __init__(self, env: gym.Env, sensor="encoder-12bit-noisy", observer="super-twisting", observer_kwargs=None,
+                 **kwargs):
+        super().__init__(env, sensor, observer, "env", observer_kwargs, **kwargs)
+        self.config = sensing_config(sensor, observer, observer_kwargs, **kwargs)
+        self.token = uuid.uuid4().hex
+        self._terminal = None
+
+    # ---- measurements ---------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        if seed is not None:  # the same stream as EstimatedVelocity's
+            self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
+        elif self._rng is None:
+            self._rng = np.random.default_rng()
+        self.measurement.reset(self.adapter.data.qpos, self._rng)
+        info["smo_z"] = np.array(self.measurement.z_measured, dtype=np.float64)
+        return obs, info
+
+    def step(self, action):
+        if self._rng is None:
+            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        self._terminal = None  # kept across the autoreset that follows an episode's end, dropped here
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        data = self.adapter.data
+        z = self.measurement.measure_block(data.qpos[None])[0]
+        info["smo_z"] = np.array(z, dtype=np.float64)
+        info["smo"] = {"qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
+        if terminated or truncated:
+            # the environment will be reset before the owner rebuilds the terminal observation: keep the state
+            self._terminal = (copy.copy(data), self.measurement.measured_qpos().copy(),
+                              np.array(self.measurement.z_measured, dtype=np.float64))
+        return obs, reward, terminated, truncated, info
+
+    # ---- observations ---------------------------------------------------------------------------------------
+    def _positions(self, q_meas, z_meas, filtered) -> np.ndarray:
+        if self.positions == "measured" or filtered is None:
+            return q_meas
+        return self.measurement.tangent.to_qpos(q_meas, z_meas, filtered)
+
+    def observe(self, velocity: np.ndarray, filtered: np.ndarray | None = None, terminal: bool = False) -> np.ndarray:
+        """Observation at the measured positions (or ``filtered`` ones, see ``positions``) and ``velocity``.
+
+        Parameters
+        ----------
+        velocity : ndarray, shape (nv,)
+            Velocity estimate.
+        filtered : ndarray, shape (nv,), optional
+            The observer's filtered tangent coordinates (used with ``positions="filtered"``).
+        terminal : bool
+            Evaluate at the last sample of the episode that just ended (the environment was reset since).
+        """
+        if terminal:
+            if self._terminal is None:
+                raise RuntimeError("expected an episode that just ended, actual value: no terminal state kept")
+            data, q_meas, z_meas = self._terminal
+            unwrapped = self.adapter.env
+            live = unwrapped.data
+            unwrapped.data = data  # the adapter copies the controller's inputs (ctrl, time, ...) from here
+            try:
+                obs = self.adapter.observation(self._positions(q_meas, z_meas, filtered), velocity)
+            finally:
+                unwrapped.data = live
+        else:
+            obs = self.adapter.observation(
+                self._positions(self.measurement.measured_qpos(), self.measurement.z_measured, filtered), velocity)
+        if not math.isfinite(obs.sum()) and not np.all(np.isfinite(obs)):
+            bad = int(np.flatnonzero(~np.isfinite(obs))[0])
+            raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
+        return obs
+
+    def observe_rows(self, index: dict, velocity, filtered, terminal_velocity, terminal_filtered, terminal_mask):
+        """Broadcast form of :meth:`observe` for vector envs: pick this environment's row (``index[token]``).
+
+        Returns ``(observation, terminal_observation or None)``.
+        """
+        i = index[self.token]
+        f = None if filtered is None else filtered[i]
+        obs = self.observe(velocity[i], f)
+        term = None
+        if terminal_mask is not None and terminal_mask[i]:
+            term = self.observe(terminal_velocity[i], None if terminal_filtered is None else terminal_filtered[i],
+                                terminal=True)
+        return obs, term
+
+    def prototype(self):
+        """``(observer, config, token)``: an un-reset copy of the observer this environment's sensing calibrated,
+        the sensing options and :attr:`token`."""
+        return copy.deepcopy(self.observer), dict(self.config), self.token
+
+
+def _find_sensor(env) -> JointSensor | None:
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, JointSensor):
+            return env
+        env = env.env
+    return None
+
+
+class _Sensing:
+    """The batched observer and the bookkeeping both vector wrappers share."""
+
+    def _setup_sensing(self, config: dict, n_envs: int, sensors, call, has=None) -> None:
+        # sensors: list of JointSensor objects (in-process) or None; call(name, *args) -> list, in env order;
+        # has(name) -> bool: whether every sub-environment has the attribute (None: try the call)
+        self._call = call
+        self._local = sensors
+        if sensors is not None:
+            protos = [s.prototype() for s in sensors]
+            tokens = [s.token for s in sensors]
+        else:
+            try:
+                if has is not None and not has("observe_rows"):
+                    raise AttributeError("observe_rows")
+                protos = list(call("prototype"))
+                tokens = [p[2] for p in protos]
+            except AttributeError:
+                raise TypeError(
+                    "expected every sub-environment wrapped in smo_gym.wrappers.JointSensor (with a process "
+                    "boundary the observation must be rebuilt where the MuJoCo state is), actual value: no "
+                    "JointSensor found; build the vector env with "
+                    "make_vec_env(env_id, wrapper_class=JointSensor, wrapper_kwargs=sensing_config(...)) or "
+                    "gymnasium.make_vec(env_id, wrappers=[functools.partial(JointSensor, ...)])"
+                ) from None
+        configs = [p[1] for p in protos]
+        if any(c != configs[0] for c in configs):
+            raise ValueError(f"expected the same sensing in every sub-environment, actual value: {configs}")
+        if config is not None and config != configs[0]:
+            raise ValueError(
+                f"expected the sub-environments' JointSensor to have the wrapper's sensing {config}, actual value: "
+                f"{configs[0]}")
+        self.config = configs[0]
+        self.positions = self.config["positions"]
+        self.observer = protos[0][0]
+        self.n_envs = n_envs
+        self._index = {t: i for i, t in enumerate(tokens)}
+
+    def _observe_all(self, estimate, terminal_estimate=None, terminal_mask=None) -> tuple[np.ndarray, list]:
+        vel = estimate[..., 1]
+        filt = estimate[..., 0] if self.positions == "filtered" else None
+        tvel = None if terminal_estimate is None else terminal_estimate[..., 1]
+        tfilt = None if terminal_estimate is None or self.positions != "filtered" else terminal_estimate[..., 0]
+        if self._local is not None:
+            rows = []
+            for i, s in enumerate(self._local):
+                obs = s.observe(vel[i], None if filt is None else filt[i])
+                term = None
+                if terminal_mask is not None and terminal_mask[i]:
+                    term = s.observe(tvel[i], None if tfilt is None else tfilt[i], terminal=True)
+                rows.append((obs, term))
+        else:
+            rows = self._call("observe_rows", self._index, vel, filt, tvel, tfilt, terminal_mask)
+        obs = np.stack([r[0] for r in rows])
+        return obs, [r[1] for r in rows]
+
+    def _full_reset(self, Z: np.ndarray) -> np.ndarray:
+        self.observer.reset(Z)
+        return self.observer.estimate
+
+    def _update(self, Z: np.ndarray) -> np.ndarray:
+        return self.observer.update(Z)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Gymnasium vector envs
+# ----------------------------------------------------------------------------------------------------------------
+class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
+    r"""Gymnasium vector-env wrapper: the counterpart of :class:`VecEstimatedVelocity` for ``gymnasium.vector``.
+
+    Honours ``metadata["autoreset_mode"]``:
+
+    ``next-step`` (Gymnasium's default)
+        the step that ends an episode returns its terminal observation (estimate after the last sample); at the
+        next step the environment is reset and its observer restarts from the reset's measurement;
+    ``same-step``
+        the finished environment is reset within the step: ``infos["final_obs"][i]`` is rewritten from the
+        finished episode's last measurement and estimate, the returned observation is the new episode's first;
+    ``disabled``
+        observers of finished environments restart when the user calls ``reset(options={"reset_mask": m})``.
+
+    ``SyncVectorEnv``'s environments are wrapped in :class:`JointSensor` here if needed; ``AsyncVectorEnv`` must
+    be built with it (``gymnasium.make_vec(id, vectorization_mode="async", wrappers=[partial(JointSensor, ...)])``).
+    ``infos["smo_qvel_estimate"]`` holds the velocity estimates, shape ``(n_envs, nv)``.
+    """
+
+    def __init__(self, env, sensor=None, observer=None, observer_kwargs=None, **kwargs):
+        gym.vector.VectorWrapper.__init__(self, env)
+        requested = None if sensor is None and observer is None and not kwargs and observer_kwargs is None \
+            else sensing_config(sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs,
+                                **kwargs)
+        from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+        self.autoreset_mode = AutoresetMode(env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP))
+        base = env.unwrapped
+        sensors = None
+        if isinstance(base, SyncVectorEnv):
+            sensors = []
+            for i, e in enumerate(base.envs):
+                s = _find_sensor(e)
+                if s is None:
+                    s = JointSensor(e, **(requested or sensing_config()))
+                    base.envs[i] = s
+                sensors.append(s)
+        self._setup_sensing(requested, env.num_envs, sensors, lambda name, *a: list(env.call(name, *a)))
+        self._autoreset = np.zeros(env.num_envs, dtype=bool)
+
+    def reset(self, *, seed=None, options=None):
+        mask = None if options is None else options.get("reset_mask")
+        _, infos = self.env.reset(seed=seed, options=options)
+        Z = np.asarray(infos["smo_z"], dtype=np.float64)
+        if mask is None or self.observer.shape is None:
+            est = self._full_reset(Z)
+            self._autoreset[:] = False
+        else:
+            mask = np.asarray(mask, dtype=bool)
+            self.observer.reset(np.where(mask[:, None], Z, self.observer.estimate[..., 0]), mask=mask)
+            est = self.observer.estimate
+            self._autoreset[mask] = False
+        obs, _ = self._observe_all(est)
+        return obs, infos
+
+    def step(self, actions):
+        from gymnasium.vector import AutoresetMode
+
+        if self.observer.shape is None:
+            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        _, rewards, terminated, truncated, infos = self.env.step(actions)
+        Z = np.array(infos["smo_z"], dtype=np.float64)
+        done = np.logical_or(terminated, truncated)
+        terminal = terminal_mask = None
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            restart = self._autoreset.copy()
+            est = self._update(np.where(restart[:, None], self.observer.estimate[..., 0], Z))
+            if restart.any():
+                self.observer.reset(Z, mask=restart)
+                est = self.observer.estimate
+            self._autoreset = done
+        elif self.autoreset_mode == AutoresetMode.SAME_STEP:
+            if done.any():
+                Zt = Z.copy()
+                final = infos["final_info"]["smo_z"]
+                for i in np.flatnonzero(done):
+                    Zt[i] = final[i]
+                terminal = self._update(Zt).copy()
+                terminal_mask = done
+                self.observer.reset(Z, mask=done)
+                est = self.observer.estimate
+            else:
+                est = self._update(Z)
+        else:  # disabled: finished environments wait for reset(options={"reset_mask": ...})
+            est = self._update(Z)
+        obs, terms = self._observe_all(est, terminal, terminal_mask)
+        if terminal_mask is not None:
+            final_obs = infos["final_obs"]
+            for i in np.flatnonzero(terminal_mask):
+                final_obs[i] = terms[i]
+        infos["smo_qvel_estimate"] = (terminal if terminal is not None else est)[..., 1].copy()
+        return obs, rewards, terminated, truncated, infos

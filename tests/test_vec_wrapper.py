@@ -1,0 +1,203 @@
+"""Vectorized sensing: VecEstimatedVelocity (SB3) and VectorEstimatedVelocity (Gymnasium) against per-env wrappers."""
+
+from __future__ import annotations
+
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+from smo_gym.wrappers import EstimatedVelocity, JointSensor, VecEstimatedVelocity, VectorEstimatedVelocity
+
+ENV = "InvertedDoublePendulum-v5"  # episodes end within ~10-40 steps under random actions: many autoresets
+N = 3
+
+
+def _pair(n=N, seed=3):
+    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(n)])
+    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(n)]), "encoder-12bit-noisy",
+                               "super-twisting")
+    ref.seed(seed)
+    vec.seed(seed)
+    return ref, vec
+
+
+def test_vec_equals_per_env_wrappers_with_autoresets():
+    ref, vec = _pair()
+    np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
+    rng = np.random.default_rng(0)
+    n_done = 0
+    for _ in range(150):
+        a = rng.uniform(-1, 1, (N, 1))
+        o1, r1, d1, i1 = ref.step(a)
+        o2, r2, d2, i2 = vec.step(a)
+        np.testing.assert_array_equal(d1, d2)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        for i in np.flatnonzero(d1):
+            n_done += 1
+            np.testing.assert_allclose(i2[i]["terminal_observation"], i1[i]["terminal_observation"], rtol=0,
+                                       atol=1e-12)
+            np.testing.assert_allclose(i2[i]["smo"]["qvel_estimate"], i1[i]["smo"]["qvel_estimate"], rtol=0,
+                                       atol=1e-12)
+    assert n_done >= 5  # the comparison covered autoresets
+
+
+def test_autoreset_terminal_observation_and_restart():
+    _, vec = _pair()
+    vec.reset()
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        _, _, dones, infos = vec.step(rng.uniform(-1, 1, (N, 1)))
+        if dones.any():
+            break
+    assert dones.any()
+    obs = vec.venv.envs  # noqa: F841 - the sub-envs are JointSensor-wrapped in place
+    new_obs = vec.observer.estimate
+    for i in np.flatnonzero(dones):
+        z_terminal = infos[i]["smo_z"]
+        z_first = vec.venv.reset_infos[i]["smo_z"]
+        term = infos[i]["terminal_observation"]
+        # IDP observation: [x, sin(q1), sin(q2), cos(q1), cos(q2), xdot, q1dot, q2dot, constraint]; z = qpos here
+        assert term[0] == z_terminal[0]
+        np.testing.assert_allclose(term[1:3], np.sin(z_terminal[1:]), rtol=0, atol=1e-15)
+        # the finished episode's estimate after its last sample, not a restarted one
+        assert np.any(np.abs(term[5:8]) > 1e-6)
+        np.testing.assert_allclose(term[5:8], np.clip(infos[i]["smo"]["qvel_estimate"], -10, 10), atol=1e-15)
+        # that environment's observer restarted at its new first measurement with zero velocity
+        np.testing.assert_array_equal(new_obs[i, :, 0], z_first)
+        np.testing.assert_array_equal(new_obs[i, :, 1], 0.0)
+        assert not np.array_equal(z_first, z_terminal)
+    for i in np.flatnonzero(~dones):  # the others were not restarted
+        assert np.any(new_obs[i, :, 1] != 0.0)
+
+
+def test_ppo_learns_on_vec_stack_and_save_load(tmp_path):
+    from stable_baselines3 import PPO
+
+    venv = VecNormalize(VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)])))
+    venv.seed(5)
+    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    model.learn(256)
+    assert model.num_timesteps >= 256
+    sensing, norm = venv.venv, venv
+    sensing.save(tmp_path / "sensing.pkl")
+    norm.save(str(tmp_path / "norm.pkl"))
+    # fresh stack from disk, on new environments
+    fresh = VecEstimatedVelocity.load(tmp_path / "sensing.pkl", DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]))
+    fresh_norm = VecNormalize.load(str(tmp_path / "norm.pkl"), fresh)
+    np.testing.assert_array_equal(fresh_norm.obs_rms.mean, norm.obs_rms.mean)
+    assert fresh.config == sensing.config
+    norm.training = fresh_norm.training = False
+    norm.seed(11)
+    fresh_norm.seed(11)
+    np.testing.assert_allclose(fresh_norm.reset(), norm.reset(), rtol=0, atol=1e-12)
+    a = np.full((2, 1), 0.3)
+    for _ in range(20):
+        o1, _, d1, _ = norm.step(a)
+        o2, _, d2, _ = fresh_norm.step(a)
+        np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+    model.set_env(fresh_norm)
+    model.learn(64, reset_num_timesteps=False)
+
+
+def test_pickles_without_venv():
+    _, vec = _pair(n=2)
+    vec.reset()
+    clone = pickle.loads(pickle.dumps(vec))
+    assert clone.venv is None
+    with pytest.raises(ValueError, match="expected a venv with observation shape"):
+        clone.set_venv(DummyVecEnv([lambda: gym.make("Hopper-v5")]))
+    clone.venv = None
+    clone.set_venv(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]))
+    assert clone.reset().shape == (2, 9)
+    with pytest.raises(ValueError, match="without a venv"):
+        clone.set_venv(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]))
+
+
+def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    from smo_gym.wrappers import sensing_config
+
+    kw = sensing_config("encoder-12bit-noisy", "super-twisting")
+    sub = make_vec_env(ENV, n_envs=2, seed=4, vec_env_cls=SubprocVecEnv, wrapper_class=JointSensor,
+                       wrapper_kwargs=kw)
+    dummy = make_vec_env(ENV, n_envs=2, seed=4, wrapper_class=JointSensor, wrapper_kwargs=kw)
+    try:
+        a, b = VecEstimatedVelocity(sub), VecEstimatedVelocity(dummy)
+        np.testing.assert_allclose(a.reset(), b.reset(), rtol=0, atol=1e-12)
+        rng = np.random.default_rng(2)
+        for _ in range(40):
+            act = rng.uniform(-1, 1, (2, 1))
+            o1, _, d1, i1 = a.step(act)
+            o2, _, d2, i2 = b.step(act)
+            np.testing.assert_allclose(o1, o2, rtol=0, atol=1e-12)
+            for i in np.flatnonzero(d1):
+                np.testing.assert_allclose(i1[i]["terminal_observation"], i2[i]["terminal_observation"], atol=1e-12)
+    finally:
+        sub.close()
+    with pytest.raises(ValueError, match="sensing"):
+        VecEstimatedVelocity(make_vec_env(ENV, n_envs=1, wrapper_class=JointSensor, wrapper_kwargs=kw),
+                             "ideal", "super-twisting")
+
+
+def test_subproc_without_joint_sensor_raises():
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    sub = SubprocVecEnv([lambda: gym.make(ENV)])
+    try:
+        with pytest.raises(TypeError, match="JointSensor"):
+            VecEstimatedVelocity(sub)
+    finally:
+        sub.close()
+
+
+def test_make_vec_env_with_per_env_wrapper_physics_rate():
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+
+    venv = make_vec_env("Hopper-v5", n_envs=2, seed=0, wrapper_class=EstimatedVelocity,
+                        wrapper_kwargs=dict(rate="physics"))
+    obs = venv.reset()
+    assert obs.shape == (2, 11)
+    _, _, _, infos = venv.step(np.zeros((2, 3)))
+    assert not np.array_equal(obs[0], obs[1])  # own seeds and sensor streams
+    assert set(infos[0]["smo"]) >= {"qvel", "qvel_estimate"}
+    PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu").learn(128)
+
+
+# ---- Gymnasium vector envs --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep", "Disabled"])
+def test_gymnasium_vector_wrapper_matches_per_env(mode):
+    from gymnasium.vector import SyncVectorEnv
+
+    ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(N)],
+                        autoreset_mode=mode)
+    vec = VectorEstimatedVelocity(SyncVectorEnv([lambda: gym.make(ENV) for _ in range(N)], autoreset_mode=mode),
+                                  "encoder-12bit-noisy", "super-twisting")
+    o1, _ = ref.reset(seed=7)
+    o2, _ = vec.reset(seed=7)
+    np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+    rng = np.random.default_rng(3)
+    n_done = 0
+    for _ in range(120):
+        a = rng.uniform(-1, 1, (N, 1))
+        o1, r1, t1, u1, i1 = ref.step(a)
+        o2, r2, t2, u2, i2 = vec.step(a)
+        np.testing.assert_array_equal(t1, t2)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        done = t1 | u1
+        n_done += int(done.sum())
+        if mode == "SameStep":
+            for i in np.flatnonzero(done):
+                np.testing.assert_allclose(i2["final_obs"][i], i1["final_obs"][i], rtol=0, atol=1e-12)
+        if mode == "Disabled" and done.any():
+            o1, _ = ref.reset(options={"reset_mask": done.copy()})
+            o2, _ = vec.reset(options={"reset_mask": done.copy()})
+            np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+    assert n_done >= 5
