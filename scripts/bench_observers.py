@@ -429,7 +429,7 @@ def table_speed(quick: bool) -> list[str]:
 def table_throughput(quick: bool) -> list[str]:
     dt = 1e-3
     T = 200_000 if quick else 1_000_000
-    repeats = 1 if quick else 5
+    repeats = 3 if quick else 5
     n_ch = 8
     Y, w = test_signal(n_ch, T, dt)
     L1, L2 = 1.5 * w**2, 1.5 * w**3
