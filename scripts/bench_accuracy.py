@@ -1,0 +1,186 @@
+#!/usr/bin/env python
+r"""Accuracy of the wrapper's velocity estimates: every observer on the same measurements, per environment,
+sensor preset and sampling rate.
+
+For each environment x sensor preset (:data:`smo_gym.sensors.PRESETS`: ``ideal``, ``encoder-12bit``,
+``encoder-12bit-noisy``, ``low-cost``) x rate (``"physics"``: every MuJoCo step inside ``frame_skip``; ``"env"``:
+once per environment step), one rollout under a seeded smooth random policy is recorded with
+:func:`smo_gym.wrappers.compare.record_rollout` (the wrapper's own substep hook and
+:class:`~smo_gym.wrappers.sensing.JointMeasurement`), and every observer of :data:`smo_gym.observers.OBSERVERS`
+(all of them differentiate the measured joint coordinates; the model-based observers are not in it) runs on
+those same measurements through :func:`smo_gym.wrappers.compare.compare_observers`, with the wrapper's default
+gains (:func:`~smo_gym.wrappers.sensing.default_observer` from the calibrated bounds). ``FiniteDifference`` (the
+backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter, ``from_bounds``) are in the registry
+and so appear in every row as the references.
+
+The number is ``compare_observers``' ``rmse``: the velocity RMSE over all dofs and all samples after the
+observer's convergence in each episode (the first sample whose error is within three times the observer's own
+steady level; observers restart from zero velocity at every episode start, as in the wrapper). A diverged
+observer (non-finite state) is shown as ``div``. The smallest RMSE of a row is in bold; observers within 1 % of
+it (or within ``1e-9`` times the velocity RMS: round-off on the Euler-integrated environments, where the backward
+difference is exact with an ideal sensor) share the win. The second table counts wins per observer.
+
+Run: ``MUJOCO_GL=disable .venv/bin/python scripts/bench_accuracy.py`` (a few minutes; ``--quick``: two
+environments, two sensors, shorter rollouts). ``--markdown FILE`` also writes the tables to ``FILE``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import math
+import os
+import sys
+import time
+import warnings
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+from smo_gym.observers import OBSERVERS  # noqa: E402
+from smo_gym.wrappers import EstimatedVelocity  # noqa: E402
+from smo_gym.wrappers.compare import compare_observers, record_rollout  # noqa: E402
+
+ENVS = ("InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5")
+SENSORS = ("ideal", "encoder-12bit", "encoder-12bit-noisy", "low-cost")
+RATES = ("physics", "env")
+REFERENCES = ("finite-difference", "kalman-ca")
+#: relative and velocity-scale tolerances of a shared win
+TIE_RELATIVE, TIE_SCALE = 0.01, 1e-9
+#: floor of the best RMSE in the regret, relative to the row's velocity RMS
+REGRET_FLOOR = 1e-3
+
+
+def default_observer_name() -> str:
+    """The observer ``EstimatedVelocity`` uses when none is given (read from its signature)."""
+    return inspect.signature(EstimatedVelocity.__init__).parameters["observer"].default
+
+
+def observer_names() -> list[str]:
+    """Every registered observer, the wrapper's default first and the two references last."""
+    default = default_observer_name()
+    middle = [n for n in OBSERVERS if n != default and n not in REFERENCES]
+    return [default, *middle, *REFERENCES]
+
+
+def winners(rmse: dict[str, float], scale: float) -> list[str]:
+    """Observers whose RMSE is within the tie tolerance of the smallest finite one."""
+    finite = {k: v for k, v in rmse.items() if math.isfinite(v)}
+    if not finite:
+        return []
+    best = min(finite.values())
+    return [k for k, v in finite.items() if v <= best * (1.0 + TIE_RELATIVE) + TIE_SCALE * scale]
+
+
+def run(envs, sensors, rates, steps: int, seed: int, names: list[str]) -> list[dict]:
+    rows = []
+    for env_id in envs:
+        for rate in rates:
+            for sensor in sensors:
+                t0 = time.perf_counter()
+                rec = record_rollout(env_id, sensor=sensor, rate=rate, steps=steps, seed=seed)
+                results = compare_observers(rec, names)
+                rmse = {r.name: (r.rmse if r.diverged_at is None else float("nan")) for r in results}
+                scale = float(np.sqrt(np.mean(rec.qvel**2)))
+                rows.append(dict(env=env_id, sensor=sensor, rate=rate, dt=rec.dt, samples=len(rec.qvel),
+                                 episodes=len(rec.episode_starts), scale=scale, rmse=rmse,
+                                 diverged={r.name for r in results if r.diverged_at is not None},
+                                 winners=winners(rmse, scale)))
+                print(f"  {env_id} {sensor} {rate}: {len(rec.qvel)} samples, {time.perf_counter() - t0:.1f} s, "
+                      f"best {', '.join(rows[-1]['winners'])}", file=sys.stderr, flush=True)
+    return rows
+
+
+def regret_table(rows: list[dict], names: list[str]) -> dict[str, tuple[float, float]]:
+    """Per observer: geometric mean and maximum over rows of ``rmse / max(best, REGRET_FLOOR * vel. RMS)``."""
+    ratios = {n: [] for n in names}
+    for row in rows:
+        finite = [v for v in row["rmse"].values() if math.isfinite(v)]
+        best = max(min(finite), REGRET_FLOOR * row["scale"]) if finite else float("nan")
+        for n in names:
+            ratios[n].append(row["rmse"][n] / best)
+    cap = max(v for vals in ratios.values() for v in vals if math.isfinite(v))
+    out = {}
+    for n, vals in ratios.items():
+        v = np.array([x if math.isfinite(x) else cap for x in vals])
+        out[n] = (float(np.exp(np.mean(np.log(np.maximum(v, 1.0))))), float(np.max(v)))
+    return out
+
+
+def format_tables(rows: list[dict], names: list[str]) -> str:
+    short = {"super-twisting": "ST", "levant": "Levant", "ured": "URED", "uniform-levant": "uLevant",
+             "high-gain": "HG", "finite-difference": "FD", "kalman-ca": "KalmanCA", "switched-gain": "SwitchedHG",
+             "low-power-high-gain": "LowPowerHG", "ilf-finite": "ILF-fin", "ilf-fixed": "ILF-fix"}
+    cols = [short.get(n, n) for n in names]
+    out = ["| environment | sensor | rate | vel. RMS | " + " | ".join(cols) + " |",
+           "|---|---|---|---:|" + "---:|" * len(cols)]
+    for row in rows:
+        cells = []
+        for n in names:
+            v = row["rmse"][n]
+            text = "div" if n in row["diverged"] else f"{v:.3g}"
+            cells.append(f"**{text}**" if n in row["winners"] else text)
+        env = row["env"].replace("-v5", "")
+        out.append(f"| {env} | {row['sensor']} | {row['rate']} | {row['scale']:.3g} | " + " | ".join(cells) + " |")
+    default = default_observer_name()
+    out += ["", f"Wins per observer over {len(rows)} rows (shared wins count for each; the wrapper's default is "
+            f"`{default}`). Regret: RMSE / best RMSE of the row, the best floored at {REGRET_FLOOR:g} x the velocity "
+            "RMS (so round-off-exact rows do not dominate); geometric mean and worst over the rows (diverged or "
+            "non-finite: counted as the worst finite regret of the table).", "",
+            "| observer | wins | at rate=\"physics\" | at rate=\"env\" | wins, sensor not ideal | regret, geo. mean | "
+            "regret, worst | diverged |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    regrets = regret_table(rows, names)
+    for n in sorted(names, key=lambda n: -sum(n in r["winners"] for r in rows)):
+        wins = [r for r in rows if n in r["winners"]]
+        g, worst = regrets[n]
+        out.append(f"| {n} | {len(wins)} | {sum(r['rate'] == 'physics' for r in wins)} | "
+                   f"{sum(r['rate'] == 'env' for r in wins)} | {sum(r['sensor'] != 'ideal' for r in wins)} | "
+                   f"{g:.3g} | {worst:.3g} | {sum(n in r['diverged'] for r in rows)} |")
+    counts = {n: sum(n in r["winners"] for r in rows) for n in names}
+    top = max(counts.values())
+    leaders = [n for n, c in counts.items() if c == top]
+    verdict = ("wins most rows" if default in leaders and len(leaders) == 1 else
+               "shares the most wins" if default in leaders else
+               f"does not win most rows ({counts[default]} wins against {top} for {', '.join(leaders)})")
+    out += ["", f"Default observer `{default}` {verdict}."]
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--envs", default=",".join(ENVS))
+    parser.add_argument("--sensors", default=",".join(SENSORS))
+    parser.add_argument("--rates", default=",".join(RATES))
+    parser.add_argument("--steps", type=int, default=400, help="environment steps per rollout")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--observers", default="", help="comma-separated subset (default: all of OBSERVERS)")
+    parser.add_argument("--quick", action="store_true",
+                        help="InvertedDoublePendulum-v5 and HalfCheetah-v5, ideal and noisy encoder, 150 steps")
+    parser.add_argument("--markdown", metavar="FILE", help="also write the tables to FILE")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.envs, args.sensors, args.steps = "InvertedDoublePendulum-v5,HalfCheetah-v5", "ideal,encoder-12bit-noisy", 150
+    warnings.filterwarnings("ignore")
+    names = [n.strip() for n in args.observers.split(",") if n.strip()] or observer_names()
+    unknown = [n for n in names if n not in OBSERVERS]
+    if unknown:
+        parser.error(f"expected observer names in {', '.join(OBSERVERS)}, actual value: {', '.join(unknown)}")
+    t0 = time.perf_counter()
+    rows = run([e for e in args.envs.split(",") if e], [s for s in args.sensors.split(",") if s],
+               [r for r in args.rates.split(",") if r], args.steps, args.seed, names)
+    text = format_tables(rows, names)
+    header = (f"Velocity RMSE after convergence (rad/s or m/s, all dofs), {args.steps} env steps per rollout, "
+              f"seed {args.seed}, smooth random policy; bold = best of the row (ties within 1 %)\n")
+    print(header)
+    print(text)
+    print(f"\n({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    if args.markdown:
+        with open(args.markdown, "w") as fh:
+            fh.write(header + "\n" + text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

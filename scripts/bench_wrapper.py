@@ -1,0 +1,260 @@
+#!/usr/bin/env python
+r"""Step-time cost of :class:`smo_gym.wrappers.EstimatedVelocity`, as a ratio to the raw environment.
+
+For each environment (InvertedPendulum-v5, Hopper-v5, HalfCheetah-v5, Humanoid-v5 by default) four copies run the
+*same* action sequence from the same seed (the wrapper never perturbs the simulation, so all four do the same
+physics work and terminate at the same steps):
+
+``raw``
+    ``gym.make(env_id)``;
+``physics``
+    ``EstimatedVelocity(..., observer="super-twisting", rate="physics")`` with the default sensor (noisy 12-bit
+    encoder): the sensor and the observer run at every MuJoCo step inside ``frame_skip``;
+``env``
+    the same with ``rate="env"``: one sample per environment step;
+``NormalizeObservation``
+    Gymnasium's running-mean observation normalizer, the reference cost of a light observation wrapper.
+
+Timing is interleaved: every repeat times a block of ``--steps`` ``env.step`` calls of each variant, in an order
+shuffled per repeat, with the garbage collector off and the thread's CPU time (``time.thread_time``: the machine is
+shared, wall time would count other jobs); resets at episode ends happen outside the timed calls. The ratio of a
+variant is taken against the raw block of the *same* repeat, and the table reports the median over repeats (and
+the inter-quartile range of the ratio), so slow drifts of the machine cancel.
+
+Targets (issue 3), each also required to be below ``NormalizeObservation``'s ratio on the same environment:
+
+================== ============== ==================
+environment         ``rate="env"``  ``rate="physics"``
+================== ============== ==================
+InvertedPendulum    1.40            1.80
+Hopper              1.10            1.20
+HalfCheetah         1.20            1.40
+Humanoid            1.10            1.20
+================== ============== ==================
+
+``--profile ENV`` prints a cProfile of the wrapped step (``rate="physics"`` and ``"env"``) on that environment,
+sorted by internal time, to show where the wrapper's time goes.
+
+Run: ``MUJOCO_GL=disable .venv/bin/python scripts/bench_wrapper.py`` (``--quick`` for a short run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import sys
+import time
+import warnings
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+import gymnasium as gym  # noqa: E402
+
+from smo_gym.wrappers import EstimatedVelocity  # noqa: E402
+
+ENVS = ("InvertedPendulum-v5", "Hopper-v5", "HalfCheetah-v5", "Humanoid-v5")
+#: env id -> (target at rate="env", target at rate="physics")
+TARGETS = {
+    "InvertedPendulum-v5": (1.40, 1.80),
+    "Hopper-v5": (1.10, 1.20),
+    "HalfCheetah-v5": (1.20, 1.40),
+    "Humanoid-v5": (1.10, 1.20),
+}
+VARIANTS = ("raw", "physics", "env", "NormalizeObservation")
+CLOCK = time.thread_time
+
+
+def make_variant(env_id: str, variant: str, observer: str = "super-twisting") -> gym.Env:
+    """One of :data:`VARIANTS` for ``env_id``."""
+    env = gym.make(env_id)
+    if variant == "raw":
+        return env
+    if variant == "NormalizeObservation":
+        return gym.wrappers.NormalizeObservation(env)
+    return EstimatedVelocity(env, observer=observer, rate=variant)
+
+
+def smooth_actions(space: gym.spaces.Box, n: int, seed: int) -> list[np.ndarray]:
+    """A seeded low-pass random policy, so that episodes last (the same sequence for every variant)."""
+    rng = np.random.default_rng(seed)
+    a = np.zeros(space.shape)
+    out = []
+    for _ in range(n):
+        a = 0.9 * a + 0.1 * rng.uniform(space.low, space.high)
+        out.append(a.astype(space.dtype))
+    return out
+
+
+def timed_block(env: gym.Env, actions: list[np.ndarray], seed: int) -> float:
+    """CPU seconds spent in ``env.step`` over ``actions`` (reset, untimed, at episode ends and at the start)."""
+    env.reset(seed=seed)
+    step, clock = env.step, CLOCK
+    total = 0.0
+    for a in actions:
+        t0 = clock()
+        _, _, terminated, truncated, _ = step(a)
+        total += clock() - t0
+        if terminated or truncated:
+            env.reset()
+    return total
+
+
+def bench_env(env_id: str, repeats: int, steps: int, seed: int = 0, observer: str = "super-twisting",
+              envs: dict | None = None) -> dict:
+    """Median step-time ratios against ``raw`` (interleaved, see the module docstring); ``envs`` maps variant
+    names to environments (default: :data:`VARIANTS`), one of them ``"raw"``."""
+    envs = envs or {v: make_variant(env_id, v, observer) for v in VARIANTS}
+    variants = tuple(envs)
+    actions = smooth_actions(envs["raw"].action_space, steps, seed)
+    for env in envs.values():  # warm-up: compilation, caches, first-touch allocations
+        timed_block(env, actions[: min(50, steps)], seed)
+    order_rng = np.random.default_rng(seed)
+    times = {v: [] for v in variants}
+    gc_was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        for r in range(repeats):
+            for idx in order_rng.permutation(len(variants)):
+                v = variants[idx]
+                times[v].append(timed_block(envs[v], actions, seed + r))
+            gc.collect()
+    finally:
+        if gc_was_enabled:
+            gc.enable()
+    raw = np.array(times["raw"])
+    out = {"env_id": env_id, "raw_us": 1e6 * float(np.median(raw)) / steps}
+    for v in variants:
+        if v == "raw":
+            continue
+        ratios = np.array(times[v]) / raw
+        q1, med, q3 = np.percentile(ratios, [25, 50, 75])
+        out[v] = {"ratio": float(med), "iqr": (float(q1), float(q3)), "us": 1e6 * float(np.median(times[v])) / steps}
+    for env in envs.values():
+        env.close()
+    return out
+
+
+def format_table(results: list[dict]) -> str:
+    """Markdown table: raw cost, ratio of each variant (median [IQR]), targets and pass/fail."""
+    head = ("| environment | raw us/step | NormalizeObservation | rate=\"env\" | target | pass | "
+            "rate=\"physics\" | target | pass |")
+    lines = [head, "|---|---:|---:|---:|---:|:-:|---:|---:|:-:|"]
+
+    def cell(res):
+        q1, q3 = res["iqr"]
+        return f"{res['ratio']:.3f} [{q1:.2f}-{q3:.2f}]"
+
+    for res in results:
+        norm = res["NormalizeObservation"]["ratio"]
+        t_env, t_phys = TARGETS.get(res["env_id"], (float("nan"), float("nan")))
+        ok_env = res["env"]["ratio"] <= t_env and res["env"]["ratio"] < norm
+        ok_phys = res["physics"]["ratio"] <= t_phys and res["physics"]["ratio"] < norm
+        lines.append(
+            f"| {res['env_id']} | {res['raw_us']:.1f} | {cell(res['NormalizeObservation'])} | {cell(res['env'])} | "
+            f"{t_env:.2f} | {'pass' if ok_env else 'FAIL'} | {cell(res['physics'])} | {t_phys:.2f} | "
+            f"{'pass' if ok_phys else 'FAIL'} |"
+        )
+    return "\n".join(lines)
+
+
+def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
+    """The wrapped env with its parts switched off one after the other (instance attributes replaced), to measure
+    each part's marginal cost *in situ* (interleaved with the physics, caches as in real use): ``full``;
+    ``-scratch obs`` (``adapter.observation`` returns a constant: no scratch evaluation of ``_get_obs``);
+    ``-observe`` (``_observe`` returns a constant: also no finiteness check, ``info["smo"]`` copies, measured
+    ``qpos`` mapping); ``-sensing`` (also no sensor and no observer update: what remains is the wrapper's skeleton
+    and, at ``rate="physics"``, the substep hook with its per-physics-step callback)."""
+    def wrapped():
+        return make_variant(env_id, rate, observer)
+
+    full, no_scratch, no_observe, no_sensing = wrapped(), wrapped(), wrapped(), wrapped()
+    const = np.array(full.observation_space.sample(), dtype=np.float64)
+    for env in (no_scratch, no_observe, no_sensing):
+        env.adapter.observation = lambda q, v, c=const: c
+    for env in (no_observe, no_sensing):
+        env._observe = lambda info, c=const: c
+    empty = np.zeros((0, full.adapter.model.nv))
+    no_sensing.measurement.measure_block = lambda samples, e=empty: e
+    return {"raw": make_variant(env_id, "raw"), "full": full, "-scratch obs": no_scratch, "-observe": no_observe,
+            "-sensing": no_sensing}
+
+
+def format_ablation(env_id: str, rate: str, res: dict) -> str:
+    """Marginal cost of each part in microseconds per env step (differences of consecutive ablations)."""
+    raw_us = res["raw_us"]
+    us = {k: v["us"] for k, v in res.items() if isinstance(v, dict)}
+    parts = [("scratch evaluation of the observation (adapter.observation)", us["full"] - us["-scratch obs"]),
+             ("rest of _observe (finiteness check, info['smo'], measured qpos)", us["-scratch obs"] - us["-observe"]),
+             ("sensor + observer updates (measure_block, VelocityEstimator.update)", us["-observe"] - us["-sensing"]),
+             ("skeleton (Wrapper.step, bookkeeping" + (", substep hook + _record)" if rate != "env" else ")"),
+              us["-sensing"] - raw_us)]
+    lines = [f"{env_id}, rate={rate!r}: raw {raw_us:.1f} us/step, wrapped {us['full']:.1f} us/step "
+             f"(ratio {res['full']['ratio']:.3f})", "| part | us/step | share of the raw step |", "|---|---:|---:|"]
+    lines += [f"| {name} | {v:.1f} | {v / raw_us:.1%} |" for name, v in parts]
+    return "\n".join(lines)
+
+
+def profile(env_id: str, steps: int, rate: str, observer: str = "super-twisting", top: int = 25) -> str:
+    """cProfile of ``steps`` wrapped steps, sorted by internal time; returns the printed statistics."""
+    import cProfile
+    import io
+    import pstats
+
+    env = make_variant(env_id, rate, observer)
+    actions = smooth_actions(env.action_space, steps, 0)
+    timed_block(env, actions[:50], 0)
+    prof = cProfile.Profile()
+    prof.enable()
+    timed_block(env, actions, 0)
+    prof.disable()
+    buf = io.StringIO()
+    pstats.Stats(prof, stream=buf).sort_stats("tottime").print_stats(top)
+    return buf.getvalue()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--envs", default=",".join(ENVS), help="comma-separated environment ids")
+    parser.add_argument("--repeats", type=int, default=21, help="timed blocks per variant (median over them)")
+    parser.add_argument("--steps", type=int, default=400, help="env steps per timed block")
+    parser.add_argument("--observer", default="super-twisting")
+    parser.add_argument("--quick", action="store_true", help="7 repeats of 200 steps")
+    parser.add_argument("--profile", metavar="ENV", help="print a cProfile of the wrapped step on ENV and exit")
+    parser.add_argument("--ablate", action="store_true",
+                        help="also print the marginal cost of each part of the wrapper (see ablations())")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.repeats, args.steps = 7, 200
+    warnings.filterwarnings("ignore")
+    if args.profile:
+        for rate in ("physics", "env"):
+            print(f"## {args.profile}, rate={rate!r}, {args.observer}: cProfile of {args.steps * 5} steps")
+            print(profile(args.profile, args.steps * 5, rate, args.observer))
+        return 0
+    envs = [e.strip() for e in args.envs.split(",") if e.strip()]
+    print(f"EstimatedVelocity step time / raw step time ({args.observer}, default sensor), medians over "
+          f"{args.repeats} interleaved blocks of {args.steps} steps (thread CPU time); [IQR of the ratio]; "
+          f"pass = ratio <= target and < NormalizeObservation's ratio\n", flush=True)
+    results = []
+    for env_id in envs:
+        t0 = time.perf_counter()
+        results.append(bench_env(env_id, args.repeats, args.steps, observer=args.observer))
+        print(f"  {env_id}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    print(format_table(results))
+    if args.ablate:
+        print("\nWhere the wrapper's time goes: marginal cost of each part, measured in situ by switching the parts "
+              "off one after the other (interleaved medians)\n")
+        for env_id in envs:
+            for rate in ("env", "physics"):
+                res = bench_env(env_id, args.repeats, args.steps, observer=args.observer,
+                                envs=ablations(env_id, rate, args.observer))
+                print(format_ablation(env_id, rate, res) + "\n", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
