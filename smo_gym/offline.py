@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .observers import make_observer
+from .observers import Observer, make_observer
 
 __all__ = ["differentiate"]
 
@@ -45,5 +45,10 @@ def differentiate(y, dt: float, method: str = "levant", **params) -> np.ndarray:
         y = y[:, None]
     observer = make_observer(method, dt=dt, **params)
     first = observer.reset(y[0])
-    out = np.concatenate([first[None], observer.run(y[1:])], axis=0)
+    out = np.empty((y.shape[0],) + first.shape)
+    out[0] = first
+    if type(observer).run is Observer.run:
+        observer.run(y[1:], out=out[1:])  # written in place: no second copy of a possibly large result
+    else:  # a subclass with its own run() allocates its result
+        out[1:] = observer.run(y[1:])
     return out[:, 0] if squeeze else out

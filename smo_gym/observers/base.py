@@ -282,12 +282,15 @@ class Observer:
             self._raise_status(status, y)
         return new_state, out
 
-    def run(self, Y) -> np.ndarray:
+    def run(self, Y, *, out: np.ndarray | None = None) -> np.ndarray:
         """Process a recorded block ``Y`` of shape ``(T, ...)`` (continuing from the current state) in one call.
 
         Returns the estimates, shape ``(T, ..., order + 1)``. Uses the same compiled kernel as ``update``.
         If a sample is not finite (``ValueError``) or the state diverges (``DivergenceError``), nothing is
         committed: the observer keeps the state it had before the call, as ``update`` does.
+
+        ``out``, optional: a C-contiguous float64 array of that shape to write the estimates into (and return),
+        e.g. a slice of a larger result, which saves allocating and copying one (:func:`smo_gym.differentiate`).
         """
         if self._state is None:
             raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
@@ -296,7 +299,15 @@ class Observer:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
         T = Y.shape[0]
         m = self.order + 1
-        out = np.empty((T,) + self._estimate.shape)
+        shape = (T,) + self._estimate.shape
+        if out is None:
+            out = np.empty(shape)
+        elif not (isinstance(out, np.ndarray) and out.shape == shape and out.dtype == np.float64
+                  and out.flags.c_contiguous and out.flags.writeable):
+            raise ValueError(
+                f"expected out to be a writeable C-contiguous float64 array of shape {shape}, actual value: "
+                + (f"{out.dtype} array of shape {out.shape}" if isinstance(out, np.ndarray) else repr(type(out)))
+            )
         if T == 0:
             return out
         # all or nothing, like update(): the kernel loop advances a copy, committed only if every sample passed
