@@ -54,11 +54,11 @@ def test_autoreset_terminal_observation_and_restart():
         if dones.any():
             break
     assert dones.any()
-    obs = vec.venv.envs  # noqa: F841 - the sub-envs are JointSensor-wrapped in place
+    sensors = vec.venv.envs  # wrapped in JointSensor in place (in-process: measurements read, not in infos)
     new_obs = vec.observer.estimate
     for i in np.flatnonzero(dones):
-        z_terminal = infos[i]["smo_z"]
-        z_first = vec.venv.reset_infos[i]["smo_z"]
+        z_terminal = sensors[i].z_step
+        z_first = sensors[i].z_reset
         term = infos[i]["terminal_observation"]
         # IDP observation: [x, sin(q1), sin(q2), cos(q1), cos(q2), xdot, q1dot, q2dot, constraint]; z = qpos here
         assert term[0] == z_terminal[0]
@@ -201,3 +201,29 @@ def test_gymnasium_vector_wrapper_matches_per_env(mode):
             o2, _ = vec.reset(options={"reset_mask": done.copy()})
             np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
     assert n_done >= 5
+
+
+def test_gymnasium_async_vector_env_same_step():
+    from gymnasium.vector import SyncVectorEnv
+
+    vec = VectorEstimatedVelocity(gym.make_vec(ENV, 2, vectorization_mode="async", wrappers=[JointSensor],
+                                               vector_kwargs=dict(autoreset_mode="SameStep")))
+    ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(2)],
+                        autoreset_mode="SameStep")
+    try:
+        o1, _ = ref.reset(seed=1)
+        o2, _ = vec.reset(seed=1)
+        np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        rng = np.random.default_rng(0)
+        n_done = 0
+        for _ in range(60):
+            a = rng.uniform(-1, 1, (2, 1))
+            o1, _, t1, u1, i1 = ref.step(a)
+            o2, _, _, _, i2 = vec.step(a)
+            np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+            for i in np.flatnonzero(t1 | u1):
+                n_done += 1
+                np.testing.assert_allclose(i2["final_obs"][i], i1["final_obs"][i], rtol=0, atol=1e-12)
+        assert n_done >= 3
+    finally:
+        vec.close()

@@ -73,7 +73,10 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
 
     def reset(self):
         self.venv.reset()
-        Z = np.stack([info["smo_z"] for info in self._reset_infos()])
+        if self._local is not None:
+            Z = np.stack([s.z_reset for s in self._local])
+        else:
+            Z = np.stack([info["smo_z"] for info in self._reset_infos()])
         est = self._full_reset(Z)
         obs, _ = self._observe_all(est)
         return obs
@@ -85,7 +88,8 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         if self.observer.shape is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
         _, rewards, dones, infos = self.venv.step_wait()
-        Z = np.stack([info["smo_z"] for info in infos])
+        local = self._local
+        Z = np.stack([s.z_step for s in local] if local is not None else [info["smo_z"] for info in infos])
         est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
         done = np.asarray(dones, dtype=bool)
         terminal = None
@@ -94,13 +98,14 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
             reset_infos = self._reset_infos()
             Z0 = Z.copy()
             for i in np.flatnonzero(done):
-                Z0[i] = reset_infos[i]["smo_z"]
+                Z0[i] = local[i].z_reset if local is not None else reset_infos[i]["smo_z"]
             self.observer.reset(Z0, mask=done)  # those environments' observers restart at their new first sample
             est = self.observer.estimate
         obs, terms = self._observe_all(est, terminal, done if terminal is not None else None)
         vel = (terminal if terminal is not None else est)[..., 1]
         for i, info in enumerate(infos):
-            info.setdefault("smo", {})["qvel_estimate"] = vel[i].copy()
+            smo = info["smo"] = dict(local[i].smo) if local is not None else info.get("smo", {})
+            smo["qvel_estimate"] = vel[i].copy()
             if terms[i] is not None:
                 info["terminal_observation"] = terms[i]
         return obs, rewards, dones, infos

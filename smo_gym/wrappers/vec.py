@@ -51,6 +51,7 @@ import math
 import uuid
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
@@ -60,6 +61,12 @@ __all__ = ["JointSensor", "VectorEstimatedVelocity", "sensing_config"]
 #: keyword arguments of EstimatedVelocity that define the sensing (rate is always "env" here)
 _CONFIG_KEYS = ("sensor", "observer", "observer_kwargs", "positions", "contact_forces", "calibration_safety",
                 "calibration_quantile", "calibration_steps", "disk_cache")
+
+
+#: MjData fields a terminal observation may read from the live data: the simulation inputs (as the adapter's
+#: ``_fill_inputs``) and the contact forces (``contact_forces="sensor"``)
+_SNAPSHOT = ("qpos", "qvel", "act", "ctrl", "qfrc_applied", "xfrc_applied", "mocap_pos", "mocap_quat", "userdata",
+             "cfrc_ext")
 
 
 def sensing_config(sensor="encoder-12bit-noisy", observer="super-twisting", observer_kwargs=None, *,
@@ -92,6 +99,12 @@ class JointSensor(EstimatedVelocity):
         super().__init__(env, sensor, observer, "env", observer_kwargs, **kwargs)
         self.config = sensing_config(sensor, observer, observer_kwargs, **kwargs)
         self.token = uuid.uuid4().hex
+        #: put the measurement and the true state in ``info`` (needed across a process boundary; an in-process
+        #: owner reads :attr:`z_step`, :attr:`z_reset` and :attr:`smo` instead, and saves SB3's deepcopy of infos)
+        self.emit_info = True
+        self.z_step = self.z_reset = None
+        self._reset_last = False
+        self.smo = {}
         self._terminal = None
 
     # ---- measurements ---------------------------------------------------------------------------------------
@@ -102,7 +115,10 @@ class JointSensor(EstimatedVelocity):
         elif self._rng is None:
             self._rng = np.random.default_rng()
         self.measurement.reset(self.adapter.data.qpos, self._rng)
-        info["smo_z"] = np.array(self.measurement.z_measured, dtype=np.float64)
+        self.z_reset = np.array(self.measurement.z_measured, dtype=np.float64)
+        self._reset_last = True
+        if self.emit_info:
+            info["smo_z"] = self.z_reset
         return obs, info
 
     def step(self, action):
@@ -112,13 +128,31 @@ class JointSensor(EstimatedVelocity):
         obs, reward, terminated, truncated, info = self.env.step(action)
         data = self.adapter.data
         z = self.measurement.measure_block(data.qpos[None])[0]
-        info["smo_z"] = np.array(z, dtype=np.float64)
-        info["smo"] = {"qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
+        self.z_step = np.array(z, dtype=np.float64)
+        self._reset_last = False
+        self.smo = {"qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
+        if self.emit_info:
+            info["smo_z"] = self.z_step
+            info["smo"] = self.smo
         if terminated or truncated:
-            # the environment will be reset before the owner rebuilds the terminal observation: keep the state
-            self._terminal = (copy.copy(data), self.measurement.measured_qpos().copy(),
+            # the environment will be reset before the owner rebuilds the terminal observation: keep what the
+            # observation reads from the live data (the controller's inputs and contact forces)
+            self._terminal = (self._snapshot(data), self.measurement.measured_qpos().copy(),
                               np.array(self.measurement.z_measured, dtype=np.float64))
         return obs, reward, terminated, truncated, info
+
+    def _snapshot(self, data):
+        """Copy into a preallocated ``MjData`` the fields an observation reads from the live data (``_SNAPSHOT``):
+        a full ``copy.copy(MjData)`` costs ~100x more, paid at every episode end."""
+        snap = getattr(self, "_snap", None)
+        if snap is None:
+            snap = self._snap = mujoco.MjData(self.adapter.model)
+        snap.time = data.time
+        for name in _SNAPSHOT:
+            dst = getattr(snap, name, None)
+            if isinstance(dst, np.ndarray) and dst.size:
+                dst[...] = getattr(data, name)
+        return snap
 
     # ---- observations ---------------------------------------------------------------------------------------
     def _positions(self, q_meas, z_meas, filtered) -> np.ndarray:
@@ -196,6 +230,8 @@ class _Sensing:
         if sensors is not None:
             protos = [s.prototype() for s in sensors]
             tokens = [s.token for s in sensors]
+            for s in sensors:
+                s.emit_info = False
         else:
             try:
                 if has is not None and not has("observe_rows"):
@@ -295,7 +331,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
     def reset(self, *, seed=None, options=None):
         mask = None if options is None else options.get("reset_mask")
         _, infos = self.env.reset(seed=seed, options=options)
-        Z = np.asarray(infos["smo_z"], dtype=np.float64)
+        Z = self._measurements(infos, reset=True)
         if mask is None or self.observer.shape is None:
             est = self._full_reset(Z)
             self._autoreset[:] = False
@@ -307,14 +343,23 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         obs, _ = self._observe_all(est)
         return obs, infos
 
+    def _measurements(self, infos, reset: bool) -> np.ndarray:
+        """This call's measurement of every environment: from ``infos`` or, in-process, from the sensors (the
+        last sample, which is the reset's for an environment reset in this call)."""
+        if self._local is None:
+            return np.array(infos["smo_z"], dtype=np.float64)
+        if reset:
+            return np.stack([s.z_reset for s in self._local])
+        return np.stack([s.z_reset if s._reset_last else s.z_step for s in self._local])
+
     def step(self, actions):
         from gymnasium.vector import AutoresetMode
 
         if self.observer.shape is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
         _, rewards, terminated, truncated, infos = self.env.step(actions)
-        Z = np.array(infos["smo_z"], dtype=np.float64)
         done = np.logical_or(terminated, truncated)
+        Z = self._measurements(infos, reset=False)
         terminal = terminal_mask = None
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
             restart = self._autoreset.copy()
@@ -326,9 +371,8 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         elif self.autoreset_mode == AutoresetMode.SAME_STEP:
             if done.any():
                 Zt = Z.copy()
-                final = infos["final_info"]["smo_z"]
                 for i in np.flatnonzero(done):
-                    Zt[i] = final[i]
+                    Zt[i] = self._local[i].z_step if self._local is not None else infos["final_info"]["smo_z"][i]
                 terminal = self._update(Zt).copy()
                 terminal_mask = done
                 self.observer.reset(Z, mask=done)
