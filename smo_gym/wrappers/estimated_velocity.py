@@ -322,6 +322,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             _, reward, terminated, truncated, info = self.env.step(action)
             samples = self.adapter.data.qpos[None]
-        for z in self.measurement.measure_block(samples):
-            self.estimator.update(z)
+        Z = self.measurement.measure_block(samples)
+        if len(Z) > 1 and type(self.estimator) is VelocityEstimator:
+            # a control period's samples in one compiled call: Observer.run is update row by row (same kernel,
+            # same numbers); subclassed estimators (e.g. with the control input) keep their per-sample update
+            self.estimator.observer.run(Z)
+        else:
+            for z in Z:
+                self.estimator.update(z)
         return self._observe(info), reward, terminated, truncated, info
