@@ -517,6 +517,16 @@ _DRIVERS = {
 }
 
 
+def register_driver(kernel, driver) -> None:
+    """Register the cached compiled driver of a kernel defined in another module.
+
+    ``driver(state, Y, params, out) -> (status, t)`` must be ``return _drive(kernel, state, Y, params, out)``
+    compiled with ``@njit(cache=True)`` at module level, so that :meth:`Observer.run` (through
+    :func:`run_offline`) reuses numba's on-disk cache for it.
+    """
+    _DRIVERS[kernel] = driver
+
+
 def run_offline(kernel, state, Y, params, out):
     """Apply ``kernel`` to every row of ``Y`` (T, N); write estimates into ``out`` (T, N, m).
 

@@ -78,7 +78,6 @@ from numba import njit
 
 from .._validation import check_choice, check_int_in_range, check_positive
 from . import _kernels
-from ._driver import run_block
 from .base import Observer
 
 __all__ = ["LowPowerHighGain", "low_power_default_coefficients", "low_power_matrices", "polynomial_powers"]
@@ -239,20 +238,13 @@ def low_power_kernel(state, y, params, new_state, out):
     return _kernels._check_state(new_state)
 
 
-@njit(cache=CACHE)
-def _low_power_run(state, Y, params, out):
-    """:func:`smo_gym.observers._kernels.run_offline` specialised to :func:`low_power_kernel`.
+@njit(cache=CACHE, error_model="numpy")
+def _run_low_power(state, Y, params, out):
+    """Cached compiled driver of :func:`low_power_kernel` (see ``_kernels.register_driver``)."""
+    return _kernels._drive(low_power_kernel, state, Y, params, out)
 
-    The generic driver takes the kernel as an argument, and numba's on-disk cache misses for function-typed
-    arguments in a new process (it recompiles for seconds); a driver that calls the kernel directly caches.
-    """
-    scratch = np.empty_like(state)
-    for t in range(Y.shape[0]):
-        status = low_power_kernel(state, Y[t], params, scratch, out[t])
-        if status != -1:
-            return status, t
-        state[:, :] = scratch
-    return -1, Y.shape[0]
+
+_kernels.register_driver(low_power_kernel, _run_low_power)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -391,10 +383,6 @@ class LowPowerHighGain(Observer):
         R = (M["R_peaking_free"] if self.readout == "peaking-free" else M["R_low_power"]) * T[None, :]
         row = np.concatenate([[h], Minv.ravel(), b, Aimp.ravel(), fc.ravel(), levels, R.ravel()])
         return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
-
-    def run(self, Y) -> np.ndarray:
-        """Process a recorded block ``Y`` of shape ``(T, ...)``; see :meth:`Observer.run`."""
-        return run_block(self, Y, _low_power_run)
 
     def __repr__(self) -> str:
         return (f"LowPowerHighGain(dt={self.dt}, gain={self.gain}, order={self.order}, "

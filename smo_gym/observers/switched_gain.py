@@ -56,7 +56,6 @@ from scipy.optimize import brentq
 
 from .._validation import check_int_in_range, check_positive
 from . import _kernels
-from ._driver import run_block
 from .base import Observer
 
 __all__ = [
@@ -263,20 +262,13 @@ def switched_gain_kernel(state, y, params, new_state, out):
     return _kernels._check_state(new_state)
 
 
-@njit(cache=CACHE)
-def _switched_gain_run(state, Y, params, out):
-    """:func:`smo_gym.observers._kernels.run_offline` specialised to :func:`switched_gain_kernel`.
+@njit(cache=CACHE, error_model="numpy")
+def _run_switched_gain(state, Y, params, out):
+    """Cached compiled driver of :func:`switched_gain_kernel` (see ``_kernels.register_driver``)."""
+    return _kernels._drive(switched_gain_kernel, state, Y, params, out)
 
-    The generic driver takes the kernel as an argument, and numba's on-disk cache misses for function-typed
-    arguments in a new process (it recompiles for seconds); a driver that calls the kernel directly caches.
-    """
-    scratch = np.empty_like(state)
-    for t in range(Y.shape[0]):
-        status = switched_gain_kernel(state, Y[t], params, scratch, out[t])
-        if status != -1:
-            return status, t
-        state[:, :] = scratch
-    return -1, Y.shape[0]
+
+_kernels.register_driver(switched_gain_kernel, _run_switched_gain)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -465,10 +457,6 @@ class SwitchedGain(Observer):
         state[:, m + 3] = T
         state[:, m + 4] = phase
         return state
-
-    def run(self, Y) -> np.ndarray:
-        """Process a recorded block ``Y`` of shape ``(T, ...)``; see :meth:`Observer.run`."""
-        return run_block(self, Y, _switched_gain_run)
 
     # ---- diagnostics ------------------------------------------------------------------------------------------
     def _column(self, j: int) -> np.ndarray:
