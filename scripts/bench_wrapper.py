@@ -126,7 +126,7 @@ def bench_env(env_id: str, repeats: int, steps: int, seed: int = 0, observer: st
         if gc_was_enabled:
             gc.enable()
     raw = np.array(times["raw"])
-    out = {"env_id": env_id, "raw_us": 1e6 * float(np.median(raw)) / steps}
+    out = {"env_id": env_id, "raw_us": 1e6 * float(np.median(raw)) / steps, "times": times, "steps": steps}
     for v in variants:
         if v == "raw":
             continue
@@ -184,16 +184,22 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
 
 
 def format_ablation(env_id: str, rate: str, res: dict) -> str:
-    """Marginal cost of each part in microseconds per env step (differences of consecutive ablations)."""
+    """Marginal cost of each part in microseconds per env step: median over repeats of the paired difference of
+    consecutive ablations timed in the same repeat (absolute times drift on a shared machine; pairs cancel it)."""
     raw_us = res["raw_us"]
-    us = {k: v["us"] for k, v in res.items() if isinstance(v, dict)}
-    parts = [("scratch evaluation of the observation (adapter.observation)", us["full"] - us["-scratch obs"]),
-             ("rest of _observe (finiteness check, info['smo'], measured qpos)", us["-scratch obs"] - us["-observe"]),
-             ("sensor + observer updates (measure_block, VelocityEstimator.update)", us["-observe"] - us["-sensing"]),
+    times, steps = res["times"], res["steps"]
+
+    def diff(a, b):
+        return 1e6 * float(np.median(np.array(times[a]) - np.array(times[b]))) / steps
+
+    parts = [("scratch evaluation of the observation (adapter.observation)", diff("full", "-scratch obs")),
+             ("rest of _observe (finiteness check, info['smo'], measured qpos)", diff("-scratch obs", "-observe")),
+             ("sensor + observer updates (measure_block, estimator/observer.run)", diff("-observe", "-sensing")),
              ("skeleton (Wrapper.step, bookkeeping" + (", substep hook + _record)" if rate != "env" else ")"),
-              us["-sensing"] - raw_us)]
-    lines = [f"{env_id}, rate={rate!r}: raw {raw_us:.1f} us/step, wrapped {us['full']:.1f} us/step "
-             f"(ratio {res['full']['ratio']:.3f})", "| part | us/step | share of the raw step |", "|---|---:|---:|"]
+              diff("-sensing", "raw"))]
+    lines = [f"{env_id}, rate={rate!r}: raw {raw_us:.1f} us/step, wrapped {res['full']['us']:.1f} us/step "
+             f"(ratio {res['full']['ratio']:.3f}; total overhead, paired: {diff('full', 'raw'):.1f} us)",
+             "| part | us/step | share of the raw step |", "|---|---:|---:|"]
     lines += [f"| {name} | {v:.1f} | {v / raw_us:.1%} |" for name, v in parts]
     return "\n".join(lines)
 
