@@ -79,11 +79,14 @@ def run(envs, sensors, rates, steps: int, seed: int, names: list[str]) -> list[d
         for rate in rates:
             for sensor in sensors:
                 t0 = time.perf_counter()
+                if any(r["env"] == env_id and r["sensor"] == sensor and r["frame_skip"] == 1 for r in rows):
+                    continue  # one physics step per env step (dm_control cartpole, acrobot, cheetah): same row
                 rec = record_rollout(env_id, sensor=sensor, rate=rate, steps=steps, seed=seed)
                 results = compare_observers(rec, names)
                 rmse = {r.name: (r.rmse if r.diverged_at is None else float("nan")) for r in results}
                 scale = float(np.sqrt(np.mean(rec.qvel**2)))
                 rows.append(dict(env=env_id, sensor=sensor, rate=rate, dt=rec.dt, samples=len(rec.qvel),
+                                 frame_skip=rec.context["adapter"].frame_skip,
                                  episodes=len(rec.episode_starts), scale=scale, rmse=rmse,
                                  diverged={r.name for r in results if r.diverged_at is not None},
                                  winners=winners(rmse, scale)))
@@ -121,8 +124,9 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
             v = row["rmse"][n]
             text = "div" if n in row["diverged"] else f"{v:.3g}"
             cells.append(f"**{text}**" if n in row["winners"] else text)
-        env = row["env"].replace("-v5", "")
-        out.append(f"| {env} | {row['sensor']} | {row['rate']} | {row['scale']:.3g} | " + " | ".join(cells) + " |")
+        env = row["env"].replace("-v5", "").replace("dm_control/", "").replace("-v0", "")
+        rate = "physics = env" if row["frame_skip"] == 1 else row["rate"]
+        out.append(f"| {env} | {row['sensor']} | {rate} | {row['scale']:.3g} | " + " | ".join(cells) + " |")
     default = default_observer_name()
     out += ["", f"Wins per observer over {len(rows)} rows (shared wins count for each; the wrapper's default is "
             f"`{default}`). Regret: RMSE / best RMSE of the row, the best floored at {REGRET_FLOOR:g} x the velocity "
@@ -150,7 +154,8 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--envs", default=",".join(ENVS))
+    parser.add_argument("--envs", default=",".join(ENVS),
+                        help="Gymnasium ids; dm_control suite tasks as dm_control/<domain>-<task>-v0")
     parser.add_argument("--sensors", default=",".join(SENSORS))
     parser.add_argument("--rates", default=",".join(RATES))
     parser.add_argument("--steps", type=int, default=400, help="environment steps per rollout")
@@ -167,6 +172,8 @@ def main(argv=None) -> int:
     unknown = [n for n in names if n not in OBSERVERS]
     if unknown:
         parser.error(f"expected observer names in {', '.join(OBSERVERS)}, actual value: {', '.join(unknown)}")
+    if "dm_control/" in args.envs:
+        import shimmy  # noqa: F401 - registers the dm_control/<domain>-<task>-v0 ids (DmControlAdapter)
     t0 = time.perf_counter()
     rows = run([e for e in args.envs.split(",") if e], [s for s in args.sensors.split(",") if s],
                [r for r in args.rates.split(",") if r], args.steps, args.seed, names)

@@ -180,7 +180,8 @@ def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-no
             obs, _ = env.reset()
             counter[0] = 0
             start()
-    env.close()
+    # the env stays open: compare_observers calibrates the default gains on it (context["unwrapped"]), and
+    # dm_control's close (shimmy) frees the physics
     return Recording(env_id=env_id, sensor=sensor if isinstance(sensor, str) else repr(sensor), rate=str(rate),
                      dt=dt, qpos=np.array(qpos), qvel=np.array(qvel), z_measured=np.array(z),
                      episode_starts=np.array(starts), names=dof_names(model),
