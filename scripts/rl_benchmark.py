@@ -16,7 +16,8 @@ and ``finite-difference`` (cross-evaluation: trained on true velocities, deploye
 Runs go in parallel processes (``--jobs``, default 2: one per core), one environment after the other
 (InvertedDoublePendulum first); each finished run is appended to ``runs.csv`` at once, and ``--resume`` skips
 runs already there, so the benchmark can be stopped and continued. ``summary.csv`` (mean and standard deviation
-over seeds of each run's mean return) and ``rl_benchmark.png`` are rebuilt from ``runs.csv``.
+over seeds of each run's mean return) and ``rl_benchmark.png`` are rebuilt from ``runs.csv`` (in ``--out``,
+default ``results/rl_benchmark``; the models and training logs go in ``--models``).
 
     MUJOCO_GL=disable .venv/bin/python scripts/rl_benchmark.py --steps 100000 --seeds 3 --jobs 2
 """
@@ -46,12 +47,12 @@ FIELDS = ("env", "train_sensing", "eval_sensing", "steps", "seed", "mean_return"
           "budget", "train_seconds", "steps_per_second", "sensor", "observer", "rate", "n_envs", "hyperparams")
 
 
-def run_one(env_id: str, sensing: str, seed: int, steps: int, out: str, episodes: int) -> list[dict]:
+def run_one(env_id: str, sensing: str, seed: int, steps: int, models: str, episodes: int) -> list[dict]:
     os.environ.setdefault("MUJOCO_GL", "disable")
     from smo_gym import rl
 
     evals = [sensing] + (list(CROSS) if sensing == "true" else [])
-    folder = Path(out) / "runs" / f"{env_id}-{sensing}-s{seed}"
+    folder = Path(models) / f"{env_id}-{sensing}-s{seed}"
     summary = rl.train(env_id, sensing=sensing, sensor=SENSOR, steps=steps, seed=seed, n_envs=N_ENVS, out=folder,
                        hyperparams=HYPERPARAMS, evaluate_at=[steps // 2, steps], eval_sensings=evals,
                        eval_episodes=episodes)
@@ -142,7 +143,8 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--jobs", type=int, default=2, help="parallel training processes (one per core)")
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per checkpoint")
-    p.add_argument("--out", default="outputs/rl_benchmark")
+    p.add_argument("--out", default="results/rl_benchmark", help="CSV files and plot (default %(default)s)")
+    p.add_argument("--models", default="outputs/rl_benchmark/runs", help="run folders (models, logs)")
     p.add_argument("--resume", action="store_true", help="skip runs already in runs.csv")
     p.add_argument("--summary-only", action="store_true", help="rebuild summary.csv and the plot from runs.csv")
     args = p.parse_args(argv)
@@ -162,7 +164,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     ctx = mp.get_context("spawn")
     with cf.ProcessPoolExecutor(max_workers=args.jobs, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futures = {pool.submit(run_one, e, s, seed, args.steps, str(out), args.episodes): (e, s, seed)
+        futures = {pool.submit(run_one, e, s, seed, args.steps, args.models, args.episodes): (e, s, seed)
                    for e, s, seed in tasks}
         for fut in cf.as_completed(futures):
             e, s, seed = futures[fut]
