@@ -15,17 +15,18 @@ ENV = "InvertedDoublePendulum-v5"  # episodes end within ~10-40 steps under rand
 N = 3
 
 
-def _pair(n=N, seed=3):
-    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(n)])
+def _pair(n=N, seed=3, positions="measured"):
+    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env", positions=positions) for _ in range(n)])
     vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(n)]), "encoder-12bit-noisy",
-                               "super-twisting")
+                               "super-twisting", positions=positions)
     ref.seed(seed)
     vec.seed(seed)
     return ref, vec
 
 
-def test_vec_equals_per_env_wrappers_with_autoresets():
-    ref, vec = _pair()
+@pytest.mark.parametrize("positions", ["measured", "filtered"])
+def test_vec_equals_per_env_wrappers_with_autoresets(positions):
+    ref, vec = _pair(positions=positions)
     np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
     rng = np.random.default_rng(0)
     n_done = 0
