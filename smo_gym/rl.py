@@ -17,8 +17,8 @@ A *sensing* says what the policy observes of a MuJoCo environment:
     difference them itself).
 
 Training (:func:`train`) writes a run folder: ``model.zip``, ``vecnormalize.pkl`` (PPO), ``run.json`` (the
-sensing and hyperparameters), ``progress.csv`` (SB3 logger; TensorBoard event files too when ``tensorboard``
-is installed), ``checkpoints/`` and ``evaluations.json`` (returns at the requested budgets). Evaluation
+sensing, the hyperparameters and, under ``evaluations``, the returns at the requested budgets), ``progress.csv``
+(SB3 logger; TensorBoard event files too when ``tensorboard`` is installed) and ``checkpoints/``. Evaluation
 (:func:`evaluate`) loads a run and plays it under *any* sensing with the same observation shape (a policy
 trained on true velocities, deployed on estimates), with the training normalization statistics frozen.
 """
