@@ -204,6 +204,34 @@ def format_ablation(env_id: str, rate: str, res: dict) -> str:
     return "\n".join(lines)
 
 
+def cold_path(env_id: str, n: int = 3000, repeats: int = 5) -> str:
+    """Why the wrapper costs more inside a step than its parts cost in a loop: after ``env.step`` the first
+    (sensor measure + observer update) pair of a step is timed against a second identical pair and against the
+    pair alone in a hot loop (wall time, best of ``repeats``). A large first-pair excess is a cold-path cost
+    (instruction/data caches and branch predictors refilled after the physics step): it scales with the number of
+    distinct Python/numba code paths a step touches, not with their arithmetic."""
+    env = EstimatedVelocity(gym.make(env_id), rate="env")
+    env.reset(seed=0)
+    action = np.zeros(env.action_space.shape, env.action_space.dtype)
+    qpos, measure, update, inner = env.adapter.data.qpos, env.measurement.measure, env.estimator.update, env.env.step
+
+    def run(k: int, with_step: bool = True) -> float:
+        best = float("inf")
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            for _ in range(n):
+                if with_step:
+                    inner(action)
+                for _ in range(k):
+                    update(measure(qpos))
+            best = min(best, (time.perf_counter() - t0) / n * 1e6)
+        return best
+
+    step0, step1, step2, alone = run(0), run(1), run(2), run(1, with_step=False)
+    return (f"{env_id}: env.step {step0:.1f} us; first sensor+observer pair after it +{step1 - step0:.1f} us, "
+            f"second pair +{step2 - step1:.1f} us, the pair alone in a hot loop {alone:.1f} us")
+
+
 def profile(env_id: str, steps: int, rate: str, observer: str = "super-twisting", top: int = 25) -> str:
     """cProfile of ``steps`` wrapped steps, sorted by internal time; returns the printed statistics."""
     import cProfile
@@ -231,6 +259,8 @@ def main(argv=None) -> int:
     parser.add_argument("--observer", default="super-twisting")
     parser.add_argument("--quick", action="store_true", help="7 repeats of 200 steps")
     parser.add_argument("--profile", metavar="ENV", help="print a cProfile of the wrapped step on ENV and exit")
+    parser.add_argument("--cold-path", action="store_true",
+                        help="also print the first-call (cold path) cost of sensor+observer after env.step")
     parser.add_argument("--ablate", action="store_true",
                         help="also print the marginal cost of each part of the wrapper (see ablations())")
     args = parser.parse_args(argv)
@@ -252,6 +282,10 @@ def main(argv=None) -> int:
         results.append(bench_env(env_id, args.repeats, args.steps, observer=args.observer))
         print(f"  {env_id}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     print(format_table(results))
+    if args.cold_path:
+        print("\nCold path: the same sensor+observer calls cost more right after the physics step\n")
+        for env_id in envs:
+            print("- " + cold_path(env_id), flush=True)
     if args.ablate:
         print("\nWhere the wrapper's time goes: marginal cost of each part, measured in situ by switching the parts "
               "off one after the other (interleaved medians)\n")
