@@ -52,6 +52,16 @@ def _compiled_entry(kernel, args):
     return entry
 
 
+def expand_mask(mask, shape: tuple[int, ...]) -> np.ndarray:
+    """A reset mask of shape ``shape[:-1]`` (whole batch elements) or ``shape``, as a boolean array of ``shape``."""
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape == shape[:-1]:
+        return np.broadcast_to(mask[..., None], shape)
+    if mask.shape != shape:
+        raise ValueError(f"expected mask with shape {shape[:-1]} or {shape}, actual value: {mask.shape}")
+    return mask
+
+
 class Observer:
     r"""Base class of the signal observers (differentiators).
 
@@ -198,13 +208,7 @@ class Observer:
             raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
         if y0.shape != self._shape:
             raise ValueError(f"expected y0 with shape {self._shape} for a masked reset, actual value: {y0.shape}")
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape == self._shape[:-1]:
-            mask = np.broadcast_to(mask[..., None], self._shape)
-        elif mask.shape != self._shape:
-            raise ValueError(
-                f"expected mask with shape {self._shape[:-1]} or {self._shape}, actual value: {mask.shape}"
-            )
+        mask = expand_mask(mask, self._shape)
         flat = mask.reshape(-1)
         fresh = self._initial_state(y0.reshape(-1), self._params)
         self._state[flat] = fresh[flat]

@@ -44,6 +44,7 @@ import numpy as np
 
 from .._validation import DivergenceError, check_choice, check_int_in_range, check_positive
 from .differentiators import eigenvalue_mapping_vectors, taylor_matrix
+from .base import expand_mask
 
 __all__ = [
     "DiscreteTimeHOSM",
@@ -346,12 +347,7 @@ class DiscreteTimeHOSM:
             raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
         if y0.shape != self._shape:
             raise ValueError(f"expected y0 with shape {self._shape} for a masked reset, actual value: {y0.shape}")
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape == self._shape[:-1]:
-            mask = np.broadcast_to(mask[..., None], self._shape)
-        elif mask.shape != self._shape:
-            raise ValueError(f"expected mask with shape {self._shape[:-1]} or {self._shape}, actual value: "
-                             f"{mask.shape}")
+        mask = expand_mask(mask, self._shape)
         self._x[mask] = fresh[mask]
         self.output_error[mask] = 0.0
         self.eigenvalue[mask] = 0.0
