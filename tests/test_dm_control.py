@@ -24,7 +24,7 @@ import pytest
 from smo_gym.wrappers import DmControlAdapter, EstimatedVelocity, make_dm_control
 
 os.environ.setdefault("MUJOCO_GL", "disable")
-shimmy = pytest.importorskip("shimmy")
+import shimmy  # noqa: E402, F401  (registers dm_control/...; a declared dependency: missing must fail, not skip)
 
 TASKS = [("cartpole", "swingup"), ("acrobot", "swingup"), ("cheetah", "run"), ("walker", "walk")]
 
