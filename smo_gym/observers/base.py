@@ -52,6 +52,17 @@ def _compiled_entry(kernel, args):
     return entry
 
 
+def as_measurement(y, name: str) -> np.ndarray:
+    """``y`` as a float64 array of shape ``(..., n_channels)`` (at least one dimension), or a typed error."""
+    try:
+        arr = np.asarray(y, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"expected {name} to be an array of real numbers, actual value: {y!r}") from None
+    if arr.ndim == 0:
+        raise ValueError(f"expected {name} with shape (..., n_channels), actual value: a scalar {float(arr)!r}")
+    return arr
+
+
 def expand_mask(mask, shape: tuple[int, ...]) -> np.ndarray:
     """A reset mask of shape ``shape[:-1]`` (whole batch elements) or ``shape``, as a boolean array of ``shape``."""
     mask = np.asarray(mask, dtype=bool)
@@ -160,13 +171,7 @@ class Observer:
 
     # ---- public API -----------------------------------------------------------------------------------------
     def _as_measurement(self, y, name: str) -> np.ndarray:
-        try:
-            arr = np.asarray(y, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise TypeError(f"expected {name} to be an array of real numbers, actual value: {y!r}") from None
-        if arr.ndim == 0:
-            raise ValueError(f"expected {name} with shape (..., n_channels), actual value: a scalar {float(arr)!r}")
-        return arr
+        return as_measurement(y, name)
 
     def _raise_nonfinite(self, arr: np.ndarray, name: str) -> None:
         bad = np.argwhere(~np.isfinite(arr))[0]

@@ -44,7 +44,7 @@ import numpy as np
 
 from .._validation import DivergenceError, check_choice, check_int_in_range, check_positive
 from .differentiators import eigenvalue_mapping_vectors, taylor_matrix
-from .base import expand_mask
+from .base import as_measurement, expand_mask
 
 __all__ = [
     "DiscreteTimeHOSM",
@@ -304,12 +304,7 @@ class DiscreteTimeHOSM:
 
     # ---- state ------------------------------------------------------------------------------------------------
     def _measurement(self, y, name: str) -> np.ndarray:
-        try:
-            arr = np.asarray(y, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise TypeError(f"expected {name} to be an array of real numbers, actual value: {y!r}") from None
-        if arr.ndim == 0:
-            raise ValueError(f"expected {name} with shape (..., n_channels), actual value: a scalar {float(arr)!r}")
+        arr = as_measurement(y, name)
         if not np.all(np.isfinite(arr)):
             bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
             raise ValueError(f"expected finite measurements in {name}, actual value: {arr[bad]!r} at index {bad}")
