@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
-from .vec import JointSensor, _find_sensor, _Sensing, sensing_config
+from .vec import _Sensing, attach_sensors, sensing_config
 
 __all__ = ["VecEstimatedVelocity"]
 
@@ -54,15 +54,7 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         if not isinstance(venv.observation_space, gym.spaces.Box):
             raise TypeError(f"expected a Box observation space, actual value: {venv.observation_space}")
         base = venv.unwrapped
-        sensors = None
-        if isinstance(base, DummyVecEnv):
-            sensors = []
-            for i, env in enumerate(base.envs):
-                s = _find_sensor(env)
-                if s is None:
-                    s = JointSensor(env, **(self._requested or sensing_config()))
-                    base.envs[i] = s
-                sensors.append(s)
+        sensors = attach_sensors(base.envs, self._requested) if isinstance(base, DummyVecEnv) else None
         self._setup_sensing(self._requested, venv.num_envs, sensors, lambda name, *a: venv.env_method(name, *a),
                             venv.has_attr)
         self._estimate = None

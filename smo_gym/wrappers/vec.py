@@ -219,6 +219,18 @@ def _find_sensor(env) -> JointSensor | None:
     return None
 
 
+def attach_sensors(envs: list, config: dict | None) -> list[JointSensor]:
+    """The :class:`JointSensor` of every in-process sub-environment, wrapping (in place) those that lack one."""
+    sensors = []
+    for i, env in enumerate(envs):
+        sensor = _find_sensor(env)
+        if sensor is None:
+            sensor = JointSensor(env, **(config or sensing_config()))
+            envs[i] = sensor
+        sensors.append(sensor)
+    return sensors
+
+
 class _Sensing:
     """The batched observer and the bookkeeping both vector wrappers share."""
 
@@ -316,15 +328,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
 
         self.autoreset_mode = AutoresetMode(env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP))
         base = env.unwrapped
-        sensors = None
-        if isinstance(base, SyncVectorEnv):
-            sensors = []
-            for i, e in enumerate(base.envs):
-                s = _find_sensor(e)
-                if s is None:
-                    s = JointSensor(e, **(requested or sensing_config()))
-                    base.envs[i] = s
-                sensors.append(s)
+        sensors = attach_sensors(base.envs, requested) if isinstance(base, SyncVectorEnv) else None
         self._setup_sensing(requested, env.num_envs, sensors, lambda name, *a: list(env.call(name, *a)))
         self._autoreset = np.zeros(env.num_envs, dtype=bool)
 
