@@ -47,3 +47,28 @@ def loglog_slope(x, y) -> float:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20260522)
+
+
+@pytest.fixture(scope="module")
+def private_calibration_cache(tmp_path_factory):
+    """Calibrations go to a temporary cache (inherited by vector-env subprocesses), not the user's."""
+    import os
+
+    old = os.environ.get("SMO_GYM_CACHE_DIR")
+    os.environ["SMO_GYM_CACHE_DIR"] = str(tmp_path_factory.mktemp("smo_cache"))
+    yield
+    if old is None:
+        os.environ.pop("SMO_GYM_CACHE_DIR", None)
+    else:
+        os.environ["SMO_GYM_CACHE_DIR"] = old
+
+
+def smooth_actions(space, n: int, seed: int) -> list:
+    """A seeded smooth random policy (low-pass filtered uniform noise), so that episodes last."""
+    rng = np.random.default_rng(seed)
+    a = np.zeros(space.shape)
+    acts = []
+    for _ in range(n):
+        a = 0.9 * a + 0.1 * rng.uniform(space.low, space.high)
+        acts.append(a.astype(space.dtype))
+    return acts

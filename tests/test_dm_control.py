@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from smo_gym.wrappers import DmControlAdapter, EstimatedVelocity, make_dm_control
+from conftest import smooth_actions
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 import shimmy  # noqa: E402, F401  (registers dm_control/...; a declared dependency: missing must fail, not skip)
@@ -29,27 +30,9 @@ import shimmy  # noqa: E402, F401  (registers dm_control/...; a declared depende
 TASKS = [("cartpole", "swingup"), ("acrobot", "swingup"), ("cheetah", "run"), ("walker", "walk")]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _private_cache(tmp_path_factory):
-    """Calibrations go to a temporary cache, not the user's."""
-    old = os.environ.get("SMO_GYM_CACHE_DIR")
-    os.environ["SMO_GYM_CACHE_DIR"] = str(tmp_path_factory.mktemp("smo_cache_dm"))
-    yield
-    if old is None:
-        os.environ.pop("SMO_GYM_CACHE_DIR", None)
-    else:
-        os.environ["SMO_GYM_CACHE_DIR"] = old
+pytestmark = pytest.mark.usefixtures("private_calibration_cache")
 
 
-def actions_for(space, n, seed):
-    """A smooth random policy (low-pass filtered uniform noise)."""
-    rng = np.random.default_rng(seed)
-    a = np.zeros(space.shape)
-    out = []
-    for _ in range(n):
-        a = 0.9 * a + 0.1 * rng.uniform(space.low, space.high)
-        out.append(a.astype(space.dtype))
-    return out
 
 
 def rollout(env, actions, seed):
@@ -101,7 +84,7 @@ def test_suite_task(domain, task):
             sb3_check_env(wrapped, warn=False)
 
     steps = 200
-    actions = actions_for(raw.action_space, steps, seed=1)
+    actions = smooth_actions(raw.action_space, steps, seed=1)
     ref = rollout(raw, actions, seed=5)
     sta = rollout(make_dm_control(domain, task, sensor="ideal"), actions, seed=5)
     fd = rollout(make_dm_control(domain, task, sensor="ideal", observer="finite-difference"), actions, seed=5)
@@ -129,7 +112,7 @@ def test_suite_task(domain, task):
 
 @pytest.mark.parametrize(("domain", "task"), [("cartpole", "swingup"), ("walker", "walk")])
 def test_same_seed_same_observations(domain, task):
-    actions = actions_for(gym.make(f"dm_control/{domain}-{task}-v0").action_space, 30, seed=2)
+    actions = smooth_actions(gym.make(f"dm_control/{domain}-{task}-v0").action_space, 30, seed=2)
     a = rollout(make_dm_control(domain, task, sensor="low-cost"), actions, seed=7)
     b = rollout(make_dm_control(domain, task, sensor="low-cost"), actions, seed=7)
     c = rollout(make_dm_control(domain, task, sensor="low-cost"), actions, seed=8)
@@ -144,7 +127,7 @@ def test_observation_comes_from_measurements_not_the_true_state():
     observation equals the task's own at the measured/estimated state."""
     env = make_dm_control("walker", "walk", sensor="encoder-12bit-noisy", rate="physics")
     obs, info = env.reset(seed=0)
-    for a in actions_for(env.action_space, 20, 0):
+    for a in smooth_actions(env.action_space, 20, 0):
         obs, _, _, _, info = env.step(a)
     adapter = env.adapter
     q_meas, v_hat = info["smo"]["qpos_measured"], info["smo"]["qvel_estimate"]

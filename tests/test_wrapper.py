@@ -24,6 +24,7 @@ import pytest
 from smo_gym import observers, sensors
 from smo_gym.wrappers import EstimatedVelocity, sensing
 from smo_gym.wrappers import estimated_velocity as ev_module
+from conftest import smooth_actions
 
 ENVS = [
     "InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Reacher-v5", "Pusher-v5", "Swimmer-v5", "Hopper-v5",
@@ -31,18 +32,7 @@ ENVS = [
 ]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _private_cache(tmp_path_factory):
-    """Calibrations go to a temporary cache (inherited by vector-env subprocesses), not the user's."""
-    import os
-
-    old = os.environ.get("SMO_GYM_CACHE_DIR")
-    os.environ["SMO_GYM_CACHE_DIR"] = str(tmp_path_factory.mktemp("smo_cache"))
-    yield
-    if old is None:
-        os.environ.pop("SMO_GYM_CACHE_DIR", None)
-    else:
-        os.environ["SMO_GYM_CACHE_DIR"] = old
+pytestmark = pytest.mark.usefixtures("private_calibration_cache")
 
 
 def rollout(env, actions, seed, *, until_done=True):
@@ -66,15 +56,6 @@ def rollout(env, actions, seed, *, until_done=True):
     return out
 
 
-def smooth_actions(space, n, seed):
-    """A smooth random policy (low-pass filtered uniform noise), so the episodes last."""
-    rng = np.random.default_rng(seed)
-    a = np.zeros(space.shape)
-    acts = []
-    for _ in range(n):
-        a = 0.9 * a + 0.1 * rng.uniform(space.low, space.high)
-        acts.append(a.astype(space.dtype))
-    return acts
 
 
 @pytest.mark.parametrize("env_id", ENVS)
