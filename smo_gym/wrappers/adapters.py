@@ -56,12 +56,13 @@ contact forces with force/torque sensors or foot switches. ``contact_forces`` de
 
 from __future__ import annotations
 
-import contextlib
-
 import mujoco
 import numpy as np
 
-__all__ = ["ADAPTERS", "CONTACT_FORCES", "GymnasiumMujocoAdapter", "MujocoAdapter", "make_adapter", "register_adapter"]
+__all__ = [
+    "ADAPTERS", "CONTACT_FORCES", "GymnasiumMujocoAdapter", "MujocoAdapter", "SubstepHook", "make_adapter",
+    "register_adapter",
+]
 
 CONTACT_FORCES = ("sensor", "estimated", "zero")
 #: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
@@ -120,6 +121,12 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         If ``env`` lacks ``model``, ``data``, ``frame_skip`` or ``_get_obs`` (the message lists what is missing).
     """
 
+    #: whether the observation reads ``cfrc_ext``, and whether ``_get_obs`` returns a fresh array (both probed at
+    #: construction; these defaults are the safe choice)
+    reads_contacts = True
+    fresh_observation = False
+    _bare = False
+
     def __init__(self, env, contact_forces: str = "sensor"):
         missing = _missing_mujoco_parts(env)
         if missing:
@@ -137,8 +144,12 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self.frame_skip = int(env.frame_skip)
         self.contact_forces = contact_forces
         self._scratch = mujoco.MjData(self.model)
-        self.pipeline, self.copies_inputs = "forward", True
+        self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
         self.pipeline, self.copies_inputs = self._probe_pipeline()
+        self.reads_contacts = self._probe_contacts()
+        self.fresh_observation = self._probe_fresh()
+        #: the observation needs nothing but the sensed qpos/qvel on the scratch data (Hopper, HalfCheetah, ...)
+        self._bare = self.pipeline == "none" and not self.copies_inputs and not self.reads_contacts
         self._views()
 
     def _views(self) -> None:
@@ -197,10 +208,11 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             mujoco.mj_transmission(model, scratch)
             mujoco.mj_comVel(model, scratch)
             mujoco.mj_fwdActuation(model, scratch)
-        if self.contact_forces == "sensor":
-            scratch.cfrc_ext[:] = self.env.data.cfrc_ext
-        elif self.contact_forces == "zero":
-            scratch.cfrc_ext[:] = 0.0
+        if self.reads_contacts:
+            if self.contact_forces == "sensor":
+                scratch.cfrc_ext[:] = self.env.data.cfrc_ext
+            elif self.contact_forces == "zero":
+                scratch.cfrc_ext[:] = 0.0
         live = self.env.data
         self.env.data = scratch
         try:
@@ -212,9 +224,48 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         """The environment's observation at ``(qpos, qvel)``, evaluated on scratch data (see module docstring)."""
         self._scratch_qpos[:] = qpos
         self._scratch_qvel[:] = qvel
+        return self.observe_scratch()
+
+    def scratch_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scratch ``qpos`` (nq,) and ``qvel`` (nv,) arrays: write a state there, then :meth:`observe_scratch`."""
+        return self._scratch_qpos, self._scratch_qvel
+
+    def observe_scratch(self) -> np.ndarray:
+        """The environment's observation at the state already written into :meth:`scratch_state`."""
+        if self._bare:  # the common case, spelled out: this runs once per environment step
+            env = self.env
+            live = env.data
+            env.data = self._scratch
+            try:
+                obs = env._get_obs()
+            finally:
+                env.data = live
+            return obs if self.fresh_observation else np.array(obs, copy=True)
         if self.copies_inputs:
             self._fill_inputs(self._scratch)
         return self._evaluate(self._scratch, self.pipeline)
+
+    def _probe_fresh(self) -> bool:
+        """Whether ``_get_obs`` returns a new array at every call, sharing no memory with the data it reads: two
+        evaluations at different states, the first result must be an ndarray and unchanged by the second. Then
+        the defensive copy of every observation is skipped."""
+        rng = np.random.default_rng(777)
+        first = None
+        for _ in range(2):
+            qpos = np.array(self.env.data.qpos)
+            mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
+            self._fill(self._scratch, qpos, rng.standard_normal(self.model.nv))
+            live = self.env.data
+            self.env.data = self._scratch
+            try:
+                obs = self.env._get_obs()
+            finally:
+                self.env.data = live
+            if first is None:
+                if type(obs) is not np.ndarray:
+                    return False
+                first, kept = obs, np.array(obs, copy=True)
+        return obs is not first and np.array_equal(first, kept, equal_nan=True)
 
     def _probe_pipeline(self) -> tuple[str, bool]:
         """``(pipeline, copies_inputs)``: the cheapest evaluation that reproduces the forward-computed observation
@@ -261,6 +312,26 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                 return pipeline, inputs
         return "forward", True
 
+    def _probe_contacts(self) -> bool:
+        """Whether the observation reads ``cfrc_ext`` (Ant, Humanoid): evaluated at a random state with
+        ``cfrc_ext`` NaN, does it come out non-finite? If not, the per-step copy of the contact forces is skipped."""
+        if self.contact_forces == "estimated":
+            return True  # recomputed by the forward pass, never copied
+        rng = np.random.default_rng(54321)
+        qpos = np.array(self.env.data.qpos)
+        mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
+        scratch = mujoco.MjData(self.model)
+        self._fill(scratch, qpos, rng.standard_normal(self.model.nv))
+        self.reads_contacts = False
+        try:
+            scratch.cfrc_ext[:] = np.nan
+            obs = self._evaluate(scratch, self.pipeline)
+            return not bool(np.all(np.isfinite(obs)))
+        except Exception:  # noqa: BLE001 - an observation that fails on NaN contact forces reads them
+            return True
+        finally:
+            self.reads_contacts = True
+
     # ---- sampling inside frame_skip -------------------------------------------------------------------------
     def supports_substeps(self) -> bool:
         """Whether the env steps through ``MujocoEnv._step_mujoco_simulation`` (so substeps can be sampled)."""
@@ -269,29 +340,46 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         method = getattr(type(self.env), "_step_mujoco_simulation", None)
         return method is MujocoEnv._step_mujoco_simulation
 
-    @contextlib.contextmanager
-    def substeps(self, callback):
+    def substeps(self, callback) -> SubstepHook:
         """Within the block, the env's physics steps run one at a time with ``callback()`` after each.
 
         Replicates ``MujocoEnv._step_mujoco_simulation`` (set ``ctrl``, ``mj_step`` ``n_frames`` times,
         ``mj_rnePostConstraint``) as an instance attribute that is removed on exit, so nothing of the env
-        changes outside the block (and it pickles as before).
+        changes outside the block (and it pickles as before). The returned context manager can be entered again
+        and again (the wrapper keeps one per instance: a generator-based one would cost more than a physics step
+        of a small model).
         """
         env, model = self.env, self.model
+        mj_step = mujoco.mj_step
 
         def step_with_samples(ctrl, n_frames):
             data = env.data
             data.ctrl[:] = ctrl
             for _ in range(n_frames):
-                mujoco.mj_step(model, data)
+                mj_step(model, data)
                 callback()
             mujoco.mj_rnePostConstraint(model, data)
 
-        env._step_mujoco_simulation = step_with_samples
-        try:
-            yield
-        finally:
-            del env._step_mujoco_simulation
+        return SubstepHook(env, "_step_mujoco_simulation", step_with_samples)
+
+
+class SubstepHook:
+    """Reusable context manager: set ``owner.<name> = function`` on entry, delete the instance attribute on exit.
+
+    Used to route an environment's physics stepping through a sampling loop for the duration of one ``step``.
+    """
+
+    __slots__ = ("owner", "name", "function")
+
+    def __init__(self, owner, name: str, function):
+        self.owner, self.name, self.function = owner, name, function
+
+    def __enter__(self):
+        setattr(self.owner, self.name, self.function)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        delattr(self.owner, self.name)
 
 
 #: ``(predicate(unwrapped_env) -> bool, factory(unwrapped_env, contact_forces) -> MujocoAdapter)``, tried in order

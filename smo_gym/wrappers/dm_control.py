@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .adapters import GymnasiumMujocoAdapter, register_adapter
+from .adapters import GymnasiumMujocoAdapter, SubstepHook, register_adapter
 
 __all__ = ["DmControlAdapter", "DmControlTaskView", "is_dm_control_env", "make_dm_control"]
 
@@ -191,27 +191,19 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         return True
 
     def substeps(self, callback):
-        """Within the block, ``physics.step(n)`` runs as ``n`` calls ``step(1)`` with ``callback()`` after each."""
-        import contextlib
+        """Within the block, ``physics.step(n)`` runs as ``n`` calls ``step(1)`` with ``callback()`` after each.
 
+        The returned context manager (:class:`~smo_gym.wrappers.adapters.SubstepHook`) is reusable.
+        """
         physics = self.view.physics
+        original = physics.step
 
-        @contextlib.contextmanager
-        def block():
-            original = physics.step
+        def step_with_samples(nstep: int = 1) -> None:
+            for _ in range(int(nstep)):
+                original(1)
+                callback()
 
-            def step_with_samples(nstep: int = 1) -> None:
-                for _ in range(int(nstep)):
-                    original(1)
-                    callback()
-
-            physics.step = step_with_samples
-            try:
-                yield
-            finally:
-                del physics.step
-
-        return block()
+        return SubstepHook(physics, "step", step_with_samples)
 
 
 register_adapter(is_dm_control_env, DmControlAdapter)

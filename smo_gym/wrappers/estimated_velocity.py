@@ -3,7 +3,6 @@ r"""``EstimatedVelocity``: a Gymnasium MuJoCo environment seen through joint sen
 from __future__ import annotations
 
 import copy
-import math
 
 import gymnasium as gym
 import numpy as np
@@ -12,13 +11,16 @@ from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import make_adapter
 from .sensing import (
+    FusedSensing,
     JointMeasurement,
+    SensingInfo,
     VelocityEstimator,
     bound_order,
     bounds_from_velocities,
     cached_bounds,
     calibrate_bounds,
     calibration_key,
+    check_finite_observation,
     default_observer,
 )
 
@@ -253,6 +255,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._samples = np.zeros((n_samples, model.nq))
         self._n_samples = 0
         self._substep_count = 0
+        self._substep_hook = None
+        self._live = None
+        self._nq = model.nq
+        #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
+        #: reset, after a subclass has set its estimator)
+        self._fused: FusedSensing | None = None
 
     @property
     def sensor(self) -> Sensor:
@@ -271,19 +279,14 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _observe(self, info: dict) -> np.ndarray:
         qvel_hat = self.estimator.velocity
-        obs = self.adapter.observation(self._observation_qpos(), qvel_hat)
-        if not math.isfinite(obs.sum()) and not np.all(np.isfinite(obs)):  # the sum: one cheap check first
-            bad = int(np.flatnonzero(~np.isfinite(obs))[0])
-            raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
+        q_meas = self.measurement.measured_qpos()
+        obs = self.adapter.observation(q_meas if self.positions == "measured" else self._observation_qpos(),
+                                       qvel_hat)
+        check_finite_observation(obs)
         if self.adapter.unflatten is not None:  # Dict observation spaces (dm_control): the env's own structure
             obs = self.adapter.unflatten(obs)
         data = self.adapter.data
-        info["smo"] = {
-            "qpos": data.qpos.copy(),
-            "qvel": data.qvel.copy(),
-            "qvel_estimate": qvel_hat.copy(),
-            "qpos_measured": self.measurement.measured_qpos().copy(),
-        }
+        info["smo"] = SensingInfo.of(data.qpos, data.qvel, qvel_hat, q_meas)
         return obs
 
     def _record(self) -> None:
@@ -294,24 +297,36 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._samples[self._n_samples] = self.adapter.data.qpos
             self._n_samples += 1
 
-    # ---- Gymnasium API --------------------------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        _, info = self.env.reset(seed=seed, options=options)
-        if seed is not None:
-            self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
-        elif self._rng is None:
-            self._rng = np.random.default_rng()
-        self.measurement.reset(self.adapter.data.qpos, self._rng)
-        self.estimator.reset(self.measurement.z_measured)
-        return self._observe(info), info
+    def _live_views(self) -> tuple:
+        """``(data, qpos[None], qvel, qpos)`` of the live simulation data, cached (an ``MjData`` field access builds
+        a new view each time) and refreshed if the environment replaced its data."""
+        data = self.adapter.data
+        live = self._live
+        if live is None or live[0] is not data:
+            qpos = data.qpos
+            live = self._live = (data, qpos[None], data.qvel, qpos)
+        return live
 
-    def step(self, action):
-        if self._rng is None:
-            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+    def _record_fused(self) -> None:
+        """Substep callback of the fused path: copy the live ``qpos`` into the sample buffer every
+        ``sample_every`` physics steps."""
+        self._substep_count += 1
+        if self._substep_count % self.sample_every == 0:
+            n = self._n_samples
+            if n == self._samples.shape[0]:  # an env that steps more than frame_skip frames
+                self._samples = np.concatenate([self._samples, np.zeros_like(self._samples)])
+            self._samples[n] = self._live[3]
+            self._n_samples = n + 1
+
+    def _step_fused(self, fused, action):
+        """``step`` through :class:`~smo_gym.wrappers.sensing.FusedSensing`: one compiled call after the physics."""
+        _, qpos, qvel, _ = self._live_views()
         if self.sample_every < self.adapter.frame_skip:
-            self._n_samples = 0
-            self._substep_count = 0
-            with self.adapter.substeps(self._record):
+            self._n_samples = self._substep_count = 0
+            hook = self._substep_hook
+            if hook is None:
+                hook = self._substep_hook = self.adapter.substeps(self._record_fused)
+            with hook:
                 _, reward, terminated, truncated, info = self.env.step(action)
             if self._substep_count == 0:
                 raise RuntimeError(
@@ -321,9 +336,69 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             samples = self._samples[:self._n_samples]
         else:
             _, reward, terminated, truncated, info = self.env.step(action)
-            samples = self.adapter.data.qpos[None]
-        Z = self.measurement.measure_block(samples)
-        if len(Z) > 1 and type(self.estimator) is VelocityEstimator:
+            samples = qpos
+        block = fused.sample(samples, qvel)
+        if block is None:  # the samples straddle the sensor's random block: the general path splits them
+            self.estimator.observer.run(self.measurement.measure_block(samples))
+            return self._observe(info), reward, terminated, truncated, info
+        obs = self.adapter.observe_scratch()
+        check_finite_observation(obs)
+        if self.adapter.unflatten is not None:
+            obs = self.adapter.unflatten(obs)
+        info["smo"] = SensingInfo.from_block(block, self._nq, self._nq)
+        return obs, reward, terminated, truncated, info
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_substep_hook"] = None  # holds closures over the live simulation; made again on first use
+        state["_live"] = None
+        return state
+
+    # ---- Gymnasium API --------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        _, info = self.env.reset(seed=seed, options=options)
+        if seed is not None:
+            self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
+        elif self._rng is None:
+            self._rng = np.random.default_rng()
+        self.measurement.reset(self.adapter.data.qpos, self._rng)
+        self.estimator.reset(self.measurement.z_measured)
+        self._substep_hook = None  # a reset may rebuild the simulation's objects (dm_control's physics)
+        self._live = None
+        fused = self._fused
+        if fused is None or fused.observer is not self.estimator.observer or fused.sensor is not self.sensor:
+            self._fused = (FusedSensing(self.measurement, self.estimator, self.adapter, self.positions == "filtered")
+                           if FusedSensing.supports(self.measurement, self.estimator, self.adapter) else None)
+        if self._fused is not None:
+            self._fused.prepare()
+        return self._observe(info), info
+
+    def step(self, action):
+        if self._rng is None:
+            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        fused = self._fused
+        if fused is not None:
+            return self._step_fused(fused, action)
+        if self.sample_every < self.adapter.frame_skip:
+            self._n_samples = 0
+            self._substep_count = 0
+            hook = self._substep_hook
+            if hook is None:
+                hook = self._substep_hook = self.adapter.substeps(self._record)
+            with hook:
+                _, reward, terminated, truncated, info = self.env.step(action)
+            if self._substep_count == 0:
+                raise RuntimeError(
+                    "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
+                    "actual value: no physics step was observed during step(); use rate='env'"
+                )
+            Z = self.measurement.measure_block(self._samples[:self._n_samples])
+        else:
+            _, reward, terminated, truncated, info = self.env.step(action)
+            Z = self.measurement.measure_block(self.adapter.data.qpos[None])
+        if len(Z) == 1:
+            self.estimator.update(Z[0])
+        elif type(self.estimator) is VelocityEstimator:
             # a control period's samples in one compiled call: Observer.run is update row by row (same kernel,
             # same numbers); subclassed estimators (e.g. with the control input) keep their per-sample update
             self.estimator.observer.run(Z)

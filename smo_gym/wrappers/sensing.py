@@ -36,6 +36,7 @@ on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import inspect
 import json
@@ -45,12 +46,15 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from ..observers import OBSERVERS, Observer, make_observer
-from ..sensors import Sensor, make_sensor
+from ..sensors import BLOCK, Sensor, make_sensor
 
 __all__ = [
+    "FusedSensing",
     "JointMeasurement",
+    "SensingInfo",
     "TangentCoordinates",
     "VelocityEstimator",
     "angular_dofs",
@@ -58,6 +62,7 @@ __all__ = [
     "bounds_from_velocities",
     "calibrate_bounds",
     "cached_bounds",
+    "check_finite_observation",
     "default_observer",
 ]
 
@@ -158,7 +163,31 @@ class JointMeasurement:
         self.dt = float(dt)
         self.tangent = TangentCoordinates(model)
         self.angular = angular_dofs(model)
-        self.z_true = self.z_measured = self.qpos_measured = None
+        self._z_true = self._z_measured = self._qpos_measured = self._last_qpos = None
+        self._fused_block = None
+
+    # the last sample, as kept by measure_block or (lazily unpacked) by FusedSensing
+    def _unpack_fused(self) -> None:
+        block, n = self._fused_block, self.model.nq
+        self._fused_block = None
+        self._z_true = self._last_qpos = block[:n]
+        self._z_measured = self._qpos_measured = block[3 * n:]
+
+    @property
+    def z_true(self) -> np.ndarray | None:
+        if self._fused_block is not None:
+            self._unpack_fused()
+        return self._z_true
+
+    @property
+    def z_measured(self) -> np.ndarray | None:
+        if self._fused_block is not None:
+            self._unpack_fused()
+        return self._z_measured
+
+    @property
+    def qpos_measured(self) -> np.ndarray | None:
+        return None if self._z_measured is None and self._fused_block is None else self.measured_qpos()
 
     def noise_std(self) -> np.ndarray:
         """Per-dof standard deviation of the sensor's random error, shape ``(nv,)``."""
@@ -167,41 +196,114 @@ class JointMeasurement:
     def reset(self, qpos: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """First measurement of the configuration ``qpos`` (the sensor's stream comes from ``rng``)."""
         qpos = np.asarray(qpos, dtype=np.float64)
-        self.z_true = self.tangent.reset(qpos)
-        self.z_measured = self.sensor.reset(self.z_true, rng=rng, dt=self.dt, angular=self.angular)
-        self.qpos_measured = self.tangent.to_qpos(qpos, self.z_true, self.z_measured)
-        return self.qpos_measured
+        self._fused_block = None
+        self._z_true = self.tangent.reset(qpos)
+        self._z_measured = self.sensor.reset(self._z_true, rng=rng, dt=self.dt, angular=self.angular)
+        self._last_qpos = qpos.copy()
+        self._qpos_measured = self.tangent.to_qpos(qpos, self._z_true, self._z_measured)
+        return self._qpos_measured
 
     def measure(self, qpos: np.ndarray) -> np.ndarray:
         """Measure the next sample; returns (and stores) the measured tangent coordinates ``z_measured``."""
-        self.z_true = self.tangent(qpos)
-        self.z_measured = self.sensor.measure(self.z_true)
-        self._last_qpos = np.array(qpos)
-        self.qpos_measured = None  # mapped back lazily: only the last sample of a control period is needed
-        return self.z_measured
+        return self.measure_block(np.asarray(qpos, dtype=np.float64)[None])[0]
 
     def measure_block(self, Q: np.ndarray) -> np.ndarray:
         """Measure consecutive samples ``Q`` (T, nq) with one compiled sensor call; returns ``Z_meas`` (T, nv).
 
-        Same numbers as ``measure`` row by row (the sensor's stream does not depend on batching).
+        Same numbers as ``measure`` row by row (the sensor's stream does not depend on batching). ``Q`` may be a
+        view of live simulation data (``data.qpos[None]``): what is kept of it is copied.
         """
-        if len(Q) == 1:
-            return self.measure(Q[0])[None]
+        self._fused_block = None
         if self.tangent.manifold:
             Z = np.array([self.tangent(q) for q in Q])
-        else:
-            Z = np.ascontiguousarray(Q, dtype=np.float64)
-        Zm = self.sensor.run(Z)
-        self.z_true, self.z_measured = Z[-1].copy(), Zm[-1]
-        self._last_qpos = np.array(Q[-1])
-        self.qpos_measured = None
+            self._last_qpos = np.array(Q[-1])
+            self._z_true = Z[-1]
+            self._qpos_measured = None  # mapped back lazily: only the last sample of a control period is needed
+            Zm = self.sensor.run(Z)
+        else:  # z = qpos: no copy of the block, and the measured configuration is the measurement itself
+            Zm = self.sensor.run(Q)
+            self._z_true = self._last_qpos = Q[-1].copy()
+            self._qpos_measured = Zm[-1]
+        self._z_measured = Zm[-1]
         return Zm
 
     def measured_qpos(self) -> np.ndarray:
         """The measured configuration at the last sample, shape ``(nq,)``."""
-        if self.qpos_measured is None:
-            self.qpos_measured = self.tangent.to_qpos(self._last_qpos, self.z_true, self.z_measured)
-        return self.qpos_measured
+        if self._fused_block is not None:
+            self._unpack_fused()
+        if self._qpos_measured is None:
+            self._qpos_measured = self.tangent.to_qpos(self._last_qpos, self._z_true, self._z_measured)
+        return self._qpos_measured
+
+
+@njit(cache=True)
+def _first_nonfinite(x) -> int:
+    """Index of the first non-finite entry of the 1-D array ``x``, or -1."""
+    for i in range(x.shape[0]):
+        if not np.isfinite(x[i]):
+            return i
+    return -1
+
+
+_FLOAT64 = np.dtype(np.float64)
+_first_nonfinite_entry = None
+
+
+def check_finite_observation(obs: np.ndarray) -> None:
+    """Raise ``ValueError`` naming the first non-finite entry of a sensed observation (1-D array).
+
+    A sensed observation is a function of finite measurements and finite estimates (the sensor and the
+    observer reject anything else), but the environment's observation function could still produce inf (a
+    constraint force at an impossible measured configuration, say); it never reaches the agent silently. The
+    check is one compiled call (a NumPy reduction costs about 1 us, comparable to the rest of the step on a
+    small model).
+    """
+    global _first_nonfinite_entry
+    if type(obs) is np.ndarray and obs.ndim == 1 and obs.dtype is _FLOAT64 and (f := obs.flags).c_contiguous \
+            and f.writeable and f.aligned:
+        call = _first_nonfinite_entry
+        if call is None:
+            from ..observers.base import _compiled_entry
+
+            call = _first_nonfinite_entry = _compiled_entry(_first_nonfinite, (obs,))
+        bad = call(obs)
+        if bad == -1:
+            return
+    else:
+        flat = np.asarray(obs, dtype=np.float64).reshape(-1)
+        if np.all(np.isfinite(flat)):
+            return
+        bad = int(np.flatnonzero(~np.isfinite(flat))[0])
+        obs = flat
+    raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
+
+
+class SensingInfo(dict):
+    """``info["smo"]``: the true and the sensed state at the last sample.
+
+    A plain dictionary with keys ``"qpos"``, ``"qvel"`` (true, shapes ``(nq,)``, ``(nv,)``), ``"qvel_estimate"``
+    ``(nv,)`` and ``"qpos_measured"`` ``(nq,)``, new arrays at every step (safe to keep), except that
+    ``copy.deepcopy`` copies the arrays directly: SB3's ``DummyVecEnv`` deep-copies every step's infos, and the
+    generic deep copy of four small arrays costs more than a physics step of a small model.
+    """
+
+    __slots__ = ()
+
+    @classmethod
+    def of(cls, qpos, qvel, qvel_estimate, qpos_measured) -> SensingInfo:
+        """From the four arrays (copied)."""
+        return cls(qpos=np.array(qpos), qvel=np.array(qvel), qvel_estimate=np.array(qvel_estimate),
+                   qpos_measured=np.array(qpos_measured))
+
+    @classmethod
+    def from_block(cls, block: np.ndarray, nq: int, nv: int) -> SensingInfo:
+        """From one block ``[qpos, qvel, qvel_estimate, qpos_measured]`` (its views; the block is not copied)."""
+        return cls(qpos=block[:nq], qvel=block[nq:nq + nv], qvel_estimate=block[nq + nv:nq + 2 * nv],
+                   qpos_measured=block[nq + 2 * nv:])
+
+    def __deepcopy__(self, memo):
+        return type(self)({key: value.copy() if type(value) is np.ndarray else copy.deepcopy(value, memo)
+                           for key, value in self.items()})
 
 
 class VelocityEstimator:
@@ -234,6 +336,151 @@ class VelocityEstimator:
     def filtered(self) -> np.ndarray:
         """Filtered tangent coordinates (the observer's value estimate), shape ``(nv,)``."""
         return self.observer.estimate[..., 0]
+
+
+class FusedSensing:
+    r"""The wrapper's hot path: one compiled call per control period (:mod:`smo_gym.wrappers._fused`).
+
+    Sensor chain, observer update, the scratch state for the observation and the ``info["smo"]`` block in one
+    call, with the numbers of the general path (``JointMeasurement.measure_block`` then ``Observer.run``). It
+    drives the sensor's and the observer's own arrays and keeps their bookkeeping (the sensor's position in its
+    random block, the observer's estimate and update count), so both objects stay usable as they are.
+
+    Use :meth:`supports` first: models without free or ball joints, a plain :class:`VelocityEstimator` around an
+    observer whose ``update``/``run`` are the base class's and whose kernel has a fused driver, a sensor whose
+    ``run`` is the base class's, and an adapter with a scratch state.
+
+    Parameters
+    ----------
+    measurement : JointMeasurement
+    estimator : VelocityEstimator
+    adapter : smo_gym.wrappers.adapters.GymnasiumMujocoAdapter
+    filtered : bool
+        Put the observer's filtered positions (instead of the measurement) into the observation's ``qpos``.
+    """
+
+    def __init__(self, measurement: JointMeasurement, estimator: VelocityEstimator, adapter, filtered: bool):
+        from ._fused import FUSED_DRIVERS
+
+        self.measurement, self.adapter = measurement, adapter
+        self.sensor, self.observer = measurement.sensor, estimator.observer
+        self.filtered = bool(filtered)
+        self._driver = FUSED_DRIVERS[self.observer._kernel]
+        self._call = None
+        self._work = None
+        self._static = None
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        # the entry point does not pickle, and the scratch views belong to the adapter's (re-made) scratch data
+        state.update(_call=None, _work=None, _static=None)
+        return state
+
+    @staticmethod
+    def supports(measurement: JointMeasurement, estimator: VelocityEstimator, adapter) -> bool:
+        """Whether the fused path computes exactly what the general path would (see the class docstring)."""
+        from ._fused import FUSED_DRIVERS
+
+        observer = estimator.observer
+        return (not measurement.tangent.manifold and type(estimator) is VelocityEstimator
+                and type(observer).update is Observer.update and type(observer).run is Observer.run
+                and observer.order >= 1 and type(measurement.sensor).run is Sensor.run
+                and getattr(observer, "_kernel", None) in FUSED_DRIVERS and hasattr(adapter, "scratch_state"))
+
+    def _bind(self, Q: np.ndarray, qvel_true: np.ndarray) -> None:
+        """Resolve the driver's compiled entry point (once: the arrays keep their types across resets).
+
+        The entry point skips numba's type dispatch (eighteen arguments, ~2 us); it checks nothing, so every later
+        call passes arrays of exactly these types: ``Q`` is a view of the live ``qpos`` or the wrapper's sample
+        buffer, ``qvel_true`` the live ``qvel`` (writeable, aligned, C-contiguous float64), the rest are owned
+        here or by the sensor and the observer and keep their types across resets.
+        """
+        import numba
+
+        for a in (Q, qvel_true):
+            if not (a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable and a.flags.aligned):
+                raise TypeError(f"expected writeable C-contiguous float64 arrays, actual value: {a.dtype} {a.flags}")
+        self.prepare()
+        n, m = self._shape
+        args = (Q, qvel_true, np.int64(0), np.empty((n, m)), np.empty(4 * n), self._Zm) + self._static
+        key = (self._driver, tuple(numba.typeof(a) for a in args))
+        call = _FUSED_ENTRIES.get(key)  # numba.typeof costs ~20 us per array: resolved once per process
+        if call is None:
+            sig = key[1]
+            if sig not in self._driver.overloads:
+                self._driver.compile(sig)
+            call = _FUSED_ENTRIES[key] = self._driver.overloads[sig].entry_point
+        self._call = call
+
+    def prepare(self) -> None:
+        """Collect the sensor's and the observer's current arrays (call after resetting them: a reset may
+        replace them with new arrays of the same types)."""
+        sensor, observer = self.sensor, self.observer
+        n, S = observer._state.shape
+        if self._work is None or self._work.shape[1:] != (n, S):
+            self._work = np.empty((2, n, S))
+            self._Zm = np.empty((1, n))
+        self._shape = (n, observer.order + 1)
+        scratch_qpos, scratch_qvel = self.adapter.scratch_state()
+        self._static = (sensor._kinds, sensor._params, sensor._state, sensor._ring, sensor._ring_pos, sensor._rand,
+                        observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered)
+
+    def sample(self, Q: np.ndarray, qvel_true: np.ndarray) -> np.ndarray | None:
+        """Measure and estimate the samples ``Q`` (T, nq) of one control period.
+
+        Returns the ``info["smo"]`` block ``[qpos, qvel, qvel_estimate, qpos_measured]`` (4 nv,), with the
+        observation's state written into the adapter's scratch, or None (nothing done) when the samples straddle
+        the end of the sensor's random block: the caller then takes the general path, which splits the block and
+        so keeps the random stream independent of batching.
+
+        Raises
+        ------
+        ValueError
+            The sensor produced a non-finite measurement (as ``Sensor.run``).
+        DivergenceError
+            The observer's state would become non-finite (as ``Observer.run``: nothing committed).
+        """
+        sensor = self.sensor
+        T = Q.shape[0]
+        t0 = sensor._t
+        if t0 + T > BLOCK:
+            if t0 < BLOCK:
+                return None
+            sensor._refill()  # refills in place: the prepared arrays stay valid
+            t0 = 0
+        call = self._call
+        if call is None:
+            self._bind(Q, qvel_true)
+            call = self._call
+        static = self._static
+        if static[6] is not self.observer._state or static[2] is not sensor._state:
+            # replaced since prepare(): Observer.run commits a new state array, Sensor.reset new arrays
+            self.prepare()
+            static = self._static
+        if self._Zm.shape[0] < T:
+            self._Zm = np.empty((T, self._shape[0]))
+        est = np.empty(self._shape)
+        info = np.empty(4 * self._shape[0])
+        status = call(Q, qvel_true, t0, est, info, self._Zm, *static)
+        sensor._t = t0 + T
+        if status != -1:
+            self._raise(status, Q)
+        observer = self.observer
+        observer._estimate = est
+        observer.n_updates += T
+        self.measurement._fused_block = info  # unpacked only if read (JointMeasurement.z_measured, ...)
+        return info
+
+    def _raise(self, status: int, Q: np.ndarray):
+        n = self._shape[0]
+        if status >= 0:
+            t, channel = divmod(status, n)
+            self.sensor._raise(channel, Q[t], self._Zm[t])
+        t, channel = divmod(-2 - status, n)
+        self.observer._raise_status(-2 - channel, self._Zm[t])
+
+
+_FUSED_ENTRIES: dict = {}
 
 
 # ----------------------------------------------------------------------------------------------------------------

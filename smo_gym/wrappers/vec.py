@@ -47,7 +47,6 @@ the batched wrapper pays off with ``DummyVecEnv`` (no process boundary).
 from __future__ import annotations
 
 import copy
-import math
 import uuid
 
 import gymnasium as gym
@@ -55,6 +54,7 @@ import mujoco
 import numpy as np
 
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
+from .sensing import check_finite_observation
 
 __all__ = ["JointSensor", "VectorEstimatedVelocity", "sensing_config"]
 
@@ -186,9 +186,7 @@ class JointSensor(EstimatedVelocity):
         else:
             obs = self.adapter.observation(
                 self._positions(self.measurement.measured_qpos(), self.measurement.z_measured, filtered), velocity)
-        if not math.isfinite(obs.sum()) and not np.all(np.isfinite(obs)):
-            bad = int(np.flatnonzero(~np.isfinite(obs))[0])
-            raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
+        check_finite_observation(obs)
         return obs
 
     def observe_rows(self, index: dict, velocity, filtered, terminal_velocity, terminal_filtered, terminal_mask):

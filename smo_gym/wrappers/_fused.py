@@ -1,0 +1,135 @@
+r"""One compiled call per control period: sensor chain, observer recursion and the wrapper's outputs.
+
+A wrapped environment step on a small model (InvertedPendulum-v5: ~30 us of physics and Python) has room for
+only a few microseconds of sensing, and each Python-level operation costs two to three times more right after
+``mj_step`` (the simulator has evicted the interpreter's caches) than in a micro-benchmark. So the wrapper's hot
+path is one compiled function per observer kernel that, for the ``T`` samples of a control period,
+
+1. runs the sensor chain (:func:`smo_gym.sensors._chain_kernel`, same random numbers as ``Sensor.run``),
+2. advances the observer (its own compiled kernel, the same one ``Observer.update`` calls), all or nothing:
+   the state is committed only if every sample passed,
+3. writes the sensed state into the scratch ``MjData`` (measured or filtered ``qpos``, estimated ``qvel``) and
+   the ``info["smo"]`` block (true ``qpos``, true ``qvel``, estimated ``qvel``, measured ``qpos``).
+
+The numbers are those of the general path (``Sensor.run`` then ``Observer.run``), bit for bit (tested). The
+function is generic in the kernel and inlined into one cached driver per kernel (a compiled function taking the
+kernel as an argument would be recompiled in every new process, see :mod:`smo_gym.observers._kernels`); kernels
+without a driver here use the general path. Only models without free or ball joints qualify (tangent
+coordinates are ``qpos`` itself).
+
+Status codes of a driver: ``-1`` success; ``t * N + j >= 0`` the sensor produced a non-finite value at sample
+``t``, channel ``j``; ``-2 - (t * N + j)`` the observer's state became non-finite there.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from ..observers import _kernels as K
+from ..sensors import _chain_kernel
+
+__all__ = ["FUSED_DRIVERS", "register_fused_driver"]
+
+
+@njit(error_model="numpy", inline="always")
+def _sense(kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand, state, params,
+           work, scratch_qpos, scratch_qvel, filtered):
+    """Sensor, observer and outputs for the samples ``Q`` (T, N) of one control period (see module docstring).
+
+    The arguments that change every call come first (the caller appends the others as one prepared tuple):
+    ``qvel_true`` (N,) the live velocity, ``t0`` the sensor's position in its random block ``rand``, ``est``
+    (N, m) receives the estimate at the last sample, ``info`` (4 N) the ``info["smo"]`` block, ``Zm`` (>= T, N)
+    the measurements (work space). Then the sensor's arrays (``kinds`` ... ``rand``, see
+    :class:`smo_gym.sensors.Sensor`), the observer's state (N, S) and parameters, ``work`` (2, N, S) ping-pong
+    buffers of the state, the scratch ``qpos``/``qvel`` of the observation, and ``filtered``: put the
+    observer's filtered value instead of the measurement into ``scratch_qpos``.
+    """
+    T, n = Q.shape
+    S = state.shape[1]
+    for c in range(n):
+        for j in range(S):
+            work[0, c, j] = state[c, j]
+    cur = 0
+    for t in range(T):
+        status = _chain_kernel(Q[t], kinds, sparams, sstate, ring, ring_pos, rand[t0 + t], False, Zm[t])
+        if status != -1:
+            return t * n + status
+        status = kernel(work[cur], Zm[t], params, work[1 - cur], est)
+        if status != -1:
+            return -2 - (t * n + (-2 - status if status <= -2 else status))
+        cur = 1 - cur
+    for c in range(n):
+        for j in range(S):
+            state[c, j] = work[cur, c, j]
+    last = Q[T - 1]
+    zlast = Zm[T - 1]
+    for c in range(n):
+        info[c] = last[c]
+        info[n + c] = qvel_true[c]
+        info[2 * n + c] = est[c, 1]
+        info[3 * n + c] = zlast[c]
+        scratch_qpos[c] = est[c, 0] if filtered else zlast[c]
+        scratch_qvel[c] = est[c, 1]
+    return -1
+
+
+@njit(cache=True, error_model="numpy")
+def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
+                        state, params, work, sq, sv, filtered):
+    return _sense(K.sta_implicit_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered)
+
+
+@njit(cache=True, error_model="numpy")
+def _sense_hosm(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
+                state, params, work, sq, sv, filtered):
+    return _sense(K.hosm_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered)
+
+
+@njit(cache=True, error_model="numpy")
+def _sense_eigmap(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
+                  state, params, work, sq, sv, filtered):
+    return _sense(K.eigmap_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered)
+
+
+@njit(cache=True, error_model="numpy")
+def _sense_linear(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
+                  state, params, work, sq, sv, filtered):
+    return _sense(K.linear_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered)
+
+
+@njit(cache=True, error_model="numpy")
+def _sense_kalman_ca(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
+                     state, params, work, sq, sv, filtered):
+    return _sense(K.kalman_ca_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered)
+
+
+@njit(cache=True, error_model="numpy")
+def _sense_finite_difference(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
+                             state, params, work, sq, sv, filtered):
+    return _sense(K.finite_difference_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered)
+
+
+#: observer kernel -> its fused driver
+FUSED_DRIVERS = {
+    K.sta_implicit_kernel: _sense_sta_implicit,
+    K.hosm_kernel: _sense_hosm,
+    K.eigmap_kernel: _sense_eigmap,
+    K.linear_kernel: _sense_linear,
+    K.kalman_ca_kernel: _sense_kalman_ca,
+    K.finite_difference_kernel: _sense_finite_difference,
+}
+
+
+def register_fused_driver(kernel, driver) -> None:
+    """Register the fused driver of another observer kernel.
+
+    ``driver`` must be ``return _sense(kernel, ...)`` with the signature above, compiled with
+    ``@njit(cache=True)`` at module level.
+    """
+    FUSED_DRIVERS[kernel] = driver

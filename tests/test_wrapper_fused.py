@@ -1,0 +1,148 @@
+"""The wrapper's one-compiled-call hot path (FusedSensing) computes exactly what the general path computes."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from smo_gym.observers import DivergenceError
+from smo_gym.wrappers import EstimatedVelocity
+from smo_gym.wrappers.sensing import FusedSensing, SensingInfo
+
+
+KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured")
+
+
+def _pair(env_id: str, seed: int, **kwargs):
+    """Two identical wrappers reset with ``seed``; the second is then forced onto the general path (the test
+    never resets it again: a reset would choose the fused path anew)."""
+    fused = EstimatedVelocity(gym.make(env_id), disk_cache=False, **kwargs)
+    general = EstimatedVelocity(gym.make(env_id), disk_cache=False, **kwargs)
+    first = fused.reset(seed=seed)[0], general.reset(seed=seed)[0]
+    general._fused = None
+    return fused, general, first
+
+
+@pytest.mark.parametrize(
+    "observer, rate, sensor, positions",
+    [
+        ("super-twisting", "physics", "low-cost", "measured"),
+        ("super-twisting", "env", "encoder-12bit-noisy", "filtered"),
+        ("levant", "physics", "encoder-12bit-noisy", "measured"),
+        ("high-gain", 5, "drifting", "measured"),
+        ("kalman-ca", "physics", "outliers", "filtered"),
+        ("finite-difference", "env", "ideal", "measured"),
+    ],
+)
+def test_fused_path_equals_general_path(observer, rate, sensor, positions):
+    # HalfCheetah: frame_skip 5, so at rate="physics" control periods straddle the sensor's 256-sample random
+    # blocks (the fused path hands those to the general path) and the stream must stay the same throughout
+    fused, general, (obs_f, obs_g) = _pair("HalfCheetah-v5", 3, observer=observer, rate=rate, sensor=sensor,
+                                           positions=positions)
+    assert isinstance(fused._fused, FusedSensing)
+    np.testing.assert_array_equal(obs_f, obs_g)
+    rng = np.random.default_rng(0)
+    for _ in range(120):
+        action = rng.uniform(-1, 1, fused.action_space.shape)
+        of, rf, tf, uf, inf_f = fused.step(action)
+        og, rg, tg, ug, inf_g = general.step(action)
+        np.testing.assert_array_equal(of, og)
+        assert (rf, tf, uf) == (rg, tg, ug)
+        for key in KEYS:
+            np.testing.assert_array_equal(inf_f["smo"][key], inf_g["smo"][key])
+    np.testing.assert_array_equal(fused.observer.estimate, general.observer.estimate)
+    np.testing.assert_array_equal(fused.observer.state, general.observer.state)
+    assert fused.observer.n_updates == general.observer.n_updates
+    np.testing.assert_array_equal(fused.measurement.z_measured, general.measurement.z_measured)
+    np.testing.assert_array_equal(fused.measurement.z_true, general.measurement.z_true)
+    np.testing.assert_array_equal(fused.measurement.measured_qpos(), general.measurement.measured_qpos())
+
+
+def test_fused_path_is_taken_only_where_it_is_exact():
+    hopper = EstimatedVelocity(gym.make("Hopper-v5"), disk_cache=False)
+    hopper.reset(seed=0)
+    assert hopper._fused is not None
+    humanoid = EstimatedVelocity(gym.make("Humanoid-v5"), disk_cache=False)  # a free joint: tangent coordinates
+    humanoid.reset(seed=0)
+    assert humanoid._fused is None
+    ilf = EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer="ilf-finite", disk_cache=False)
+    ilf.reset(seed=0)
+    assert ilf._fused is None  # no fused driver for its kernel
+
+
+def test_fused_errors_name_the_channel_and_keep_the_state():
+    env = EstimatedVelocity(gym.make("Hopper-v5"), sensor="ideal", rate="env", disk_cache=False)
+    env.reset(seed=0)
+    env.step(np.zeros(3))
+    fused = env._fused
+    state = env.observer.state
+    t = env.sensor._t
+    Q = np.array(env.unwrapped.data.qpos)[None]
+    Q[0, 2] = np.nan
+    with pytest.raises(ValueError, match="channel 2"):
+        fused.sample(Q, np.zeros(env.unwrapped.model.nv))
+    np.testing.assert_array_equal(env.observer.state, state)
+    assert env.sensor._t == t + 1  # the sample was consumed, as Sensor.run does
+    # a diverging observer: a finite jump whose difference quotient overflows (1.7e308 / dt)
+    env = EstimatedVelocity(gym.make("Hopper-v5"), sensor="ideal", rate="env", observer="finite-difference",
+                            disk_cache=False)
+    env.reset(seed=0)
+    state = env.observer.state
+    Q = np.array(env.unwrapped.data.qpos)[None]
+    Q[0, 1] = 1.7e308
+    with pytest.raises(DivergenceError, match="channel 1"):
+        env._fused.sample(Q, np.zeros(env.unwrapped.model.nv))
+    np.testing.assert_array_equal(env.observer.state, state)
+
+
+def test_fused_wrapper_copies_and_pickles_mid_episode():
+    env = EstimatedVelocity(gym.make("HalfCheetah-v5"), disk_cache=False)
+    env.reset(seed=1)
+    actions = np.random.default_rng(1).uniform(-1, 1, (20, 6))
+    for a in actions[:5]:
+        env.step(a)  # bound to this wrapper's scratch data and arrays
+    # MuJoCo environments copy and pickle by their constructor arguments (a fresh simulation): reset both alike
+    for twin in (copy.deepcopy(env), pickle.loads(pickle.dumps(env))):
+        o1, _ = env.reset(seed=7)
+        o2, _ = twin.reset(seed=7)
+        np.testing.assert_array_equal(o1, o2)
+        for a in actions:
+            o1 = env.step(a)[0]
+            o2 = twin.step(a)[0]
+            np.testing.assert_array_equal(o1, o2)
+        # the copy's hot path writes into the copy's scratch data, not the original's
+        assert twin.adapter.scratch_state()[0] is twin._fused._static[9]
+        assert not np.shares_memory(twin.adapter.scratch_state()[0], env.adapter.scratch_state()[0])
+
+
+def test_sensing_info_deepcopy_is_cheap_and_independent():
+    env = EstimatedVelocity(gym.make("Hopper-v5"), disk_cache=False)
+    env.reset(seed=0)
+    info = env.step(np.zeros(3))[4]["smo"]
+    assert isinstance(info, SensingInfo) and isinstance(info, dict)
+    assert set(info) == set(KEYS)
+    clone = copy.deepcopy(info)
+    assert type(clone) is SensingInfo
+    for key in info:
+        np.testing.assert_array_equal(clone[key], info[key])
+        assert not np.shares_memory(clone[key], info[key])
+    kept = {k: v.copy() for k, v in info.items()}
+    env.step(np.ones(3))  # a new step never changes what an earlier step returned
+    for key in info:
+        np.testing.assert_array_equal(info[key], kept[key])
+    back = pickle.loads(pickle.dumps(info))
+    assert type(back) is SensingInfo and all(np.array_equal(back[k], info[k]) for k in info)
+
+
+def test_adapter_probes_what_the_observation_reads():
+    hopper = EstimatedVelocity(gym.make("Hopper-v5"), disk_cache=False).adapter
+    assert not hopper.reads_contacts and hopper.fresh_observation and hopper._bare
+    ant = EstimatedVelocity(gym.make("Ant-v5"), disk_cache=False).adapter
+    assert ant.reads_contacts  # Ant-v5's observation includes cfrc_ext
+    no_contacts = EstimatedVelocity(gym.make("Ant-v5", include_cfrc_ext_in_observation=False),
+                                    disk_cache=False).adapter
+    assert not no_contacts.reads_contacts
