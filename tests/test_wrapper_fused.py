@@ -119,23 +119,26 @@ def test_fused_wrapper_copies_and_pickles_mid_episode():
         assert not np.shares_memory(twin.adapter.scratch_state()[0], env.adapter.scratch_state()[0])
 
 
-def test_sensing_info_deepcopy_is_cheap_and_independent():
+def test_sensing_info_is_read_only_and_copies_as_itself():
     env = EstimatedVelocity(gym.make("Hopper-v5"), disk_cache=False)
     env.reset(seed=0)
     info = env.step(np.zeros(3))[4]["smo"]
     assert isinstance(info, SensingInfo) and isinstance(info, dict)
     assert set(info) == set(KEYS)
-    clone = copy.deepcopy(info)
-    assert type(clone) is SensingInfo
-    for key in info:
-        np.testing.assert_array_equal(clone[key], info[key])
-        assert not np.shares_memory(clone[key], info[key])
+    assert copy.deepcopy(info) is info and copy.copy(info) is info  # safe: nothing in it can change
+    with pytest.raises(TypeError, match="read-only"):
+        info["qvel"] = np.zeros(6)
+    with pytest.raises(ValueError):
+        info["qvel"][0] = 1.0
     kept = {k: v.copy() for k, v in info.items()}
     env.step(np.ones(3))  # a new step never changes what an earlier step returned
     for key in info:
         np.testing.assert_array_equal(info[key], kept[key])
+    mutable = dict(info)
+    mutable["extra"] = 1
     back = pickle.loads(pickle.dumps(info))
     assert type(back) is SensingInfo and all(np.array_equal(back[k], info[k]) for k in info)
+    assert not back["qvel"].flags.writeable
 
 
 def test_adapter_probes_what_the_observation_reads():

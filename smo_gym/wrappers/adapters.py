@@ -65,6 +65,8 @@ __all__ = [
 ]
 
 CONTACT_FORCES = ("sensor", "estimated", "zero")
+#: the controller's inputs that ``observation`` copies from the live data (those the observation reads, probed)
+_INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")
 #: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
 _INPUTS = ("qpos", "qvel", "act", "ctrl", "qfrc_applied", "xfrc_applied", "mocap_pos", "mocap_quat", "userdata",
            "plugin_state", "qacc_warmstart", "eq_active", "history")
@@ -126,6 +128,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
     reads_contacts = True
     fresh_observation = False
     _bare = False
+    _input_fields = _INPUT_FIELDS
 
     def __init__(self, env, contact_forces: str = "sensor"):
         missing = _missing_mujoco_parts(env)
@@ -145,8 +148,12 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self.contact_forces = contact_forces
         self._scratch = mujoco.MjData(self.model)
         self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
+        self._input_fields = _INPUT_FIELDS
         self.pipeline, self.copies_inputs = self._probe_pipeline()
         self.reads_contacts = self._probe_contacts()
+        if self.copies_inputs:
+            self._input_fields = self._probe_input_fields()
+            self.copies_inputs = bool(self._input_fields)
         self.fresh_observation = self._probe_fresh()
         #: the observation needs nothing but the sensed qpos/qvel on the scratch data (Hopper, HalfCheetah, ...)
         self._bare = self.pipeline == "none" and not self.copies_inputs and not self.reads_contacts
@@ -179,16 +186,52 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
 
     def _fill_inputs(self, scratch: mujoco.MjData) -> None:
         live = self.env.data
-        scratch.time = live.time
-        if self.model.nu:
-            scratch.ctrl[:] = live.ctrl
-        if self.model.na:
-            scratch.act[:] = live.act
-        if self.model.nmocap:
-            scratch.mocap_pos[:] = live.mocap_pos
-            scratch.mocap_quat[:] = live.mocap_quat
-        scratch.qfrc_applied[:] = live.qfrc_applied
-        scratch.xfrc_applied[:] = live.xfrc_applied
+        for name in self._input_fields:
+            if name == "time":
+                scratch.time = live.time
+            else:
+                getattr(scratch, name)[:] = getattr(live, name)
+
+    def _probe_input_fields(self) -> tuple[str, ...]:
+        """The controller inputs the observation actually reads (InvertedDoublePendulum's constraint force and
+        Humanoid's actuator force read ``ctrl``; nothing reads the applied forces): each field copied by
+        ``_fill_inputs`` is left NaN in turn at random states; if the observation still equals the reference,
+        it is not copied at every step. A field the observation reads in any arithmetic turns it NaN."""
+        model = self.model
+        fields = ["time"] + [name for name, size in (("ctrl", model.nu), ("act", model.na),
+                                                        ("mocap_pos", model.nmocap), ("mocap_quat", model.nmocap),
+                                                        ("qfrc_applied", model.nv), ("xfrc_applied", model.nbody))
+                             if size]
+        rng = np.random.default_rng(2468)
+        states = []
+        for _ in range(2):
+            qpos = np.array(self.env.data.qpos)
+            mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+            states.append((qpos, rng.standard_normal(model.nv)))
+        self._input_fields = tuple(fields)
+        expected = []
+        for qpos, qvel in states:
+            reference = mujoco.MjData(model)
+            self._fill(reference, qpos, qvel)
+            expected.append(self._evaluate(reference, self.pipeline))
+        needed = []
+        for name in fields:
+            self._input_fields = tuple(f for f in fields if f != name)
+            for (qpos, qvel), want in zip(states, expected, strict=True):
+                scratch = mujoco.MjData(model)
+                if name == "time":
+                    scratch.time = np.nan
+                else:
+                    getattr(scratch, name)[...] = np.nan
+                self._fill(scratch, qpos, qvel)
+                try:
+                    got = self._evaluate(scratch, self.pipeline)
+                except Exception:  # noqa: BLE001 - failing without the field: it is needed
+                    got = None
+                if got is None or got.shape != want.shape or not np.array_equal(got, want):
+                    needed.append(name)
+                    break
+        return tuple(needed)
 
     @property
     def needs_forward(self) -> bool:
