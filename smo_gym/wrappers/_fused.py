@@ -11,47 +11,60 @@ path is one compiled function per observer kernel that, for the ``T`` samples of
 3. writes the sensed state into the scratch ``MjData`` (measured or filtered ``qpos``, estimated ``qvel``) and
    the ``info["smo"]`` block (true ``qpos``, true ``qvel``, estimated ``qvel``, measured ``qpos``).
 
+Free and ball joints go through the same compiled tangent coordinates as the general path
+(:mod:`smo_gym.wrappers._tangent`).
+
 The numbers are those of the general path (``Sensor.run`` then ``Observer.run``), bit for bit (tested). The
 function is generic in the kernel and inlined into one cached driver per kernel (a compiled function taking the
 kernel as an argument would be recompiled in every new process, see :mod:`smo_gym.observers._kernels`); kernels
-without a driver here use the general path. Only models without free or ball joints qualify (tangent
-coordinates are ``qpos`` itself).
+without a driver here use the general path.
 
-Status codes of a driver: ``-1`` success; ``t * N + j >= 0`` the sensor produced a non-finite value at sample
-``t``, channel ``j``; ``-2 - (t * N + j)`` the observer's state became non-finite there.
+Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produced a non-finite value at sample
+``t``, channel ``j``; ``-2 - (t * nv + j)`` the observer's state became non-finite there.
 """
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 from ..observers import _kernels as K
 from ..sensors import _chain_kernel
+from ._tangent import integrate_pos, tangent_advance
 
 __all__ = ["FUSED_DRIVERS", "register_fused_driver"]
 
 
 @njit(error_model="numpy", inline="always")
 def _sense(kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand, state, params,
-           work, scratch_qpos, scratch_qvel, filtered):
-    """Sensor, observer and outputs for the samples ``Q`` (T, N) of one control period (see module docstring).
+           work, scratch_qpos, scratch_qvel, filtered, joints, prev, z):
+    """Sensor, observer and outputs for the samples ``Q`` (T, nq) of one control period (see module docstring).
 
     The arguments that change every call come first (the caller appends the others as one prepared tuple):
-    ``qvel_true`` (N,) the live velocity, ``t0`` the sensor's position in its random block ``rand``, ``est``
-    (N, m) receives the estimate at the last sample, ``info`` (4 N) the ``info["smo"]`` block, ``Zm`` (>= T, N)
-    the measurements (work space). Then the sensor's arrays (``kinds`` ... ``rand``, see
-    :class:`smo_gym.sensors.Sensor`), the observer's state (N, S) and parameters, ``work`` (2, N, S) ping-pong
-    buffers of the state, the scratch ``qpos``/``qvel`` of the observation, and ``filtered``: put the
-    observer's filtered value instead of the measurement into ``scratch_qpos``.
+    ``qvel_true`` (nv,) the live velocity, ``t0`` the sensor's position in its random block ``rand``, ``est``
+    (nv, m) receives the estimate at the last sample, ``info`` (2 nq + 4 nv,) the block
+    ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]``, ``Zm`` (>= T, nv) the measurements (work
+    space). Then the sensor's arrays (``kinds`` ... ``rand``, see :class:`smo_gym.sensors.Sensor`), the observer's
+    state (nv, S) and parameters, ``work`` (2, nv, S) ping-pong buffers of the state, the scratch ``qpos``/``qvel``
+    of the observation, ``filtered`` (put the observer's filtered value instead of the measurement into
+    ``scratch_qpos``), and the tangent coordinates of free/ball joints (:mod:`smo_gym.wrappers._tangent`):
+    ``joints`` (njnt, 3), empty for a model without them (then ``z = qpos``), ``prev`` (nq,) the last
+    configuration and ``z`` (nv,) its tangent coordinates, both advanced in place.
     """
-    T, n = Q.shape
-    S = state.shape[1]
+    T, nq = Q.shape
+    n, S = state.shape
+    manifold = joints.shape[0] > 0
     for c in range(n):
         for j in range(S):
             work[0, c, j] = state[c, j]
     cur = 0
     for t in range(T):
-        status = _chain_kernel(Q[t], kinds, sparams, sstate, ring, ring_pos, rand[t0 + t], False, Zm[t])
+        if manifold:
+            tangent_advance(joints, prev, Q[t], z)
+            y = z
+        else:
+            y = Q[t]
+        status = _chain_kernel(y, kinds, sparams, sstate, ring, ring_pos, rand[t0 + t], False, Zm[t])
         if status != -1:
             return t * n + status
         status = kernel(work[cur], Zm[t], params, work[1 - cur], est)
@@ -62,57 +75,76 @@ def _sense(kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring
         for j in range(S):
             state[c, j] = work[cur, c, j]
     last = Q[T - 1]
-    zlast = Zm[T - 1]
+    zm = Zm[T - 1]
+    o_qvel, o_vhat, o_qmeas, o_z, o_zm = nq, nq + n, nq + 2 * n, 2 * nq + 2 * n, 2 * nq + 3 * n
+    for i in range(nq):
+        info[i] = last[i]
     for c in range(n):
-        info[c] = last[c]
-        info[n + c] = qvel_true[c]
-        info[2 * n + c] = est[c, 1]
-        info[3 * n + c] = zlast[c]
-        scratch_qpos[c] = est[c, 0] if filtered else zlast[c]
+        info[o_qvel + c] = qvel_true[c]
+        info[o_vhat + c] = est[c, 1]
+        info[o_zm + c] = zm[c]
+        info[o_z + c] = z[c] if manifold else last[c]
         scratch_qvel[c] = est[c, 1]
+    if manifold:  # measured configuration q (+) (z_meas - z), filtered one q_meas (+) (z_filtered - z_meas)
+        dz = np.empty(n)
+        for c in range(n):
+            dz[c] = zm[c] - z[c]
+        for i in range(nq):
+            info[o_qmeas + i] = last[i]
+        integrate_pos(joints, info[o_qmeas:o_qmeas + nq], dz)
+        for i in range(nq):
+            scratch_qpos[i] = info[o_qmeas + i]
+        if filtered:
+            for c in range(n):
+                dz[c] = est[c, 0] - zm[c]
+            integrate_pos(joints, scratch_qpos, dz)
+    else:
+        for c in range(n):
+            info[o_qmeas + c] = zm[c]
+            scratch_qpos[c] = est[c, 0] if filtered else zm[c]
     return -1
 
 
 @njit(cache=True, error_model="numpy")
 def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                        state, params, work, sq, sv, filtered):
+                        state, params, work, sq, sv, filtered, joints, prev, z):
     return _sense(K.sta_implicit_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered)
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
 
 
 @njit(cache=True, error_model="numpy")
 def _sense_hosm(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                state, params, work, sq, sv, filtered):
+                state, params, work, sq, sv, filtered, joints, prev, z):
     return _sense(K.hosm_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered)
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
 
 
 @njit(cache=True, error_model="numpy")
 def _sense_eigmap(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                  state, params, work, sq, sv, filtered):
+                  state, params, work, sq, sv, filtered, joints, prev, z):
     return _sense(K.eigmap_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered)
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
 
 
 @njit(cache=True, error_model="numpy")
 def _sense_linear(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                  state, params, work, sq, sv, filtered):
+                  state, params, work, sq, sv, filtered, joints, prev, z):
     return _sense(K.linear_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered)
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
 
 
 @njit(cache=True, error_model="numpy")
 def _sense_kalman_ca(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                     state, params, work, sq, sv, filtered):
+                     state, params, work, sq, sv, filtered, joints, prev, z):
     return _sense(K.kalman_ca_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered)
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
 
 
 @njit(cache=True, error_model="numpy")
 def _sense_finite_difference(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                             state, params, work, sq, sv, filtered):
+                             state, params, work, sq, sv, filtered, joints, prev, z):
     return _sense(K.finite_difference_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered)
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
 
 
 #: observer kernel -> its fused driver

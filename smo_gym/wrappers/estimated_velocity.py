@@ -257,7 +257,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._substep_count = 0
         self._substep_hook = None
         self._live = None
-        self._nq = model.nq
+        self._nq, self._nv = model.nq, model.nv
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
         #: reset, after a subclass has set its estimator)
         self._fused: FusedSensing | None = None
@@ -345,7 +345,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         check_finite_observation(obs)
         if self.adapter.unflatten is not None:
             obs = self.adapter.unflatten(obs)
-        info["smo"] = SensingInfo.from_block(block, self._nq, self._nq)
+        info["smo"] = SensingInfo.from_block(block, self._nq, self._nv)
         return obs, reward, terminated, truncated, info
 
     def __getstate__(self):

@@ -50,6 +50,7 @@ from numba import njit
 
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import BLOCK, Sensor, make_sensor
+from ._tangent import integrate_pos, joint_table, tangent_advance
 
 __all__ = [
     "FusedSensing",
@@ -86,7 +87,8 @@ class TangentCoordinates:
     r"""Continuous tangent coordinates ``z`` (size ``nv``) of a stream of configurations ``q`` (size ``nq``).
 
     See the module docstring: :math:`z_k = z_{k-1} + \ominus(q_{k-1}, q_k)`, hinge/slide dofs copied from
-    ``qpos``. Models without free or ball joints take a fast path (``z = qpos``).
+    ``qpos``; the arithmetic is the compiled :mod:`smo_gym.wrappers._tangent` (MuJoCo's, bit for bit), which the
+    wrapper's fused hot path shares. Models without free or ball joints take a fast path (``z = qpos``).
     """
 
     def __init__(self, model: mujoco.MjModel):
@@ -94,28 +96,26 @@ class TangentCoordinates:
         self.nq, self.nv = model.nq, model.nv
         types = np.asarray(model.jnt_type)
         self.manifold = bool(np.any((types == _FREE) | (types == _BALL)))
-        # hinge/slide dofs and their qpos addresses (copied exactly)
-        scalar = (types == _HINGE) | (types == _SLIDE)
-        self._dof = np.asarray(model.jnt_dofadr)[scalar]
-        self._qadr = np.asarray(model.jnt_qposadr)[scalar]
+        #: (type, qpos address, dof address) per joint; empty without free/ball joints (then z = qpos)
+        self.joints = joint_table(model) if self.manifold else np.zeros((0, 3), dtype=np.int64)
+        # the last configuration and its coordinates, updated in place (the fused hot path holds them)
         self._prev = np.zeros(self.nq)
         self._z = np.zeros(self.nv)
-        self._dz = np.zeros(self.nv)
 
     def reset(self, q0: np.ndarray) -> np.ndarray:
-        """Start at ``q0``: ``z0`` has the hinge/slide values of ``q0`` and zero for free/ball rotations."""
+        """Start at ``q0``: ``z0`` has the hinge/slide values and free-joint translations of ``q0``, and zero
+        for free/ball rotations."""
         q0 = np.asarray(q0, dtype=np.float64)
         if not self.manifold:
             self._z = q0.copy()
             return self._z.copy()
         self._prev[:] = q0
-        self._z = np.zeros(self.nv)
-        # translations of free joints are copied like slides
-        for j in range(self.model.njnt):
-            if self.model.jnt_type[j] == _FREE:
-                a, d = self.model.jnt_qposadr[j], self.model.jnt_dofadr[j]
+        self._z[:] = 0.0
+        for kind, a, d in self.joints:
+            if kind == _FREE:
                 self._z[d:d + 3] = q0[a:a + 3]
-        self._z[self._dof] = q0[self._qadr]
+            elif kind != _BALL:
+                self._z[d] = q0[a]
         return self._z.copy()
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
@@ -123,10 +123,7 @@ class TangentCoordinates:
         if not self.manifold:
             self._z = np.array(q, dtype=np.float64)
             return self._z  # a fresh copy already: callers may keep it
-        mujoco.mj_differentiatePos(self.model, self._dz, 1.0, self._prev, q)
-        self._z += self._dz
-        self._z[self._dof] = q[self._qadr]
-        self._prev[:] = q
+        tangent_advance(self.joints, self._prev, np.ascontiguousarray(q, dtype=np.float64), self._z)
         return self._z.copy()
 
     def to_qpos(self, q_ref: np.ndarray, z_ref: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -134,7 +131,7 @@ class TangentCoordinates:
         if not self.manifold:
             return np.array(z, dtype=np.float64)
         q = np.array(q_ref, dtype=np.float64)
-        mujoco.mj_integratePos(self.model, q, np.asarray(z - z_ref, dtype=np.float64), 1.0)
+        integrate_pos(self.joints, q, np.asarray(z, dtype=np.float64) - z_ref)
         return q
 
 
@@ -168,10 +165,12 @@ class JointMeasurement:
 
     # the last sample, as kept by measure_block or (lazily unpacked) by FusedSensing
     def _unpack_fused(self) -> None:
-        block, n = self._fused_block, self.model.nq
-        self._fused_block = None
-        self._z_true = self._last_qpos = block[:n]
-        self._z_measured = self._qpos_measured = block[3 * n:]
+        block, nq, nv = self._fused_block, self.model.nq, self.model.nv
+        self._fused_block = None  # [qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]
+        self._last_qpos = block[:nq]
+        self._qpos_measured = block[nq + 2 * nv:2 * nq + 2 * nv]
+        self._z_true = block[2 * nq + 2 * nv:2 * nq + 3 * nv]
+        self._z_measured = block[2 * nq + 3 * nv:]
 
     @property
     def z_true(self) -> np.ndarray | None:
@@ -298,11 +297,11 @@ class SensingInfo(dict):
 
     @classmethod
     def from_block(cls, block: np.ndarray, nq: int, nv: int) -> SensingInfo:
-        """From one block ``[qpos, qvel, qvel_estimate, qpos_measured]``, which it owns from now on (made
-        read-only, as are its views)."""
+        """From one block ``[qpos, qvel, qvel_estimate, qpos_measured, ...]`` (anything after these four is
+        ignored), which it owns from now on (made read-only, as are its views)."""
         block.flags.writeable = False
         return cls(qpos=block[:nq], qvel=block[nq:nq + nv], qvel_estimate=block[nq + nv:nq + 2 * nv],
-                   qpos_measured=block[nq + 2 * nv:])
+                   qpos_measured=block[nq + 2 * nv:2 * nq + 2 * nv])
 
     def _readonly(self, *args, **kwargs):
         raise TypeError("expected no change to info['smo'] (read-only), actual value: an attempt to modify it; "
@@ -378,9 +377,9 @@ class FusedSensing:
     drives the sensor's and the observer's own arrays and keeps their bookkeeping (the sensor's position in its
     random block, the observer's estimate and update count), so both objects stay usable as they are.
 
-    Use :meth:`supports` first: models without free or ball joints, a plain :class:`VelocityEstimator` around an
-    observer whose ``update``/``run`` are the base class's and whose kernel has a fused driver, a sensor whose
-    ``run`` is the base class's, and an adapter with a scratch state.
+    Use :meth:`supports` first: a plain :class:`VelocityEstimator` around an observer whose ``update``/``run``
+    are the base class's and whose kernel has a fused driver, a sensor whose ``run`` is the base class's, and an
+    adapter with a scratch state.
 
     Parameters
     ----------
@@ -414,7 +413,7 @@ class FusedSensing:
         from ._fused import FUSED_DRIVERS
 
         observer = estimator.observer
-        return (not measurement.tangent.manifold and type(estimator) is VelocityEstimator
+        return (type(estimator) is VelocityEstimator
                 and type(observer).update is Observer.update and type(observer).run is Observer.run
                 and observer.order >= 1 and type(measurement.sensor).run is Sensor.run
                 and getattr(observer, "_kernel", None) in FUSED_DRIVERS and hasattr(adapter, "scratch_state"))
@@ -434,7 +433,7 @@ class FusedSensing:
                 raise TypeError(f"expected writeable C-contiguous float64 arrays, actual value: {a.dtype} {a.flags}")
         self.prepare()
         n, m = self._shape
-        args = (Q, qvel_true, np.int64(0), np.empty((n, m)), np.empty(4 * n), self._Zm) + self._static
+        args = (Q, qvel_true, np.int64(0), np.empty((n, m)), np.empty(self._info_size), self._Zm) + self._static
         key = (self._driver, tuple(numba.typeof(a) for a in args))
         call = _FUSED_ENTRIES.get(key)  # numba.typeof costs ~20 us per array: resolved once per process
         if call is None:
@@ -454,15 +453,21 @@ class FusedSensing:
             self._Zm = np.empty((1, n))
         self._shape = (n, observer.order + 1)
         scratch_qpos, scratch_qvel = self.adapter.scratch_state()
+        tangent = self.measurement.tangent
         self._static = (sensor._kinds, sensor._params, sensor._state, sensor._ring, sensor._ring_pos, sensor._rand,
-                        observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered)
+                        observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered,
+                        tangent.joints, tangent._prev, tangent._z)
+        model = self.measurement.model
+        self._info_size = 2 * model.nq + 4 * model.nv
 
     def sample(self, Q: np.ndarray, qvel_true: np.ndarray) -> np.ndarray | None:
         """Measure and estimate the samples ``Q`` (T, nq) of one control period.
 
-        Returns the ``info["smo"]`` block ``[qpos, qvel, qvel_estimate, qpos_measured]`` (4 nv,), with the
-        observation's state written into the adapter's scratch, or None (nothing done) when the samples straddle
-        the end of the sensor's random block: the caller then takes the general path, which splits the block and
+        Returns the block ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]`` (2 nq + 4 nv,): the
+        first four are ``info["smo"]`` (:meth:`SensingInfo.from_block`), the last two the tangent coordinates of the
+        last sample (:class:`JointMeasurement` reads them lazily). The observation's state is written into the
+        adapter's scratch. Returns None (nothing done) when the samples straddle the end of the sensor's random
+        block: the caller then takes the general path, which splits the block and
         so keeps the random stream independent of batching.
 
         Raises
@@ -492,7 +497,7 @@ class FusedSensing:
         if self._Zm.shape[0] < T:
             self._Zm = np.empty((T, self._shape[0]))
         est = np.empty(self._shape)
-        info = np.empty(4 * self._shape[0])
+        info = np.empty(self._info_size)
         status = call(Q, qvel_true, t0, est, info, self._Zm, *static)
         sensor._t = t0 + T
         if status != -1:
