@@ -32,17 +32,33 @@ uses the newest sample. Implicit schemes are already written at :math:`t_k` and 
 
 Performance
 -----------
-A call costs the numba dispatch (about 0.3-0.5 us for five array arguments, measured with an empty kernel by
-``scripts/bench_observers.py``) plus a few ns to a few tens of ns per channel. What keeps the per-channel part
-small: the HOSM step computes one root :math:`r = |e|^{1/m}` per channel and builds every
-:math:`|e|^{q/m}` by multiplication (one ``sqrt`` for super-twisting and URED instead of two or five ``pow``);
-the finiteness of each channel's new state is checked right after its step (no second pass); the channel steps
-are inlined into the batch loops (no array views passed through calls); and ``error_model="numpy"`` drops the
-zero-division checks (every divisor here is positive for valid parameters; a non-finite result still ends as
-status ``-2 - i``). These change results by rounding only (a few ulp per step); through the discontinuous sign of
-a sliding-mode step such a difference can grow along a chattering trajectory, like any change of compiler or
-instruction order would. The eigenvalue-mapping kernel keeps ``pow`` for its root because its high-order
-Ackermann gains (of order ``tau^-k``) amplify rounding differences.
+A call costs the compiled entry point (about 0.2-0.3 us for five array arguments, measured with an empty kernel
+by ``scripts/bench_observers.py``) plus a few ns per channel. What keeps the per-channel part small:
+
+* Fixed shapes at compile time. The kernels of the common sizes (order 1 and 2, i.e. ``m = 2, 3`` estimates)
+  check the widths of their arrays once per call and then index them with constant strides, so LLVM vectorizes
+  the loop over channels (AVX2: four channels per instruction) and unrolls the loops over the state.
+* No early exit inside the channel loop: the finiteness of the new state is collected in a flag and located by
+  a second pass only when something is not finite (then the status is the same ``-2 - i`` as before).
+* Known exponents. The HOSM kernel recognises the exponent tables of Levant's, URED's and the uniform
+  differentiator (``m = 2, 3``) from the first parameter row and runs a step in which every
+  :math:`|e|^{q/m}` is a product of the root :math:`r = |e|^{1/m}` with ``q`` a compile-time constant; other
+  tables run the generic step (:func:`hosm_channel_step`, one ``r`` and :func:`_abs_power` per term).
+* Vectorizable roots: ``sqrt`` for ``m = 2``; for ``m = 3`` the cube root of fdlibm (:func:`cbrt`: a bit-level
+  first guess, a polynomial and one Newton step, error below 1 ulp) instead of ``exp(log(a) / 3)``, and
+  fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic
+  so that they vectorize (numba has no vector math library without SVML).
+* ``error_model="numpy"`` (no zero-division checks: every divisor is positive for valid parameters; a
+  non-finite result still ends as status ``-2 - i``), and ``_flat`` reshapes only measurements with batch
+  dimensions (a 1-D ``y`` passes through untouched).
+
+These change results by rounding only (a few ulp per step, from the roots and ``exp``); through the
+discontinuous sign of a sliding-mode step such a difference can grow along a chattering trajectory, like any
+change of compiler or instruction order would.
+
+Contract of the specialised HOSM steps: the exponent columns, the unused-term gains and the scheme flag must be
+the same in every parameter row (the observer classes pack them so); the kernel reads them from the first row to
+choose the step. Step sizes and gains remain per channel.
 """
 
 from __future__ import annotations
@@ -50,7 +66,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic, overload
 
 #: Number of signed-power terms per state in the HOSM family (URED needs three in its second equation).
 N_TERMS = 3
@@ -82,18 +100,30 @@ def _taylor_back(x_new, m, dt, out_row):
         out_row[i] = acc
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
-def _flat(y, out):
+def _flat(y, out):  # pragma: no cover - compiled only, see the overload below
     """Views ``(N,)`` and ``(N, m)`` of a C-contiguous measurement ``(..., n)`` and estimate ``(..., n, m)``."""
-    yf = y.reshape(y.size)
-    return yf, out.reshape((yf.shape[0], out.shape[-1]))
+    raise NotImplementedError("_flat is only callable from compiled code")
+
+
+@overload(_flat, inline="always")
+def _flat_impl(y, out):
+    # chosen at compile time from the number of dimensions: a 1-D measurement is already flat (a reshape is a
+    # helper call of ~20 ns per array, a quarter of the kernel's budget at one channel)
+    if y.ndim == 1:
+        return lambda y, out: (y, out)
+    return lambda y, out: (y.reshape(y.size), out.reshape((y.size, out.shape[-1])))
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _first_nonfinite(y):
+    """Index of the first non-finite entry of ``y`` (N,), or -1: one branch-free pass, a second only on failure."""
+    bad = False
     for i in range(y.shape[0]):
-        if not math.isfinite(y[i]):
-            return i
+        bad |= not math.isfinite(y[i])
+    if bad:
+        for i in range(y.shape[0]):
+            if not math.isfinite(y[i]):
+                return i
     return -1
 
 
@@ -105,6 +135,94 @@ def _check_state(new_state):
             if not math.isfinite(new_state[i, j]):
                 return -2 - i
     return -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _check_widths(state, new_state, params, out, S, P, m):
+    """Fix the array widths for the compiler: after this check LLVM indexes rows with constant strides."""
+    if state.shape[1] != S or new_state.shape[1] != S or params.shape[1] != P or out.shape[1] != m:
+        raise ValueError("expected state/new_state (N, S), params (N, P), out (N, m) of this kernel's widths")
+
+
+@intrinsic
+def _bits(typingctx, x):
+    """The IEEE-754 bits of a float64 as an int64 (a register move; vectorizes)."""
+    if x != types.float64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+
+    return types.int64(types.float64), codegen
+
+
+@intrinsic
+def _from_bits(typingctx, i):
+    """The float64 with the IEEE-754 bits ``i`` (int64)."""
+    if i != types.int64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+
+    return types.float64(types.int64), codegen
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def cbrt(a):
+    r"""Cube root of ``a >= 0`` (finite), fdlibm's ``s_cbrt.c``: error below 0.667 ulp, no branches.
+
+    First guess from the exponent bits (:math:`\lfloor hx/3\rfloor + B_1`, ``hx`` the high word), a polynomial
+    to 23 bits, rounding to 22 bits, and one Newton step to 53 bits. Subnormal ``a`` are scaled by
+    :math:`2^{54}` first; ``cbrt(0) = 0``. Written with arithmetic and bit moves only, so that a loop calling
+    it vectorizes (``exp(log(a) / 3)`` costs two library calls per channel).
+    """
+    tiny = a < 2.2250738585072014e-308
+    x = a * 18014398509481984.0 if tiny else a  # 2^54
+    x = x if a > 0.0 else 1.0  # no division by zero below (any error model); cbrt(0) is set at the end
+    hx = _bits(x) >> 32
+    # floor(hx / 3) as a multiply-high (exact for 0 <= hx < 2^31); B1 = 715094163
+    t = _from_bits((((hx * 0x55555556) >> 32) + 715094163) << 32)
+    r = (t * t) * (t / x)
+    t = t * ((1.87595182427177009643 + r * (-1.88497979543377169875 + r * 1.621429720105354466140))
+             + ((r * r) * r) * (-0.758397934778766047437 + r * 0.145996192886612446982))
+    t = _from_bits((_bits(t) + 0x80000000) & -0x40000000)  # round away from zero to 22 bits
+    s = t * t
+    r = x / s
+    w = t + t
+    r = (r - t) / (w + r)
+    t = t + t * r
+    if tiny:
+        t *= 3.814697265625e-06  # 2^-18
+    return t if a > 0.0 else 0.0
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _pow2(k):
+    """``2.0 ** k`` for an integer-valued float ``-1022 <= k <= 1023`` (bits of the exponent field)."""
+    # k + 1.5 * 2^52 has k in its low mantissa bits: an int conversion AVX2 can vectorize (cvtpd2qq cannot)
+    ki = _bits(k + 6755399441055744.0) - 0x4338000000000000
+    return _from_bits((ki + 1023) << 52)
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def exp_nonpositive(x):
+    r"""``exp(x)`` for ``x <= 0`` (``-inf`` gives 0), fdlibm's ``e_exp.c``: error below 1 ulp, no branches.
+
+    :math:`x = k\ln 2 + r` with ``|r| <= ln2 / 2`` (Cody-Waite, two-part ``ln 2``), a rational approximation of
+    :math:`e^r`, and the scaling by :math:`2^k` in two halves so that subnormal results come out right.
+    """
+    x = -746.0 if x < -746.0 else x  # exp(-746) underflows to 0 like any smaller argument and -inf; NaN stays
+    kf = np.floor(x * 1.44269504088896338700e+00 + 0.5)  # np.floor stays float (math.floor is an int)
+    hi = x - kf * 6.93147180369123816490e-01
+    lo = kf * 1.90821492927058770002e-10
+    r = hi - lo
+    t = r * r
+    c = r - t * (1.66666666666666019037e-01 + t * (-2.77777777770155933842e-03 + t * (
+        6.61375632143793436117e-05 + t * (-1.65339022054652515390e-06 + t * 4.13813679705723846039e-08))))
+    y = 1.0 - ((lo - (r * c) / (2.0 - c)) - hi)
+    k1 = np.floor(kf * 0.5)
+    return y * _pow2(k1) * _pow2(kf - k1)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -160,7 +278,7 @@ def hosm_channel_step(x, y, params, m, x_new, out_row):
     s = 1.0 if e > 0.0 else -1.0
     r = 0.0
     if e != 0.0:
-        r = math.sqrt(a) if m == 2 else math.exp(math.log(a) / m)
+        r = math.sqrt(a) if m == 2 else (cbrt(a) if m == 3 else math.exp(math.log(a) / m))
     for i in range(m):
         corr = 0.0
         if e != 0.0:
@@ -183,18 +301,154 @@ def hosm_channel_step(x, y, params, m, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
+def _rpow(r, q):
+    """``r**q`` for an integer ``q >= 0`` by repeated multiplication (as :func:`_abs_power`)."""
+    acc = 1.0
+    for _ in range(q):
+        acc *= r
+    return acc
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _injection(prow, i, r, qi):
+    r"""``sum_j g_ij r^q_ij`` over the terms of state ``i``; ``qi`` a compile-time tuple, ``q < 0`` = no term."""
+    acc = 0.0
+    for j in range(N_TERMS):
+        if qi[j] >= 0:
+            acc += prow[2 + i * N_TERMS + j] * _rpow(r, qi[j])
+    return acc
+
+
+#: exponent numerators ``q_ij`` (power ``q_ij / m``; -1 = unused term, zero gain) of the specialised HOSM steps
+LEVANT_Q2 = ((1, -1, -1), (0, -1, -1))  # Levant k = 1 and explicit super-twisting: 1/2, 0
+URED_Q = ((1, 3, -1), (0, 2, 4))  # URED: 1/2, 3/2 | 0, 1, 2
+LEVANT_Q3 = ((2, -1, -1), (1, -1, -1), (0, -1, -1))  # Levant k = 2: 2/3, 1/3, 0
+UNIFORM_Q3 = ((2, 4, -1), (1, 5, -1), (0, 6, -1))  # uniform Levant k = 2, alpha = 1: (3 -+ i) / 3
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _matches(params, m, q):
+    """Whether the first parameter row has the exponent table ``q`` (the test of :func:`_abs_power`, 1e-12)."""
+    goff = 2
+    poff = 2 + m * N_TERMS
+    ok = True
+    for i in range(m):
+        for j in range(N_TERMS):
+            if q[i][j] >= 0:
+                ok &= abs(params[0, poff + i * N_TERMS + j] * m - q[i][j]) <= 1e-12
+            else:
+                ok &= params[0, goff + i * N_TERMS + j] == 0.0
+    return ok
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _hosm2(state, y, params, new_state, out, q):
+    r"""The step of :func:`hosm_channel_step` for ``m = 2`` and the exponent table ``q`` known at compile time.
+
+    .. math::
+        \hat x_0^+ = \hat x_0 + \tau\hat x_1 - \tau\,\mathrm{sign}(e)\sum_j g_{0j} r^{q_{0j}},\quad
+        \hat x_1^+ = \hat x_1 - \tau\,\mathrm{sign}(e)\sum_j g_{1j} r^{q_{1j}},\quad r = |e|^{1/2},
+
+    same operations in the same order as the generic step (the Taylor and Euler schemes coincide for ``m = 2``).
+    """
+    _check_widths(state, new_state, params, out, 3, 2 + 4 * N_TERMS, 2)
+    bad = False
+    for c in range(y.shape[0]):
+        prow = params[c]
+        dt = prow[0]
+        x0 = state[c, 0]
+        x1 = state[c, 1]
+        e = x0 - y[c]
+        s = 1.0 if e > 0.0 else (-1.0 if e < 0.0 else 0.0)
+        r = math.sqrt(abs(e))
+        n0 = x0 + dt * x1 - dt * (_injection(prow, 0, r, q[0]) * s)
+        n1 = x1 - dt * (_injection(prow, 1, r, q[1]) * s)
+        new_state[c, 0] = n0
+        new_state[c, 1] = n1
+        new_state[c, 2] = -e
+        out[c, 0] = n0 + (-dt) * n1  # exp(-tau N) x^+
+        out[c, 1] = n1
+        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(e) & math.isfinite(state[c, 2]))
+    return _check_state(new_state) if bad else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _hosm3(state, y, params, new_state, out, taylor, q):
+    r"""The step of :func:`hosm_channel_step` for ``m = 3``, the scheme and the exponents known at compile time.
+
+    ``r = cbrt(|e|)``; ``"taylor"`` adds :math:`\tfrac{\tau^2}{2}\hat x_2` to :math:`\hat x_0^+`. Same
+    operations in the same order as the generic step. Two passes over the channels: the injections
+    :math:`\mathrm{sign}(e)\sum_j g_{ij} r^{q_{ij}}` (kept in ``new_state``), then the Taylor update and the
+    estimate; with up to six gains per channel a single loop has more strided accesses than LLVM's vectorizer
+    accepts (it then leaves the loop scalar, about three times slower).
+    """
+    _check_widths(state, new_state, params, out, 4, 2 + 6 * N_TERMS, 3)
+    for c in range(y.shape[0]):
+        prow = params[c]
+        e = state[c, 0] - y[c]
+        s = 1.0 if e > 0.0 else (-1.0 if e < 0.0 else 0.0)
+        r = cbrt(abs(e))
+        new_state[c, 0] = _injection(prow, 0, r, q[0]) * s
+        new_state[c, 1] = _injection(prow, 1, r, q[1]) * s
+        new_state[c, 2] = _injection(prow, 2, r, q[2]) * s
+        new_state[c, 3] = -e
+    bad = False
+    for c in range(y.shape[0]):
+        dt = params[c, 0]
+        x0 = state[c, 0]
+        x1 = state[c, 1]
+        x2 = state[c, 2]
+        a0 = x0 + dt * x1
+        if taylor:
+            a0 += (dt * (dt / 2.0)) * x2
+        n0 = a0 - dt * new_state[c, 0]
+        n1 = x1 + dt * x2 - dt * new_state[c, 1]
+        n2 = x2 - dt * new_state[c, 2]
+        ne = new_state[c, 3]
+        new_state[c, 0] = n0
+        new_state[c, 1] = n1
+        new_state[c, 2] = n2
+        # exp(-tau N) x^+, the operations of _taylor_back
+        out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
+        out[c, 1] = n1 + (-dt) * n2
+        out[c, 2] = n2
+        # reading the whole old row (its last column only for this flag) leaves no gap in the load group, so
+        # LLVM needs no scalar tail; a flag raised by it alone ends in _check_state, which returns -1
+        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(ne)
+                    & math.isfinite(state[c, 3]))
+    return _check_state(new_state) if bad else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def hosm_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
     m = out.shape[1]
+    if y.shape[0] > 0:
+        # a specialised step for the exponent tables of the observers of this package (see module notes)
+        if m == 2:
+            if _matches(params, 2, LEVANT_Q2):
+                return _hosm2(state, y, params, new_state, out, LEVANT_Q2)
+            if _matches(params, 2, URED_Q):
+                return _hosm2(state, y, params, new_state, out, URED_Q)
+        elif m == 3:
+            taylor = params[0, 1] != 0.0
+            if _matches(params, 3, LEVANT_Q3):
+                if taylor:
+                    return _hosm3(state, y, params, new_state, out, True, LEVANT_Q3)
+                return _hosm3(state, y, params, new_state, out, False, LEVANT_Q3)
+            if _matches(params, 3, UNIFORM_Q3):
+                if taylor:
+                    return _hosm3(state, y, params, new_state, out, True, UNIFORM_Q3)
+                return _hosm3(state, y, params, new_state, out, False, UNIFORM_Q3)
+    failed = False
     for c in range(y.shape[0]):
         row = new_state[c]
         row[m] = hosm_channel_step(state[c], y[c], params[c], m, row, out[c])
-        if not _row_finite(row):
-            return -2 - c
-    return -1
+        failed |= not _row_finite(row)
+    return _check_state(new_state) if failed else -1
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -217,15 +471,14 @@ def sta_implicit_channel_step(x, y, params, x_new):
     k2 = params[2]
     w = y - x[0] - dt * x[1]
     thr = dt * dt * k2
-    if abs(w) <= thr:
-        e = 0.0
-        s = w / thr
-    else:
-        s = 1.0 if w > 0.0 else -1.0
-        a = abs(w) - thr
-        b = dt * k1
-        r = 2.0 * a / (b + math.sqrt(b * b + 4.0 * a))  # stable form of (-b + sqrt(b^2 + 4a)) / 2
-        e = s * r * r
+    # both cases evaluated, then selected (no branch: a loop over channels calling this vectorizes)
+    stick = abs(w) <= thr
+    sign = 1.0 if w > 0.0 else -1.0
+    a = 0.0 if stick else abs(w) - thr
+    b = dt * k1
+    r = 2.0 * a / (b + math.sqrt(b * b + 4.0 * a))  # stable form of (-b + sqrt(b^2 + 4a)) / 2
+    e = 0.0 if stick else sign * r * r
+    s = w / thr if stick else sign
     x_new[1] = x[1] + dt * k2 * s
     x_new[0] = y - e
     return w
@@ -237,14 +490,17 @@ def sta_implicit_kernel(state, y, params, new_state, out):
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
+    _check_widths(state, new_state, params, out, 3, 3, 2)
+    failed = False
     for c in range(y.shape[0]):
-        row = new_state[c]
-        row[2] = sta_implicit_channel_step(state[c], y[c], params[c], row)
-        if not _row_finite(row):
-            return -2 - c
-        out[c, 0] = row[0]
-        out[c, 1] = row[1]
-    return -1
+        w = sta_implicit_channel_step(state[c], y[c], params[c], new_state[c])
+        new_state[c, 2] = w
+        x0 = new_state[c, 0]
+        x1 = new_state[c, 1]
+        out[c, 0] = x0
+        out[c, 1] = x1
+        failed |= not (math.isfinite(x0) & math.isfinite(x1) & math.isfinite(w) & math.isfinite(state[c, 2]))
+    return _check_state(new_state) if failed else -1
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -253,15 +509,20 @@ def sta_implicit_kernel(state, y, params, new_state, out):
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def eigenvalue_map(sigma, dt, p1, mu, n, mode):
-    r"""State-dependent discrete eigenvalue :math:`z_n(\sigma)`: (15) semi-implicit or (16) matching of paper 003."""
+    r"""State-dependent discrete eigenvalue :math:`z_n(\sigma)`: (15) semi-implicit or (16) matching of paper 003.
+
+    Both mappings are evaluated and one is selected (also ``z = 0`` at ``sigma = 0``, where both are 0 anyway):
+    branches would keep LLVM from vectorizing a loop over channels that calls this.
+    """
     a = abs(sigma)
-    if a == 0.0:
-        return 0.0
-    # pow kept for n > 2: the high-order gains amplify any rounding change of the root (see module notes)
+    # pow kept for n > 2 (not cbrt): with the high-order gains and exp's large arguments at small errors
+    # (relative error of z = |argument| * that of the root, 300x at |sigma| = 1e-9) a one-ulp change of the root
+    # shows at 1e-13, and the tests hold this map to NumPy's a ** (1 / n) at 1e-14
     root = math.sqrt(a) if n == 2 else a ** (1.0 / n)
-    if mode == 0:
-        return root / (dt * p1 * mu * a + root + dt * p1)
-    return math.exp(-dt * p1 * (1.0 + mu * a) / root)
+    semi = root / (dt * p1 * mu * a + root + dt * p1)
+    matching = exp_nonpositive(-dt * p1 * (1.0 + mu * a) / root)  # -inf at a = 0 gives 0
+    z = semi if mode == 0 else matching
+    return z if a != 0.0 else 0.0
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -292,18 +553,81 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
+def _eigmap_component(state, params, new_state, dt, c, i):
+    r"""``x_i^+ = sum_l tau^l / l! x_{i+l} + l_i(z) sigma`` for ``m = 3``, with ``z``, ``sigma`` in ``new_state``."""
+    z = new_state[c, 0]
+    acc = state[c, i]
+    if i < 2:
+        acc += dt * state[c, i + 1]
+    if i == 0:
+        acc += (dt * (dt / 2.0)) * state[c, 2]
+    # l_i(z) = sum_j (-z)^(3-j) v_j[i] by Horner's rule (the first step 0 * (-z) + v_0 is exact)
+    gain = ((params[c, 4 + i] * (-z) + params[c, 7 + i]) * (-z) + params[c, 10 + i]) * (-z) + params[c, 13 + i]
+    return acc + gain * new_state[c, 3]
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _eigmap3(state, y, params, new_state, out, mode):
+    """:func:`eigmap_channel_step` for ``m = 3`` and the mapping ``mode`` of every row (same operations in the
+    same order), in five passes; ``-3`` if a row has another mode.
+
+    One pass per state component keeps each loop within the number of strided accesses LLVM's vectorizer
+    accepts (the gain vectors alone are twelve per channel); ``z`` and ``sigma`` wait in ``new_state``.
+    """
+    _check_widths(state, new_state, params, out, 4, 16, 3)
+    n = y.shape[0]
+    other_mode = False
+    for c in range(n):
+        sigma = y[c] - state[c, 0]
+        new_state[c, 3] = sigma
+        # the mapping is a compile-time choice (the other one is not computed); rows of another mode are redone
+        # by the generic step below
+        new_state[c, 0] = eigenvalue_map(sigma, params[c, 0], params[c, 1], params[c, 2], 3, mode)
+        other_mode |= params[c, 3] != mode
+    if other_mode:
+        return -3  # not a status: the caller runs the generic step
+    for c in range(n):
+        new_state[c, 2] = _eigmap_component(state, params, new_state, params[c, 0], c, 2)
+    for c in range(n):
+        new_state[c, 1] = _eigmap_component(state, params, new_state, params[c, 0], c, 1)
+    for c in range(n):
+        new_state[c, 0] = _eigmap_component(state, params, new_state, params[c, 0], c, 0)
+    failed = False
+    for c in range(n):
+        dt = params[c, 0]
+        n0 = new_state[c, 0]
+        n1 = new_state[c, 1]
+        n2 = new_state[c, 2]
+        # exp(-tau N) x^+, the operations of _taylor_back
+        out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
+        out[c, 1] = n1 + (-dt) * n2
+        out[c, 2] = n2
+        failed |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(new_state[c, 3])
+                       & math.isfinite(state[c, 3]))
+    return _check_state(new_state) if failed else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def eigmap_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
     m = out.shape[1]
+    if m == 3 and y.shape[0] > 0:
+        status = -3
+        if params[0, 3] == 0.0:
+            status = _eigmap3(state, y, params, new_state, out, 0.0)
+        elif params[0, 3] == 1.0:
+            status = _eigmap3(state, y, params, new_state, out, 1.0)
+        if status != -3:
+            return status
+    failed = False
     for c in range(y.shape[0]):
         row = new_state[c]
         row[m] = eigmap_channel_step(state[c], y[c], params[c], m, row, out[c])
-        if not _row_finite(row):
-            return -2 - c
-    return -1
+        failed |= not _row_finite(row)
+    return _check_state(new_state) if failed else -1
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -311,14 +635,11 @@ def eigmap_kernel(state, y, params, new_state, out):
 # params row: [F (m * m), g (m), R (m * m)]
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def linear_kernel(state, y, params, new_state, out):
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    m = out.shape[1]
+def _linear_rows(state, y, params, new_state, out, m):
+    """The loop of :func:`linear_kernel` for ``m`` estimates (a compile-time constant when inlined)."""
     goff = m * m
     roff = goff + m
+    failed = False
     for c in range(y.shape[0]):
         p = params[c]
         for i in range(m):
@@ -331,10 +652,27 @@ def linear_kernel(state, y, params, new_state, out):
             for j in range(m):
                 acc += p[roff + i * m + j] * new_state[c, j]
             out[c, i] = acc
+            failed |= not math.isfinite(acc)
         new_state[c, m] = y[c] - state[c, 0]
-        if not _row_finite(new_state[c]):
-            return -2 - c
-    return -1
+        failed |= not _row_finite(new_state[c])
+    return _check_state(new_state) if failed else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def linear_kernel(state, y, params, new_state, out):
+    y, out = _flat(y, out)
+    bad = _first_nonfinite(y)
+    if bad >= 0:
+        return bad
+    m = out.shape[1]
+    # fixed widths for the common orders (constant strides and unrolled loops, see module notes)
+    if m == 2:
+        _check_widths(state, new_state, params, out, 3, 10, 2)
+        return _linear_rows(state, y, params, new_state, out, 2)
+    if m == 3:
+        _check_widths(state, new_state, params, out, 4, 21, 3)
+        return _linear_rows(state, y, params, new_state, out, 3)
+    return _linear_rows(state, y, params, new_state, out, m)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -342,23 +680,15 @@ def linear_kernel(state, y, params, new_state, out):
 # state row: [x0, x1, x2, P00, P01, P02, P11, P12, P22, innovation]; params row: [dt, q, r]
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def kalman_ca_channel_step(s, y, params, s_new):
-    r"""Predict with :math:`F = e^{\tau N}` and the white-jerk process noise, then update with ``y``.
+def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
+    r"""Covariance half of :func:`kalman_ca_channel_step`: posterior :math:`P^+` (upper triangle) and gain ``K``.
 
     .. math::
-        Q = q\begin{bmatrix} \tau^5/20 & \tau^4/8 & \tau^3/6\\ \tau^4/8 & \tau^3/3 & \tau^2/2\\
-            \tau^3/6 & \tau^2/2 & \tau\end{bmatrix},\qquad
-        K = P^- c / (c^T P^- c + r),\quad c = (1, 0, 0).
+        P^- = F P F^T + Q,\quad K = P^- c / (c^T P^- c + r),\quad P^+ = (I - K c^T) P^-,\quad c = (1, 0, 0).
+
+    Returns ``(P00, P01, P02, P11, P12, P22, k0, k1, k2)``. It does not depend on the measurement.
     """
-    dt = params[0]
-    q = params[1]
-    r = params[2]
     h = 0.5 * dt * dt
-    # x^- = F x                                                   (prior mean)
-    x0 = s[0] + dt * s[1] + h * s[2]
-    x1 = s[1] + dt * s[2]
-    x2 = s[2]
-    p00, p01, p02, p11, p12, p22 = s[3], s[4], s[5], s[6], s[7], s[8]
     # P^- = F P F^T + Q                                           (prior covariance)
     a00 = p00 + dt * p01 + h * p02  # rows of F P
     a01 = p01 + dt * p11 + h * p12
@@ -379,22 +709,51 @@ def kalman_ca_channel_step(s, y, params, s_new):
     m11 += q * dt3 / 3.0
     m12 += q * dt2 / 2.0
     m22 += q * dt
-    # innovation and gain                                          nu = y - c x^-,  S = c P^- c^T + r
-    nu = y - x0
+    # gain                                                         S = c P^- c^T + r
     S_inv = 1.0 / (m00 + r)
     k0 = m00 * S_inv
     k1 = m01 * S_inv
     k2 = m02 * S_inv
-    # x^+ = x^- + K nu,  P^+ = (I - K c) P^-                       (posterior)
-    s_new[0] = x0 + k0 * nu
-    s_new[1] = x1 + k1 * nu
-    s_new[2] = x2 + k2 * nu
-    s_new[3] = m00 - k0 * m00
-    s_new[4] = m01 - k0 * m01
-    s_new[5] = m02 - k0 * m02
-    s_new[6] = m11 - k1 * m01
-    s_new[7] = m12 - k1 * m02
-    s_new[8] = m22 - k2 * m02
+    # P^+ = (I - K c) P^-                                          (posterior covariance)
+    return (m00 - k0 * m00, m01 - k0 * m01, m02 - k0 * m02, m11 - k1 * m01, m12 - k1 * m02, m22 - k2 * m02,
+            k0, k1, k2)
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2):
+    r"""Mean half of :func:`kalman_ca_channel_step`: :math:`x^- = F x`, :math:`x^+ = x^- + K(y - c^T x^-)`.
+
+    Returns ``(x0, x1, x2, nu)`` with the innovation :math:`\nu = y - c^T x^-`.
+    """
+    h = 0.5 * dt * dt
+    # x^- = F x                                                   (prior mean)
+    m0 = x0 + dt * x1 + h * x2
+    m1 = x1 + dt * x2
+    m2 = x2
+    nu = y - m0
+    # x^+ = x^- + K nu                                             (posterior mean)
+    return m0 + k0 * nu, m1 + k1 * nu, m2 + k2 * nu, nu
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def kalman_ca_channel_step(s, y, params, s_new):
+    r"""Predict with :math:`F = e^{\tau N}` and the white-jerk process noise, then update with ``y``.
+
+    .. math::
+        Q = q\begin{bmatrix} \tau^5/20 & \tau^4/8 & \tau^3/6\\ \tau^4/8 & \tau^3/3 & \tau^2/2\\
+            \tau^3/6 & \tau^2/2 & \tau\end{bmatrix},\qquad
+        K = P^- c / (c^T P^- c + r),\quad c = (1, 0, 0).
+
+    State row ``s``: ``[x0, x1, x2, P00, P01, P02, P11, P12, P22, ...]``; params ``[dt, q, r]``. Returns the
+    innovation.
+    """
+    P = kalman_ca_covariance(s[3], s[4], s[5], s[6], s[7], s[8], params[0], params[1], params[2])
+    x0, x1, x2, nu = kalman_ca_mean(s[0], s[1], s[2], y, params[0], P[6], P[7], P[8])
+    s_new[0] = x0
+    s_new[1] = x1
+    s_new[2] = x2
+    for i in range(6):
+        s_new[3 + i] = P[i]
     return nu
 
 
@@ -404,15 +763,33 @@ def kalman_ca_kernel(state, y, params, new_state, out):
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
-    m = out.shape[1]
+    _check_widths(state, new_state, params, out, 10, 3, 3)
+    # two passes (covariance, then mean) so that each loop has few enough strided accesses for LLVM's
+    # vectorizer; the gain waits in ``out``
     for c in range(y.shape[0]):
-        row = new_state[c]
-        row[9] = kalman_ca_channel_step(state[c], y[c], params[c], row)
-        if not _row_finite(row):
-            return -2 - c
-        for i in range(m):
-            out[c, i] = row[i]
-    return -1
+        P = kalman_ca_covariance(state[c, 3], state[c, 4], state[c, 5], state[c, 6], state[c, 7], state[c, 8],
+                                 params[c, 0], params[c, 1], params[c, 2])
+        for i in range(6):
+            new_state[c, 3 + i] = P[i]
+        out[c, 0] = P[6]
+        out[c, 1] = P[7]
+        out[c, 2] = P[8]
+    failed = False
+    for c in range(y.shape[0]):
+        x0, x1, x2, nu = kalman_ca_mean(state[c, 0], state[c, 1], state[c, 2], y[c], params[c, 0],
+                                        out[c, 0], out[c, 1], out[c, 2])
+        new_state[c, 0] = x0
+        new_state[c, 1] = x1
+        new_state[c, 2] = x2
+        new_state[c, 9] = nu
+        out[c, 0] = x0
+        out[c, 1] = x1
+        out[c, 2] = x2
+        failed |= not (math.isfinite(x0) & math.isfinite(x1) & math.isfinite(x2) & math.isfinite(nu)
+                       & math.isfinite(new_state[c, 3]) & math.isfinite(new_state[c, 4])
+                       & math.isfinite(new_state[c, 5]) & math.isfinite(new_state[c, 6])
+                       & math.isfinite(new_state[c, 7]) & math.isfinite(new_state[c, 8]))
+    return _check_state(new_state) if failed else -1
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -420,28 +797,41 @@ def kalman_ca_kernel(state, y, params, new_state, out):
 # state row: [y, v, (a), innovation, samples since reset]; params row: [dt]
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
+def _finite_difference_rows(state, y, params, new_state, out, m):
+    """The loop of :func:`finite_difference_kernel` for ``m`` = 2 or 3 estimates (compile-time when inlined)."""
+    _check_widths(state, new_state, params, out, m + 2, 1, m)
+    failed = False
+    for c in range(y.shape[0]):
+        dt = params[c, 0]
+        count = state[c, m + 1]
+        yc = y[c]
+        y0 = state[c, 0]
+        v = (yc - y0) / dt
+        new_state[c, 0] = yc
+        new_state[c, 1] = v
+        out[c, 0] = yc
+        out[c, 1] = v
+        if m > 2:
+            # the first difference after a reset has no previous velocity: keep acceleration at zero
+            a = (v - state[c, 1]) / dt if count >= 1.0 else 0.0
+            new_state[c, 2] = a
+            out[c, 2] = a
+            failed |= not math.isfinite(a)
+        new_state[c, m] = yc - y0
+        new_state[c, m + 1] = count + 1.0
+        failed |= not (math.isfinite(v) & math.isfinite(yc - y0) & math.isfinite(count + 1.0))
+    return _check_state(new_state) if failed else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def finite_difference_kernel(state, y, params, new_state, out):
     y, out = _flat(y, out)
     bad = _first_nonfinite(y)
     if bad >= 0:
         return bad
-    m = out.shape[1]
-    for c in range(y.shape[0]):
-        dt = params[c, 0]
-        count = state[c, m + 1]
-        v = (y[c] - state[c, 0]) / dt
-        new_state[c, 0] = y[c]
-        new_state[c, 1] = v
-        if m > 2:
-            # the first difference after a reset has no previous velocity: keep acceleration at zero
-            new_state[c, 2] = (v - state[c, 1]) / dt if count >= 1.0 else 0.0
-        new_state[c, m] = y[c] - state[c, 0]
-        new_state[c, m + 1] = count + 1.0
-        if not _row_finite(new_state[c]):
-            return -2 - c
-        for i in range(m):
-            out[c, i] = new_state[c, i]
-    return -1
+    if out.shape[1] == 2:
+        return _finite_difference_rows(state, y, params, new_state, out, 2)
+    return _finite_difference_rows(state, y, params, new_state, out, 3)
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -100,10 +100,9 @@ class Observer:
     discretizations: ClassVar[tuple[str, ...]] = ("euler",)
     #: short name used by :func:`smo_gym.observers.make_observer`, the wrapper and the CLI
     name: ClassVar[str] = ""
-    # compiled call of update(), bound lazily (class-level defaults keep subclasses and old pickles working)
-    _call = None
-    _call_key = None
-    _out_shape = None
+    # compiled call of update(), bound lazily (class-level defaults keep subclasses and old pickles working):
+    # ``(entry point, params, measurement shape, estimate shape)``, one attribute for the hot path
+    _bound = None
 
     def __init__(self, dt: float, order: int, discretization: str | None):
         self.dt = check_positive("dt", dt)
@@ -157,17 +156,20 @@ class Observer:
 
     # ---- compiled call used by update() ----------------------------------------------------------------------
     def _unbind(self) -> None:
-        self._call = None  # the kernel's compiled entry point, bound on the first update after a full reset
-        self._call_key = None  # the ``_shape`` object it was bound for
-        self._out_shape = None
+        self._bound = None  # bound again on the first update after a full reset
 
-    def _bind(self) -> None:
+    @property
+    def _call(self):
+        """The compiled entry point ``update()`` calls (``None`` before the first update after a full reset)."""
+        return None if self._bound is None else self._bound[0]
+
+    def _bind(self) -> tuple:
         """Resolve the kernel and its entry point once per full reset (``update`` then calls it directly)."""
         out = np.empty(self._estimate.shape)
         y = np.empty(self._shape)
-        self._call = _compiled_entry(self._kernel, (self._state, y, self._params, self._scratch, out))
-        self._out_shape = out.shape
-        self._call_key = self._shape
+        call = _compiled_entry(self._kernel, (self._state, y, self._params, self._scratch, out))
+        self._bound = (call, self._params, self._shape, out.shape)
+        return self._bound
 
     # ---- public API -----------------------------------------------------------------------------------------
     def _as_measurement(self, y, name: str) -> np.ndarray:
@@ -208,6 +210,7 @@ class Observer:
             self._estimate = np.zeros(y0.shape + (self.order + 1,))
             self._estimate[..., 0] = y0
             self.n_updates = 0
+            self._unbind()  # new arrays and shape: the next update binds the entry point again
             return self._estimate.copy()
         if self._state is None:
             raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
@@ -243,21 +246,25 @@ class Observer:
         DivergenceError
             If the state would become non-finite (the previous state is kept).
         """
-        state = self._state
-        if state is None:
-            raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
+        bound = self._bound
+        if bound is None:  # never reset, or the first update after a full reset
+            if self._state is None:
+                raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
+            bound = self._bind()
+        call, params, shape, out_shape = bound
         # the compiled entry point needs exactly: ndarray, native float64, C-contiguous, aligned, shape as at reset
         if type(y) is not _NDARRAY or y.dtype is not _FLOAT64 or not ((f := y.flags).c_contiguous and f.aligned):
             y = np.require(self._as_measurement(y, "y"), _FLOAT64, ("C", "A"))
-        if y.shape != self._shape:
-            raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
-        if self._call_key is not self._shape:  # first update after a full reset (or a subclass set a new shape)
-            self._bind()
-        out = _empty(self._out_shape)
-        status = self._call(state, y, self._params, self._scratch, out)
+        if y.shape != shape:
+            raise ValueError(f"expected y with shape {shape}, actual value: {y.shape}")
+        out = _empty(out_shape)
+        state = self._state
+        scratch = self._scratch
+        status = call(state, y, params, scratch, out)
         if status != -1:
             self._raise_status(status, y)
-        self._state, self._scratch = self._scratch, state
+        self._state = scratch
+        self._scratch = state
         self._estimate = out
         self.n_updates += 1
         return out
@@ -365,7 +372,7 @@ class Observer:
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        state.update(_call=None, _call_key=None, _out_shape=None)  # compiled entry points do not pickle
+        state.pop("_bound", None)  # compiled entry points do not pickle (bound again at the next update)
         return state
 
     def __repr__(self) -> str:
