@@ -164,21 +164,25 @@ def format_table(results: list[dict]) -> str:
 def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     """The wrapped env with its parts switched off one after the other (instance attributes replaced), to measure
     each part's marginal cost *in situ* (interleaved with the physics, caches as in real use): ``full``;
-    ``-scratch obs`` (``adapter.observation`` returns a constant: no scratch evaluation of ``_get_obs``);
-    ``-observe`` (``_observe`` returns a constant: also no finiteness check, ``info["smo"]`` copies, measured
-    ``qpos`` mapping); ``-sensing`` (also no sensor and no observer update: what remains is the wrapper's skeleton
-    and, at ``rate="physics"``, the substep hook with its per-physics-step callback)."""
+    ``-scratch obs`` (the scratch evaluation of ``_get_obs`` returns a constant); ``-observe`` (no observation
+    at all: also no finiteness check and no ``info["smo"]``); ``-sensing`` (also no sensor and no observer
+    update: what remains is the wrapper's skeleton and, at ``rate="physics"``, the substep hook with its
+    per-physics-step callback). The wrapper's hot path (``FusedSensing``) is what is switched off."""
     def wrapped():
-        return make_variant(env_id, rate, observer)
+        env = make_variant(env_id, rate, observer)
+        env.reset(seed=0)
+        if env._fused is None:
+            raise SystemExit(f"{env_id}: the wrapper does not take the fused hot path; no ablation")
+        return env
 
     full, no_scratch, no_observe, no_sensing = wrapped(), wrapped(), wrapped(), wrapped()
     const = np.array(full.observation_space.sample(), dtype=np.float64)
     for env in (no_scratch, no_observe, no_sensing):
-        env.adapter.observation = lambda q, v, c=const: c
+        env.adapter.observe_scratch = lambda c=const: c
     for env in (no_observe, no_sensing):
-        env._observe = lambda info, c=const: c
-    empty = np.zeros((0, full.adapter.model.nv))
-    no_sensing.measurement.measure_block = lambda samples, e=empty: e
+        env._observe_fused = lambda block, info, c=const: c
+    block = np.zeros(2 * full.adapter.model.nq + 4 * full.adapter.model.nv)
+    no_sensing._fused.sample = lambda samples, qvel, b=block: b
     return {"raw": make_variant(env_id, "raw"), "full": full, "-scratch obs": no_scratch, "-observe": no_observe,
             "-sensing": no_sensing}
 
@@ -192,9 +196,9 @@ def format_ablation(env_id: str, rate: str, res: dict) -> str:
     def diff(a, b):
         return 1e6 * float(np.median(np.array(times[a]) - np.array(times[b]))) / steps
 
-    parts = [("scratch evaluation of the observation (adapter.observation)", diff("full", "-scratch obs")),
-             ("rest of _observe (finiteness check, info['smo'], measured qpos)", diff("-scratch obs", "-observe")),
-             ("sensor + observer updates (measure_block, estimator/observer.run)", diff("-observe", "-sensing")),
+    parts = [("scratch evaluation of the observation (adapter.observe_scratch)", diff("full", "-scratch obs")),
+             ("finiteness check and info['smo']", diff("-scratch obs", "-observe")),
+             ("sensor + observer + outputs (FusedSensing.sample, one compiled call)", diff("-observe", "-sensing")),
              ("skeleton (Wrapper.step, bookkeeping" + (", substep hook + _record)" if rate != "env" else ")"),
               diff("-sensing", "raw"))]
     lines = [f"{env_id}, rate={rate!r}: raw {raw_us:.1f} us/step, wrapped {res['full']['us']:.1f} us/step "

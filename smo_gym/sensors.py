@@ -143,7 +143,7 @@ def _chain_kernel(y, kinds, params, state, ring, ring_pos, rand, prime, out):
 
 
 @njit(cache=True)
-def _chain_block(Y, kinds, params, state, ring, ring_pos, rand, t0, out):
+def _chain_block(Y, kinds, params, state, ring, ring_pos, rand, t0, out, prime=False):
     """:func:`_chain_kernel` over the rows of ``Y`` (T, N), random numbers from ``rand[t0 + t]``.
 
     Returns -1, or ``t * N + j`` for the first non-finite output (row ``t``, channel ``j``): one integer, so the
@@ -151,7 +151,7 @@ def _chain_block(Y, kinds, params, state, ring, ring_pos, rand, t0, out):
     """
     n = Y.shape[1]
     for t in range(Y.shape[0]):
-        status = _chain_kernel(Y[t], kinds, params, state, ring, ring_pos, rand[t0 + t], False, out[t])
+        status = _chain_kernel(Y[t], kinds, params, state, ring, ring_pos, rand[t0 + t], prime, out[t])
         if status != -1:
             return t * n + status
     return -1
@@ -289,10 +289,9 @@ class Sensor:
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"expected dt > 0, actual value: {dt!r}")
         n = y0.size
-        angular = self._angular(n, None if angular is None else np.broadcast_to(angular, y0.shape))
+        if not (type(angular) is np.ndarray and angular.dtype == bool and angular.shape == (n,)):
+            angular = self._angular(n, None if angular is None else np.broadcast_to(angular, y0.shape))
         config = (y0.shape, float(dt), angular.tobytes())
-        stages = self.stages
-        S = len(stages)
         if rng is not None and rng is self._rng and config == self._config:
             # the same stream continues (an episode restart without a new seed): the packed parameters and the
             # pre-drawn random block stay valid, so a restart costs no refill
@@ -300,6 +299,8 @@ class Sensor:
             self._ring[:] = 0.0
             self._ring_pos[:] = 0
         else:
+            stages = self.stages
+            S = len(stages)
             self._rng = rng if rng is not None else np.random.default_rng(seed)
             self._shape, self._config, self._size = y0.shape, config, n
             self._kinds = np.array([st._kind for st in stages], dtype=np.int64)
@@ -310,19 +311,25 @@ class Sensor:
             self._ring_pos = np.zeros(S, dtype=np.int64)
             for s, st in enumerate(stages):
                 self._params[s] = st._pack(n, angular, dt)
+            # stages whose state is drawn per episode (Bias); the others start at zero
+            self._drawn = [(s, st) for s, st in enumerate(stages)
+                           if type(st)._initial_state is not Stage._initial_state]
             self._rand = np.zeros((BLOCK, 2, S, n))
             self._t = BLOCK  # drawn at the first sample
             self._block_call = None
-        for s, st in enumerate(stages):
+        for s, st in self._drawn:
             self._state[s] = st._initial_state(n, self._rng)
         if self._t >= BLOCK:
             self._refill()
-        out = np.empty(n)
-        status = _chain_kernel(y0.reshape(-1), self._kinds, self._params, self._state, self._ring, self._ring_pos,
-                               self._rand[self._t], True, out)
+        if self._block_call is None:
+            self._bind()
+        out = np.empty((1, n))
+        y0f = y0.reshape(1, n)
+        status = self._block_call(y0f, self._kinds, self._params, self._state, self._ring, self._ring_pos,
+                                  self._rand, self._t, out, True)
         self._t += 1
         if status != -1:
-            self._raise(status, y0.reshape(-1), out)
+            self._raise(status, y0f[0], out[0])
         return out.reshape(self._shape)
 
     def _refill(self) -> None:
@@ -357,7 +364,7 @@ class Sensor:
 
         Y = np.empty((1, self._size))
         self._block_call = _compiled_entry(_chain_block, (Y, self._kinds, self._params, self._state, self._ring,
-                                                          self._ring_pos, self._rand, np.int64(0), Y))
+                                                          self._ring_pos, self._rand, np.int64(0), Y, np.bool_(False)))
 
     def measure(self, y) -> np.ndarray:
         """Measure one sample of the true signal ``y`` (shape as at ``reset``); returns a new array."""
@@ -397,7 +404,7 @@ class Sensor:
             m = min(T - done, BLOCK - self._t)
             Yb, outb = (Y, out) if m == T else (Y[done:done + m], out[done:done + m])
             status = call(Yb, self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand,
-                          self._t, outb)
+                          self._t, outb, False)
             self._t += m
             if status != -1:
                 t, channel = divmod(status, self._size)

@@ -135,6 +135,43 @@ def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *,
     return cached_bounds(key, compute, disk=disk)
 
 
+class SubstepSampler:
+    """Collects the live ``qpos`` inside ``frame_skip`` for the fused hot path (``each`` or ``every_k`` is the
+    substep callback: one of them runs after every physics step, so they do as little as possible)."""
+
+    __slots__ = ("samples", "n", "count", "every", "qpos")
+
+    def __init__(self, capacity: int, nq: int, every: int):
+        self.samples = np.zeros((max(1, capacity), nq))
+        self.n = self.count = 0
+        self.every = int(every)
+        self.qpos = None
+
+    def start(self, qpos: np.ndarray) -> None:
+        """A new control period; ``qpos`` is the live configuration's view."""
+        self.n = self.count = 0
+        self.qpos = qpos
+
+    def each(self) -> None:
+        n = self.n
+        if n == self.samples.shape[0]:  # an env that steps more than frame_skip frames
+            self.samples = np.concatenate([self.samples, np.zeros_like(self.samples)])
+        self.samples[n] = self.qpos
+        self.n = n + 1
+
+    def every_k(self) -> None:
+        self.count += 1
+        if self.count % self.every == 0:
+            self.each()
+
+    def __getstate__(self):
+        return {"samples": self.samples, "n": 0, "count": 0, "every": self.every, "qpos": None}
+
+    def __setstate__(self, state):
+        for key, value in state.items():
+            setattr(self, key, value)
+
+
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     r"""Replace a MuJoCo environment's true state by measured positions and estimated velocities.
 
@@ -257,7 +294,10 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._substep_count = 0
         self._substep_hook = None
         self._live = None
-        self._nq, self._nv = model.nq, model.nv
+        self._nq, self._nv = nq, nv = model.nq, model.nv
+        self._info_slices = (slice(0, nq), slice(nq, nq + nv), slice(nq + nv, nq + 2 * nv),
+                             slice(nq + 2 * nv, 2 * nq + 2 * nv))
+        self._sampler = SubstepSampler(n_samples, model.nq, self.sample_every)
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
         #: reset, after a subclass has set its estimator)
         self._fused: FusedSensing | None = None
@@ -297,61 +337,56 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._samples[self._n_samples] = self.adapter.data.qpos
             self._n_samples += 1
 
-    def _live_views(self) -> tuple:
-        """``(data, qpos[None], qvel, qpos)`` of the live simulation data, cached (an ``MjData`` field access builds
-        a new view each time) and refreshed if the environment replaced its data."""
+    def _step_fused(self, fused, action):
+        """``step`` through :class:`~smo_gym.wrappers.sensing.FusedSensing`: one compiled call after the physics.
+
+        Written flat on purpose: every Python operation here costs two to three times its micro-benchmark time
+        right after the physics step, and a small model's whole step is ~30 us.
+        """
         data = self.adapter.data
         live = self._live
-        if live is None or live[0] is not data:
-            qpos = data.qpos
-            live = self._live = (data, qpos[None], data.qvel, qpos)
-        return live
-
-    def _record_fused(self) -> None:
-        """Substep callback of the fused path: copy the live ``qpos`` into the sample buffer every
-        ``sample_every`` physics steps."""
-        self._substep_count += 1
-        if self._substep_count % self.sample_every == 0:
-            n = self._n_samples
-            if n == self._samples.shape[0]:  # an env that steps more than frame_skip frames
-                self._samples = np.concatenate([self._samples, np.zeros_like(self._samples)])
-            self._samples[n] = self._live[3]
-            self._n_samples = n + 1
-
-    def _step_fused(self, fused, action):
-        """``step`` through :class:`~smo_gym.wrappers.sensing.FusedSensing`: one compiled call after the physics."""
-        _, qpos, qvel, _ = self._live_views()
+        if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)
+            live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
         if self.sample_every < self.adapter.frame_skip:
-            self._n_samples = self._substep_count = 0
+            sampler = self._sampler
+            sampler.start(live[3])
             hook = self._substep_hook
             if hook is None:
-                hook = self._substep_hook = self.adapter.substeps(self._record_fused)
+                hook = self._substep_hook = self.adapter.substeps(
+                    sampler.each if self.sample_every == 1 else sampler.every_k)
             with hook:
                 _, reward, terminated, truncated, info = self.env.step(action)
-            if self._substep_count == 0:
+            if sampler.count == 0 and sampler.n == 0:
                 raise RuntimeError(
                     "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
                     "actual value: no physics step was observed during step(); use rate='env'"
                 )
-            samples = self._samples[:self._n_samples]
+            samples = sampler.samples[:sampler.n]
         else:
             _, reward, terminated, truncated, info = self.env.step(action)
-            samples = qpos
-        block = fused.sample(samples, qvel)
+            samples = live[1]
+        block = fused.sample(samples, live[2])
         if block is None:  # the samples straddle the sensor's random block: the general path splits them
             self.estimator.observer.run(self.measurement.measure_block(samples))
             return self._observe(info), reward, terminated, truncated, info
+        return self._observe_fused(block, info), reward, terminated, truncated, info
+
+    def _observe_fused(self, block: np.ndarray, info: dict):
+        """The observation at the sensed state FusedSensing wrote into the scratch data, and ``info["smo"]``."""
         obs = self.adapter.observe_scratch()
         check_finite_observation(obs)
         if self.adapter.unflatten is not None:
             obs = self.adapter.unflatten(obs)
-        info["smo"] = SensingInfo.from_block(block, self._nq, self._nv)
-        return obs, reward, terminated, truncated, info
+        block.setflags(write=False)  # SensingInfo.from_block, spelled out with precomputed slices
+        s0, s1, s2, s3 = self._info_slices
+        info["smo"] = SensingInfo(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3])
+        return obs
 
     def __getstate__(self):
         state = dict(self.__dict__)
         state["_substep_hook"] = None  # holds closures over the live simulation; made again on first use
         state["_live"] = None
+        state["_fused"] = None  # bound to this instance's arrays; chosen again at the next reset
         return state
 
     # ---- Gymnasium API --------------------------------------------------------------------------------------

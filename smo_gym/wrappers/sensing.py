@@ -248,6 +248,20 @@ _FLOAT64 = np.dtype(np.float64)
 _first_nonfinite_entry = None
 
 
+def _nonfinite_entry():
+    """Entry point of :func:`_first_nonfinite` for 1-D float64 arrays of any layout (strided views too), so that a
+    caller only has to check the dtype and the number of dimensions."""
+    global _first_nonfinite_entry
+    if _first_nonfinite_entry is None:
+        import numba
+
+        sig = (numba.types.Array(numba.types.float64, 1, "A"),)
+        if sig not in _first_nonfinite.overloads:
+            _first_nonfinite.compile(sig)
+        _first_nonfinite_entry = _first_nonfinite.overloads[sig].entry_point
+    return _first_nonfinite_entry
+
+
 def check_finite_observation(obs: np.ndarray) -> None:
     """Raise ``ValueError`` naming the first non-finite entry of a sensed observation (1-D array).
 
@@ -257,15 +271,8 @@ def check_finite_observation(obs: np.ndarray) -> None:
     check is one compiled call (a NumPy reduction costs about 1 us, comparable to the rest of the step on a
     small model).
     """
-    global _first_nonfinite_entry
-    if type(obs) is np.ndarray and obs.ndim == 1 and obs.dtype is _FLOAT64 and (f := obs.flags).c_contiguous \
-            and f.writeable and f.aligned:
-        call = _first_nonfinite_entry
-        if call is None:
-            from ..observers.base import _compiled_entry
-
-            call = _first_nonfinite_entry = _compiled_entry(_first_nonfinite, (obs,))
-        bad = call(obs)
+    if type(obs) is np.ndarray and obs.dtype is _FLOAT64 and obs.ndim == 1:
+        bad = (_first_nonfinite_entry or _nonfinite_entry())(obs)
         if bad == -1:
             return
     else:
@@ -299,7 +306,7 @@ class SensingInfo(dict):
     def from_block(cls, block: np.ndarray, nq: int, nv: int) -> SensingInfo:
         """From one block ``[qpos, qvel, qvel_estimate, qpos_measured, ...]`` (anything after these four is
         ignored), which it owns from now on (made read-only, as are its views)."""
-        block.flags.writeable = False
+        block.setflags(write=False)
         return cls(qpos=block[:nq], qvel=block[nq:nq + nv], qvel_estimate=block[nq + nv:nq + 2 * nv],
                    qpos_measured=block[nq + 2 * nv:2 * nq + 2 * nv])
 
