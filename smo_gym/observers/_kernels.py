@@ -636,25 +636,29 @@ def eigmap_kernel(state, y, params, new_state, out):
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _linear_rows(state, y, params, new_state, out, m):
-    """The loop of :func:`linear_kernel` for ``m`` estimates (a compile-time constant when inlined)."""
+    """The loops of :func:`linear_kernel` for ``m`` estimates (a compile-time constant when inlined).
+
+    Two passes (``s_new = F s + g y``, then ``out = R s_new``) so that each loop has few enough strided accesses
+    for LLVM's vectorizer.
+    """
     goff = m * m
     roff = goff + m
+    for c in range(y.shape[0]):
+        for i in range(m):
+            acc = params[c, goff + i] * y[c]
+            for j in range(m):
+                acc += params[c, i * m + j] * state[c, j]
+            new_state[c, i] = acc
+        new_state[c, m] = y[c] - state[c, 0]
     failed = False
     for c in range(y.shape[0]):
-        p = params[c]
-        for i in range(m):
-            acc = p[goff + i] * y[c]
-            for j in range(m):
-                acc += p[i * m + j] * state[c, j]
-            new_state[c, i] = acc
         for i in range(m):
             acc = 0.0
             for j in range(m):
-                acc += p[roff + i * m + j] * new_state[c, j]
+                acc += params[c, roff + i * m + j] * new_state[c, j]
             out[c, i] = acc
-            failed |= not math.isfinite(acc)
-        new_state[c, m] = y[c] - state[c, 0]
-        failed |= not _row_finite(new_state[c])
+            failed |= not (math.isfinite(acc) & math.isfinite(new_state[c, i]))
+        failed |= not math.isfinite(new_state[c, m])
     return _check_state(new_state) if failed else -1
 
 
