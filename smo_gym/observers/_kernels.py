@@ -508,6 +508,24 @@ def sta_implicit_kernel(state, y, params, new_state, out):
 # params row: [dt, p1, mu, mode, V ((m + 1) * m)], mode 0 = semi-implicit (15), 1 = matching (16)
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
+def _eigenvalue_root(a, n):
+    """The root :math:`|\\sigma|^{1/n}` of the eigenvalue maps."""
+    # pow kept for n > 2 (not cbrt): with the high-order gains and exp's large arguments at small errors
+    # (relative error of z = |argument| * that of the root, 300x at |sigma| = 1e-9) a one-ulp change of the root
+    # shows at 1e-13, and the tests hold this map to NumPy's a ** (1 / n) at 1e-14
+    return math.sqrt(a) if n == 2 else a ** (1.0 / n)
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _eigenvalue_from_root(a, root, dt, p1, mu, mode):
+    """(15) or (16) given ``a = |sigma|`` and its root (see :func:`eigenvalue_map`)."""
+    semi = root / (dt * p1 * mu * a + root + dt * p1)
+    matching = exp_nonpositive(-dt * p1 * (1.0 + mu * a) / root)  # -inf at a = 0 gives 0
+    z = semi if mode == 0 else matching
+    return z if a != 0.0 else 0.0
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def eigenvalue_map(sigma, dt, p1, mu, n, mode):
     r"""State-dependent discrete eigenvalue :math:`z_n(\sigma)`: (15) semi-implicit or (16) matching of paper 003.
 
@@ -515,14 +533,7 @@ def eigenvalue_map(sigma, dt, p1, mu, n, mode):
     branches would keep LLVM from vectorizing a loop over channels that calls this.
     """
     a = abs(sigma)
-    # pow kept for n > 2 (not cbrt): with the high-order gains and exp's large arguments at small errors
-    # (relative error of z = |argument| * that of the root, 300x at |sigma| = 1e-9) a one-ulp change of the root
-    # shows at 1e-13, and the tests hold this map to NumPy's a ** (1 / n) at 1e-14
-    root = math.sqrt(a) if n == 2 else a ** (1.0 / n)
-    semi = root / (dt * p1 * mu * a + root + dt * p1)
-    matching = exp_nonpositive(-dt * p1 * (1.0 + mu * a) / root)  # -inf at a = 0 gives 0
-    z = semi if mode == 0 else matching
-    return z if a != 0.0 else 0.0
+    return _eigenvalue_from_root(a, _eigenvalue_root(a, n), dt, p1, mu, mode)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -576,13 +587,19 @@ def _eigmap3(state, y, params, new_state, out, mode):
     """
     _check_widths(state, new_state, params, out, 4, 16, 3)
     n = y.shape[0]
-    other_mode = False
+    # the root (a library pow per channel) in a scalar pass of its own: in a vectorized loop every call would
+    # spill the vector registers
     for c in range(n):
         sigma = y[c] - state[c, 0]
         new_state[c, 3] = sigma
-        # the mapping is a compile-time choice (the other one is not computed); rows of another mode are redone
-        # by the generic step below
-        new_state[c, 0] = eigenvalue_map(sigma, params[c, 0], params[c, 1], params[c, 2], 3, mode)
+        new_state[c, 0] = _eigenvalue_root(abs(sigma), 3)
+    other_mode = False
+    for c in range(n):
+        # eigenvalue_map(sigma, ...) from the stored root; the mapping is a compile-time choice (the other one is
+        # not computed); rows of another mode are redone by the generic step below
+        sigma = new_state[c, 3]
+        new_state[c, 0] = _eigenvalue_from_root(abs(sigma), new_state[c, 0], params[c, 0], params[c, 1],
+                                                params[c, 2], mode)
         other_mode |= params[c, 3] != mode
     if other_mode:
         return -3  # not a status: the caller runs the generic step
