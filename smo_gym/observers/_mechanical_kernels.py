@@ -31,6 +31,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .. import _numba_cache
+from . import _kernels
 from ._kernels import CACHE, _check_state, _first_nonfinite, sta_implicit_channel_step
 
 __all__ = ["STATE_WIDTH", "X1_PREV", "MODEL", "INJECTION", "FILTERED", "ERROR", "MODEL_POS", "mechanical_kernel",
@@ -127,3 +129,7 @@ def mechanical_kernel(state, y, params, new_state, out):
         o[ch, 0] = new_state[ch, 0]
         o[ch, 1] = new_state[ch, 1]
     return _check_state(new_state)
+
+
+# these inline helpers of _kernels.py: drop their cached code when it changes (see smo_gym._numba_cache)
+_numba_cache.drop_stale((mechanical_channel_step, mechanical_kernel), [_kernels.__file__])

@@ -76,6 +76,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._numba_cache import drop_stale
 from .._validation import check_choice, check_int_in_range, check_positive
 from . import _kernels
 from .base import Observer
@@ -245,6 +246,8 @@ def _run_low_power(state, Y, params, out):
 
 
 _kernels.register_driver(low_power_kernel, _run_low_power)
+# these inline helpers of _kernels.py: drop their cached code when it changes (see smo_gym._numba_cache)
+drop_stale((low_power_channel_step, low_power_kernel, _run_low_power), [_kernels.__file__])
 
 
 # ----------------------------------------------------------------------------------------------------------------

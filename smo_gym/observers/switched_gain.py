@@ -54,6 +54,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import brentq
 
+from .._numba_cache import drop_stale
 from .._validation import check_int_in_range, check_positive
 from . import _kernels
 from .base import Observer
@@ -269,6 +270,8 @@ def _run_switched_gain(state, Y, params, out):
 
 
 _kernels.register_driver(switched_gain_kernel, _run_switched_gain)
+# these inline helpers of _kernels.py: drop their cached code when it changes (see smo_gym._numba_cache)
+drop_stale((switched_gain_channel_step, switched_gain_kernel, _run_switched_gain), [_kernels.__file__])
 
 
 # ----------------------------------------------------------------------------------------------------------------

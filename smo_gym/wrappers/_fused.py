@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._numba_cache import drop_stale
 from ..observers import _kernels as K
 from ..sensors import _chain_kernel
 from ._tangent import integrate_pos, tangent_advance
@@ -165,3 +166,15 @@ def register_fused_driver(kernel, driver) -> None:
     ``@njit(cache=True)`` at module level.
     """
     FUSED_DRIVERS[kernel] = driver
+
+
+# the drivers inline the observer kernels, the sensor chain and the tangent arithmetic of other modules: drop
+# their cached machine code when one of those is newer (numba keys the cache on this file only)
+def _dependencies() -> list[str]:
+    from .. import sensors
+    from . import _tangent
+
+    return [K.__file__, sensors.__file__, _tangent.__file__]
+
+
+drop_stale(FUSED_DRIVERS.values(), _dependencies())
