@@ -701,16 +701,9 @@ def linear_kernel(state, y, params, new_state, out):
 # state row: [x0, x1, x2, P00, P01, P02, P11, P12, P22, innovation]; params row: [dt, q, r]
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
-    r"""Covariance half of :func:`kalman_ca_channel_step`: posterior :math:`P^+` (upper triangle) and gain ``K``.
-
-    .. math::
-        P^- = F P F^T + Q,\quad K = P^- c / (c^T P^- c + r),\quad P^+ = (I - K c^T) P^-,\quad c = (1, 0, 0).
-
-    Returns ``(P00, P01, P02, P11, P12, P22, k0, k1, k2)``. It does not depend on the measurement.
-    """
+def kalman_ca_prior_covariance(p00, p01, p02, p11, p12, p22, dt, q):
+    r"""Prior covariance :math:`P^- = F P F^T + Q` (upper triangle ``(m00, m01, m02, m11, m12, m22)``)."""
     h = 0.5 * dt * dt
-    # P^- = F P F^T + Q                                           (prior covariance)
     a00 = p00 + dt * p01 + h * p02  # rows of F P
     a01 = p01 + dt * p11 + h * p12
     a02 = p02 + dt * p12 + h * p22
@@ -730,14 +723,34 @@ def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
     m11 += q * dt3 / 3.0
     m12 += q * dt2 / 2.0
     m22 += q * dt
-    # gain                                                         S = c P^- c^T + r
+    return m00, m01, m02, m11, m12, m22
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r):
+    r"""Gain :math:`K = P^- c / (c^T P^- c + r)` and :math:`P^+ = (I - K c^T) P^-`, ``c = (1, 0, 0)``.
+
+    Returns ``(P00, P01, P02, P11, P12, P22, k0, k1, k2)``.
+    """
     S_inv = 1.0 / (m00 + r)
     k0 = m00 * S_inv
     k1 = m01 * S_inv
     k2 = m02 * S_inv
-    # P^+ = (I - K c) P^-                                          (posterior covariance)
     return (m00 - k0 * m00, m01 - k0 * m01, m02 - k0 * m02, m11 - k1 * m01, m12 - k1 * m02, m22 - k2 * m02,
             k0, k1, k2)
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
+    r"""Covariance half of :func:`kalman_ca_channel_step`: posterior :math:`P^+` (upper triangle) and gain ``K``.
+
+    .. math::
+        P^- = F P F^T + Q,\quad K = P^- c / (c^T P^- c + r),\quad P^+ = (I - K c^T) P^-,\quad c = (1, 0, 0).
+
+    Returns ``(P00, P01, P02, P11, P12, P22, k0, k1, k2)``. It does not depend on the measurement.
+    """
+    m00, m01, m02, m11, m12, m22 = kalman_ca_prior_covariance(p00, p01, p02, p11, p12, p22, dt, q)
+    return kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -785,17 +798,23 @@ def kalman_ca_kernel(state, y, params, new_state, out):
     if bad >= 0:
         return bad
     _check_widths(state, new_state, params, out, 10, 3, 3)
-    # two passes (covariance, then mean) so that each loop has few enough strided accesses for LLVM's
-    # vectorizer; the gain waits in ``out``
+    # three passes (prior covariance, posterior covariance and gain, mean) so that each loop has few enough
+    # strided accesses for LLVM's vectorizer; the prior waits in ``new_state``, the gain in ``out``
     for c in range(y.shape[0]):
-        P = kalman_ca_covariance(state[c, 3], state[c, 4], state[c, 5], state[c, 6], state[c, 7], state[c, 8],
-                                 params[c, 0], params[c, 1], params[c, 2])
+        M = kalman_ca_prior_covariance(state[c, 3], state[c, 4], state[c, 5], state[c, 6], state[c, 7],
+                                       state[c, 8], params[c, 0], params[c, 1])
+        for i in range(6):
+            new_state[c, 3 + i] = M[i]
+    failed = False
+    for c in range(y.shape[0]):
+        P = kalman_ca_posterior_covariance(new_state[c, 3], new_state[c, 4], new_state[c, 5], new_state[c, 6],
+                                           new_state[c, 7], new_state[c, 8], params[c, 2])
         for i in range(6):
             new_state[c, 3 + i] = P[i]
+            failed |= not math.isfinite(P[i])
         out[c, 0] = P[6]
         out[c, 1] = P[7]
         out[c, 2] = P[8]
-    failed = False
     for c in range(y.shape[0]):
         x0, x1, x2, nu = kalman_ca_mean(state[c, 0], state[c, 1], state[c, 2], y[c], params[c, 0],
                                         out[c, 0], out[c, 1], out[c, 2])
@@ -806,10 +825,7 @@ def kalman_ca_kernel(state, y, params, new_state, out):
         out[c, 0] = x0
         out[c, 1] = x1
         out[c, 2] = x2
-        failed |= not (math.isfinite(x0) & math.isfinite(x1) & math.isfinite(x2) & math.isfinite(nu)
-                       & math.isfinite(new_state[c, 3]) & math.isfinite(new_state[c, 4])
-                       & math.isfinite(new_state[c, 5]) & math.isfinite(new_state[c, 6])
-                       & math.isfinite(new_state[c, 7]) & math.isfinite(new_state[c, 8]))
+        failed |= not (math.isfinite(x0) & math.isfinite(x1) & math.isfinite(x2) & math.isfinite(nu))
     return _check_state(new_state) if failed else -1
 
 
