@@ -253,7 +253,9 @@ class Observer:
             bound = self._bind()
         call, params, shape, out_shape = bound
         # the compiled entry point needs exactly: ndarray, native float64, C-contiguous, aligned, shape as at reset
-        if type(y) is not _NDARRAY or y.dtype is not _FLOAT64 or not ((f := y.flags).c_contiguous and f.aligned):
+        # (``carray``: C-contiguous, aligned and writeable, one flag for the common case)
+        if (type(y) is not _NDARRAY or y.dtype is not _FLOAT64
+                or not ((f := y.flags).carray or (f.c_contiguous and f.aligned))):
             y = np.require(self._as_measurement(y, "y"), _FLOAT64, ("C", "A"))
         if y.shape != shape:
             raise ValueError(f"expected y with shape {shape}, actual value: {y.shape}")
