@@ -107,6 +107,27 @@ def test_batch_equals_per_channel_loop(name, kwargs, rng):
             np.testing.assert_allclose(batch[:, i, j], ref, rtol=1e-12, atol=1e-12, err_msg=f"channel {(i, j)}")
 
 
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_restart_equals_a_fresh_reset_in_place(name, kwargs, rng):
+    """``restart(y)`` after a run continues exactly as a fresh observer started with ``reset(y)``, and keeps the
+    state array (a compiled caller holding it stays valid)."""
+    Y = measurements(rng)
+    obs = build(name, kwargs)
+    update_loop(obs, Y[:50])
+    state_array = obs._state
+    first = obs.restart(Y[50])
+    assert obs.n_updates == 0 and obs._state is state_array
+    fresh = build(name, kwargs)
+    np.testing.assert_array_equal(first, fresh.reset(Y[50]))
+    np.testing.assert_array_equal(obs.run(Y[51:]), fresh.run(Y[51:]))
+    with pytest.raises(ValueError, match="expected y0 with shape"):
+        obs.restart(Y[0, :2])
+    bad = Y[0].copy()
+    bad[1, 3] = np.nan
+    with pytest.raises(ValueError, match="channel 3"):
+        obs.restart(bad)
+
+
 @pytest.mark.parametrize("mask_shape", [(4,), (4, 7)])
 @pytest.mark.parametrize("name, kwargs", CASES)
 def test_masked_reset_restarts_only_masked_rows(name, kwargs, mask_shape, rng):

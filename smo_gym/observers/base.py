@@ -224,6 +224,30 @@ class Observer:
         self._estimate[mask, 0] = y0[mask]
         return self._estimate.copy()
 
+    def restart(self, y0) -> np.ndarray:
+        """``reset(y0)`` for a measurement of the shape of the last full reset, keeping the per-channel parameters.
+
+        A new episode of the same environment: the state is rewritten in place (arrays keep their identity, so
+        a compiled caller holding them stays valid), the estimate starts at ``y0`` with zero derivatives and
+        ``n_updates`` at 0, and the parameters are not derived again (a full reset re-validates and re-packs
+        them, ~40 us). Subclasses that override ``reset`` get ``reset(y0)`` itself.
+        """
+        if type(self).reset is not Observer.reset:
+            return self.reset(y0)
+        if self._state is None:
+            raise RuntimeError("expected a full reset(y0) before restart(y0), actual value: never reset")
+        y0 = self._as_measurement(y0, "y0")
+        if y0.shape != self._shape:
+            raise ValueError(f"expected y0 with shape {self._shape} for a restart, actual value: {y0.shape}")
+        if not np.all(np.isfinite(y0)):
+            self._raise_nonfinite(y0, "y0")
+        self._state[...] = self._initial_state(y0.reshape(-1), self._params)
+        estimate = np.zeros(self._estimate.shape)
+        estimate[..., 0] = y0
+        self._estimate = estimate
+        self.n_updates = 0
+        return estimate.copy()
+
     def update(self, y) -> np.ndarray:
         """Process one sample and return the estimate at its time.
 
