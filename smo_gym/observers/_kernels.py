@@ -45,9 +45,14 @@ by ``scripts/bench_observers.py``) plus a few ns per channel. What keeps the per
   :math:`|e|^{q/m}` is a product of the root :math:`r = |e|^{1/m}` with ``q`` a compile-time constant; other
   tables run the generic step (:func:`hosm_channel_step`, one ``r`` and :func:`_abs_power` per term).
 * Vectorizable roots: ``sqrt`` for ``m = 2``; for ``m = 3`` the cube root of fdlibm (:func:`cbrt`: a bit-level
-  first guess, a polynomial and one Newton step, error below 1 ulp) instead of ``exp(log(a) / 3)``, and
+  first guess, a polynomial and one refinement step, error below 1 ulp) instead of ``exp(log(a) / 3)``, and
   fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic
-  so that they vectorize (numba has no vector math library without SVML).
+  so that they vectorize (numba has no vector math library without SVML). The eigenvalue maps keep the C
+  library's ``pow`` for their root (see :func:`_eigenvalue_root`), in a scalar pass of its own.
+* Few strided accesses per loop. LLVM's vectorizer gives up on a loop with too many accesses at non-unit
+  strides (``Too many SCEV assumptions``), so wide steps run in several passes over the channels, the
+  intermediate values waiting in ``new_state`` or ``out``: two for the order-2 HOSM step and the linear
+  observer, three for the Kalman filter, five for the order-2 eigenvalue-mapping step.
 * ``error_model="numpy"`` (no zero-division checks: every divisor is positive for valid parameters; a
   non-finite result still ends as status ``-2 - i``), and ``_flat`` reshapes only measurements with batch
   dimensions (a 1-D ``y`` passes through untouched).
