@@ -406,6 +406,32 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         return SubstepHook(env, "_step_mujoco_simulation", step_with_samples)
 
 
+    def record_substeps(self, sampler) -> SubstepHook:
+        """:meth:`substeps` specialised to sampling every physics step: the loop itself copies ``qpos`` after
+        each ``mj_step`` into ``sampler.samples`` (rows ``sampler.n`` on, grown if needed) and advances
+        ``sampler.n``, with no Python callback per physics step (a call costs about as much as a small model's
+        physics step)."""
+        env, model = self.env, self.model
+        mj_step = mujoco.mj_step
+
+        def step_recording(ctrl, n_frames):
+            data = env.data
+            data.ctrl[:] = ctrl
+            start = sampler.n
+            samples = sampler.samples
+            if samples.shape[0] < start + n_frames:
+                samples = sampler.samples = np.concatenate(
+                    [samples, np.zeros((start + n_frames, samples.shape[1]))])
+            qpos = data.qpos
+            for i in range(start, start + n_frames):
+                mj_step(model, data)
+                samples[i] = qpos
+            sampler.n = start + n_frames
+            mujoco.mj_rnePostConstraint(model, data)
+
+        return SubstepHook(env, "_step_mujoco_simulation", step_recording)
+
+
 class SubstepHook:
     """Reusable context manager: set ``owner.<name> = function`` on entry, delete the instance attribute on exit.
 

@@ -186,6 +186,10 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         return {key: flat[a:b].reshape(shape).copy() for key, a, b, shape in self._slices}
 
     # ---- sampling inside the control step -------------------------------------------------------------------
+    #: the Gymnasium adapter's recording loop replaces MujocoEnv._step_mujoco_simulation; dm_control steps
+    #: through Physics.step, sampled by the callback hook of substeps()
+    record_substeps = None
+
     def supports_substeps(self) -> bool:
         """dm_control steps its physics through ``Physics.step``, which can be replaced on the instance."""
         return True

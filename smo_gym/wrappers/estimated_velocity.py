@@ -352,8 +352,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             sampler.start(live[3])
             hook = self._substep_hook
             if hook is None:
-                hook = self._substep_hook = self.adapter.substeps(
-                    sampler.each if self.sample_every == 1 else sampler.every_k)
+                recorder = getattr(self.adapter, "record_substeps", None)
+                if self.sample_every == 1 and recorder is not None:
+                    hook = self._substep_hook = recorder(sampler)
+                else:
+                    hook = self._substep_hook = self.adapter.substeps(
+                        sampler.each if self.sample_every == 1 else sampler.every_k)
             with hook:
                 _, reward, terminated, truncated, info = self.env.step(action)
             if sampler.count == 0 and sampler.n == 0:
