@@ -272,7 +272,10 @@ class Sensor:
             Seed of the sensor's own random stream (``numpy.random.default_rng(seed)``); ignored if ``rng`` is
             given. A vector env gives each environment its own seed, hence its own stream.
         rng : numpy.random.Generator, optional
-            Use this generator (kept and advanced by the sensor).
+            Use this generator (kept and advanced by the sensor). Passing the generator of the previous reset
+            (same shape, ``dt`` and ``angular``) *continues* the stream: a new episode restarts the stages' state
+            (delays, held values, drawn biases) but keeps the packed parameters and the random numbers already
+            drawn, so a restart costs no refill. A new generator or seed packs the stages again.
         dt : float
             Sampling step [s] (scales the random walk of :class:`Drift`).
         angular : array_like of bool, shape (..., n_channels), optional
