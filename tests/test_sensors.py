@@ -202,3 +202,29 @@ def test_nan_never_passes_silently():
         Dropout(1.5)
     with pytest.raises(RuntimeError, match="reset"):
         make_sensor("ideal").measure(np.zeros(2))
+
+
+def test_restart_with_the_same_generator_continues_the_stream_and_restarts_the_state():
+    """An episode restart (``reset`` with the previous generator) keeps the random block but restarts every
+    stage's state: delay lines are primed with the new first value, a per-episode bias is drawn again; the whole
+    sequence is reproducible from the seed."""
+    from smo_gym.sensors import Bias, Delay, GaussianNoise
+
+    def episodes(seed):
+        sensor = Delay(2) | Bias(0.0, std=0.1) | GaussianNoise(1e-6)
+        rng = np.random.default_rng(seed)
+        out = [sensor.reset(np.zeros(3), rng=rng)]
+        out += [sensor.measure(np.full(3, float(k))) for k in range(1, 6)]
+        block = sensor._rand
+        out.append(sensor.reset(np.full(3, 50.0), rng=rng))
+        assert sensor._rand is block  # no refill at the restart
+        out += [sensor.measure(np.full(3, 51.0 + k)) for k in range(3)]
+        return np.array(out)
+
+    a, b = episodes(0), episodes(0)
+    np.testing.assert_array_equal(a, b)
+    bias_1, bias_2 = a[0], a[6] - 50.0
+    assert np.all(np.abs(bias_1 - bias_2) > 1e-4)  # drawn again for the new episode
+    # the delay line restarted at 50: two samples of the new first value, then 51 (none of the old episode)
+    np.testing.assert_allclose(a[7:9], np.broadcast_to(50.0 + bias_2, (2, 3)), atol=1e-5)
+    np.testing.assert_allclose(a[9], 51.0 + bias_2, atol=1e-5)
