@@ -38,7 +38,10 @@ needed is *probed* once at construction, with no per-environment table: the obse
 data whose other fields are all NaN, after no computation, then after the kinematic stages only (no collision
 detection or constraint solver); the first that comes out finite and equal to the ``mj_forward`` result at
 random states is used (Hopper, HalfCheetah, Ant: none; Humanoid: kinematics; InvertedDoublePendulum, whose
-observation has a constraint force: the full forward pass).
+observation has a constraint force: the full forward pass). The same NaN probe then finds which of the inputs
+(``ctrl``, applied forces, ``time``, ...) and whether ``cfrc_ext`` the observation reads at all, and whether
+``_get_obs`` returns a fresh array; only what is read is copied at every step, and fresh arrays are not copied
+again (``observe_scratch``, the per-step path).
 
 Contact forces
 --------------

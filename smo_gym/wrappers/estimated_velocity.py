@@ -228,9 +228,13 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     Sampling inside ``frame_skip``: during ``step`` the environment's ``_step_mujoco_simulation`` is replaced
     (on the instance, for the duration of the call) by an identical loop of single ``mj_step`` calls that records
-    ``qpos`` after each (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.substeps`); the trajectory,
-    rewards and terminations are bit-identical to the unwrapped environment's (tested on every v5 environment).
-    The samples of one control period go through the sensor in one compiled call, then the observer.
+    ``qpos`` after each (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.record_substeps`); the
+    trajectory, rewards and terminations are bit-identical to the unwrapped environment's (tested on every v5
+    environment). The samples of one control period then go through sensor, tangent coordinates and observer in
+    one compiled call (:class:`~smo_gym.wrappers.sensing.FusedSensing`, for the observers with a fused driver;
+    the others take the general path with the same numbers), which also writes the sensed state into the scratch
+    data the observation is evaluated on. Observer parameters are derived at the first reset and kept for later
+    episodes (:meth:`~smo_gym.observers.Observer.restart`).
 
     Pickling follows Gymnasium's MuJoCo environments, which pickle by their constructor arguments (``EzPickle``):
     an unpickled copy is a freshly constructed simulation with this wrapper's configuration, sensor and observer;

@@ -472,8 +472,8 @@ class FusedSensing:
         first four are ``info["smo"]`` (:meth:`SensingInfo.from_block`), the last two the tangent coordinates of the
         last sample (:class:`JointMeasurement` reads them lazily). The observation's state is written into the
         adapter's scratch. Returns None (nothing done) when the samples straddle the end of the sensor's random
-        block: the caller then takes the general path, which splits the block and
-        so keeps the random stream independent of batching.
+        block: the caller then takes the general path, which splits the block and so keeps the random stream
+        independent of batching.
 
         Raises
         ------
