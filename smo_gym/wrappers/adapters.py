@@ -262,9 +262,10 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         live = self.env.data
         self.env.data = scratch
         try:
-            return np.array(self.env._get_obs(), copy=True)
+            obs = self.env._get_obs()
         finally:
             self.env.data = live
+        return obs if self.fresh_observation else np.array(obs, copy=True)
 
     def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """The environment's observation at ``(qpos, qvel)``, evaluated on scratch data (see module docstring)."""
