@@ -166,8 +166,8 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     each part's marginal cost *in situ* (interleaved with the physics, caches as in real use): ``full``;
     ``-scratch obs`` (the scratch evaluation of ``_get_obs`` returns a constant); ``-observe`` (no observation
     at all: also no finiteness check and no ``info["smo"]``); ``-sensing`` (also no sensor and no observer
-    update: what remains is the wrapper's skeleton and, at ``rate="physics"``, the substep hook with its
-    per-physics-step callback). The wrapper's hot path (``FusedSensing``) is what is switched off."""
+    update: what remains is the wrapper's skeleton and, at ``rate="physics"``, the substep hook that copies
+    ``qpos`` after every physics step). The wrapper's hot path (``FusedSensing``) is what is switched off."""
     def wrapped():
         env = make_variant(env_id, rate, observer)
         env.reset(seed=0)
@@ -199,7 +199,7 @@ def format_ablation(env_id: str, rate: str, res: dict) -> str:
     parts = [("scratch evaluation of the observation (adapter.observe_scratch)", diff("full", "-scratch obs")),
              ("finiteness check and info['smo']", diff("-scratch obs", "-observe")),
              ("sensor + observer + outputs (FusedSensing.sample, one compiled call)", diff("-observe", "-sensing")),
-             ("skeleton (Wrapper.step, bookkeeping" + (", substep hook + _record)" if rate != "env" else ")"),
+             ("skeleton (Wrapper.step, bookkeeping" + (", substep hook and sampling)" if rate != "env" else ")"),
               diff("-sensing", "raw"))]
     lines = [f"{env_id}, rate={rate!r}: raw {raw_us:.1f} us/step, wrapped {res['full']['us']:.1f} us/step "
              f"(ratio {res['full']['ratio']:.3f}; total overhead, paired: {diff('full', 'raw'):.1f} us)",

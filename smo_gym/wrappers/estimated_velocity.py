@@ -293,9 +293,6 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.estimator = VelocityEstimator(obs_object)
         self._rng: np.random.Generator | None = None
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)
-        self._samples = np.zeros((n_samples, model.nq))
-        self._n_samples = 0
-        self._substep_count = 0
         self._substep_hook = None
         self._live = None
         self._nq, self._nv = nq, nv = model.nq, model.nv
@@ -333,52 +330,6 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         info["smo"] = SensingInfo.of(data.qpos, data.qvel, qvel_hat, q_meas)
         return obs
 
-    def _record(self) -> None:
-        self._substep_count += 1
-        if self._substep_count % self.sample_every == 0:
-            if self._n_samples == self._samples.shape[0]:  # an env that steps more than frame_skip frames
-                self._samples = np.concatenate([self._samples, np.zeros_like(self._samples)])
-            self._samples[self._n_samples] = self.adapter.data.qpos
-            self._n_samples += 1
-
-    def _step_fused(self, fused, action):
-        """``step`` through :class:`~smo_gym.wrappers.sensing.FusedSensing`: one compiled call after the physics.
-
-        Written flat on purpose: every Python operation here costs two to three times its micro-benchmark time
-        right after the physics step, and a small model's whole step is ~30 us.
-        """
-        data = self.adapter.data
-        live = self._live
-        if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)
-            live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
-        if self.sample_every < self.adapter.frame_skip:
-            sampler = self._sampler
-            sampler.start(live[3])
-            hook = self._substep_hook
-            if hook is None:
-                recorder = getattr(self.adapter, "record_substeps", None)
-                if self.sample_every == 1 and recorder is not None:
-                    hook = self._substep_hook = recorder(sampler)
-                else:
-                    hook = self._substep_hook = self.adapter.substeps(
-                        sampler.each if self.sample_every == 1 else sampler.every_k)
-            with hook:
-                _, reward, terminated, truncated, info = self.env.step(action)
-            if sampler.count == 0 and sampler.n == 0:
-                raise RuntimeError(
-                    "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
-                    "actual value: no physics step was observed during step(); use rate='env'"
-                )
-            samples = sampler.samples[:sampler.n]
-        else:
-            _, reward, terminated, truncated, info = self.env.step(action)
-            samples = live[1]
-        block = fused.sample(samples, live[2])
-        if block is None:  # the samples straddle the sensor's random block: the general path splits them
-            self.estimator.observer.run(self.measurement.measure_block(samples))
-            return self._observe(info), reward, terminated, truncated, info
-        return self._observe_fused(block, info), reward, terminated, truncated, info
-
     def _observe_fused(self, block: np.ndarray, info: dict):
         """The observation at the sensed state FusedSensing wrote into the scratch data, and ``info["smo"]``."""
         obs = self.adapter.observe_scratch()
@@ -389,6 +340,13 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         s0, s1, s2, s3 = self._info_slices
         info["smo"] = SensingInfo(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3])
         return obs
+
+    def _substep_hook_for(self, sampler: SubstepSampler):
+        """The adapter's hook that fills ``sampler`` during ``env.step`` (made once per reset)."""
+        recorder = getattr(self.adapter, "record_substeps", None)
+        if self.sample_every == 1 and recorder is not None:
+            return recorder(sampler)  # the recording loop itself: no callback per physics step
+        return self.adapter.substeps(sampler.each if self.sample_every == 1 else sampler.every_k)
 
     def __getstate__(self):
         state = dict(self.__dict__)
@@ -417,28 +375,42 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._observe(info), info
 
     def step(self, action):
+        """Step the environment, sample its joints (inside ``frame_skip`` if ``rate`` asks), update the observer and
+        return the observation at the sensed state.
+
+        Written flat on purpose: every Python operation here costs two to three times its micro-benchmark time
+        right after the physics step, and a small model's whole step is ~30 us.
+        """
         if self._rng is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
-        fused = self._fused
-        if fused is not None:
-            return self._step_fused(fused, action)
+        data = self.adapter.data
+        live = self._live
+        if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)
+            live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
         if self.sample_every < self.adapter.frame_skip:
-            self._n_samples = 0
-            self._substep_count = 0
+            sampler = self._sampler
+            sampler.start(live[3])
             hook = self._substep_hook
             if hook is None:
-                hook = self._substep_hook = self.adapter.substeps(self._record)
+                hook = self._substep_hook = self._substep_hook_for(sampler)
             with hook:
                 _, reward, terminated, truncated, info = self.env.step(action)
-            if self._substep_count == 0:
+            if sampler.count == 0 and sampler.n == 0:
                 raise RuntimeError(
                     "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
                     "actual value: no physics step was observed during step(); use rate='env'"
                 )
-            Z = self.measurement.measure_block(self._samples[:self._n_samples])
+            samples = sampler.samples[:sampler.n]
         else:
             _, reward, terminated, truncated, info = self.env.step(action)
-            Z = self.measurement.measure_block(self.adapter.data.qpos[None])
+            samples = live[1]
+        fused = self._fused
+        if fused is not None:
+            block = fused.sample(samples, live[2])
+            if block is not None:
+                return self._observe_fused(block, info), reward, terminated, truncated, info
+            # None: the samples straddle the sensor's random block; the general path splits them
+        Z = self.measurement.measure_block(samples)
         if len(Z) == 1:
             self.estimator.update(Z[0])
         elif type(self.estimator) is VelocityEstimator:
