@@ -202,23 +202,3 @@ def test_fused_path_on_dm_control_equals_general_path():
         assert of.keys() == og.keys()
         for key in of:
             np.testing.assert_array_equal(of[key], og[key])
-
-
-def test_info_dicts_from_the_pool_are_never_reused():
-    """Across pool batches (64 steps each) every step's info['smo'] is a new dict whose arrays no other step
-    shares, read-only, and unchanged by later steps."""
-    env = EstimatedVelocity(gym.make("HalfCheetah-v5"), disk_cache=False)
-    env.reset(seed=0)
-    actions = np.random.default_rng(2).uniform(-1, 1, (150, 6))
-    kept, copies = [], []
-    for a in actions:
-        smo = env.step(a)[4]["smo"]
-        kept.append(smo)
-        copies.append({k: np.array(v) for k, v in smo.items()})
-    assert len({id(s) for s in kept}) == len(kept)
-    for smo, copied in zip(kept, copies, strict=True):
-        for key in KEYS:
-            assert not smo[key].flags.writeable
-            np.testing.assert_array_equal(smo[key], copied[key])
-    np.testing.assert_array_equal(kept[-1]["qvel_estimate"], env.observer.velocity)
-    np.testing.assert_array_equal(kept[-1]["qpos_measured"], env.measurement.measured_qpos())

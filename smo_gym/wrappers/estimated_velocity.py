@@ -295,6 +295,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)
         self._substep_hook = None
         self._live = None
+        self._nq, self._nv = nq, nv = model.nq, model.nv
+        self._info_slices = (slice(0, nq), slice(nq, nq + nv), slice(nq + nv, nq + 2 * nv),
+                             slice(nq + 2 * nv, 2 * nq + 2 * nv))
         self._sampler = SubstepSampler(n_samples, model.nq, self.sample_every)
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
         #: reset, after a subclass has set its estimator)
@@ -327,13 +330,15 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         info["smo"] = SensingInfo.of(data.qpos, data.qvel, qvel_hat, q_meas)
         return obs
 
-    def _observe_fused(self, smo: SensingInfo, info: dict):
-        """The observation at the sensed state FusedSensing wrote into the scratch data; ``info["smo"] = smo``."""
+    def _observe_fused(self, block: np.ndarray, info: dict):
+        """The observation at the sensed state FusedSensing wrote into the scratch data, and ``info["smo"]``."""
         obs = self.adapter.observe_scratch()
         check_finite_observation(obs)
         if self.adapter.unflatten is not None:
             obs = self.adapter.unflatten(obs)
-        info["smo"] = smo
+        block.setflags(write=False)  # SensingInfo.from_block, spelled out with precomputed slices
+        s0, s1, s2, s3 = self._info_slices
+        info["smo"] = SensingInfo(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3])
         return obs
 
     def _substep_hook_for(self, sampler: SubstepSampler):
@@ -401,9 +406,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             samples = live[1]
         fused = self._fused
         if fused is not None:
-            smo = fused.sample(samples, live[2])
-            if smo is not None:
-                return self._observe_fused(smo, info), reward, terminated, truncated, info
+            block = fused.sample(samples, live[2])
+            if block is not None:
+                return self._observe_fused(block, info), reward, terminated, truncated, info
             # None: the samples straddle the sensor's random block; the general path splits them
         Z = self.measurement.measure_block(samples)
         if len(Z) == 1:

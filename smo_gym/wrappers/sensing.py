@@ -55,7 +55,6 @@ from ._tangent import integrate_pos, joint_table, tangent_advance
 __all__ = [
     "FusedSensing",
     "JointMeasurement",
-    "SensingInfoPool",
     "SensingInfo",
     "TangentCoordinates",
     "VelocityEstimator",
@@ -375,49 +374,6 @@ class VelocityEstimator:
         return self.observer.estimate[..., 0]
 
 
-class SensingInfoPool:
-    """``info["smo"]`` dictionaries made ``size`` at a time; every step takes the next one, never reused.
-
-    One block ``(size, 2 nq + 4 nv)`` is allocated per batch and every row gets its :class:`SensingInfo` (views
-    of a read-only view of the block) in one loop; the fused driver writes the row through a writeable view.
-    Each step still returns a new dictionary of arrays no other step shares, but the dictionary and its four
-    views are made in a tight loop once per batch rather than one by one right after the physics step, where
-    each Python operation costs several times more (measured: the per-step dictionary was the largest
-    remaining cost of a wrapped InvertedPendulum step). A kept dictionary keeps its batch's block alive
-    (``size`` rows, e.g. 64 x 150 floats for Humanoid).
-    """
-
-    def __init__(self, nq: int, nv: int, size: int = 64):
-        self.nq, self.nv, self.size = nq, nv, int(size)
-        self.width = 2 * nq + 4 * nv
-        self._next = self.size  # empty: the first take() fills it
-
-    def _fill(self) -> None:
-        nq, nv = self.nq, self.nv
-        block = np.empty((self.size, self.width))
-        frozen = block.view()
-        frozen.setflags(write=False)
-        s0, s1, s2 = slice(0, nq), slice(nq, nq + nv), slice(nq + nv, nq + 2 * nv)
-        s3 = slice(nq + 2 * nv, 2 * nq + 2 * nv)
-        self._rows = list(block)
-        self._frozen = list(frozen)
-        self._infos = [SensingInfo(qpos=r[s0], qvel=r[s1], qvel_estimate=r[s2], qpos_measured=r[s3])
-                       for r in self._frozen]
-        self._next = 0
-
-    def take(self) -> tuple[np.ndarray, np.ndarray, SensingInfo]:
-        """``(row, frozen_row, info)``: the writeable row for the driver, its read-only view, and its dict."""
-        i = self._next
-        if i == self.size:
-            self._fill()
-            i = 0
-        self._next = i + 1
-        return self._rows[i], self._frozen[i], self._infos[i]
-
-    def __getstate__(self):
-        return {"nq": self.nq, "nv": self.nv, "size": self.size, "width": self.width, "_next": self.size}
-
-
 class FusedSensing:
     r"""The wrapper's hot path: one compiled call per control period (:mod:`smo_gym.wrappers._fused`).
 
@@ -449,13 +405,11 @@ class FusedSensing:
         self._call = None
         self._work = None
         self._static = None
-        self._pool = SensingInfoPool(measurement.model.nq, measurement.model.nv)
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         # the entry point does not pickle, and the scratch views belong to the adapter's (re-made) scratch data
-        state.update(_call=None, _work=None, _static=None, _pool=SensingInfoPool(self.measurement.model.nq,
-                                                                                  self.measurement.model.nv))
+        state.update(_call=None, _work=None, _static=None)
         return state
 
     @staticmethod
@@ -511,12 +465,12 @@ class FusedSensing:
         model = self.measurement.model
         self._info_size = 2 * model.nq + 4 * model.nv
 
-    def sample(self, Q: np.ndarray, qvel_true: np.ndarray) -> SensingInfo | None:
+    def sample(self, Q: np.ndarray, qvel_true: np.ndarray) -> np.ndarray | None:
         """Measure and estimate the samples ``Q`` (T, nq) of one control period.
 
-        Returns this step's ``info["smo"]`` (from :class:`SensingInfoPool`; its row of the block
-        ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]`` also holds the tangent coordinates of
-        the last sample, which :class:`JointMeasurement` reads lazily). The observation's state is written into the
+        Returns the block ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]`` (2 nq + 4 nv,): the
+        first four are ``info["smo"]`` (:meth:`SensingInfo.from_block`), the last two the tangent coordinates of the
+        last sample (:class:`JointMeasurement` reads them lazily). The observation's state is written into the
         adapter's scratch. Returns None (nothing done) when the samples straddle the end of the sensor's random
         block: the caller then takes the general path, which splits the block and so keeps the random stream
         independent of batching.
@@ -548,15 +502,15 @@ class FusedSensing:
         if self._Zm.shape[0] < T:
             self._Zm = np.empty((T, self._shape[0]))
         est = np.empty(self._shape)
-        row, frozen, info = self._pool.take()
-        status = call(Q, qvel_true, t0, est, row, self._Zm, *static)
+        info = np.empty(self._info_size)
+        status = call(Q, qvel_true, t0, est, info, self._Zm, *static)
         sensor._t = t0 + T
         if status != -1:
             self._raise(status, Q)
         observer = self.observer
         observer._estimate = est
         observer.n_updates += T
-        self.measurement._fused_block = frozen  # unpacked only if read (JointMeasurement.z_measured, ...)
+        self.measurement._fused_block = info  # unpacked only if read (JointMeasurement.z_measured, ...)
         return info
 
     def _raise(self, status: int, Q: np.ndarray):
