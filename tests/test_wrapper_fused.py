@@ -202,3 +202,23 @@ def test_fused_path_on_dm_control_equals_general_path():
         assert of.keys() == og.keys()
         for key in of:
             np.testing.assert_array_equal(of[key], og[key])
+
+
+def test_info_dicts_are_never_reused_across_steps():
+    """Every step's info['smo'] is a new dict whose arrays no other step shares, read-only, unchanged by later
+    steps, and the last one agrees with the observer and the measurement."""
+    env = EstimatedVelocity(gym.make("HalfCheetah-v5"), disk_cache=False)
+    env.reset(seed=0)
+    actions = np.random.default_rng(2).uniform(-1, 1, (150, 6))
+    kept, copies = [], []
+    for a in actions:
+        smo = env.step(a)[4]["smo"]
+        kept.append(smo)
+        copies.append({k: np.array(v) for k, v in smo.items()})
+    assert len({id(s) for s in kept}) == len(kept)
+    for smo, copied in zip(kept, copies, strict=True):
+        for key in KEYS:
+            assert not smo[key].flags.writeable
+            np.testing.assert_array_equal(smo[key], copied[key])
+    np.testing.assert_array_equal(kept[-1]["qvel_estimate"], env.observer.velocity)
+    np.testing.assert_array_equal(kept[-1]["qpos_measured"], env.measurement.measured_qpos())
