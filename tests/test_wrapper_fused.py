@@ -222,3 +222,40 @@ def test_info_dicts_are_never_reused_across_steps():
             np.testing.assert_array_equal(smo[key], copied[key])
     np.testing.assert_array_equal(kept[-1]["qvel_estimate"], env.observer.velocity)
     np.testing.assert_array_equal(kept[-1]["qpos_measured"], env.measurement.measured_qpos())
+
+
+def test_the_env_returns_the_sensed_observation_only_where_its_step_ignores_it():
+    """InvertedPendulum-v5 terminates on its observation: the wrapper evaluates the observation itself; HalfCheetah
+    never reads it: its own step returns the sensed one (one observation per step instead of two), with exactly
+    the observations of the general path (test_fused_path_equals_general_path); an observation wrapper in between
+    disables it."""
+    from smo_gym.wrappers.estimated_velocity import observation_independent_step
+
+    assert not observation_independent_step(gym.make("InvertedPendulum-v5").unwrapped)
+    assert observation_independent_step(gym.make("HalfCheetah-v5").unwrapped)
+    pendulum = EstimatedVelocity(gym.make("InvertedPendulum-v5"), disk_cache=False)
+    pendulum.reset(seed=0)
+    assert pendulum._intercept is False
+    cheetah = EstimatedVelocity(gym.make("HalfCheetah-v5"), disk_cache=False)
+    cheetah.reset(seed=0)
+    assert cheetah._intercept
+    info = cheetah.step(np.zeros(6))[4]
+    assert "_get_obs" not in vars(cheetah.unwrapped)  # the replacement lives only during the step
+    np.testing.assert_array_equal(info["smo"]["qvel_estimate"], cheetah.observer.velocity)
+    inner = EstimatedVelocity(gym.wrappers.NormalizeObservation(gym.make("HalfCheetah-v5")), disk_cache=False)
+    inner.reset(seed=0)
+    assert inner._intercept is False
+
+
+def test_observation_dependent_rewards_are_detected():
+    """A step whose reward reads the observation it returns is not intercepted."""
+    from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv
+
+    from smo_gym.wrappers.estimated_velocity import observation_independent_step
+
+    class ObservedReward(HalfCheetahEnv):
+        def step(self, action):
+            obs, reward, terminated, truncated, info = super().step(action)
+            return obs, reward - 1e-3 * float(np.sum(obs ** 2)), terminated, truncated, info
+
+    assert not observation_independent_step(ObservedReward())

@@ -148,6 +148,9 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self.env = env
         self.model = env.model
         self.frame_skip = int(env.frame_skip)
+        #: the class's observation function, called as ``_obs_function(env)``: an instance attribute that
+        #: replaces ``_get_obs`` during a step (:meth:`intercept_observation`) must not call itself
+        self._obs_function = type(env)._get_obs
         self.contact_forces = contact_forces
         self._scratch = mujoco.MjData(self.model)
         self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
@@ -262,7 +265,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         live = self.env.data
         self.env.data = scratch
         try:
-            obs = self.env._get_obs()
+            obs = self._obs_function(self.env)
         finally:
             self.env.data = live
         return obs if self.fresh_observation else np.array(obs, copy=True)
@@ -284,7 +287,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             live = env.data
             env.data = self._scratch
             try:
-                obs = env._get_obs()
+                obs = self._obs_function(env)
             finally:
                 env.data = live
             return obs if self.fresh_observation else np.array(obs, copy=True)
@@ -305,7 +308,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             live = self.env.data
             self.env.data = self._scratch
             try:
-                obs = self.env._get_obs()
+                obs = self._obs_function(self.env)
             finally:
                 self.env.data = live
             if first is None:
@@ -409,6 +412,11 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
 
         return SubstepHook(env, "_step_mujoco_simulation", step_with_samples)
 
+
+    def intercept_observation(self, function) -> SubstepHook:
+        """Within the block, the environment's ``_get_obs()`` is ``function()`` (an instance attribute, removed on
+        exit; the adapter's own evaluations keep calling the class's function)."""
+        return SubstepHook(self.env, "_get_obs", function)
 
     def record_substeps(self, sampler) -> SubstepHook:
         """:meth:`substeps` specialised to sampling every physics step: the loop itself copies ``qpos`` after

@@ -189,6 +189,8 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
     #: the Gymnasium adapter's recording loop replaces MujocoEnv._step_mujoco_simulation; dm_control steps
     #: through Physics.step, sampled by the callback hook of substeps()
     record_substeps = None
+    #: shimmy's step builds the observation from dm_env's timestep, not through _get_obs: nothing to intercept
+    intercept_observation = None
 
     def supports_substeps(self) -> bool:
         """dm_control steps its physics through ``Physics.step``, which can be replaced on the instance."""

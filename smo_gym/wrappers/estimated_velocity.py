@@ -24,7 +24,8 @@ from .sensing import (
     default_observer,
 )
 
-__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "resolve_rate", "rollout_velocities"]
+__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "observation_independent_step", "resolve_rate",
+           "rollout_velocities"]
 
 #: mixed into the user's seed so the sensor stream differs from the environment's own ``np_random``
 _SEED_SALT = 0x534D4F
@@ -100,6 +101,94 @@ def rollout_velocities(unwrapped, sample_every: int, steps: int, seed: int = 0) 
     if not hook and sample_every < frame_skip:  # only end-of-step samples: rescale at the caller's step
         return None
     return [V for V in episodes if np.all(np.isfinite(V))]
+
+
+#: wrappers that pass ``step``'s observation through unchanged (``gym.make``'s stack): with only these between
+#: ``EstimatedVelocity`` and the MuJoCo environment, the sensed observation may be returned by the env's own step
+_TRANSPARENT_WRAPPERS = (gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker)
+_OBSERVATION_INDEPENDENT: dict[str, bool] = {}
+
+
+def _same(a, b) -> bool:
+    """Equal results of two steps: numbers and arrays exactly (NaN equal to NaN), dicts key by key."""
+    if isinstance(a, dict) or isinstance(b, dict):
+        return (isinstance(a, dict) and isinstance(b, dict) and a.keys() == b.keys()
+                and all(_same(a[k], b[k]) for k in a))
+    if isinstance(a, (tuple, list)) or isinstance(b, (tuple, list)):
+        return (isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)) and len(a) == len(b)
+                and all(_same(x, y) for x, y in zip(a, b, strict=True)))
+    try:
+        return bool(np.array_equal(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64), equal_nan=True))
+    except (TypeError, ValueError):  # not numeric (a string, an object): plain equality
+        return bool(np.all(a == b))
+
+
+def observation_independent_step(unwrapped, steps: int = 150, seed: int = 0) -> bool:
+    r"""Whether the environment's ``step`` uses its observation only to return it.
+
+    Then the wrapper can have ``step`` return the *sensed* observation (``_get_obs`` replaced for the duration of
+    the step) instead of evaluating the environment's observation twice, once at the true state (discarded) and
+    once at the sensed state. Checked on copies of the environment (its own seeded resets, random actions, about
+    ``steps`` steps): one as is, one whose ``_get_obs`` returns NaN, one whose ``_get_obs`` returns the observation
+    plus 1000. Rewards, terminations, truncations and infos must be identical in all three (InvertedPendulum-v5
+    terminates on its observation: not independent), and ``_get_obs`` must be called exactly once per step,
+    after the physics. Cached per environment id in memory; False if the environment cannot be copied.
+    """
+    key = environment_key(unwrapped)
+    if key in _OBSERVATION_INDEPENDENT:
+        return _OBSERVATION_INDEPENDENT[key]
+    result = _probe_observation_independence(unwrapped, steps, seed)
+    _OBSERVATION_INDEPENDENT[key] = result
+    return result
+
+
+def _probe_observation_independence(unwrapped, steps: int, seed: int) -> bool:
+    try:
+        sims = [copy.deepcopy(unwrapped) for _ in range(3)]
+    except Exception:  # noqa: BLE001 - an environment that cannot be copied is not probed, nor intercepted
+        return False
+    calls = []  # (physics done before the call?) per _get_obs call of the unchanged copy
+    physics = [False]
+    base = sims[0]
+    original_obs = type(base)._get_obs
+    original_step = type(base)._step_mujoco_simulation
+
+    def counted_obs():
+        calls.append(physics[0])
+        return original_obs(base)
+
+    def flagged_step(ctrl, n_frames):
+        physics[0] = True
+        original_step(base, ctrl, n_frames)
+
+    base._get_obs, base._step_mujoco_simulation = counted_obs, flagged_step
+    sims[1]._get_obs = lambda sim=sims[1]: np.full(np.shape(original_obs(sim)), np.nan)
+    sims[2]._get_obs = lambda sim=sims[2]: np.asarray(original_obs(sim), dtype=np.float64) + 1000.0
+    try:
+        for sim in sims:
+            sim.render_mode = None
+            sim.reset(seed=seed)
+        space = base.action_space
+        space.seed(seed)
+        for _ in range(steps):
+            action = space.sample()
+            physics[0] = False
+            calls.clear()
+            results = [sim.step(action)[1:] for sim in sims]
+            if calls != [True]:
+                return False
+            if not all(_same(results[0], r) for r in results[1:]):
+                return False
+            if results[0][1] or results[0][2]:
+                for sim in sims:
+                    sim.reset()
+        return True
+    except Exception:  # noqa: BLE001 - anything unexpected: do not intercept
+        return False
+    finally:
+        for sim in sims:
+            sim.close()
+
 
 
 def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *, safety: float = 2.0,
@@ -302,6 +391,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
         #: reset, after a subclass has set its estimator)
         self._fused: FusedSensing | None = None
+        #: hook making the env's own step return the sensed observation (None: not decided yet; False: not used)
+        self._intercept = None
+        self._pending_smo = None
 
     @property
     def sensor(self) -> Sensor:
@@ -353,6 +445,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         state["_substep_hook"] = None  # holds closures over the live simulation; made again on first use
         state["_live"] = None
         state["_fused"] = None  # bound to this instance's arrays; chosen again at the next reset
+        state["_intercept"] = None  # a closure over this instance; made again at the next reset
         return state
 
     # ---- Gymnasium API --------------------------------------------------------------------------------------
@@ -372,7 +465,41 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                            if FusedSensing.supports(self.measurement, self.estimator, self.adapter) else None)
         if self._fused is not None:
             self._fused.prepare()
+            if self._intercept is None:
+                self._intercept = self._interception_hook() or False
         return self._observe(info), info
+
+    def _interception_hook(self):
+        """The hook that makes the environment's own ``step`` return the sensed observation, or None: needs an
+        adapter that can replace ``_get_obs``, only observation-preserving wrappers in between, and an
+        environment whose step does not use its observation (:func:`observation_independent_step`)."""
+        intercept = getattr(self.adapter, "intercept_observation", None)
+        if intercept is None:
+            return None
+        env, unwrapped = self.env, self.env.unwrapped
+        while env is not unwrapped:
+            if type(env) not in _TRANSPARENT_WRAPPERS:
+                return None
+            env = env.env
+        if not observation_independent_step(unwrapped):
+            return None
+        return intercept(self._sensed_observation)
+
+    def _sensed_observation(self):
+        """``_get_obs`` of the environment during an intercepted step: sense the control period that just ended
+        and return the observation at the sensed state (``info["smo"]`` is kept for ``step``)."""
+        live = self._live
+        sampler = self._sampler
+        samples = sampler.samples[:sampler.n] if self.sample_every < self.adapter.frame_skip else live[1]
+        block = self._fused.sample(samples, live[2])
+        info = {}
+        if block is None:  # the samples straddle the sensor's random block: the general path splits them
+            self.estimator.observer.run(self.measurement.measure_block(samples))
+            obs = self._observe(info)
+        else:
+            obs = self._observe_fused(block, info)
+        self._pending_smo = info["smo"]
+        return obs
 
     def step(self, action):
         """Step the environment, sample its joints (inside ``frame_skip`` if ``rate`` asks), update the observer and
@@ -387,6 +514,24 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         live = self._live
         if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)
             live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
+        intercept = self._intercept
+        if intercept and self._fused is not None:  # the env's own step returns the sensed observation
+            self._pending_smo = None
+            if self.sample_every < self.adapter.frame_skip:
+                self._sampler.start(live[3])
+                hook = self._substep_hook
+                if hook is None:
+                    hook = self._substep_hook = self._substep_hook_for(self._sampler)
+                with hook, intercept:
+                    obs, reward, terminated, truncated, info = self.env.step(action)
+            else:
+                with intercept:
+                    obs, reward, terminated, truncated, info = self.env.step(action)
+            if self._pending_smo is None:
+                raise RuntimeError("expected the environment's step to call _get_obs after its physics, actual "
+                                   "value: it did not (the probe of observation_independent_step said it would)")
+            info["smo"] = self._pending_smo
+            return obs, reward, terminated, truncated, info
         if self.sample_every < self.adapter.frame_skip:
             sampler = self._sampler
             sampler.start(live[3])
