@@ -179,8 +179,12 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     const = np.array(full.observation_space.sample(), dtype=np.float64)
     for env in (no_scratch, no_observe, no_sensing):
         env.adapter.observe_scratch = lambda c=const: c
+    def no_observation(block, info, c=const):
+        info["smo"] = {}  # a step still hands an info["smo"] on (the intercepted path reads it back)
+        return c
+
     for env in (no_observe, no_sensing):
-        env._observe_fused = lambda block, info, c=const: c
+        env._observe_fused = no_observation
     block = np.zeros(2 * full.adapter.model.nq + 4 * full.adapter.model.nv)
     no_sensing._fused.sample = lambda samples, qvel, b=block: b
     return {"raw": make_variant(env_id, "raw"), "full": full, "-scratch obs": no_scratch, "-observe": no_observe,
