@@ -106,6 +106,8 @@ def _sense(kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring
     return -1
 
 
+# One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a
+# compiled function only if it is a module-level function whose body names its callees (see _kernels.py).
 @njit(cache=True, error_model="numpy")
 def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
                         state, params, work, sq, sv, filtered, joints, prev, z):

@@ -384,9 +384,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)
         self._substep_hook = None
         self._live = None
-        self._nq, self._nv = nq, nv = model.nq, model.nv
-        self._info_slices = (slice(0, nq), slice(nq, nq + nv), slice(nq + nv, nq + 2 * nv),
-                             slice(nq + 2 * nv, 2 * nq + 2 * nv))
+        self._info_slices = SensingInfo.slices(model.nq, model.nv)
         self._sampler = SubstepSampler(n_samples, model.nq, self.sample_every)
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
         #: reset, after a subclass has set its estimator)
@@ -428,9 +426,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         check_finite_observation(obs)
         if self.adapter.unflatten is not None:
             obs = self.adapter.unflatten(obs)
-        block.setflags(write=False)  # SensingInfo.from_block, spelled out with precomputed slices
-        s0, s1, s2, s3 = self._info_slices
-        info["smo"] = SensingInfo(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3])
+        info["smo"] = SensingInfo.from_block(block, self._info_slices)
         return obs
 
     def _substep_hook_for(self, sampler: SubstepSampler):

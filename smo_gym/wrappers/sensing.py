@@ -300,15 +300,22 @@ class SensingInfo(dict):
     @classmethod
     def of(cls, qpos, qvel, qvel_estimate, qpos_measured) -> SensingInfo:
         """From the four arrays (copied)."""
-        return cls.from_block(np.concatenate((qpos, qvel, qvel_estimate, qpos_measured)), len(qpos), len(qvel))
+        return cls.from_block(np.concatenate((qpos, qvel, qvel_estimate, qpos_measured)),
+                              cls.slices(len(qpos), len(qvel)))
+
+    @staticmethod
+    def slices(nq: int, nv: int) -> tuple[slice, slice, slice, slice]:
+        """Where ``qpos``, ``qvel``, ``qvel_estimate`` and ``qpos_measured`` lie in a block (computed once per
+        wrapper: the per-step path only slices)."""
+        return (slice(0, nq), slice(nq, nq + nv), slice(nq + nv, nq + 2 * nv), slice(nq + 2 * nv, 2 * nq + 2 * nv))
 
     @classmethod
-    def from_block(cls, block: np.ndarray, nq: int, nv: int) -> SensingInfo:
+    def from_block(cls, block: np.ndarray, slices: tuple) -> SensingInfo:
         """From one block ``[qpos, qvel, qvel_estimate, qpos_measured, ...]`` (anything after these four is
-        ignored), which it owns from now on (made read-only, as are its views)."""
+        ignored; ``slices`` from :meth:`slices`), which it owns from now on (made read-only, as are its views)."""
         block.setflags(write=False)
-        return cls(qpos=block[:nq], qvel=block[nq:nq + nv], qvel_estimate=block[nq + nv:nq + 2 * nv],
-                   qpos_measured=block[nq + 2 * nv:2 * nq + 2 * nv])
+        s0, s1, s2, s3 = slices
+        return cls(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3])
 
     def _readonly(self, *args, **kwargs):
         raise TypeError("expected no change to info['smo'] (read-only), actual value: an attempt to modify it; "
@@ -431,21 +438,16 @@ class FusedSensing:
         buffer, ``qvel_true`` the live ``qvel`` (writeable, aligned, C-contiguous float64), the rest are owned
         here or by the sensor and the observer and keep their types across resets.
         """
-        import numba
+        from ..observers.base import _compiled_entry
 
         for a in (Q, qvel_true):
             if not (a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable and a.flags.aligned):
                 raise TypeError(f"expected writeable C-contiguous float64 arrays, actual value: {a.dtype} {a.flags}")
         self.prepare()
         n, m = self._shape
-        args = (Q, qvel_true, np.int64(0), np.empty((n, m)), np.empty(self._info_size), self._Zm) + self._static
-        key = (self._driver, tuple(numba.typeof(a) for a in args))
-        call = _FUSED_ENTRIES.get(key)  # numba.typeof costs ~20 us per array: resolved once per process
-        if call is None:
-            sig = key[1]
-            if sig not in self._driver.overloads:
-                self._driver.compile(sig)
-            call = _FUSED_ENTRIES[key] = self._driver.overloads[sig].entry_point
+        static = self._static[:11] + (np.bool_(self.filtered),) + self._static[12:]  # typed like the arrays
+        call = _compiled_entry(self._driver, (Q, qvel_true, np.int64(0), np.empty((n, m)), np.empty(self._info_size),
+                                              self._Zm) + static)
         self._call = call
 
     def prepare(self) -> None:
@@ -521,8 +523,6 @@ class FusedSensing:
         t, channel = divmod(-2 - status, n)
         self.observer._raise_status(-2 - channel, self._Zm[t])
 
-
-_FUSED_ENTRIES: dict = {}
 
 
 # ----------------------------------------------------------------------------------------------------------------
