@@ -124,6 +124,56 @@ def test_observation_is_built_from_measurements_and_estimates():
     assert np.max(np.abs(s["qpos_measured"] - s["qpos"])) < 6e-3 + res
 
 
+def full_forward_observation(env, qpos, qvel):
+    """The environment's observation at ``(qpos, qvel)`` with every controller input of the live data, after a
+    full ``mj_forward`` on fresh data, contact forces from the live data (``contact_forces="sensor"``): what the
+    adapter's probed shortcuts must reproduce."""
+    u = env.unwrapped
+    model, live = u.model, u.data
+    scratch = mujoco.MjData(model)
+    scratch.time = live.time
+    for name in ("ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied"):
+        getattr(scratch, name)[:] = getattr(live, name)
+    scratch.qpos[:] = qpos
+    scratch.qvel[:] = qvel
+    mujoco.mj_forward(model, scratch)
+    scratch.cfrc_ext[:] = live.cfrc_ext
+    u.data = scratch
+    try:
+        return np.array(type(u)._get_obs(u))
+    finally:
+        u.data = live
+
+
+@pytest.mark.parametrize("env_id", ENVS)
+def test_scratch_observation_equals_a_full_forward_pass(env_id):
+    """At run-time inputs (actions far from the zero ``ctrl`` of construction time) and at states with active
+    joint limits, the adapter's cheapest probed evaluation (pipeline, copied inputs, contact forces) gives the
+    full forward pass's observation. Humanoid's ``qfrc_actuator`` reads ``ctrl`` only through the actuation
+    (MuJoCo zeroes a NaN ``ctrl``, so a NaN probe alone misses it), InvertedDoublePendulum's constraint force
+    reads it only while its rail limit is active."""
+    env = EstimatedVelocity(gym.make(env_id), observer="finite-difference")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    model = env.adapter.model
+    for _ in range(3):
+        env.step(rng.uniform(env.action_space.low, env.action_space.high))
+    live = env.adapter.data
+    assert np.any(live.ctrl != 0)
+    limited = np.flatnonzero(model.jnt_limited.astype(bool) & (model.jnt_type >= 2))  # slide and hinge joints
+    for k in range(4):
+        qpos = np.array(live.qpos)
+        mujoco.mj_integratePos(model, qpos, 0.05 * rng.standard_normal(model.nv), 1.0)
+        if k % 2 and limited.size:  # beyond the limits: the constraint solver has active limit rows
+            adr = model.jnt_qposadr[limited]
+            low, high = model.jnt_range[limited].T
+            margin = 0.05 * (high - low)
+            qpos[adr] = np.where(rng.random(limited.size) < 0.5, low - margin, high + margin)
+        qvel = np.array(live.qvel) + rng.standard_normal(model.nv)
+        want = full_forward_observation(env, qpos, qvel)
+        np.testing.assert_array_equal(env.adapter.observation(qpos, qvel), want)
+
+
 @pytest.mark.parametrize("env_id", ["Humanoid-v5", "Ant-v5", "InvertedDoublePendulum-v5", "Pusher-v5"])
 @pytest.mark.parametrize("contact_forces", ["estimated", "sensor"])
 def test_no_leakage_of_true_velocity(env_id, contact_forces):

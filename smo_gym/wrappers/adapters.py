@@ -38,10 +38,15 @@ needed is *probed* once at construction, with no per-environment table: the obse
 data whose other fields are all NaN, after no computation, then after the kinematic stages only (no collision
 detection or constraint solver); the first that comes out finite and equal to the ``mj_forward`` result at
 random states is used (Hopper, HalfCheetah, Ant: none; Humanoid: kinematics; InvertedDoublePendulum, whose
-observation has a constraint force: the full forward pass). The same NaN probe then finds which of the inputs
-(``ctrl``, applied forces, ``time``, ...) and whether ``cfrc_ext`` the observation reads at all, and whether
-``_get_obs`` returns a fresh array; only what is read is copied at every step, and fresh arrays are not copied
-again (``observe_scratch``, the per-step path).
+observation has a constraint force: the full forward pass). The same NaN probe finds whether the observation
+reads ``cfrc_ext``. Which of the inputs (``ctrl``, applied forces, ``time``, ...) it reads is probed at random
+nonzero inputs, each replaced in turn by other random values and by NaN (MuJoCo zeroes a NaN ``ctrl``, and the
+live ``ctrl`` is zero at construction: Humanoid's ``qfrc_actuator`` reads ``ctrl`` only through the actuation);
+with the full forward pass every input is copied (constraint forces depend on the inputs only while a constraint
+is active, which a probe at a few states need not see). Last, whether ``_get_obs`` returns a fresh array. Only
+what is read is copied at every step, and fresh arrays are not copied again (``observe_scratch``, the per-step
+path); ``tests/test_wrapper.py`` checks the result against a full forward pass at run-time inputs and active
+joint limits on every v5 environment.
 
 Contact forces
 --------------
@@ -157,7 +162,10 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self._input_fields = _INPUT_FIELDS
         self.pipeline, self.copies_inputs = self._probe_pipeline()
         self.reads_contacts = self._probe_contacts()
-        if self.copies_inputs:
+        if self.copies_inputs and self.pipeline != "forward":
+            # the constraint forces of a full forward pass depend on every applied input whenever a constraint is
+            # active, which a probe at a few states need not see (InvertedDoublePendulum's rail limit): with the
+            # forward pass, every input is copied
             self._input_fields = self._probe_input_fields()
             self.copies_inputs = bool(self._input_fields)
         self.fresh_observation = self._probe_fresh()
@@ -184,59 +192,90 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         return self.env.data
 
     # ---- observation at a given state -----------------------------------------------------------------------
-    def _fill(self, scratch: mujoco.MjData, qpos, qvel, inputs: bool = True) -> None:
+    def _fill(self, scratch: mujoco.MjData, qpos, qvel, inputs: bool = True, source: mujoco.MjData | None = None):
         scratch.qpos[:] = qpos
         scratch.qvel[:] = qvel
         if inputs:
-            self._fill_inputs(scratch)
+            self._fill_inputs(scratch, source)
 
-    def _fill_inputs(self, scratch: mujoco.MjData) -> None:
-        live = self.env.data
+    def _fill_inputs(self, scratch: mujoco.MjData, source: mujoco.MjData | None = None) -> None:
+        """Copy the controller inputs the observation reads from ``source`` (default: the live data)."""
+        source = self.env.data if source is None else source
         for name in self._input_fields:
             if name == "time":
-                scratch.time = live.time
+                scratch.time = source.time
             else:
-                getattr(scratch, name)[:] = getattr(live, name)
+                getattr(scratch, name)[:] = getattr(source, name)
+
+    def _random_inputs(self, rng: np.random.Generator) -> mujoco.MjData:
+        """Data whose controller inputs (:data:`_INPUT_FIELDS`) are random, finite and nonzero, for the probes.
+
+        The probes compare evaluations at such inputs, never at the live ones: at construction the live ``ctrl``
+        is zero, and MuJoCo replaces a non-finite ``ctrl`` by zero, so an observation that reads ``ctrl`` only
+        through the actuation (Humanoid's ``qfrc_actuator``) looks the same with zero, NaN or no ``ctrl``.
+        """
+        model = self.model
+        source = mujoco.MjData(model)
+        source.time = rng.uniform(1.0, 10.0)
+        ctrl = rng.uniform(-1.0, 1.0, model.nu)
+        limited = model.actuator_ctrllimited.astype(bool)
+        low, high = model.actuator_ctrlrange[limited].T
+        ctrl[limited] = low + (high - low) * rng.uniform(0.1, 0.9, int(limited.sum()))
+        source.ctrl[:] = ctrl
+        source.act[:] = rng.uniform(0.1, 0.9, model.na)
+        source.mocap_pos[:] = rng.standard_normal((model.nmocap, 3))
+        quat = rng.standard_normal((model.nmocap, 4))
+        source.mocap_quat[:] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        source.qfrc_applied[:] = rng.standard_normal(model.nv)
+        source.xfrc_applied[1:] = rng.standard_normal((model.nbody - 1, 6))
+        return source
 
     def _probe_input_fields(self) -> tuple[str, ...]:
         """The controller inputs the observation actually reads (InvertedDoublePendulum's constraint force and
-        Humanoid's actuator force read ``ctrl``; nothing reads the applied forces): each field copied by
-        ``_fill_inputs`` is left NaN in turn at random states; if the observation still equals the reference,
-        it is not copied at every step. A field the observation reads in any arithmetic turns it NaN."""
+        Humanoid's actuator force read ``ctrl``; nothing reads the applied forces). At random states with random
+        inputs (:meth:`_random_inputs`), each field copied by ``_fill_inputs`` is in turn set to other random
+        values, then to NaN; if the observation equals the reference both times, the field is not copied at
+        every step."""
         model = self.model
         fields = ["time"] + [name for name, size in (("ctrl", model.nu), ("act", model.na),
                                                         ("mocap_pos", model.nmocap), ("mocap_quat", model.nmocap),
                                                         ("qfrc_applied", model.nv), ("xfrc_applied", model.nbody))
                              if size]
         rng = np.random.default_rng(2468)
-        states = []
+        cases = []
         for _ in range(2):
             qpos = np.array(self.env.data.qpos)
             mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
-            states.append((qpos, rng.standard_normal(model.nv)))
+            cases.append((qpos, rng.standard_normal(model.nv), self._random_inputs(rng), self._random_inputs(rng)))
         self._input_fields = tuple(fields)
         expected = []
-        for qpos, qvel in states:
+        for qpos, qvel, source, _ in cases:
             reference = mujoco.MjData(model)
-            self._fill(reference, qpos, qvel)
+            self._fill(reference, qpos, qvel, source=source)
             expected.append(self._evaluate(reference, self.pipeline))
         needed = []
         for name in fields:
-            self._input_fields = tuple(f for f in fields if f != name)
-            for (qpos, qvel), want in zip(states, expected, strict=True):
-                scratch = mujoco.MjData(model)
-                if name == "time":
-                    scratch.time = np.nan
-                else:
-                    getattr(scratch, name)[...] = np.nan
-                self._fill(scratch, qpos, qvel)
-                try:
-                    got = self._evaluate(scratch, self.pipeline)
-                except Exception:  # noqa: BLE001 - failing without the field: it is needed
-                    got = None
-                if got is None or got.shape != want.shape or not np.array_equal(got, want):
+            for (qpos, qvel, source, other), want in zip(cases, expected, strict=True):
+                changed = []
+                for replace in ("other", "nan"):
+                    scratch = mujoco.MjData(model)
+                    self._input_fields = tuple(fields)
+                    self._fill(scratch, qpos, qvel, source=source)
+                    if name == "time":
+                        scratch.time = other.time if replace == "other" else np.nan
+                    elif replace == "other":
+                        getattr(scratch, name)[...] = getattr(other, name)
+                    else:
+                        getattr(scratch, name)[...] = np.nan
+                    try:
+                        got = self._evaluate(scratch, self.pipeline)
+                    except Exception:  # noqa: BLE001 - failing without the field: it is needed
+                        got = None
+                    changed.append(got is None or got.shape != want.shape or not np.array_equal(got, want))
+                if any(changed):
                     needed.append(name)
                     break
+        self._input_fields = tuple(fields)
         return tuple(needed)
 
     @property
@@ -304,7 +343,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         for _ in range(2):
             qpos = np.array(self.env.data.qpos)
             mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
-            self._fill(self._scratch, qpos, rng.standard_normal(self.model.nv))
+            self._fill(self._scratch, qpos, rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
             live = self.env.data
             self.env.data = self._scratch
             try:
@@ -329,15 +368,15 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         for _ in range(2):
             qpos = np.array(live.qpos)
             mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
-            states.append((qpos, rng.standard_normal(model.nv)))
+            states.append((qpos, rng.standard_normal(model.nv), self._random_inputs(rng)))
         expected = []
-        for qpos, qvel in states:
+        for qpos, qvel, source in states:
             reference = mujoco.MjData(model)
-            self._fill(reference, qpos, qvel)
+            self._fill(reference, qpos, qvel, source=source)
             expected.append(self._evaluate(reference, "forward"))
         for pipeline, inputs in (("none", False), ("none", True), ("kinematics", True)):
             ok = True
-            for (qpos, qvel), want in zip(states, expected, strict=True):
+            for (qpos, qvel, source), want in zip(states, expected, strict=True):
                 poisoned = mujoco.MjData(model)
                 skip = keep | (set(_INPUTS) if inputs else set())
                 for name in dir(poisoned):
@@ -349,7 +388,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                         continue
                     if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
                         value[...] = np.nan
-                self._fill(poisoned, qpos, qvel, inputs=inputs)
+                self._fill(poisoned, qpos, qvel, inputs=inputs, source=source)
                 try:
                     got = self._evaluate(poisoned, pipeline)
                 except Exception:  # noqa: BLE001 - any failure on poisoned data means more is needed
@@ -371,7 +410,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         qpos = np.array(self.env.data.qpos)
         mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
         scratch = mujoco.MjData(self.model)
-        self._fill(scratch, qpos, rng.standard_normal(self.model.nv))
+        self._fill(scratch, qpos, rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
         self.reads_contacts = False
         try:
             scratch.cfrc_ext[:] = np.nan
