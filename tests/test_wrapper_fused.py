@@ -36,6 +36,9 @@ def _pair(env_id: str, seed: int, **kwargs):
         ("HalfCheetah-v5", "high-gain", 5, "drifting", "measured"),
         ("HalfCheetah-v5", "kalman-ca", "physics", "outliers", "filtered"),
         ("HalfCheetah-v5", "finite-difference", "env", "ideal", "measured"),
+        # the observation built by the compiled call, with Hopper's clip of the velocities at +-10 (active with
+        # finite differences of the outlier sensor)
+        ("Hopper-v5", "finite-difference", "physics", "outliers", "measured"),
         # free joints (quaternions): tangent coordinates and the measured/filtered configuration on the manifold
         ("Ant-v5", "super-twisting", "physics", "encoder-12bit-noisy", "filtered"),
         ("Humanoid-v5", "super-twisting", "env", "low-cost", "measured"),
@@ -49,6 +52,7 @@ def test_fused_path_equals_general_path(env_id, observer, rate, sensor, position
     assert isinstance(fused._fused, FusedSensing)
     np.testing.assert_array_equal(obs_f, obs_g)
     rng = np.random.default_rng(0)
+    clipped = False
     for _ in range(120):
         action = rng.uniform(-1, 1, fused.action_space.shape)
         of, rf, tf, uf, inf_f = fused.step(action)
@@ -59,6 +63,10 @@ def test_fused_path_equals_general_path(env_id, observer, rate, sensor, position
             np.testing.assert_array_equal(inf_f["smo"][key], inf_g["smo"][key])
         if tf or uf:  # the general twin is never reset (see _pair)
             break
+        if env_id == "Hopper-v5":
+            clipped |= bool(np.any(np.abs(inf_f["smo"]["qvel_estimate"]) > 10))
+    assert fused._fused.maps_observation == (env_id in ("HalfCheetah-v5", "Hopper-v5"))
+    assert clipped or env_id != "Hopper-v5"  # the clip was exercised
     np.testing.assert_array_equal(fused.observer.estimate, general.observer.estimate)
     np.testing.assert_array_equal(fused.observer.state, general.observer.state)
     assert fused.observer.n_updates == general.observer.n_updates
@@ -154,6 +162,42 @@ def test_adapter_probes_what_the_observation_reads():
     no_contacts = EstimatedVelocity(gym.make("Ant-v5", include_cfrc_ext_in_observation=False),
                                     disk_cache=False).adapter
     assert not no_contacts.reads_contacts
+
+
+def test_observation_map_is_found_only_for_clipped_selections():
+    """Hopper's observation (qpos[1:], clip(qvel, -10, 10)) is a clipped selection; a transformed or mixed
+    observation is not, and keeps the environment's own _get_obs."""
+    from gymnasium.envs.mujoco.hopper_v5 import HopperEnv
+
+    from smo_gym.wrappers.adapters import make_adapter
+
+    index, bounds = make_adapter(gym.make("Hopper-v5").unwrapped).observation_map
+    np.testing.assert_array_equal(index, np.arange(1, 12))
+    np.testing.assert_array_equal(bounds[:, :5], [[-np.inf] * 5, [np.inf] * 5])
+    np.testing.assert_array_equal(bounds[:, 5:], [[-10.0] * 6, [10.0] * 6])
+    index, _ = make_adapter(gym.make("Hopper-v5", exclude_current_positions_from_observation=False)
+                            .unwrapped).observation_map
+    np.testing.assert_array_equal(index, np.arange(12))
+
+    class Transformed(HopperEnv):
+        def __init__(self, transform, **kwargs):
+            super().__init__(**kwargs)
+            self.transform = transform
+
+        def _get_obs(self):
+            return self.transform(self.data.qpos.copy(), self.data.qvel.copy())
+
+    for transform in (lambda q, v: np.concatenate([np.sin(q), v]),  # not the entry itself
+                      lambda q, v: np.concatenate([q, 2.0 * v]),  # not unit slope
+                      lambda q, v: np.concatenate([q, v[:3] + v[3:]]),  # follows two entries
+                      lambda q, v: np.concatenate([q, v, [1.0]]),  # a constant entry
+                      lambda q, v: np.concatenate([q, np.clip(v, -10, 10) * (np.abs(v) < 1e5)]),  # only for small
+                      lambda q, v: np.concatenate([q, v]).astype(np.float32)):
+        adapter = make_adapter(Transformed(transform))
+        assert adapter._bare and adapter.observation_map is None
+    env = EstimatedVelocity(Transformed(lambda q, v: np.concatenate([q, 2.0 * v])), disk_cache=False)
+    obs, info = env.reset(seed=0)
+    np.testing.assert_array_equal(obs[6:], 2.0 * info["smo"]["qvel_estimate"])
 
 
 @pytest.mark.parametrize("env_id", ["Humanoid-v5", "Ant-v5"])

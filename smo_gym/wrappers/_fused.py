@@ -9,7 +9,9 @@ path is one compiled function per observer kernel that, for the ``T`` samples of
 2. advances the observer (its own compiled kernel, the same one ``Observer.update`` calls), all or nothing:
    the state is committed only if every sample passed,
 3. writes the sensed state into the scratch ``MjData`` (measured or filtered ``qpos``, estimated ``qvel``) and
-   the ``info["smo"]`` block (true ``qpos``, true ``qvel``, estimated ``qvel``, measured ``qpos``).
+   the ``info["smo"]`` block (true ``qpos``, true ``qvel``, estimated ``qvel``, measured ``qpos``),
+4. and, where the observation is a clipped selection of ``qpos``/``qvel`` (probed by the adapter: Hopper,
+   HalfCheetah, Walker2d, Swimmer, InvertedPendulum), the observation itself.
 
 Free and ball joints go through the same compiled tangent coordinates as the general path
 (:mod:`smo_gym.wrappers._tangent`).
@@ -37,20 +39,24 @@ __all__ = ["FUSED_DRIVERS", "register_fused_driver"]
 
 
 @njit(error_model="numpy", inline="always")
-def _sense(kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand, state, params,
-           work, scratch_qpos, scratch_qvel, filtered, joints, prev, z):
+def _sense(kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand, state, params,
+           work, scratch_qpos, scratch_qvel, filtered, joints, prev, z, obs_index, obs_bounds):
     """Sensor, observer and outputs for the samples ``Q`` (T, nq) of one control period (see module docstring).
 
     The arguments that change every call come first (the caller appends the others as one prepared tuple):
     ``qvel_true`` (nv,) the live velocity, ``t0`` the sensor's position in its random block ``rand``, ``est``
     (nv, m) receives the estimate at the last sample, ``info`` (2 nq + 4 nv,) the block
     ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]``, ``Zm`` (>= T, nv) the measurements (work
-    space). Then the sensor's arrays (``kinds`` ... ``rand``, see :class:`smo_gym.sensors.Sensor`), the observer's
-    state (nv, S) and parameters, ``work`` (2, nv, S) ping-pong buffers of the state, the scratch ``qpos``/``qvel``
-    of the observation, ``filtered`` (put the observer's filtered value instead of the measurement into
-    ``scratch_qpos``), and the tangent coordinates of free/ball joints (:mod:`smo_gym.wrappers._tangent`):
-    ``joints`` (njnt, 3), empty for a model without them (then ``z = qpos``), ``prev`` (nq,) the last
-    configuration and ``z`` (nv,) its tangent coordinates, both advanced in place.
+    space), ``obs`` (n_obs,) receives the observation if it is a selection of the sensed state (empty otherwise,
+    see the end). Then the sensor's arrays (``kinds`` ... ``rand``, see :class:`smo_gym.sensors.Sensor`), the
+    observer's state (nv, S) and parameters, ``work`` (2, nv, S) ping-pong buffers of the state, the scratch
+    ``qpos``/``qvel`` of the observation, ``filtered`` (put the observer's filtered value instead of the
+    measurement into ``scratch_qpos``), and the tangent coordinates of free/ball joints
+    (:mod:`smo_gym.wrappers._tangent`): ``joints`` (njnt, 3), empty for a model without them (then ``z = qpos``),
+    ``prev`` (nq,) the last configuration and ``z`` (nv,) its tangent coordinates, both advanced in place. Last,
+    for an observation that is a selection of the sensed state (:attr:`GymnasiumMujocoAdapter.observation_map
+    <smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_map>`): ``obs[i] = min(max(x[obs_index[i]],
+    obs_bounds[0, i]), obs_bounds[1, i])`` with ``x = [scratch_qpos, scratch_qvel]``.
     """
     T, nq = Q.shape
     n, S = state.shape
@@ -103,51 +109,56 @@ def _sense(kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring
         for c in range(n):
             info[o_qmeas + c] = zm[c]
             scratch_qpos[c] = est[c, 0] if filtered else zm[c]
+    for i in range(obs.shape[0]):  # np.clip's order: the lower bound first
+        k = obs_index[i]
+        v = scratch_qpos[k] if k < nq else scratch_qvel[k - nq]
+        v = max(v, obs_bounds[0, i])
+        obs[i] = min(v, obs_bounds[1, i])
     return -1
 
 
 # One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a
 # compiled function only if it is a module-level function whose body names its callees (see _kernels.py).
 @njit(cache=True, error_model="numpy")
-def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                        state, params, work, sq, sv, filtered, joints, prev, z):
-    return _sense(K.sta_implicit_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
+def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
+                        state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
+    return _sense(K.sta_implicit_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_hosm(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                state, params, work, sq, sv, filtered, joints, prev, z):
-    return _sense(K.hosm_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
+def _sense_hosm(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
+                state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
+    return _sense(K.hosm_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_eigmap(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                  state, params, work, sq, sv, filtered, joints, prev, z):
-    return _sense(K.eigmap_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
+def _sense_eigmap(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
+                  state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
+    return _sense(K.eigmap_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_linear(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                  state, params, work, sq, sv, filtered, joints, prev, z):
-    return _sense(K.linear_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
+def _sense_linear(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
+                  state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
+    return _sense(K.linear_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_kalman_ca(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                     state, params, work, sq, sv, filtered, joints, prev, z):
-    return _sense(K.kalman_ca_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
+def _sense_kalman_ca(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
+                     state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
+    return _sense(K.kalman_ca_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
+                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_finite_difference(Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos, rand,
-                             state, params, work, sq, sv, filtered, joints, prev, z):
-    return _sense(K.finite_difference_kernel, Q, qvel_true, t0, est, info, Zm, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z)
+def _sense_finite_difference(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
+                             state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
+    return _sense(K.finite_difference_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring,
+                  ring_pos, rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
 
 
 #: observer kernel -> its fused driver

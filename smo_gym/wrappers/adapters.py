@@ -136,6 +136,8 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
     reads_contacts = True
     fresh_observation = False
     _bare = False
+    #: ``(index, bounds)`` when the observation is a selection of the state (:meth:`_probe_observation_map`)
+    observation_map = None
     _input_fields = _INPUT_FIELDS
 
     def __init__(self, env, contact_forces: str = "sensor"):
@@ -171,6 +173,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self.fresh_observation = self._probe_fresh()
         #: the observation needs nothing but the sensed qpos/qvel on the scratch data (Hopper, HalfCheetah, ...)
         self._bare = self.pipeline == "none" and not self.copies_inputs and not self.reads_contacts
+        self.observation_map = self._probe_observation_map() if self._bare else None
         self._views()
 
     def _views(self) -> None:
@@ -355,6 +358,59 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                     return False
                 first, kept = obs, np.array(obs, copy=True)
         return obs is not first and np.array_equal(first, kept, equal_nan=True)
+
+    def _probe_observation_map(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(index, bounds)`` such that the observation is ``obs[i] = min(max(x[index[i]], bounds[0, i]),
+        bounds[1, i])`` with ``x = [qpos, qvel]``, or None if it is not such a selection of the state.
+
+        Only for an observation of ``qpos``/``qvel`` alone (``_bare``): Hopper's ``(qpos[1:], clip(qvel, -10,
+        10))``, HalfCheetah's, InvertedPendulum's... Then the wrapper's compiled call builds it (no Python
+        ``_get_obs``, no finiteness check: a clipped selection of a finite state is finite). Found by
+        perturbing each entry of ``x`` in turn (every observation entry must follow exactly one, with unit slope,
+        and equal it), the bounds from ``x = +-1e300``; accepted only if it reproduces ``_get_obs`` bit for bit
+        at random states of magnitudes 1e-6 to 1e8 (``float64`` one-dimensional observations only).
+        """
+        model = self.model
+        nq, nv = model.nq, model.nv
+        scratch = mujoco.MjData(model)
+
+        def evaluate(x):
+            self._fill(scratch, x[:nq], x[nq:], inputs=False)
+            return self._evaluate(scratch, "none")
+
+        def select(x, index, bounds):
+            return np.minimum(np.maximum(x[index], bounds[0]), bounds[1])
+
+        rng = np.random.default_rng(97531)
+        x0 = 1e-3 * rng.standard_normal(nq + nv)
+        try:
+            obs0 = evaluate(x0)
+            if type(obs0) is not np.ndarray or obs0.dtype != np.float64 or obs0.ndim != 1:
+                return None
+            index = np.full(obs0.size, -1, dtype=np.int64)
+            for j in range(nq + nv):
+                x = x0.copy()
+                x[j] += 1e-3
+                obs = evaluate(x)
+                if obs.shape != obs0.shape:
+                    return None
+                changed = np.flatnonzero(obs != obs0)
+                if np.any(index[changed] >= 0):  # an entry that follows two state entries: not a selection
+                    return None
+                index[changed] = j
+            if np.any(index < 0) or not np.array_equal(obs0, x0[index]):  # constants, or not the entry itself
+                return None
+            huge = 1e300
+            high, low = evaluate(np.full(nq + nv, huge)), evaluate(np.full(nq + nv, -huge))
+            bounds = np.stack([np.where(low == -huge, -np.inf, low), np.where(high == huge, np.inf, high)])
+            for scale in (1e-6, 1e-2, 1.0, 10.0, 1e2, 1e4, 1e8):
+                for _ in range(2):
+                    x = scale * rng.standard_normal(nq + nv)
+                    if not np.array_equal(evaluate(x), select(x, index, bounds)):
+                        return None
+        except Exception:  # noqa: BLE001 - an observation that fails on such states is not a selection
+            return None
+        return index, np.ascontiguousarray(bounds)
 
     def _probe_pipeline(self) -> tuple[str, bool]:
         """``(pipeline, copies_inputs)``: the cheapest evaluation that reproduces the forward-computed observation

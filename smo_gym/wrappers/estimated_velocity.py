@@ -422,9 +422,13 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _observe_fused(self, block: np.ndarray, info: dict):
         """The observation at the sensed state FusedSensing wrote into the scratch data, and ``info["smo"]``."""
-        obs = self.adapter.observe_scratch()
-        check_finite_observation(obs)
-        if self.adapter.unflatten is not None:
+        fused = self._fused
+        if fused.maps_observation:  # built by the compiled call from the finite sensed state
+            obs = fused.observation
+        else:
+            obs = self.adapter.observe_scratch()
+            check_finite_observation(obs)
+        if self.adapter.unflatten is not None:  # Dict observation spaces (dm_control)
             obs = self.adapter.unflatten(obs)
         info["smo"] = SensingInfo.from_block(block, self._info_slices)
         return obs

@@ -409,6 +409,16 @@ class FusedSensing:
         self.sensor, self.observer = measurement.sensor, estimator.observer
         self.filtered = bool(filtered)
         self._driver = FUSED_DRIVERS[self.observer._kernel]
+        selection = getattr(adapter, "observation_map", None)
+        #: the compiled call also builds the observation (a clipped selection of the sensed state, probed by the
+        #: adapter): :meth:`sample` leaves it in :attr:`observation`
+        self.maps_observation = selection is not None
+        if selection is None:
+            selection = (np.zeros(0, dtype=np.int64), np.zeros((2, 0)))
+        self._obs_index, self._obs_bounds = selection
+        self._n_obs = len(self._obs_index)
+        self._no_obs = np.empty(0)
+        self.observation = None
         self._call = None
         self._work = None
         self._static = None
@@ -447,7 +457,7 @@ class FusedSensing:
         n, m = self._shape
         static = self._static[:11] + (np.bool_(self.filtered),) + self._static[12:]  # typed like the arrays
         call = _compiled_entry(self._driver, (Q, qvel_true, np.int64(0), np.empty((n, m)), np.empty(self._info_size),
-                                              self._Zm) + static)
+                                              self._Zm, self._no_obs) + static)
         self._call = call
 
     def prepare(self) -> None:
@@ -463,7 +473,7 @@ class FusedSensing:
         tangent = self.measurement.tangent
         self._static = (sensor._kinds, sensor._params, sensor._state, sensor._ring, sensor._ring_pos, sensor._rand,
                         observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered,
-                        tangent.joints, tangent._prev, tangent._z)
+                        tangent.joints, tangent._prev, tangent._z, self._obs_index, self._obs_bounds)
         model = self.measurement.model
         self._info_size = 2 * model.nq + 4 * model.nv
 
@@ -473,7 +483,8 @@ class FusedSensing:
         Returns the block ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]`` (2 nq + 4 nv,): the
         first four are ``info["smo"]`` (:meth:`SensingInfo.from_block`), the last two the tangent coordinates of the
         last sample (:class:`JointMeasurement` reads them lazily). The observation's state is written into the
-        adapter's scratch. Returns None (nothing done) when the samples straddle the end of the sensor's random
+        adapter's scratch, and with :attr:`maps_observation` the observation itself into a new array,
+        :attr:`observation`. Returns None (nothing done) when the samples straddle the end of the sensor's random
         block: the caller then takes the general path, which splits the block and so keeps the random stream
         independent of batching.
 
@@ -505,7 +516,8 @@ class FusedSensing:
             self._Zm = np.empty((T, self._shape[0]))
         est = np.empty(self._shape)
         info = np.empty(self._info_size)
-        status = call(Q, qvel_true, t0, est, info, self._Zm, *static)
+        obs = self.observation = np.empty(self._n_obs) if self.maps_observation else self._no_obs
+        status = call(Q, qvel_true, t0, est, info, self._Zm, obs, *static)
         sensor._t = t0 + T
         if status != -1:
             self._raise(status, Q)
