@@ -10,6 +10,7 @@ so :math:`|f^{(i)}| \\le 1 + 2^{i-1}`: ``|f''| <= 3``, ``|f'''| <= 5``, ``|f''''
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -72,3 +73,24 @@ def smooth_actions(space, n: int, seed: int) -> list:
         a = 0.9 * a + 0.1 * rng.uniform(space.low, space.high)
         acts.append(a.astype(space.dtype))
     return acts
+
+
+def full_forward_observation(env, qpos, qvel):
+    """The environment's observation at ``(qpos, qvel)`` with every controller input of the live data, after a
+    full ``mj_forward`` on fresh data, contact forces from the live data (``contact_forces="sensor"``): what the
+    adapter's probed shortcuts must reproduce."""
+    u = env.unwrapped
+    model, live = u.model, u.data
+    scratch = mujoco.MjData(model)
+    scratch.time = live.time
+    for name in ("ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied"):
+        getattr(scratch, name)[:] = getattr(live, name)
+    scratch.qpos[:] = qpos
+    scratch.qvel[:] = qvel
+    mujoco.mj_forward(model, scratch)
+    scratch.cfrc_ext[:] = live.cfrc_ext
+    u.data = scratch
+    try:
+        return np.array(type(u)._get_obs(u))
+    finally:
+        u.data = live

@@ -24,7 +24,7 @@ import pytest
 from smo_gym import observers, sensors
 from smo_gym.wrappers import EstimatedVelocity, sensing
 from smo_gym.wrappers import estimated_velocity as ev_module
-from conftest import smooth_actions
+from conftest import full_forward_observation, smooth_actions
 
 ENVS = [
     "InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Reacher-v5", "Pusher-v5", "Swimmer-v5", "Hopper-v5",
@@ -122,27 +122,6 @@ def test_observation_is_built_from_measurements_and_estimates():
     assert not np.allclose(s["qpos_measured"], s["qpos"])  # the sensor did something
     res = 2 * np.pi / 4096
     assert np.max(np.abs(s["qpos_measured"] - s["qpos"])) < 6e-3 + res
-
-
-def full_forward_observation(env, qpos, qvel):
-    """The environment's observation at ``(qpos, qvel)`` with every controller input of the live data, after a
-    full ``mj_forward`` on fresh data, contact forces from the live data (``contact_forces="sensor"``): what the
-    adapter's probed shortcuts must reproduce."""
-    u = env.unwrapped
-    model, live = u.model, u.data
-    scratch = mujoco.MjData(model)
-    scratch.time = live.time
-    for name in ("ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied"):
-        getattr(scratch, name)[:] = getattr(live, name)
-    scratch.qpos[:] = qpos
-    scratch.qvel[:] = qvel
-    mujoco.mj_forward(model, scratch)
-    scratch.cfrc_ext[:] = live.cfrc_ext
-    u.data = scratch
-    try:
-        return np.array(type(u)._get_obs(u))
-    finally:
-        u.data = live
 
 
 @pytest.mark.parametrize("env_id", ENVS)

@@ -12,6 +12,7 @@ import pytest
 from smo_gym.observers import DivergenceError
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers.sensing import FusedSensing, SensingInfo
+from conftest import full_forward_observation
 
 
 KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured")
@@ -73,6 +74,24 @@ def test_fused_path_equals_general_path(env_id, observer, rate, sensor, position
     np.testing.assert_array_equal(fused.measurement.z_measured, general.measurement.z_measured)
     np.testing.assert_array_equal(fused.measurement.z_true, general.measurement.z_true)
     np.testing.assert_array_equal(fused.measurement.measured_qpos(), general.measurement.measured_qpos())
+
+
+@pytest.mark.parametrize("env_id, rate", [("Humanoid-v5", "env"), ("InvertedDoublePendulum-v5", "physics")])
+def test_fused_input_copies_give_the_full_forward_observation(env_id, rate):
+    """The compiled call copies the inputs the observation reads (Humanoid: ctrl; InvertedDoublePendulum, with its
+    full forward pass: all of them) into the scratch data: every step's observation equals a full forward pass
+    at the sensed state with the live inputs."""
+    env = EstimatedVelocity(gym.make(env_id), rate=rate, disk_cache=False)
+    env.reset(seed=1)
+    assert env._fused.copies_inputs
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        obs, *_, terminated, truncated, info = env.step(rng.uniform(env.action_space.low, env.action_space.high))
+        smo = info["smo"]
+        want = full_forward_observation(env, smo["qpos_measured"], smo["qvel_estimate"])
+        np.testing.assert_array_equal(obs, want)
+        if terminated or truncated:
+            env.reset()
 
 
 def test_fused_path_is_taken_only_where_it_is_exact():

@@ -28,14 +28,29 @@ Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produce
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import carray, njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .._numba_cache import drop_stale
 from ..observers import _kernels as K
 from ..sensors import _chain_kernel
 from ._tangent import integrate_pos, tangent_advance
 
-__all__ = ["FUSED_DRIVERS", "register_fused_driver"]
+__all__ = ["FUSED_DRIVERS", "TABLE_SLOTS", "register_fused_driver"]
+
+#: the arrays a driver reads through its address table, in row order: (name, dtype, ndim); the row of an array
+#: is ``[address, *shape, 0...]`` (5 columns), the row of the flag ``filtered`` is ``[0 or 1, 0, 0, 0, 0]``. Rows
+#: after these are copies of the controller inputs into the scratch data: ``[to, from, size, 0, 0]`` (float64).
+TABLE_SLOTS = (
+    ("kinds", np.int64, 1), ("sensor_params", np.float64, 3), ("sensor_state", np.float64, 2),
+    ("ring", np.float64, 3), ("ring_pos", np.int64, 1), ("rand", np.float64, 4),
+    ("state", np.float64, 2), ("params", np.float64, 2), ("work", np.float64, 3),
+    ("scratch_qpos", np.float64, 1), ("scratch_qvel", np.float64, 1), ("filtered", bool, 0),
+    ("joints", np.int64, 2), ("prev", np.float64, 1), ("z", np.float64, 1),
+    ("obs_index", np.int64, 1), ("obs_bounds", np.float64, 2),
+)
+_N_SLOTS = len(TABLE_SLOTS)
 
 
 @njit(error_model="numpy", inline="always")
@@ -43,7 +58,8 @@ def _sense(kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate,
            work, scratch_qpos, scratch_qvel, filtered, joints, prev, z, obs_index, obs_bounds):
     """Sensor, observer and outputs for the samples ``Q`` (T, nq) of one control period (see module docstring).
 
-    The arguments that change every call come first (the caller appends the others as one prepared tuple):
+    The arguments that change every call come first (the others come from the address table of
+    :func:`_sense_table`):
     ``qvel_true`` (nv,) the live velocity, ``t0`` the sensor's position in its random block ``rand``, ``est``
     (nv, m) receives the estimate at the last sample, ``info`` (2 nq + 4 nv,) the block
     ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]``, ``Zm`` (>= T, nv) the measurements (work
@@ -117,48 +133,87 @@ def _sense(kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate,
     return -1
 
 
+@intrinsic
+def _pointer(typingctx, address):
+    """The integer ``address`` as a ``void *`` (for :func:`numba.carray`)."""
+    if not isinstance(address, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], cgutils.voidptr_t)
+
+    return types.voidptr(address), codegen
+
+
+@njit(error_model="numpy", inline="always")
+def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
+    """:func:`_sense` with the prepared arrays passed as one address table (rows of :data:`TABLE_SLOTS`).
+
+    Why: numba converts every array argument of a call from Python (~0.1 us each, two to three times that right
+    after the physics step); the seventeen prepared arrays cost more than the rest of the call. The table is one
+    argument. Its rows after :data:`TABLE_SLOTS` copy the controller inputs the observation reads (``ctrl``, ...)
+    from the live into the scratch data (a NumPy copy per field costs ~2 us after the physics step). The arrays
+    it points to are kept alive and checked (dtype, dimensions, C order) by
+    :class:`~smo_gym.wrappers.sensing.FusedSensing`, which rebuilds the rows of replaced arrays.
+    """
+    t = table
+    for row in range(_N_SLOTS, t.shape[0]):  # the input copies into the scratch data: [to, from, size]
+        to = carray(_pointer(t[row, 0]), (t[row, 2],), np.float64)
+        source = carray(_pointer(t[row, 1]), (t[row, 2],), np.float64)
+        for i in range(t[row, 2]):
+            to[i] = source[i]
+    return _sense(
+        kernel, Q, qvel_true, t0, est, info, Zm, obs,
+        carray(_pointer(t[0, 0]), (t[0, 1],), np.int64),
+        carray(_pointer(t[1, 0]), (t[1, 1], t[1, 2], t[1, 3]), np.float64),
+        carray(_pointer(t[2, 0]), (t[2, 1], t[2, 2]), np.float64),
+        carray(_pointer(t[3, 0]), (t[3, 1], t[3, 2], t[3, 3]), np.float64),
+        carray(_pointer(t[4, 0]), (t[4, 1],), np.int64),
+        carray(_pointer(t[5, 0]), (t[5, 1], t[5, 2], t[5, 3], t[5, 4]), np.float64),
+        carray(_pointer(t[6, 0]), (t[6, 1], t[6, 2]), np.float64),
+        carray(_pointer(t[7, 0]), (t[7, 1], t[7, 2]), np.float64),
+        carray(_pointer(t[8, 0]), (t[8, 1], t[8, 2], t[8, 3]), np.float64),
+        carray(_pointer(t[9, 0]), (t[9, 1],), np.float64),
+        carray(_pointer(t[10, 0]), (t[10, 1],), np.float64),
+        t[11, 0] != 0,
+        carray(_pointer(t[12, 0]), (t[12, 1], t[12, 2]), np.int64),
+        carray(_pointer(t[13, 0]), (t[13, 1],), np.float64),
+        carray(_pointer(t[14, 0]), (t[14, 1],), np.float64),
+        carray(_pointer(t[15, 0]), (t[15, 1],), np.int64),
+        carray(_pointer(t[16, 0]), (t[16, 1], t[16, 2]), np.float64),
+    )
+
+
 # One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a
 # compiled function only if it is a module-level function whose body names its callees (see _kernels.py).
 @njit(cache=True, error_model="numpy")
-def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
-                        state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
-    return _sense(K.sta_implicit_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
+def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, obs, table):
+    return _sense_table(K.sta_implicit_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_hosm(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
-                state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
-    return _sense(K.hosm_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
+def _sense_hosm(Q, qvel_true, t0, est, info, Zm, obs, table):
+    return _sense_table(K.hosm_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_eigmap(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
-                  state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
-    return _sense(K.eigmap_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
+def _sense_eigmap(Q, qvel_true, t0, est, info, Zm, obs, table):
+    return _sense_table(K.eigmap_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_linear(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
-                  state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
-    return _sense(K.linear_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
+def _sense_linear(Q, qvel_true, t0, est, info, Zm, obs, table):
+    return _sense_table(K.linear_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_kalman_ca(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
-                     state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
-    return _sense(K.kalman_ca_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos,
-                  rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
+def _sense_kalman_ca(Q, qvel_true, t0, est, info, Zm, obs, table):
+    return _sense_table(K.kalman_ca_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
 
 
 @njit(cache=True, error_model="numpy")
-def _sense_finite_difference(Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand,
-                             state, params, work, sq, sv, filtered, joints, prev, z, oi, ob):
-    return _sense(K.finite_difference_kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring,
-                  ring_pos, rand, state, params, work, sq, sv, filtered, joints, prev, z, oi, ob)
+def _sense_finite_difference(Q, qvel_true, t0, est, info, Zm, obs, table):
+    return _sense_table(K.finite_difference_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
 
 
 #: observer kernel -> its fused driver
@@ -175,8 +230,8 @@ FUSED_DRIVERS = {
 def register_fused_driver(kernel, driver) -> None:
     """Register the fused driver of another observer kernel.
 
-    ``driver`` must be ``return _sense(kernel, ...)`` with the signature above, compiled with
-    ``@njit(cache=True)`` at module level.
+    ``driver(Q, qvel_true, t0, est, info, Zm, obs, table)`` must be ``return _sense_table(kernel, Q, qvel_true,
+    t0, est, info, Zm, obs, table)``, compiled with ``@njit(cache=True)`` at module level.
     """
     FUSED_DRIVERS[kernel] = driver
 

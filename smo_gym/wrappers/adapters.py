@@ -179,11 +179,12 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
     def _views(self) -> None:
         # cached views of the scratch arrays written at every observation (MjData builds a view per access)
         self._scratch_qpos, self._scratch_qvel = self._scratch.qpos, self._scratch.qvel
+        self._input_views = None
 
     def __getstate__(self):
         state = dict(self.__dict__)
-        state.pop("_scratch_qpos", None)
-        state.pop("_scratch_qvel", None)
+        for name in ("_scratch_qpos", "_scratch_qvel", "_input_views"):
+            state.pop(name, None)
         return state
 
     def __setstate__(self, state):
@@ -322,8 +323,12 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         """The scratch ``qpos`` (nq,) and ``qvel`` (nv,) arrays: write a state there, then :meth:`observe_scratch`."""
         return self._scratch_qpos, self._scratch_qvel
 
-    def observe_scratch(self) -> np.ndarray:
-        """The environment's observation at the state already written into :meth:`scratch_state`."""
+    def observe_scratch(self, inputs_copied: bool = False) -> np.ndarray:
+        """The environment's observation at the state already written into :meth:`scratch_state`.
+
+        ``inputs_copied``: the caller has already copied the input arrays of :meth:`input_views` (the wrapper's
+        compiled call does); ``time``, a scalar, is still copied here if read.
+        """
         if self._bare:  # the common case, spelled out: this runs once per environment step
             env = self.env
             live = env.data
@@ -334,8 +339,31 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                 env.data = live
             return obs if self.fresh_observation else np.array(obs, copy=True)
         if self.copies_inputs:
-            self._fill_inputs(self._scratch)
+            if not inputs_copied:
+                self._copy_inputs()
+            elif self._input_views[2]:
+                self._scratch.time = self.env.data.time
         return self._evaluate(self._scratch, self.pipeline)
+
+    def input_views(self) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], bool]:
+        """``(pairs, time)``: the ``(scratch, live)`` array views of the inputs the observation reads (each a
+        C-contiguous float64 array of the same size), and whether it reads ``time``; made once per live data."""
+        live = self.env.data
+        views = self._input_views
+        if views is None or views[0] is not live:
+            pairs = tuple((getattr(self._scratch, name), getattr(live, name))
+                          for name in self._input_fields if name != "time")
+            views = self._input_views = (live, pairs, "time" in self._input_fields)
+        return views[1], views[2]
+
+    def _copy_inputs(self) -> None:
+        """``_fill_inputs`` of the scratch data from the live data, per step (through :meth:`input_views`: each
+        MjData field access builds a new view)."""
+        pairs, time = self.input_views()
+        for destination, source in pairs:
+            np.copyto(destination, source)
+        if time:
+            self._scratch.time = self.env.data.time
 
     def _probe_fresh(self) -> bool:
         """Whether ``_get_obs`` returns a new array at every call, sharing no memory with the data it reads: two

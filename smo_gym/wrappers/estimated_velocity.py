@@ -426,7 +426,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if fused.maps_observation:  # built by the compiled call from the finite sensed state
             obs = fused.observation
         else:
-            obs = self.adapter.observe_scratch()
+            obs = self.adapter.observe_scratch(fused.copies_inputs)
             check_finite_observation(obs)
         if self.adapter.unflatten is not None:  # Dict observation spaces (dm_control)
             obs = self.adapter.unflatten(obs)
@@ -514,6 +514,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         live = self._live
         if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)
             live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
+            if self._fused is not None:  # its input copies read the live data
+                self._fused.prepare()
         intercept = self._intercept
         if intercept and self._fused is not None:  # the env's own step returns the sensed observation
             self._pending_smo = None

@@ -417,16 +417,21 @@ class FusedSensing:
             selection = (np.zeros(0, dtype=np.int64), np.zeros((2, 0)))
         self._obs_index, self._obs_bounds = selection
         self._n_obs = len(self._obs_index)
+        #: the compiled call copies the controller inputs the observation reads into the scratch data (the
+        #: adapter's :meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.input_views`)
+        self.copies_inputs = bool(getattr(adapter, "copies_inputs", False)) and hasattr(adapter, "input_views")
         self._no_obs = np.empty(0)
         self.observation = None
         self._call = None
         self._work = None
         self._static = None
+        self._table = None
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
-        # the entry point does not pickle, and the scratch views belong to the adapter's (re-made) scratch data
-        state.update(_call=None, _work=None, _static=None)
+        # the entry point does not pickle, the scratch views belong to the adapter's (re-made) scratch data, and
+        # the table holds this process's addresses
+        state.update(_call=None, _work=None, _static=None, _table=None)
         return state
 
     @staticmethod
@@ -441,12 +446,12 @@ class FusedSensing:
                 and getattr(observer, "_kernel", None) in FUSED_DRIVERS and hasattr(adapter, "scratch_state"))
 
     def _bind(self, Q: np.ndarray, qvel_true: np.ndarray) -> None:
-        """Resolve the driver's compiled entry point (once: the arrays keep their types across resets).
+        """Resolve the driver's compiled entry point (once: the arguments keep their types across resets).
 
-        The entry point skips numba's type dispatch (eighteen arguments, ~2 us); it checks nothing, so every later
-        call passes arrays of exactly these types: ``Q`` is a view of the live ``qpos`` or the wrapper's sample
-        buffer, ``qvel_true`` the live ``qvel`` (writeable, aligned, C-contiguous float64), the rest are owned
-        here or by the sensor and the observer and keep their types across resets.
+        The entry point skips numba's type dispatch; it checks nothing, so every later call passes arrays of
+        exactly these types: ``Q`` is a view of the live ``qpos`` or the wrapper's sample buffer, ``qvel_true``
+        the live ``qvel`` (writeable, aligned, C-contiguous float64); ``est``, ``info``, ``Zm`` and ``obs`` are
+        made here; the other arrays go through the address table (:meth:`prepare`).
         """
         from ..observers.base import _compiled_entry
 
@@ -455,14 +460,19 @@ class FusedSensing:
                 raise TypeError(f"expected writeable C-contiguous float64 arrays, actual value: {a.dtype} {a.flags}")
         self.prepare()
         n, m = self._shape
-        static = self._static[:11] + (np.bool_(self.filtered),) + self._static[12:]  # typed like the arrays
-        call = _compiled_entry(self._driver, (Q, qvel_true, np.int64(0), np.empty((n, m)), np.empty(self._info_size),
-                                              self._Zm, self._no_obs) + static)
-        self._call = call
+        self._call = _compiled_entry(self._driver, (Q, qvel_true, np.int64(0), np.empty((n, m)),
+                                                    np.empty(self._info_size), self._Zm, self._no_obs, self._table))
 
     def prepare(self) -> None:
-        """Collect the sensor's and the observer's current arrays (call after resetting them: a reset may
-        replace them with new arrays of the same types)."""
+        """Collect the sensor's and the observer's current arrays into the driver's address table (call after
+        resetting them: a reset may replace them with new arrays of the same types).
+
+        The table (:data:`smo_gym.wrappers._fused.TABLE_SLOTS`) holds raw addresses, so the arrays are kept in
+        ``_static`` for as long as the table points to them, and each is checked: dtype, dimensions, C order.
+        Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
+        """
+        from ._fused import TABLE_SLOTS
+
         sensor, observer = self.sensor, self.observer
         n, S = observer._state.shape
         if self._work is None or self._work.shape[1:] != (n, S):
@@ -471,9 +481,35 @@ class FusedSensing:
         self._shape = (n, observer.order + 1)
         scratch_qpos, scratch_qvel = self.adapter.scratch_state()
         tangent = self.measurement.tangent
-        self._static = (sensor._kinds, sensor._params, sensor._state, sensor._ring, sensor._ring_pos, sensor._rand,
-                        observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered,
-                        tangent.joints, tangent._prev, tangent._z, self._obs_index, self._obs_bounds)
+        static = (sensor._kinds, sensor._params, sensor._state, sensor._ring, sensor._ring_pos, sensor._rand,
+                  observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered,
+                  tangent.joints, tangent._prev, tangent._z, self._obs_index, self._obs_bounds)
+        # the controller inputs the observation reads, copied by the compiled call (time, a scalar, is not)
+        pairs = self.adapter.input_views()[0] if self.copies_inputs else ()
+        slots = TABLE_SLOTS + tuple((f"input {i}", np.float64, -1) for i in range(len(pairs)))
+        static = static + pairs
+        previous, table = self._static, self._table
+        if table is None or len(table) != len(slots):
+            table, previous = np.zeros((len(slots), 5), dtype=np.int64), (None,) * len(slots)
+        for row, (array, old, (name, dtype, ndim)) in enumerate(zip(static, previous, slots, strict=True)):
+            if array is old:
+                continue
+            if ndim == 0:
+                table[row] = (int(bool(array)), 0, 0, 0, 0)
+                continue
+            for a in (array if ndim < 0 else (array,)):
+                if not (type(a) is np.ndarray and a.dtype == dtype and (ndim < 0 or a.ndim == ndim)
+                        and a.flags.c_contiguous and a.flags.aligned):
+                    raise TypeError(f"expected {name} as an aligned C-contiguous {np.dtype(dtype)} array"
+                                    f"{f' with {ndim} dimensions' if ndim > 0 else ''}, actual value: {a!r:.80}")
+            if ndim < 0:  # an input copy: [to, from, size]
+                to, source = array
+                if to.size != source.size:
+                    raise TypeError(f"expected {name} of one size, actual value: {to.size} and {source.size}")
+                table[row] = (to.__array_interface__["data"][0], source.__array_interface__["data"][0], to.size, 0, 0)
+            else:
+                table[row] = (array.__array_interface__["data"][0], *array.shape, *(0,) * (4 - ndim))
+        self._static, self._table = static, table
         model = self.measurement.model
         self._info_size = 2 * model.nq + 4 * model.nv
 
@@ -511,13 +547,12 @@ class FusedSensing:
         if static[6] is not self.observer._state or static[2] is not sensor._state:
             # replaced since prepare(): Observer.run commits a new state array, Sensor.reset new arrays
             self.prepare()
-            static = self._static
         if self._Zm.shape[0] < T:
             self._Zm = np.empty((T, self._shape[0]))
         est = np.empty(self._shape)
         info = np.empty(self._info_size)
         obs = self.observation = np.empty(self._n_obs) if self.maps_observation else self._no_obs
-        status = call(Q, qvel_true, t0, est, info, self._Zm, obs, *static)
+        status = call(Q, qvel_true, t0, est, info, self._Zm, obs, self._table)
         sensor._t = t0 + T
         if status != -1:
             self._raise(status, Q)
