@@ -458,7 +458,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.measurement.reset(self.adapter.data.qpos, self._rng)
         self.estimator.reset(self.measurement.z_measured)
         self._substep_hook = None  # a reset may rebuild the simulation's objects (dm_control's physics)
-        self._live = None
+        data = self.adapter.data
+        self._live = (data, data.qpos[None], data.qvel, data.qpos)
         fused = self._fused
         if fused is None or fused.observer is not self.estimator.observer or fused.sensor is not self.sensor:
             self._fused = (FusedSensing(self.measurement, self.estimator, self.adapter, self.positions == "filtered")

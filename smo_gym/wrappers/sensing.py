@@ -40,6 +40,7 @@ import copy
 import hashlib
 import inspect
 import json
+import operator
 import os
 import tempfile
 from pathlib import Path
@@ -403,8 +404,9 @@ class FusedSensing:
     """
 
     def __init__(self, measurement: JointMeasurement, estimator: VelocityEstimator, adapter, filtered: bool):
-        from ._fused import FUSED_DRIVERS
+        from ._fused import FUSED_DRIVERS, TABLE_SLOTS
 
+        self._slots = TABLE_SLOTS
         self.measurement, self.adapter = measurement, adapter
         self.sensor, self.observer = measurement.sensor, estimator.observer
         self.filtered = bool(filtered)
@@ -426,6 +428,11 @@ class FusedSensing:
         self._work = None
         self._static = None
         self._table = None
+        model = measurement.model
+        self._info_size = 2 * model.nq + 4 * model.nv
+        # without free or ball joints the driver never touches z; TangentCoordinates.reset replaces its z at every
+        # episode, which would cost a table row each time
+        self._unused_z = np.zeros(model.nv)
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
@@ -471,8 +478,6 @@ class FusedSensing:
         ``_static`` for as long as the table points to them, and each is checked: dtype, dimensions, C order.
         Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
         """
-        from ._fused import TABLE_SLOTS
-
         sensor, observer = self.sensor, self.observer
         n, S = observer._state.shape
         if self._work is None or self._work.shape[1:] != (n, S):
@@ -483,12 +488,15 @@ class FusedSensing:
         tangent = self.measurement.tangent
         static = (sensor._kinds, sensor._params, sensor._state, sensor._ring, sensor._ring_pos, sensor._rand,
                   observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered,
-                  tangent.joints, tangent._prev, tangent._z, self._obs_index, self._obs_bounds)
+                  tangent.joints, tangent._prev, tangent._z if tangent.manifold else self._unused_z, self._obs_index,
+                  self._obs_bounds)
         # the controller inputs the observation reads, copied by the compiled call (time, a scalar, is not)
         pairs = self.adapter.input_views()[0] if self.copies_inputs else ()
-        slots = TABLE_SLOTS + tuple((f"input {i}", np.float64, -1) for i in range(len(pairs)))
         static = static + pairs
         previous, table = self._static, self._table
+        if table is not None and len(table) == len(static) and all(map(operator.is_, static, previous)):
+            return  # nothing replaced (a reset usually replaces one array or none)
+        slots = self._slots + tuple((f"input {i}", np.float64, -1) for i in range(len(pairs)))
         if table is None or len(table) != len(slots):
             table, previous = np.zeros((len(slots), 5), dtype=np.int64), (None,) * len(slots)
         for row, (array, old, (name, dtype, ndim)) in enumerate(zip(static, previous, slots, strict=True)):
@@ -510,8 +518,6 @@ class FusedSensing:
             else:
                 table[row] = (array.__array_interface__["data"][0], *array.shape, *(0,) * (4 - ndim))
         self._static, self._table = static, table
-        model = self.measurement.model
-        self._info_size = 2 * model.nq + 4 * model.nv
 
     def sample(self, Q: np.ndarray, qvel_true: np.ndarray) -> np.ndarray | None:
         """Measure and estimate the samples ``Q`` (T, nq) of one control period.
