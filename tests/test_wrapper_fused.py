@@ -310,6 +310,30 @@ def test_the_env_returns_the_sensed_observation_only_where_its_step_ignores_it()
     assert inner._intercept is False
 
 
+def test_episode_recorders_are_transparent_to_the_interception():
+    """SB3's make_vec_env puts a Monitor under wrapper_class, Gymnasium users RecordEpisodeStatistics: both pass the
+    observation through, so the env's own step still returns the sensed observation, the same as without it."""
+    from stable_baselines3.common.monitor import Monitor
+
+    for recorder in (Monitor, gym.wrappers.RecordEpisodeStatistics):
+        wrapped = EstimatedVelocity(recorder(gym.make("Hopper-v5")), disk_cache=False)
+        plain = EstimatedVelocity(recorder(gym.make("Hopper-v5")), disk_cache=False)
+        first = wrapped.reset(seed=4)[0], plain.reset(seed=4)[0]
+        plain._intercept = False
+        assert wrapped._intercept
+        np.testing.assert_array_equal(*first)
+        rng = np.random.default_rng(4)
+        for _ in range(40):
+            action = rng.uniform(-1, 1, 3)
+            a, b = wrapped.step(action), plain.step(action)
+            np.testing.assert_array_equal(a[0], b[0])
+            assert a[1:4] == b[1:4]
+            np.testing.assert_array_equal(a[4]["smo"]["qvel_estimate"], b[4]["smo"]["qvel_estimate"])
+            if a[2] or a[3]:
+                assert "episode" in a[4] and "episode" in b[4]
+                break
+
+
 def test_observation_dependent_rewards_are_detected():
     """A step whose reward reads the observation it returns is not intercepted."""
     from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv

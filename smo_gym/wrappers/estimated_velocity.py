@@ -105,7 +105,17 @@ def rollout_velocities(unwrapped, sample_every: int, steps: int, seed: int = 0) 
 
 #: wrappers that pass ``step``'s observation through unchanged (``gym.make``'s stack): with only these between
 #: ``EstimatedVelocity`` and the MuJoCo environment, the sensed observation may be returned by the env's own step
-_TRANSPARENT_WRAPPERS = (gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker)
+_TRANSPARENT_WRAPPERS = (gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker,
+                         gym.wrappers.RecordEpisodeStatistics)
+#: the same, named by module and class (not imported here: importing Stable-Baselines3 imports torch); SB3's
+#: ``make_vec_env`` puts its ``Monitor`` between the environment and ``wrapper_class``
+_TRANSPARENT_BY_NAME = {("stable_baselines3.common.monitor", "Monitor")}
+
+
+def _transparent(wrapper) -> bool:
+    """Whether ``wrapper`` (exactly one of the classes above, not a subclass) passes observations through."""
+    cls = type(wrapper)
+    return cls in _TRANSPARENT_WRAPPERS or (cls.__module__, cls.__qualname__) in _TRANSPARENT_BY_NAME
 _OBSERVATION_INDEPENDENT: dict[str, bool] = {}
 
 
@@ -479,7 +489,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return None
         env, unwrapped = self.env, self.env.unwrapped
         while env is not unwrapped:
-            if type(env) not in _TRANSPARENT_WRAPPERS:
+            if not _transparent(env):
                 return None
             env = env.env
         if not observation_independent_step(unwrapped):
