@@ -15,23 +15,27 @@ ENV = "InvertedDoublePendulum-v5"  # episodes end within ~10-40 steps under rand
 N = 3
 
 
-def _pair(n=N, seed=3, positions="measured"):
-    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env", positions=positions) for _ in range(n)])
-    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(n)]), "encoder-12bit-noisy",
+def _pair(n=N, seed=3, positions="measured", env_id=ENV):
+    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(env_id), rate="env", positions=positions)
+                       for _ in range(n)])
+    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(env_id) for _ in range(n)]), "encoder-12bit-noisy",
                                "super-twisting", positions=positions)
     ref.seed(seed)
     vec.seed(seed)
     return ref, vec
 
 
-@pytest.mark.parametrize("positions", ["measured", "filtered"])
-def test_vec_equals_per_env_wrappers_with_autoresets(positions):
-    ref, vec = _pair(positions=positions)
+@pytest.mark.parametrize("positions, env_id", [("measured", ENV), ("filtered", ENV),
+                                               ("measured", "Hopper-v5")])
+def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
+    """Also with the in-process shortcuts: the environments' own observations are not evaluated (zeros instead:
+    the wrapper rebuilds them), and Hopper's clipped selection is built for all environments at once."""
+    ref, vec = _pair(positions=positions, env_id=env_id)
     np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
     rng = np.random.default_rng(0)
     n_done = 0
     for _ in range(150):
-        a = rng.uniform(-1, 1, (N, 1))
+        a = rng.uniform(-1, 1, (N,) + vec.action_space.shape)
         o1, r1, d1, i1 = ref.step(a)
         o2, r2, d2, i2 = vec.step(a)
         np.testing.assert_array_equal(d1, d2)
@@ -44,6 +48,8 @@ def test_vec_equals_per_env_wrappers_with_autoresets(positions):
             np.testing.assert_allclose(i2[i]["smo"]["qvel_estimate"], i1[i]["smo"]["qvel_estimate"], rtol=0,
                                        atol=1e-12)
     assert n_done >= 5  # the comparison covered autoresets
+    assert all(s._placeholder_hook for s in vec._local)
+    assert (vec._selection() is not None) == (env_id == "Hopper-v5" and positions == "measured")
 
 
 def test_autoreset_terminal_observation_and_restart():

@@ -480,10 +480,10 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self._intercept = self._interception_hook() or False
         return self._observe(info), info
 
-    def _interception_hook(self):
-        """The hook that makes the environment's own ``step`` return the sensed observation, or None: needs an
-        adapter that can replace ``_get_obs``, only observation-preserving wrappers in between, and an
-        environment whose step does not use its observation (:func:`observation_independent_step`)."""
+    def _interception_hook(self, function=None):
+        """The hook that makes the environment's own ``step`` return the sensed observation (or ``function()``),
+        or None: needs an adapter that can replace ``_get_obs``, only observation-preserving wrappers in between,
+        and an environment whose step does not use its observation (:func:`observation_independent_step`)."""
         intercept = getattr(self.adapter, "intercept_observation", None)
         if intercept is None:
             return None
@@ -494,7 +494,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             env = env.env
         if not observation_independent_step(unwrapped):
             return None
-        return intercept(self._sensed_observation)
+        return intercept(function or self._sensed_observation)
 
     def _sensed_observation(self):
         """``_get_obs`` of the environment during an intercepted step: sense the control period that just ended

@@ -102,6 +102,12 @@ class JointSensor(EstimatedVelocity):
         #: put the measurement and the true state in ``info`` (needed across a process boundary; an in-process
         #: owner reads :attr:`z_step`, :attr:`z_reset` and :attr:`smo` instead, and saves SB3's deepcopy of infos)
         self.emit_info = True
+        #: return the environment's own observation from ``step``; an in-process owner rebuilds every observation
+        #: and sets this False: then, where the environment's step only returns its observation
+        #: (:func:`~smo_gym.wrappers.estimated_velocity.observation_independent_step`), it is not evaluated and
+        #: zeros are returned instead
+        self.emit_observation = True
+        self._placeholder_hook = None
         self.z_step = self.z_reset = None
         self._reset_last = False
         self.smo = {}
@@ -125,7 +131,14 @@ class JointSensor(EstimatedVelocity):
         if self._rng is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
         self._terminal = None  # kept across the autoreset that follows an episode's end, dropped here
-        obs, reward, terminated, truncated, info = self.env.step(action)
+        hook = self._placeholder_hook
+        if hook is None and not self.emit_observation:
+            hook = self._placeholder_hook = self._placeholder() or False
+        if hook and not self.emit_observation:
+            with hook:
+                obs, reward, terminated, truncated, info = self.env.step(action)
+        else:
+            obs, reward, terminated, truncated, info = self.env.step(action)
         data = self.adapter.data
         z = self.measurement.measure_block(data.qpos[None])[0]
         self.z_step = np.array(z, dtype=np.float64)
@@ -140,6 +153,19 @@ class JointSensor(EstimatedVelocity):
             self._terminal = (self._snapshot(data), self.measurement.measured_qpos().copy(),
                               np.array(self.measurement.z_measured, dtype=np.float64))
         return obs, reward, terminated, truncated, info
+
+    def _placeholder(self):
+        """The hook that replaces the environment's observation by a zero placeholder during ``step``, or None."""
+        space = self.observation_space
+        if not isinstance(space, gym.spaces.Box):
+            return None
+        shape, dtype = space.shape, space.dtype
+        return self._interception_hook(lambda: np.zeros(shape, dtype))
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        state["_placeholder_hook"] = None  # a closure over the environment; made again at the next step
+        return state
 
     def _snapshot(self, data):
         """Copy into a preallocated ``MjData`` the fields an observation reads from the live data (``_SNAPSHOT``):
@@ -237,11 +263,13 @@ class _Sensing:
         # has(name) -> bool: whether every sub-environment has the attribute (None: try the call)
         self._call = call
         self._local = sensors
+        self.__dict__.pop("_selection_cache", None)
         if sensors is not None:
             protos = [s.prototype() for s in sensors]
             tokens = [s.token for s in sensors]
             for s in sensors:
                 s.emit_info = False
+                s.emit_observation = False  # rebuilt here: the environment need not evaluate its own
         else:
             try:
                 if has is not None and not has("observe_rows"):
@@ -275,6 +303,19 @@ class _Sensing:
         tvel = None if terminal_estimate is None else terminal_estimate[..., 1]
         tfilt = None if terminal_estimate is None or self.positions != "filtered" else terminal_estimate[..., 0]
         if self._local is not None:
+            selection = self._selection()
+            if selection is not None:  # every observation is the same clipped selection: one NumPy expression
+                index, bounds, nq = selection
+                state = np.empty((len(self._local), nq + vel.shape[1]))
+                for i, s in enumerate(self._local):
+                    state[i, :nq] = s.measurement.measured_qpos()
+                state[:, nq:] = vel
+                obs = np.minimum(np.maximum(state[:, index], bounds[0]), bounds[1])
+                terms = [None] * len(self._local)
+                if terminal_mask is not None:
+                    for i in np.flatnonzero(terminal_mask):
+                        terms[i] = self._local[i].observe(tvel[i], None, terminal=True)
+                return obs, terms
             rows = []
             for i, s in enumerate(self._local):
                 obs = s.observe(vel[i], None if filt is None else filt[i])
@@ -286,6 +327,25 @@ class _Sensing:
             rows = self._call("observe_rows", self._index, vel, filt, tvel, tfilt, terminal_mask)
         obs = np.stack([r[0] for r in rows])
         return obs, [r[1] for r in rows]
+
+    def _selection(self):
+        """``(index, bounds, nq)`` when the in-process environments' observations are all the same clipped
+        selection of the measured positions and estimated velocities (the adapters'
+        :attr:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_map`, ``positions="measured"``),
+        else None; decided once."""
+        try:
+            return self._selection_cache
+        except AttributeError:
+            pass
+        maps = [getattr(s.adapter, "observation_map", None) for s in self._local]
+        selection = None
+        if self.positions == "measured" and maps and all(m is not None for m in maps):
+            index, bounds = maps[0]
+            nqs = {s.adapter.model.nq for s in self._local}
+            if len(nqs) == 1 and all(np.array_equal(m[0], index) and np.array_equal(m[1], bounds) for m in maps):
+                selection = (index, bounds, nqs.pop())
+        self._selection_cache = selection
+        return selection
 
     def _full_reset(self, Z: np.ndarray) -> np.ndarray:
         self.observer.reset(Z)
