@@ -183,6 +183,33 @@ def test_adapter_probes_what_the_observation_reads():
     assert not no_contacts.reads_contacts
 
 
+def test_observation_entries_are_gathered_clipped_and_checked():
+    """Humanoid's and Ant's observations are clipped selections of MjData entries after the forward-pass stages:
+    gathered by one compiled call, equal to _get_obs at run-time states (here with Ant's contact forces beyond
+    its clip at +-1), and a non-finite entry raises the wrapper's error. Reacher's (cos/sin of angles) is not."""
+    from smo_gym.wrappers.adapters import make_adapter
+
+    humanoid = make_adapter(gym.make("Humanoid-v5").unwrapped)
+    assert set(humanoid.observation_entries[0]) == {"qpos", "qvel", "cinert", "cvel", "qfrc_actuator", "cfrc_ext"}
+    assert make_adapter(gym.make("Reacher-v5").unwrapped).observation_entries is None
+    env = EstimatedVelocity(gym.make("Ant-v5"), disk_cache=False)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        env.step(rng.uniform(-1, 1, 8))
+    adapter = env.adapter
+    assert adapter.checks_observation
+    qpos, qvel = env.measurement.measured_qpos(), env.observer.velocity
+    live = adapter.data
+    live.cfrc_ext[1:] = 5.0 * rng.standard_normal(live.cfrc_ext[1:].shape)  # "sensed" forces beyond the clip
+    obs = adapter.observation(qpos, qvel)
+    np.testing.assert_array_equal(obs, full_forward_observation(env, qpos, qvel))
+    assert np.sum(np.abs(obs) == 1.0) > 10
+    live.cfrc_ext[2, 1] = np.nan
+    with pytest.raises(ValueError, match="expected a finite sensed observation"):
+        adapter.observation(qpos, qvel)
+
+
 def test_observation_map_is_found_only_for_clipped_selections():
     """Hopper's observation (qpos[1:], clip(qvel, -10, 10)) is a clipped selection; a transformed or mixed
     observation is not, and keeps the environment's own _get_obs."""

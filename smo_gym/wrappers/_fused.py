@@ -37,7 +37,7 @@ from ..observers import _kernels as K
 from ..sensors import _chain_kernel
 from ._tangent import integrate_pos, tangent_advance
 
-__all__ = ["FUSED_DRIVERS", "TABLE_SLOTS", "register_fused_driver"]
+__all__ = ["FUSED_DRIVERS", "TABLE_SLOTS", "gather_entries", "register_fused_driver"]
 
 #: the arrays a driver reads through its address table, in row order: (name, dtype, ndim); the row of an array
 #: is ``[address, *shape, 0...]`` (5 columns), the row of the flag ``filtered`` is ``[0 or 1, 0, 0, 0, 0]``. Rows
@@ -182,6 +182,23 @@ def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
         carray(_pointer(t[15, 0]), (t[15, 1],), np.int64),
         carray(_pointer(t[16, 0]), (t[16, 1], t[16, 2]), np.float64),
     )
+
+
+@njit(cache=True, error_model="numpy")
+def gather_entries(addresses, bounds, obs):
+    """``obs[i] = clip(*addresses[i], bounds[0, i], bounds[1, i])`` as ``np.clip`` (NaN stays NaN): the observation
+    as a clipped selection of MjData entries (:attr:`GymnasiumMujocoAdapter.observation_entries
+    <smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_entries>`). Returns the first entry that is
+    not finite, or -1."""
+    for i in range(obs.shape[0]):
+        v = carray(_pointer(addresses[i]), (1,), np.float64)[0]
+        if v == v:  # not NaN
+            v = max(v, bounds[0, i])
+            v = min(v, bounds[1, i])
+        obs[i] = v
+        if not np.isfinite(v):
+            return i
+    return -1
 
 
 # One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a
