@@ -37,6 +37,7 @@ walk), ``"outliers"`` (noisy 12-bit encoder with rare gross errors).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -289,7 +290,7 @@ class Sensor:
         y0 = np.array(y0, dtype=np.float64)
         if y0.ndim == 0:
             raise ValueError(f"expected y0 with shape (..., n_channels), actual value: a scalar {float(y0)!r}")
-        if not (np.isfinite(dt) and dt > 0):
+        if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"expected dt > 0, actual value: {dt!r}")
         n = y0.size
         if not (type(angular) is np.ndarray and angular.dtype == bool and angular.shape == (n,)):

@@ -239,7 +239,7 @@ class Observer:
         y0 = self._as_measurement(y0, "y0")
         if y0.shape != self._shape:
             raise ValueError(f"expected y0 with shape {self._shape} for a restart, actual value: {y0.shape}")
-        if not np.all(np.isfinite(y0)):
+        if not np.isfinite(y0).all():  # the method: np.all's Python wrapper costs ~3 us, paid every episode
             self._raise_nonfinite(y0, "y0")
         self._state[...] = self._initial_state(y0.reshape(-1), self._params)
         estimate = np.zeros(self._estimate.shape)

@@ -37,7 +37,7 @@ from ..observers import _kernels as K
 from ..sensors import _chain_kernel
 from ._tangent import integrate_pos, tangent_advance
 
-__all__ = ["FUSED_DRIVERS", "TABLE_SLOTS", "gather_entries", "register_fused_driver"]
+__all__ = ["FUSED_DRIVERS", "TABLE_SLOTS", "copy_entries", "gather_entries", "register_fused_driver"]
 
 #: the arrays a driver reads through its address table, in row order: (name, dtype, ndim); the row of an array
 #: is ``[address, *shape, 0...]`` (5 columns), the row of the flag ``filtered`` is ``[0 or 1, 0, 0, 0, 0]``. Rows
@@ -199,6 +199,16 @@ def gather_entries(addresses, bounds, obs):
         if not np.isfinite(v):
             return i
     return -1
+
+
+@njit(cache=True, error_model="numpy")
+def copy_entries(table):
+    """Copy float64 blocks by address, rows ``[to, from, size]`` (the controller inputs into the scratch data)."""
+    for row in range(table.shape[0]):
+        to = carray(_pointer(table[row, 0]), (table[row, 2],), np.float64)
+        source = carray(_pointer(table[row, 1]), (table[row, 2],), np.float64)
+        for i in range(table[row, 2]):
+            to[i] = source[i]
 
 
 # One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a
