@@ -200,7 +200,7 @@ class Observer:
             The initial estimate.
         """
         y0 = self._as_measurement(y0, "y0")
-        if not np.all(np.isfinite(y0)):
+        if not np.isfinite(y0).all():
             self._raise_nonfinite(y0, "y0")
         if mask is None:
             self._shape = y0.shape
