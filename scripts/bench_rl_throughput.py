@@ -14,7 +14,7 @@ median (acceptance: >= 0.90). A second table times bare vector-env steps (no lea
 per-environment wrappers inside the workers against ``VecEstimatedVelocity`` on top of the workers (which costs
 one extra parallel round trip per step to rebuild the observations where the MuJoCo state is).
 
-    MUJOCO_GL=disable .venv/bin/python scripts/bench_rl_throughput.py --rounds 7
+    MUJOCO_GL=disable .venv/bin/python scripts/bench_rl_throughput.py --rounds 9
 """
 
 from __future__ import annotations
