@@ -499,6 +499,8 @@ class FusedSensing:
         slots = self._slots + tuple((f"input {i}", np.float64, -1) for i in range(len(pairs)))
         if table is None or len(table) != len(slots):
             table, previous = np.zeros((len(slots), 5), dtype=np.int64), (None,) * len(slots)
+        else:
+            table = table.copy()  # the table in use keeps pointing at the arrays it holds until this one is done
         for row, (array, old, (name, dtype, ndim)) in enumerate(zip(static, previous, slots, strict=True)):
             if array is old:
                 continue
