@@ -145,6 +145,17 @@ def _pointer(typingctx, address):
     return types.voidptr(address), codegen
 
 
+@njit(cache=True, error_model="numpy")
+def copy_entries(table):
+    """Copy float64 blocks by address, rows ``[to, from, size, ...]`` (the controller inputs into the scratch
+    data; further columns are ignored)."""
+    for row in range(table.shape[0]):
+        to = carray(_pointer(table[row, 0]), (table[row, 2],), np.float64)
+        source = carray(_pointer(table[row, 1]), (table[row, 2],), np.float64)
+        for i in range(table[row, 2]):
+            to[i] = source[i]
+
+
 @njit(error_model="numpy", inline="always")
 def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
     """:func:`_sense` with the prepared arrays passed as one address table (rows of :data:`TABLE_SLOTS`).
@@ -157,11 +168,7 @@ def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
     :class:`~smo_gym.wrappers.sensing.FusedSensing`, which rebuilds the rows of replaced arrays.
     """
     t = table
-    for row in range(_N_SLOTS, t.shape[0]):  # the input copies into the scratch data: [to, from, size]
-        to = carray(_pointer(t[row, 0]), (t[row, 2],), np.float64)
-        source = carray(_pointer(t[row, 1]), (t[row, 2],), np.float64)
-        for i in range(t[row, 2]):
-            to[i] = source[i]
+    copy_entries(t[_N_SLOTS:])  # the input copies into the scratch data: [to, from, size, 0, 0]
     return _sense(
         kernel, Q, qvel_true, t0, est, info, Zm, obs,
         carray(_pointer(t[0, 0]), (t[0, 1],), np.int64),
@@ -199,16 +206,6 @@ def gather_entries(addresses, bounds, obs):
         if not np.isfinite(v):
             return i
     return -1
-
-
-@njit(cache=True, error_model="numpy")
-def copy_entries(table):
-    """Copy float64 blocks by address, rows ``[to, from, size]`` (the controller inputs into the scratch data)."""
-    for row in range(table.shape[0]):
-        to = carray(_pointer(table[row, 0]), (table[row, 2],), np.float64)
-        source = carray(_pointer(table[row, 1]), (table[row, 2],), np.float64)
-        for i in range(table[row, 2]):
-            to[i] = source[i]
 
 
 # One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a
