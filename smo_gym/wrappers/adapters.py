@@ -258,11 +258,11 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         return source
 
     def _probe_input_fields(self) -> tuple[str, ...]:
-        """The controller inputs the observation actually reads (InvertedDoublePendulum's constraint force and
-        Humanoid's actuator force read ``ctrl``; nothing reads the applied forces). At random states with random
-        inputs (:meth:`_random_inputs`), each field copied by ``_fill_inputs`` is in turn set to other random
-        values, then to NaN; if the observation equals the reference both times, the field is not copied at
-        every step."""
+        """The controller inputs the observation actually reads (Humanoid's actuator force reads ``ctrl``, nothing
+        reads the applied forces; not used with a full forward pass, which copies every input). At random states
+        with random inputs (:meth:`_random_inputs`), each field copied by ``_fill_inputs`` is in turn set to other
+        random values, then to NaN; if the observation equals the reference both times, the field is not copied
+        at every step."""
         model = self.model
         fields = ["time"] + [name for name, size in (("ctrl", model.nu), ("act", model.na),
                                                         ("mocap_pos", model.nmocap), ("mocap_quat", model.nmocap),
