@@ -38,6 +38,16 @@ def joint_table(model: mujoco.MjModel) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
+def _normalize3(x, y, z):
+    """``(x, y, z) / norm`` and ``norm``, MuJoCo's ``mju_normalize3``: ``(1, 0, 0)`` below ``mjMINVAL``."""
+    norm = math.sqrt(x * x + y * y + z * z)
+    if norm < _MINVAL:
+        return 1.0, 0.0, 0.0, norm
+    inv = 1.0 / norm
+    return x * inv, y * inv, z * inv, norm
+
+
+@njit(cache=True, inline="always")
 def _sub_quat(qa, a, qb, b, out, o, accumulate):
     r"""``out[o:o+3] = log(qb^{-1} qa)`` (rotation vector; ``+=`` with ``accumulate``), MuJoCo's
     ``mju_subQuat(res, qa, qb)``."""
@@ -49,12 +59,7 @@ def _sub_quat(qa, a, qb, b, out, o, accumulate):
     y = w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1
     z = w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1
     # quat2Vel: axis-angle of qdif, the angle wrapped to (-pi, pi]
-    norm = math.sqrt(x * x + y * y + z * z)
-    if norm < _MINVAL:
-        x, y, z = 1.0, 0.0, 0.0
-    else:
-        inv = 1.0 / norm
-        x, y, z = x * inv, y * inv, z * inv
+    x, y, z, norm = _normalize3(x, y, z)
     speed = 2.0 * math.atan2(norm, w)
     if speed > math.pi:
         speed -= 2.0 * math.pi
@@ -71,13 +76,7 @@ def _sub_quat(qa, a, qb, b, out, o, accumulate):
 @njit(cache=True, inline="always")
 def _quat_integrate(q, a, v, d):
     r"""``q[a:a+4] <- normalize(q) * exp(v[d:d+3] / 2)``, MuJoCo's ``mju_quatIntegrate(quat, vel, 1)``."""
-    vx, vy, vz = v[d], v[d + 1], v[d + 2]
-    angle = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if angle < _MINVAL:
-        vx, vy, vz = 1.0, 0.0, 0.0
-    else:
-        inv = 1.0 / angle
-        vx, vy, vz = vx * inv, vy * inv, vz * inv
+    vx, vy, vz, angle = _normalize3(v[d], v[d + 1], v[d + 2])
     if angle == 0.0:
         rw, rx, ry, rz = 1.0, 0.0, 0.0, 0.0
     else:
