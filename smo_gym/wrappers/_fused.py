@@ -27,6 +27,8 @@ Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produce
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import carray, njit, types
 from numba.core import cgutils
@@ -37,7 +39,8 @@ from ..observers import _kernels as K
 from ..sensors import _chain_kernel
 from ._tangent import integrate_pos, tangent_advance
 
-__all__ = ["FUSED_DRIVERS", "TABLE_SLOTS", "copy_entries", "gather_entries", "register_fused_driver"]
+__all__ = ["ENTRY_COS", "ENTRY_IDENTITY", "ENTRY_SIN", "FUSED_DRIVERS", "TABLE_SLOTS", "copy_entries",
+           "entry_functions_match_numpy", "gather_entries", "register_fused_driver"]
 
 #: the arrays a driver reads through its address table, in row order: (name, dtype, ndim); the row of an array
 #: is ``[address, *shape, 0...]`` (5 columns), the row of the flag ``filtered`` is ``[0 or 1, 0, 0, 0, 0]``. Rows
@@ -191,14 +194,26 @@ def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
     )
 
 
+#: functions of a gathered observation entry (:func:`gather_entries`): the entry itself, its sine, its cosine
+ENTRY_IDENTITY, ENTRY_SIN, ENTRY_COS = 0, 1, 2
+
+
 @njit(cache=True, error_model="numpy")
-def gather_entries(addresses, bounds, obs):
-    """``obs[i] = clip(*addresses[i], bounds[0, i], bounds[1, i])`` as ``np.clip`` (NaN stays NaN): the observation
-    as a clipped selection of MjData entries (:attr:`GymnasiumMujocoAdapter.observation_entries
-    <smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_entries>`). Returns the first entry that is
-    not finite, or -1."""
+def gather_entries(addresses, functions, bounds, obs):
+    """``obs[i] = clip(f_i(*addresses[i]), bounds[0, i], bounds[1, i])`` as ``np.clip`` (NaN stays NaN), ``f_i``
+    the identity, ``sin`` or ``cos`` (``functions[i]``: :data:`ENTRY_IDENTITY`, :data:`ENTRY_SIN`,
+    :data:`ENTRY_COS`): the observation as a function of MjData entries, one entry each
+    (:attr:`GymnasiumMujocoAdapter.observation_entries
+    <smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_entries>`). ``sin`` and ``cos`` are the C
+    library's, as NumPy's on the platforms the adapter's probe accepts. Returns the first entry that is not
+    finite, or -1."""
     for i in range(obs.shape[0]):
         v = carray(_pointer(addresses[i]), (1,), np.float64)[0]
+        f = functions[i]
+        if f == ENTRY_SIN:
+            v = math.sin(v)
+        elif f == ENTRY_COS:
+            v = math.cos(v)
         if v == v:  # not NaN
             v = max(v, bounds[0, i])
             v = min(v, bounds[1, i])
@@ -206,6 +221,30 @@ def gather_entries(addresses, bounds, obs):
         if not np.isfinite(v):
             return i
     return -1
+
+
+@njit(cache=True)
+def _entry_functions(x, functions, out):
+    """``out[i] = f_i(x[i])`` with :func:`gather_entries`' functions (the probe compares them with NumPy's)."""
+    for i in range(x.shape[0]):
+        f = functions[i]
+        out[i] = math.sin(x[i]) if f == ENTRY_SIN else (math.cos(x[i]) if f == ENTRY_COS else x[i])
+
+
+def entry_functions_match_numpy(n: int = 4096, seed: int = 2468) -> bool:
+    """Whether :func:`gather_entries`' ``sin``/``cos`` equal NumPy's ``np.sin``/``np.cos`` bit for bit, on random
+    arguments of magnitudes 1e-8 to 1e4, each through NumPy both as one long array and as two-element arrays (the
+    size an environment's ``_get_obs`` passes, where NumPy may take another loop). NumPy can use its own SIMD
+    implementations on some CPUs; then the adapter keeps the environment's ``_get_obs`` for such observations."""
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal(n) * 10.0 ** rng.uniform(-8, 4, n)
+    for code, numpy_function in ((ENTRY_SIN, np.sin), (ENTRY_COS, np.cos)):
+        out = np.empty(n)
+        _entry_functions(x, np.full(n, code, dtype=np.int64), out)
+        pairs = np.concatenate([numpy_function(x[i:i + 2]) for i in range(0, n, 2)])
+        if not (np.array_equal(out, numpy_function(x)) and np.array_equal(out, pairs)):
+            return False
+    return True
 
 
 # One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a

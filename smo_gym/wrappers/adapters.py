@@ -88,6 +88,8 @@ class MujocoAdapter:
     #: ``unflatten(flat) -> observation`` for structured (``Dict``) observation spaces (dm_control), else None:
     #: ``observation`` always returns a flat float array, which the wrapper checks and then unflattens
     unflatten = None
+    #: ``observation`` raises ``ValueError`` on a non-finite result itself (then the wrapper does not check again)
+    checks_observation = False
 
     @property
     def data(self) -> mujoco.MjData:  # pragma: no cover - interface
@@ -101,6 +103,12 @@ class MujocoAdapter:
 
     def supports_substeps(self) -> bool:  # pragma: no cover - interface
         raise NotImplementedError
+
+
+def _entry_addresses(fields: dict, names, flat) -> np.ndarray:
+    """Addresses of the float64 entries ``fields[names[i]].flat[flat[i]]`` (C-contiguous arrays), shape ``(n,)``."""
+    base = {name: array.__array_interface__["data"][0] for name, array in fields.items()}
+    return np.array([base[name] + 8 * int(k) for name, k in zip(names, flat, strict=True)], dtype=np.int64)
 
 
 def _missing_mujoco_parts(env) -> list[str]:
@@ -138,10 +146,9 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
     _bare = False
     #: ``(index, bounds)`` when the observation is a selection of the state (:meth:`_probe_observation_map`)
     observation_map = None
-    #: ``(fields, flat_index, bounds)`` when it is a clipped selection of MjData entries after the forward-pass
-    #: stages (:meth:`_probe_observation_entries`)
+    #: ``(fields, flat_index, bounds, functions)`` when it is a clipped selection of MjData entries, or of their
+    #: sines and cosines, after the forward-pass stages (:meth:`_probe_observation_entries`)
     observation_entries = None
-    checks_observation = False
     _input_fields = _INPUT_FIELDS
 
     def __init__(self, env, contact_forces: str = "sensor"):
@@ -192,14 +199,13 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             from ._fused import gather_entries
             from ..observers.base import _compiled_entry
 
-            names, flat, bounds = entries
+            names, flat, bounds, functions = entries
             fields = {name: getattr(self._scratch, name) for name in set(names)}
-            base = {name: array.__array_interface__["data"][0] for name, array in fields.items()}
-            self._entry_addresses = np.array([base[name] + 8 * int(k) for name, k in zip(names, flat, strict=True)],
-                                             dtype=np.int64)
+            self._entry_addresses = _entry_addresses(fields, names, flat)
             # kept alive with the scratch data (the addresses point into its buffers)
             self._entry_fields = fields
-            self._gather = _compiled_entry(gather_entries, (self._entry_addresses, bounds, np.empty(len(names))))
+            self._gather = _compiled_entry(gather_entries, (self._entry_addresses, functions, bounds,
+                                                            np.empty(len(names))))
         #: :meth:`observe_scratch` raises on a non-finite observation itself (the caller need not check)
         self.checks_observation = self._gather is not None
 
@@ -377,9 +383,9 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         if self._gather is None:
             return self._evaluate(self._scratch, self.pipeline)
         self._compute(self._scratch, self.pipeline)  # then the entries, compiled, instead of _get_obs
-        addresses, bounds = self._entry_addresses, self.observation_entries[2]
-        obs = np.empty(len(addresses))
-        bad = self._gather(addresses, bounds, obs)
+        _, _, bounds, functions = self.observation_entries
+        obs = np.empty(len(bounds[0]))
+        bad = self._gather(self._entry_addresses, functions, bounds, obs)
         if bad != -1:
             raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
         return obs
@@ -497,18 +503,26 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             return None
         return index, np.ascontiguousarray(bounds)
 
-    def _probe_observation_entries(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray] | None:
-        """``(fields, flat_index, bounds)`` such that, after the forward-pass stages, the observation is
-        ``obs[i] = min(max(getattr(data, fields[i]).flat[flat_index[i]], bounds[0, i]), bounds[1, i])``, or None.
+    def _probe_observation_entries(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(fields, flat_index, bounds, functions)`` such that, after the forward-pass stages, the observation is
+        ``obs[i] = min(max(f_i(getattr(data, fields[i]).flat[flat_index[i]]), bounds[0, i]), bounds[1, i])`` with
+        ``f_i`` the identity, ``sin`` or ``cos`` (``functions[i]``, codes of :func:`~._fused.gather_entries`), or
+        None.
 
         Humanoid's ``(qpos[2:], qvel, cinert[1:], cvel[1:], qfrc_actuator[6:], cfrc_ext[1:])``, Ant's clipped
-        contact forces: the scratch evaluation then gathers the entries in one compiled call (with the finiteness
-        check) instead of the environment's ``_get_obs`` (~10 us of NumPy calls for Humanoid right after the
+        contact forces, InvertedDoublePendulum's ``(qpos[:1], sin(qpos[1:]), cos(qpos[1:]), clip(qvel),
+        clip(qfrc_constraint[:1]))``: the scratch evaluation then gathers the entries in one compiled call (with
+        the finiteness check) instead of the environment's ``_get_obs`` (10-20 us of NumPy calls right after the
         physics). Found by writing distinct values into every float64 field of computed scratch data and calling
-        ``_get_obs`` on it as it is (each observation entry must be one of those values), the bounds from all
-        fields at +-1e300; accepted only if it reproduces ``_get_obs`` bit for bit at random states and random
-        inputs through the forward-pass stages (``float64`` one-dimensional observations only).
+        ``_get_obs`` on it as it is (each observation entry must be one of those values, or the sine or cosine of
+        one: the values are distinct in magnitude and below 1/2, where both are one-to-one), the bounds from all
+        fields at +-1e300 (none for sines and cosines); accepted only if the compiled gather reproduces
+        ``_get_obs`` bit for bit at random states and random inputs through the forward-pass stages, and, with
+        sines or cosines, if the compiled ones equal NumPy's (:func:`~._fused.entry_functions_match_numpy`)
+        (``float64`` one-dimensional observations only).
         """
+        from ._fused import ENTRY_COS, ENTRY_IDENTITY, ENTRY_SIN, entry_functions_match_numpy, gather_entries
+
         model = self.model
         rng = np.random.default_rng(8642)
 
@@ -538,36 +552,44 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                         and value.flags.c_contiguous):
                     fields.append((name, value))
             total = sum(value.size for _, value in fields)
-            # distinct values in (-0.5, 0.5) (inside any plausible clip), in random order
+            # distinct magnitudes in (0, 0.5) (inside any plausible clip), random signs, in random order
             values = rng.permutation((np.arange(total) + 1.0) / (2.0 * (total + 1)) * rng.choice([-1.0, 1.0], total))
             position, start = {}, 0
             for name, value in fields:
                 value.reshape(-1)[:] = values[start:start + value.size]
                 for k in range(value.size):
-                    position[values[start + k]] = (name, k)
+                    position[values[start + k]] = (name, k, ENTRY_IDENTITY)
                 start += value.size
+            for code, function in ((ENTRY_SIN, np.sin), (ENTRY_COS, np.cos)):
+                for v, out in zip(values, function(values), strict=True):
+                    position.setdefault(out, position[v][:2] + (code,))
             marked = self._call_observation(scratch)
             if marked.shape != obs0.shape or not all(v in position for v in marked):
                 return None
             names = tuple(position[v][0] for v in marked)
             flat = np.array([position[v][1] for v in marked], dtype=np.int64)
+            functions = np.array([position[v][2] for v in marked], dtype=np.int64)
+            if np.any(functions != ENTRY_IDENTITY) and not entry_functions_match_numpy():
+                return None
             extremes = []
             for huge in (-1e300, 1e300):
                 for _, value in fields:
                     value[...] = huge
                 out = self._call_observation(scratch)
-                extremes.append(np.where(out == huge, np.copysign(np.inf, huge), out))
+                extremes.append(np.where((out == huge) | (functions != ENTRY_IDENTITY), np.copysign(np.inf, huge), out))
             bounds = np.ascontiguousarray(np.stack(extremes))
             for scale in (0.01, 0.1, 0.5, 1.0, 3.0):
                 for _ in range(2):
                     scratch = computed(scale)
                     want = self._call_observation(scratch)
-                    raw = np.array([getattr(scratch, name).reshape(-1)[k] for name, k in zip(names, flat, strict=True)])
-                    if not np.array_equal(want, np.minimum(np.maximum(raw, bounds[0]), bounds[1]), equal_nan=True):
+                    got = np.empty(len(names))
+                    addresses = _entry_addresses({name: getattr(scratch, name) for name in set(names)}, names, flat)
+                    gather_entries(addresses, functions, bounds, got)  # the run-time gather itself
+                    if not np.array_equal(want, got, equal_nan=True):
                         return None
         except Exception:  # noqa: BLE001 - an observation that fails on such data is not a selection
             return None
-        return names, flat, bounds
+        return names, flat, bounds, functions
 
     def _probe_pipeline(self) -> tuple[str, bool]:
         """``(pipeline, copies_inputs)``: the cheapest evaluation that reproduces the forward-computed observation

@@ -66,9 +66,9 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
     def reset(self):
         self.venv.reset()
         if self._local is not None:
-            Z = np.stack([s.z_reset for s in self._local])
+            Z = np.array([s.z_reset for s in self._local], dtype=np.float64)
         else:
-            Z = np.stack([info["smo_z"] for info in self._reset_infos()])
+            Z = np.array([info["smo_z"] for info in self._reset_infos()], dtype=np.float64)
         est = self._full_reset(Z)
         obs, _ = self._observe_all(est)
         return obs
@@ -81,7 +81,9 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
         _, rewards, dones, infos = self.venv.step_wait()
         local = self._local
-        Z = np.stack([s.z_step for s in local] if local is not None else [info["smo_z"] for info in infos])
+        # np.array of a list of rows: a quarter of np.stack's cost (~13 us right after four physics steps)
+        Z = np.array([s.z_step for s in local] if local is not None else [info["smo_z"] for info in infos],
+                     dtype=np.float64)
         est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
         done = np.asarray(dones, dtype=bool)
         terminal = None
@@ -91,13 +93,13 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
             Z0 = Z.copy()
             for i in np.flatnonzero(done):
                 Z0[i] = local[i].z_reset if local is not None else reset_infos[i]["smo_z"]
-            self.observer.reset(Z0, mask=done)  # those environments' observers restart at their new first sample
-            est = self.observer.estimate
+            est = self.observer.reset(Z0, mask=done)  # those environments' observers restart at their new first sample
         obs, terms = self._observe_all(est, terminal, done if terminal is not None else None)
-        vel = (terminal if terminal is not None else est)[..., 1]
+        vel = np.array((terminal if terminal is not None else est)[..., 1])  # rows handed out below: owned
         for i, info in enumerate(infos):
-            smo = info["smo"] = dict(local[i].smo) if local is not None else info.get("smo", {})
-            smo["qvel_estimate"] = vel[i].copy()
+            # a sensor's smo dict is new at every step: handed over as it is
+            smo = info["smo"] = local[i].smo if local is not None else info.get("smo", {})
+            smo["qvel_estimate"] = vel[i]
             if terms[i] is not None:
                 info["terminal_observation"] = terms[i]
         return obs, rewards, dones, infos
@@ -105,7 +107,7 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
     # ---- pickling without the venv (SB3 VecNormalize style) -------------------------------------------------
     def __getstate__(self):
         state = self.__dict__.copy()
-        for key in ("venv", "class_attributes", "_call", "_local", "_index"):
+        for key in ("venv", "class_attributes", "_call", "_local", "_index", "_plan_cache"):
             state.pop(key, None)
         return state
 

@@ -115,7 +115,14 @@ class JointSensor(EstimatedVelocity):
 
     # ---- measurements ---------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = self.env.reset(seed=seed, options=options)
+        hook = self._reset_hook
+        if hook and not self.emit_observation:  # rebuilt by the owner: a zero placeholder (see EstimatedVelocity)
+            with hook:
+                obs, info = self.env.reset(seed=seed, options=options)
+        else:
+            obs, info = self.env.reset(seed=seed, options=options)
+        if hook is None:
+            self._reset_hook = self._zero_observation_hook("reset") or False
         if seed is not None:  # the same stream as EstimatedVelocity's
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
         elif self._rng is None:
@@ -156,11 +163,7 @@ class JointSensor(EstimatedVelocity):
 
     def _placeholder(self):
         """The hook that replaces the environment's observation by a zero placeholder during ``step``, or None."""
-        space = self.observation_space
-        if not isinstance(space, gym.spaces.Box):
-            return None
-        shape, dtype = space.shape, space.dtype
-        return self._interception_hook(lambda: np.zeros(shape, dtype))
+        return self._zero_observation_hook("step")
 
     def __getstate__(self):
         state = super().__getstate__()
@@ -212,7 +215,8 @@ class JointSensor(EstimatedVelocity):
         else:
             obs = self.adapter.observation(
                 self._positions(self.measurement.measured_qpos(), self.measurement.z_measured, filtered), velocity)
-        check_finite_observation(obs)
+        if not self.adapter.checks_observation:  # else the adapter's compiled gather has checked it
+            check_finite_observation(obs)
         return obs
 
     def observe_rows(self, index: dict, velocity, filtered, terminal_velocity, terminal_filtered, terminal_mask):
@@ -264,6 +268,7 @@ class _Sensing:
         self._call = call
         self._local = sensors
         self.__dict__.pop("_selection_cache", None)
+        self.__dict__.pop("_plan_cache", None)
         if sensors is not None:
             protos = [s.prototype() for s in sensors]
             tokens = [s.token for s in sensors]
@@ -316,6 +321,14 @@ class _Sensing:
                     for i in np.flatnonzero(terminal_mask):
                         terms[i] = self._local[i].observe(tvel[i], None, terminal=True)
                 return obs, terms
+            plan = self._entries_plan()
+            if plan is not None:  # every observation is gathered from MjData entries: compiled calls, no _get_obs
+                obs = plan.observe(self._local, vel)
+                terms = [None] * len(self._local)
+                if terminal_mask is not None:
+                    for i in np.flatnonzero(terminal_mask):
+                        terms[i] = self._local[i].observe(tvel[i], None, terminal=True)
+                return obs, terms
             rows = []
             for i, s in enumerate(self._local):
                 obs = s.observe(vel[i], None if filt is None else filt[i])
@@ -347,12 +360,111 @@ class _Sensing:
         self._selection_cache = selection
         return selection
 
+    def _entries_plan(self) -> _GatheredObservations | None:
+        """The batched evaluation of the in-process environments' observations when each is gathered from MjData
+        entries (the adapters' :attr:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_entries`,
+        ``positions="measured"``, joint coordinates equal to ``qpos``, one model size), else None; decided once,
+        made again if an environment replaced its ``MjData``."""
+        plan = self.__dict__.get("_plan_cache", False)
+        if plan is None or (plan and plan.current()):
+            return plan
+        local = self._local
+        plan = None
+        if (self.positions == "measured" and len({(s.adapter.model.nq, s.adapter.model.nv) for s in local}) == 1
+                and all(getattr(s.adapter, "_gather", None) is not None and s.adapter.unflatten is None
+                        and not s.measurement.tangent.manifold for s in local)):
+            plan = _GatheredObservations(local)
+        self._plan_cache = plan
+        return plan
+
     def _full_reset(self, Z: np.ndarray) -> np.ndarray:
         self.observer.reset(Z)
         return self.observer.estimate
 
     def _update(self, Z: np.ndarray) -> np.ndarray:
         return self.observer.update(Z)
+
+
+class _GatheredObservations:
+    """All in-process environments' observations at their measured positions and given velocities, when each
+    adapter gathers its observation from MjData entries (:meth:`_Sensing._entries_plan`).
+
+    What :meth:`JointSensor.observe` does environment by environment, in three moves: one compiled copy writes
+    every environment's measured ``qpos``, velocity estimate and controller inputs into its scratch data (an
+    address table over persistent buffers), the forward-pass stages run on each scratch data, and one compiled
+    gather fills the ``(n_envs, obs_dim)`` observations and checks them. Same numbers as ``observe`` (the same
+    copies, stages and gather); about a third of its cost for InvertedDoublePendulum with four environments.
+    """
+
+    def __init__(self, sensors):
+        from ..observers.base import _compiled_entry
+        from ._fused import copy_entries, gather_entries
+
+        adapters = [s.adapter for s in sensors]
+        self.adapters = adapters
+        n, nq, nv = len(adapters), adapters[0].model.nq, adapters[0].model.nv
+        self.positions, self.velocities = np.zeros((n, nq)), np.zeros((n, nv))
+        address = _address
+        rows = []
+        self.live = []  # the live data each input row reads (checked at every call: a new MjData needs a new plan)
+        for i, adapter in enumerate(adapters):
+            qpos, qvel = adapter.scratch_state()
+            rows += [(address(qpos), address(self.positions[i]), qpos.size),
+                     (address(qvel), address(self.velocities[i]), qvel.size)]
+            live = adapter.data
+            if adapter.copies_inputs:
+                views = adapter._views_of(live)
+                rows += [tuple(r) for r in views[3]]
+            self.live.append(live)
+        self.table = np.array(rows, dtype=np.int64).reshape(-1, 3)
+        self.copy = _compiled_entry(copy_entries, (self.table,))
+        self.times = [i for i, a in enumerate(adapters) if a.copies_inputs and a._views_of(a.data)[2]]
+        entries = [a.observation_entries for a in adapters]
+        self.addresses = np.concatenate([a._entry_addresses for a in adapters])
+        self.functions = np.concatenate([e[3] for e in entries])
+        self.bounds = np.ascontiguousarray(np.concatenate([e[2] for e in entries], axis=1))
+        self.shape = (n, len(entries[0][3]))
+        if any(len(e[3]) != self.shape[1] for e in entries):
+            raise ValueError(f"expected observations of one size, actual value: {[len(e[3]) for e in entries]}")
+        self.gather = _compiled_entry(gather_entries, (self.addresses, self.functions, self.bounds,
+                                                       np.empty(self.addresses.size)))
+        #: the pipeline of every adapter, or None if they differ (then each adapter runs its own)
+        forward_only = all(a.pipeline == "forward" and not a.reads_contacts for a in adapters)
+        self.forward = [(a.model, a._scratch) for a in adapters] if forward_only else None
+
+    def current(self) -> bool:
+        """Whether every environment still has the ``MjData`` the input rows of the copy table point into."""
+        return all(adapter.data is live for adapter, live in zip(self.adapters, self.live, strict=True))
+
+    def observe(self, sensors, velocity: np.ndarray) -> np.ndarray:
+        """Observations ``(n_envs, obs_dim)`` at each sensor's measured ``qpos`` and ``velocity[i]`` (the plan
+        must be :meth:`current`)."""
+        positions = self.positions
+        for i, s in enumerate(sensors):
+            positions[i] = s.measurement.measured_qpos()
+        self.velocities[:] = velocity
+        self.copy(self.table)
+        for i in self.times:
+            adapter = self.adapters[i]
+            adapter._scratch.time = adapter.data.time
+        if self.forward is not None:
+            forward = mujoco.mj_forward
+            for model, scratch in self.forward:
+                forward(model, scratch)
+        else:
+            for adapter in self.adapters:
+                adapter._compute(adapter._scratch, adapter.pipeline)
+        obs = np.empty(self.shape)
+        bad = self.gather(self.addresses, self.functions, self.bounds, obs.reshape(-1))
+        if bad != -1:
+            i, k = divmod(bad, self.shape[1])
+            raise ValueError(f"expected a finite sensed observation, actual value: {obs[i, k]!r} at entry {k} of "
+                             f"environment {i}")
+        return obs
+
+
+def _address(array: np.ndarray) -> int:
+    return array.__array_interface__["data"][0]
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -411,8 +523,8 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         if self._local is None:
             return np.array(infos["smo_z"], dtype=np.float64)
         if reset:
-            return np.stack([s.z_reset for s in self._local])
-        return np.stack([s.z_reset if s._reset_last else s.z_step for s in self._local])
+            return np.array([s.z_reset for s in self._local], dtype=np.float64)
+        return np.array([s.z_reset if s._reset_last else s.z_step for s in self._local], dtype=np.float64)
 
     def step(self, actions):
         from gymnasium.vector import AutoresetMode
