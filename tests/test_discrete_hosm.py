@@ -54,15 +54,62 @@ def test_printed_gain_79_82_is_unstable():
         assert rho_ackermann < 1.0
 
 
+def _map_tolerance(e, hp, mu, n, mapping):
+    r"""Bound on ``|z_numpy - z_kernel|`` for (15)/(16), from the conditioning of the maps in the root.
+
+    The two implementations do the same operations in the same order except the root :math:`\rho =
+    |\sigma|^{1/n}` and, for (16), ``exp``. With :math:`\varepsilon = 2^{-52}` (one ulp is at most
+    :math:`\varepsilon` relative; every other rounding, unit :math:`\varepsilon/2`, may differ between the two
+    because its operands do):
+
+    * Roots. NumPy's ``a ** (1/n)`` is the C library's ``pow`` (below 0.52 ulp) of the rounded exponent
+      ``fl(1/n)``; the kernel's ``cbrt`` (``n = 3``, below 0.667 ulp) is the exact cube root. ``fl(1/3)`` is
+      :math:`\tfrac13(1 - 2^{-54})`, which changes :math:`a^{1/3}` by :math:`|\ln a|\varepsilon/12` relative, so
+      the roots differ by at most :math:`\delta_\rho = (1.2 + |\ln a|/12)\varepsilon` (2.9 ulp at
+      ``|e| = 1e-9``). For ``n != 3`` both call ``pow`` (``sqrt`` for ``n = 2``) and agree exactly.
+    * (15) :math:`z = \rho/(h p_1 \mu|\sigma| + \rho + h p_1)` has :math:`|d\ln z/d\ln\rho| \le 1`; with two
+      additions and a division rounded on each side: :math:`|\Delta z| \le (\delta_\rho + 3\varepsilon) z`.
+    * (16) :math:`z = e^u`, :math:`u = -h p_1 (1 + \mu|\sigma|)/\rho = \ln z`: the roots and the division give
+      ``u`` to :math:`\delta_\rho + \varepsilon` relative, which ``exp`` turns into :math:`|u|` times that
+      relative change of ``z`` (``|u|`` reaches 300 here, ``|e| = 1e-9``, ``n = 3``), plus the two ``exp`` errors
+      (NumPy's and fdlibm's, each below 1 ulp): :math:`|\Delta z| \le ((\delta_\rho + \varepsilon)|u| +
+      2\varepsilon) z`. Results below :math:`2^{-1022}` are rounded to multiples of :math:`2^{-1074}` instead:
+      two of those are added.
+
+    Second-order terms (:math:`|u|^2\delta^2`, below :math:`10^{-25}` relative here) are left out.
+    """
+    eps = np.finfo(float).eps
+    a = np.abs(e)
+    z = eigenvalue_mapping(e, 1.0, hp, mu, n, mapping)
+    with np.errstate(divide="ignore"):
+        log_a = np.log(np.where(a > 0.0, a, 1.0))
+        delta_root = (1.2 + np.abs(log_a) / 12.0) * eps if n == 3 else 0.0
+        if mapping == "semi-implicit":
+            return (delta_root + 3.0 * eps) * z
+        u = -hp * (1.0 + mu * a) / a ** (1.0 / n)  # -inf at e = 0, where z = 0 in both (bound 0 there)
+    tiny = np.finfo(float).smallest_subnormal
+    return np.where(a > 0.0, ((delta_root + eps) * np.abs(u) + 2.0 * eps) * z, 0.0) + 2.0 * tiny
+
+
 def test_mappings_match_the_compiled_kernel_and_the_closed_forms():
-    """(15)/(16) agree with the kernel's ``eigenvalue_map``; their maxima agree with (51) and with the corrected
+    """(15)/(16) agree with the kernel's ``eigenvalue_map`` within the bound derived in :func:`_map_tolerance` (a
+    few ulp for (15); for (16) the roundings amplified by ``|u| = |ln z|``), a bound tight enough to reject a root
+    off by 1e-12 relative; their maxima agree with (51) and with the corrected
     (52) (factor n/(n-1)), found numerically on a dense grid of errors, at |e| = 1/(mu (n-1))."""
     e = np.concatenate([-np.logspace(-9, 4, 2000), [0.0], np.logspace(-9, 4, 200001)])
     for n, mu, hp in [(2, 1.0, 0.5), (3, 1.0, 0.3), (4, 10.0, 0.4), (5, 0.3, 0.2)]:
         for mode, mapping in ((0, "semi-implicit"), (1, "matching")):
             z = eigenvalue_mapping(e, 1.0, hp, mu, n, mapping)
             ref = np.array([eigenvalue_map(v, 1.0, hp, mu, n, mode) for v in e[::997]])
-            np.testing.assert_allclose(z[::997], ref, rtol=1e-14, atol=0)
+            tol = _map_tolerance(e[::997], hp, mu, n, mapping)
+            assert np.all(np.abs(z[::997] - ref) <= tol)
+            # the bound detects a root wrong by 1e-12 relative (the map evaluated with that root)
+            a = np.abs(e[::997])
+            root = a ** (1.0 / n) * (1.0 + 1e-12)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                wrong = (root / (hp * mu * a + root + hp) if mapping == "semi-implicit"
+                         else np.exp(-hp * (1.0 + mu * a) / root))
+            assert np.any(np.abs(np.where(a > 0, wrong, 0.0) - ref) > tol)
             assert z.max() == pytest.approx(max_eigenvalue(n, 1.0, hp, mu, mapping), rel=1e-8)
             assert abs(e[np.argmax(z)]) == pytest.approx(1.0 / (mu * (n - 1)), rel=1e-3)
             assert z[e == 0.0][0] == 0.0

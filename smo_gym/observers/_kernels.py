@@ -47,12 +47,15 @@ by ``scripts/bench_observers.py``) plus a few ns per channel. What keeps the per
 * Vectorizable roots: ``sqrt`` for ``m = 2``; for ``m = 3`` the cube root of fdlibm (:func:`cbrt`: a bit-level
   first guess, a polynomial and one refinement step, error below 1 ulp) instead of ``exp(log(a) / 3)``, and
   fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic
-  so that they vectorize (numba has no vector math library without SVML). The eigenvalue maps keep the C
-  library's ``pow`` for their root (see :func:`_eigenvalue_root`), in a scalar pass of its own.
+  so that they vectorize (numba has no vector math library without SVML). The eigenvalue maps use the same
+  ``cbrt`` for ``m = 3`` (see :func:`_eigenvalue_root` for how far that moves them from NumPy's ``a ** (1/3)``)
+  and compute root and map in one vectorized pass.
 * Few strided accesses per loop. LLVM's vectorizer gives up on a loop with too many accesses at non-unit
   strides (``Too many SCEV assumptions``), so wide steps run in several passes over the channels, the
-  intermediate values waiting in ``new_state`` or ``out``: two for the order-2 HOSM step and the linear
-  observer, three for the Kalman filter, five for the order-2 eigenvalue-mapping step.
+  intermediate values waiting in ``new_state`` or ``out``: two for the order-2 HOSM step (the root, then the
+  rest), the order-2 eigenvalue-mapping step (the eigenvalue, then the rest) and the linear observer, three for
+  the Kalman filter. Merging passes further was measured slower (the merged loop stays scalar); what remains
+  per channel is mostly the strided loads and stores of the ``(N, S)``/``(N, P)`` rows themselves.
 * ``error_model="numpy"`` (no zero-division checks: every divisor is positive for valid parameters; a
   non-finite result still ends as status ``-2 - i``), and ``_flat`` reshapes only measurements with batch
   dimensions (a 1-D ``y`` passes through untouched).
@@ -382,10 +385,59 @@ def _hosm3(state, y, params, new_state, out, taylor, q):
     r"""The step of :func:`hosm_channel_step` for ``m = 3``, the scheme and the exponents known at compile time.
 
     ``r = cbrt(|e|)``; ``"taylor"`` adds :math:`\tfrac{\tau^2}{2}\hat x_2` to :math:`\hat x_0^+`. Same
-    operations in the same order as the generic step. Two passes over the channels: the injections
+    operations in the same order as the generic step. Two passes over the channels: the error and its root
+    (kept in ``new_state``), then the injections :math:`\mathrm{sign}(e)\sum_j g_{ij} r^{q_{ij}}`, the Taylor
+    update and the estimate. A single loop has more strided accesses than LLVM's vectorizer accepts with the six
+    gains of the uniform differentiator (it then leaves the loop scalar, about three times slower). Splitting
+    after the root rather than after the injections leaves the root pass with few memory accesses: for Levant
+    k = 2 measured 0.38 instead of 0.43-0.47 us at 8 channels, 0.53 instead of 0.56 at 32 and 2.06 instead of
+    2.25 at 256. The uniform differentiator's table runs :func:`_hosm3_injections_first` at 32 channels and more.
+    """
+    _check_widths(state, new_state, params, out, 4, 2 + 6 * N_TERMS, 3)
+    for c in range(y.shape[0]):
+        e = state[c, 0] - y[c]
+        new_state[c, 3] = -e
+        new_state[c, 0] = cbrt(abs(e))
+    bad = False
+    for c in range(y.shape[0]):
+        prow = params[c]
+        dt = prow[0]
+        x0 = state[c, 0]
+        x1 = state[c, 1]
+        x2 = state[c, 2]
+        e = -new_state[c, 3]
+        r = new_state[c, 0]
+        s = 1.0 if e > 0.0 else (-1.0 if e < 0.0 else 0.0)
+        a0 = x0 + dt * x1
+        if taylor:
+            a0 += (dt * (dt / 2.0)) * x2
+        n0 = a0 - dt * (_injection(prow, 0, r, q[0]) * s)
+        n1 = x1 + dt * x2 - dt * (_injection(prow, 1, r, q[1]) * s)
+        n2 = x2 - dt * (_injection(prow, 2, r, q[2]) * s)
+        new_state[c, 0] = n0
+        new_state[c, 1] = n1
+        new_state[c, 2] = n2
+        # exp(-tau N) x^+, the operations of _taylor_back
+        out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
+        out[c, 1] = n1 + (-dt) * n2
+        out[c, 2] = n2
+        # reading the whole old row (its last column only for this flag) leaves no gap in the load group, so
+        # LLVM needs no scalar tail; a flag raised by it alone ends in _check_state, which returns -1
+        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(e)
+                    & math.isfinite(state[c, 3]))
+    return _check_state(new_state) if bad else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _hosm3_injections_first(state, y, params, new_state, out, taylor, q):
+    r""":func:`_hosm3` split after the injections, for the exponent table of the uniform differentiator.
+
+    Same operations in the same order as the generic step. Two passes over the channels: the injections
     :math:`\mathrm{sign}(e)\sum_j g_{ij} r^{q_{ij}}` (kept in ``new_state``), then the Taylor update and the
     estimate; with up to six gains per channel a single loop has more strided accesses than LLVM's vectorizer
-    accepts (it then leaves the loop scalar, about three times slower).
+    accepts (it then leaves the loop scalar, about three times slower). With six gains this split is faster than
+    :func:`_hosm3`'s at 32 and 256 channels (measured 0.60 against 0.63 us, 2.65 against 2.83 us) and slower at
+    8 (0.48 against 0.41 us); the issue's targets are per call up to 32 channels, where neither meets 0.5 us.
     """
     _check_widths(state, new_state, params, out, 4, 2 + 6 * N_TERMS, 3)
     for c in range(y.shape[0]):
@@ -445,6 +497,11 @@ def hosm_kernel(state, y, params, new_state, out):
                     return _hosm3(state, y, params, new_state, out, True, LEVANT_Q3)
                 return _hosm3(state, y, params, new_state, out, False, LEVANT_Q3)
             if _matches(params, 3, UNIFORM_Q3):
+                # same operations either way; which split is faster depends on the number of channels (measured)
+                if y.shape[0] >= 32:
+                    if taylor:
+                        return _hosm3_injections_first(state, y, params, new_state, out, True, UNIFORM_Q3)
+                    return _hosm3_injections_first(state, y, params, new_state, out, False, UNIFORM_Q3)
                 if taylor:
                     return _hosm3(state, y, params, new_state, out, True, UNIFORM_Q3)
                 return _hosm3(state, y, params, new_state, out, False, UNIFORM_Q3)
@@ -514,11 +571,17 @@ def sta_implicit_kernel(state, y, params, new_state, out):
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _eigenvalue_root(a, n):
-    """The root :math:`|\\sigma|^{1/n}` of the eigenvalue maps."""
-    # pow kept for n > 2 (not cbrt): with the high-order gains and exp's large arguments at small errors
-    # (relative error of z = |argument| * that of the root, 300x at |sigma| = 1e-9) a one-ulp change of the root
-    # shows at 1e-13, and the tests hold this map to NumPy's a ** (1 / n) at 1e-14
-    return math.sqrt(a) if n == 2 else a ** (1.0 / n)
+    r"""The root :math:`|\sigma|^{1/n}` of the eigenvalue maps, for finite ``a >= 0``.
+
+    ``sqrt`` for ``n = 2``, fdlibm's :func:`cbrt` for ``n = 3`` (below 1 ulp like the C library's ``pow``, but
+    plain arithmetic, so the map vectorizes with it), ``a ** (1 / n)`` otherwise (no kernel of this module
+    specialises ``n > 3``). The roots of ``cbrt`` and ``pow`` may differ by an ulp; through the matching map
+    (16) :math:`z = e^u`, :math:`u = -\tau p_1 (1 + \mu|\sigma|)/|\sigma|^{1/n}`, that is a relative change of
+    ``z`` of :math:`|u|` ulp (``|u| = 300`` at ``|sigma| = 1e-9`` for the parameters of the tests), which is why
+    the test against NumPy's ``a ** (1 / n)`` (``test_mappings_match_the_compiled_kernel_and_the_closed_forms``)
+    scales its tolerance with :math:`1 + |u|`.
+    """
+    return math.sqrt(a) if n == 2 else (cbrt(a) if n == 3 else a ** (1.0 / n))
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -569,62 +632,54 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _eigmap_component(state, params, new_state, dt, c, i):
-    r"""``x_i^+ = sum_l tau^l / l! x_{i+l} + l_i(z) sigma`` for ``m = 3``, with ``z``, ``sigma`` in ``new_state``."""
-    z = new_state[c, 0]
-    acc = state[c, i]
-    if i < 2:
-        acc += dt * state[c, i + 1]
-    if i == 0:
-        acc += (dt * (dt / 2.0)) * state[c, 2]
-    # l_i(z) = sum_j (-z)^(3-j) v_j[i] by Horner's rule (the first step 0 * (-z) + v_0 is exact)
-    gain = ((params[c, 4 + i] * (-z) + params[c, 7 + i]) * (-z) + params[c, 10 + i]) * (-z) + params[c, 13 + i]
-    return acc + gain * new_state[c, 3]
-
-
-@njit(cache=CACHE, error_model="numpy", inline="always")
 def _eigmap3(state, y, params, new_state, out, mode):
-    """:func:`eigmap_channel_step` for ``m = 3`` and the mapping ``mode`` of every row (same operations in the
-    same order), in five passes; ``-3`` if a row has another mode.
+    r""":func:`eigmap_channel_step` for ``m = 3`` and the mapping ``mode`` of every row (same operations in the
+    same order), in two passes; ``-3`` if a row has another mode.
 
-    One pass per state component keeps each loop within the number of strided accesses LLVM's vectorizer
-    accepts (the gain vectors alone are twelve per channel); ``z`` and ``sigma`` wait in ``new_state``.
+    The first pass computes :math:`\sigma` and :math:`z(\sigma)` (the root by :func:`cbrt`, the matching map's
+    ``exp`` by :func:`exp_nonpositive`, both vectorized); ``z`` and ``sigma`` wait in ``new_state``. The second
+    computes :math:`\hat x^+ = A\hat x + \tilde l(z)\sigma` and the estimate. Merged into one loop, the root,
+    the map and the twelve strided gain loads are more than LLVM's vectorizer accepts (measured 1.2 us instead of
+    0.7 at 32 channels); five passes (one per state component, then the estimate) cost 2-10 % more than two.
     """
     _check_widths(state, new_state, params, out, 4, 16, 3)
     n = y.shape[0]
-    # the root (a library pow per channel) in a scalar pass of its own: in a vectorized loop every call would
-    # spill the vector registers
-    for c in range(n):
-        sigma = y[c] - state[c, 0]
-        new_state[c, 3] = sigma
-        new_state[c, 0] = _eigenvalue_root(abs(sigma), 3)
     other_mode = False
     for c in range(n):
-        # eigenvalue_map(sigma, ...) from the stored root; the mapping is a compile-time choice (the other one is
-        # not computed); rows of another mode are redone by the generic step below
-        sigma = new_state[c, 3]
-        new_state[c, 0] = _eigenvalue_from_root(abs(sigma), new_state[c, 0], params[c, 0], params[c, 1],
+        # eigenvalue_map(sigma, ...); the mapping is a compile-time choice (the other one is not computed); rows of
+        # another mode are redone by the generic step
+        sigma = y[c] - state[c, 0]
+        a = abs(sigma)
+        new_state[c, 3] = sigma
+        new_state[c, 0] = _eigenvalue_from_root(a, _eigenvalue_root(a, 3), params[c, 0], params[c, 1],
                                                 params[c, 2], mode)
         other_mode |= params[c, 3] != mode
     if other_mode:
         return -3  # not a status: the caller runs the generic step
-    for c in range(n):
-        new_state[c, 2] = _eigmap_component(state, params, new_state, params[c, 0], c, 2)
-    for c in range(n):
-        new_state[c, 1] = _eigmap_component(state, params, new_state, params[c, 0], c, 1)
-    for c in range(n):
-        new_state[c, 0] = _eigmap_component(state, params, new_state, params[c, 0], c, 0)
     failed = False
     for c in range(n):
         dt = params[c, 0]
-        n0 = new_state[c, 0]
-        n1 = new_state[c, 1]
-        n2 = new_state[c, 2]
+        x0 = state[c, 0]
+        x1 = state[c, 1]
+        x2 = state[c, 2]
+        mz = -new_state[c, 0]
+        sigma = new_state[c, 3]
+        # l_i(z) = sum_j (-z)^(3-j) v_j[i] by Horner's rule (the generic step's first step 0 * (-z) + v_0 is exact)
+        g0 = ((params[c, 4] * mz + params[c, 7]) * mz + params[c, 10]) * mz + params[c, 13]
+        g1 = ((params[c, 5] * mz + params[c, 8]) * mz + params[c, 11]) * mz + params[c, 14]
+        g2 = ((params[c, 6] * mz + params[c, 9]) * mz + params[c, 12]) * mz + params[c, 15]
+        # x^+ = A x + l(z) sigma, A = exp(tau N) (the generic step's Taylor sums: its factors 1 * (dt / 1) = dt)
+        n0 = x0 + dt * x1 + (dt * (dt / 2.0)) * x2 + g0 * sigma
+        n1 = x1 + dt * x2 + g1 * sigma
+        n2 = x2 + g2 * sigma
+        new_state[c, 0] = n0
+        new_state[c, 1] = n1
+        new_state[c, 2] = n2
         # exp(-tau N) x^+, the operations of _taylor_back
         out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
         out[c, 1] = n1 + (-dt) * n2
         out[c, 2] = n2
-        failed |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(new_state[c, 3])
+        failed |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(sigma)
                        & math.isfinite(state[c, 3]))
     return _check_state(new_state) if failed else -1
 
