@@ -111,6 +111,22 @@ def _entry_addresses(fields: dict, names, flat) -> np.ndarray:
     return np.array([base[name] + 8 * int(k) for name, k in zip(names, flat, strict=True)], dtype=np.int64)
 
 
+class _quiet_mujoco:  # noqa: N801 - used as a statement: ``with _quiet_mujoco():``
+    """Within the block, MuJoCo's warnings (``Nan, Inf or huge value in CTRL``, ...) are dropped instead of printed
+    and appended to ``MUJOCO_LOG.TXT`` in the working directory: the adapter's probes provoke them on purpose."""
+
+    def __enter__(self):
+        self.previous = mujoco.get_mju_user_warning()
+        mujoco.set_mju_user_warning(_ignore_warning)
+
+    def __exit__(self, *exc):
+        mujoco.set_mju_user_warning(self.previous)
+
+
+def _ignore_warning(message: str) -> None:
+    pass
+
+
 def _missing_mujoco_parts(env) -> list[str]:
     missing = []
     if not isinstance(getattr(env, "model", None), mujoco.MjModel):
@@ -173,19 +189,20 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self._scratch = mujoco.MjData(self.model)
         self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
         self._input_fields = _INPUT_FIELDS
-        self.pipeline, self.copies_inputs = self._probe_pipeline()
-        self.reads_contacts = self._probe_contacts()
-        if self.copies_inputs and self.pipeline != "forward":
-            # the constraint forces of a full forward pass depend on every applied input whenever a constraint is
-            # active, which a probe at a few states need not see (InvertedDoublePendulum's rail limit): with the
-            # forward pass, every input is copied
-            self._input_fields = self._probe_input_fields()
-            self.copies_inputs = bool(self._input_fields)
-        self.fresh_observation = self._probe_fresh()
-        #: the observation needs nothing but the sensed qpos/qvel on the scratch data (Hopper, HalfCheetah, ...)
-        self._bare = self.pipeline == "none" and not self.copies_inputs and not self.reads_contacts
-        self.observation_map = self._probe_observation_map() if self._bare else None
-        self.observation_entries = None if self._bare else self._probe_observation_entries()
+        with _quiet_mujoco():  # the probes feed MuJoCo NaN and huge inputs on purpose
+            self.pipeline, self.copies_inputs = self._probe_pipeline()
+            self.reads_contacts = self._probe_contacts()
+            if self.copies_inputs and self.pipeline != "forward":
+                # the constraint forces of a full forward pass depend on every applied input whenever a constraint
+                # is active, which a probe at a few states need not see (InvertedDoublePendulum's rail limit):
+                # with the forward pass, every input is copied
+                self._input_fields = self._probe_input_fields()
+                self.copies_inputs = bool(self._input_fields)
+            self.fresh_observation = self._probe_fresh()
+            #: the observation needs nothing but the sensed qpos/qvel on the scratch data (Hopper, HalfCheetah, ...)
+            self._bare = self.pipeline == "none" and not self.copies_inputs and not self.reads_contacts
+            self.observation_map = self._probe_observation_map() if self._bare else None
+            self.observation_entries = None if self._bare else self._probe_observation_entries()
         self._views()
 
     def _views(self) -> None:
