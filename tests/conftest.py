@@ -14,6 +14,21 @@ import mujoco
 import numpy as np
 import pytest
 
+@pytest.fixture(autouse=True, scope="session")
+def _sb3_log_directory(tmp_path_factory):
+    """SB3 makes a new ``/tmp/SB3-<date-time>`` directory at every ``learn`` without a log folder (hundreds per
+    run of this suite): point it at one temporary directory of the session instead."""
+    import os
+
+    previous = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
+    yield
+    if previous is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = previous
+
+
 #: sup |f^(i)| of the reference signal, i = 0..5 (triangle inequality bound 1 + 2^(i-1))
 DERIVATIVE_BOUNDS = tuple(1.0 + 0.5 * 2.0**i for i in range(6))
 
