@@ -488,12 +488,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # ---- Gymnasium API --------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        hook = self._reset_hook
-        if hook:  # the environment's own first observation is replaced by zeros: it is rebuilt below
-            with hook:
-                _, info = self.env.reset(seed=seed, options=options)
-        else:
-            _, info = self.env.reset(seed=seed, options=options)
+        _, info = self._reset_env(seed, options)  # the first observation is rebuilt below, at the sensed state
         if seed is not None:
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
         elif self._rng is None:
@@ -511,9 +506,21 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._fused.prepare()
             if self._intercept is None:
                 self._intercept = self._interception_hook() or False
-        if hook is None:  # decided after the first reset, which runs as is (environment checkers see its output)
-            self._reset_hook = self._zero_observation_hook("reset") or False
         return self._observe(info), info
+
+    def _reset_env(self, seed, options, placeholder: bool = True):
+        """``self.env.reset(seed=seed, options=options)``; with ``placeholder``, from the second reset on, the
+        environment's own first observation is a zero placeholder (:meth:`_zero_observation_hook`) where its reset
+        only returns it. The first reset runs as is: environment checkers see its real output."""
+        hook = self._reset_hook
+        if hook and placeholder:
+            with hook:
+                result = self.env.reset(seed=seed, options=options)
+        else:
+            result = self.env.reset(seed=seed, options=options)
+        if hook is None:
+            self._reset_hook = self._zero_observation_hook("reset") or False
+        return result
 
     def _interception_hook(self, function=None, during: str = "step"):
         """The hook that makes the environment's own ``step`` return the sensed observation (or ``function()``),

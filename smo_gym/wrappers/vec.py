@@ -115,14 +115,8 @@ class JointSensor(EstimatedVelocity):
 
     # ---- measurements ---------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        hook = self._reset_hook
-        if hook and not self.emit_observation:  # rebuilt by the owner: a zero placeholder (see EstimatedVelocity)
-            with hook:
-                obs, info = self.env.reset(seed=seed, options=options)
-        else:
-            obs, info = self.env.reset(seed=seed, options=options)
-        if hook is None:
-            self._reset_hook = self._zero_observation_hook("reset") or False
+        # an owner that rebuilds every observation needs none from the environment
+        obs, info = self._reset_env(seed, options, placeholder=not self.emit_observation)
         if seed is not None:  # the same stream as EstimatedVelocity's
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
         elif self._rng is None:
@@ -316,19 +310,10 @@ class _Sensing:
                     state[i, :nq] = s.measurement.measured_qpos()
                 state[:, nq:] = vel
                 obs = np.minimum(np.maximum(state[:, index], bounds[0]), bounds[1])
-                terms = [None] * len(self._local)
-                if terminal_mask is not None:
-                    for i in np.flatnonzero(terminal_mask):
-                        terms[i] = self._local[i].observe(tvel[i], None, terminal=True)
-                return obs, terms
+                return obs, self._terminal_observations(tvel, terminal_mask)
             plan = self._entries_plan()
             if plan is not None:  # every observation is gathered from MjData entries: compiled calls, no _get_obs
-                obs = plan.observe(self._local, vel)
-                terms = [None] * len(self._local)
-                if terminal_mask is not None:
-                    for i in np.flatnonzero(terminal_mask):
-                        terms[i] = self._local[i].observe(tvel[i], None, terminal=True)
-                return obs, terms
+                return plan.observe(self._local, vel), self._terminal_observations(tvel, terminal_mask)
             rows = []
             for i, s in enumerate(self._local):
                 obs = s.observe(vel[i], None if filt is None else filt[i])
@@ -340,6 +325,14 @@ class _Sensing:
             rows = self._call("observe_rows", self._index, vel, filt, tvel, tfilt, terminal_mask)
         obs = np.stack([r[0] for r in rows])
         return obs, [r[1] for r in rows]
+
+    def _terminal_observations(self, velocity, mask) -> list:
+        """The in-process environments' terminal observations where ``mask`` (else None), ``positions="measured"``."""
+        terms = [None] * len(self._local)
+        if mask is not None:
+            for i in np.flatnonzero(mask):
+                terms[i] = self._local[i].observe(velocity[i], None, terminal=True)
+        return terms
 
     def _selection(self):
         """``(index, bounds, nq)`` when the in-process environments' observations are all the same clipped
