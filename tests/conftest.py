@@ -10,23 +10,33 @@ so :math:`|f^{(i)}| \\le 1 + 2^{i-1}`: ``|f''| <= 3``, ``|f'''| <= 5``, ``|f''''
 
 from __future__ import annotations
 
+import contextlib
+import os
+
 import mujoco
 import numpy as np
 import pytest
+
+@contextlib.contextmanager
+def _environment_variable(name: str, value: str):
+    """``os.environ[name] = value`` within the block (subprocesses inherit it), the previous state restored."""
+    previous = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = previous
+
 
 @pytest.fixture(autouse=True, scope="session")
 def _sb3_log_directory(tmp_path_factory):
     """SB3 makes a new ``/tmp/SB3-<date-time>`` directory at every ``learn`` without a log folder (hundreds per
     run of this suite): point it at one temporary directory of the session instead."""
-    import os
-
-    previous = os.environ.get("SB3_LOGDIR")
-    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
-    yield
-    if previous is None:
-        os.environ.pop("SB3_LOGDIR", None)
-    else:
-        os.environ["SB3_LOGDIR"] = previous
+    with _environment_variable("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs"))):
+        yield
 
 
 #: sup |f^(i)| of the reference signal, i = 0..5 (triangle inequality bound 1 + 2^(i-1))
@@ -68,15 +78,8 @@ def rng() -> np.random.Generator:
 @pytest.fixture(scope="module")
 def private_calibration_cache(tmp_path_factory):
     """Calibrations go to a temporary cache (inherited by vector-env subprocesses), not the user's."""
-    import os
-
-    old = os.environ.get("SMO_GYM_CACHE_DIR")
-    os.environ["SMO_GYM_CACHE_DIR"] = str(tmp_path_factory.mktemp("smo_cache"))
-    yield
-    if old is None:
-        os.environ.pop("SMO_GYM_CACHE_DIR", None)
-    else:
-        os.environ["SMO_GYM_CACHE_DIR"] = old
+    with _environment_variable("SMO_GYM_CACHE_DIR", str(tmp_path_factory.mktemp("smo_cache"))):
+        yield
 
 
 def smooth_actions(space, n: int, seed: int) -> list:
