@@ -108,6 +108,25 @@ def _taylor_back(x_new, m, dt, out_row):
         out_row[i] = acc
 
 
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _store_order2(state, new_state, out, c, dt, n0, n1, n2, innovation):
+    r"""Write row ``c`` of an order-2 step: the new state ``(n0, n1, n2)`` and the estimate
+    :math:`e^{-\tau N}\hat x^+` (the operations of :func:`_taylor_back` for ``m = 3``). Returns whether the row,
+    its innovation or the old row's last column is not finite.
+
+    Reading the whole old row (its last column only for this flag) leaves no gap in the load group, so LLVM needs
+    no scalar tail; a flag raised by that column alone ends in :func:`_check_state`, which returns -1.
+    """
+    new_state[c, 0] = n0
+    new_state[c, 1] = n1
+    new_state[c, 2] = n2
+    out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
+    out[c, 1] = n1 + (-dt) * n2
+    out[c, 2] = n2
+    return not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(innovation)
+                & math.isfinite(state[c, 3]))
+
+
 def _flat(y, out):  # pragma: no cover - compiled only, see the overload below
     """Views ``(N,)`` and ``(N, m)`` of a C-contiguous measurement ``(..., n)`` and estimate ``(..., n, m)``."""
     raise NotImplementedError("_flat is only callable from compiled code")
@@ -414,17 +433,7 @@ def _hosm3(state, y, params, new_state, out, taylor, q):
         n0 = a0 - dt * (_injection(prow, 0, r, q[0]) * s)
         n1 = x1 + dt * x2 - dt * (_injection(prow, 1, r, q[1]) * s)
         n2 = x2 - dt * (_injection(prow, 2, r, q[2]) * s)
-        new_state[c, 0] = n0
-        new_state[c, 1] = n1
-        new_state[c, 2] = n2
-        # exp(-tau N) x^+, the operations of _taylor_back
-        out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
-        out[c, 1] = n1 + (-dt) * n2
-        out[c, 2] = n2
-        # reading the whole old row (its last column only for this flag) leaves no gap in the load group, so
-        # LLVM needs no scalar tail; a flag raised by it alone ends in _check_state, which returns -1
-        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(e)
-                    & math.isfinite(state[c, 3]))
+        bad |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, e)
     return _check_state(new_state) if bad else -1
 
 
@@ -461,18 +470,7 @@ def _hosm3_injections_first(state, y, params, new_state, out, taylor, q):
         n0 = a0 - dt * new_state[c, 0]
         n1 = x1 + dt * x2 - dt * new_state[c, 1]
         n2 = x2 - dt * new_state[c, 2]
-        ne = new_state[c, 3]
-        new_state[c, 0] = n0
-        new_state[c, 1] = n1
-        new_state[c, 2] = n2
-        # exp(-tau N) x^+, the operations of _taylor_back
-        out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
-        out[c, 1] = n1 + (-dt) * n2
-        out[c, 2] = n2
-        # reading the whole old row (its last column only for this flag) leaves no gap in the load group, so
-        # LLVM needs no scalar tail; a flag raised by it alone ends in _check_state, which returns -1
-        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(ne)
-                    & math.isfinite(state[c, 3]))
+        bad |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, new_state[c, 3])
     return _check_state(new_state) if bad else -1
 
 
@@ -672,15 +670,7 @@ def _eigmap3(state, y, params, new_state, out, mode):
         n0 = x0 + dt * x1 + (dt * (dt / 2.0)) * x2 + g0 * sigma
         n1 = x1 + dt * x2 + g1 * sigma
         n2 = x2 + g2 * sigma
-        new_state[c, 0] = n0
-        new_state[c, 1] = n1
-        new_state[c, 2] = n2
-        # exp(-tau N) x^+, the operations of _taylor_back
-        out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
-        out[c, 1] = n1 + (-dt) * n2
-        out[c, 2] = n2
-        failed |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(sigma)
-                       & math.isfinite(state[c, 3]))
+        failed |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, sigma)
     return _check_state(new_state) if failed else -1
 
 
