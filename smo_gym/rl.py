@@ -34,6 +34,8 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from .envs import make as make_by_id
+
 __all__ = [
     "SENSINGS",
     "MaskEntries",
@@ -119,7 +121,7 @@ def make_env(env_id: str, sensing: str = "estimated", *, sensor: str = "encoder-
              env_kwargs: dict | None = None) -> gym.Env:
     """One environment under a sensing (see the module docstring)."""
     _check_sensing(sensing)
-    env = gym.make(env_id, **(env_kwargs or {}))
+    env = make_by_id(env_id, **(env_kwargs or {}))
     if sensing == "true":
         return env
     from .wrappers import EstimatedVelocity
@@ -162,7 +164,7 @@ def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: 
         from .wrappers import VecEstimatedVelocity, sensing_config
 
         obs_name = observer if sensing == "estimated" else "finite-difference"
-        venv = make_vec_env(lambda: gym.make(env_id, **(env_kwargs or {})), n_envs=n_envs, seed=seed)
+        venv = make_vec_env(lambda: make_by_id(env_id, **(env_kwargs or {})), n_envs=n_envs, seed=seed)
         return VecEstimatedVelocity(venv, **sensing_config(sensor, obs_name,
                                                            observer_kwargs if sensing == "estimated" else None))
     return make_vec_env(lambda: make_env(env_id, sensing, sensor=sensor, observer=observer, rate=rate,

@@ -68,3 +68,17 @@ def test_bad_input_exit_codes(capsys):
     assert "low-cost" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli.main([])
+
+
+def test_environment_ids_of_dm_control_need_no_import_first():
+    """``smo-gym compare/train/evaluate --env dm_control/...`` make their environments with ``smo_gym.envs.make``,
+    which registers shimmy's ids itself: checked in a fresh interpreter (here shimmy may already be imported)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys; from smo_gym.envs import make; assert 'shimmy' not in sys.modules; "
+            "env = make('dm_control/cartpole-swingup-v0'); env.reset(seed=0); env.close()")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                            env={**os.environ, "MUJOCO_GL": "disable"})
+    assert result.returncode == 0, result.stderr[-2000:]

@@ -14,13 +14,14 @@ Without importing it first, ``gymnasium.make("smo_gym.envs:smo_gym/TwoLinkArm-v0
 
 from __future__ import annotations
 
+import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
 from .base import ASSETS, SmoMujocoEnv, asset_path
 from .mechanisms import FurutaPendulumEnv, TwoLinkArmEnv, VariableInertiaEnv
 
 __all__ = ["ASSETS", "ENV_IDS", "FurutaPendulumEnv", "SmoMujocoEnv", "TwoLinkArmEnv", "VariableInertiaEnv",
-           "asset_path", "register_envs"]
+           "asset_path", "make", "register_envs"]
 
 #: id -> (entry point, max_episode_steps)
 ENV_IDS = {
@@ -38,3 +39,12 @@ def register_envs() -> None:
 
 
 register_envs()
+
+
+def make(env_id: str, **kwargs) -> gym.Env:
+    """``gymnasium.make(env_id, **kwargs)`` with the namespaces smo_gym works with registered first: its own
+    environments (this module) and dm_control's suite, ``dm_control/<domain>-<task>-v0``, which shimmy registers
+    when imported (Gymnasium 1.x has no plugin entry points, so ``gymnasium.make`` alone does not find them)."""
+    if env_id.startswith("dm_control/"):
+        import shimmy  # noqa: F401 - registers the dm_control/... ids
+    return gym.make(env_id, **kwargs)

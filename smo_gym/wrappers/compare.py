@@ -35,6 +35,7 @@ import mujoco
 import numpy as np
 
 from .._validation import DivergenceError
+from ..envs import make as make_by_id
 from ..observers import OBSERVERS, make_observer
 from ..sensors import make_sensor
 from .adapters import make_adapter
@@ -130,7 +131,7 @@ def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-no
     seeded from ``seed``. Samples are taken every ``rate`` physics steps inside ``frame_skip`` exactly as the
     wrapper takes them.
     """
-    env = gym.make(env_id, **(env_kwargs or {}))
+    env = make_by_id(env_id, **(env_kwargs or {}))
     adapter = make_adapter(env)
     k = resolve_rate(rate, adapter.frame_skip)
     if k < adapter.frame_skip and not adapter.supports_substeps():
