@@ -186,7 +186,8 @@ def test_adapter_probes_what_the_observation_reads():
 def test_observation_entries_are_gathered_clipped_and_checked():
     """Humanoid's and Ant's observations are clipped selections of MjData entries after the forward-pass stages:
     gathered by one compiled call, equal to _get_obs at run-time states (here with Ant's contact forces beyond
-    its clip at +-1), and a non-finite entry raises the wrapper's error. Reacher's (cos/sin of angles) is not."""
+    its clip at +-1), and a non-finite entry raises the wrapper's error. Reacher's is not (its last entries
+    are differences of two body positions)."""
     from smo_gym.wrappers.adapters import make_adapter
 
     humanoid = make_adapter(gym.make("Humanoid-v5").unwrapped)
@@ -406,3 +407,28 @@ def test_resets_skip_the_environments_own_observation_only_where_it_is_unused():
 
     assert observation_independent_step(ObservedResetInfo())
     assert not observation_independent_reset(ObservedResetInfo())
+
+
+def test_sines_and_cosines_are_gathered_only_where_they_equal_numpys(monkeypatch):
+    """InvertedDoublePendulum's observation (qpos[0], sin and cos of the hinge angles, clipped velocities and
+    constraint force) is gathered with compiled sin/cos, equal to _get_obs at run-time states; on a platform where
+    NumPy's sin/cos differ from the C library's (simulated), the adapter keeps _get_obs for it (and still gathers
+    observations without them)."""
+    from smo_gym.wrappers import _fused
+    from smo_gym.wrappers._fused import ENTRY_COS, ENTRY_SIN, entry_functions_match_numpy
+    from smo_gym.wrappers.adapters import make_adapter
+
+    assert entry_functions_match_numpy()
+    env = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), disk_cache=False)
+    names, _, _, functions = env.adapter.observation_entries
+    assert list(functions).count(ENTRY_SIN) == 2 and list(functions).count(ENTRY_COS) == 2
+    assert "qfrc_constraint" in names
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        env.step(rng.uniform(-1, 1, 1))
+        qpos, qvel = env.measurement.measured_qpos(), env.observer.velocity
+        np.testing.assert_array_equal(env.adapter.observation(qpos, qvel), full_forward_observation(env, qpos, qvel))
+    monkeypatch.setattr(_fused, "entry_functions_match_numpy", lambda: False)
+    assert make_adapter(gym.make("InvertedDoublePendulum-v5").unwrapped).observation_entries is None
+    assert make_adapter(gym.make("Ant-v5").unwrapped).observation_entries is not None

@@ -27,6 +27,7 @@ Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produce
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -231,11 +232,13 @@ def _entry_functions(x, functions, out):
         out[i] = math.sin(x[i]) if f == ENTRY_SIN else (math.cos(x[i]) if f == ENTRY_COS else x[i])
 
 
+@functools.cache
 def entry_functions_match_numpy(n: int = 4096, seed: int = 2468) -> bool:
     """Whether :func:`gather_entries`' ``sin``/``cos`` equal NumPy's ``np.sin``/``np.cos`` bit for bit, on random
     arguments of magnitudes 1e-8 to 1e4, each through NumPy both as one long array and as two-element arrays (the
     size an environment's ``_get_obs`` passes, where NumPy may take another loop). NumPy can use its own SIMD
-    implementations on some CPUs; then the adapter keeps the environment's ``_get_obs`` for such observations."""
+    implementations on some CPUs; then the adapter keeps the environment's ``_get_obs`` for such observations.
+    Computed once per process."""
     rng = np.random.default_rng(seed)
     x = rng.standard_normal(n) * 10.0 ** rng.uniform(-8, 4, n)
     for code, numpy_function in ((ENTRY_SIN, np.sin), (ENTRY_COS, np.cos)):
