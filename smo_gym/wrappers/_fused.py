@@ -199,6 +199,16 @@ def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
 ENTRY_IDENTITY, ENTRY_SIN, ENTRY_COS = 0, 1, 2
 
 
+@njit(cache=True, inline="always")
+def _entry_function(code, v):
+    """``v``, ``sin(v)`` or ``cos(v)`` by ``code`` (:data:`ENTRY_IDENTITY`, :data:`ENTRY_SIN`, :data:`ENTRY_COS`)."""
+    if code == ENTRY_SIN:
+        return math.sin(v)
+    if code == ENTRY_COS:
+        return math.cos(v)
+    return v
+
+
 @njit(cache=True, error_model="numpy")
 def gather_entries(addresses, functions, bounds, obs):
     """``obs[i] = clip(f_i(*addresses[i]), bounds[0, i], bounds[1, i])`` as ``np.clip`` (NaN stays NaN), ``f_i``
@@ -209,12 +219,7 @@ def gather_entries(addresses, functions, bounds, obs):
     library's, as NumPy's on the platforms the adapter's probe accepts. Returns the first entry that is not
     finite, or -1."""
     for i in range(obs.shape[0]):
-        v = carray(_pointer(addresses[i]), (1,), np.float64)[0]
-        f = functions[i]
-        if f == ENTRY_SIN:
-            v = math.sin(v)
-        elif f == ENTRY_COS:
-            v = math.cos(v)
+        v = _entry_function(functions[i], carray(_pointer(addresses[i]), (1,), np.float64)[0])
         if v == v:  # not NaN
             v = max(v, bounds[0, i])
             v = min(v, bounds[1, i])
@@ -228,8 +233,7 @@ def gather_entries(addresses, functions, bounds, obs):
 def _entry_functions(x, functions, out):
     """``out[i] = f_i(x[i])`` with :func:`gather_entries`' functions (the probe compares them with NumPy's)."""
     for i in range(x.shape[0]):
-        f = functions[i]
-        out[i] = math.sin(x[i]) if f == ENTRY_SIN else (math.cos(x[i]) if f == ENTRY_COS else x[i])
+        out[i] = _entry_function(functions[i], x[i])
 
 
 @functools.cache

@@ -64,6 +64,8 @@ contact forces with force/torque sensors or foot switches. ``contact_forces`` de
 
 from __future__ import annotations
 
+import contextlib
+
 import mujoco
 import numpy as np
 
@@ -111,16 +113,16 @@ def _entry_addresses(fields: dict, names, flat) -> np.ndarray:
     return np.array([base[name] + 8 * int(k) for name, k in zip(names, flat, strict=True)], dtype=np.int64)
 
 
-class _quiet_mujoco:  # noqa: N801 - used as a statement: ``with _quiet_mujoco():``
+@contextlib.contextmanager
+def _quiet_mujoco():
     """Within the block, MuJoCo's warnings (``Nan, Inf or huge value in CTRL``, ...) are dropped instead of printed
     and appended to ``MUJOCO_LOG.TXT`` in the working directory: the adapter's probes provoke them on purpose."""
-
-    def __enter__(self):
-        self.previous = mujoco.get_mju_user_warning()
-        mujoco.set_mju_user_warning(_ignore_warning)
-
-    def __exit__(self, *exc):
-        mujoco.set_mju_user_warning(self.previous)
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(_ignore_warning)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
 
 
 def _ignore_warning(message: str) -> None:
