@@ -40,7 +40,7 @@ from ..observers import _kernels as K
 from ..sensors import _chain_kernel
 from ._tangent import integrate_pos, tangent_advance
 
-__all__ = ["ENTRY_COS", "ENTRY_IDENTITY", "ENTRY_SIN", "FUSED_DRIVERS", "TABLE_SLOTS", "copy_entries",
+__all__ = ["ENTRY_COS", "ENTRY_IDENTITY", "ENTRY_SIN", "FUSED_DRIVERS", "TABLE_SLOTS", "address", "copy_entries",
            "entry_functions_match_numpy", "gather_entries", "register_fused_driver"]
 
 #: the arrays a driver reads through its address table, in row order: (name, dtype, ndim); the row of an array
@@ -193,6 +193,11 @@ def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
         carray(_pointer(t[15, 0]), (t[15, 1],), np.int64),
         carray(_pointer(t[16, 0]), (t[16, 1], t[16, 2]), np.float64),
     )
+
+
+def address(array: np.ndarray) -> int:
+    """The address of an array's first element, as the address tables of this module hold it."""
+    return array.__array_interface__["data"][0]
 
 
 #: functions of a gathered observation entry (:func:`gather_entries`): the entry itself, its sine, its cosine

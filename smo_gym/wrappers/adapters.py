@@ -109,7 +109,9 @@ class MujocoAdapter:
 
 def _entry_addresses(fields: dict, names, flat) -> np.ndarray:
     """Addresses of the float64 entries ``fields[names[i]].flat[flat[i]]`` (C-contiguous arrays), shape ``(n,)``."""
-    base = {name: array.__array_interface__["data"][0] for name, array in fields.items()}
+    from ._fused import address
+
+    base = {name: address(array) for name, array in fields.items()}
     return np.array([base[name] + 8 * int(k) for name, k in zip(names, flat, strict=True)], dtype=np.int64)
 
 
@@ -424,13 +426,13 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         cache = self.__dict__.setdefault("_views_cache", {})
         views = cache.get(id(live))
         if views is None or views[0] is not live:
-            from ._fused import copy_entries
+            from ._fused import address, copy_entries
             from ..observers.base import _compiled_entry
 
             pairs = tuple((getattr(self._scratch, name), getattr(live, name))
                           for name in self._input_fields if name != "time")
             # [to, from, size] of each pair (the views in ``pairs`` keep the buffers alive)
-            table = np.array([(to.__array_interface__["data"][0], source.__array_interface__["data"][0], to.size)
+            table = np.array([(address(to), address(source), to.size)
                               for to, source in pairs], dtype=np.int64).reshape(-1, 3)
             views = (live, pairs, "time" in self._input_fields, table, _compiled_entry(copy_entries, (table,)))
             if len(cache) >= 4:

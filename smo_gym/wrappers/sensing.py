@@ -478,6 +478,8 @@ class FusedSensing:
         ``_static`` for as long as the table points to them, and each is checked: dtype, dimensions, C order.
         Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
         """
+        from ._fused import address
+
         sensor, observer = self.sensor, self.observer
         n, S = observer._state.shape
         if self._work is None or self._work.shape[1:] != (n, S):
@@ -516,9 +518,9 @@ class FusedSensing:
                 to, source = array
                 if to.size != source.size:
                     raise TypeError(f"expected {name} of one size, actual value: {to.size} and {source.size}")
-                table[row] = (to.__array_interface__["data"][0], source.__array_interface__["data"][0], to.size, 0, 0)
+                table[row] = (address(to), address(source), to.size, 0, 0)
             else:
-                table[row] = (array.__array_interface__["data"][0], *array.shape, *(0,) * (4 - ndim))
+                table[row] = (address(array), *array.shape, *(0,) * (4 - ndim))
         self._static, self._table = static, table
 
     def sample(self, Q: np.ndarray, qvel_true: np.ndarray) -> np.ndarray | None:

@@ -391,13 +391,12 @@ class _GatheredObservations:
 
     def __init__(self, sensors):
         from ..observers.base import _compiled_entry
-        from ._fused import copy_entries, gather_entries
+        from ._fused import address, copy_entries, gather_entries
 
         adapters = [s.adapter for s in sensors]
         self.adapters = adapters
         n, nq, nv = len(adapters), adapters[0].model.nq, adapters[0].model.nv
         self.positions, self.velocities = np.zeros((n, nq)), np.zeros((n, nv))
-        address = _address
         rows = []
         self.live = []  # the live data each input row reads (checked at every call: a new MjData needs a new plan)
         for i, adapter in enumerate(adapters):
@@ -454,10 +453,6 @@ class _GatheredObservations:
             raise ValueError(f"expected a finite sensed observation, actual value: {obs[i, k]!r} at entry {k} of "
                              f"environment {i}")
         return obs
-
-
-def _address(array: np.ndarray) -> int:
-    return array.__array_interface__["data"][0]
 
 
 # ----------------------------------------------------------------------------------------------------------------
