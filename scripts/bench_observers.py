@@ -356,7 +356,7 @@ def time_one(label, name, params, dt, n_channels, n_rows, repeats):
         for r in rows:
             update(r)
 
-    kernel, state, params_arr, scratch = obs._kernel, obs.state, obs._params, np.empty_like(obs.state)
+    (kernel, params_arr), state, scratch = obs._step_kernel(), obs.state, np.empty_like(obs.state)
     out = np.empty(obs.estimate.shape)
     entry = obs._call or kernel  # the compiled entry point update() calls (bound at its first call)
 

@@ -149,3 +149,58 @@ def test_kernels_reject_arrays_of_the_wrong_width():
     obs.reset(np.zeros(4))
     with pytest.raises(ValueError, match="expected state/new_state"):
         K.hosm_kernel(obs.state, np.zeros(4), obs._params, np.empty((4, 5)), np.empty((4, 3)))
+
+
+_SHARED_CASES = {
+    "super-twisting implicit": dict(name="super-twisting", lipschitz=3.0),
+    "super-twisting euler": dict(name="super-twisting", lipschitz=3.0, discretization="euler"),
+    "levant k=1": dict(name="levant", order=1, lipschitz=3.0),
+    "levant k=2 taylor": dict(name="levant", order=2, lipschitz=3.0),
+    "levant k=2 euler": dict(name="levant", order=2, lipschitz=3.0, discretization="euler"),
+    "levant k=3": dict(name="levant", order=3, lipschitz=3.0),
+    "levant k=2 semi-implicit": dict(name="levant", order=2, lipschitz=3.0, discretization="semi-implicit"),
+    "levant k=2 matching": dict(name="levant", order=2, lipschitz=3.0, discretization="matching"),
+    "ured": dict(name="ured", lipschitz=3.0),
+    "uniform-levant": dict(name="uniform-levant", order=2, lipschitz=3.0),
+    "high-gain k=2": dict(name="high-gain", order=2, gain=30.0),
+    "finite-difference k=2": dict(name="finite-difference", order=2),
+    "kalman-ca": dict(name="kalman-ca", process_noise=1e2, measurement_noise=1e-6),
+}
+
+
+@pytest.mark.parametrize("case", list(_SHARED_CASES))
+def test_shared_parameter_kernels_equal_the_per_channel_kernels(case):
+    """Channels with one parameter row run the ``*_shared_kernel`` variant: bit-identical to the per-channel one."""
+    from smo_gym.observers import make_observer
+
+    params = dict(_SHARED_CASES[case])
+    obs = make_observer(params.pop("name"), dt=1e-2, **params)
+    rng = np.random.default_rng(3)
+    t = 1e-2 * np.arange(60)[:, None, None]
+    Y = np.sin(t * rng.uniform(0.5, 3.0, (1, 4, 7))) + 1e-3 * rng.standard_normal((60, 4, 7))
+    obs.reset(Y[0])
+    kernel, row = obs._step_kernel()
+    assert kernel is K.SHARED_KERNELS[obs._kernel] and row.shape == (1, obs._params.shape[1])
+    np.testing.assert_array_equal(row[0], obs._params[5])
+    state = obs.state
+    for y in Y[1:]:
+        new_state, out = np.empty_like(state), np.empty(obs.estimate.shape[:-1] + (obs.order + 1,))
+        assert obs._kernel(state, y, obs._params, new_state, out) == -1  # per-channel rows
+        np.testing.assert_array_equal(obs.update(y), out)  # update(): the shared variant
+        np.testing.assert_array_equal(obs.state, new_state)
+        state = new_state
+
+
+def test_per_channel_parameters_keep_the_per_channel_kernel_and_rows_are_checked():
+    obs = Levant(2, 1e-2, np.array([1.0, 2.0, 3.0]))
+    obs.reset(np.zeros(3))
+    kernel, params = obs._step_kernel()
+    assert kernel is K.hosm_kernel and params is obs._params
+    state, out = obs.state, np.empty((3, 3))
+    with pytest.raises(ValueError, match="one row per channel"):  # a shared row given to the per-channel kernel
+        K.hosm_kernel(state, np.ones(3), obs._params[:1].copy(), np.empty_like(state), out)
+    with pytest.raises(ValueError, match="one row per channel"):  # per-channel rows given to the shared variant
+        K.hosm_shared_kernel(state, np.ones(3), obs._params, np.empty_like(state), out)
+    single = Levant(2, 1e-2, 1.0)
+    single.reset(np.zeros(1))
+    assert single._step_kernel()[0] is K.hosm_kernel  # one channel: nothing to share

@@ -155,6 +155,14 @@ class Observer:
             ) from None
 
     # ---- compiled call used by update() ----------------------------------------------------------------------
+    def _step_kernel(self) -> tuple:
+        """``(kernel, params)`` for one sample: :attr:`_kernel` and the per-channel rows, or, when every channel
+        has the same row and the kernel has a shared variant, that variant and the row ``(1, P)``."""
+        kernel, params = self._kernel, self._params
+        if params.shape[0] > 1 and kernel in _kernels.SHARED_KERNELS and (params == params[0]).all():
+            return _kernels.SHARED_KERNELS[kernel], params[:1].copy()
+        return kernel, params
+
     def _unbind(self) -> None:
         self._bound = None  # bound again on the first update after a full reset
 
@@ -167,8 +175,9 @@ class Observer:
         """Resolve the kernel and its entry point once per full reset (``update`` then calls it directly)."""
         out = np.empty(self._estimate.shape)
         y = np.empty(self._shape)
-        call = _compiled_entry(self._kernel, (self._state, y, self._params, self._scratch, out))
-        self._bound = (call, self._params, self._shape, out.shape)
+        kernel, params = self._step_kernel()
+        call = _compiled_entry(kernel, (self._state, y, params, self._scratch, out))
+        self._bound = (call, params, self._shape, out.shape)
         return self._bound
 
     # ---- public API -----------------------------------------------------------------------------------------
@@ -332,7 +341,8 @@ class Observer:
         state = np.ascontiguousarray(state, dtype=np.float64)
         new_state = np.empty_like(state)
         out = np.empty((state.shape[0], self.order + 1))
-        status = self._kernel(state, y, self._params, new_state, out)
+        kernel, params = self._step_kernel()
+        status = kernel(state, y, params, new_state, out)
         if status != -1:
             self._raise_status(status, y)
         return new_state, out
