@@ -315,7 +315,9 @@ def dispatch_floor(repeats: int, n_calls: int) -> tuple[float, float]:
     """
     from numba import njit
 
-    @njit
+    from smo_gym.observers import _kernels
+
+    @njit(error_model="numpy", **_kernels._without_nrt())  # compiled as the batch kernels are
     def empty_kernel(state, y, params, new_state, out):
         return -1
 
