@@ -735,13 +735,17 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _eigmap3(state, y, params, new_state, out, shared, mode):
     r""":func:`eigmap_channel_step` for ``m = 3`` and the mapping ``mode`` of every row (same operations in the
-    same order), in two passes; ``-3`` if a row has another mode.
+    same order), in two passes for (15) and three for (16); ``-3`` if a row has another mode.
 
-    The first pass computes :math:`\sigma` and :math:`z(\sigma)` (the root by :func:`cbrt`, the matching map's
-    ``exp`` by :func:`exp_nonpositive`, both vectorized); ``z`` and ``sigma`` wait in ``new_state``. The second
-    computes :math:`\hat x^+ = A\hat x + \tilde l(z)\sigma` and the estimate. Merged into one loop, the root,
-    the map and the twelve strided gain loads are more than LLVM's vectorizer accepts (measured 1.2 us instead of
-    0.7 at 32 channels); five passes (one per state component, then the estimate) cost 2-10 % more than two.
+    The first pass computes :math:`\sigma`, the root :math:`|\sigma|^{1/3}` (:func:`cbrt`) and for (15) the map
+    :math:`z(\sigma)`; for (16) a second pass computes the map (a division and :func:`exp_nonpositive`), all
+    vectorized, with ``sigma`` and the root or ``z`` waiting in ``new_state``. The last pass computes
+    :math:`\hat x^+ = A\hat x + \tilde l(z)\sigma` and the estimate. Merged into one loop, the root, the map and
+    the twelve strided gain loads are more than LLVM's vectorizer accepts (measured 1.2 us instead of 0.7 at 32
+    channels). Root and map in one pass form one long chain of dependent divisions per channel (three in the root,
+    two in the matching map), and at 32 channels (eight vector iterations) the processor overlaps too little of
+    it: apart they were measured 0.035-0.05 us faster for (16) at 32 channels, but 0.03 us slower for (15), whose
+    map has one division; five passes (one per state component, then the estimate) cost 2-10 % more.
     """
     _check_widths(state, new_state, params, out, 4, 16, 3)
     n = y.shape[0]
@@ -753,11 +757,19 @@ def _eigmap3(state, y, params, new_state, out, shared, mode):
         sigma = y[c] - state[c, 0]
         a = abs(sigma)
         new_state[c, 3] = sigma
-        new_state[c, 0] = _eigenvalue_from_root(a, _eigenvalue_root(a, 3), params[pc, 0], params[pc, 1],
-                                                params[pc, 2], mode)
+        root = _eigenvalue_root(a, 3)
+        if mode == 1.0:
+            new_state[c, 0] = root  # the matching map in a pass of its own (see above)
+        else:
+            new_state[c, 0] = _eigenvalue_from_root(a, root, params[pc, 0], params[pc, 1], params[pc, 2], mode)
         other_mode |= params[pc, 3] != mode
     if other_mode:
         return -3  # not a status: the caller runs the generic step
+    if mode == 1.0:
+        for c in range(n):
+            pc = 0 if shared else c  # the parameter row of channel c
+            new_state[c, 0] = _eigenvalue_from_root(abs(new_state[c, 3]), new_state[c, 0], params[pc, 0],
+                                                    params[pc, 1], params[pc, 2], mode)
     failed = False
     for c in range(n):
         pc = 0 if shared else c  # the parameter row of channel c
