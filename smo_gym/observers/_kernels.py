@@ -511,88 +511,57 @@ def _hosm3_injections_first(state, y, params, new_state, out, shared, taylor, q)
     return _check_state(new_state) if bad else -1
 
 
-@njit(**KERNEL)
-def hosm_kernel(state, y, params, new_state, out):
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], False)
-    # the body of both variants, written out in each: behind one more inlined function the kernel took
-    # twice as long to compile (numba merges its many returns)
-    shared = False
-    m = out.shape[1]
-    if y.shape[0] > 0:
-        # a specialised step for the exponent tables of the observers of this package (see module notes)
-        if m == 2:
-            if _matches(params, 2, LEVANT_Q2):
-                return _hosm2(state, y, params, new_state, out, shared, LEVANT_Q2)
-            if _matches(params, 2, URED_Q):
-                return _hosm2(state, y, params, new_state, out, shared, URED_Q)
-        elif m == 3:
-            taylor = params[0, 1] != 0.0
-            if _matches(params, 3, LEVANT_Q3):
-                if taylor:
-                    return _hosm3(state, y, params, new_state, out, shared, True, LEVANT_Q3)
-                return _hosm3(state, y, params, new_state, out, shared, False, LEVANT_Q3)
-            if _matches(params, 3, UNIFORM_Q3):
-                # same operations either way; which split is faster depends on the number of channels (measured)
-                if y.shape[0] >= 32:
+def _hosm_kernel(shared: bool):
+    """The HOSM batch kernel for per-channel parameter rows, or for one row shared by every channel.
+
+    ``shared`` is a closure constant, so each variant compiles (and is cached) as its own function. The body is
+    written here rather than in one more inlined function: behind that layer the kernel took twice as long to
+    compile (numba merges its many returns).
+    """
+
+    @njit(**KERNEL)
+    def kernel(state, y, params, new_state, out):
+        y, out = _flat(y, out)
+        bad = _first_nonfinite(y)
+        if bad >= 0:
+            return bad
+        _check_rows(params, y.shape[0], shared)
+        m = out.shape[1]
+        if y.shape[0] > 0:
+            # a specialised step for the exponent tables of the observers of this package (see module notes)
+            if m == 2:
+                if _matches(params, 2, LEVANT_Q2):
+                    return _hosm2(state, y, params, new_state, out, shared, LEVANT_Q2)
+                if _matches(params, 2, URED_Q):
+                    return _hosm2(state, y, params, new_state, out, shared, URED_Q)
+            elif m == 3:
+                taylor = params[0, 1] != 0.0
+                if _matches(params, 3, LEVANT_Q3):
                     if taylor:
-                        return _hosm3_injections_first(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
-                    return _hosm3_injections_first(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
-                if taylor:
-                    return _hosm3(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
-                return _hosm3(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
-    failed = False
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        row = new_state[c]
-        row[m] = hosm_channel_step(state[c], y[c], params[pc], m, row, out[c])
-        failed |= not _row_finite(row)
-    return _check_state(new_state) if failed else -1
+                        return _hosm3(state, y, params, new_state, out, shared, True, LEVANT_Q3)
+                    return _hosm3(state, y, params, new_state, out, shared, False, LEVANT_Q3)
+                if _matches(params, 3, UNIFORM_Q3):
+                    # same operations either way; which split is faster depends on the number of channels (measured)
+                    if y.shape[0] >= 32:
+                        if taylor:
+                            return _hosm3_injections_first(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
+                        return _hosm3_injections_first(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
+                    if taylor:
+                        return _hosm3(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
+                    return _hosm3(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
+        failed = False
+        for c in range(y.shape[0]):
+            pc = 0 if shared else c  # the parameter row of channel c
+            row = new_state[c]
+            row[m] = hosm_channel_step(state[c], y[c], params[pc], m, row, out[c])
+            failed |= not _row_finite(row)
+        return _check_state(new_state) if failed else -1
+
+    return kernel
 
 
-@njit(**KERNEL)
-def hosm_shared_kernel(state, y, params, new_state, out):
-    """:func:`hosm_kernel` for one parameter row ``(1, P)`` shared by every channel."""
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], True)
-    # the body of :func:`hosm_kernel` with ``shared = True``
-    shared = True
-    m = out.shape[1]
-    if y.shape[0] > 0:
-        # a specialised step for the exponent tables of the observers of this package (see module notes)
-        if m == 2:
-            if _matches(params, 2, LEVANT_Q2):
-                return _hosm2(state, y, params, new_state, out, shared, LEVANT_Q2)
-            if _matches(params, 2, URED_Q):
-                return _hosm2(state, y, params, new_state, out, shared, URED_Q)
-        elif m == 3:
-            taylor = params[0, 1] != 0.0
-            if _matches(params, 3, LEVANT_Q3):
-                if taylor:
-                    return _hosm3(state, y, params, new_state, out, shared, True, LEVANT_Q3)
-                return _hosm3(state, y, params, new_state, out, shared, False, LEVANT_Q3)
-            if _matches(params, 3, UNIFORM_Q3):
-                # same operations either way; which split is faster depends on the number of channels (measured)
-                if y.shape[0] >= 32:
-                    if taylor:
-                        return _hosm3_injections_first(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
-                    return _hosm3_injections_first(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
-                if taylor:
-                    return _hosm3(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
-                return _hosm3(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
-    failed = False
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        row = new_state[c]
-        row[m] = hosm_channel_step(state[c], y[c], params[pc], m, row, out[c])
-        failed |= not _row_finite(row)
-    return _check_state(new_state) if failed else -1
+hosm_kernel = _hosm_kernel(False)
+hosm_shared_kernel = _hosm_kernel(True)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -628,25 +597,24 @@ def sta_implicit_channel_step(x, y, params, x_new):
     return w
 
 
-@njit(**KERNEL)
-def sta_implicit_kernel(state, y, params, new_state, out):
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], False)
-    return _sta_implicit_rows(state, y, params, new_state, out, False)
+def _sta_implicit_kernel(shared: bool):
+    """The implicit super-twisting batch kernel for per-channel parameter rows, or for one row shared by every channel
+    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
+
+    @njit(**KERNEL)
+    def kernel(state, y, params, new_state, out):
+        y, out = _flat(y, out)
+        bad = _first_nonfinite(y)
+        if bad >= 0:
+            return bad
+        _check_rows(params, y.shape[0], shared)
+        return _sta_implicit_rows(state, y, params, new_state, out, shared)
+
+    return kernel
 
 
-@njit(**KERNEL)
-def sta_implicit_shared_kernel(state, y, params, new_state, out):
-    """:func:`sta_implicit_kernel` for one parameter row ``(1, P)`` shared by every channel."""
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], True)
-    return _sta_implicit_rows(state, y, params, new_state, out, True)
+sta_implicit_kernel = _sta_implicit_kernel(False)
+sta_implicit_shared_kernel = _sta_implicit_kernel(True)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -791,60 +759,39 @@ def _eigmap3(state, y, params, new_state, out, shared, mode):
     return _check_state(new_state) if failed else -1
 
 
-@njit(**KERNEL)
-def eigmap_kernel(state, y, params, new_state, out):
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], False)
-    # the body of both variants, written out in each: behind one more inlined function the kernel took
-    # twice as long to compile (numba merges its many returns)
-    shared = False
-    m = out.shape[1]
-    if m == 3 and y.shape[0] > 0:
-        status = -3
-        if params[0, 3] == 0.0:
-            status = _eigmap3(state, y, params, new_state, out, shared, 0.0)
-        elif params[0, 3] == 1.0:
-            status = _eigmap3(state, y, params, new_state, out, shared, 1.0)
-        if status != -3:
-            return status
-    failed = False
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        row = new_state[c]
-        row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
-        failed |= not _row_finite(row)
-    return _check_state(new_state) if failed else -1
+def _eigmap_kernel(shared: bool):
+    """The eigenvalue-mapping batch kernel for per-channel parameter rows, or for one row shared by every channel
+    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
+
+    @njit(**KERNEL)
+    def kernel(state, y, params, new_state, out):
+        y, out = _flat(y, out)
+        bad = _first_nonfinite(y)
+        if bad >= 0:
+            return bad
+        _check_rows(params, y.shape[0], shared)
+        m = out.shape[1]
+        if m == 3 and y.shape[0] > 0:
+            status = -3
+            if params[0, 3] == 0.0:
+                status = _eigmap3(state, y, params, new_state, out, shared, 0.0)
+            elif params[0, 3] == 1.0:
+                status = _eigmap3(state, y, params, new_state, out, shared, 1.0)
+            if status != -3:
+                return status
+        failed = False
+        for c in range(y.shape[0]):
+            pc = 0 if shared else c  # the parameter row of channel c
+            row = new_state[c]
+            row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
+            failed |= not _row_finite(row)
+        return _check_state(new_state) if failed else -1
+
+    return kernel
 
 
-@njit(**KERNEL)
-def eigmap_shared_kernel(state, y, params, new_state, out):
-    """:func:`eigmap_kernel` for one parameter row ``(1, P)`` shared by every channel."""
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], True)
-    # the body of :func:`eigmap_kernel` with ``shared = True``
-    shared = True
-    m = out.shape[1]
-    if m == 3 and y.shape[0] > 0:
-        status = -3
-        if params[0, 3] == 0.0:
-            status = _eigmap3(state, y, params, new_state, out, shared, 0.0)
-        elif params[0, 3] == 1.0:
-            status = _eigmap3(state, y, params, new_state, out, shared, 1.0)
-        if status != -3:
-            return status
-    failed = False
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        row = new_state[c]
-        row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
-        failed |= not _row_finite(row)
-    return _check_state(new_state) if failed else -1
+eigmap_kernel = _eigmap_kernel(False)
+eigmap_shared_kernel = _eigmap_kernel(True)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -881,25 +828,24 @@ def _linear_rows(state, y, params, new_state, out, shared, m):
     return _check_state(new_state) if failed else -1
 
 
-@njit(**KERNEL)
-def linear_kernel(state, y, params, new_state, out):
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], False)
-    return _linear_steps(state, y, params, new_state, out, False)
+def _linear_kernel(shared: bool):
+    """The linear batch kernel for per-channel parameter rows, or for one row shared by every channel
+    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
+
+    @njit(**KERNEL)
+    def kernel(state, y, params, new_state, out):
+        y, out = _flat(y, out)
+        bad = _first_nonfinite(y)
+        if bad >= 0:
+            return bad
+        _check_rows(params, y.shape[0], shared)
+        return _linear_steps(state, y, params, new_state, out, shared)
+
+    return kernel
 
 
-@njit(**KERNEL)
-def linear_shared_kernel(state, y, params, new_state, out):
-    """:func:`linear_kernel` for one parameter row ``(1, P)`` shared by every channel."""
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], True)
-    return _linear_steps(state, y, params, new_state, out, True)
+linear_kernel = _linear_kernel(False)
+linear_shared_kernel = _linear_kernel(True)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -1011,25 +957,24 @@ def kalman_ca_channel_step(s, y, params, s_new):
     return nu
 
 
-@njit(**KERNEL)
-def kalman_ca_kernel(state, y, params, new_state, out):
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], False)
-    return _kalman_ca_rows(state, y, params, new_state, out, False)
+def _kalman_ca_kernel(shared: bool):
+    """The Kalman batch kernel for per-channel parameter rows, or for one row shared by every channel
+    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
+
+    @njit(**KERNEL)
+    def kernel(state, y, params, new_state, out):
+        y, out = _flat(y, out)
+        bad = _first_nonfinite(y)
+        if bad >= 0:
+            return bad
+        _check_rows(params, y.shape[0], shared)
+        return _kalman_ca_rows(state, y, params, new_state, out, shared)
+
+    return kernel
 
 
-@njit(**KERNEL)
-def kalman_ca_shared_kernel(state, y, params, new_state, out):
-    """:func:`kalman_ca_kernel` for one parameter row ``(1, P)`` shared by every channel."""
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], True)
-    return _kalman_ca_rows(state, y, params, new_state, out, True)
+kalman_ca_kernel = _kalman_ca_kernel(False)
+kalman_ca_shared_kernel = _kalman_ca_kernel(True)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -1102,30 +1047,29 @@ def _finite_difference_rows(state, y, params, new_state, out, shared, m):
     return _check_state(new_state) if failed else -1
 
 
-@njit(**KERNEL)
-def finite_difference_kernel(state, y, params, new_state, out):
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], False)
-    return _finite_difference_steps(state, y, params, new_state, out, False)
+def _finite_difference_kernel(shared: bool):
+    """The finite-difference batch kernel for per-channel parameter rows, or for one row shared by every channel
+    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
+
+    @njit(**KERNEL)
+    def kernel(state, y, params, new_state, out):
+        y, out = _flat(y, out)
+        bad = _first_nonfinite(y)
+        if bad >= 0:
+            return bad
+        _check_rows(params, y.shape[0], shared)
+        return _finite_difference_steps(state, y, params, new_state, out, shared)
+
+    return kernel
 
 
-@njit(**KERNEL)
-def finite_difference_shared_kernel(state, y, params, new_state, out):
-    """:func:`finite_difference_kernel` for one parameter row ``(1, P)`` shared by every channel."""
-    y, out = _flat(y, out)
-    bad = _first_nonfinite(y)
-    if bad >= 0:
-        return bad
-    _check_rows(params, y.shape[0], True)
-    return _finite_difference_steps(state, y, params, new_state, out, True)
+finite_difference_kernel = _finite_difference_kernel(False)
+finite_difference_shared_kernel = _finite_difference_kernel(True)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _finite_difference_steps(state, y, params, new_state, out, shared):
-    """:func:`finite_difference_kernel` after the measurement check (``shared``: one parameter row for every channel)."""
+    """:func:`finite_difference_kernel` after the measurement check (``shared``: one row for every channel)."""
     if out.shape[1] == 2:
         return _finite_difference_rows(state, y, params, new_state, out, shared, 2)
     return _finite_difference_rows(state, y, params, new_state, out, shared, 3)
