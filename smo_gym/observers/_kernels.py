@@ -58,12 +58,14 @@ small:
   rest), the order-2 eigenvalue-mapping step (the eigenvalue, then the rest) and the linear observer, three for
   the Kalman filter. Merging passes further was measured slower (the merged loop stays scalar); what remains
   per channel is mostly the strided loads and stores of the ``(N, S)``/``(N, P)`` rows themselves.
-* Shared parameters. When every channel has the same parameter row (scalar gains: the usual case) the observer
-  keeps one row ``(1, P)`` and ``update`` calls the kernel's ``*_shared_kernel`` variant (:data:`SHARED_KERNELS`),
-  whose loops are compiled with ``shared`` as a constant (they read parameter row ``pc = 0 if shared else c``):
-  every parameter is then loop invariant instead of a load at a stride of ``P`` values per channel (measured
-  10-15 % faster at 32 channels). The variants are separate functions so that each compiles only when used;
-  one function with both loops took seven times as long to compile.
+* Shared parameters. When every channel has the same parameter row (scalar gains: the usual case),
+  ``Observer.update`` passes that one row ``(1, P)`` to the kernel's ``*_shared_kernel`` variant
+  (:data:`SHARED_KERNELS`), whose loops are compiled with ``shared`` as a constant (they read parameter row
+  ``pc = 0 if shared else c``): every parameter is then loop invariant instead of a load at a stride of ``P``
+  values per channel (measured 10-15 % faster at 32 channels). The variants are separate functions (one factory
+  per family, ``shared`` a closure constant) so that each compiles only when used; one function with both loops
+  took seven times as long to compile. ``Observer.run`` and the wrapper's compiled drivers use the per-channel
+  kernels.
 * No reference counting at the entry. The batch kernels are compiled with numba's ``_nrt=False``: called from
   Python, their arrays are then unboxed without allocating a reference-counted ``MemInfo`` each, which halves
   the cost of the call (an empty five-array kernel: 0.27 against 0.13 us). The kernels allocate nothing, and
