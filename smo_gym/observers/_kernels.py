@@ -518,7 +518,9 @@ def _hosm_kernel(shared: bool):
 
     ``shared`` is a closure constant, so each variant compiles (and is cached) as its own function. The body is
     written here rather than in one more inlined function: behind that layer the kernel took twice as long to
-    compile (numba merges its many returns).
+    compile (numba merges its many returns). Each family has its own factory, with its loops named as globals:
+    one generic factory taking the loop function as a closure variable compiled afresh in every process (numba
+    does not cache a closure over a dispatcher).
     """
 
     @njit(**KERNEL)
