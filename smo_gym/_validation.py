@@ -1,22 +1,35 @@
 """Typed input checks shared by every layer.
 
 Every message follows one pattern, ``expected <what>, actual value: <what was received>``, so that a user who
-passes a wrong step, gain or array sees at once what the library wanted.
+passes a wrong step, gain or array sees at once what the library wanted. Numbers and arrays of numbers are
+*real*: ``bool``, complex, date/time, string and other object values are rejected with ``TypeError`` rather than
+converted (NumPy would turn ``True`` into 1.0, ``"2"`` into 2.0, drop an imaginary part or count nanoseconds).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import difflib
+import functools
+import inspect
+import numbers
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
 __all__ = [
     "DivergenceError",
+    "as_real_array",
+    "check_bool",
     "check_choice",
     "check_finite_array",
     "check_int_in_range",
+    "check_keywords",
+    "check_mask",
+    "check_nonnegative",
     "check_positive",
     "check_positive_array",
+    "check_real",
+    "did_you_mean",
 ]
 
 
@@ -24,42 +37,133 @@ class DivergenceError(RuntimeError):
     """An observer's state became non-finite; the step was rejected and the previous state kept."""
 
 
+def _short(value, limit: int = 200) -> str:
+    """``repr(value)`` cut to ``limit`` characters (an error message must stay readable for a huge array)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def did_you_mean(value, choices: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the choice closest to ``value`` (difflib ratio >= 0.6), else ``""``."""
+    if not isinstance(value, str):
+        return ""
+    close = difflib.get_close_matches(value, [c for c in choices if isinstance(c, str)], n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+#: NumPy types that pass for numbers but are not (``timedelta64`` is a NumPy integer subclass)
+_NOT_NUMBERS = (bool, np.bool_, np.timedelta64, np.datetime64)
+
+
+def _is_real_scalar(value) -> bool:
+    """A real number: Python or NumPy int/float (or another ``numbers.Real``), not a bool or a duration."""
+    return isinstance(value, numbers.Real) and not isinstance(value, _NOT_NUMBERS)
+
+
+def check_real(name: str, value) -> float:
+    """Return ``value`` as a float after checking that it is a finite real number (not a bool or a string)."""
+    if not _is_real_scalar(value):
+        raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise ValueError(f"expected {name} to be finite, actual value: {value!r}")
+    return value
+
+
 def check_positive(name: str, value) -> float:
     """Return ``value`` as a float after checking that it is a finite number ``> 0``."""
-    if isinstance(value, bool) or not np.isscalar(value) or not isinstance(value, (int, float, np.number)):
-        raise TypeError(f"expected {name} to be a real number, actual value: {value!r}")
+    if not _is_real_scalar(value):
+        raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
     value = float(value)
     if not np.isfinite(value) or value <= 0.0:
         raise ValueError(f"expected {name} > 0, actual value: {value!r}")
     return value
 
 
+def check_nonnegative(name: str, value) -> float:
+    """Return ``value`` as a float after checking that it is a finite number ``>= 0``."""
+    if not _is_real_scalar(value):
+        raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
+    value = float(value)
+    if not np.isfinite(value) or value < 0.0:
+        raise ValueError(f"expected {name} >= 0, actual value: {value!r}")
+    return value
+
+
+def as_real_array(name: str, value, *, copy: bool = False) -> np.ndarray:
+    """``value`` as a float64 array, or ``TypeError`` if it is not an array of real numbers.
+
+    Accepted: numbers, (nested) sequences of numbers and arrays of integer or floating dtype, and object arrays
+    whose entries are all real numbers. Rejected: bools, complex numbers, dates and durations, strings, ``None``
+    and other objects, and ragged nested sequences (which NumPy cannot make an array of). Values are not checked
+    for finiteness (see :func:`check_finite_array`).
+    """
+    try:
+        arr = np.array(value, copy=copy or None)
+    except (TypeError, ValueError, OverflowError):  # ragged sequences, unconvertible objects
+        raise TypeError(
+            f"expected {name} to be an array of real numbers (a rectangular nesting of numbers), actual value: "
+            f"{_short(value)}"
+        ) from None
+    kind = arr.dtype.kind
+    if kind == "O" and all(_is_real_scalar(v) for v in arr.flat):
+        kind = "f"  # e.g. Fractions, or Python ints too large for int64
+    if kind not in "iuf":
+        what = {"b": "bool", "c": "complex", "M": "datetime", "m": "timedelta", "U": "str", "S": "bytes"}.get(
+            kind, str(arr.dtype))
+        raise TypeError(
+            f"expected {name} to be an array of real numbers, actual value: {what} values {_short(value)}")
+    try:
+        return np.asarray(arr, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise TypeError(f"expected {name} to be an array of real numbers, actual value: {_short(value)}") from None
+
+
 def check_positive_array(name: str, value) -> np.ndarray:
     """Return ``value`` as a float64 array after checking that every entry is finite and ``> 0``."""
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"expected {name} to be a number or an array of numbers, actual value: {value!r}") from None
+    arr = as_real_array(name, value)
+    if arr.size == 0:
+        raise ValueError(f"expected {name} with at least one entry, actual value: shape {arr.shape}")
     bad = ~np.isfinite(arr) | (arr <= 0.0)
     if np.any(bad):
-        raise ValueError(f"expected {name} > 0 everywhere, actual value: {value!r}")
+        raise ValueError(f"expected {name} > 0 everywhere, actual value: {_short(value)}")
     return arr
 
 
 def check_int_in_range(name: str, value, low: int, high: int) -> int:
     """Return ``value`` as an int after checking ``low <= value <= high``."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"expected {name} to be an integer in [{low}, {high}], actual value: {value!r}")
+    if isinstance(value, _NOT_NUMBERS) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"expected {name} to be an integer in [{low}, {high}], actual value: {_short(value)}")
     if not low <= int(value) <= high:
         raise ValueError(f"expected {name} in [{low}, {high}], actual value: {value!r}")
     return int(value)
 
 
+def check_bool(name: str, value) -> bool:
+    """Return ``value`` as a bool after checking it is one (``True``/``False`` or a NumPy bool, not ``"yes"``)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"expected {name} to be True or False, actual value: {_short(value)}")
+    return bool(value)
+
+
+def check_mask(name: str, value) -> np.ndarray:
+    """``value`` as a boolean array, after checking that it holds bools only (not ``"yes"``, not 0/1 numbers)."""
+    arr = np.asarray(value) if not isinstance(value, np.ndarray) else value
+    if arr.dtype != np.bool_:
+        raise TypeError(f"expected {name} to be a bool or an array of bools, actual value: {_short(value)}")
+    return arr
+
+
 def check_choice(name: str, value, choices: Iterable[str]) -> str:
-    """Return ``value`` after checking it is one of ``choices`` (the message lists them)."""
+    """Return ``value`` after checking it is one of ``choices`` (the message lists them and the closest one)."""
     choices = tuple(choices)
-    if value not in choices:
-        raise ValueError(f"expected {name} to be one of {', '.join(map(repr, choices))}, actual value: {value!r}")
+    try:
+        known = value in choices
+    except (TypeError, ValueError):  # an object whose == does not give one bool (an array, say)
+        known = False
+    if not known or not isinstance(value, str):
+        raise ValueError(f"expected {name} to be one of {', '.join(map(repr, choices))}, actual value: "
+                         f"{_short(value)}{did_you_mean(value, choices)}")
     return value
 
 
@@ -72,3 +176,49 @@ def check_finite_array(name: str, arr: np.ndarray) -> None:
             f"expected finite values in {name}, actual value: {arr[index]!r} at index {index} "
             f"(channel {index[-1] if index else 0})"
         )
+
+
+def check_keywords(func: Callable) -> Callable:
+    """Decorator: a call with an unknown keyword, a missing or a surplus argument raises a worded ``TypeError``.
+
+    ``unknown parameter 'lipschits' of SuperTwisting (did you mean 'lipschitz'?)`` instead of Python's
+    ``unexpected keyword argument``. The signature is only examined when the call itself fails to bind, so a
+    correct call costs one extra function frame.
+    """
+    signature = inspect.signature(func)
+    owner = func.__qualname__.removesuffix(".__init__")
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except TypeError:
+            try:
+                signature.bind(*args, **kwargs)
+            except TypeError:  # the call itself did not bind: say which argument, and what was meant
+                raise _binding_error(owner, signature, args, kwargs) from None
+            raise  # a TypeError of the body (a validated argument of the wrong type): unchanged
+
+    return wrapper
+
+
+def _binding_error(owner: str, signature: inspect.Signature, args: tuple, kwargs: dict) -> TypeError:
+    params = signature.parameters
+    names = [p for p, v in params.items() if v.kind not in (v.VAR_POSITIONAL, v.VAR_KEYWORD) and p != "self"]
+    takes_kwargs = any(v.kind is v.VAR_KEYWORD for v in params.values())
+    for key, value in kwargs.items():
+        if key not in params and not takes_kwargs:
+            return TypeError(f"unknown parameter {key!r} of {owner}: expected one of {', '.join(names)}, "
+                             f"actual value: {key}={_short(value, 80)}{did_you_mean(key, names)}")
+    positional = [p for p, v in params.items() if v.kind in (v.POSITIONAL_ONLY, v.POSITIONAL_OR_KEYWORD)]
+    if len(args) > len(positional) and not any(v.kind is v.VAR_POSITIONAL for v in params.values()):
+        return TypeError(f"expected at most {len(positional) - ('self' in params)} positional arguments to "
+                         f"{owner} ({', '.join(p for p in positional if p != 'self')}), actual value: "
+                         f"{len(args) - ('self' in params)}")
+    given = set(positional[: len(args)]) | set(kwargs)
+    for p, v in params.items():
+        if v.default is v.empty and v.kind not in (v.VAR_POSITIONAL, v.VAR_KEYWORD) and p not in given:
+            return TypeError(f"expected argument {p!r} of {owner}, actual value: missing")
+    duplicated = set(positional[: len(args)]) & set(kwargs)
+    return TypeError(f"expected each argument of {owner} once, actual value: {', '.join(sorted(duplicated))} "
+                     "given by position and by keyword")
