@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._validation import as_real_array, check_keywords
 from .observers import Observer, make_observer
 
 __all__ = ["differentiate"]
 
 
+@check_keywords
 def differentiate(y, dt: float, method: str = "levant", **params) -> np.ndarray:
     """Estimate a recorded signal and its derivatives, sample by sample, causally.
 
@@ -37,7 +39,7 @@ def differentiate(y, dt: float, method: str = "levant", **params) -> np.ndarray:
     >>> bool(abs(z[-1, 1] - np.cos(t[-1])) < 1e-4)
     True
     """
-    y = np.asarray(y, dtype=np.float64)
+    y = as_real_array("y", y)
     if y.ndim == 0 or y.shape[0] == 0:
         raise ValueError(f"expected y with shape (T, ...) and T >= 1, actual value: {y.shape}")
     squeeze = y.ndim == 1

@@ -92,6 +92,7 @@ def test_semi_implicit_step_solves_its_implicit_equation(g):
         x[0], x[1], x[4] = rng.normal(), rng.normal(), rng.normal() * 10
         X = x[0] + rng.normal() * 10.0 ** rng.uniform(-7, 0)
         x_new = np.zeros(STATE_WIDTH)
+        x_new[4] = x[4]  # the model term is passed in the row the step writes
         w = mechanical_channel_step(x, X, params, x_new)
         assert w == pytest.approx(X - x[0] - h * x[1] - c * h * h * x[4])
         e = X - x_new[0]
@@ -411,3 +412,41 @@ def test_semi_implicit_does_not_chatter(arm_run):
     assert stats["semi-implicit"][0] < 0.05
     assert stats["euler"][0] > 0.95
     assert stats["semi-implicit"][1] < 0.1 * stats["euler"][1]
+
+
+def test_non_finite_velocity_and_input_are_rejected_with_the_state_kept(arm_run, capfd):
+    """A NaN initial velocity used to be accepted, and a NaN control was zeroed by MuJoCo (with a warning printed to
+    stdout) so the observer went on with a wrong model term. Both now raise at the call that received them, naming
+    the entry, and a rejected update (bad input or bad measurement) leaves the whole state, including the model
+    term written for the kernel, as it was: the observer continues exactly as one that never saw the bad calls."""
+    env, Q, _, U = arm_run
+    dyn = MujocoDynamics(env.model)
+    transform = CoordinateTransform(lambda Y: np.zeros_like(Y), -np.pi * np.ones(2), np.pi * np.ones(2))
+    gains = dict(k1=5.0, k2=40.0, k3=0.0, mu1=1.0, mu2=0.0)
+    for make in (lambda: MechanicalSuperTwisting(env.dt, dyn, lipschitz=20.0),
+                 lambda: DissipativeSuperTwisting(env.dt, dyn, transform, gains)):
+        obs, reference = make(), make()
+        for v0 in ([np.nan, 0.0], [0.0, np.inf], [1.0 + 1j, 0.0], [0.0, 0.0, 0.0]):
+            with pytest.raises((ValueError, TypeError), match="v0") as excinfo:
+                obs.reset(Q[0], v0=v0)
+            assert "expected" in str(excinfo.value)
+            assert obs.shape is None  # nothing was set up by the rejected reset
+        obs.reset(Q[0], v0=[0.1, -0.2])
+        reference.reset(Q[0], v0=[0.1, -0.2])
+        np.testing.assert_array_equal(obs.update(Q[1], U[1]), reference.update(Q[1], U[1]))
+        state, estimate = obs.state, obs.estimate.copy()
+        for index, bad in ((0, [np.nan, 0.0]), (1, [0.0, -np.inf])):
+            with pytest.raises(ValueError, match=f"expected finite inputs u.*index \\({index},\\)"):
+                obs.update(Q[2], np.array(bad))
+        with pytest.raises(TypeError, match="expected u"):
+            obs.update(Q[2], np.array([0.0, 1j]))
+        with pytest.raises(ValueError, match="channel 1"):
+            obs.update(np.array([Q[2][0], np.nan]), U[2])
+        np.testing.assert_array_equal(obs.state, state)
+        np.testing.assert_array_equal(obs.estimate, estimate)
+        with pytest.raises(ValueError, match="finite"):
+            obs.run(Q[2:6], np.vstack([U[2:5], [[np.nan, 0.0]]]))  # run: all or nothing
+        np.testing.assert_array_equal(obs.state, state)
+        np.testing.assert_array_equal(obs.update(Q[2], U[2]), reference.update(Q[2], U[2]))
+        np.testing.assert_array_equal(obs.run(Q[3:8], U[3:8]), reference.run(Q[3:8], U[3:8]))
+    assert capfd.readouterr().out == ""  # MuJoCo never saw a bad control

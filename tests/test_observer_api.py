@@ -21,6 +21,7 @@ from smo_gym.observers import (
     HighGain,
     KalmanCA,
     Levant,
+    LowPowerHighGain,
     SuperTwisting,
     UniformLevant,
     make_observer,
@@ -472,3 +473,89 @@ def test_diverging_explicit_ured_raises_and_keeps_state():
         obs2.run(np.repeat(y[None], 100, axis=0))
     np.testing.assert_array_equal(obs2.state, state2)
     assert obs2.n_updates == 0
+
+
+@pytest.mark.parametrize("discretization", ["taylor", "euler"])
+@pytest.mark.parametrize("p1", [1.0, 0.0, -1.0, [1.0, 2.0], "1", np.nan])
+def test_levant_p1_only_with_an_eigenvalue_mapping(discretization, p1):
+    """``p1`` is the rate of the eigenvalue mappings of Wetzlinger, Reichhartinger and Horn; the Taylor and Euler
+    steps would ignore it."""
+    with pytest.raises(ValueError, match="p1") as excinfo:
+        Levant(2, 1e-3, 1.0, discretization=discretization, p1=p1)
+    assert_worded(excinfo)
+    with pytest.raises(ValueError, match="mu") as excinfo:
+        Levant(2, 1e-3, 1.0, discretization=discretization, mu=0.5)
+    assert_worded(excinfo)
+    Levant(2, 1e-3, 1.0, discretization="semi-implicit", p1=3.0, mu=0.5)  # where they belong
+
+
+@pytest.mark.parametrize("make", [lambda: Levant(2, 1e-3, 5.0), lambda: SuperTwisting(1e-3, 5.0)])
+@pytest.mark.parametrize(
+    "bad",
+    [np.ones((2, 3), complex), np.full((2, 3), np.datetime64("2020-01-01", "D")), np.ones((2, 3), dtype="m8[s]"),
+     np.ones((2, 3), bool), np.full((2, 3), "1.0"), [[1.0, 2.0, 3.0], [4.0, 5.0]], [["1", 2.0, 3.0]] * 2,
+     np.array([[None] * 3] * 2)],
+    ids=["complex", "datetime", "timedelta", "bool", "str", "ragged", "mixed-str", "object"],
+)
+def test_measurements_of_other_dtypes_are_rejected(make, bad):
+    """Complex values used to lose their imaginary part and dates became nanosecond counts: now a TypeError, in
+    ``reset``, ``update``, ``run`` and ``differentiate``, with the state unchanged."""
+    obs = make()
+    with pytest.raises(TypeError) as excinfo:
+        obs.reset(bad)
+    assert_worded(excinfo)
+    obs.reset(np.zeros((2, 3)))
+    state = obs.state
+    with pytest.raises(TypeError) as excinfo:
+        obs.update(bad)
+    assert_worded(excinfo)
+    with pytest.raises(TypeError):
+        obs.run(np.array([bad, bad], dtype=object) if isinstance(bad, list) else np.stack([bad, bad]))
+    np.testing.assert_array_equal(obs.state, state)
+    with pytest.raises(TypeError):
+        smo_gym.differentiate(np.array([bad, bad], dtype=object) if isinstance(bad, list) else np.stack([bad] * 2),
+                              1e-3, "levant")
+
+
+def test_rejected_full_reset_keeps_the_previous_shape():
+    """A full reset rejected by the parameters (here: per-channel gains of another size) used to leave the new
+    shape with the old arrays, and the next update indexed them out of bounds."""
+    obs = SuperTwisting(1e-3, lipschitz=np.ones(3))
+    obs.reset(np.zeros(3))
+    with pytest.raises(ValueError, match="broadcastable"):
+        obs.reset(np.zeros(5))
+    assert obs.shape == (3,)
+    with pytest.raises(ValueError, match="shape"):
+        obs.update(np.zeros(5))
+    assert obs.update(np.ones(3)).shape == (3, 2)
+
+
+def test_ragged_and_object_blocks_in_run():
+    obs = Levant(2, 1e-3, 5.0)
+    obs.reset(np.zeros(2))
+    for Y in ([[0.0, 1.0], [2.0]], [[0.0, "a"]], [[0.0, None]], np.zeros((3, 2), complex)):
+        with pytest.raises(TypeError) as excinfo:
+            obs.run(Y)
+        assert_worded(excinfo)
+    assert obs.n_updates == 0
+
+
+def test_huge_gains_fail_at_construction_not_at_reset():
+    """Injection gains that overflow (``k_i ell^i``) used to reach ``numpy.linalg.inv`` at ``reset`` (LinAlgError)."""
+    for factory in (lambda: HighGain(1e-3, 1e300, 3), lambda: LowPowerHighGain(1e-3, 1e300, 3),
+                    lambda: HighGain(1e-3, 1e200, 2, discretization="euler")):
+        with pytest.raises(ValueError) as excinfo:
+            factory()
+        assert_worded(excinfo)
+
+
+def test_an_overflowing_estimate_is_a_divergence():
+    """The reported estimate :math:`e^{-\\tau N}\\hat x^+` is a sum of state entries and can overflow where the state
+    does not: the compiled step used to return ``-inf`` with a success status. The step is now rejected like a
+    non-finite state (found by the bad-input sweep of ``tests/test_bad_input.py``)."""
+    obs = Levant(2, 1.0, 1.0)
+    obs.reset(np.zeros(1))
+    state = np.array([[-1.62594398e308, 2.63147785e307, 9.47702536e307, 0.0]])
+    with pytest.raises(DivergenceError, match="channel 0") as excinfo:
+        obs.step(state, np.array([-7.47270782e307]))
+    assert_worded(excinfo)

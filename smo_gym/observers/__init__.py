@@ -5,7 +5,7 @@ Pure NumPy and compiled kernels only: nothing here imports Gymnasium or MuJoCo.
 
 from __future__ import annotations
 
-from .._validation import DivergenceError
+from .._validation import DivergenceError, check_keywords, did_you_mean
 from .base import Observer
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .linear import FiniteDifference, HighGain, KalmanCA
@@ -23,15 +23,15 @@ OBSERVERS.update({cls.name: cls for cls in (SwitchedGain, LowPowerHighGain)})
 OBSERVERS.update({cls.name: cls for cls in (ILFDifferentiator, ILFFixedDifferentiator)})  # paper 001 on chains
 
 
+@check_keywords
 def make_observer(name: str, **params) -> Observer:
     """Build an observer by its short name (``"super-twisting"``, ``"levant"``, ...) with ``params``."""
-    try:
-        cls = OBSERVERS[name]
-    except (KeyError, TypeError):
-        raise ValueError(
-            f"expected an observer name in {', '.join(sorted(OBSERVERS))}, actual value: {name!r}"
-        ) from None
-    return cls(**params)
+    if not isinstance(name, str) or name not in OBSERVERS:
+        hint = did_you_mean(name, OBSERVERS)
+        if isinstance(name, str) and name in MODEL_BASED_OBSERVERS:
+            hint = " (a model-based observer: build it with its class and a dynamics object)"
+        raise ValueError(f"expected an observer name in {', '.join(sorted(OBSERVERS))}, actual value: {name!r}{hint}")
+    return OBSERVERS[name](**params)
 
 
 #: model-based observers (built with a dynamics object, updated with ``update(y, u)``); not in OBSERVERS

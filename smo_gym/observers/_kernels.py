@@ -14,7 +14,7 @@ applies it to ``N`` independent channels. The batch kernels share one calling co
 
     status = -1             success
     status = i >= 0          y[i] is not finite (nothing written)
-    status = -2 - i          new_state[i] is not finite (the caller keeps ``state``)
+    status = -2 - i          new_state[i] or out[i] is not finite (the caller keeps ``state``)
 
 The last column of every state is the *innovation* ``y - yhat^-`` (measurement minus predicted output), the
 diagnostic the observer classes expose as ``output_error``.
@@ -140,7 +140,7 @@ def _taylor_back(x_new, m, dt, out_row):
 def _store_order2(state, new_state, out, c, dt, n0, n1, n2, innovation):
     r"""Write row ``c`` of an order-2 step: the new state ``(n0, n1, n2)`` and the estimate
     :math:`e^{-\tau N}\hat x^+` (the operations of :func:`_taylor_back` for ``m = 3``). Returns whether the row,
-    its innovation or the old row's last column is not finite.
+    its estimate, its innovation or the old row's last column is not finite.
 
     Reading the whole old row (its last column only for this flag) leaves no gap in the load group, so LLVM needs
     no scalar tail; a flag raised by that column alone ends in :func:`_check_state`, which returns -1.
@@ -148,11 +148,13 @@ def _store_order2(state, new_state, out, c, dt, n0, n1, n2, innovation):
     new_state[c, 0] = n0
     new_state[c, 1] = n1
     new_state[c, 2] = n2
-    out[c, 0] = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
-    out[c, 1] = n1 + (-dt) * n2
+    o0 = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
+    o1 = n1 + (-dt) * n2
+    out[c, 0] = o0
+    out[c, 1] = o1
     out[c, 2] = n2
     return not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(innovation)
-                & math.isfinite(state[c, 3]))
+                & math.isfinite(state[c, 3]) & math.isfinite(o0) & math.isfinite(o1))
 
 
 def _flat(y, out):  # pragma: no cover - compiled only, see the overload below
@@ -190,11 +192,15 @@ def _first_nonfinite(y):
 
 
 @njit(cache=CACHE, error_model="numpy")
-def _check_state(new_state):
-    """Status of a whole new state: ``-2 - i`` for the first channel ``i`` with a non-finite entry, else ``-1``."""
+def _check_state(new_state, out):
+    """Status of a whole new state and its estimate: ``-2 - i`` for the first channel ``i`` with a non-finite entry
+    in either (an estimate can overflow where the state does not: it is a sum of state entries), else ``-1``."""
     for i in range(new_state.shape[0]):
         for j in range(new_state.shape[1]):
             if not math.isfinite(new_state[i, j]):
+                return -2 - i
+        for j in range(out.shape[1]):
+            if not math.isfinite(out[i, j]):
                 return -2 - i
     return -1
 
@@ -429,10 +435,12 @@ def _hosm2(state, y, params, new_state, out, shared, q):
         new_state[c, 0] = n0
         new_state[c, 1] = n1
         new_state[c, 2] = -e
-        out[c, 0] = n0 + (-dt) * n1  # exp(-tau N) x^+
+        o0 = n0 + (-dt) * n1  # exp(-tau N) x^+
+        out[c, 0] = o0
         out[c, 1] = n1
-        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(e) & math.isfinite(state[c, 2]))
-    return _check_state(new_state) if bad else -1
+        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(e) & math.isfinite(state[c, 2])
+                    & math.isfinite(o0))
+    return _check_state(new_state, out) if bad else -1
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -471,7 +479,7 @@ def _hosm3(state, y, params, new_state, out, shared, taylor, q):
         n1 = x1 + dt * x2 - dt * (_injection(prow, 1, r, q[1]) * s)
         n2 = x2 - dt * (_injection(prow, 2, r, q[2]) * s)
         bad |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, e)
-    return _check_state(new_state) if bad else -1
+    return _check_state(new_state, out) if bad else -1
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -510,7 +518,7 @@ def _hosm3_injections_first(state, y, params, new_state, out, shared, taylor, q)
         n1 = x1 + dt * x2 - dt * new_state[c, 1]
         n2 = x2 - dt * new_state[c, 2]
         bad |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, new_state[c, 3])
-    return _check_state(new_state) if bad else -1
+    return _check_state(new_state, out) if bad else -1
 
 
 def _hosm_kernel(shared: bool):
@@ -558,8 +566,8 @@ def _hosm_kernel(shared: bool):
             pc = 0 if shared else c  # the parameter row of channel c
             row = new_state[c]
             row[m] = hosm_channel_step(state[c], y[c], params[pc], m, row, out[c])
-            failed |= not _row_finite(row)
-        return _check_state(new_state) if failed else -1
+            failed |= not (_row_finite(row) and _row_finite(out[c]))
+        return _check_state(new_state, out) if failed else -1
 
     return kernel
 
@@ -635,7 +643,7 @@ def _sta_implicit_rows(state, y, params, new_state, out, shared):
         out[c, 0] = x0
         out[c, 1] = x1
         failed |= not (math.isfinite(x0) & math.isfinite(x1) & math.isfinite(w) & math.isfinite(state[c, 2]))
-    return _check_state(new_state) if failed else -1
+    return _check_state(new_state, out) if failed else -1
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -760,7 +768,7 @@ def _eigmap3(state, y, params, new_state, out, shared, mode):
         n1 = x1 + dt * x2 + g1 * sigma
         n2 = x2 + g2 * sigma
         failed |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, sigma)
-    return _check_state(new_state) if failed else -1
+    return _check_state(new_state, out) if failed else -1
 
 
 def _eigmap_kernel(shared: bool):
@@ -788,8 +796,8 @@ def _eigmap_kernel(shared: bool):
             pc = 0 if shared else c  # the parameter row of channel c
             row = new_state[c]
             row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
-            failed |= not _row_finite(row)
-        return _check_state(new_state) if failed else -1
+            failed |= not (_row_finite(row) and _row_finite(out[c]))
+        return _check_state(new_state, out) if failed else -1
 
     return kernel
 
@@ -829,7 +837,7 @@ def _linear_rows(state, y, params, new_state, out, shared, m):
             out[c, i] = acc
             failed |= not (math.isfinite(acc) & math.isfinite(new_state[c, i]))
         failed |= not math.isfinite(new_state[c, m])
-    return _check_state(new_state) if failed else -1
+    return _check_state(new_state, out) if failed else -1
 
 
 def _linear_kernel(shared: bool):
@@ -1016,7 +1024,7 @@ def _kalman_ca_rows(state, y, params, new_state, out, shared):
         out[c, 1] = x1
         out[c, 2] = x2
         failed |= not (math.isfinite(x0) & math.isfinite(x1) & math.isfinite(x2) & math.isfinite(nu))
-    return _check_state(new_state) if failed else -1
+    return _check_state(new_state, out) if failed else -1
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -1048,7 +1056,7 @@ def _finite_difference_rows(state, y, params, new_state, out, shared, m):
         new_state[c, m] = yc - y0
         new_state[c, m + 1] = count + 1.0
         failed |= not (math.isfinite(v) & math.isfinite(yc - y0) & math.isfinite(count + 1.0))
-    return _check_state(new_state) if failed else -1
+    return _check_state(new_state, out) if failed else -1
 
 
 def _finite_difference_kernel(shared: bool):

@@ -2,7 +2,9 @@ r"""Compiled per-sample recursion of the model-based (mechanical) super-twisting
 
 Same calling convention as :mod:`smo_gym.observers._kernels`: ``status = kernel(state, y, params, new_state, out)``.
 The model term is *not* evaluated here (it needs the dynamics object): the observer class computes it before the
-call and writes it into the state column ``MODEL``.
+call and writes it into the column ``MODEL`` (and ``MODEL_POS``) of ``new_state``, the row the step then writes.
+An input in the output row keeps ``state`` read-only: a step rejected for a non-finite measurement or a diverging
+state leaves the observer's state exactly as it was.
 
 State row (per channel): ``[x1, x2, innovation, x1_meas_prev, model, injection, injection_filtered, e, model_pos]``
 Params row: ``[dt, c, g11, g12, g20, g21, g22, implicit, filter_coefficient, pos_from_state, model_bound]``
@@ -52,8 +54,8 @@ MODEL_POS = 8
 def mechanical_channel_step(x, X, params, x_new):
     r"""One step of the model-based super-twisting recursion for one channel (see the module docstring).
 
-    ``x`` is the state row (with ``x[MODEL]`` already written), ``X`` the new (transformed) measurement.
-    Writes ``x_new`` and returns the predicted error ``w``.
+    ``x`` is the state row, ``X`` the new (transformed) measurement, ``x_new[MODEL]`` (and ``x_new[MODEL_POS]``)
+    the model term on entry. Writes ``x_new`` and returns the predicted error ``w``.
     """
     h = params[0]
     c = params[1]
@@ -64,16 +66,17 @@ def mechanical_channel_step(x, X, params, x_new):
     g22 = params[6]
     implicit = params[7] != 0.0
     beta = params[8]
-    m = x[4]
+    m = x_new[4]
     bound = params[10]
     if m > bound:
         m = bound
     elif m < -bound:
         m = -bound
     if params[9] != 0.0:
-        p1 = x[0] + h * x[1] + h * h * x[8]
+        p1 = x[0] + h * x[1] + h * h * x_new[8]
     else:
         p1 = x[0] + h * x[1] + c * h * h * m
+        x_new[8] = 0.0  # no prediction integrated outside (the scratch row may hold anything)
     p2 = x[1] + h * m
     w = X - p1
     if implicit:
@@ -113,7 +116,6 @@ def mechanical_channel_step(x, X, params, x_new):
     x_new[5] = inj2
     x_new[6] = x[6] + beta * (inj2 - x[6])
     x_new[7] = e if implicit else X - x_new[0]
-    x_new[8] = x[8]
     return w
 
 
@@ -128,7 +130,7 @@ def mechanical_kernel(state, y, params, new_state, out):
         mechanical_channel_step(state[ch], yf[ch], params[ch], new_state[ch])
         o[ch, 0] = new_state[ch, 0]
         o[ch, 1] = new_state[ch, 1]
-    return _check_state(new_state)
+    return _check_state(new_state, o)
 
 
 # these inline helpers of _kernels.py: drop their cached code when it changes (see smo_gym._numba_cache)

@@ -10,7 +10,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .._validation import DivergenceError, check_choice, check_positive, check_positive_array
+from .._validation import (
+    DivergenceError,
+    as_real_array,
+    check_choice,
+    check_keywords,
+    check_mask,
+    check_positive,
+    check_positive_array,
+)
 from . import _kernels
 
 __all__ = ["Observer"]
@@ -53,19 +61,23 @@ def _compiled_entry(kernel, args):
 
 
 def as_measurement(y, name: str) -> np.ndarray:
-    """``y`` as a float64 array of shape ``(..., n_channels)`` (at least one dimension), or a typed error."""
-    try:
-        arr = np.asarray(y, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"expected {name} to be an array of real numbers, actual value: {y!r}") from None
+    """``y`` as a float64 array of shape ``(..., n_channels)`` with at least one channel, or a typed error.
+
+    Every observer rejects an empty measurement (zero channels or a zero batch dimension) the same way: there is
+    nothing to estimate, and an observer sized by it could never take a sample.
+    """
+    arr = as_real_array(name, y)
     if arr.ndim == 0:
         raise ValueError(f"expected {name} with shape (..., n_channels), actual value: a scalar {float(arr)!r}")
+    if arr.size == 0:
+        raise ValueError(f"expected {name} with at least one channel and no empty batch dimension, actual value: "
+                         f"shape {arr.shape}")
     return arr
 
 
 def expand_mask(mask, shape: tuple[int, ...]) -> np.ndarray:
     """A reset mask of shape ``shape[:-1]`` (whole batch elements) or ``shape``, as a boolean array of ``shape``."""
-    mask = np.asarray(mask, dtype=bool)
+    mask = check_mask("mask", mask)
     if mask.shape == shape[:-1]:
         return np.broadcast_to(mask[..., None], shape)
     if mask.shape != shape:
@@ -104,7 +116,12 @@ class Observer:
     # ``(entry point, params, measurement shape, estimate shape)``, one attribute for the hot path
     _bound = None
 
+    @check_keywords
     def __init__(self, dt: float, order: int, discretization: str | None):
+        if type(self)._channel_params is Observer._channel_params:
+            raise TypeError(f"expected a concrete observer class (SuperTwisting, Levant, ...; see "
+                            f"smo_gym.observers.OBSERVERS), actual value: {type(self).__name__}, which has no "
+                            "recursion of its own")
         self.dt = check_positive("dt", dt)
         self.order = order
         self.discretization = check_choice(
@@ -192,6 +209,7 @@ class Observer:
             + (f" of batch element {index[:-1]}" if len(index) > 1 else "")
         )
 
+    @check_keywords
     def reset(self, y0, mask=None) -> np.ndarray:
         """Start (or restart) the observer at the measurement ``y0``.
 
@@ -212,9 +230,16 @@ class Observer:
         if not np.isfinite(y0).all():
             self._raise_nonfinite(y0, "y0")
         if mask is None:
-            self._shape = y0.shape
-            self._params = np.ascontiguousarray(self._channel_params(y0.shape), dtype=np.float64)
-            self._state = np.ascontiguousarray(self._initial_state(y0.reshape(-1), self._params))
+            # all or nothing: a rejected reset (parameters that do not fit this shape) keeps the previous shape,
+            # whose arrays the compiled step would otherwise index out of bounds
+            previous, self._shape = self._shape, y0.shape  # a subclass's _initial_state may read the new shape
+            try:
+                params = np.ascontiguousarray(self._channel_params(y0.shape), dtype=np.float64)
+                state = np.ascontiguousarray(self._initial_state(y0.reshape(-1), params), dtype=np.float64)
+            except BaseException:
+                self._shape = previous
+                raise
+            self._params, self._state = params, state
             self._scratch = np.empty_like(self._state)
             self._estimate = np.zeros(y0.shape + (self.order + 1,))
             self._estimate[..., 0] = y0
@@ -225,7 +250,7 @@ class Observer:
             raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
         if y0.shape != self._shape:
             raise ValueError(f"expected y0 with shape {self._shape} for a masked reset, actual value: {y0.shape}")
-        mask = np.asarray(mask, dtype=bool)
+        mask = check_mask("mask", mask)
         shape = self._shape
         if mask.shape == shape[:-1]:
             block = shape[-1]  # whole batch elements: blocks of n_channels rows
@@ -332,13 +357,14 @@ class Observer:
     def step(self, state: np.ndarray, y) -> tuple[np.ndarray, np.ndarray]:
         """Pure form of ``update``: return ``(new_state, estimate)`` for a flat state without touching ``self``.
 
-        ``state`` has shape ``(N, S)`` as ``self.state``; ``y`` shape ``(N,)``. Requires a previous ``reset`` (for
-        the per-channel parameters).
+        ``state`` has shape ``(N, S)`` as ``self.state``; ``y`` shape ``(N,)`` or the measurement shape of the
+        last full reset. Requires a previous ``reset`` (for the per-channel parameters). Both are checked before
+        the compiled step runs (it indexes them without bounds checks): a wrong shape, a non-real dtype or a
+        non-finite state raises ``TypeError``/``ValueError``.
         """
         if self._params is None:
             raise RuntimeError("expected reset(y0) before step(), actual value: the observer was never reset")
-        y = np.ascontiguousarray(y, dtype=np.float64).reshape(-1)
-        state = np.ascontiguousarray(state, dtype=np.float64)
+        y, state = self._check_step_arguments(state, y)
         new_state = np.empty_like(state)
         out = np.empty((state.shape[0], self.order + 1))
         kernel, params = self._step_kernel()
@@ -347,6 +373,23 @@ class Observer:
             self._raise_status(status, y)
         return new_state, out
 
+    def _check_step_arguments(self, state, y) -> tuple[np.ndarray, np.ndarray]:
+        """``(y, state)`` of :meth:`step` as C-contiguous float64 arrays of the sizes the kernel indexes."""
+        expected = self._state.shape
+        state = np.ascontiguousarray(as_real_array("state", state))
+        if state.shape != expected:
+            raise ValueError(f"expected state with shape {expected} (as observer.state), actual value: "
+                             f"{state.shape}")
+        if not np.isfinite(state).all():
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(state))[0])
+            raise ValueError(f"expected a finite state, actual value: {state[bad]!r} at row {bad[0]} (channel), "
+                             f"column {bad[1]}")
+        y = np.ascontiguousarray(as_real_array("y", y))
+        if y.shape not in ((expected[0],), self._shape):
+            raise ValueError(f"expected y with shape ({expected[0]},) or {self._shape}, actual value: {y.shape}")
+        return y.reshape(-1), state
+
+    @check_keywords
     def run(self, Y, *, out: np.ndarray | None = None) -> np.ndarray:
         """Process a recorded block ``Y`` of shape ``(T, ...)`` (continuing from the current state) in one call.
 
@@ -359,8 +402,8 @@ class Observer:
         """
         if self._state is None:
             raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
-        Y = np.ascontiguousarray(Y, dtype=np.float64)
-        if Y.shape[1:] != self._shape:
+        Y = np.ascontiguousarray(as_real_array("Y", Y))
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
         T = Y.shape[0]
         m = self.order + 1

@@ -36,7 +36,14 @@ from math import comb
 
 import numpy as np
 
-from .._validation import check_int_in_range, check_positive, check_positive_array
+from .._validation import (
+    as_real_array,
+    check_int_in_range,
+    check_keywords,
+    check_nonnegative,
+    check_positive,
+    check_positive_array,
+)
 from ..design.gains import MAX_LEVANT_ORDER, binomial_coefficients, levant_lambdas, super_twisting_gains
 from . import _kernels
 from .base import Observer
@@ -139,6 +146,7 @@ class SuperTwisting(Observer):
     discretizations = ("implicit", "euler")
     name = "super-twisting"
 
+    @check_keywords
     def __init__(self, dt: float, lipschitz=None, *, k1=None, k2=None, discretization: str | None = None):
         super().__init__(dt, 1, discretization)
         if lipschitz is None and (k1 is None or k2 is None):
@@ -200,16 +208,34 @@ class Levant(Observer):
     discretizations = ("taylor", "euler", "semi-implicit", "matching")
     name = "levant"
 
+    @check_keywords
     def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, discretization: str | None = None,
                  p1=None, mu: float = 0.0):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
         super().__init__(dt, order, discretization)
         self.lipschitz = lipschitz
-        self._per_channel("lipschitz", lipschitz, np.shape(lipschitz))  # validate now, not at reset
+        check_positive_array("lipschitz", lipschitz)  # validate now, not at reset
+        eigmap = self.discretization in ("semi-implicit", "matching")
+        if p1 is not None:
+            if not eigmap:  # the Taylor and Euler steps have no eigenvalue map: a p1 would be silently ignored
+                raise ValueError("expected p1 only with discretization 'semi-implicit' or 'matching', actual "
+                                 f"value: p1={p1!r} with discretization {self.discretization!r}")
+            check_positive_array("p1", p1)
         self.p1 = p1
-        if mu < 0 or not np.isfinite(mu):
-            raise ValueError(f"expected mu >= 0, actual value: {mu!r}")
-        self.mu = float(mu)
+        self.mu = check_nonnegative("mu", mu)
+        if eigmap:
+            try:
+                with np.errstate(all="ignore"):
+                    finite = np.isfinite(eigenvalue_mapping_vectors(order + 1, self.dt)).all()
+            except np.linalg.LinAlgError:  # dt^order underflows: a singular observability matrix
+                finite = False
+            if not finite:
+                raise ValueError(f"expected dt giving a finite eigenvalue mapping (dt^{order} representable), actual "
+                                 f"value: {self.dt!r}")
+        if self.mu != 0.0 and not eigmap:
+            raise ValueError("expected mu only with discretization 'semi-implicit' or 'matching' (the uniform part "
+                             f"of Wetzlinger, Reichhartinger and Horn's observer), actual value: mu={mu!r} with "
+                             f"discretization {self.discretization!r}")
 
     @property
     def _kernel(self):
@@ -258,6 +284,7 @@ class URED(Observer):
     discretizations = ("euler",)
     name = "ured"
 
+    @check_keywords
     def __init__(self, dt: float, lipschitz=1.0, *, k1=None, k2=None, beta: float = 1.0,
                  discretization: str | None = None):
         super().__init__(dt, 1, discretization)
@@ -319,6 +346,7 @@ class UniformLevant(Observer):
     discretizations = ("euler", "taylor")
     name = "uniform-levant"
 
+    @check_keywords
     def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, alpha: float = 1.0, k=None,
                  discretization: str | None = None):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
@@ -327,9 +355,9 @@ class UniformLevant(Observer):
         self.lipschitz = lipschitz
         self.alpha = check_positive("alpha", alpha)
         if k is not None:
-            k = np.asarray(k, dtype=float)
-            if k.shape != (order + 1,):
-                raise ValueError(f"expected k with shape ({order + 1},), actual value: {k.shape}")
+            k = as_real_array("k", k)
+            if k.shape != (order + 1,) or not np.isfinite(k).all():
+                raise ValueError(f"expected finite k with shape ({order + 1},), actual value: {k!r}")
             roots = np.roots(np.concatenate([[1.0], k]))
             if np.any(roots.real >= 0):
                 raise ValueError(f"expected k making s^n + k_1 s^(n-1) + ... + k_n Hurwitz, actual value: roots "

@@ -42,7 +42,16 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from .._validation import DivergenceError, check_choice, check_int_in_range, check_positive
+from .._validation import (
+    DivergenceError,
+    as_real_array,
+    check_choice,
+    check_int_in_range,
+    check_keywords,
+    check_nonnegative,
+    check_positive,
+    check_positive_array,
+)
 from .differentiators import eigenvalue_mapping_vectors, taylor_matrix
 from .base import as_measurement, expand_mask
 
@@ -220,17 +229,19 @@ class DiscreteTimeHOSM:
     #: :math:`z^*` of (62) and (70): the proven stability bounds on the discrete eigenvalue
     PROVEN_Z_BOUND = {2: 1.0 / np.sqrt(2.0), 3: 0.498582}
 
+    @check_keywords
     def __init__(self, n: int, dt: float, p1, mu: float = 1.0, mapping: str = "semi-implicit", *,
                  gamma: Sequence[Callable | None] | None = None, L_gamma=None):
         self.n = check_int_in_range("n", n, 2, 10)
         self.dt = check_positive("dt", dt)
         self.p1 = p1
-        np.asarray(self._check_p1(p1))
-        if isinstance(mu, bool) or not np.isscalar(mu) or not np.isfinite(mu) or mu < 0:
-            raise ValueError(f"expected mu >= 0, actual value: {mu!r}")
-        self.mu = float(mu)
+        self._check_p1(p1)
+        self.mu = check_nonnegative("mu", mu)
         self.mapping = check_choice("mapping", mapping, MAPPINGS)
         if gamma is not None:
+            if isinstance(gamma, (str, bytes)) or not hasattr(gamma, "__iter__"):
+                raise TypeError(f"expected gamma to be a sequence of {self.n} callables or None, actual value: "
+                                f"{gamma!r}")
             gamma = list(gamma)
             if len(gamma) != self.n:
                 raise ValueError(f"expected gamma with {self.n} entries (callables or None), actual value: "
@@ -241,14 +252,21 @@ class DiscreteTimeHOSM:
             if L_gamma is None:
                 raise ValueError("expected L_gamma (saturation levels) with gamma, actual value: None")
         if L_gamma is not None:
-            L_gamma = np.asarray(L_gamma, dtype=float)
+            L_gamma = as_real_array("L_gamma", L_gamma)
             if L_gamma.shape != (self.n,) or np.any(np.isnan(L_gamma)) or np.any(L_gamma[1:] < 0):
                 raise ValueError(f"expected L_gamma of shape ({self.n},) with entries >= 0 (inf allowed), actual "
                                  f"value: {L_gamma!r}")
         self.gamma, self.L_gamma = gamma, L_gamma
-        self.A = taylor_matrix(self.n, self.dt)
-        self.B = input_matrix(self.n, self.dt)
-        self._V = eigenvalue_mapping_vectors(self.n, self.dt)  # (n + 1, n)
+        with np.errstate(all="ignore"):  # an overflow is reported below
+            self.A = taylor_matrix(self.n, self.dt)
+            self.B = input_matrix(self.n, self.dt)
+            try:
+                self._V = eigenvalue_mapping_vectors(self.n, self.dt)  # (n + 1, n)
+            except np.linalg.LinAlgError:  # dt^(n-1) underflows: a singular observability matrix
+                self._V = np.full((self.n + 1, self.n), np.nan)
+        if not (np.isfinite(self.A).all() and np.isfinite(self.B).all() and np.isfinite(self._V).all()):
+            raise ValueError(f"expected dt giving finite matrices (31), (32) and (35) (dt^n representable), actual "
+                             f"value: {self.dt!r}")
         self._shape: tuple[int, ...] | None = None
         self._x: np.ndarray | None = None
         self._p1: np.ndarray | None = None
@@ -258,23 +276,29 @@ class DiscreteTimeHOSM:
 
     @staticmethod
     def _check_p1(p1) -> np.ndarray:
-        try:
-            arr = np.asarray(p1, dtype=float)
-        except (TypeError, ValueError):
-            raise TypeError(f"expected p1 to be a number or an array of numbers, actual value: {p1!r}") from None
-        if np.any(~np.isfinite(arr)) or np.any(arr <= 0):
-            raise ValueError(f"expected p1 > 0 everywhere, actual value: {p1!r}")
-        return arr
+        return check_positive_array("p1", p1)
 
     # ---- pure maths -------------------------------------------------------------------------------------------
     def gain(self, z) -> np.ndarray:
         r""":math:`\tilde{\mathbf l}(z)` of (35) for an array ``z``; shape ``z.shape + (n,)`` (Horner in ``-z``)."""
-        z = np.asarray(z, dtype=float)[..., None]
+        z = as_real_array("z", z)
+        if not np.isfinite(z).all():
+            raise ValueError(f"expected finite eigenvalues z, actual value: {z!r}")
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = self._gain(z)
+        if not np.isfinite(out).all():
+            raise ValueError(f"expected eigenvalues z with a finite gain (|z| near 1 or below), actual value: {z!r}")
+        return out
+
+    def _gain(self, z: np.ndarray) -> np.ndarray:
+        """:meth:`gain` without the checks (the update checks the new state as a whole)."""
+        z = z[..., None]
         out = np.zeros(z.shape[:-1] + (self.n,))
         for j in range(self.n + 1):
             out = out * (-z) + self._V[j]
         return out
 
+    @check_keywords
     def stability_margin(self, p1: float | None = None) -> float | None:
         """:math:`z^* - z_{\\max}` of section 5 (positive: inside the proven region), ``None`` for ``n > 3``."""
         if self.n not in self.PROVEN_Z_BOUND:
@@ -291,12 +315,16 @@ class DiscreteTimeHOSM:
         for i, g in enumerate(self.gamma):
             if g is None:
                 continue
-            val = np.asarray(g(xi, u), dtype=float)
+            val = as_real_array(f"gamma[{i}](xi, u)", g(xi, u))
             try:
                 val = np.broadcast_to(val, xi.shape[:-1])
             except ValueError:
                 raise ValueError(f"expected gamma[{i}] to return shape {xi.shape[:-1]}, actual value: "
                                  f"{val.shape}") from None
+            if not np.isfinite(val).all():
+                bad = tuple(int(j) for j in np.argwhere(~np.isfinite(val))[0])
+                raise ValueError(f"expected gamma[{i}] to return finite values, actual value: {val[bad]!r} at "
+                                 f"channel {bad[-1]}")
             if i > 0:
                 val = np.clip(val, -self.L_gamma[i], self.L_gamma[i])
             out[..., i] = val
@@ -310,6 +338,7 @@ class DiscreteTimeHOSM:
             raise ValueError(f"expected finite measurements in {name}, actual value: {arr[bad]!r} at index {bad}")
         return arr
 
+    @check_keywords
     def reset(self, y0, xi0=None, mask=None) -> np.ndarray:
         r"""Start at :math:`\hat\xi_0` = ``xi0`` (shape ``(..., n_channels, n)``), default ``(y0, 0, ..., 0)``.
 
@@ -321,7 +350,7 @@ class DiscreteTimeHOSM:
             fresh = np.zeros(y0.shape + (self.n,))
             fresh[..., 0] = y0
         else:
-            fresh = np.array(xi0, dtype=float)
+            fresh = as_real_array("xi0", xi0, copy=True)
             if fresh.shape != y0.shape + (self.n,) or not np.all(np.isfinite(fresh)):
                 raise ValueError(f"expected finite xi0 with shape {y0.shape + (self.n,)}, actual value: "
                                  f"shape {fresh.shape}")
@@ -361,13 +390,19 @@ class DiscreteTimeHOSM:
         y = self._measurement(y, "y")
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
+        if u is not None:  # the model terms' input, in their own convention: only required real and finite
+            u = as_real_array("u", u)
+            if not np.isfinite(u).all():
+                bad = tuple(int(i) for i in np.argwhere(~np.isfinite(u))[0])
+                raise ValueError(f"expected finite inputs u, actual value: {u[bad]!r} at index {bad}")
         x = self._x
-        sigma = y - x[..., 0]  # sigma_{1,k}
-        z = eigenvalue_mapping(sigma, self.dt, self._p1, self.mu, self.n, self.mapping)
         xi = x.copy()
         xi[..., 0] = y  # gamma_i sees the measured xi_1 and the estimates of the others
         terms = self.model_terms(xi, u)
-        x_new = x @ self.A.T + terms @ self.B.T + self.gain(z) * sigma[..., None]  # (33)
+        with np.errstate(all="ignore"):  # an overflow is reported below as a divergence, the state kept
+            sigma = y - x[..., 0]  # sigma_{1,k}
+            z = eigenvalue_mapping(sigma, self.dt, self._p1, self.mu, self.n, self.mapping)
+            x_new = x @ self.A.T + terms @ self.B.T + self._gain(z) * sigma[..., None]  # (33)
         if not np.all(np.isfinite(x_new)):
             raise DivergenceError("expected a finite observer state, actual value: non-finite after update "
                                   f"(dt={self.dt}); the step was rejected and the previous state kept")
@@ -377,16 +412,30 @@ class DiscreteTimeHOSM:
         self.n_updates += 1
         return x_new.copy()
 
+    @check_keywords
     def run(self, Y, U=None) -> np.ndarray:
-        """Process ``Y`` of shape ``(T, ..., n_channels)`` (and ``U`` with leading ``T``); returns ``(T, ..., n)``."""
+        """Process ``Y`` of shape ``(T, ..., n_channels)`` (and ``U`` with leading ``T``); returns ``(T, ..., n)``.
+
+        All or nothing: if a sample is rejected, the observer keeps the state it had before the call.
+        """
         if self._x is None:
             raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
-        Y = np.asarray(Y, dtype=float)
-        if Y.shape[1:] != self._shape:
+        Y = as_real_array("Y", Y)
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        if U is not None:
+            U = as_real_array("U", U)
+            if U.ndim == 0 or U.shape[0] != Y.shape[0]:
+                raise ValueError(f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape "
+                                 f"{U.shape}")
+        saved = (self._x, self.output_error, self.eigenvalue, self.n_updates)
         out = np.empty(Y.shape + (self.n,))
-        for t in range(Y.shape[0]):
-            out[t] = self.update(Y[t], None if U is None else U[t])
+        try:
+            for t in range(Y.shape[0]):
+                out[t] = self.update(Y[t], None if U is None else U[t])
+        except BaseException:
+            self._x, self.output_error, self.eigenvalue, self.n_updates = saved
+            raise
         return out
 
     @property

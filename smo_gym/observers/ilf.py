@@ -55,7 +55,15 @@ from functools import lru_cache
 import numpy as np
 from scipy.linalg import expm
 
-from .._validation import DivergenceError, check_choice, check_int_in_range, check_positive
+from .._validation import (
+    DivergenceError,
+    as_real_array,
+    check_choice,
+    check_int_in_range,
+    check_keywords,
+    check_positive,
+    check_positive_array,
+)
 from ..design.ilf import BlockDecomposition, block_decomposition, ilf_degrees, ilf_gains
 from .base import Observer
 
@@ -231,6 +239,7 @@ class ILFObserver:
     (``u`` held over it) and returns :math:`\hat x_{k+1}`, shape ``(..., n)``.
     """
 
+    @check_keywords
     def __init__(self, A, C, L, mu: float, kind: str = "finite", *, dt: float, B=None,
                  decomposition: BlockDecomposition | None = None, rho_min: float = 1e-14, iterations: int = 60):
         self.kind = check_choice("kind", kind, ("finite", "fixed"))
@@ -242,29 +251,41 @@ class ILFObserver:
         self.dt = check_positive("dt", dt)
         self.rho_min = check_positive("rho_min", rho_min)
         self.iterations = check_int_in_range("iterations", iterations, 1, 200)
+        A = as_real_array("A", A)
+        if A.ndim != 2 or A.shape[0] != A.shape[1] or A.size == 0 or not np.isfinite(A).all():
+            raise ValueError(f"expected a finite square matrix A (n, n), actual value: {A!r}")
+        C = as_real_array("C", C)
+        if C.ndim not in (1, 2) or C.shape[-1] != A.shape[0] or C.size == 0 or not np.isfinite(C).all():
+            raise ValueError(f"expected a finite C with shape (k, {A.shape[0]}), actual value: {C!r}")
+        C = C.reshape(-1, A.shape[0])
         if decomposition is None:
-            decomposition = block_decomposition(A, C)
+            try:
+                decomposition = block_decomposition(A, C)
+            except np.linalg.LinAlgError as exc:
+                raise ValueError(f"expected A and C with a computable block decomposition, actual value: {exc}") \
+                    from None
         elif not isinstance(decomposition, BlockDecomposition):
             raise TypeError(f"expected a BlockDecomposition, actual value: {type(decomposition).__name__}")
         dec = decomposition
         self.decomposition = dec
-        A = np.asarray(A, dtype=float)
-        C = np.asarray(C, dtype=float).reshape(-1, A.shape[0])
         n, k = dec.n, dec.C0.shape[0]
         if A.shape != (n, n) or C.shape != (k, n):
             raise ValueError(f"expected A ({n}, {n}) and C ({k}, {n}) matching the decomposition, actual value: "
                              f"A {A.shape}, C {C.shape}")
-        try:
-            L = np.asarray(L, dtype=float)
-        except (TypeError, ValueError):
-            raise TypeError(f"expected L to be a real matrix, actual value: {L!r}") from None
+        L = as_real_array("L", L)
         if L.shape != (n, k) or not np.all(np.isfinite(L)):
             raise ValueError(f"expected a finite L with shape ({n}, {k}), actual value: shape {L.shape}")
         abscissa = float(np.max(np.linalg.eigvals(dec.A_tilde + L @ dec.C_tilde).real))
         if abscissa >= 0:
             raise ValueError(f"expected L with A_tilde + L C_tilde Hurwitz, actual value: spectral abscissa "
                              f"{abscissa:.3g}")
-        B = np.zeros((n, 0)) if B is None else np.asarray(B, dtype=float).reshape(n, -1)
+        if B is None:
+            B = np.zeros((n, 0))
+        else:
+            B = as_real_array("B", B)
+            if B.ndim not in (1, 2) or B.shape[0] != n or not np.isfinite(B).all():
+                raise ValueError(f"expected a finite B with shape ({n}, s), actual value: {B!r}")
+            B = B.reshape(n, -1)
         self.A, self.C, self.B, self.L = A, C, B, L
         h = self.dt
         self._Ad, self._Bd = _zoh(A, B, h)
@@ -276,6 +297,9 @@ class ILFObserver:
         self._Psi = np.linalg.inv(np.eye(n) - h * A) @ np.linalg.inv(dec.Phi)  # (I - hA)^-1 Phi^-1
         self._C0inv = np.linalg.inv(dec.C0)
         self._r = np.repeat(ilf_degrees(dec.m, self.mu), dec.block_sizes)
+        if not all(np.isfinite(M).all() for M in (self._Ad, self._Bd, self._Q, self._Psi)):
+            raise ValueError(f"expected A and dt with a finite discretization e^(A dt), actual value: dt={self.dt!r}, "
+                             f"spectral radius of A {float(np.max(np.abs(np.linalg.eigvals(A)))):.3g}")
         self._x: np.ndarray | None = None
         self.rho: np.ndarray | None = None
         self.n_updates = 0
@@ -290,6 +314,7 @@ class ILFObserver:
         return cls(A, C, design.L, design.mu, design.kind, dt=dt, B=B, decomposition=design.decomposition,
                    **kwargs)
 
+    @check_keywords
     def reset(self, x0_hat) -> np.ndarray:
         """Start at the estimate ``x0_hat`` (shape ``(..., n)``); returns a copy of it."""
         x0 = self._array(x0_hat, "x0_hat", self.n)
@@ -299,14 +324,14 @@ class ILFObserver:
         return x0.copy()
 
     def _array(self, value, name: str, width: int) -> np.ndarray:
-        try:
-            arr = np.array(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise TypeError(f"expected {name} to be an array of real numbers, actual value: {value!r}") from None
-        if arr.ndim == 0 or arr.shape[-1] != width:
-            raise ValueError(f"expected {name} with shape (..., {width}), actual value: shape {arr.shape}")
+        arr = as_real_array(name, value, copy=True)
+        if arr.ndim == 0 or arr.shape[-1] != width or arr.size == 0:
+            raise ValueError(f"expected {name} with shape (..., {width}) and no empty batch dimension, actual value: "
+                             f"shape {arr.shape}")
         if not np.all(np.isfinite(arr)):
-            raise ValueError(f"expected finite values in {name}, actual value: {arr!r}")
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+            raise ValueError(f"expected finite values in {name}, actual value: {arr[bad]!r} at channel {bad[-1]}"
+                             + (f" of batch element {bad[:-1]}" if len(bad) > 1 else ""))
         return arr
 
     def update(self, y, u=None) -> np.ndarray:
@@ -322,20 +347,25 @@ class ILFObserver:
             raise ValueError(f"expected y with shape {batch + (self.C.shape[0],)}, actual value: {y.shape}")
         s_dim = self.B.shape[1]
         x = self._x.reshape(-1, self.n)
-        x_pred = x @ self._Ad.T
         if u is not None:
             if s_dim == 0:
                 raise ValueError("expected u=None for an observer built without B, actual value: an input")
             u = self._array(u, "u", s_dim)
-            u = np.broadcast_to(u, batch + (s_dim,)).reshape(-1, s_dim)
-            x_pred = x_pred + u @ self._Bd.T
-        s_pred = (y.reshape(-1, y.shape[-1]) - x_pred @ self.C.T) @ self._C0inv.T
-        h = np.full(x.shape[0], self.dt)
-        s_new, rho = solve_implicit_output_error(s_pred, self._Q, self._QF, self._L, h, self._r, self.kind,
-                                                 rho_min=self.rho_min, iterations=self.iterations)
-        d = injection_weights(np.where(rho > 0, rho, 1.0), self._r, self.kind)
-        inj = d * (s_new @ self.L.T) - s_new @ self.decomposition.F.T  # (D L - F) s, in block coordinates
-        x_new = x_pred - self.dt * inj @ self._Psi.T
+            try:
+                u = np.broadcast_to(u, batch + (s_dim,)).reshape(-1, s_dim)
+            except ValueError:
+                raise ValueError(f"expected u with shape {batch + (s_dim,)}, actual value: {u.shape}") from None
+        with np.errstate(all="ignore"):  # an overflow is reported below as a divergence, the state kept
+            x_pred = x @ self._Ad.T
+            if u is not None:
+                x_pred = x_pred + u @ self._Bd.T
+            s_pred = (y.reshape(-1, y.shape[-1]) - x_pred @ self.C.T) @ self._C0inv.T
+            h = np.full(x.shape[0], self.dt)
+            s_new, rho = solve_implicit_output_error(s_pred, self._Q, self._QF, self._L, h, self._r, self.kind,
+                                                     rho_min=self.rho_min, iterations=self.iterations)
+            d = injection_weights(np.where(rho > 0, rho, 1.0), self._r, self.kind)
+            inj = d * (s_new @ self.L.T) - s_new @ self.decomposition.F.T  # (D L - F) s, in block coordinates
+            x_new = x_pred - self.dt * inj @ self._Psi.T
         if not np.all(np.isfinite(x_new)):
             raise DivergenceError("expected a finite observer state, actual value: non-finite after update "
                                   f"(dt={self.dt}); the previous state was kept")
@@ -353,7 +383,16 @@ class ILFObserver:
 
     def error_coordinates(self, x) -> np.ndarray:
         r""":math:`e = \Phi(x - \hat x)` for a true state ``x`` of shape ``(..., n)``."""
-        return (np.asarray(x, dtype=float) - self.estimate) @ self.decomposition.Phi.T
+        x = self._array(x, "x", self.n)
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                e = (x - self.estimate) @ self.decomposition.Phi.T
+        except ValueError:
+            raise ValueError(f"expected x with shape {self.estimate.shape}, actual value: {x.shape}") from None
+        if not np.isfinite(e).all():
+            raise ValueError(f"expected x close enough to the estimate for finite error coordinates, actual value: "
+                             f"{x!r}")
+        return e
 
     def __repr__(self) -> str:
         return f"ILFObserver(kind={self.kind!r}, mu={self.mu}, dt={self.dt}, n={self.n}, k={self.C.shape[0]})"
@@ -391,6 +430,12 @@ def _ilf_chain_kernel(state, y, params, new_state, out):
     bad = np.flatnonzero(~np.isfinite(y))
     if bad.size:
         return int(bad[0])
+    with np.errstate(all="ignore"):  # a non-finite new state is reported by the status, like the compiled kernels
+        return _ilf_chain_step(state, y, params, new_state, out)
+
+
+def _ilf_chain_step(state, y, params, new_state, out):
+    """The step of :func:`_ilf_chain_kernel` for a finite ``y``."""
     m = out.shape[-1]
     N = y.shape[0]
     h = params[:, 0] * params[:, 1]  # step in tau
@@ -419,8 +464,9 @@ def _ilf_chain_kernel(state, y, params, new_state, out):
     new_state[:, :m] = x_new
     new_state[:, m] = y - x_pred[:, 0]
     out.reshape(N, m)[:] = x_new * omega[:, None] ** j[None, :]
-    if not np.all(np.isfinite(new_state)):
-        return -2 - int(np.flatnonzero(~np.all(np.isfinite(new_state), axis=1))[0])
+    finite = np.isfinite(new_state).all(axis=1) & np.isfinite(out.reshape(N, m)).all(axis=1)
+    if not finite.all():
+        return -2 - int(np.flatnonzero(~finite)[0])
     return -1
 
 
@@ -470,6 +516,7 @@ class ILFDifferentiator(Observer):
     name = "ilf-finite"
     kind = "finite"
 
+    @check_keywords
     def __init__(self, dt: float, lipschitz=None, *, order: int = 1, mu: float | None = None,
                  alpha: float | None = None, rate=None, gain=None, rho_min: float = 1e-14,
                  discretization: str | None = None):
@@ -483,12 +530,21 @@ class ILFDifferentiator(Observer):
         self.alpha = None if self.kind == "finite" else (2.0 if alpha is None else check_positive("alpha", alpha))
         if lipschitz is None and rate is None:
             raise ValueError("expected lipschitz > 0 or rate > 0, actual value: both None")
+        for name, value in (("lipschitz", lipschitz), ("rate", rate)):
+            if value is not None:
+                check_positive_array(name, value)  # fail at construction, not at reset
         self.lipschitz, self.rate = lipschitz, rate
         if gain is None:
             gain = chain_gain(n, self.mu, self.kind, self.alpha)
-        gain = np.asarray(gain, dtype=float)
-        if gain.shape != (n,):
-            raise ValueError(f"expected gain with shape ({n},), actual value: {gain.shape}")
+        gain = as_real_array("gain", gain)
+        if gain.shape != (n,) or not np.isfinite(gain).all():
+            raise ValueError(f"expected a finite gain with shape ({n},), actual value: {gain!r}")
+        # the error dynamics of the chain (Phi = I, F = 0) are those of A_tilde + L C_tilde = N + L e_1^T: the
+        # design needs that matrix Hurwitz (a zero last gain, say, would leave the last derivative uncorrected)
+        abscissa = float(np.max(np.linalg.eigvals(np.eye(n, k=1) + np.outer(gain, np.eye(n)[0])).real))
+        if not abscissa < 0:
+            raise ValueError(f"expected a gain L with N + L e_1^T Hurwitz (L from smo_gym.design.ilf_gains), actual "
+                             f"value: {gain.tolist()}, spectral abscissa {abscissa:.3g}")
         self.gain = gain
         self.rho_min = check_positive("rho_min", rho_min)
 
@@ -511,12 +567,18 @@ class ILFDifferentiator(Observer):
         """Process ``Y`` of shape ``(T, ...)`` sample by sample (a Python loop over :meth:`update`)."""
         if self._state is None:
             raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
-        Y = np.asarray(Y, dtype=np.float64)
-        if Y.shape[1:] != self._shape:
+        Y = as_real_array("Y", Y)
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
         out = np.empty((Y.shape[0],) + self._estimate.shape)
-        for t in range(Y.shape[0]):
-            out[t] = self.update(np.ascontiguousarray(Y[t]))
+        saved = (self._state.copy(), self._estimate, self.n_updates)
+        try:
+            for t in range(Y.shape[0]):
+                out[t] = self.update(np.ascontiguousarray(Y[t]))
+        except BaseException:  # all or nothing, as Observer.run
+            state, self._estimate, self.n_updates = saved
+            self._state[...] = state
+            raise
         return out
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
-from .._validation import check_int_in_range, check_positive
+from .._validation import as_real_array, check_int_in_range, check_keywords, check_nonnegative, check_positive
 from ..design.gains import binomial_coefficients
 from . import _kernels
 from .base import Observer
@@ -51,6 +51,7 @@ class HighGain(Observer):
     discretizations = ("implicit", "euler")
     name = "high-gain"
 
+    @check_keywords
     def __init__(self, dt: float, gain: float, order: int = 1, *, coefficients=None,
                  discretization: str | None = None):
         order = check_int_in_range("order", order, 1, 9)
@@ -59,20 +60,23 @@ class HighGain(Observer):
         n = order + 1
         if coefficients is None:
             coefficients = binomial_coefficients(n)
-        coefficients = np.asarray(coefficients, dtype=float)
-        if coefficients.shape != (n,):
-            raise ValueError(f"expected coefficients with shape ({n},), actual value: {coefficients.shape}")
+        coefficients = as_real_array("coefficients", coefficients)
+        if coefficients.shape != (n,) or not np.isfinite(coefficients).all():
+            raise ValueError(f"expected finite coefficients with shape ({n},), actual value: {coefficients!r}")
         if np.any(np.roots(np.concatenate([[1.0], coefficients])).real >= 0):
             raise ValueError(f"expected coefficients of a Hurwitz polynomial, actual value: {coefficients}")
         self.coefficients = coefficients
+        self._discrete_row()  # fail at construction, not at reset, if the discrete matrices overflow
 
     @classmethod
+    @check_keywords
     def from_bounds(cls, dt: float, lipschitz: float, noise: float, order: int = 1, **kwargs) -> HighGain:
         r"""Gain balancing the two error terms of the first derivative: :math:`\ell = (L/\epsilon)^{1/(n)}`.
 
         ``lipschitz`` bounds :math:`|f^{(n)}|`, ``noise`` is the measurement noise amplitude.
         """
         L, eps = check_positive("lipschitz", lipschitz), check_positive("noise", noise)
+        order = check_int_in_range("order", order, 1, 9)
         return cls(dt, (L / eps) ** (1.0 / (order + 1)), order, **kwargs)
 
     def system_matrices(self) -> tuple[np.ndarray, np.ndarray]:
@@ -87,18 +91,30 @@ class HighGain(Observer):
     def _kernel(self):
         return _kernels.linear_kernel
 
-    def _channel_params(self, shape):
+    def _discrete_row(self) -> np.ndarray:
+        """The kernel's parameter row ``[F, g, R]`` of the chosen discretization (shared by every channel)."""
         n, dt = self.order + 1, self.dt
-        A, H = self.system_matrices()
-        if self.discretization == "implicit":
-            # (I - dt (A - H c^T)) x_k = x_{k-1} + dt H y_k
-            M = np.linalg.inv(np.eye(n) - dt * A)
-            F, g, R = M, dt * M @ H, np.eye(n)
-        else:
-            # predictor x_{k+1} = x_k + dt((N - H c^T) x_k + H y_k); report exp(-dt N) x_{k+1}
-            F, g = np.eye(n) + dt * A, dt * H
-            R = expm(-dt * np.eye(n, k=1))
-        row = np.concatenate([F.ravel(), g, R.ravel()])
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below, as a bad gain
+            A, H = self.system_matrices()
+            try:
+                if self.discretization == "implicit":
+                    # (I - dt (A - H c^T)) x_k = x_{k-1} + dt H y_k
+                    M = np.linalg.inv(np.eye(n) - dt * A)
+                    F, g, R = M, dt * M @ H, np.eye(n)
+                else:
+                    # predictor x_{k+1} = x_k + dt((N - H c^T) x_k + H y_k); report exp(-dt N) x_{k+1}
+                    F, g = np.eye(n) + dt * A, dt * H
+                    R = expm(-dt * np.eye(n, k=1))
+                row = np.concatenate([F.ravel(), g, R.ravel()])
+            except (np.linalg.LinAlgError, ValueError):
+                row = np.array([np.nan])
+        if not np.isfinite(row).all():
+            raise ValueError(f"expected gain, coefficients and dt giving finite injection gains k_i gain^i and a "
+                             f"finite discrete step, actual value: gain={self.gain!r}, dt={self.dt!r}")
+        return row
+
+    def _channel_params(self, shape):
+        row = self._discrete_row()
         return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
 
 
@@ -112,6 +128,7 @@ class FiniteDifference(Observer):
     discretizations = ("backward",)
     name = "finite-difference"
 
+    @check_keywords
     def __init__(self, dt: float, order: int = 1, *, discretization: str | None = None):
         super().__init__(dt, check_int_in_range("order", order, 1, 2), discretization)
 
@@ -155,15 +172,20 @@ class KalmanCA(Observer):
     discretizations = ("exact",)
     name = "kalman-ca"
 
+    @check_keywords
     def __init__(self, dt: float, process_noise: float, measurement_noise: float, *,
                  initial_std: tuple[float, float] = (10.0, 100.0), discretization: str | None = None):
         super().__init__(dt, 2, discretization)
         self.process_noise = check_positive("process_noise", process_noise)
         self.measurement_noise = check_positive("measurement_noise", measurement_noise)
+        if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:
+            raise TypeError("expected initial_std to be a pair (velocity std, acceleration std), actual value: "
+                            f"{initial_std!r}")
         self.initial_std = (check_positive("initial_std[0]", initial_std[0]),
                             check_positive("initial_std[1]", initial_std[1]))
 
     @classmethod
+    @check_keywords
     def from_bounds(cls, dt: float, noise_std: float, accel_bound: float, *, resolution: float = 0.0,
                     **kwargs) -> KalmanCA:
         r"""Set ``q`` and ``r`` from a noise level and an acceleration bound.
@@ -172,13 +194,17 @@ class KalmanCA(Observer):
         ``q = accel_bound^2 / dt``: the acceleration may change by about its whole bound within one sample, the
         regime of contacts and bang-bang actions in MuJoCo. Smoother signals want a smaller ``q``.
         """
-        noise_std = float(noise_std)
-        if noise_std < 0 or resolution < 0:
-            raise ValueError(f"expected noise_std >= 0 and resolution >= 0, actual value: {noise_std}, {resolution}")
-        r = noise_std**2 + resolution**2 / 12.0
+        noise_std = np.float64(check_nonnegative("noise_std", noise_std))
+        resolution = np.float64(check_nonnegative("resolution", resolution))
+        accel_bound, dt = np.float64(check_positive("accel_bound", accel_bound)), check_positive("dt", dt)
+        with np.errstate(over="ignore"):  # NumPy floats: an overflow is inf (reported below), not OverflowError
+            r = float(noise_std**2 + resolution**2 / 12.0)
+            q = float(accel_bound**2 / dt)
         if r <= 0:
             raise ValueError("expected noise_std > 0 or resolution > 0, actual value: both zero")
-        q = check_positive("accel_bound", accel_bound) ** 2 / check_positive("dt", dt)
+        if not (np.isfinite(r) and np.isfinite(q)):
+            raise ValueError(f"expected noise_std, resolution and accel_bound whose squares are finite, actual value: "
+                             f"noise_std={noise_std!r}, resolution={resolution!r}, accel_bound={accel_bound!r}")
         return cls(dt, q, r, **kwargs)
 
     @property

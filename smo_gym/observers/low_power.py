@@ -77,7 +77,7 @@ import numpy as np
 from numba import njit
 
 from .._numba_cache import drop_stale
-from .._validation import check_choice, check_int_in_range, check_positive
+from .._validation import as_real_array, check_choice, check_int_in_range, check_keywords, check_positive
 from . import _kernels
 from .base import Observer
 
@@ -236,7 +236,7 @@ def low_power_kernel(state, y, params, new_state, out):
     N = 2 * n - 1
     for c in range(y.shape[0]):
         new_state[c, N] = low_power_channel_step(state[c], y[c], params[c], n, new_state[c], out[c])
-    return _kernels._check_state(new_state)
+    return _kernels._check_state(new_state, out)
 
 
 @njit(cache=CACHE, error_model="numpy")
@@ -288,6 +288,7 @@ class LowPowerHighGain(Observer):
     discretizations = ("implicit",)
     name = "low-power-high-gain"
 
+    @check_keywords
     def __init__(self, dt: float, gain: float, order: int = 1, *, bounds=None, coefficients=None,
                  filter_coefficient: float | None = None, readout: str = "peaking-free",
                  discretization: str | None = None):
@@ -298,7 +299,7 @@ class LowPowerHighGain(Observer):
         self.readout = check_choice("readout", readout, ("peaking-free", "low-power"))
         K, k_n = low_power_default_coefficients(n)
         if coefficients is not None:
-            K = np.asarray(coefficients, dtype=float)
+            K = as_real_array("coefficients", coefficients)
             if K.shape != (n - 1, 2) or not np.all(np.isfinite(K)):
                 raise ValueError(f"expected coefficients with shape ({n - 1}, 2), actual value: {coefficients!r}")
         if filter_coefficient is not None:
@@ -313,7 +314,7 @@ class LowPowerHighGain(Observer):
         if bounds is None:
             self.bounds = np.full(order, np.inf)
         else:
-            b = np.asarray(bounds, dtype=float)
+            b = as_real_array("bounds", bounds)
             try:
                 b = np.broadcast_to(b, (order,)).astype(float)
             except ValueError:
@@ -322,6 +323,7 @@ class LowPowerHighGain(Observer):
             if np.any(~(b > 0)) or np.any(np.isnan(b)):
                 raise ValueError(f"expected bounds > 0, actual value: {bounds!r}")
             self.bounds = b
+        self._channel_params((1,))  # fail at construction, not at reset, if the discrete matrices overflow
 
     def system_matrices(self) -> dict[str, np.ndarray]:
         """The continuous-time matrices at this ``gain`` (see :func:`low_power_matrices`)."""
@@ -374,16 +376,27 @@ class LowPowerHighGain(Observer):
         n = self.order + 1
         N = 2 * n - 1
         h = self.dt
-        M = self.system_matrices()
-        T = self.state_scale()
-        cols = 2 * np.arange(n - 1) + 1  # xi_{j,2}, the saturated interconnection signals
-        F = M["F"] * T[None, :] / T[:, None]  # T^-1 F T
-        Aimp = np.eye(N) - h * F
-        Minv = np.linalg.inv(Aimp)
-        b = Minv @ (h * M["G"] / T)
-        fc = h * M["Fc"] / T[:, None] * T[cols][None, :]  # column j acts on zeta_{j,2} = xi_{j,2} / T
-        levels = self.bounds / T[cols]  # r_j in zeta units
-        R = (M["R_peaking_free"] if self.readout == "peaking-free" else M["R_low_power"]) * T[None, :]
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # overflow is reported below
+            try:
+                M = self.system_matrices()
+            except OverflowError:  # ell**2 of a Python float
+                M = {k: np.full_like(v, np.nan) for k, v in low_power_matrices(n, 1.0, self.coefficients,
+                                                                              self.filter_coefficient).items()}
+            T = self.state_scale()
+            cols = 2 * np.arange(n - 1) + 1  # xi_{j,2}, the saturated interconnection signals
+            F = M["F"] * T[None, :] / T[:, None]  # T^-1 F T
+            Aimp = np.eye(N) - h * F
+            try:
+                Minv = np.linalg.inv(Aimp)
+            except (np.linalg.LinAlgError, ValueError):
+                Minv = np.full((N, N), np.nan)
+            b = Minv @ (h * M["G"] / T)
+            fc = h * M["Fc"] / T[:, None] * T[cols][None, :]  # column j acts on zeta_{j,2} = xi_{j,2} / T
+            levels = self.bounds / T[cols]  # r_j in zeta units (inf: no saturation)
+            R = (M["R_peaking_free"] if self.readout == "peaking-free" else M["R_low_power"]) * T[None, :]
+        if not all(np.isfinite(a).all() for a in (Minv, b, Aimp, fc, R)) or np.isnan(levels).any():
+            raise ValueError(f"expected gain and dt giving a finite implicit step (gain^(2n-2) and gain * dt "
+                             f"representable), actual value: gain={self.gain!r}, dt={self.dt!r}, order={self.order}")
         row = np.concatenate([[h], Minv.ravel(), b, Aimp.ravel(), fc.ravel(), levels, R.ravel()])
         return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
 

@@ -54,9 +54,16 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .._validation import check_int_in_range, check_positive
+from .._validation import (
+    as_real_array,
+    check_int_in_range,
+    check_keywords,
+    check_mask,
+    check_positive,
+)
 from ..design.gains import super_twisting_gains
 from . import _mechanical_kernels as _mk
+from ._kernels import _first_nonfinite
 from .base import Observer
 
 __all__ = ["CoordinateTransform", "Dynamics", "DissipativeSuperTwisting", "MechanicalSuperTwisting"]
@@ -92,7 +99,29 @@ def _check_dynamics(dynamics) -> int:
     if not isinstance(dynamics, Dynamics):
         raise TypeError("expected a dynamics object with n, acceleration(q, v, u) and inertia(q), actual value: "
                         f"{type(dynamics).__name__}")
-    return check_int_in_range("dynamics.n", int(dynamics.n), 1, 10_000)
+    return check_int_in_range("dynamics.n", dynamics.n, 1, 10_000)
+
+
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _checked_input(u):
+    """The input ``u`` of ``update`` (any shape: the dynamics object's convention) after checking it is real and
+    finite, so that a NaN control is reported here rather than silently zeroed by the simulator (MuJoCo does)."""
+    if u is None:
+        return None
+    if type(u) is not np.ndarray or u.dtype is not _FLOAT64:
+        u = as_real_array("u", u)
+    # the compiled scan costs ~0.2 us; a NumPy reduction (np.isfinite(u).all()) ~2 us, on the physics-rate path
+    if _first_nonfinite(u if u.ndim == 1 else u.reshape(-1)) >= 0:
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(u))[0])
+        raise ValueError(f"expected finite inputs u, actual value: {u[bad]!r} at index {bad}")
+    return u
+
+
+def _model_term_error(shape, value) -> ValueError:
+    return ValueError(f"expected dynamics.acceleration to return an array of shape {shape}, actual value: "
+                      f"{type(value).__name__} of shape {np.shape(value) if hasattr(value, 'shape') else '?'}")
 
 
 def _signed_root(e: np.ndarray) -> np.ndarray:
@@ -106,6 +135,8 @@ class _ModelBasedSuperTwisting(Observer):
 
     def __init__(self, dt, dynamics, *, accel_bound, discretization, euler_substeps, disturbance_time_constant):
         super().__init__(dt, 1, discretization)
+        if not self.dt * self.dt > 0.0:  # the prediction divides by h^2 (model_substeps) and scales by it
+            raise ValueError(f"expected dt with a representable square dt**2 > 0, actual value: {self.dt!r}")
         self.dynamics = dynamics
         self.n = _check_dynamics(dynamics)
         self.accel_bound = None if accel_bound is None else self._per_channel("accel_bound", accel_bound, (self.n,))
@@ -178,17 +209,29 @@ class _ModelBasedSuperTwisting(Observer):
         state[:, _mk.X1_PREV] = np.reshape(self._measure(y0s), -1)
         return state
 
+    @check_keywords
     def reset(self, y0, mask=None, v0=None) -> np.ndarray:
         """Start at the measurement ``y0`` (shape ``(..., n)``) with velocity estimate ``v0`` (default zero).
 
-        ``mask`` restarts only some batch elements (see :meth:`Observer.reset`).
+        ``mask`` restarts only some batch elements (see :meth:`Observer.reset`). ``v0`` must be finite and
+        broadcast to the shape of ``y0``; anything rejected leaves the observer as it was.
         """
         y0 = self._as_measurement(y0, "y0")
-        self._v0 = None if v0 is None else np.asarray(v0, dtype=np.float64)
-        if mask is None:
-            self._shape = y0.shape
-        out = super().reset(y0, mask)
-        self._v0 = None
+        if v0 is not None:
+            v0 = as_real_array("v0", v0)
+            try:
+                np.broadcast_to(v0, y0.shape)
+            except ValueError:
+                raise ValueError(f"expected v0 broadcastable to the shape of y0 {y0.shape}, actual value: shape "
+                                 f"{v0.shape}") from None
+            if not np.isfinite(v0).all():
+                bad = tuple(int(i) for i in np.argwhere(~np.isfinite(v0))[0])
+                raise ValueError(f"expected a finite v0, actual value: {v0[bad]!r} at index {bad}")
+        self._v0 = v0
+        try:
+            super().reset(y0, mask)
+        finally:
+            self._v0 = None
         if mask is None:
             self._y_prev = np.ascontiguousarray(y0, dtype=np.float64).copy()
             self._mb_out_shape = self._shape + (2,)
@@ -196,7 +239,7 @@ class _ModelBasedSuperTwisting(Observer):
                             and type(self)._model_term is MechanicalSuperTwisting._model_term)
             self._model_call = None
         else:
-            mk = np.asarray(mask, dtype=bool)
+            mk = check_mask("mask", mask)
             if mk.shape == self._shape[:-1]:
                 mk = np.broadcast_to(mk[..., None], self._shape)
             self._y_prev[mk] = y0[mk]
@@ -228,22 +271,32 @@ class _ModelBasedSuperTwisting(Observer):
             y = np.ascontiguousarray(self._as_measurement(y, "y"))
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
-        # model term at the previous sample (explicit), optionally saturated (paper 003, eq. (33))
+        u = _checked_input(u)
+        # model term at the previous sample (explicit), optionally saturated (Wetzlinger et al., eq. (33)): the
+        # kernel reads it from the row it writes (the scratch), so a rejected step leaves the state as it was
+        scratch = self._scratch
         if self._direct:  # one environment, plain model term: the hot path of rate="physics"
-            state[:, _mk.MODEL] = self.dynamics.acceleration(self._y_prev, state[:, 1], u)
+            m = self.dynamics.acceleration(self._y_prev, state[:, 1], u)
+            try:
+                scratch[:, _mk.MODEL] = m
+            except (ValueError, TypeError):
+                raise _model_term_error(self._shape, m) from None
         elif self.model_substeps == 1:
             m = self._model_term(self._y_prev, state, u)  # saturated in the kernel
-            state[:, _mk.MODEL] = m if m.ndim == 1 else m.reshape(-1)
+            try:
+                scratch[:, _mk.MODEL] = np.reshape(m, -1)
+            except (ValueError, TypeError):
+                raise _model_term_error(self._shape, m) from None
         else:
             m, m_pos = self._substep_prediction(self._y_prev, state, u)
-            state[:, _mk.MODEL] = m.reshape(-1)
-            state[:, _mk.MODEL_POS] = m_pos.reshape(-1)
+            scratch[:, _mk.MODEL] = m.reshape(-1)
+            scratch[:, _mk.MODEL_POS] = m_pos.reshape(-1)
         X = self._measure(y) if self._transformed else y
         out = np.empty(self._mb_out_shape)
         call = self._model_call
         if call is None:
             call = self._bind_model_kernel(state, X, out)
-        status = call(state, X, self._params, self._scratch, out)
+        status = call(state, X, self._params, scratch, out)
         if status != -1:
             if status >= 0:
                 self._raise_nonfinite(y, "y")
@@ -281,17 +334,37 @@ class _ModelBasedSuperTwisting(Observer):
         """The x2 column as an array of the measurement shape (a view for a single environment)."""
         return state[:, 1] if len(self._shape) == 1 else state[:, 1].reshape(self._shape)
 
+    @check_keywords
     def run(self, Y, U=None) -> np.ndarray:
-        """Process a recorded block ``Y`` (T, ..., n) with inputs ``U`` (T, ...) sample by sample."""
+        """Process a recorded block ``Y`` (T, ..., n) with inputs ``U`` (T, ...) sample by sample.
+
+        All or nothing, as :meth:`Observer.run`: if a sample is rejected (non-finite ``Y`` or ``U``, a diverging
+        state), the observer keeps the state it had before the call.
+        """
         self._require_reset()
-        Y = np.asarray(Y, dtype=np.float64)
+        Y = as_real_array("Y", Y)
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
+            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        if U is not None:
+            U = as_real_array("U", U)
+            if U.ndim == 0 or U.shape[0] != Y.shape[0]:
+                raise ValueError(f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape "
+                                 f"{U.shape}")
+        saved = (self._state.copy(), self._y_prev.copy(), self._estimate, self.n_updates)
         out = np.empty((Y.shape[0],) + self._shape + (2,))
-        for t in range(Y.shape[0]):
-            out[t] = self.update(Y[t], None if U is None else U[t])
+        try:
+            for t in range(Y.shape[0]):
+                out[t] = self.update(Y[t], None if U is None else U[t])
+        except BaseException:
+            state, y_prev, self._estimate, self.n_updates = saved
+            self._state[...] = state  # in place: a bound entry point keeps its arrays
+            self._y_prev[...] = y_prev
+            raise
         return out
 
-    def step(self, state, y):  # pragma: no cover - the model term needs the dynamics and the input
-        raise NotImplementedError("model-based observers are stepped with update(y, u)")
+    def step(self, state, y):
+        raise NotImplementedError("expected update(y, u) for a model-based observer (its model term needs the "
+                                  "dynamics and the input), actual value: step(state, y)")
 
     # ---- disturbance estimate -----------------------------------------------------------------------------
     def _injection_scale(self) -> np.ndarray:
@@ -381,6 +454,7 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
 
     name = "mechanical-super-twisting"
 
+    @check_keywords
     def __init__(self, dt: float, dynamics: Dynamics, lipschitz=None, *, k1=None, k2=None, accel_bound=None,
                  discretization: str | None = None, euler_substeps: int | None = None, model_substeps: int = 1,
                  disturbance_time_constant: float = 0.02):
@@ -415,7 +489,10 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
         v = x2.copy()
         dpos = np.zeros(self._shape)
         for _ in range(ns):
-            a = np.array(self.dynamics.acceleration(q, v, u), dtype=np.float64)
+            a = self.dynamics.acceleration(q, v, u)
+            if np.shape(a) != self._shape:
+                raise _model_term_error(self._shape, a)
+            a = as_real_array("dynamics.acceleration", a, copy=True)
             if self.accel_bound is not None:
                 np.clip(a, self._neg_bound, self.accel_bound, out=a)
             v = v + hs * a
@@ -453,33 +530,50 @@ class CoordinateTransform:
     grid : int
     """
 
+    @check_keywords
     def __init__(self, alpha: Callable[[np.ndarray], np.ndarray], lower, upper, reference=None, grid: int = 1001):
-        lower = np.atleast_1d(np.asarray(lower, dtype=np.float64))
-        upper = np.atleast_1d(np.asarray(upper, dtype=np.float64))
-        if lower.shape != upper.shape or lower.ndim != 1 or np.any(~(upper > lower)):
-            raise ValueError(f"expected lower < upper of equal shape (n,), actual value: {lower!r}, {upper!r}")
+        if not callable(alpha):
+            raise TypeError(f"expected alpha to be a callable alpha(Y) -> A, actual value: {alpha!r}")
+        lower = np.atleast_1d(as_real_array("lower", lower))
+        upper = np.atleast_1d(as_real_array("upper", upper))
+        if (lower.shape != upper.shape or lower.ndim != 1 or lower.size == 0 or np.any(~(upper > lower))
+                or not np.isfinite(upper - lower).all()):
+            raise ValueError(f"expected finite lower < upper of equal shape (n,), actual value: {lower!r}, {upper!r}")
         n = lower.size
-        a = (lower + upper) / 2 if reference is None else np.broadcast_to(np.asarray(reference, float), (n,))
-        if np.any((a < lower) | (a > upper)):
+        a = (lower + upper) / 2 if reference is None else as_real_array("reference", reference)
+        try:
+            a = np.broadcast_to(a, (n,))
+        except ValueError:
+            raise ValueError(f"expected reference of shape ({n},), actual value: shape {a.shape}") from None
+        if np.any(~((a >= lower) & (a <= upper))):
             raise ValueError(f"expected lower <= reference <= upper, actual value: {a!r}")
         G = check_int_in_range("grid", grid, 11, 10**7)
         Y = lower + (upper - lower) * np.linspace(0.0, 1.0, G)[:, None]
-        A = np.asarray(alpha(Y), dtype=np.float64)
+        A = as_real_array("alpha(Y)", alpha(Y))
         if A.shape != Y.shape or not np.all(np.isfinite(A)):
             raise ValueError(f"expected alpha(Y) finite with shape {Y.shape}, actual value: shape {A.shape}")
         dy = (upper - lower) / (G - 1)
-        cum = np.vstack([np.zeros(n), np.cumsum((A[1:] + A[:-1]) / 2 * dy, axis=0)])  # int_lower^y alpha
-        cum_a = np.array([np.interp(a[i], Y[:, i], cum[:, i]) for i in range(n)])
-        ups = np.exp(-(cum - cum_a))
-        T = np.vstack([np.zeros(n), np.cumsum((ups[1:] + ups[:-1]) / 2 * dy, axis=0)])
-        T_a = np.array([np.interp(a[i], Y[:, i], T[:, i]) for i in range(n)])
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflowing transform is reported below
+            cum = np.vstack([np.zeros(n), np.cumsum((A[1:] + A[:-1]) / 2 * dy, axis=0)])  # int_lower^y alpha
+            cum_a = np.array([np.interp(a[i], Y[:, i], cum[:, i]) for i in range(n)])
+            ups = np.exp(-(cum - cum_a))
+            T = np.vstack([np.zeros(n), np.cumsum((ups[1:] + ups[:-1]) / 2 * dy, axis=0)])
+            T_a = np.array([np.interp(a[i], Y[:, i], T[:, i]) for i in range(n)])
+        if not (np.isfinite(T - T_a).all() and np.all(ups > 0)):
+            raise ValueError("expected alpha and a range whose transform Upsilon = exp(-int alpha) and T_1 are "
+                             "finite and positive, actual value: it overflows (a smaller range or alpha)")
         self.n, self.lower, self.upper, self.reference = n, lower, upper, a
         self.grid_y, self.grid_alpha, self.grid_upsilon, self.grid_T = Y, A, ups, T - T_a
         #: :math:`L_\alpha = \max|\int_a^y \alpha|` over the range (assumption A-2)
         self.l_alpha = float(np.max(np.abs(cum - cum_a)))
 
     def _per_channel(self, fn, y):
-        y = np.asarray(y, dtype=np.float64)
+        y = as_real_array("y", y)
+        if y.ndim == 0 or y.shape[-1] != self.n:
+            raise ValueError(f"expected y with shape (..., {self.n}), actual value: shape {y.shape}")
+        if not np.isfinite(y).all():
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(y))[0])
+            raise ValueError(f"expected finite coordinates, actual value: {y[bad]!r} at channel {bad[-1]}")
         out = np.empty_like(y)
         for i in range(self.n):
             out[..., i] = fn(i, y[..., i])
@@ -513,12 +607,26 @@ class CoordinateTransform:
 
     def forward(self, q, v) -> tuple[np.ndarray, np.ndarray]:
         """``T(q, v) = (T1(q), Upsilon(q) v)``."""
-        return self.position(q), self.upsilon(q) * np.asarray(v, dtype=np.float64)
+        return self.position(q), _finite_product("v", as_real_array("v", v), self.upsilon(q))
 
     def inverse(self, x1, x2) -> tuple[np.ndarray, np.ndarray]:
         """``T^-1(x1, x2) = (q, x2 / Upsilon(q))``."""
         q = self.position_inverse(x1)
-        return q, np.asarray(x2, dtype=np.float64) / self.upsilon(q)
+        return q, _finite_product("x2", as_real_array("x2", x2), 1.0 / self.upsilon(q))
+
+
+def _finite_product(name: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a * b`` (broadcast), or ``ValueError`` if ``a`` is not finite or does not broadcast with ``b``."""
+    if not np.isfinite(a).all():
+        raise ValueError(f"expected finite {name}, actual value: {a!r}")
+    try:
+        with np.errstate(over="ignore"):
+            out = a * b
+    except ValueError:
+        raise ValueError(f"expected {name} with shape {b.shape}, actual value: {a.shape}") from None
+    if not np.isfinite(out).all():
+        raise ValueError(f"expected {name} small enough for a finite transformed value, actual value: {a!r}")
+    return out
 
 
 def _gain_value(gains, key):
@@ -576,6 +684,7 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
 
     name = "dissipative-super-twisting"
 
+    @check_keywords
     def __init__(self, dt: float, dynamics: Dynamics, transform: CoordinateTransform, gains, *,
                  accel_bound=None, discretization: str | None = None, euler_substeps: int | None = None,
                  disturbance_time_constant: float = 0.02):
@@ -588,9 +697,13 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
         self.k1 = self._per_channel("k1", _gain_value(gains, "k1"), shape)
         self.k2 = self._per_channel("k2", _gain_value(gains, "k2"), shape)
         self.mu1 = self._per_channel("mu1", _gain_value(gains, "mu1"), shape)
-        mu2 = np.broadcast_to(np.asarray(_gain_value(gains, "mu2"), dtype=float), shape)
-        k3 = np.broadcast_to(np.asarray(_gain_value(gains, "k3"), dtype=float), shape)
-        if np.any(mu2 < 0) or not np.all(np.isfinite(mu2)) or not np.all(np.isfinite(k3)):
+        try:
+            mu2 = np.broadcast_to(as_real_array("mu2", _gain_value(gains, "mu2")), shape)
+            k3 = np.broadcast_to(as_real_array("k3", _gain_value(gains, "k3")), shape)
+        except ValueError:
+            raise ValueError(f"expected mu2 and k3 broadcastable to ({self.n},), actual value: "
+                             f"{_gain_value(gains, 'mu2')!r}, {_gain_value(gains, 'k3')!r}") from None
+        if np.any(~(mu2 >= 0)) or not np.all(np.isfinite(mu2)) or not np.all(np.isfinite(k3)):
             raise ValueError(f"expected mu2 >= 0 and finite k3, actual value: mu2={mu2!r}, k3={k3!r}")
         self.mu2, self.k3 = mu2.copy(), k3.copy()
 
@@ -613,8 +726,10 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
         ups = self.transform.upsilon(y_prev)
         phi1 = self.mu1 * _signed_root(e) + self.mu2 * e
         v = (x2 - self.k3 * phi1) / ups
-        f = np.asarray(self.dynamics.acceleration(y_prev, v, u), dtype=np.float64)
-        return ups * (f - self.transform.alpha(y_prev) * v * v)
+        f = self.dynamics.acceleration(y_prev, v, u)
+        if np.shape(f) != self._shape:
+            raise _model_term_error(self._shape, f)
+        return ups * (as_real_array("dynamics.acceleration", f) - self.transform.alpha(y_prev) * v * v)
 
     def _injection_scale(self):
         return 1.0 / self.transform.upsilon(self._y_prev)

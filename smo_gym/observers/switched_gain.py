@@ -55,7 +55,7 @@ from numba import njit
 from scipy.optimize import brentq
 
 from .._numba_cache import drop_stale
-from .._validation import check_int_in_range, check_positive
+from .._validation import as_real_array, check_bool, check_int_in_range, check_keywords, check_positive
 from . import _kernels
 from .base import Observer
 
@@ -260,7 +260,7 @@ def switched_gain_kernel(state, y, params, new_state, out):
     m = out.shape[1]
     for c in range(y.shape[0]):
         new_state[c, m] = switched_gain_channel_step(state[c], y[c], params[c], m, new_state[c], out[c])
-    return _kernels._check_state(new_state)
+    return _kernels._check_state(new_state, out)
 
 
 @njit(cache=CACHE, error_model="numpy")
@@ -341,6 +341,7 @@ class SwitchedGain(Observer):
     discretizations = ("implicit",)
     name = "switched-gain"
 
+    @check_keywords
     def __init__(self, dt: float, order: int = 1, *, gain=None, P=None, kappa: float = 1.0, rho_d: float = 1.0,
                  rho_v: float = 1.0, q: float = 2.0, alpha: float | None = None, mu0: float | None = None,
                  disturbance: float | None = None, noise: float | None = None, mu_max: float | None = None,
@@ -363,9 +364,7 @@ class SwitchedGain(Observer):
             check_positive("mu0", mu0)
             if mu0 < 1.0:
                 raise ValueError(f"expected mu0 >= 1, actual value: {mu0!r}")
-        if not isinstance(supervise, (bool, np.bool_)):
-            raise TypeError(f"expected supervise to be a bool, actual value: {supervise!r}")
-        self.supervise = bool(supervise)
+        self.supervise = check_bool("supervise", supervise)
         self.certificate = None
         if gain is None:
             if P is not None:
@@ -374,7 +373,7 @@ class SwitchedGain(Observer):
 
             l, P, self.certificate = switched_gain_lmi(n, self.kappa, self.rho_d, self.rho_v)
         else:
-            l = np.asarray(gain, dtype=float)
+            l = as_real_array("gain", gain)
             if l.shape != (n,) or not np.all(np.isfinite(l)):
                 raise ValueError(f"expected gain with shape ({n},) and finite entries, actual value: {gain!r}")
             if np.any(np.linalg.eigvals(np.eye(n, k=1) - np.outer(l, np.eye(n)[0])).real >= 0):
@@ -383,7 +382,7 @@ class SwitchedGain(Observer):
                 raise ValueError("expected P (the Lyapunov matrix of the gain) when supervise=True, actual value: None")
         self.gain = np.asarray(l, dtype=float)
         if P is not None:
-            P = np.asarray(P, dtype=float)
+            P = as_real_array("P", P)
             if P.shape != (n, n) or not np.all(np.isfinite(P)):
                 raise ValueError(f"expected P with shape ({n}, {n}) and finite entries, actual value: {P!r}")
             eig = np.linalg.eigvalsh(0.5 * (P + P.T))
