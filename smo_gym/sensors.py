@@ -37,13 +37,21 @@ walk), ``"outliers"`` (noisy 12-bit encoder with rare gross errors).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
 from numba import njit
 
-from ._validation import check_int_in_range
+from ._validation import (
+    as_real_array,
+    check_bool,
+    check_int_in_range,
+    check_keywords,
+    check_mask,
+    check_nonnegative,
+    check_positive,
+    did_you_mean,
+)
 
 __all__ = [
     "BLOCK",
@@ -81,12 +89,16 @@ def _chain_kernel(y, kinds, params, state, ring, ring_pos, rand, prime, out):
 
     ``params`` (S, 2, N) per-stage, per-channel parameters; ``state`` (S, N) bias / drift value / last output;
     ``ring`` (S, K, N) delay lines with write positions ``ring_pos`` (S,); ``rand`` (2, S, N) this sample's
-    standard normals (``rand[0]``) and uniforms on [0, 1) (``rand[1]``). ``prime`` (reset): delay lines are filled with the current value and nothing is
-    dropped or corrupted. Returns -1, or the first channel whose output is not finite.
+    standard normals (``rand[0]``) and uniforms on [0, 1) (``rand[1]``). ``prime`` (reset): delay lines are filled
+    with the current value and nothing is dropped or corrupted. Returns -1, or the first channel whose input (then
+    nothing is changed) or output is not finite.
     """
     n = y.shape[0]
     normals = rand[0]
     uniforms = rand[1]
+    for j in range(n):  # a non-finite true signal is reported before any stage state (delay line, held value) moves
+        if not np.isfinite(y[j]):
+            return j
     for j in range(n):
         out[j] = y[j]
     for s in range(kinds.shape[0]):
@@ -147,10 +159,15 @@ def _chain_kernel(y, kinds, params, state, ring, ring_pos, rand, prime, out):
 def _chain_block(Y, kinds, params, state, ring, ring_pos, rand, t0, out, prime=False):
     """:func:`_chain_kernel` over the rows of ``Y`` (T, N), random numbers from ``rand[t0 + t]``.
 
-    Returns -1, or ``t * N + j`` for the first non-finite output (row ``t``, channel ``j``): one integer, so the
-    call returns without boxing a tuple.
+    Returns -1, or ``t * N + j`` for the first non-finite input or output (row ``t``, channel ``j``): one integer,
+    so the call returns without boxing a tuple. Every input is checked before the first row runs, so a non-finite
+    true signal anywhere in the block leaves the state as it was.
     """
     n = Y.shape[1]
+    for t in range(Y.shape[0]):
+        for j in range(n):
+            if not np.isfinite(Y[t, j]):
+                return t * n + j
     for t in range(Y.shape[0]):
         status = _chain_kernel(Y[t], kinds, params, state, ring, ring_pos, rand[t0 + t], prime, out[t])
         if status != -1:
@@ -164,21 +181,18 @@ def _chain_block(Y, kinds, params, state, ring, ring_pos, rand, t0, out, prime=F
 _FLOAT64 = np.dtype(np.float64)
 
 
-def _as_block_input(y) -> np.ndarray:
+def _as_block_input(y, name: str = "y") -> np.ndarray:
     """``y`` as a writeable, aligned, C-contiguous float64 array (the layout the bound entry point takes)."""
     if type(y) is np.ndarray and y.dtype is _FLOAT64 and (f := y.flags).c_contiguous and f.writeable and f.aligned:
         return y
-    try:
-        return np.array(y, dtype=np.float64, order="C")
-    except (TypeError, ValueError):
-        raise TypeError(f"expected an array of real numbers, actual value: {y!r}") from None
+    return np.array(as_real_array(name, y), dtype=np.float64, order="C")
 
 
 def _nonneg(name: str, value) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"expected {name} to be a number or an array of numbers, actual value: {value!r}") from None
+    arr = as_real_array(name, value)
+    if arr.size == 0 or arr.ndim > 1:
+        raise ValueError(f"expected {name} to be a number or one per channel (shape (n_channels,)), actual value: "
+                         f"shape {arr.shape}")
     if np.any(~np.isfinite(arr) | (arr < 0.0)):
         raise ValueError(f"expected {name} >= 0 and finite everywhere, actual value: {value!r}")
     return arr
@@ -229,8 +243,9 @@ class Sensor:
     _block_call = None
 
     @property
-    def stages(self) -> tuple[Stage, ...]:  # pragma: no cover - overridden
-        raise NotImplementedError
+    def stages(self) -> tuple[Stage, ...]:
+        raise NotImplementedError(f"expected a sensor model (a Stage, a Chain or a preset of make_sensor), actual "
+                                  f"value: the base class {type(self).__name__}, which has no stages")
 
     def __or__(self, other: Sensor) -> Chain:
         if not isinstance(other, Sensor):
@@ -244,6 +259,7 @@ class Sensor:
         :math:`\sqrt{\sum \sigma^2 + \sum b^2/3 + \sum \Delta^2/12}` over the Gaussian, uniform and quantization
         stages (bias, drift, delay, dropouts and outliers excluded). Used to tune the observers' gains.
         """
+        n_channels = check_int_in_range("n_channels", n_channels, 1, 2**31)
         angular = self._angular(n_channels, angular)
         var = np.zeros(n_channels)
         with np.errstate(over="ignore"):  # an absurd model gives inf here, and is caught at the first sample
@@ -255,12 +271,13 @@ class Sensor:
     def _angular(n: int, angular) -> np.ndarray:
         if angular is None:
             return np.ones(n, dtype=bool)
-        a = np.asarray(angular, dtype=bool).reshape(-1)
+        a = check_mask("angular", angular).reshape(-1)
         if a.shape != (n,):
             raise ValueError(f"expected angular with one entry per channel ({n}), actual value: shape {a.shape}")
         return a
 
     # ---- life cycle -----------------------------------------------------------------------------------------
+    @check_keywords
     def reset(self, y0, *, seed=None, rng: np.random.Generator | None = None, dt: float = 1.0,
               angular=None) -> np.ndarray:
         """Start the sensor at the true signal ``y0`` and return the first measurement.
@@ -287,14 +304,36 @@ class Sensor:
         ndarray, shape (..., n_channels)
             The first measurement: quantized, biased and noisy, but never delayed, dropped or an outlier.
         """
-        y0 = np.array(y0, dtype=np.float64)
+        # everything is checked before any state changes: a rejected reset leaves the sensor as it was
+        y0 = np.array(as_real_array("y0", y0), dtype=np.float64, order="C")
         if y0.ndim == 0:
             raise ValueError(f"expected y0 with shape (..., n_channels), actual value: a scalar {float(y0)!r}")
-        if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"expected dt > 0, actual value: {dt!r}")
+        if y0.size == 0:
+            raise ValueError(f"expected y0 with at least one channel and no empty batch dimension, actual value: "
+                             f"shape {y0.shape}")
+        if not np.isfinite(y0).all():
+            channel = int(np.flatnonzero(~np.isfinite(y0))[0])
+            raise ValueError(f"expected a finite measurement, actual value: {y0.reshape(-1)[channel]!r} at "
+                             f"{self._where(channel, y0.shape)} in the true signal y0; the sensor's state was kept")
+        dt = check_positive("dt", dt)
+        if rng is not None and not isinstance(rng, np.random.Generator):
+            raise TypeError(f"expected rng to be a numpy.random.Generator (or None), actual value: {rng!r}")
+        if rng is None:
+            try:
+                fresh = np.random.default_rng(seed)
+            except (TypeError, ValueError):
+                raise TypeError("expected seed to be None, a non-negative int, a SeedSequence or a Generator, actual "
+                                f"value: {seed!r}") from None
         n = y0.size
         if not (type(angular) is np.ndarray and angular.dtype == bool and angular.shape == (n,)):
-            angular = self._angular(n, None if angular is None else np.broadcast_to(angular, y0.shape))
+            if angular is not None:
+                angular = check_mask("angular", angular)
+                try:
+                    angular = np.broadcast_to(angular, y0.shape)
+                except ValueError:
+                    raise ValueError(f"expected angular broadcastable to the shape of y0 {y0.shape}, actual value: "
+                                     f"shape {angular.shape}") from None
+            angular = self._angular(n, angular)
         config = (y0.shape, float(dt), angular.tobytes())
         if rng is not None and rng is self._rng and config == self._config:
             # the same stream continues (an episode restart without a new seed): the packed parameters and the
@@ -305,16 +344,17 @@ class Sensor:
         else:
             stages = self.stages
             S = len(stages)
-            self._rng = rng if rng is not None else np.random.default_rng(seed)
+            params = np.zeros((S, 2, n))
+            for s, st in enumerate(stages):  # may reject per-channel values of another size: before any change
+                params[s] = st._pack(n, angular, dt)
+            self._params = params
+            self._rng = rng if rng is not None else fresh
             self._shape, self._config, self._size = y0.shape, config, n
             self._kinds = np.array([st._kind for st in stages], dtype=np.int64)
-            self._params = np.zeros((S, 2, n))
             self._state = np.zeros((S, n))
             K = 1 + max([st.samples for st in stages if isinstance(st, Delay)], default=0)
             self._ring = np.zeros((S, K, n))
             self._ring_pos = np.zeros(S, dtype=np.int64)
-            for s, st in enumerate(stages):
-                self._params[s] = st._pack(n, angular, dt)
             # stages whose state is drawn per episode (Bias); the others start at zero
             self._drawn = [(s, st) for s, st in enumerate(stages)
                            if type(st)._initial_state is not Stage._initial_state]
@@ -343,20 +383,26 @@ class Sensor:
             self._rand[:, 1] = self._rng.random((BLOCK, S, n))
         self._t = 0
 
+    @staticmethod
+    def _where(channel: int, shape: tuple[int, ...]) -> str:
+        index = np.unravel_index(channel, shape)
+        return f"channel {index[-1]}" + (f" of batch element {tuple(int(i) for i in index[:-1])}"
+                                         if len(index) > 1 else "")
+
     def _raise(self, channel: int, y: np.ndarray, out: np.ndarray):
-        index = np.unravel_index(channel, self._shape)
-        where = f"channel {index[-1]}" + (f" of batch element {tuple(int(i) for i in index[:-1])}"
-                                          if len(index) > 1 else "")
-        source = "the true signal" if not np.isfinite(y[channel]) else f"the sensor model {self!r}"
+        where = self._where(channel, self._shape)
+        if not np.isfinite(y[channel]):  # rejected before any stage ran: the sensor's state is unchanged
+            raise ValueError(f"expected a finite measurement, actual value: {y[channel]!r} at {where} in the true "
+                             "signal; the sample was rejected before any stage ran and the sensor's state kept")
         raise ValueError(
-            f"expected a finite measurement, actual value: {out[channel]!r} at {where}, produced by {source}; "
-            "a non-finite measurement is never passed on"
+            f"expected a finite measurement, actual value: {out[channel]!r} at {where}, produced by the sensor model "
+            f"{self!r}; a non-finite measurement is never passed on"
         )
 
-    def _check_ready(self, y) -> np.ndarray:
+    def _check_ready(self, y, name: str = "y") -> np.ndarray:
         if getattr(self, "_kinds", None) is None:
             raise RuntimeError("expected reset(y0) before measure(y), actual value: the sensor was never reset")
-        return _as_block_input(y)
+        return _as_block_input(y, name)
 
     def _bind(self) -> None:
         """Resolve the compiled entry point of :func:`_chain_block` for this sensor's arrays (once per reset).
@@ -386,8 +432,8 @@ class Sensor:
 
     def run(self, Y) -> np.ndarray:
         """Measure a block ``Y`` of shape ``(T, ...)``, continuing the stream; equal to ``measure`` row by row."""
-        Y = self._check_ready(Y)
-        if Y.shape[1:] != self._shape:
+        Y = self._check_ready(Y, "Y")
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
         if Y.ndim == 2:  # already flat: skip two reshapes (this is the wrapper's per-step path)
             return self._run_flat(Y)
@@ -401,6 +447,11 @@ class Sensor:
         if call is None:
             self._bind()
             call = self._block_call
+        if T > BLOCK - self._t and not np.isfinite(Y).all():
+            # a block over several refills runs in several calls: check it all first, so that a non-finite true
+            # signal anywhere leaves the state (and the random stream) as it was, as within one call
+            t, channel = divmod(int(np.flatnonzero(~np.isfinite(Y))[0]), self._size)
+            self._raise(channel, Y[t], Y[t])
         done = 0
         while done < T:
             if self._t >= BLOCK:
@@ -409,10 +460,12 @@ class Sensor:
             Yb, outb = (Y, out) if m == T else (Y[done:done + m], out[done:done + m])
             status = call(Yb, self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand,
                           self._t, outb, False)
-            self._t += m
             if status != -1:
                 t, channel = divmod(status, self._size)
+                if np.isfinite(Yb[t, channel]):  # produced by the model: these random numbers are used
+                    self._t += m
                 self._raise(channel, Yb[t], outb[t])
+            self._t += m
             done += m
         return out
 
@@ -466,6 +519,7 @@ class GaussianNoise(Stage):
 
     _kind = _GAUSS
 
+    @check_keywords
     def __init__(self, std):
         self.std = _nonneg("std", std)
 
@@ -489,6 +543,7 @@ class UniformNoise(Stage):
 
     _kind = _UNIFORM
 
+    @check_keywords
     def __init__(self, bound):
         self.bound = _nonneg("bound", bound)
 
@@ -520,16 +575,18 @@ class Quantization(Stage):
 
     _kind = _QUANT
 
+    @check_keywords
     def __init__(self, resolution, linear_resolution=None):
         self.resolution = _nonneg("resolution", resolution)
         self.linear_resolution = None if linear_resolution is None else _nonneg("linear_resolution",
                                                                                   linear_resolution)
 
     @classmethod
+    @check_keywords
     def from_counts(cls, counts_per_revolution: int, linear_travel: float = LINEAR_TRAVEL) -> Quantization:
         """An encoder of ``counts_per_revolution``: ``2 pi / counts`` rad, ``linear_travel / counts`` m."""
         res = resolution_from_counts(counts_per_revolution)
-        return cls(res, linear_resolution=float(_nonneg("linear_travel", linear_travel)) / counts_per_revolution)
+        return cls(res, linear_resolution=check_nonnegative("linear_travel", linear_travel) / counts_per_revolution)
 
     def _resolutions(self, n, angular):
         ang = _per_channel("resolution", self.resolution, n)
@@ -563,14 +620,17 @@ class Bias(Stage):
 
     _kind = _BIAS
 
+    @check_keywords
     def __init__(self, value=0.0, std=0.0):
-        try:
-            self.value = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise TypeError(f"expected value to be a number or an array of numbers, actual value: {value!r}") from None
-        if not np.all(np.isfinite(self.value)):
+        self.value = as_real_array("value", value)
+        if self.value.size == 0 or self.value.ndim > 1 or not np.all(np.isfinite(self.value)):
             raise ValueError(f"expected a finite bias value, actual value: {value!r}")
         self.std = _nonneg("std", std)
+
+    def _pack(self, n, angular, dt):
+        _per_channel("value", self.value, n)  # checked with the other stages', before reset changes anything
+        _per_channel("std", self.std, n)
+        return np.zeros((2, n))
 
     def _initial_state(self, n, rng):
         b = _per_channel("value", self.value, n).copy()
@@ -595,6 +655,7 @@ class Drift(Stage):
 
     _kind = _DRIFT
 
+    @check_keywords
     def __init__(self, rate_std):
         self.rate_std = _nonneg("rate_std", rate_std)
 
@@ -612,6 +673,7 @@ class Delay(Stage):
 
     _kind = _DELAY
 
+    @check_keywords
     def __init__(self, samples: int):
         self.samples = check_int_in_range("samples", samples, 0, 10_000)
 
@@ -636,9 +698,10 @@ class Dropout(Stage):
 
     _kind = _DROPOUT
 
+    @check_keywords
     def __init__(self, probability: float, per_channel: bool = False):
         self.probability = _probability("probability", probability)
-        self.per_channel = bool(per_channel)
+        self.per_channel = check_bool("per_channel", per_channel)
 
     def _pack(self, n, angular, dt):
         p = np.zeros((2, n))
@@ -655,6 +718,7 @@ class Outliers(Stage):
 
     _kind = _OUTLIER
 
+    @check_keywords
     def __init__(self, probability: float, scale):
         self.probability = _probability("probability", probability)
         self.scale = _nonneg("scale", scale)
@@ -672,6 +736,7 @@ class Outliers(Stage):
 class Chain(Sensor):
     """Stages applied in order (``Chain(a, b)`` is ``a | b``); ``Chain()`` is the ideal sensor."""
 
+    @check_keywords
     def __init__(self, *stages: Sensor):
         flat: list[Stage] = []
         for st in stages:
@@ -711,6 +776,7 @@ class Encoder(Chain):
         Resolution of linear channels [m]; default the same encoder on a drive of 1 cm per radian.
     """
 
+    @check_keywords
     def __init__(self, resolution=None, noise_std=0.0, *, counts_per_revolution: int | None = None,
                  linear_resolution=None):
         if (resolution is None) == (counts_per_revolution is None):
@@ -756,14 +822,14 @@ PRESET_DESCRIPTIONS = {
 }
 
 
+@check_keywords
 def make_sensor(sensor: str | Sensor) -> Sensor:
     """A sensor from a preset name of :data:`PRESETS`, or ``sensor`` itself if it already is one."""
     if isinstance(sensor, Sensor):
         return sensor
-    try:
-        return PRESETS[sensor]()
-    except (KeyError, TypeError):
+    if not isinstance(sensor, str) or sensor not in PRESETS:
         raise ValueError(
             f"expected a sensor preset in {', '.join(sorted(PRESETS))} or a smo_gym.sensors.Sensor, "
-            f"actual value: {sensor!r}"
-        ) from None
+            f"actual value: {sensor!r}{did_you_mean(sensor, PRESETS)}"
+        )
+    return PRESETS[sensor]()

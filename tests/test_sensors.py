@@ -27,6 +27,12 @@ from smo_gym.sensors import (
 )
 
 
+def assert_worded(excinfo):
+    """Typed errors say what was expected and what was received."""
+    msg = str(excinfo.value)
+    assert "expected" in msg and "actual value" in msg, msg
+
+
 def ramp(T: int, n: int, seed: int = 0) -> np.ndarray:
     """A moving signal (T, n): smooth random walk, so quantization errors are spread over the cell."""
     rng = np.random.default_rng(seed)
@@ -228,3 +234,96 @@ def test_restart_with_the_same_generator_continues_the_stream_and_restarts_the_s
     # the delay line restarted at 50: two samples of the new first value, then 51 (none of the old episode)
     np.testing.assert_allclose(a[7:9], np.broadcast_to(50.0 + bias_2, (2, 3)), atol=1e-5)
     np.testing.assert_allclose(a[9], 51.0 + bias_2, atol=1e-5)
+
+
+# ---- bad input ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("sensor", [Delay(2), Dropout(0.5), Delay(3) | Dropout(0.3) | GaussianNoise(1e-3),
+                                    make_sensor("low-cost")], ids=repr)
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_sensor_rejects_a_non_finite_true_signal_at_once_and_keeps_its_state(sensor, bad):
+    """A delay line or a held sample used to store a NaN true signal and pass it on ``d`` samples later, blaming
+    the sensor model for it; now the sample that carries it is rejected, naming the channel, and the sensor goes
+    on as if it had never seen it (same stream, same delay line)."""
+    Y = np.cumsum(np.full((12, 3), 0.01), axis=0)
+    reference = sensor.reset(Y[0], seed=3), [sensor.measure(y) for y in Y[1:]]
+    sensor.reset(Y[0], seed=3)
+    got = []
+    for k, y in enumerate(Y[1:]):
+        if k in (2, 5):
+            bad_y = y.copy()
+            bad_y[1] = bad
+            with pytest.raises(ValueError, match="channel 1") as excinfo:
+                sensor.measure(bad_y)
+            assert_worded(excinfo)
+            with pytest.raises(ValueError, match="channel 1"):
+                sensor.run(np.stack([y, bad_y]))  # in a block: nothing of the block is committed either
+        got.append(sensor.measure(y))
+    np.testing.assert_array_equal(np.array(got), np.array(reference[1]))
+    with pytest.raises(ValueError, match="channel 2") as excinfo:
+        sensor.reset(np.array([0.0, 1.0, bad]), seed=3)
+    assert_worded(excinfo)
+
+
+def test_sensor_block_over_several_refills_is_all_or_nothing():
+    sensor = Delay(2) | GaussianNoise(1e-3)
+    Y = np.zeros((3 * sensors.BLOCK, 2))
+    sensor.reset(Y[0], seed=0)
+    expected = sensor.run(Y[1:])
+    sensor.reset(Y[0], seed=0)
+    bad = Y[1:].copy()
+    bad[2 * sensors.BLOCK, 0] = np.nan
+    with pytest.raises(ValueError, match="channel 0"):
+        sensor.run(bad)
+    np.testing.assert_array_equal(sensor.run(Y[1:]), expected)
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda s: s.reset(np.zeros(2), rng=5),
+        lambda s: s.reset(np.zeros(2), seed="five"),
+        lambda s: s.reset(np.zeros(2), seed=-1),
+        lambda s: s.reset(np.zeros(2), dt="0.01"),
+        lambda s: s.reset(np.zeros(2), angular="yes"),
+        lambda s: s.reset(np.zeros(2), angular=[1, 0]),
+        lambda s: s.reset(np.zeros(2), angular=[True, False, True]),
+        lambda s: s.reset(np.zeros((2, 0))),
+        lambda s: s.reset(np.zeros(2, complex)),
+        lambda s: s.reset(np.array(["2020-01-01", "2020-01-02"], dtype="datetime64[D]")),
+        lambda s: s.reset([[0.0, 1.0], [2.0]]),
+        lambda s: s.reset(np.zeros(2), sead=1),
+        lambda s: s.error_std(2.5),
+    ],
+)
+def test_sensor_reset_arguments_are_checked(call):
+    sensor = GaussianNoise(1e-3) | Delay(1)
+    with pytest.raises((ValueError, TypeError)) as excinfo:
+        call(sensor)
+    assert_worded(excinfo)
+    assert sensor._kinds is None  # nothing was set up by the rejected reset
+
+
+def test_sensor_measure_rejects_converted_dtypes():
+    sensor = GaussianNoise(1e-3)
+    sensor.reset(np.zeros(2), seed=0)
+    for bad in (np.ones(2, complex), np.array(["1", "2"]), np.array([True, False]), [[1.0], [2.0, 3.0]], "1.0",
+                np.array([None, 1.0]), np.array([1, 2], dtype="timedelta64[s]")):
+        with pytest.raises(TypeError) as excinfo:
+            sensor.measure(bad)
+        assert_worded(excinfo)
+        with pytest.raises(TypeError):
+            sensor.run(np.array([bad], dtype=object) if isinstance(bad, list) else np.asarray(bad)[None])
+
+
+@pytest.mark.parametrize(
+    "factory",
+    [lambda: GaussianNoise(True), lambda: GaussianNoise("0.1"), lambda: GaussianNoise(1e-3 + 1j),
+     lambda: GaussianNoise(np.zeros((2, 2))), lambda: Quantization(np.datetime64("2020")), lambda: Bias("1"),
+     lambda: Dropout(0.1, per_channel="yes"), lambda: Dropout(True), lambda: Delay(2.0), lambda: Outliers(0.1, [1j]),
+     lambda: Encoder(counts_per_revolution=4096.0), lambda: Quantization.from_counts(4096, linear_travel="1"),
+     lambda: GaussianNoise(std=1e-3, mean=0.0), lambda: Chain(GaussianNoise(1e-3), 3.0)],
+)
+def test_sensor_constructors_reject_converted_values(factory):
+    with pytest.raises((TypeError, ValueError)) as excinfo:
+        factory()
+    assert_worded(excinfo)
