@@ -184,8 +184,8 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     for env in (no_scratch, no_observe, no_sensing):
         env.adapter.observe_scratch = lambda *args, c=const: c
         env._fused.maps_observation = False  # a selection built by the compiled call is switched off here too
-    def no_observation(block, info, c=const):
-        info["smo"] = {}  # a step still hands an info["smo"] on (the intercepted path reads it back)
+    def no_observation(block, info, clean, c=const):
+        info["smo"] = {}
         return c
 
     for env in (no_observe, no_sensing):

@@ -288,21 +288,34 @@ def check_finite_observation(obs: np.ndarray) -> None:
 class SensingInfo(dict):
     """``info["smo"]``: the true and the sensed state at the last sample, read-only.
 
-    A dictionary with keys ``"qpos"``, ``"qvel"`` (true, shapes ``(nq,)``, ``(nv,)``), ``"qvel_estimate"``
-    ``(nv,)`` and ``"qpos_measured"`` ``(nq,)``: new arrays at every step, safe to keep. Neither the dictionary
-    nor its arrays can be changed (``dict(info["smo"])`` and ``np.array(info["smo"]["qvel"])`` give mutable
-    copies), so ``copy.copy``/``copy.deepcopy`` return the object itself: SB3's ``DummyVecEnv`` deep-copies
-    every step's infos, and a generic deep copy of four small arrays costs more than a physics step of a small
-    model.
+    The same keys from :class:`~smo_gym.wrappers.EstimatedVelocity` and, per environment, from both vector
+    wrappers:
+
+    ==================  ===============  ==========================================================================
+    key                 shape            what
+    ==================  ===============  ==========================================================================
+    ``qpos``            ``(nq,)``        true joint configuration
+    ``qvel``            ``(nv,)``        true joint velocities
+    ``qvel_estimate``   ``(nv,)``        the observer's velocity estimate (what the observation holds)
+    ``qpos_measured``   ``(nq,)``        the sensor's measured configuration
+    ``observation``     the env's        the *clean* observation: what the wrapped stack returns at the true state
+                                         (for privileged critics, and to measure the estimation error in
+                                         observation space)
+    ==================  ===============  ==========================================================================
+
+    New arrays at every step, safe to keep. Neither the dictionary nor its arrays can be changed
+    (``dict(info["smo"])`` and ``np.array(info["smo"]["qvel"])`` give mutable copies), so
+    ``copy.copy``/``copy.deepcopy`` return the object itself: SB3's ``DummyVecEnv`` deep-copies every step's
+    infos, and a generic deep copy of five small arrays costs more than a physics step of a small model.
     """
 
     __slots__ = ()
 
     @classmethod
-    def of(cls, qpos, qvel, qvel_estimate, qpos_measured) -> SensingInfo:
-        """From the four arrays (copied)."""
+    def of(cls, qpos, qvel, qvel_estimate, qpos_measured, observation) -> SensingInfo:
+        """From the four state arrays (copied) and the clean observation (copied)."""
         return cls.from_block(np.concatenate((qpos, qvel, qvel_estimate, qpos_measured)),
-                              cls.slices(len(qpos), len(qvel)))
+                              cls.slices(len(qpos), len(qvel)), observation)
 
     @staticmethod
     def slices(nq: int, nv: int) -> tuple[slice, slice, slice, slice]:
@@ -311,12 +324,14 @@ class SensingInfo(dict):
         return (slice(0, nq), slice(nq, nq + nv), slice(nq + nv, nq + 2 * nv), slice(nq + 2 * nv, 2 * nq + 2 * nv))
 
     @classmethod
-    def from_block(cls, block: np.ndarray, slices: tuple) -> SensingInfo:
+    def from_block(cls, block: np.ndarray, slices: tuple, observation) -> SensingInfo:
         """From one block ``[qpos, qvel, qvel_estimate, qpos_measured, ...]`` (anything after these four is
-        ignored; ``slices`` from :meth:`slices`), which it owns from now on (made read-only, as are its views)."""
+        ignored; ``slices`` from :meth:`slices`), which it owns from now on (made read-only, as are its views),
+        and the clean observation (an array or a dict of arrays, copied)."""
         block.setflags(write=False)
         s0, s1, s2, s3 = slices
-        return cls(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3])
+        return cls(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3],
+                   observation=_read_only_copy(observation))
 
     def _readonly(self, *args, **kwargs):
         raise TypeError("expected no change to info['smo'] (read-only), actual value: an attempt to modify it; "
@@ -336,9 +351,16 @@ class SensingInfo(dict):
 
 def _sensing_info(items: dict) -> SensingInfo:
     """Unpickle a :class:`SensingInfo` (its ``__setitem__`` refuses the default per-item restore)."""
-    for value in items.values():
-        value.flags.writeable = False
-    return SensingInfo(items)
+    return SensingInfo({key: _read_only_copy(value) for key, value in items.items()})
+
+
+def _read_only_copy(value):
+    """A read-only copy of an array, or of every array of a dict (a dict observation)."""
+    if isinstance(value, dict):
+        return {key: _read_only_copy(item) for key, item in value.items()}
+    value = np.array(value)
+    value.flags.writeable = False
+    return value
 
 
 class VelocityEstimator:
