@@ -17,6 +17,7 @@ __all__ = [
     "check_int_in_range",
     "check_positive",
     "check_positive_array",
+    "check_real_in_range",
 ]
 
 
@@ -44,6 +45,20 @@ def check_positive_array(name: str, value) -> np.ndarray:
     if np.any(bad):
         raise ValueError(f"expected {name} > 0 everywhere, actual value: {value!r}")
     return arr
+
+
+def check_real_in_range(name: str, value, low: float, high: float, *, low_open: bool = False,
+                        high_open: bool = False) -> float:
+    """Return ``value`` as a float after checking it is a real number (not a bool) in the interval from ``low`` to
+    ``high``, each end closed unless ``low_open``/``high_open``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"expected {name} to be a real number, actual value: {value!r}")
+    value = float(value)
+    interval = f"{'(' if low_open else '['}{low}, {high}{')' if high_open else ']'}"
+    inside = (low < value if low_open else low <= value) and (value < high if high_open else value <= high)
+    if not inside:
+        raise ValueError(f"expected {name} in {interval}, actual value: {value!r}")
+    return value
 
 
 def check_int_in_range(name: str, value, low: int, high: int) -> int:

@@ -176,3 +176,27 @@ def test_flatten_observation_beneath_on_a_dm_control_task():
         expected = gym.spaces.flatten(env.unwrapped.observation_space, env.adapter.unflatten(_bare_observation(env)))
         np.testing.assert_array_equal(obs, expected)
         assert env.observation_space.contains(obs)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(calibration_safety=0.0), ValueError, "calibration_safety > 0"),
+    (dict(calibration_safety=True), TypeError, "calibration_safety"),
+    (dict(calibration_quantile=0.0), ValueError, r"calibration_quantile in \(0.0, 1.0\]"),
+    (dict(calibration_quantile=1.5), ValueError, "calibration_quantile"),
+    (dict(calibration_steps=0), ValueError, "calibration_steps"),
+    (dict(calibration_steps=10.5), TypeError, "calibration_steps"),
+    (dict(disk_cache="no"), TypeError, "disk_cache"),
+    (dict(observer_kwargs=[("lipschitz", 1.0)]), TypeError, "observer_kwargs"),
+    (dict(contact_forces="estimated"), ValueError, "no contact forces"),
+    (dict(contact_forces="zero"), ValueError, "no contact forces"),
+    (dict(contact_forces="nonsense"), ValueError, "contact_forces"),
+])
+def test_bad_options_are_refused_before_any_work(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        EstimatedVelocity(gym.make(ENV), disk_cache=kwargs.pop("disk_cache", False), **kwargs)
+
+
+def test_contact_force_modes_where_the_observation_has_contact_forces():
+    for mode in ("sensor", "estimated", "zero"):
+        env = EstimatedVelocity(gym.make("Ant-v5"), contact_forces=mode, disk_cache=False, calibration_steps=300)
+        assert env.observation_space.contains(env.reset(seed=0)[0].astype(np.float64))

@@ -46,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 
 from .adapters import GymnasiumMujocoAdapter, SubstepHook, register_adapter
+from .sensing import stable_repr
 
 __all__ = ["DmControlAdapter", "DmControlTaskView", "is_dm_control_env", "make_dm_control"]
 
@@ -173,12 +174,19 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         self.flat_size = int(sum(sizes))
         spec = getattr(env, "spec", None)
         if spec is not None and spec.id:
-            self.environment_key = spec.id + (str(sorted(spec.kwargs.items())) if spec.kwargs else "")
+            self.environment_key = spec.id + (stable_repr(spec.kwargs) if spec.kwargs else "")
         else:
             task = dm.task
             settings = {k: v for k, v in sorted(vars(task).items())
                         if isinstance(v, (bool, int, float, str)) and not k.startswith("__")}
             self.environment_key = f"{type(task).__module__}.{type(task).__qualname__}{settings}"
+
+    def copy_environment(self):
+        """A deep copy of shimmy's environment: dm_control's ``Physics`` copies by value, so edits of the live
+        model are kept."""
+        import copy
+
+        return copy.deepcopy(self.gym_env)
 
     # ---- observation structure ------------------------------------------------------------------------------
     def unflatten(self, flat: np.ndarray) -> dict[str, np.ndarray]:

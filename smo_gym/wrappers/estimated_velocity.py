@@ -7,6 +7,7 @@ import copy
 import gymnasium as gym
 import numpy as np
 
+from .._validation import check_int_in_range, check_positive, check_real_in_range
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import make_adapter
@@ -22,6 +23,7 @@ from .sensing import (
     calibration_key,
     check_finite_observation,
     default_observer,
+    stable_repr,
 )
 
 __all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "observation_wrappers", "resolve_rate",
@@ -51,21 +53,23 @@ def resolve_rate(rate, frame_skip: int) -> int:
 
 
 def environment_key(unwrapped) -> str:
-    """Identity of an environment for the calibration cache: its registered id and kwargs, or its class/model."""
+    """Identity of an environment for the calibration cache: its registered id and constructor arguments (in a
+    form that is the same in every process, :func:`~smo_gym.wrappers.sensing.stable_repr`), or its class."""
     spec = getattr(unwrapped, "spec", None)
     if spec is not None and spec.id:
-        kwargs = {k: v for k, v in sorted((spec.kwargs or {}).items()) if k != "render_mode"}
-        return f"{spec.id}{kwargs}" if kwargs else spec.id
+        kwargs = {k: v for k, v in (spec.kwargs or {}).items() if k != "render_mode"}
+        return f"{spec.id}{stable_repr(kwargs)}" if kwargs else spec.id
     return f"{type(unwrapped).__module__}.{type(unwrapped).__qualname__}:{getattr(unwrapped, 'fullpath', '')}"
 
 
-def rollout_velocities(unwrapped, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
-    """``qvel`` sampled every ``sample_every`` physics steps on a *copy* of the environment under uniform random
+def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
+    """``qvel`` sampled every ``sample_every`` physics steps on a copy of the environment under uniform random
     actions, with the environment's own (seeded) resets at episode ends: its reset distribution, actions and
-    terminations, for about ``steps`` physics steps. Returns one array ``(T_i, nv)`` per episode, or None if the
-    environment cannot be copied."""
+    terminations, on the live model (:meth:`~smo_gym.wrappers.adapters.MujocoAdapter.copy_environment`: masses
+    or a timestep edited in place count), for about ``steps`` physics steps. Returns one array ``(T_i, nv)`` per
+    episode, or None if the environment cannot be copied."""
     try:
-        sim = copy.deepcopy(unwrapped)  # MujocoEnv pickles (and copies) by its constructor arguments
+        sim = adapter.copy_environment()
         sim.render_mode = None  # never open a window for the calibration
         adapter = make_adapter(sim)
     except Exception:  # noqa: BLE001 - any failure: the caller falls back to a rollout of the bare model
@@ -200,7 +204,7 @@ def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *,
     dt = float(model.opt.timestep) * int(sample_every)
 
     def compute():
-        episodes = rollout_velocities(unwrapped, int(sample_every), int(steps))
+        episodes = rollout_velocities(adapter, int(sample_every), int(steps))
         if episodes:
             try:
                 return bounds_from_velocities(episodes, dt, derivative=int(derivative), quantile=float(quantile),
@@ -341,6 +345,13 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             calibration_quantile=calibration_quantile, calibration_steps=calibration_steps, disk_cache=disk_cache,
         )
         gym.Wrapper.__init__(self, env)
+        check_positive("calibration_safety", calibration_safety)
+        check_real_in_range("calibration_quantile", calibration_quantile, 0.0, 1.0, low_open=True)
+        check_int_in_range("calibration_steps", calibration_steps, 1, 10**9)
+        if not isinstance(disk_cache, (bool, np.bool_)):
+            raise TypeError(f"expected disk_cache to be True or False, actual value: {disk_cache!r}")
+        if observer_kwargs is not None and not isinstance(observer_kwargs, dict):
+            raise TypeError(f"expected observer_kwargs to be a dict or None, actual value: {observer_kwargs!r}")
         #: the observation wrappers beneath, innermost first, applied to every sensed observation
         self._observation_wrappers = observation_wrappers(env, replay=self._replays_observation_wrappers)
         if positions not in ("measured", "filtered"):
