@@ -13,9 +13,8 @@ gains (:func:`~smo_gym.wrappers.sensing.default_observer` from the calibrated bo
 backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter, ``from_bounds``) are in the registry
 and so appear in every row as the references.
 
-The number is ``compare_observers``' ``rmse``: the velocity RMSE over all dofs and all samples after the
-observer's convergence in each episode (the first sample whose error is within three times the observer's own
-steady level; observers restart from zero velocity at every episode start, as in the wrapper). A diverged
+The number is ``compare_observers``' ``rmse``: the velocity RMSE over all dofs and all samples (observers
+restart from the first measurement with zero velocity at every episode start, as in the wrapper). A diverged
 observer (non-finite state) is shown as ``div``. The smallest RMSE of a row is in bold; observers within 1 % of
 it (or within ``1e-9`` times the velocity RMS: round-off on the Euler-integrated environments, where the backward
 difference is exact with an ideal sensor) share the win. The second table counts wins per observer.
