@@ -39,20 +39,25 @@ def parse_rate(text: str):
 
 
 def spec_help(kind: str) -> str:
-    """The syntax of observer and sensor specs, for the epilogs."""
+    """The syntax of observer and sensor specs, for the epilogs (wrapped to 100 columns)."""
+    import textwrap
+
     from .observers import OBSERVERS
     from .sensors import PRESETS
     from .specs import SENSOR_MODELS
 
-    return (
-        f"{kind} are written name:key=value:key=value (values: numbers, true/false, none or text).\n"
-        f"  observers: {', '.join(OBSERVERS)}; options are constructor arguments, e.g. levant:order=1:lipschitz=50\n"
-        f"             (gains not given are calibrated from a rollout, as the wrapper does)\n"
-        f"  sensors:   a preset ({', '.join(PRESETS)}), or a model\n"
-        f"             ({', '.join(SENSOR_MODELS)}) with options,\n"
-        "             e.g. encoder:counts_per_revolution=4096:noise_std=1e-3; join models with +, e.g.\n"
-        "             encoder:counts_per_revolution=1024+delay:samples=2+dropout:probability=0.02"
-    )
+    def item(head: str, text: str) -> str:
+        return textwrap.fill(text, 100, initial_indent=f"  {head:<11}", subsequent_indent=" " * 13)
+
+    return "\n".join([
+        f"{kind} are written name:key=value:key=value (values: numbers, true/false, none or text).",
+        item("observers:", f"{', '.join(OBSERVERS)}; options are constructor arguments, e.g. "
+                           "levant:order=1:lipschitz=50 (gains not given are calibrated from a rollout, as the "
+                           "wrapper does)"),
+        item("sensors:", f"a preset ({', '.join(PRESETS)}) or a model ({', '.join(SENSOR_MODELS)}) with its "
+                         "constructor arguments, e.g. encoder:counts_per_revolution=4096:noise_std=1e-3; models "
+                         "chain with +, e.g. encoder:counts_per_revolution=1024+delay:samples=2"),
+    ])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,10 +71,11 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_ = sub.add_parser(
         "compare", help="compare velocity observers on one MuJoCo rollout", formatter_class=HelpFormatter,
         description="Run one Gymnasium MuJoCo environment under a seeded smooth random policy, measure its joint "
-                    "positions with a sensor, and run several velocity observers on the same measurements.\nPrints "
-                    "a table and writes a plot of true and estimated velocities.",
-        epilog=f"table columns (metrics over every sample of every episode; observers restart at each reset from the\n"
-               f"first measurement with zero velocity, and the environments start at rest):\n{columns}\n"
+                    "positions with\na sensor, and run several velocity observers on the same measurements. Prints "
+                    "a table and writes a plot\nof true and estimated velocities.",
+        epilog=f"table columns (metrics over every estimate: each sample but the first of each episode, where the\n"
+               f"observer starts at the first measurement with zero velocity; transients after it are included):\n"
+               f"{columns}\n"
                f"  a diverged observer (non-finite state) shows the time it diverged instead of its errors.\n\n"
                f"plot: the y-axis of each dof is set by its true velocity; estimates beyond it are clipped at the\n"
                f"edge, marked with triangles, and their legend entry gives the fraction off scale and the peak.\n"

@@ -50,10 +50,10 @@ def add_subcommands(sub) -> None:
 
     tr = sub.add_parser(
         "train", help="train a Stable-Baselines3 agent under realistic sensing", formatter_class=HelpFormatter,
-        description="Train PPO or SAC on a Gymnasium MuJoCo environment (or dm_control/..., observation flattened) "
-                    "whose policy sees\nmeasured positions and estimated velocities (or the true state, finite "
-                    "differences, ...).\nWrites model.zip, vecnormalize.pkl, run.json, progress.csv and checkpoints "
-                    "into the run folder.",
+        description="Train PPO or SAC on a Gymnasium MuJoCo environment (or dm_control/..., observation "
+                    "flattened) whose policy\nsees measured positions and estimated velocities (or the true state, "
+                    "finite differences, ...). Writes\nmodel.zip, vecnormalize.pkl, run.json, progress.csv and "
+                    "checkpoints into the run folder.",
         epilog=f"{_SENSINGS_HELP}\n\n{_ZOO_HELP}\n\n{spec_help('the observer and the sensor')}")
     tr.add_argument("--env", default="InvertedDoublePendulum-v5", help="environment id (default %(default)s)")
     sensing_args(tr, True)
@@ -81,9 +81,9 @@ def add_subcommands(sub) -> None:
     ev = sub.add_parser(
         "evaluate", help="evaluate a trained agent under any sensing", formatter_class=HelpFormatter,
         description="Play a run of `smo-gym train` (its folder, model.zip or a checkpoint "
-                    "checkpoints/model_N_steps.zip) under a sensing,\nwhich need not be the one it was trained with; "
-                    "prints the true returns. The run's run.json gives the environment and\nthe sensing, and the "
-                    "normalization statistics saved with the model are used, frozen.",
+                    "checkpoints/model_N_steps.zip)\nunder a sensing, which need not be the one it was trained with; "
+                    "prints the true returns. The run's\nrun.json gives the environment and the sensing, and the "
+                    "normalization statistics saved with the model are\nused, frozen.",
         epilog=f"{_SENSINGS_HELP}\n\n{spec_help('the observer and the sensor')}")
     ev.add_argument("model", help="run folder, model.zip or checkpoint .zip")
     ev.add_argument("--env", default=None, help="environment id (default: as trained)")

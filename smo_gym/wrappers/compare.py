@@ -8,15 +8,15 @@ configuration is sampled at the chosen rate with the wrapper's own substep hook
 :class:`~smo_gym.wrappers.sensing.VelocityEstimator`, i.e. exactly what
 :class:`~smo_gym.wrappers.EstimatedVelocity` would feed it.
 
-Metrics (per observer, over every sample of every episode; samples after a reset restart the observer, as the
-wrapper does, from the first measurement with zero velocity; the environments start at rest, so there is no
-initial transient to leave out):
+Metrics (per observer) are over every estimate (:func:`estimate_errors`): every sample except the first of each
+episode, where the observer is initialized, as the wrapper does, at the first measurement with zero velocity.
+Transients after it are part of the errors (they are not timed separately).
 
 ``rmse``
-    velocity RMSE over all dofs and samples (rad/s for hinge and rotational dofs, m/s for slide and translational
-    ones, pooled);
+    velocity RMSE over all dofs and estimates (rad/s for hinge and rotational dofs, m/s for slide and
+    translational ones, pooled);
 ``max_error``
-    the largest absolute velocity error of any dof and sample (same units);
+    the largest absolute velocity error of any dof and estimate (same units);
 ``cost_us``
     median wall time of one online ``update`` (one sample, all dofs) in microseconds (the median leaves out the
     compilation at the first call and scheduler hiccups).
@@ -54,6 +54,7 @@ __all__ = [
     "compare_observers",
     "dof_names",
     "env_dof_names",
+    "estimate_errors",
     "format_table",
     "plot_velocities",
     "record_rollout",
@@ -214,6 +215,17 @@ class ObserverResult:
     diverged_at: float | None = None
 
 
+def estimate_errors(rec: Recording, velocity: np.ndarray) -> np.ndarray:
+    """Velocity errors ``velocity - qvel`` of every sample that is an estimate, shape (T - episodes, nv).
+
+    The first sample of each episode is left out: there the observer is initialized (zero velocity by
+    construction), it has not estimated anything yet.
+    """
+    estimated = np.ones(len(velocity), dtype=bool)
+    estimated[rec.episode_starts] = False
+    return (velocity - rec.qvel)[estimated]
+
+
 DEFAULT_OBSERVERS = ("super-twisting", "levant", "levant:discretization=matching", "high-gain", "kalman-ca",
                      "finite-difference")
 
@@ -265,7 +277,7 @@ def compare_observers(rec: Recording, observers=DEFAULT_OBSERVERS, *, observer_k
                 rmse_per_dof=np.full(V.shape[1], np.nan), observer=estimator.observer, diverged_at=diverged,
             ))
             continue
-        err = V - rec.qvel
+        err = estimate_errors(rec, V)
         results.append(ObserverResult(
             name=spec, velocity=V, rmse=float(np.sqrt(np.mean(err**2))), max_error=float(np.max(np.abs(err))),
             cost_us=cost, rmse_per_dof=np.sqrt(np.mean(err**2, axis=0)), observer=estimator.observer,
@@ -276,8 +288,8 @@ def compare_observers(rec: Recording, observers=DEFAULT_OBSERVERS, *, observer_k
 #: what every column of :func:`format_table` means (also the help of ``smo-gym compare``)
 TABLE_COLUMNS = {
     "observer": "the observer spec (name:key=value:...); gains not given are calibrated as the wrapper does",
-    "RMSE": "velocity RMSE over every dof and sample (rad/s for hinge dofs, m/s for slide dofs, pooled)",
-    "max err": "largest absolute velocity error of any dof and sample (same units)",
+    "RMSE": "velocity RMSE over every dof and estimate (rad/s for hinge dofs, m/s for slide dofs, pooled)",
+    "max err": "largest absolute velocity error of any dof and estimate (same units)",
     "us/step": "median wall time of one observer update (one sample, all dofs) in microseconds",
 }
 
