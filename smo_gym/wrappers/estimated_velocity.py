@@ -21,7 +21,9 @@ from .sensing import (
     cached_bounds,
     calibrate_bounds,
     calibration_key,
+    check_action,
     check_finite_observation,
+    check_seed,
     default_observer,
     stable_repr,
 )
@@ -352,6 +354,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise TypeError(f"expected disk_cache to be True or False, actual value: {disk_cache!r}")
         if observer_kwargs is not None and not isinstance(observer_kwargs, dict):
             raise TypeError(f"expected observer_kwargs to be a dict or None, actual value: {observer_kwargs!r}")
+        self._action_shape = tuple(env.action_space.shape)
         #: the observation wrappers beneath, innermost first, applied to every sensed observation
         self._observation_wrappers = observation_wrappers(env, replay=self._replays_observation_wrappers)
         if positions not in ("measured", "filtered"):
@@ -461,6 +464,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # ---- Gymnasium API --------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        check_seed(seed)
         clean, info = self.env.reset(seed=seed, options=options)
         if seed is not None:
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
@@ -488,6 +492,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """
         if self._rng is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        check_action(action, self._action_shape)
         data = self.adapter.data
         live = self._live
         if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)

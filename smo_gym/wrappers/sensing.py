@@ -56,6 +56,8 @@ from ._tangent import integrate_pos, joint_table, tangent_advance
 
 __all__ = [
     "FusedSensing",
+    "check_action",
+    "check_seed",
     "JointMeasurement",
     "SensingInfo",
     "TangentCoordinates",
@@ -248,21 +250,60 @@ def _first_nonfinite(x) -> int:
 
 
 _FLOAT64 = np.dtype(np.float64)
-_first_nonfinite_entry = None
+#: dtype -> entry point of :func:`_first_nonfinite` for 1-D arrays of that dtype, any layout
+_NONFINITE_ENTRIES: dict = {}
 
 
-def _nonfinite_entry():
-    """Entry point of :func:`_first_nonfinite` for 1-D float64 arrays of any layout (strided views too), so that a
-    caller only has to check the dtype and the number of dimensions."""
-    global _first_nonfinite_entry
-    if _first_nonfinite_entry is None:
+def _nonfinite_entry(dtype: np.dtype):
+    """Entry point of :func:`_first_nonfinite` for 1-D float32 or float64 arrays of any layout (strided views
+    too), so that a caller only has to check the dtype and the number of dimensions."""
+    entry = _NONFINITE_ENTRIES.get(dtype)
+    if entry is None:
         import numba
 
-        sig = (numba.types.Array(numba.types.float64, 1, "A"),)
+        sig = (numba.types.Array(numba.from_dtype(dtype), 1, "A"),)
         if sig not in _first_nonfinite.overloads:
             _first_nonfinite.compile(sig)
-        _first_nonfinite_entry = _first_nonfinite.overloads[sig].entry_point
-    return _first_nonfinite_entry
+        entry = _NONFINITE_ENTRIES[dtype] = _first_nonfinite.overloads[sig].entry_point
+    return entry
+
+
+_FAST_DTYPES = (np.dtype(np.float32), _FLOAT64)
+
+
+def check_action(action, shape: tuple[int, ...]) -> None:
+    """Raise a typed error for an action that is not of ``shape`` or has an entry that is not a finite real number.
+
+    MuJoCo would otherwise zero a NaN or infinite control with a warning printed to stdout, and cast a complex
+    one to its real part, silently. One compiled call for the float32 and float64 actions of RL libraries.
+    """
+    if type(action) is np.ndarray and action.shape == shape and action.dtype in _FAST_DTYPES and action.ndim == 1:
+        bad = (_NONFINITE_ENTRIES.get(action.dtype) or _nonfinite_entry(action.dtype))(action)
+        if bad == -1:
+            return
+        raise ValueError(f"expected a finite action, actual value: {action[bad]!r} at entry {bad}")
+    try:
+        arr = np.asarray(action)
+    except (TypeError, ValueError):
+        arr = np.asarray(None)
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"expected an action of real numbers with shape {shape}, actual value: {action!r:.120}")
+    if arr.shape != shape:
+        raise ValueError(f"expected an action with shape {shape}, actual value: shape {arr.shape}")
+    flat = arr.reshape(-1)
+    bad = np.flatnonzero(~np.isfinite(flat.astype(np.float64)))
+    if bad.size:
+        raise ValueError(f"expected a finite action, actual value: {flat[bad[0]]!r} at entry {int(bad[0])}")
+
+
+def check_seed(seed) -> None:
+    """``reset(seed=...)`` takes None or an integer >= 0 (a typed error instead of Gymnasium's own ``Error``)."""
+    if seed is None:
+        return
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"expected seed to be None or an integer >= 0, actual value: {seed!r:.80}")
+    if seed < 0:
+        raise ValueError(f"expected seed to be None or an integer >= 0, actual value: {seed!r}")
 
 
 def check_finite_observation(obs: np.ndarray) -> None:
@@ -275,7 +316,7 @@ def check_finite_observation(obs: np.ndarray) -> None:
     small model).
     """
     if type(obs) is np.ndarray and obs.dtype is _FLOAT64 and obs.ndim == 1:
-        bad = (_first_nonfinite_entry or _nonfinite_entry())(obs)
+        bad = (_NONFINITE_ENTRIES.get(_FLOAT64) or _nonfinite_entry(_FLOAT64))(obs)
         if bad == -1:
             return
     else:

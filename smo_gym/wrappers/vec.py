@@ -54,7 +54,7 @@ import mujoco
 import numpy as np
 
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
-from .sensing import check_finite_observation
+from .sensing import check_action, check_finite_observation, check_seed
 
 __all__ = ["JointSensor", "VectorEstimatedVelocity", "check_vector_rate", "sensing_config", "stack_samples"]
 
@@ -137,6 +137,7 @@ class JointSensor(EstimatedVelocity):
         return smo
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        check_seed(seed)
         obs, info = self.env.reset(seed=seed, options=options)
         if seed is not None:  # the same stream as EstimatedVelocity's
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
@@ -153,6 +154,7 @@ class JointSensor(EstimatedVelocity):
     def step(self, action):
         if self._rng is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        check_action(action, self._action_shape)
         self._terminal = None  # kept across the autoreset that follows an episode's end, dropped here
         obs, reward, terminated, truncated, info = self.env.step(action)
         data = self.adapter.data
