@@ -178,12 +178,18 @@ class _ModelBasedSuperTwisting(Observer):
         state[:, _mk.X1_PREV] = np.reshape(self._measure(y0s), -1)
         return state
 
-    def reset(self, y0, mask=None, v0=None) -> np.ndarray:
+    def reset(self, y0, mask=None, v0=None, *, derivatives=None) -> np.ndarray:
         """Start at the measurement ``y0`` (shape ``(..., n)``) with velocity estimate ``v0`` (default zero).
 
-        ``mask`` restarts only some batch elements (see :meth:`Observer.reset`).
+        ``mask`` restarts only some batch elements (see :meth:`Observer.reset`). ``derivatives`` of shape
+        ``(..., n, 1)`` is the common observer spelling of ``v0`` (``derivatives[..., 0]``); give one of them.
         """
         y0 = self._as_measurement(y0, "y0")
+        if derivatives is not None:
+            if v0 is not None:
+                raise TypeError("expected v0 or derivatives (the same initial velocity), actual value: both given")
+            x0 = self._initial_estimate(y0, derivatives)
+            v0 = None if x0 is None else x0[..., 1]
         self._v0 = None if v0 is None else np.asarray(v0, dtype=np.float64)
         if mask is None:
             self._shape = y0.shape
