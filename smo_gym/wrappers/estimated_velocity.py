@@ -373,6 +373,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.measurement = JointMeasurement(model, copy.deepcopy(make_sensor(sensor)), self.sample_dt)
         self.bounds = None
         if isinstance(observer, Observer):
+            if self.measurement.wraps and not np.array_equal(
+                    np.broadcast_to(np.asarray(observer.wrap, dtype=bool), self.measurement.angular.shape),
+                    self.measurement.angular):
+                raise ValueError(
+                    "expected an observer with wrap on the angular channels for a sensor that reports single-turn "
+                    f"angles (wrap={self.measurement.angular.tolist()}), actual value: wrap={observer.wrap!r}")
             if not np.isclose(observer.dt, self.sample_dt, rtol=1e-9, atol=0.0):
                 raise ValueError(
                     f"expected an observer with dt equal to the sampling step {self.sample_dt}, "
@@ -382,6 +388,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             if observer not in OBSERVERS:
                 make_observer(observer)  # raises ValueError listing the valid names
+            if self.measurement.wraps:  # single-turn angles: the innovation takes the shortest angular difference
+                observer_kwargs = {"wrap": self.measurement.angular, **(observer_kwargs or {})}
             self.bounds = calibrated_bounds(env.unwrapped, self.adapter, self.sample_every,
                                             bound_order(observer, observer_kwargs), safety=calibration_safety,
                                             quantile=calibration_quantile, steps=calibration_steps, disk=disk_cache)

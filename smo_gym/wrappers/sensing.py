@@ -36,9 +36,7 @@ on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
 
 from __future__ import annotations
 
-import copy
 import hashlib
-import inspect
 import json
 import operator
 import os
@@ -50,8 +48,9 @@ import mujoco
 import numpy as np
 from numba import njit
 
-from ..observers import OBSERVERS, Observer, make_observer
-from ..sensors import BLOCK, Sensor, make_sensor
+from ..calibration import bound_order, default_observer
+from ..observers import Observer
+from ..sensors import BLOCK, Sensor, Wrap, make_sensor
 from ._tangent import integrate_pos, joint_table, tangent_advance
 
 __all__ = [
@@ -165,6 +164,13 @@ class JointMeasurement:
         self.dt = float(dt)
         self.tangent = TangentCoordinates(model)
         self.angular = angular_dofs(model)
+        #: the sensor reports single-turn angles (a :class:`~smo_gym.sensors.Wrap` stage): observers of its
+        #: measurements need ``wrap`` on the angular channels
+        self.wraps = any(isinstance(stage, Wrap) for stage in self.sensor.stages)
+        if self.wraps and self.tangent.manifold:
+            raise ValueError(
+                "expected a model without free or ball joints for a single-turn (wrapping) encoder, which measures "
+                "hinge angles, actual value: a model with free or ball joints")
         self._z_true = self._z_measured = self._qpos_measured = self._last_qpos = None
         self._fused_block = None
 
@@ -514,6 +520,7 @@ class FusedSensing:
         observer = estimator.observer
         return (type(estimator) is VelocityEstimator
                 and type(observer).update is Observer.update and type(observer).run is Observer.run
+                and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
                 and observer.order >= 1 and type(measurement.sensor).run is Sensor.run
                 and getattr(observer, "_kernel", None) in FUSED_DRIVERS and hasattr(adapter, "scratch_state"))
 
@@ -650,18 +657,6 @@ class FusedSensing:
 # ----------------------------------------------------------------------------------------------------------------
 # calibration of the default gains
 # ----------------------------------------------------------------------------------------------------------------
-#: observer name -> default differentiation order (their constructors' defaults)
-_DEFAULT_ORDER = {"levant": 2, "uniform-levant": 2}
-
-
-def bound_order(name: str, observer_kwargs: dict | None = None) -> int:
-    """Order of the derivative an observer's gain must bound: ``order + 1`` (2 = acceleration, 3 = jerk)."""
-    kwargs = observer_kwargs or {}
-    if name in ("finite-difference", "kalman-ca", "high-gain", "super-twisting", "ured"):
-        return 2
-    return int(kwargs.get("order", _DEFAULT_ORDER.get(name, 1))) + 1
-
-
 def calibrate_bounds(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray, frame_skip: int, sample_every: int,
                      *, derivative: int = 2, steps: int = 2000, episode: int = 500, quantile: float = 0.99,
                      safety: float = 2.0, seed: int = 0) -> np.ndarray:
@@ -820,62 +815,3 @@ def stable_repr(value) -> str:
         digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:12]
         return f"{getattr(value, '__module__', '')}.{getattr(value, '__qualname__', '')}:{digest}"
     return _ADDRESS.sub("", repr(value))
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# default observers
-# ----------------------------------------------------------------------------------------------------------------
-def default_observer(name: str, dt: float, bounds: np.ndarray, noise_std: np.ndarray,
-                     observer_kwargs: dict | None = None) -> Observer:
-    r"""An observer of :data:`smo_gym.observers.OBSERVERS` with gains from the calibrated bounds.
-
-    Parameters
-    ----------
-    name : str
-    dt : float
-        Sampling step.
-    bounds : ndarray, shape (nv,)
-        Per-dof bound on the derivative :func:`bound_order` names (acceleration or jerk).
-    noise_std : ndarray, shape (nv,)
-        The sensor's random error per dof (floored at 1e-6 where a gain formula divides by it).
-    observer_kwargs : dict, optional
-        Override any constructor argument.
-
-    Gains: ``lipschitz = bounds`` (per dof) for the sliding-mode differentiators; ``HighGain.from_bounds``
-    (:math:`\ell = \sqrt{L/\epsilon}`, largest ``L``, mean noise) and ``KalmanCA.from_bounds`` (``q = L^2/\tau``,
-    ``r`` from the noise) for the linear ones; finite differences need nothing. Other observers are matched by
-    their constructor's parameters: ``disturbance``/``noise`` (largest bound, mean noise), or a required ``gain``
-    (:math:`\ell = \sqrt{L/\epsilon}`, the high-gain balance).
-    """
-    if name not in OBSERVERS:
-        make_observer(name)  # raises the ValueError that lists the valid names
-    kw = dict(observer_kwargs or {})
-    cls = OBSERVERS[name]
-    noise = float(max(np.mean(noise_std), 1e-6))
-    if name == "finite-difference":
-        return cls(dt, **kw)
-    if name == "high-gain":
-        if "gain" in kw:
-            return cls(dt, **kw)
-        order = kw.pop("order", 1)
-        return cls.from_bounds(dt, float(np.max(bounds)), noise, order=order, **kw)
-    if name == "kalman-ca":
-        if "process_noise" in kw and "measurement_noise" in kw:
-            return cls(dt, **kw)
-        return cls.from_bounds(dt, noise, float(np.max(bounds)), **kw)
-    params = inspect.signature(cls).parameters
-    try:
-        if "lipschitz" in params:
-            if "k1" not in kw or "k2" not in kw:
-                kw.setdefault("lipschitz", np.asarray(bounds, dtype=float))
-        elif "disturbance" in params and "noise" in params:
-            kw.setdefault("disturbance", float(np.max(bounds)))
-            kw.setdefault("noise", noise)
-        elif "gain" in params and params["gain"].default is inspect.Parameter.empty:
-            kw.setdefault("gain", float(np.sqrt(np.max(bounds) / noise)))
-        return cls(dt=dt, **kw)
-    except TypeError as exc:
-        raise ValueError(
-            f"expected observer_kwargs completing the parameters of {cls.__name__} (no default gains are known "
-            f"for it), actual value: {observer_kwargs!r} ({exc})"
-        ) from None
