@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._extras import require
 from .._validation import check_positive
 
 #: solver-side margin so that the NumPy re-check sees a strictly negative matrix despite solver tolerances
@@ -125,7 +126,7 @@ def apaza_lmi_matrix(P, theta1, theta2, epsilon, *, k1, k2, k3, mu1, mu2, lipsch
 
 
 def _solve(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max, epsilon):
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     A, B, H_E, H_C, c2 = _constants(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max)
     P = cp.Variable((2, 2), symmetric=True)

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import null_space
 
+from .._extras import require
 from .._validation import check_choice, check_int_in_range, check_positive
-
 from .lmi import LMIInfeasibleError  # shared with the switched-gain design of paper 000
 
 
@@ -405,7 +405,7 @@ class ILFDesign:
 
 
 def _sym(X):
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     return 0.5 * (X + X.T) if isinstance(X, np.ndarray) else cp.Constant(0.5) * (X + X.T)
 
@@ -419,7 +419,7 @@ def _finite_constraints(v, dec, Hr, grid, delta, eps, numeric=False, proposition
 
     With ``proposition=False`` (15)-(16) are replaced by (14) at the grid points only.
     """
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     bm = np.block if numeric else cp.bmat
     P, Y, Z, M = v["P"], v["Y"], v["Z"], v.get("M")
@@ -461,7 +461,7 @@ def _fixed_constraints(v, dec, mu, alpha, beta, lgrid, ggrid, delta, eps, numeri
 
     With ``proposition=False`` (25)-(29) are replaced by (24) at the grid points only.
     """
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     bm = np.block if numeric else cp.bmat
     n, k = dec.n, dec.C0.shape[0]
@@ -524,7 +524,7 @@ def _max_eig(X) -> float:
 
 
 def _solve(constraints: dict, variables: dict) -> tuple[str, dict]:
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     cons = []
     for M in constraints.values():
@@ -623,7 +623,7 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
     printed one; Proposition 11 with the default :math:`\beta = \tilde r_1` is feasible for ``mu = 0.5``,
     ``alpha = 32/7`` after three refinements (gains of the printed magnitude).
     """
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     kind = check_choice("kind", kind, ("finite", "fixed"))
     condition = check_choice("condition", condition, ("proposition", "points"))

@@ -18,6 +18,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .._extras import require
 from .._validation import check_int_in_range, check_positive
 
 __all__ = [
@@ -214,7 +215,7 @@ def certify_switched_gain(l, P, kappa: float, rho_d: float, rho_v: float, gamma:
 
 @lru_cache(maxsize=64)
 def _solve_cached(n: int, kappa: float, rho_d: float, rho_v: float, gamma: float, eps: float):
-    import cvxpy as cp  # local import: cvxpy takes about a second to import
+    cp = require("cvxpy", "design")  # imported here: cvxpy takes about a second to import
 
     A, b, c = _canonical(n)
     P = cp.Variable((n, n), symmetric=True)
