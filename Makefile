@@ -24,7 +24,7 @@ test: $(VENV)/.installed
 
 # The documentation site (MkDocs Material + mkdocstrings), strict: any warning fails; offline, into site/.
 docs: $(VENV)/.installed
-	MUJOCO_GL=disable $(VENV)/bin/mkdocs build --strict --site-dir site
+	MUJOCO_GL=disable NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
 
 bench: $(VENV)/.installed
 	MUJOCO_GL=disable $(PY) scripts/bench_observers.py

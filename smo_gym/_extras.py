@@ -54,8 +54,9 @@ def require(module: str, extra: str) -> ModuleType:
     Raises
     ------
     MissingExtraError
-        A :class:`ModuleNotFoundError`: the module, or another module of the same extra that it imports, is missing; the message says
-        ``pip install "smo_gym[extra]"``. Other import errors (a broken installation) propagate unchanged.
+        A :class:`ModuleNotFoundError`: the module, or another module of the same extra that it imports, is
+        missing; the message says ``pip install "smo_gym[extra]"``. Other import errors (a broken installation)
+        propagate unchanged.
     ValueError
         ``extra`` is not an extra of smo_gym.
     """

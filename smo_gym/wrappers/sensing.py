@@ -841,6 +841,8 @@ def default_observer(name: str, dt: float, bounds: np.ndarray, noise_std: np.nda
     observer_kwargs : dict, optional
         Override any constructor argument.
 
+    Notes
+    -----
     Gains: ``lipschitz = bounds`` (per dof) for the sliding-mode differentiators; ``HighGain.from_bounds``
     (:math:`\ell = \sqrt{L/\epsilon}`, largest ``L``, mean noise) and ``KalmanCA.from_bounds`` (``q = L^2/\tau``,
     ``r`` from the noise) for the linear ones; finite differences need nothing. Other observers are matched by
