@@ -21,7 +21,7 @@ shared, wall time would count other jobs); resets at episode ends happen outside
 variant is taken against the raw block of the *same* repeat, and the table reports the median over repeats (and
 the inter-quartile range of the ratio), so slow drifts of the machine cancel.
 
-Targets (issue 3), each also required to be below ``NormalizeObservation``'s ratio on the same environment:
+Targets, each also required to be below ``NormalizeObservation``'s ratio on the same environment:
 
 ================== ============== ==================
 environment         ``rate="env"``  ``rate="physics"``

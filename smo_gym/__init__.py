@@ -28,5 +28,6 @@ def __getattr__(name: str):
 
 register_envs()  # gymnasium.make("smo_gym/...") works after a plain ``import smo_gym``
 
+#: the version of the package (as in ``pyproject.toml``)
 __version__ = "0.1.0"
 __all__ = ["DivergenceError", "__version__", "design", "differentiate", "observers", "sensors"]

@@ -16,6 +16,8 @@ import os
 import sys
 from pathlib import Path
 
+from ._extras import MissingExtraError, require
+
 __all__ = ["DEFAULT_OBSERVERS", "HelpFormatter", "build_parser", "check_env_id", "check_output_file", "main"]
 
 DEFAULT_OBSERVERS = "super-twisting,levant,levant:discretization=matching,high-gain,kalman-ca,finite-difference"
@@ -125,7 +127,7 @@ def check_env_id(env_id: str) -> str:
     from . import envs  # noqa: F401 - registers smo_gym/...
 
     if env_id.startswith("dm_control/"):
-        import shimmy  # noqa: F401 - registers dm_control/...
+        require("shimmy", "dm_control")  # registers dm_control/...
     if env_id in gym.registry:
         return env_id
     match = difflib.get_close_matches(env_id, list(gym.registry), n=1, cutoff=0.6)
@@ -136,7 +138,7 @@ def check_env_id(env_id: str) -> str:
 def check_output_file(path: str) -> Path:
     """``path`` after checking that a plot can be written there: a format matplotlib writes, not a folder, and
     the nearest existing folder above it writable (folders in between are created)."""
-    from matplotlib.figure import Figure
+    Figure = require("matplotlib.figure", "plots").Figure
 
     out = Path(path)
     formats = Figure().canvas.get_supported_filetypes()
@@ -199,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
             from .control.experiments import cli as control
 
             return control(args)
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, MissingExtraError) as exc:
         message = " ".join(str(exc).split())  # one line
         print(f"smo-gym {args.command}: error: {message}", file=sys.stderr)
         return 2

@@ -36,6 +36,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from ._extras import require
 from .envs import make as make_by_id
 from .specs import make_sensor, parse_observer_spec
 
@@ -59,7 +60,9 @@ __all__ = [
     "velocity_entries",
 ]
 
+#: what the policy observes (see the module docstring)
 SENSINGS = ("true", "estimated", "finite-difference", "no-velocity", "stacked-positions")
+#: the Stable-Baselines3 algorithms :func:`train` runs
 ALGOS = ("PPO", "SAC")
 
 
@@ -188,7 +191,7 @@ def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: 
     ``True``); otherwise one :class:`~smo_gym.wrappers.EstimatedVelocity` per environment. Both give the same
     observations.
     """
-    from stable_baselines3.common.env_util import make_vec_env
+    make_vec_env = require("stable_baselines3.common.env_util", "rl").make_vec_env
 
     _check_sensing(sensing)
     explicit = vectorized
@@ -276,7 +279,7 @@ def _policy_kwargs_node(node, text: str):
     if isinstance(node, ast.Attribute):
         dotted = ast.unparse(node)
         module, _, attr = dotted.rpartition(".")
-        import torch
+        torch = require("torch", "rl")
 
         if module in ("nn", "th.nn", "torch.nn") and attr in _ACTIVATIONS:
             return getattr(torch.nn, attr)
@@ -303,11 +306,9 @@ def parse_policy_kwargs(text: str) -> dict:
 
 
 def _algo_class(algo: str):
-    from stable_baselines3 import PPO, SAC
-
     if algo not in ALGOS:
         raise ValueError(f"expected algo in {', '.join(ALGOS)}, actual value: {algo!r}")
-    return PPO if algo == "PPO" else SAC
+    return getattr(require("stable_baselines3", "rl"), algo)
 
 
 def algo_kwargs(algo: str, hyperparams: dict | None) -> dict:
@@ -362,7 +363,7 @@ def _normalize_option(value) -> bool | dict:
     if isinstance(value, dict):
         import inspect
 
-        from stable_baselines3.common.vec_env import VecNormalize
+        VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
         valid = [p for p in inspect.signature(VecNormalize.__init__).parameters if p not in ("self", "venv")]
         bad = [k for k in value if k not in valid]
@@ -399,11 +400,7 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") ->
     """
     import difflib
 
-    try:
-        import yaml
-    except ImportError:
-        raise ValueError("expected pyyaml to read hyperparameter files (pip install 'smo_gym[rl]'), actual value: "
-                         "not installed") from None
+    yaml = require("yaml", "rl")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"expected a hyperparameter file (rl-zoo3 yaml), actual value: {str(path)!r} does not exist")
@@ -513,14 +510,15 @@ def _remove_run(folder: Path) -> None:
 # ----------------------------------------------------------------------------------------------------------------
 def _progress_callback():
     """SB3's rich progress bar when ``rich`` is installed, else a plain tqdm bar with the same role."""
-    from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
+    callbacks = require("stable_baselines3.common.callbacks", "rl")
+    BaseCallback, ProgressBarCallback = callbacks.BaseCallback, callbacks.ProgressBarCallback
 
     try:
         import rich  # noqa: F401
 
         return ProgressBarCallback()
     except ImportError:
-        from tqdm.auto import tqdm
+        tqdm = require("tqdm.auto", "rl").tqdm
 
         class TqdmProgress(BaseCallback):
             def _on_training_start(self):
@@ -537,7 +535,7 @@ def _progress_callback():
 
 
 def _logger(folder: Path, verbose: int):
-    from stable_baselines3.common.logger import configure
+    configure = require("stable_baselines3.common.logger", "rl").configure
 
     formats = ["csv"] + (["stdout"] if verbose else [])
     try:
@@ -551,7 +549,7 @@ def _logger(folder: Path, verbose: int):
 
 def _frozen_normalization(train_venv, eval_venv):
     """Wrap ``eval_venv`` in a ``VecNormalize`` with ``train_venv``'s observation statistics, frozen."""
-    from stable_baselines3.common.vec_env import VecNormalize
+    VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
     if not isinstance(train_venv, VecNormalize):
         return eval_venv
@@ -562,7 +560,7 @@ def _frozen_normalization(train_venv, eval_venv):
 
 
 def _returns(model, venv, episodes: int, deterministic: bool = True) -> np.ndarray:
-    from stable_baselines3.common.evaluation import evaluate_policy
+    evaluate_policy = require("stable_baselines3.common.evaluation", "rl").evaluate_policy
 
     rewards, _ = evaluate_policy(model, venv, n_eval_episodes=episodes, deterministic=deterministic,
                                  return_episode_rewards=True, warn=False)
@@ -624,9 +622,10 @@ def train(env_id: str, *, sensing: str = "estimated", sensor: str = "encoder-12b
         ``"status": "training"``) and completed at the end (``"status": "done"``), so that checkpoints of an
         interrupted run can be evaluated under their sensing.
     """
-    import torch
-    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
-    from stable_baselines3.common.vec_env import VecNormalize
+    torch = require("torch", "rl")
+    callbacks = require("stable_baselines3.common.callbacks", "rl")
+    BaseCallback, CheckpointCallback = callbacks.BaseCallback, callbacks.CheckpointCallback
+    VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
     _check_sensing(sensing)
     cls = _algo_class(algo)
@@ -776,7 +775,7 @@ def evaluate(model: str | os.PathLike, *, env_id: str | None = None, sensing: st
         No ``run.json`` and no ``env_id``/``sensing`` given; statistics the run normalized with are missing; a
         sensing of another observation shape.
     """
-    from stable_baselines3.common.vec_env import VecNormalize
+    VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
     if episodes < 1:
         raise ValueError(f"expected episodes >= 1, actual value: {episodes}")
@@ -806,7 +805,7 @@ def evaluate(model: str | os.PathLike, *, env_id: str | None = None, sensing: st
         venv = VecNormalize.load(str(files["vecnormalize"]), venv)
         venv.training = False
         venv.norm_reward = False
-    from stable_baselines3.common.evaluation import evaluate_policy
+    evaluate_policy = require("stable_baselines3.common.evaluation", "rl").evaluate_policy
 
     rewards, lengths = evaluate_policy(agent, venv, n_eval_episodes=episodes, deterministic=deterministic,
                                        return_episode_rewards=True, warn=False)

@@ -9,7 +9,7 @@ References
    Int. J. Control 76(9-10), 2003.
 .. [2] M. Livne and A. Levant, "Proper discretization of homogeneous differentiators", Automatica 50, 2014.
 .. [3] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear discrete-time
-   observer" (paper 003 in ``shared/papers``), eq. (35).
+   observer", eq. (35).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ __all__ = [
     "super_twisting_gains",
 ]
 
-#: Levant's recursive-form parameters ``lambda_0 .. lambda_5`` (paper 004, below eq. (7); [1]).
+#: Levant's recursive-form parameters ``lambda_0 .. lambda_5`` (Fridman's lecture slides, below eq. (7); [1]).
 LEVANT_LAMBDAS = (1.1, 1.5, 2.0, 3.0, 5.0, 8.0)
 #: The table above covers differentiators of order 1 to 5.
 MAX_LEVANT_ORDER = 5
@@ -45,7 +45,7 @@ def levant_lambdas(order: int, form: str = "recursive") -> np.ndarray:
     order : int
         Differentiation order ``k`` in ``[1, 5]``.
     form : {"recursive", "nonrecursive"}
-        ``"recursive"`` returns ``(lambda_k, ..., lambda_0)`` of eq. (7) of paper 004, in state order (the entry
+        ``"recursive"`` returns ``(lambda_k, ..., lambda_0)`` of eq. (7) of Fridman's slides, in state order (the entry
         ``i`` multiplies the correction of ``z_i``). ``"nonrecursive"`` returns the equivalent
         ``(Lambda_1, ..., Lambda_k, lambda_0)`` of the non-recursive form
 

@@ -29,5 +29,7 @@ def make(env_id: str, **kwargs) -> gym.Env:
     environments (this module) and dm_control's suite, ``dm_control/<domain>-<task>-v0``, which shimmy registers
     when imported (Gymnasium 1.x has no plugin entry points, so ``gymnasium.make`` alone does not find them)."""
     if env_id.startswith("dm_control/"):
-        import shimmy  # noqa: F401 - registers the dm_control/... ids
+        from .._extras import require
+
+        require("shimmy", "dm_control")  # registers the dm_control/... ids
     return gym.make(env_id, **kwargs)

@@ -445,7 +445,6 @@ class ILFDifferentiator(Observer):
         :math:`L_f`, per channel; sets the default ``rate``.
     order : int
         Derivatives estimated, ``1 <= order <= 4``.
-    kind : {"finite", "fixed"}
     mu : float, optional
         Default 1 (finite) or 0.5 (fixed).
     alpha : float, optional

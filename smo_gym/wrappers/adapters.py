@@ -75,6 +75,7 @@ __all__ = [
     "register_adapter",
 ]
 
+#: sources of the contact forces (``cfrc_ext``) in a sensed observation: see :class:`EstimatedVelocity`
 CONTACT_FORCES = ("sensor", "estimated", "zero")
 #: the controller's inputs that ``observation`` copies from the live data (those the observation reads, probed)
 _INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")

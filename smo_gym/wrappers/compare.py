@@ -35,6 +35,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from .. import _extras as extras
 from .._validation import DivergenceError
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
@@ -174,9 +175,7 @@ def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-no
     start()
     iterator = range(steps)
     if progress:
-        from tqdm.auto import tqdm
-
-        iterator = tqdm(iterator, desc=f"{env_id} rollout", unit="step", leave=False)
+        iterator = extras.progress(iterator, desc=f"{env_id} rollout", unit="step")
     hook = adapter.supports_substeps()
     for step in iterator:
         if hook:
@@ -245,9 +244,7 @@ def compare_observers(rec: Recording, observers=DEFAULT_OBSERVERS, *, observer_k
     results = []
     iterator = names
     if progress:
-        from tqdm.auto import tqdm
-
-        iterator = tqdm(names, desc="observers", leave=False)
+        iterator = extras.progress(names, desc="observers")
     for spec in iterator:
         name, kw = specs[spec]
         kw = {**kw, **((observer_kwargs or {}).get(spec) or {})}
@@ -385,10 +382,8 @@ def velocity_figure(rec: Recording, results: list[ObserverResult], joints, *, se
     clipped at the edge, with triangles where they leave it, and their legend entry says which fraction of the
     window was off scale and the largest value. The legend sits outside the axes, to the right.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    extras.require("matplotlib", "plots").use("Agg")
+    plt = extras.require("matplotlib.pyplot", "plots")
 
     if not seconds > 0:
         raise ValueError(f"expected seconds > 0, actual value: {seconds!r}")
@@ -441,7 +436,7 @@ def velocity_figure(rec: Recording, results: list[ObserverResult], joints, *, se
 
 def plot_velocities(rec: Recording, results: list[ObserverResult], joints, out: str, *, seconds: float = 1.0) -> str:
     """Write :func:`velocity_figure` to ``out`` (PNG or any format matplotlib knows by the suffix); its path."""
-    import matplotlib.pyplot as plt
+    plt = extras.require("matplotlib.pyplot", "plots")
 
     fig = velocity_figure(rec, results, joints, seconds=seconds)
     Path(out).parent.mkdir(parents=True, exist_ok=True)

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._extras import require
 from .adapters import GymnasiumMujocoAdapter, SubstepHook, register_adapter
 from .sensing import stable_repr
 
@@ -155,7 +156,7 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
     """
 
     def __init__(self, env, contact_forces: str = "sensor"):
-        from dm_control.rl import control
+        control = require("dm_control.rl.control", "dm_control")
 
         dm = getattr(env, "_env", None)
         if not isinstance(dm, control.Environment):
@@ -245,8 +246,9 @@ def make_dm_control(domain: str, task: str, sensor="encoder-12bit-noisy", observ
         Unknown domain/task (the message lists the suite's tasks), and everything ``EstimatedVelocity`` raises.
     """
     import gymnasium as gym
-    import shimmy  # noqa: F401 - registers the dm_control/... ids
-    from dm_control import suite
+
+    require("shimmy", "dm_control")  # registers the dm_control/... ids
+    suite = require("dm_control.suite", "dm_control")
 
     from .estimated_velocity import EstimatedVelocity
 

@@ -11,12 +11,15 @@ import pickle
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
+from .._extras import require
 from .sensing import SensingInfo
 from .vec import _Sensing, attach_sensors, check_vector_rate, sensing_config
 
 __all__ = ["VecEstimatedVelocity"]
+
+_vec_env = require("stable_baselines3.common.vec_env", "rl")
+DummyVecEnv, VecEnvWrapper = _vec_env.DummyVecEnv, _vec_env.VecEnvWrapper
 
 
 class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
