@@ -4,14 +4,14 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip -q --disable-pip-version-check
 
-.PHONY: demo test bench install clean
+.PHONY: demo test docs bench install clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --upgrade pip
-	# CPU torch first, so stable-baselines3 does not pull a multi-GB CUDA build.
+	# CPU torch first, so stable-baselines3 does not pull a multi-GB CUDA build (the package itself does not pin it).
 	$(PIP) install torch==2.13.0
-	$(PIP) install -e ".[test,bench]"
+	$(PIP) install -e ".[all,test,bench,docs]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -22,8 +22,12 @@ demo: $(VENV)/.installed
 test: $(VENV)/.installed
 	MUJOCO_GL=disable $(PY) -m pytest -q -m "not slow"
 
+# The documentation site (MkDocs Material + mkdocstrings), strict: any warning fails; offline, into site/.
+docs: $(VENV)/.installed
+	MUJOCO_GL=disable NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
+
 bench: $(VENV)/.installed
 	MUJOCO_GL=disable $(PY) scripts/bench_observers.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build site *.egg-info

@@ -13,9 +13,9 @@ gains (:func:`~smo_gym.wrappers.sensing.default_observer` from the calibrated bo
 backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter, ``from_bounds``) are in the registry
 and so appear in every row as the references.
 
-The number is ``compare_observers``' ``rmse``: the velocity RMSE over all dofs and all samples after the
-observer's convergence in each episode (the first sample whose error is within three times the observer's own
-steady level; observers restart from zero velocity at every episode start, as in the wrapper). A diverged
+The number is ``compare_observers``' ``rmse``: the velocity RMSE over all dofs and estimates, i.e. every sample
+but the first of each episode, where observers restart from the first measurement with zero velocity, as in the
+wrapper (transients after it are included). A diverged
 observer (non-finite state) is shown as ``div``. The smallest RMSE of a row is in bold; observers within 1 % of
 it (or within ``1e-9`` times the velocity RMS: round-off on the Euler-integrated environments, where the backward
 difference is exact with an ideal sensor) share the win. The second table counts wins per observer.
@@ -178,8 +178,8 @@ def main(argv=None) -> int:
     rows = run([e for e in args.envs.split(",") if e], [s for s in args.sensors.split(",") if s],
                [r for r in args.rates.split(",") if r], args.steps, args.seed, names)
     text = format_tables(rows, names)
-    header = (f"Velocity RMSE after convergence (rad/s or m/s, all dofs), {args.steps} env steps per rollout, "
-              f"seed {args.seed}, smooth random policy; bold = best of the row (ties within 1 %)\n")
+    header = (f"Velocity RMSE (rad/s or m/s, all dofs, every sample but each episode's first), {args.steps} env steps "
+              f"per rollout, seed {args.seed}, smooth random policy; bold = best of the row (ties within 1 %)\n")
     print(header)
     print(text)
     print(f"\n({time.perf_counter() - t0:.0f} s)", file=sys.stderr)

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-r"""Benchmark of the model-based velocity observers (issue 4).
+r"""Benchmark of the model-based velocity observers.
 
 Prints six markdown tables:
 
@@ -272,7 +272,7 @@ def table_cost(T):
             blocks.append((t_step / T * 1e6, t_obs / T * 1e6))
         s, o = np.median(np.array(blocks), axis=0)
         print(f"| {contact} | {s:.1f} | {o:.1f} | {(s + o) / s:.2f} |")
-    print("\n(`d.qpos.copy()` of the measurement is inside the observer timing; the bound of issue 4 is 1.5.)")
+    print("\n(`d.qpos.copy()` of the measurement is inside the observer timing; the target bound is 1.5.)")
 
 
 def table_variable_inertia(T):

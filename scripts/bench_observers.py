@@ -7,7 +7,7 @@ Prints three markdown tables (the ones in the README section "Accuracy and speed
    plus the notable alternatives) and 1, 8, 32, 256 channels: ``Observer.update(y)`` (validation + compiled
    kernel + bookkeeping), the compiled kernel call alone, and a plain vectorized NumPy implementation of the same
    recursion written here from the equations (its agreement with the kernel is checked and printed). Medians over
-   repeats, all measured side by side in one run. Targets of issue 2: ``update()`` <= 2 us up to 32 channels,
+   repeats, all measured side by side in one run. Targets: ``update()`` <= 2 us up to 32 channels,
    compiled step <= 0.5 us.
 2. **Offline throughput** of :func:`smo_gym.differentiate` on a ``(T, 8)`` array, in channel-samples per second.
    Target: >= 50 M/s for SuperTwisting on ``(1_000_000, 8)``.
@@ -141,7 +141,7 @@ class NumpySTAImplicit:
 
 
 class NumpyEigmap:
-    """Paper 003's discrete-time observer with eigenvalue mapping (15)/(16), Ackermann gain by Horner's rule."""
+    """Wetzlinger et al.'s discrete-time observer with eigenvalue mapping (15)/(16), Ackermann gain by Horner's rule."""
 
     def __init__(self, dt, p1, m, mode, mu=0.0):
         self.dt, self.p1, self.m, self.mode, self.mu = dt, p1, m, mode, mu
@@ -418,7 +418,7 @@ def table_speed(quick: bool) -> list[str]:
         f"Call floor, an empty numba kernel with the same five array arguments: {floor:.2f} us through the "
         f"dispatcher, {floor_entry:.2f} us through its compiled entry point (what `update()` calls). "
         "`update()` adds the input checks and the allocation of the returned array to the entry-point call.",
-        f"Targets (issue 2), rows with <= 32 channels, by median (by best repeat): `update()` <= 2 us met in "
+        f"Targets, rows with <= 32 channels, by median (by best repeat): `update()` <= 2 us met in "
         f"{ok[0, 0]}/{total} ({ok[1, 0]}/{total}); kernel <= 0.5 us met in {ok[0, 2]}/{total} ({ok[1, 2]}/{total}) "
         f"through the entry point, {ok[0, 1]}/{total} ({ok[1, 1]}/{total}) through the dispatcher.",
     ]
@@ -461,7 +461,7 @@ def table_throughput(quick: bool) -> list[str]:
         obs.run(Y)
         times.append(CLOCK() - t0)
     run_rate = T * n_ch / np.median(times), T * n_ch / np.min(times)
-    lines += ["", f"Target (issue 2): >= 50 M/s for SuperTwisting; measured {target[0] / 1e6:.0f} M/s median, "
+    lines += ["", f"Target: >= 50 M/s for SuperTwisting; measured {target[0] / 1e6:.0f} M/s median, "
               f"{target[1] / 1e6:.0f} M/s best ({label}, the default). The time includes building the observer "
               "and allocating the output array (T, 8, order + 1); `Observer.run` alone on the same array: "
               f"{run_rate[0] / 1e6:.0f} M/s median, {run_rate[1] / 1e6:.0f} M/s best."]

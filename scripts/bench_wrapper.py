@@ -21,7 +21,7 @@ shared, wall time would count other jobs); resets at episode ends happen outside
 variant is taken against the raw block of the *same* repeat, and the table reports the median over repeats (and
 the inter-quartile range of the ratio), so slow drifts of the machine cancel.
 
-Targets (issue 3), each also required to be below ``NormalizeObservation``'s ratio on the same environment:
+Targets, each also required to be below ``NormalizeObservation``'s ratio on the same environment:
 
 ================== ============== ==================
 environment         ``rate="env"``  ``rate="physics"``
@@ -184,8 +184,8 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     for env in (no_scratch, no_observe, no_sensing):
         env.adapter.observe_scratch = lambda *args, c=const: c
         env._fused.maps_observation = False  # a selection built by the compiled call is switched off here too
-    def no_observation(block, info, c=const):
-        info["smo"] = {}  # a step still hands an info["smo"] on (the intercepted path reads it back)
+    def no_observation(block, info, clean, c=const):
+        info["smo"] = {}
         return c
 
     for env in (no_observe, no_sensing):

@@ -1,4 +1,4 @@
-"""Low-power peaking-free observer (paper 002) against the standard high-gain observer (2).
+"""Low-power peaking-free observer (Astolfi et al. 2018) against the standard high-gain observer (2).
 
 Two measurements, printed as tables (``python scripts/compare_low_power.py``):
 

@@ -1,4 +1,4 @@
-"""Output-feedback control experiments of paper 004, section 6 (issue 6).
+"""Output-feedback control experiments of section 6 of Fridman's lecture slides, Sliding Mode Observers.
 
 Prints the tables and writes the plots of :func:`smo_gym.control.experiments.run_all`:
 

@@ -9,7 +9,7 @@ observers with initial velocity errors of ``+-10x`` and ``+-100x`` the typical (
   gains from :func:`smo_gym.design.apaza_gains`;
 * :class:`MechanicalSuperTwisting` without saturation (the untransformed model-based observer): its own model term
   :math:`\alpha\hat v^2` has a finite escape time when :math:`\alpha\hat v > 0`;
-* :class:`MechanicalSuperTwisting` with the model term saturated (paper 003, eq. (33)).
+* :class:`MechanicalSuperTwisting` with the model term saturated (Wetzlinger et al., eq. (33)).
 
 All use the same disturbance bound ``L`` and the exact model, no noise, 10 ms sampling. Prints the convergence time
 (last time the velocity error exceeds 0.05 rad/s) or the escape time, and saves a figure with the error curves and

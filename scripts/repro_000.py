@@ -1,4 +1,4 @@
-"""Reproduce Section 6 of paper 000 (Efimov, Polyakov, Levant, Perruquetti, IFAC WC 2017).
+"""Reproduce Section 6 of Efimov, Polyakov, Levant and Perruquetti, IFAC World Congress 2017.
 
 Differentiation of ``f(t) = 1 + sin(t) + sin(pi t)`` measured with the noise ``v(t) = V sin(omega t)``, ``V = 0.1``,
 for ``(h, omega) = (0.01, 25)`` (Fig. 1) and ``(0.001, 250)`` (Fig. 2), by
@@ -87,7 +87,7 @@ def _rms(x: np.ndarray) -> float:
 
 
 def reproduce_000(out_dir) -> list[dict]:
-    """Rerun Section 6 of paper 000; write the figures into ``out_dir``; return the claims with measurements.
+    """Rerun Section 6 of Efimov et al. 2017; write the figures into ``out_dir``; return the claims with measurements.
 
     Returns
     -------
@@ -243,7 +243,7 @@ def _figures(runs, out_dir: Path) -> None:
         axes[2].set_xlabel("t [s]")
         axes[0].legend(fontsize=7, loc="upper right")
         axes[1].legend(fontsize=7, loc="upper right")
-        fig.suptitle(f"Paper 000, Fig. {i}: h = {h}, omega = {omega}")
+        fig.suptitle(f"Efimov et al. 2017, Fig. {i}: h = {h}, omega = {omega}")
         fig.tight_layout()
         fig.savefig(out_dir / f"paper000_fig{i}_h{h}_omega{omega:g}.png", dpi=100)
         plt.close(fig)

@@ -1,18 +1,20 @@
 #!/usr/bin/env python
-r"""Rerun the numerical examples of papers 000, 001 and 003 and print each claim next to what was measured.
+r"""Rerun the numerical examples of Efimov et al. 2017, Lopez-Ramirez et al. 2016 and Wetzlinger et al.; print each
+claim next to what was measured.
 
 Usage::
 
-    python scripts/reproduce_papers.py [--out outputs/papers] [--papers 000 001 003] [--fast]
+    python scripts/reproduce_papers.py [--out outputs/papers] [--fast]
+        [--papers efimov2017 lopez-ramirez2016 wetzlinger]
 
-Paper 000 (switched-gain differentiator) is reproduced by ``scripts/repro_000.py`` (``reproduce_000``), imported
-when present. Paper 001 (ILF finite-time / fixed-time observers, section V) and paper 003 (discrete-time HOSM
-observer, section 6) are reproduced here with :class:`smo_gym.observers.ILFObserver`,
+Efimov et al. 2017 (switched-gain differentiator) is reproduced by ``scripts/repro_000.py`` (``reproduce_000``),
+imported when present. Lopez-Ramirez et al. 2016 (ILF finite-time / fixed-time observers, section V) and Wetzlinger
+et al. (discrete-time HOSM observer, section 6) are reproduced here with :class:`smo_gym.observers.ILFObserver`,
 :func:`smo_gym.design.ilf_gains` and :class:`smo_gym.observers.DiscreteTimeHOSM`. The experiment functions
 (``example_001``, ``run_ilf_errors``, ``simulate_003``, ...) are also what ``tests/test_ilf.py`` and
 ``tests/test_discrete_hosm.py`` run, with coarser settings.
 
-Paper 001, how the errors are simulated
+Lopez-Ramirez et al. 2016, how the errors are simulated
 ---------------------------------------
 The plant of section V is unstable (eigenvalues up to 10.1), so from :math:`x(0) = 10^4x^*` its state reaches
 ~1e12 by t = 1.75 s, and the claim :math:`\|e(1.75)\| \le 2\cdot10^{-4}` would sit below float64 resolution of
@@ -42,12 +44,12 @@ from smo_gym.design.lmi import LMIInfeasibleError  # noqa: E402
 from smo_gym.observers import DiscreteTimeHOSM, ILFObserver  # noqa: E402
 
 # ----------------------------------------------------------------------------------------------------------------
-# paper 001, section V
+# Lopez-Ramirez et al. 2016, section V
 # ----------------------------------------------------------------------------------------------------------------
 
 
 def example_001() -> dict:
-    """The system, transformation and gains printed in section V of paper 001."""
+    """The system, transformation and gains printed in section V of Lopez-Ramirez et al. 2016."""
     A = np.array([[1, 1, 2, 4, 5], [1, 3, 2, -1, -3], [2, 1, -3, 7, 3], [4, -2, 9, 1, -1], [1, -1, 0, 2, 1]], float)
     B = np.array([[0.0], [0.0], [0.0], [0.0], [1.0]])
     C = np.array([[1, 0, 0, 0, 0], [0, 0, 0, 0, 1]], float)
@@ -117,7 +119,8 @@ def run_real_plant_001(observer: ILFObserver, x0, T: float) -> tuple[np.ndarray,
 
 
 def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> list[dict]:
-    """Section V of paper 001: both observers, the paper's gains and ours; claims against measurements."""
+    """Section V of Lopez-Ramirez et al. 2016: both observers, the paper's gains and ours; claims against
+    measurements."""
     ex = example_001()
     A, B, C = ex["A"], ex["B"], ex["C"]
     xs = ex["x_star"]
@@ -233,7 +236,7 @@ def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> 
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# paper 003, section 6
+# Wetzlinger et al., section 6
 # ----------------------------------------------------------------------------------------------------------------
 
 
@@ -382,7 +385,7 @@ def reproduce_003(out_dir: Path | None, T: float = 10.0) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# paper 000 (from scripts/repro_000.py)
+# Efimov et al. 2017 (from scripts/repro_000.py)
 # ----------------------------------------------------------------------------------------------------------------
 
 
@@ -396,8 +399,14 @@ def reproduce_000(out_dir: Path | None) -> list[dict] | None:
     return module.reproduce_000(out_dir)
 
 
+#: ``--papers`` choice -> (citation, reproducing function's key)
+PAPERS = {"efimov2017": ("Efimov, Polyakov, Levant and Perruquetti 2017", "000"),
+          "lopez-ramirez2016": ("Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016", "001"),
+          "wetzlinger": ("Wetzlinger, Reichhartinger and Horn", "003")}
+
+
 def _print(paper: str, claims: list[dict] | None) -> None:
-    print(f"\n=== paper {paper} ===")
+    print(f"\n=== {PAPERS[paper][0]} ===")
     if claims is None:
         print("pending (scripts/repro_000.py not present yet)")
         return
@@ -406,18 +415,19 @@ def _print(paper: str, claims: list[dict] | None) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--out", default="outputs/papers", help="directory for the figures")
-    parser.add_argument("--papers", nargs="+", default=["000", "001", "003"], choices=["000", "001", "003"])
+    parser.add_argument("--papers", nargs="+", default=list(PAPERS), choices=list(PAPERS))
     parser.add_argument("--fast", action="store_true", help="shorter horizons")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for paper in args.papers:
         t0 = time.perf_counter()
-        if paper == "000":
+        key = PAPERS[paper][1]
+        if key == "000":
             claims = reproduce_000(out)
-        elif paper == "001":
+        elif key == "001":
             claims = reproduce_001(out, fast=args.fast)
         else:
             claims = reproduce_003(out)

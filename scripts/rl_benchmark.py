@@ -55,7 +55,7 @@ def run_one(env_id: str, sensing: str, seed: int, steps: int, models: str, episo
     folder = Path(models) / f"{env_id}-{sensing}-s{seed}"
     summary = rl.train(env_id, sensing=sensing, sensor=SENSOR, steps=steps, seed=seed, n_envs=N_ENVS, out=folder,
                        hyperparams=HYPERPARAMS, evaluate_at=[steps // 2, steps], eval_sensings=evals,
-                       eval_episodes=episodes)
+                       eval_episodes=episodes, overwrite=True)  # a rerun of the benchmark replaces its runs
     rows = []
     for ev in summary["evaluations"]:
         rows.append(dict(env=env_id, train_sensing=sensing, eval_sensing=ev["sensing"], steps=ev["steps"], seed=seed,

@@ -5,10 +5,12 @@ sliding-mode and high-gain observers, the way a real controller would have to.
 
 ``smo_gym.wrappers``, ``smo_gym.control``, ``smo_gym.mechanics`` and ``smo_gym.envs`` import Gymnasium and/or
 MuJoCo, so they load on first access (``from smo_gym import wrappers`` or ``smo_gym.wrappers``), keeping
-``import smo_gym`` light for pure signal processing.
+``import smo_gym`` light for pure signal processing. ``import smo_gym`` registers the project's environments with
+Gymnasium (``smo_gym/TwoLinkArm-v0``, ...; their MuJoCo code loads when one is made).
 """
 
 from . import design, observers, sensors
+from ._registration import register_envs
 from ._validation import DivergenceError
 from .offline import differentiate
 
@@ -24,5 +26,8 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+register_envs()  # gymnasium.make("smo_gym/...") works after a plain ``import smo_gym``
+
+#: the version of the package (as in ``pyproject.toml``)
 __version__ = "0.1.0"
 __all__ = ["DivergenceError", "__version__", "design", "differentiate", "observers", "sensors"]

@@ -30,6 +30,7 @@ __all__ = [
     "check_positive_array",
     "check_real",
     "did_you_mean",
+    "check_real_in_range",
 ]
 
 
@@ -128,6 +129,20 @@ def check_positive_array(name: str, value) -> np.ndarray:
     if np.any(bad):
         raise ValueError(f"expected {name} > 0 everywhere, actual value: {_short(value)}")
     return arr
+
+
+def check_real_in_range(name: str, value, low: float, high: float, *, low_open: bool = False,
+                        high_open: bool = False) -> float:
+    """Return ``value`` as a float after checking it is a real number (not a bool) in the interval from ``low`` to
+    ``high``, each end closed unless ``low_open``/``high_open``."""
+    if not _is_real_scalar(value):
+        raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
+    value = float(value)
+    interval = f"{'(' if low_open else '['}{low}, {high}{')' if high_open else ']'}"
+    inside = (low < value if low_open else low <= value) and (value < high if high_open else value <= high)
+    if not inside:
+        raise ValueError(f"expected {name} in {interval}, actual value: {value!r}")
+    return value
 
 
 def check_int_in_range(name: str, value, low: int, high: int) -> int:

@@ -1,51 +1,105 @@
 """Command line: ``smo-gym compare`` (observers side by side on the same measurements of a MuJoCo rollout).
 
+``smo-gym train`` / ``evaluate``: reinforcement learning under realistic sensing (:mod:`smo_gym.cli_rl`);
 ``smo-gym control``: the output-feedback control experiments of :mod:`smo_gym.control.experiments`.
 
-Thin by design: parsing and printing only; the work is :mod:`smo_gym.wrappers.compare`.
+Thin by design: parsing, checking and printing only; the work is :mod:`smo_gym.wrappers.compare` and
+:mod:`smo_gym.rl`. Every argument is checked before any work starts, and a wrong one ends the command with one line
+on stderr (exit status 2), not a traceback. Observers and sensors are written ``name:key=value:...``
+(:mod:`smo_gym.specs`).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
 
-__all__ = ["build_parser", "main"]
+from ._extras import MissingExtraError, require
+
+__all__ = ["DEFAULT_OBSERVERS", "HelpFormatter", "build_parser", "check_env_id", "check_output_file", "main"]
 
 DEFAULT_OBSERVERS = "super-twisting,levant,levant:discretization=matching,high-gain,kalman-ca,finite-difference"
 
 
-def _rate(text: str):
-    return int(text) if text.lstrip("-").isdigit() else text
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the line breaks of descriptions and epilogs (the column and syntax explanations)."""
+
+
+def parse_rate(text: str):
+    """``--rate``: ``physics``, ``env`` or a positive number of physics steps per sample."""
+    if text in ("physics", "env"):
+        return text
+    try:
+        k = int(text)
+    except ValueError:
+        k = 0
+    if k < 1:
+        raise argparse.ArgumentTypeError(f"expected 'physics', 'env' or an integer >= 1, actual value: {text!r}")
+    return k
+
+
+def spec_help(kind: str) -> str:
+    """The syntax of observer and sensor specs, for the epilogs (wrapped to 100 columns)."""
+    import textwrap
+
+    from .observers import OBSERVERS
+    from .sensors import PRESETS
+    from .specs import SENSOR_MODELS
+
+    def item(head: str, text: str) -> str:
+        return textwrap.fill(text, 100, initial_indent=f"  {head:<11}", subsequent_indent=" " * 13)
+
+    return "\n".join([
+        f"{kind} are written name:key=value:key=value (values: numbers, true/false, none or text).",
+        item("observers:", f"{', '.join(OBSERVERS)}; options are constructor arguments, e.g. "
+                           "levant:order=1:lipschitz=50 (gains not given are calibrated from a rollout, as the "
+                           "wrapper does)"),
+        item("sensors:", f"a preset ({', '.join(PRESETS)}) or a model ({', '.join(SENSOR_MODELS)}) with its "
+                         "constructor arguments, e.g. encoder:counts_per_revolution=4096:noise_std=1e-3; models "
+                         "chain with +, e.g. encoder:counts_per_revolution=1024+delay:samples=2"),
+    ])
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .observers import OBSERVERS
-    from .sensors import PRESETS
+    from . import __version__
+    from .wrappers.compare import TABLE_COLUMNS
 
-    parser = argparse.ArgumentParser(prog="smo-gym", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="smo-gym", description=__doc__.splitlines()[0], formatter_class=HelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    columns = "\n".join(f"  {name:<9} {text}" for name, text in TABLE_COLUMNS.items())
     cmp_ = sub.add_parser(
-        "compare", help="compare velocity observers on one MuJoCo rollout",
+        "compare", help="compare velocity observers on one MuJoCo rollout", formatter_class=HelpFormatter,
         description="Run one Gymnasium MuJoCo environment under a seeded smooth random policy, measure its joint "
-                    "positions with a sensor preset, and run several velocity observers on the same measurements.",
+                    "positions with\na sensor, and run several velocity observers on the same measurements. Prints "
+                    "a table and writes a plot\nof true and estimated velocities.",
+        epilog=f"table columns (metrics over every estimate: each sample but the first of each episode, where the\n"
+               f"observer starts at the first measurement with zero velocity; transients after it are included):\n"
+               f"{columns}\n"
+               f"  a diverged observer (non-finite state) shows the time it diverged instead of its errors.\n\n"
+               f"plot: the y-axis of each dof is set by its true velocity; estimates beyond it are clipped at the\n"
+               f"edge, marked with triangles, and their legend entry gives the fraction off scale and the peak.\n"
+               f"Units: rad/s for hinge (and rotational) dofs, m/s for slide (and translational) dofs.\n\n"
+               + spec_help("observers and the sensor"),
     )
-    cmp_.add_argument("--env", default="Hopper-v5", help="Gymnasium MuJoCo environment id (default %(default)s)")
-    cmp_.add_argument("--sensor", default="encoder-12bit-noisy",
-                      help=f"sensor preset: {', '.join(PRESETS)} (default %(default)s)")
+    cmp_.add_argument("--env", default="Hopper-v5",
+                      help="Gymnasium MuJoCo environment id, also smo_gym/... and dm_control/... (default %(default)s)")
+    cmp_.add_argument("--sensor", default="encoder-12bit-noisy", help="sensor spec (default %(default)s)")
     cmp_.add_argument("--observers", default=DEFAULT_OBSERVERS,
-                      help=f"comma-separated observers, each a name from {', '.join(OBSERVERS)}, optionally with "
-                           "options name:key=value:... (default %(default)s)")
-    cmp_.add_argument("--rate", type=_rate, default="physics",
+                      help="comma-separated observer specs (default %(default)s)")
+    cmp_.add_argument("--rate", type=parse_rate, default="physics",
                       help="'physics', 'env' or k physics steps per sample (default %(default)s)")
     cmp_.add_argument("--steps", type=int, default=1000, help="environment steps (default %(default)s)")
-    cmp_.add_argument("--seed", type=int, default=0, help="seed of policy, environment and sensor (default 0)")
+    cmp_.add_argument("--seed", type=int, default=0, help="seed of policy, environment and sensor (default %(default)s)")
     cmp_.add_argument("--joints", default="",
                       help="comma-separated dof names or indices to plot (default: the two most active)")
-    cmp_.add_argument("--out", default="outputs/smo_gym_compare.png", help="PNG file (default %(default)s)")
-    cmp_.add_argument("--plot-seconds", type=float, default=1.0, help="time window of the plot (default 1 s)")
-    cmp_.add_argument("--per-joint", action="store_true", help="also print the RMSE of every dof")
-    cmp_.add_argument("--no-progress", action="store_true", help="no progress bar")
+    cmp_.add_argument("--out", default="outputs/smo_gym_compare.png", help="plot file (default %(default)s)")
+    cmp_.add_argument("--plot-seconds", type=float, default=1.0,
+                      help="time window of the plot in seconds (default %(default)s)")
+    cmp_.add_argument("--per-joint", action="store_true", help="also print the RMSE of every dof (default: off)")
+    cmp_.add_argument("--no-progress", action="store_true", help="no progress bar (default: a bar from 200 steps)")
     from .control.experiments import add_subcommand as add_control
 
     add_control(sub)
@@ -55,27 +109,85 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# ----------------------------------------------------------------------------------------------------------------
+# checks shared by the subcommands (before any work)
+# ----------------------------------------------------------------------------------------------------------------
+def check_env_id(env_id: str) -> str:
+    """``env_id`` after checking that Gymnasium knows it (smo_gym's and dm_control's ids registered first).
+
+    Raises
+    ------
+    ValueError
+        An unknown id, with the closest registered one.
+    """
+    import difflib
+
+    import gymnasium as gym
+
+    from . import envs  # noqa: F401 - registers smo_gym/...
+
+    if env_id.startswith("dm_control/"):
+        require("shimmy", "dm_control")  # registers dm_control/...
+    if env_id in gym.registry:
+        return env_id
+    match = difflib.get_close_matches(env_id, list(gym.registry), n=1, cutoff=0.6)
+    hint = f" (did you mean {match[0]!r}?)" if match else ""
+    raise ValueError(f"expected a registered Gymnasium environment id, actual value: {env_id!r}{hint}")
+
+
+def check_output_file(path: str) -> Path:
+    """``path`` after checking that a plot can be written there: a format matplotlib writes, not a folder, and
+    the nearest existing folder above it writable (folders in between are created)."""
+    Figure = require("matplotlib.figure", "plots").Figure
+
+    out = Path(path)
+    formats = Figure().canvas.get_supported_filetypes()
+    if out.suffix.lstrip(".").lower() not in formats:
+        raise ValueError(f"expected a plot file ending in .{', .'.join(sorted(formats))}, actual value: {path!r}")
+    if out.is_dir():
+        raise ValueError(f"expected a plot file, actual value: {path!r} is a folder")
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"expected the plot under a folder, actual value: {str(parent)!r} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"expected a writable folder for the plot, actual value: {str(parent)!r} is not writable")
+    return out
+
+
 def compare(args: argparse.Namespace) -> int:
+    from .specs import make_sensor, parse_observer_spec
     from .wrappers import compare as lib
 
+    # every argument is checked before the rollout
     if args.steps < 1:
         raise ValueError(f"expected --steps >= 1, actual value: {args.steps}")
+    if not args.plot_seconds > 0:
+        raise ValueError(f"expected --plot-seconds > 0, actual value: {args.plot_seconds}")
+    check_env_id(args.env)
+    make_sensor(args.sensor)
     observers = [name.strip() for name in args.observers.split(",") if name.strip()]
+    if not observers:
+        raise ValueError(f"expected at least one observer in --observers, actual value: {args.observers!r}")
     for spec in observers:
-        lib.parse_observer_spec(spec)  # fail before the rollout on a wrong name
+        parse_observer_spec(spec)
+    check_output_file(args.out)
+    joints = [j.strip() for j in args.joints.split(",") if j.strip()]
+    if joints:
+        lib.resolve_joints(lib.env_dof_names(args.env), joints)
     progress = not args.no_progress and args.steps >= 200
     rec = lib.record_rollout(args.env, sensor=args.sensor, rate=args.rate, steps=args.steps, seed=args.seed,
                              progress=progress)
     results = lib.compare_observers(rec, observers, progress=progress)
     print(lib.format_table(rec, results, per_joint=args.per_joint))
-    joints = [j.strip() for j in args.joints.split(",") if j.strip()]
     path = lib.plot_velocities(rec, results, joints, args.out, seconds=args.plot_seconds)
     print(f"plot: {path}")
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``smo-gym`` console script."""
+    """Entry point of the ``smo-gym`` console script (and of ``python -m smo_gym``)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -89,8 +201,9 @@ def main(argv: list[str] | None = None) -> int:
             from .control.experiments import cli as control
 
             return control(args)
-    except (ValueError, TypeError) as exc:
-        print(f"smo-gym {args.command}: error: {exc}", file=sys.stderr)
+    except (ValueError, TypeError, MissingExtraError) as exc:
+        message = " ".join(str(exc).split())  # one line
+        print(f"smo-gym {args.command}: error: {message}", file=sys.stderr)
         return 2
     return 1  # pragma: no cover - argparse enforces the subcommand
 

@@ -2,55 +2,181 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
-from ._validation import as_real_array, check_keywords
+from . import calibration
+from ._validation import as_real_array, check_keywords, check_positive
 from .observers import Observer, make_observer
+from .observers.base import check_wrap
 
 __all__ = ["differentiate"]
 
 
 @check_keywords
-def differentiate(y, dt: float, method: str = "levant", **params) -> np.ndarray:
-    """Estimate a recorded signal and its derivatives, sample by sample, causally.
+def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
+    r"""Estimate a sampled signal and its derivatives with an observer, causally, sample by sample.
 
     Parameters
     ----------
-    y : array_like, shape (T,) or (T, ...)
-        The samples; every trailing index is an independent channel.
+    y : array_like
+        The samples, uniformly spaced by ``dt`` along ``axis``; every other index is an independent channel.
     dt : float
-        Sampling step.
-    method : str
-        An observer name of :data:`smo_gym.observers.OBSERVERS` (``"levant"``, ``"super-twisting"``, ...).
+        Sampling step, ``> 0``.
+    observer : str or Observer, optional
+        An observer name of :data:`smo_gym.observers.OBSERVERS` (``"levant"``, ``"super-twisting"``,
+        ``"high-gain"``, ``"kalman-ca"``, ...; the names of the Gymnasium wrapper), or an observer object whose
+        ``dt`` equals ``dt`` (a copy is run; ``params`` must then be empty). Default ``"levant"``.
+    method : str, optional
+        Alias of ``observer`` (the former name of this argument); give one of them.
+    axis : int, optional
+        The time axis of ``y``. Default 0.
     **params
-        The observer's parameters (``order``, ``lipschitz``, ``discretization``, ...).
+        Constructor arguments of the observer (``order``, ``lipschitz``, ``discretization``, ``wrap``, ...). Gains
+        that are not given are calibrated from ``y`` itself (see Notes).
 
     Returns
     -------
-    ndarray, shape (T, ..., order + 1)
-        ``out[t, ..., i]`` is the estimate of the ``i``-th derivative at sample ``t``, using samples ``0..t``
-        only (the same numbers ``update`` returns online).
+    ndarray, shape ``y.shape + (order + 1,)``
+        ``out[..., i]`` is the estimate of the ``i``-th derivative, with time along ``axis`` as in ``y``: the
+        estimate at a sample uses that sample and the earlier ones only, the same numbers ``update`` returns
+        online. With ``wrap``, the value estimate ``out[..., 0]`` of a wrapped channel is the continuous
+        (unwrapped) angle.
+
+    Raises
+    ------
+    ValueError
+        An unknown observer name, an empty or non-finite ``y``, ``dt <= 0``, or an observer object with another
+        step.
+    TypeError
+        ``y`` not numeric, both ``observer`` and ``method``, or an observer object together with ``params``.
+    DivergenceError
+        The observer's state became non-finite (an explicit scheme at too large a step).
+
+    See Also
+    --------
+    smo_gym.observers.Observer.run : the same recursion on an observer you keep.
+    smo_gym.calibration.default_observer : the gain rules.
+
+    Notes
+    -----
+    Calibration, as the Gymnasium wrapper does from a rollout, but from the data: when ``params`` leaves gains
+    unset (:func:`smo_gym.calibration.needs_calibration`), the noise level :math:`\hat\sigma` of every channel is
+    estimated from the median absolute deviation of the fourth difference of ``y``
+    (:func:`smo_gym.calibration.noise_std`), and the bound ``L`` of the derivative the observer needs
+    (:func:`smo_gym.calibration.bound_order`: acceleration for super-twisting, ``order + 1`` for Levant's
+    differentiator) is twice the 99th percentile of a difference quotient taken at the smallest decimation at
+    which it rises well above the noise (:func:`smo_gym.calibration.derivative_bound`). The gains then follow
+    :func:`smo_gym.calibration.default_observer`: ``lipschitz = L`` per channel for the sliding-mode
+    differentiators, :math:`\ell = (L/\hat\sigma)^{1/(order+1)}` for ``"high-gain"``, ``q = L^2/dt`` and
+    :math:`r = \hat\sigma^2` for ``"kalman-ca"``. Wrapped channels are unwrapped (``numpy.unwrap``) for the
+    calibration only. Given gains cost nothing: the calibration then does not run.
+
+    The result of the sliding-mode observers depends on the gains: a calibration from the data cannot know
+    bounds the record does not show, and the Lipschitz bounds of the theory (Levant 2003) assume the worst case.
+    Pass ``lipschitz`` (or the gains of your observer) when you know them.
+
+    References
+    ----------
+    A. Levant, "Higher-order sliding modes, differentiation and output-feedback control", Int. J. Control
+    76(9-10), 2003.
 
     Examples
     --------
     >>> import numpy as np, smo_gym
     >>> t = np.arange(0, 10, 1e-3)
-    >>> z = smo_gym.differentiate(np.sin(t), 1e-3, method="levant", order=2, lipschitz=1.0)
+    >>> z = smo_gym.differentiate(np.sin(t), 1e-3, observer="levant", order=2, lipschitz=1.0)
+    >>> z.shape
+    (10000, 3)
     >>> bool(abs(z[-1, 1] - np.cos(t[-1])) < 1e-4)
     True
+
+    With no gains, calibrated from the data (here with noise of standard deviation 1e-4):
+
+    >>> y = np.sin(t) + 1e-4 * np.random.default_rng(0).standard_normal(t.size)
+    >>> z = smo_gym.differentiate(y, 1e-3, observer="kalman-ca")
+    >>> bool(np.sqrt(np.mean((z[2000:, 1] - np.cos(t[2000:])) ** 2)) < 0.05)
+    True
     """
+    if method is not None:
+        if observer is not None:
+            raise TypeError(
+                f"expected observer or its alias method, not both, actual value: observer={observer!r}, "
+                f"method={method!r}"
+            )
+        observer = method
+    observer = "levant" if observer is None else observer
+    dt = check_positive("dt", dt)
     y = as_real_array("y", y)
-    if y.ndim == 0 or y.shape[0] == 0:
-        raise ValueError(f"expected y with shape (T, ...) and T >= 1, actual value: {y.shape}")
+    if y.ndim == 0:
+        raise ValueError(f"expected y with a time axis, actual value: a scalar {float(y)!r}")
+    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or not -y.ndim <= axis < y.ndim:
+        raise ValueError(f"expected axis in [{-y.ndim}, {y.ndim - 1}], actual value: {axis!r}")
+    axis = int(axis) % y.ndim
+    if axis:
+        y = np.moveaxis(y, axis, 0)
+    if y.shape[0] == 0:
+        raise ValueError(f"expected y with T >= 1 samples along axis {axis}, actual value: shape {y.shape}")
     squeeze = y.ndim == 1
     if squeeze:
         y = y[:, None]
-    observer = make_observer(method, dt=dt, **params)
-    first = observer.reset(y[0])
+    if y.size == 0:  # before any calibration: the observers refuse empty channels in the same words
+        raise ValueError(f"expected y with at least one channel and no empty batch dimension, actual value: shape "
+                         f"{y.shape}")
+    obs = _build(observer, dt, y, params)
+    first = obs.reset(y[0])
     out = np.empty((y.shape[0],) + first.shape)
     out[0] = first
-    if type(observer).run is Observer.run:
-        observer.run(y[1:], out=out[1:])  # written in place: no second copy of a possibly large result
+    if type(obs).run is Observer.run:
+        obs.run(y[1:], out=out[1:])  # written in place: no second copy of a possibly large result
     else:  # a subclass with its own run() allocates its result
-        out[1:] = observer.run(y[1:])
-    return out[:, 0] if squeeze else out
+        out[1:] = obs.run(y[1:])
+    if squeeze:
+        out = out[:, 0]
+    return np.moveaxis(out, 0, axis) if axis else out
+
+
+def _build(observer, dt: float, y: np.ndarray, params: dict) -> Observer:
+    """The observer to run on ``y`` (T, ...): a copy of an object, or a named one with calibrated gains."""
+    if isinstance(observer, Observer):
+        if params:
+            raise TypeError(f"expected no observer parameters with an observer object, actual value: {params!r}")
+        if not np.isclose(observer.dt, dt, rtol=1e-9, atol=0.0):
+            raise ValueError(
+                f"expected an observer with dt equal to the sampling step {dt}, actual value: {observer.dt}"
+            )
+        return copy.deepcopy(observer)
+    if not calibration.needs_calibration(observer, params):  # also rejects unknown names, listing the known
+        return make_observer(observer, dt=dt, **params)
+    if not np.isfinite(y).all():
+        index = tuple(int(i) for i in np.argwhere(~np.isfinite(y))[0])
+        raise ValueError(
+            f"expected finite samples to calibrate from, actual value: {y[index]!r} at sample "
+            f"{index[0]}, channel {index[1:]}"
+        )
+    sample = _unwrapped(y, params.get("wrap"))
+    noise = calibration.noise_std(sample) if sample.shape[0] > 4 else np.zeros(sample.shape[1:])
+    r = calibration.bound_order(observer, params)
+    bounds = (
+        calibration.derivative_bound(sample, dt, r, noise=noise)
+        if sample.shape[0] > r
+        else np.full(sample.shape[1:], calibration.BOUND_FLOOR)
+    )
+    return calibration.default_observer(observer, dt, bounds, noise, params)
+
+
+def _unwrapped(y: np.ndarray, wrap) -> np.ndarray:
+    """``y`` with its wrapped channels unwrapped along time (for the calibration only)."""
+    wrap = check_wrap(wrap)
+    if wrap is None or wrap is False:
+        return y
+    try:
+        wrapped = np.broadcast_to(wrap, y.shape[1:])
+    except ValueError:
+        raise ValueError(
+            f"expected wrap broadcastable to the channel shape {y.shape[1:]}, actual value: shape {np.shape(wrap)}"
+        ) from None
+    if not wrapped.any():
+        return y
+    return np.where(wrapped, np.unwrap(y, axis=0), y)

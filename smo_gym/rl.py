@@ -28,26 +28,41 @@ from __future__ import annotations
 import copy
 import json
 import os
+import re
+import shutil
 import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
+from ._extras import require
 from .envs import make as make_by_id
+from .specs import make_sensor, parse_observer_spec
 
 __all__ = [
+    "ALGOS",
     "SENSINGS",
     "MaskEntries",
     "SelectEntries",
+    "algo_kwargs",
+    "check_run_folder",
+    "default_run_folder",
     "evaluate",
+    "load_hyperparams",
+    "load_run",
     "make_env",
     "make_vec",
+    "parse_policy_kwargs",
+    "run_files",
+    "sensing_settings",
     "train",
     "velocity_entries",
 ]
 
+#: what the policy observes (see the module docstring)
 SENSINGS = ("true", "estimated", "finite-difference", "no-velocity", "stacked-positions")
+#: the Stable-Baselines3 algorithms :func:`train` runs
 ALGOS = ("PPO", "SAC")
 
 
@@ -60,15 +75,16 @@ def velocity_entries(env: gym.Env, trials: int = 3, seed: int = 0) -> np.ndarray
     The environment's own observation function is evaluated on scratch data
     (:class:`~smo_gym.wrappers.GymnasiumMujocoAdapter`) at its current configuration with random velocities;
     an entry is velocity-dependent if it changes (``qvel`` itself, clipped velocities, ``cvel``, constraint
-    forces that depend on velocity, ...). No per-environment table. Requires a reset environment.
+    forces that depend on velocity, ...). No per-environment table. Requires a reset environment. A ``Dict``
+    observation (dm_control) is indexed as flattened (:func:`gymnasium.spaces.flatten`, keys in order).
 
     Returns
     -------
     ndarray of int, shape (n_velocity_entries,)
     """
-    from .wrappers.adapters import GymnasiumMujocoAdapter
+    from .wrappers.adapters import make_adapter
 
-    adapter = GymnasiumMujocoAdapter(env.unwrapped)
+    adapter = make_adapter(env)
     rng = np.random.default_rng(seed)
     qpos = np.array(adapter.data.qpos)
     nv = adapter.model.nv
@@ -116,22 +132,44 @@ def _check_sensing(sensing: str) -> None:
         raise ValueError(f"expected sensing in {', '.join(SENSINGS)}, actual value: {sensing!r}")
 
 
+def sensing_settings(sensing: str) -> tuple[str, ...]:
+    """The settings that act under ``sensing``: ``sensor``, ``observer`` (only ``"estimated"``) and ``rate``
+    (every measured sensing: it sets the sampling of the sensor's delay, drift and dropouts); none for ``"true"``."""
+    _check_sensing(sensing)
+    if sensing == "true":
+        return ()
+    return ("sensor", "observer", "rate") if sensing == "estimated" else ("sensor", "rate")
+
+
+def _observer(sensing: str, observer: str, observer_kwargs: dict | None) -> tuple[str, dict | None]:
+    """Observer name and options of a sensing: the spec ``observer`` (with ``observer_kwargs`` on top) when
+    estimating, finite differences otherwise (their velocities are the estimate, or masked, or dropped)."""
+    if sensing != "estimated":
+        return "finite-difference", None
+    name, kwargs = parse_observer_spec(observer)
+    kwargs.update(observer_kwargs or {})
+    return name, kwargs or None
+
+
 def make_env(env_id: str, sensing: str = "estimated", *, sensor: str = "encoder-12bit-noisy",
              observer: str = "super-twisting", rate="physics", observer_kwargs: dict | None = None,
              env_kwargs: dict | None = None) -> gym.Env:
-    """One environment under a sensing (see the module docstring)."""
+    """One environment under a sensing (see the module docstring).
+
+    ``sensor`` and ``observer`` are specs (:mod:`smo_gym.specs`, e.g. ``"encoder:counts_per_revolution=1024"``,
+    ``"levant:order=1"``) or, for ``sensor``, a :class:`~smo_gym.sensors.Sensor`. A ``Dict`` observation (the
+    dm_control suite) is flattened (:class:`gymnasium.wrappers.FlattenObservation`), so that an MLP policy takes it.
+    """
     _check_sensing(sensing)
     env = make_by_id(env_id, **(env_kwargs or {}))
-    if sensing == "true":
-        return env
-    from .wrappers import EstimatedVelocity
+    if sensing != "true":
+        from .wrappers import EstimatedVelocity
 
-    if sensing in ("no-velocity", "stacked-positions"):
-        observer, observer_kwargs = "finite-difference", None  # its velocities are masked or dropped anyway
-    elif sensing == "finite-difference":
-        observer, observer_kwargs = "finite-difference", None
-    env = EstimatedVelocity(env, sensor=sensor, observer=observer, rate=rate, observer_kwargs=observer_kwargs)
-    if sensing in ("estimated", "finite-difference"):
+        name, kwargs = _observer(sensing, observer, observer_kwargs)
+        env = EstimatedVelocity(env, sensor=make_sensor(sensor), observer=name, rate=rate, observer_kwargs=kwargs)
+    if isinstance(env.observation_space, gym.spaces.Dict):
+        env = gym.wrappers.FlattenObservation(env)
+    if sensing in ("true", "estimated", "finite-difference"):
         return env
     env.reset(seed=0)
     vel = velocity_entries(env)
@@ -148,13 +186,15 @@ def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: 
              observer_kwargs: dict | None = None, env_kwargs: dict | None = None, vectorized: bool | None = None):
     """A ``DummyVecEnv`` (with ``Monitor``) of :func:`make_env` environments.
 
-    With ``rate="env"`` and an estimating sensing (``"estimated"``, ``"finite-difference"``) the observers run
-    batched in :class:`~smo_gym.wrappers.VecEstimatedVelocity` (``vectorized=None`` or ``True``); otherwise one
-    :class:`~smo_gym.wrappers.EstimatedVelocity` per environment. Both give the same observations.
+    With ``rate="env"``, an estimating sensing (``"estimated"``, ``"finite-difference"``) and a ``Box`` observation
+    the observers run batched in :class:`~smo_gym.wrappers.VecEstimatedVelocity` (``vectorized=None`` or
+    ``True``); otherwise one :class:`~smo_gym.wrappers.EstimatedVelocity` per environment. Both give the same
+    observations.
     """
-    from stable_baselines3.common.env_util import make_vec_env
+    make_vec_env = require("stable_baselines3.common.env_util", "rl").make_vec_env
 
     _check_sensing(sensing)
+    explicit = vectorized
     if vectorized is None:
         vectorized = rate == "env" and sensing in ("estimated", "finite-difference")
     if vectorized:
@@ -163,13 +203,306 @@ def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: 
                              f"actual value: {sensing!r}")
         from .wrappers import VecEstimatedVelocity, sensing_config
 
-        obs_name = observer if sensing == "estimated" else "finite-difference"
+        name, kwargs = _observer(sensing, observer, observer_kwargs)
         venv = make_vec_env(lambda: make_by_id(env_id, **(env_kwargs or {})), n_envs=n_envs, seed=seed)
-        return VecEstimatedVelocity(venv, **sensing_config(sensor, obs_name,
-                                                           observer_kwargs if sensing == "estimated" else None))
+        if isinstance(venv.observation_space, gym.spaces.Box):
+            return VecEstimatedVelocity(venv, **sensing_config(make_sensor(sensor), name, kwargs))
+        venv.close()
+        if explicit:
+            raise ValueError(f"expected a Box observation for vectorized sensing, actual value: "
+                             f"{venv.observation_space} (use vectorized=False: per-environment wrappers flatten it)")
     return make_vec_env(lambda: make_env(env_id, sensing, sensor=sensor, observer=observer, rate=rate,
                                          observer_kwargs=observer_kwargs, env_kwargs=env_kwargs),
                         n_envs=n_envs, seed=seed)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# hyperparameters in rl-zoo3's format
+# ----------------------------------------------------------------------------------------------------------------
+#: rl-zoo3 keys :func:`train` reads itself (the others go to the SB3 algorithm)
+RUN_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs")
+#: rl-zoo3 keys with no meaning here, and why
+UNSUPPORTED_KEYS = {
+    "env_wrapper": "the sensing is smo-gym's own (--sensing, --sensor, --observer, --rate); the env_wrapper recipe "
+                   "is for rl-zoo3 itself (see the README)",
+    "vec_env_wrapper": "not supported by smo-gym train",
+    "frame_stack": "not supported by smo-gym train (sensing 'stacked-positions' stacks measured positions)",
+    "callback": "not supported by smo-gym train",
+    "monitor_kwargs": "not supported by smo-gym train",
+    "noise_type": "action noise is not supported by smo-gym train",
+    "noise_std": "action noise is not supported by smo-gym train",
+}
+#: hyperparameters that rl-zoo3 reads as schedules when written ``lin_<initial value>``
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+#: what ``policy_kwargs`` may name besides literals and ``dict(...)`` (torch.nn activations and optimizers)
+_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Softplus", "Identity")
+_OPTIMIZERS = ("Adam", "AdamW", "RMSprop", "SGD")
+#: SB3 constructor arguments :func:`train` sets itself
+_OWN_ARGS = ("self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model")
+
+
+def linear_schedule(initial_value: float):
+    r"""rl-zoo3's ``lin_<value>`` schedule: :math:`v(p) = p\,v_0` with ``p`` the progress remaining (1 -> 0)."""
+    initial_value = float(initial_value)
+
+    def schedule(progress_remaining: float) -> float:
+        return progress_remaining * initial_value
+
+    return schedule
+
+
+def _policy_kwargs_node(node, text: str):
+    import ast
+
+    def bad(what: str):
+        return ValueError(
+            f"expected policy_kwargs made of dict(...), literals, nn.<activation> ({', '.join(_ACTIVATIONS)}) and "
+            f"optim.<optimizer> ({', '.join(_OPTIMIZERS)}), actual value: {what} in {text!r}")
+
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float, str, bool, type(None))):
+        return node.value
+    if (isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd))
+            and isinstance(node.operand, ast.Constant) and isinstance(node.operand.value, (int, float))):
+        return -node.operand.value if isinstance(node.op, ast.USub) else node.operand.value
+    if isinstance(node, (ast.List, ast.Tuple)):
+        items = [_policy_kwargs_node(e, text) for e in node.elts]
+        return items if isinstance(node, ast.List) else tuple(items)
+    if isinstance(node, ast.Dict):
+        if any(k is None for k in node.keys):
+            raise bad("'**' unpacking")
+        return {_policy_kwargs_node(k, text): _policy_kwargs_node(v, text)
+                for k, v in zip(node.keys, node.values, strict=True)}
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict":
+        if node.args or any(kw.arg is None for kw in node.keywords):
+            raise bad(repr(ast.unparse(node)))
+        return {kw.arg: _policy_kwargs_node(kw.value, text) for kw in node.keywords}
+    if isinstance(node, ast.Attribute):
+        dotted = ast.unparse(node)
+        module, _, attr = dotted.rpartition(".")
+        torch = require("torch", "rl")
+
+        if module in ("nn", "th.nn", "torch.nn") and attr in _ACTIVATIONS:
+            return getattr(torch.nn, attr)
+        if module in ("optim", "th.optim", "torch.optim") and attr in _OPTIMIZERS:
+            return getattr(torch.optim, attr)
+        raise bad(repr(dotted))
+    raise bad(repr(ast.unparse(node)))
+
+
+def parse_policy_kwargs(text: str) -> dict:
+    """rl-zoo3's ``policy_kwargs`` string, e.g. ``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"``, evaluated
+    safely: the expression is parsed and only ``dict(...)``, ``{...}``, lists, tuples, numbers, strings, booleans,
+    ``None`` and the torch names ``nn.<activation>`` / ``optim.<optimizer>`` are accepted (nothing is executed)."""
+    import ast
+
+    try:
+        tree = ast.parse(str(text).strip(), mode="eval")
+    except SyntaxError as exc:
+        raise ValueError(f"expected policy_kwargs as a Python expression, actual value: {text!r} ({exc.msg})") from None
+    value = _policy_kwargs_node(tree.body, text)
+    if not isinstance(value, dict):
+        raise ValueError(f"expected policy_kwargs to be a dict, actual value: {text!r}")
+    return value
+
+
+def _algo_class(algo: str):
+    if algo not in ALGOS:
+        raise ValueError(f"expected algo in {', '.join(ALGOS)}, actual value: {algo!r}")
+    return getattr(require("stable_baselines3", "rl"), algo)
+
+
+def algo_kwargs(algo: str, hyperparams: dict | None) -> dict:
+    """SB3 constructor arguments from hyperparameters written as in rl-zoo3: ``lin_<v>`` schedules
+    (:data:`SCHEDULE_KEYS`), a ``policy_kwargs`` string (:func:`parse_policy_kwargs`), everything else as is.
+
+    Raises
+    ------
+    ValueError
+        A key that is not an argument of the algorithm (the closest is suggested), or a malformed value.
+    """
+    import difflib
+    import inspect
+
+    cls = _algo_class(algo)
+    valid = [p for p in inspect.signature(cls.__init__).parameters if p not in _OWN_ARGS]
+    out = {}
+    for key, value in (hyperparams or {}).items():
+        if key in UNSUPPORTED_KEYS:
+            raise ValueError(f"expected hyperparameters smo-gym train supports, actual value: {key!r} "
+                             f"({UNSUPPORTED_KEYS[key]})")
+        if key not in valid:
+            match = difflib.get_close_matches(key, valid + list(RUN_KEYS), n=1)
+            hint = f" (did you mean {match[0]!r}?)" if match else ""
+            raise ValueError(f"expected a hyperparameter of {algo} or one of {', '.join(RUN_KEYS)}, actual value: "
+                             f"{key!r}{hint}")
+        if key in SCHEDULE_KEYS and isinstance(value, str):
+            if not value.startswith("lin_"):
+                raise ValueError(f"expected {key} as a number or lin_<number>, actual value: {value!r}")
+            try:
+                value = linear_schedule(float(value[4:]))
+            except ValueError:
+                raise ValueError(f"expected {key} as a number or lin_<number>, actual value: {value!r}") from None
+        elif key == "policy_kwargs" and isinstance(value, str):
+            value = parse_policy_kwargs(value)
+        out[key] = value
+    return out
+
+
+def _normalize_option(value) -> bool | dict:
+    """rl-zoo3's ``normalize``: a bool, a dict of ``VecNormalize`` arguments, or that dict written as a string."""
+    import ast
+
+    if isinstance(value, str):
+        try:
+            value = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            raise ValueError(f"expected normalize as true/false or a dict string such as "
+                             f"\"{{'norm_obs': True, 'norm_reward': False}}\", actual value: {value!r}") from None
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, dict):
+        import inspect
+
+        VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
+
+        valid = [p for p in inspect.signature(VecNormalize.__init__).parameters if p not in ("self", "venv")]
+        bad = [k for k in value if k not in valid]
+        if bad:
+            raise ValueError(f"expected normalize options in {', '.join(valid)}, actual value: {bad[0]!r}")
+        return value
+    raise ValueError(f"expected normalize as a bool or a dict, actual value: {value!r}")
+
+
+def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") -> dict:
+    """The entry of ``env_id`` in a hyperparameter file in rl-zoo3's yaml format, checked.
+
+    The file maps environment ids to hyperparameters, e.g.::
+
+        InvertedPendulum-v5:
+          n_timesteps: !!float 1e5
+          policy: 'MlpPolicy'
+          n_envs: 4
+          normalize: true            # or "{'norm_obs': True, 'norm_reward': False}"
+          learning_rate: lin_3e-4
+          policy_kwargs: "dict(net_arch=[64, 64], activation_fn=nn.Tanh)"
+          n_steps: 256
+
+    Returns
+    -------
+    dict
+        ``{"n_timesteps", "policy", "n_envs", "normalize", "env_kwargs"}`` where given (:data:`RUN_KEYS`) and
+        ``"hyperparams"``: the rest, as written (checked with :func:`algo_kwargs`).
+
+    Raises
+    ------
+    ValueError
+        Missing or unreadable file, no entry for ``env_id`` (the closest is suggested), unknown keys or bad values.
+    """
+    import difflib
+
+    yaml = require("yaml", "rl")
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"expected a hyperparameter file (rl-zoo3 yaml), actual value: {str(path)!r} does not exist")
+    try:
+        content = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"expected a yaml file, actual value: {str(path)!r} ({str(exc).splitlines()[0]})") from None
+    if not isinstance(content, dict):
+        raise ValueError(f"expected a yaml mapping of env ids to hyperparameters, actual value: {type(content).__name__}"
+                         f" in {str(path)!r}")
+    if env_id not in content:
+        match = difflib.get_close_matches(env_id, [str(k) for k in content], n=1)
+        hint = f" (did you mean {match[0]!r}?)" if match else ""
+        raise ValueError(f"expected an entry for {env_id!r} in {str(path)!r}, actual value: entries "
+                         f"{', '.join(map(str, content)) or '(none)'}{hint}")
+    entry = dict(content[env_id] or {})
+    out: dict = {}
+    if "n_timesteps" in entry:
+        n = entry.pop("n_timesteps")
+        if isinstance(n, bool) or not isinstance(n, (int, float)) or n < 1 or n != int(n):
+            raise ValueError(f"expected n_timesteps to be a positive integer, actual value: {n!r}")
+        out["n_timesteps"] = int(n)
+    if "n_envs" in entry:
+        n = entry.pop("n_envs")
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"expected n_envs to be a positive integer, actual value: {n!r}")
+        out["n_envs"] = n
+    if "policy" in entry:
+        out["policy"] = str(entry.pop("policy"))
+    if "normalize" in entry:
+        out["normalize"] = _normalize_option(entry.pop("normalize"))
+    if "env_kwargs" in entry:
+        kwargs = entry.pop("env_kwargs")
+        if not isinstance(kwargs, dict):
+            raise ValueError(f"expected env_kwargs to be a mapping, actual value: {kwargs!r}")
+        out["env_kwargs"] = kwargs
+    algo_kwargs(algo, entry)  # checks the rest
+    out["hyperparams"] = entry
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# run folders
+# ----------------------------------------------------------------------------------------------------------------
+#: what a run folder holds (written by :func:`train`, replaced with ``overwrite=True``)
+RUN_FILES = ("run.json", "model.zip", "vecnormalize.pkl", "progress.csv", "checkpoints")
+
+
+def _slug(text) -> str:
+    return re.sub(r"[^A-Za-z0-9._=+-]+", "_", str(text)).strip("_")
+
+
+def default_run_folder(env_id: str, sensing: str, algo: str, seed: int, *, sensor="encoder-12bit-noisy",
+                       observer="super-twisting", rate="physics", root="outputs/runs") -> Path:
+    """``root/ENV-SENSING[-OBSERVER][-SENSOR][-rate-RATE]-ALGO-sSEED``, naming only the settings that act under the
+    sensing (:func:`sensing_settings`), so that runs differing in any of them get different folders."""
+    values = {"sensor": sensor, "observer": observer, "rate": f"rate-{rate}"}
+    parts = [env_id, sensing] + [values[k] for k in ("observer", "sensor", "rate") if k in sensing_settings(sensing)]
+    return Path(root) / "-".join(_slug(p) for p in parts + [algo, f"s{seed}"])
+
+
+def holds_run(folder: str | os.PathLike) -> bool:
+    """Whether ``folder`` holds a run of :func:`train` (any of :data:`RUN_FILES`)."""
+    folder = Path(folder)
+    return folder.is_dir() and any((folder / name).exists() for name in RUN_FILES)
+
+
+def check_run_folder(out: str | os.PathLike, overwrite: bool = False) -> Path:
+    """``out`` as a path after checking that a run can be written there.
+
+    Raises
+    ------
+    ValueError
+        ``out`` or a folder above it is a file, the nearest existing folder is not writable, or ``out`` holds a
+        run already and ``overwrite`` is false.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"expected a run folder, actual value: {str(out)!r} is a file")
+    if holds_run(out) and not overwrite:
+        raise ValueError(f"expected a new run folder, actual value: {str(out)!r} holds a run already "
+                         "(choose another folder, or overwrite it: --force / overwrite=True)")
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"expected a run folder under a folder, actual value: {str(parent)!r} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"expected a writable folder for the run, actual value: {str(parent)!r} is not writable")
+    return out
+
+
+def _remove_run(folder: Path) -> None:
+    """Remove the files of :data:`RUN_FILES` (and TensorBoard event files) from ``folder``; nothing else."""
+    for name in RUN_FILES:
+        target = folder / name
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
+    for event in folder.glob("events.out.tfevents.*"):
+        event.unlink()
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -177,14 +510,15 @@ def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: 
 # ----------------------------------------------------------------------------------------------------------------
 def _progress_callback():
     """SB3's rich progress bar when ``rich`` is installed, else a plain tqdm bar with the same role."""
-    from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
+    callbacks = require("stable_baselines3.common.callbacks", "rl")
+    BaseCallback, ProgressBarCallback = callbacks.BaseCallback, callbacks.ProgressBarCallback
 
     try:
         import rich  # noqa: F401
 
         return ProgressBarCallback()
     except ImportError:
-        from tqdm.auto import tqdm
+        tqdm = require("tqdm.auto", "rl").tqdm
 
         class TqdmProgress(BaseCallback):
             def _on_training_start(self):
@@ -201,7 +535,7 @@ def _progress_callback():
 
 
 def _logger(folder: Path, verbose: int):
-    from stable_baselines3.common.logger import configure
+    configure = require("stable_baselines3.common.logger", "rl").configure
 
     formats = ["csv"] + (["stdout"] if verbose else [])
     try:
@@ -215,7 +549,7 @@ def _logger(folder: Path, verbose: int):
 
 def _frozen_normalization(train_venv, eval_venv):
     """Wrap ``eval_venv`` in a ``VecNormalize`` with ``train_venv``'s observation statistics, frozen."""
-    from stable_baselines3.common.vec_env import VecNormalize
+    VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
     if not isinstance(train_venv, VecNormalize):
         return eval_venv
@@ -226,7 +560,7 @@ def _frozen_normalization(train_venv, eval_venv):
 
 
 def _returns(model, venv, episodes: int, deterministic: bool = True) -> np.ndarray:
-    from stable_baselines3.common.evaluation import evaluate_policy
+    evaluate_policy = require("stable_baselines3.common.evaluation", "rl").evaluate_policy
 
     rewards, _ = evaluate_policy(model, venv, n_eval_episodes=episodes, deterministic=deterministic,
                                  return_episode_rewards=True, warn=False)
@@ -239,23 +573,39 @@ DEFAULT_HYPERPARAMS = {
 }
 
 
+def _describe(sensor) -> str:
+    return sensor if isinstance(sensor, str) else repr(sensor)
+
+
 def train(env_id: str, *, sensing: str = "estimated", sensor: str = "encoder-12bit-noisy",
           observer: str = "super-twisting", rate="physics", algo: str = "PPO", steps: int = 100_000, seed: int = 0,
-          n_envs: int = 1, out: str | os.PathLike = "outputs/runs/run", normalize: bool | None = None,
-          hyperparams: dict | None = None, checkpoint_every: int = 0, evaluate_at=(), eval_sensings=None,
-          eval_episodes: int = 10, progress_bar: bool = False, verbose: int = 0, vectorized: bool | None = None,
-          observer_kwargs: dict | None = None) -> dict:
+          n_envs: int = 1, out: str | os.PathLike = "outputs/runs/run", normalize: bool | dict | None = None,
+          hyperparams: dict | None = None, policy: str = "MlpPolicy", env_kwargs: dict | None = None,
+          checkpoint_every: int = 0, evaluate_at=(), eval_sensings=None, eval_episodes: int = 10,
+          progress_bar: bool = False, verbose: int = 0, vectorized: bool | None = None,
+          observer_kwargs: dict | None = None, overwrite: bool = False) -> dict:
     r"""Train an SB3 agent on ``env_id`` under a sensing; returns the run summary (also in ``out/run.json``).
 
     Parameters
     ----------
     sensing, sensor, observer, rate, observer_kwargs
-        What the policy observes (:func:`make_env`).
+        What the policy observes (:func:`make_env`; ``sensor`` and ``observer`` are specs of :mod:`smo_gym.specs`).
     algo : {"PPO", "SAC"}
     steps : int
         Environment steps (summed over the ``n_envs`` environments).
-    normalize : bool, optional
-        ``VecNormalize`` (observations and rewards); default on for PPO, off for SAC.
+    out : path
+        The run folder. One that holds a run already (:func:`holds_run`) is refused unless ``overwrite``, which
+        replaces that run's files (:data:`RUN_FILES`) and nothing else. If training fails before its first
+        checkpoint, what this call created is removed again.
+    normalize : bool or dict, optional
+        ``VecNormalize`` (observations and rewards; a dict gives its arguments); default on for PPO, off for SAC.
+    hyperparams : dict, optional
+        Arguments of the SB3 algorithm, as rl-zoo3 writes them (``lin_3e-4`` schedules, ``policy_kwargs`` as a
+        string: :func:`algo_kwargs`); :func:`load_hyperparams` reads them from rl-zoo3's yaml files.
+    policy : str
+        SB3 policy name (``"MlpPolicy"``).
+    env_kwargs : dict, optional
+        Arguments of ``gymnasium.make``.
     checkpoint_every : int
         Save a checkpoint (model and normalization) every so many steps; 0: none.
     evaluate_at : sequence of int
@@ -268,92 +618,139 @@ def train(env_id: str, *, sensing: str = "estimated", sensor: str = "encoder-12b
     -------
     dict
         ``run.json``'s content: the options, ``seconds``, ``steps_per_second`` and ``evaluations`` (a list of
-        ``{"steps", "sensing", "returns", "mean", "std"}``).
+        ``{"steps", "sensing", "returns", "mean", "std"}``). ``run.json`` is written when training starts (with
+        ``"status": "training"``) and completed at the end (``"status": "done"``), so that checkpoints of an
+        interrupted run can be evaluated under their sensing.
     """
-    import torch
-    from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
-    from stable_baselines3.common.vec_env import VecNormalize
+    torch = require("torch", "rl")
+    callbacks = require("stable_baselines3.common.callbacks", "rl")
+    BaseCallback, CheckpointCallback = callbacks.BaseCallback, callbacks.CheckpointCallback
+    VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
     _check_sensing(sensing)
-    if algo not in ALGOS:
-        raise ValueError(f"expected algo in {', '.join(ALGOS)}, actual value: {algo!r}")
+    cls = _algo_class(algo)
     if steps < 1 or n_envs < 1:
         raise ValueError(f"expected steps >= 1 and n_envs >= 1, actual value: steps={steps}, n_envs={n_envs}")
+    make_sensor(sensor)  # check the specs before anything is made
+    _observer(sensing, observer, observer_kwargs)
+    normalize = (algo == "PPO") if normalize is None else _normalize_option(normalize)
+    raw_params = dict(DEFAULT_HYPERPARAMS[algo])
+    raw_params.update(hyperparams or {})
+    params = algo_kwargs(algo, raw_params)
+    out = check_run_folder(out, overwrite)
+    created = out
+    while not created.parent.exists():  # the topmost folder this call creates (None: out exists)
+        created = created.parent
+    created = None if out.exists() else created
     torch.set_num_threads(1)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    normalize = (algo == "PPO") if normalize is None else bool(normalize)
     sense = dict(sensor=sensor, observer=observer, rate=rate, observer_kwargs=observer_kwargs)
-    venv = make_vec(env_id, sensing, n_envs=n_envs, seed=seed, vectorized=vectorized, **sense)
-    if normalize:
-        venv = VecNormalize(venv)
-    params = dict(DEFAULT_HYPERPARAMS[algo])
-    params.update(hyperparams or {})
-    cls = PPO if algo == "PPO" else SAC
-    model = cls("MlpPolicy", venv, seed=seed, verbose=verbose, device="cpu", **params)
-    model.set_logger(_logger(out, verbose))
-    evaluations: list[dict] = []
-    budgets = sorted(int(b) for b in evaluate_at)
-    eval_sensings = list(eval_sensings or [sensing])
+    summary = dict(env=env_id, sensing=sensing, algo=algo, steps=int(steps), seed=int(seed), n_envs=int(n_envs),
+                   normalize=normalize, policy=policy, hyperparams=raw_params, env_kwargs=env_kwargs,
+                   sensor=_describe(sensor), observer=observer, rate=rate, observer_kwargs=observer_kwargs,
+                   settings=list(sensing_settings(sensing)), status="training")
+    venv = None
+    try:
+        venv = make_vec(env_id, sensing, n_envs=n_envs, seed=seed, vectorized=vectorized, env_kwargs=env_kwargs,
+                        **sense)
+        if normalize:
+            venv = VecNormalize(venv, **(normalize if isinstance(normalize, dict) else {}))
+        model = cls(policy, venv, seed=seed, verbose=verbose, device="cpu", **params)
+        if overwrite:
+            _remove_run(out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "run.json").write_text(json.dumps(summary, indent=1, default=str))
+        model.set_logger(_logger(out, verbose))
+        evaluations: list[dict] = []
+        budgets = sorted(int(b) for b in evaluate_at)
+        eval_sensings = list(eval_sensings or [sensing])
 
-    class Budgets(BaseCallback):
-        # checked between rollouts (after the policy update) and at the end, so a budget's policy has been
-        # trained on every sample collected up to it
-        def _on_step(self_cb):
-            return True
+        class Budgets(BaseCallback):
+            # checked between rollouts (after the policy update) and at the end, so a budget's policy has been
+            # trained on every sample collected up to it
+            def _on_step(self_cb):
+                return True
 
-        def _on_rollout_start(self_cb):
-            self_cb.evaluate()
+            def _on_rollout_start(self_cb):
+                self_cb.evaluate()
 
-        def _on_training_end(self_cb):
-            self_cb.evaluate()
+            def _on_training_end(self_cb):
+                self_cb.evaluate()
 
-        def evaluate(self_cb):
-            while budgets and self_cb.num_timesteps >= budgets[0]:
-                at = budgets.pop(0)
-                for k, s in enumerate(eval_sensings):
-                    ev = _frozen_normalization(self_cb.training_env, make_vec(
-                        env_id, s, n_envs=1, seed=10_000 + seed * 100 + k, **sense))
-                    r = _returns(self_cb.model, ev, eval_episodes)
-                    ev.close()
-                    evaluations.append(dict(steps=at, trained_steps=int(self_cb.num_timesteps), sensing=s,
-                                            returns=r.tolist(), mean=float(r.mean()), std=float(r.std())))
+            def evaluate(self_cb):
+                while budgets and self_cb.num_timesteps >= budgets[0]:
+                    at = budgets.pop(0)
+                    for k, s in enumerate(eval_sensings):
+                        ev = _frozen_normalization(self_cb.training_env, make_vec(
+                            env_id, s, n_envs=1, seed=10_000 + seed * 100 + k, env_kwargs=env_kwargs, **sense))
+                        r = _returns(self_cb.model, ev, eval_episodes)
+                        ev.close()
+                        evaluations.append(dict(steps=at, trained_steps=int(self_cb.num_timesteps), sensing=s,
+                                                returns=r.tolist(), mean=float(r.mean()), std=float(r.std())))
 
-    callbacks = [Budgets()]
-    if checkpoint_every > 0:
-        callbacks.append(CheckpointCallback(max(checkpoint_every // n_envs, 1), str(out / "checkpoints"),
-                                            name_prefix="model", save_vecnormalize=normalize))
-    if progress_bar:
-        callbacks.append(_progress_callback())
-    t0 = time.perf_counter()
-    model.learn(total_timesteps=int(steps), callback=callbacks)
-    seconds = time.perf_counter() - t0
+        callbacks = [Budgets()]
+        if checkpoint_every > 0:
+            callbacks.append(CheckpointCallback(max(checkpoint_every // n_envs, 1), str(out / "checkpoints"),
+                                                name_prefix="model", save_vecnormalize=bool(normalize)))
+        if progress_bar:
+            callbacks.append(_progress_callback())
+        t0 = time.perf_counter()
+        model.learn(total_timesteps=int(steps), callback=callbacks)
+        seconds = time.perf_counter() - t0
+    except BaseException:
+        if venv is not None:
+            venv.close()
+        if not any((out / "checkpoints").glob("*.zip")):  # nothing worth keeping: leave no half-made run behind
+            if created is not None and created.exists():
+                shutil.rmtree(created)
+            elif out.exists():
+                _remove_run(out)
+        raise
     model.save(out / "model.zip")
     if normalize:
         venv.save(str(out / "vecnormalize.pkl"))
-    summary = dict(env=env_id, sensing=sensing, algo=algo, steps=int(steps), trained_steps=int(model.num_timesteps),
-                   seed=int(seed), n_envs=int(n_envs), normalize=normalize, hyperparams=params,
-                   seconds=seconds, steps_per_second=model.num_timesteps / seconds, evaluations=evaluations,
-                   **{k: v for k, v in sense.items()})
+    summary.update(trained_steps=int(model.num_timesteps), seconds=seconds,
+                   steps_per_second=model.num_timesteps / seconds, evaluations=evaluations, status="done")
     (out / "run.json").write_text(json.dumps(summary, indent=1, default=str))
     venv.close()
     return summary
 
 
-def load_run(path: str | os.PathLike):
-    """``(model, run)``: the SB3 model and ``run.json`` of a run folder (or of the folder of a ``model.zip``)."""
-    from stable_baselines3 import PPO, SAC
+# ----------------------------------------------------------------------------------------------------------------
+# evaluation
+# ----------------------------------------------------------------------------------------------------------------
+_CHECKPOINT = re.compile(r"(?P<prefix>.+)_(?P<steps>\d+)_steps\.zip")
 
+
+def run_files(path: str | os.PathLike) -> dict:
+    """The files of a trained model: ``{"model", "run", "vecnormalize"}`` (paths; ``None`` where absent).
+
+    ``path`` is a run folder (``model.zip``, ``run.json``, ``vecnormalize.pkl`` in it), a run's ``model.zip``, or
+    a checkpoint ``.../checkpoints/model_<N>_steps.zip``, whose statistics are ``model_vecnormalize_<N>_steps.pkl``
+    beside it (SB3's ``CheckpointCallback`` names) and whose ``run.json`` is in the run folder above.
+    """
     path = Path(path)
-    folder = path if path.is_dir() else path.parent
-    model_file = folder / "model.zip" if path.is_dir() else path
-    if not model_file.exists():
-        raise ValueError(f"expected a run folder or model.zip, actual value: {str(path)!r} (no {model_file})")
-    run_file = folder / "run.json"
-    run = json.loads(run_file.read_text()) if run_file.exists() else {}
-    cls = SAC if run.get("algo") == "SAC" else PPO
-    return cls.load(model_file, device="cpu"), run
+    if path.is_dir():
+        folder, model = path, path / "model.zip"
+    else:
+        folder, model = path.parent, path
+    if not model.is_file():
+        raise ValueError(f"expected a run folder, model.zip or checkpoint, actual value: {str(path)!r} "
+                         f"(no {str(model)!r})")
+    match = _CHECKPOINT.fullmatch(model.name)
+    if match:
+        norm = folder / f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl"
+    else:
+        norm = folder / "vecnormalize.pkl"
+    run = next((d / "run.json" for d in (folder, folder.parent) if (d / "run.json").is_file()), None)
+    return {"model": model, "run": run, "vecnormalize": norm if norm.is_file() else None}
+
+
+def load_run(path: str | os.PathLike):
+    """``(model, run)``: the SB3 model and ``run.json`` (``{}`` if none) of a run folder, model or checkpoint
+    (:func:`run_files`)."""
+    files = run_files(path)
+    run = json.loads(files["run"].read_text()) if files["run"] else {}
+    return _algo_class(run.get("algo", "PPO")).load(files["model"], device="cpu"), run
 
 
 def evaluate(model: str | os.PathLike, *, env_id: str | None = None, sensing: str | None = None,
@@ -361,44 +758,60 @@ def evaluate(model: str | os.PathLike, *, env_id: str | None = None, sensing: st
              seed: int = 10_000, deterministic: bool = True) -> dict:
     """Play a trained run under a sensing (default: the one it was trained with); the true return per episode.
 
-    The training normalization statistics (``vecnormalize.pkl``) are loaded frozen. The sensing may differ from
-    the training one if the observation shape is the same (true state, estimated, finite differences and
-    masked velocities are interchangeable; stacked positions are not).
+    ``model`` is a run folder, its ``model.zip`` or one of its checkpoints (:func:`run_files`): the run's
+    ``run.json`` supplies the environment and sensing, and the normalization statistics saved with that model are
+    loaded frozen. The sensing may differ from the training one if the observation shape is the same (true
+    state, estimated, finite differences and masked velocities are interchangeable; stacked positions are not).
 
     Returns
     -------
     dict
-        ``{"env", "sensing", "sensor", "observer", "rate", "returns", "mean", "std", "lengths"}``.
+        ``{"env", "sensing", "sensor", "observer", "rate", "returns", "mean", "std", "lengths", "model",
+        "vecnormalize"}``; settings that do not act under the sensing (:func:`sensing_settings`) are None.
+
+    Raises
+    ------
+    ValueError
+        No ``run.json`` and no ``env_id``/``sensing`` given; statistics the run normalized with are missing; a
+        sensing of another observation shape.
     """
-    from stable_baselines3.common.vec_env import VecNormalize
+    VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
     if episodes < 1:
         raise ValueError(f"expected episodes >= 1, actual value: {episodes}")
+    files = run_files(model)
     agent, run = load_run(model)
+    if not run and (env_id is None or sensing is None):
+        raise ValueError(f"expected the run.json of {str(files['model'])!r} beside it or in the folder above (it "
+                         "names the environment and the sensing), actual value: none; give env_id and sensing")
     env_id = env_id or run.get("env")
-    if env_id is None:
-        raise ValueError("expected env_id (the run has no run.json), actual value: None")
-    sensing = sensing or run.get("sensing", "true")
+    sensing = sensing or run.get("sensing")
     _check_sensing(sensing)
-    sense = dict(sensor=sensor or run.get("sensor", "encoder-12bit-noisy"),
-                 observer=observer or run.get("observer", "super-twisting"),
-                 rate=rate if rate is not None else run.get("rate", "physics"))
-    venv = make_vec(env_id, sensing, n_envs=1, seed=seed, **sense)
+    if run.get("normalize") and files["vecnormalize"] is None:
+        raise ValueError(f"expected the normalization statistics saved with {str(files['model'])!r} (the run trained "
+                         "on normalized observations), actual value: none found beside it")
+    sense = dict(sensor=sensor or run.get("sensor") or "encoder-12bit-noisy",
+                 observer=observer or run.get("observer") or "super-twisting",
+                 rate=rate if rate is not None else run.get("rate") or "physics")
+    venv = make_vec(env_id, sensing, n_envs=1, seed=seed, env_kwargs=run.get("env_kwargs"),
+                    observer_kwargs=run.get("observer_kwargs") if sensing == "estimated" and observer is None
+                    else None, **sense)
     if venv.observation_space.shape != agent.observation_space.shape:
+        venv.close()
         raise ValueError(
             f"expected a sensing with the model's observation shape {agent.observation_space.shape}, actual value: "
             f"{venv.observation_space.shape} under sensing {sensing!r}")
-    folder = Path(model) if Path(model).is_dir() else Path(model).parent
-    norm_file = folder / "vecnormalize.pkl"
-    if norm_file.exists():
-        venv = VecNormalize.load(str(norm_file), venv)
+    if files["vecnormalize"] is not None:
+        venv = VecNormalize.load(str(files["vecnormalize"]), venv)
         venv.training = False
         venv.norm_reward = False
-    from stable_baselines3.common.evaluation import evaluate_policy
+    evaluate_policy = require("stable_baselines3.common.evaluation", "rl").evaluate_policy
 
     rewards, lengths = evaluate_policy(agent, venv, n_eval_episodes=episodes, deterministic=deterministic,
                                        return_episode_rewards=True, warn=False)
     venv.close()
     r = np.asarray(rewards, dtype=float)
-    return dict(env=env_id, sensing=sensing, **sense, returns=r.tolist(), lengths=list(map(int, lengths)),
-                mean=float(r.mean()), std=float(r.std()))
+    acting = sensing_settings(sensing)
+    return dict(env=env_id, sensing=sensing, **{k: (v if k in acting else None) for k, v in sense.items()},
+                returns=r.tolist(), lengths=list(map(int, lengths)), mean=float(r.mean()), std=float(r.std()),
+                model=str(files["model"]), vecnormalize=str(files["vecnormalize"]) if files["vecnormalize"] else None)

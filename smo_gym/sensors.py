@@ -12,6 +12,7 @@ reads. Models are *stages* applied in order; ``stage_a | stage_b`` (or :class:`C
 :class:`Delay`           :math:`x_k \leftarrow x_{k-d}` (``d`` samples of transport delay)
 :class:`Dropout`         with probability ``p`` the sample is lost and the last output is held
 :class:`Outliers`        with probability ``p`` a channel gets a gross error :math:`s\,n_k`
+:class:`Wrap`            angles to :math:`[-\pi, \pi)`: :math:`x \leftarrow x - 2\pi\lfloor (x + \pi)/2\pi\rfloor`
 ==================  =========================================================================================
 
 Every chain runs as **one compiled call per sample** (:func:`_chain_kernel`): the stages are packed into integer
@@ -68,6 +69,7 @@ __all__ = [
     "Sensor",
     "Stage",
     "UniformNoise",
+    "Wrap",
     "make_sensor",
     "resolution_from_counts",
 ]
@@ -77,7 +79,7 @@ BLOCK = 256
 #: metres per revolution of the drive a linear axis' encoder is assumed to sit on (1 cm per radian)
 LINEAR_TRAVEL = 2.0 * np.pi * 0.01
 
-_GAUSS, _UNIFORM, _QUANT, _BIAS, _DRIFT, _DELAY, _DROPOUT, _OUTLIER = range(8)
+_GAUSS, _UNIFORM, _QUANT, _BIAS, _DRIFT, _DELAY, _DROPOUT, _OUTLIER, _WRAP = range(9)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -149,6 +151,11 @@ def _chain_kernel(y, kinds, params, state, ring, ring_pos, rand, prime, out):
                 for j in range(n):
                     if uniforms[s, j] < params[s, 0, j]:
                         out[j] += params[s, 1, j] * normals[s, j]
+        elif k == _WRAP:
+            for j in range(n):
+                p = params[s, 0, j]  # the period: 2 pi on angular channels, 0 (unchanged) on linear ones
+                if p > 0.0:
+                    out[j] -= p * np.floor((out[j] + 0.5 * p) / p)
     for j in range(n):
         if not np.isfinite(out[j]):
             return j
@@ -733,6 +740,25 @@ class Outliers(Stage):
         return {"probability": self.probability, "scale": self.scale}
 
 
+class Wrap(Stage):
+    r"""A single-turn angle: angular channels reduced to :math:`[-\pi, \pi)`, linear channels unchanged.
+
+    .. math:: x \leftarrow x - 2\pi\,\bigl\lfloor (x + \pi) / 2\pi \bigr\rfloor
+
+    What an absolute encoder without a turn counter reports. Differentiate its output with an observer built with
+    ``wrap`` on the same channels (:class:`smo_gym.observers.Observer`), otherwise every crossing of
+    :math:`\pm\pi` looks like a jump of :math:`2\pi` (a velocity spike of :math:`2\pi/\tau` for a finite
+    difference).
+    """
+
+    _kind = _WRAP
+
+    def _pack(self, n, angular, dt):
+        p = np.zeros((2, n))
+        p[0] = np.where(angular, 2.0 * np.pi, 0.0)
+        return p
+
+
 class Chain(Sensor):
     """Stages applied in order (``Chain(a, b)`` is ``a | b``); ``Chain()`` is the ideal sensor."""
 
@@ -758,7 +784,8 @@ class Chain(Sensor):
 
 
 class Encoder(Chain):
-    r"""An incremental encoder: optional electrical/interpolation noise, then quantization to counts.
+    r"""An encoder: optional electrical/interpolation noise, then quantization to counts, then (``wrap``) the
+    reduction of a single-turn absolute encoder to one revolution.
 
     .. math:: y_k = \Delta\,\lfloor (x_k + \sigma n_k)/\Delta + 1/2 \rfloor
 
@@ -774,11 +801,15 @@ class Encoder(Chain):
         Sets ``resolution = 2 pi / counts``.
     linear_resolution : float, optional
         Resolution of linear channels [m]; default the same encoder on a drive of 1 cm per radian.
+    wrap : bool
+        A single-turn absolute encoder: angular channels are reported in :math:`[-\pi, \pi)` (:class:`Wrap`,
+        after noise and quantization, as the counter of a real one wraps); linear channels are not wrapped.
+        Default False: the angle accumulates over turns (an incremental encoder with a counter).
     """
 
     @check_keywords
     def __init__(self, resolution=None, noise_std=0.0, *, counts_per_revolution: int | None = None,
-                 linear_resolution=None):
+                 linear_resolution=None, wrap: bool = False):
         if (resolution is None) == (counts_per_revolution is None):
             raise ValueError(
                 "expected exactly one of resolution and counts_per_revolution, actual value: "
@@ -788,14 +819,20 @@ class Encoder(Chain):
             resolution = resolution_from_counts(counts_per_revolution)
         self.resolution, self.noise_std = resolution, noise_std
         self.counts_per_revolution, self.linear_resolution = counts_per_revolution, linear_resolution
+        if not isinstance(wrap, (bool, np.bool_)):
+            raise TypeError(f"expected wrap to be a bool, actual value: {wrap!r}")
+        self.wrap = bool(wrap)
         stages: list[Stage] = []
         if np.any(_nonneg("noise_std", noise_std) > 0):
             stages.append(GaussianNoise(noise_std))
         stages.append(Quantization(resolution, linear_resolution))
+        if self.wrap:
+            stages.append(Wrap())
         super().__init__(*stages)
 
     def __repr__(self) -> str:
-        return f"Encoder(resolution={self.resolution!r}, noise_std={self.noise_std!r})"
+        wrap = ", wrap=True" if self.wrap else ""
+        return f"Encoder(resolution={self.resolution!r}, noise_std={self.noise_std!r}{wrap})"
 
 
 # ----------------------------------------------------------------------------------------------------------------

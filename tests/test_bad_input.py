@@ -67,6 +67,7 @@ from smo_gym.sensors import (
     Sensor,
     Stage,
     UniformNoise,
+    Wrap,
     make_sensor,
 )
 
@@ -643,7 +644,8 @@ SENSOR_FAMILIES = [
            kind="sensor"),
     Family("Encoder", Encoder, lambda n: dict(
         resolution=st.one_of(st.none(), positive(1e-4, 0.1)), noise_std=positive(0.0, 0.01),
-        counts_per_revolution=st.one_of(st.none(), st.integers(1, 2**16))), kind="sensor"),
+        counts_per_revolution=st.one_of(st.none(), st.integers(1, 2**16)), wrap=st.booleans()), kind="sensor"),
+    Family("Wrap", Wrap, lambda n: dict(), kind="sensor"),
     Family("Chain", Chain, lambda n: dict(), kind="sensor"),
     Family("Stage", Stage, lambda n: dict(), kind="sensor"),
     Family("Sensor", Sensor, lambda n: dict(), kind="sensor"),
@@ -944,7 +946,8 @@ GOOD = {
     "Quantization": dict(resolution=1e-3, linear_resolution=1e-4), "Bias": dict(value=0.1, std=0.01),
     "Drift": dict(rate_std=1e-3), "Delay": dict(samples=2), "Dropout": dict(probability=0.1, per_channel=True),
     "Outliers": dict(probability=0.1, scale=0.1), "Encoder": dict(resolution=None, noise_std=1e-3,
-                                                                  counts_per_revolution=4096),
+                                                                  counts_per_revolution=4096, wrap=True),
+    "Wrap": dict(),
     "presets": dict(sensor="low-cost"), "Quantization.from_counts": dict(counts_per_revolution=4096,
                                                                           linear_travel=0.01),
 }

@@ -23,8 +23,8 @@ def test_compare_prints_table_and_writes_png(tmp_path, capsys):
                      "--per-joint", "--joints", "hinge,0", "--sensor", "low-cost", "--rate", "1"])
     text = capsys.readouterr().out
     assert code == 0
-    for word in ("observer", "RMSE", "max err", "conv. [s]", "us/step", "super-twisting",
-                 "levant:order=1:discretization=matching", "RMSE per dof", "slider", "hinge"):
+    for word in ("observer", "RMSE", "max err", "us/step", "super-twisting",
+                 "levant:order=1:discretization=matching", "RMSE per dof", "slider [m/s]", "hinge [rad/s]"):
         assert word in text
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -37,8 +37,11 @@ def test_finite_difference_row_is_the_backward_difference_of_the_measurements():
         if i not in starts and i - 1 not in starts:
             np.testing.assert_allclose(fd.velocity[i], (rec.z_measured[i] - rec.z_measured[i - 1]) / rec.dt,
                                        rtol=1e-12, atol=1e-9)
-    # the max error is over the samples after convergence, so it cannot exceed the max over all samples
-    assert 0 < fd.max_error <= np.max(np.abs(fd.velocity - rec.qvel)) + 1e-12
+    # the metrics are over every estimate: all samples but the first of each episode (the observer's start)
+    err = np.delete(fd.velocity - rec.qvel, rec.episode_starts, axis=0)
+    assert len(err) == len(rec.qvel) - len(rec.episode_starts)
+    assert fd.max_error == np.max(np.abs(err))
+    np.testing.assert_allclose(fd.rmse, np.sqrt(np.mean(err**2)), rtol=1e-12)
 
 
 @pytest.mark.parametrize("env_id", ["Hopper-v5", "Ant-v5"])
@@ -70,6 +73,120 @@ def test_bad_input_exit_codes(capsys):
         cli.main([])
 
 
+@pytest.mark.parametrize(("argv", "message"), [
+    (["compare", "--env", "Hoper-v5"], "did you mean 'Hopper-v5'?"),
+    (["compare", "--joints", "thigh"], "did you mean 'thigh_joint'?"),
+    (["compare", "--joints", "7"], "expected a dof index in [0, 5]"),
+    (["compare", "--plot-seconds", "-1"], "expected --plot-seconds > 0, actual value: -1.0"),
+    (["compare", "--out", "{file}/plot.png"], "is a file"),
+    (["compare", "--out", "{tmp}"], "expected a plot file ending in"),
+    (["compare", "--observers", "levant:ordr=1"], "did you mean 'order'?"),
+    (["compare", "--sensor", "encoder:counts=1024"], "did you mean 'counts_per_revolution'?"),
+    (["train", "--env", "Hopper-v55"], "did you mean 'Hopper-v5'?"),
+    (["train", "--env", "Hopper-v5", "--out", "{file}/run"], "is a file"),
+    (["train", "--env", "Hopper-v5", "--observer", "levnat"], "did you mean 'levant'?"),
+    (["evaluate", "{tmp}/missing"], "expected a run folder, model.zip or checkpoint"),
+])
+def test_bad_arguments_are_refused_before_any_work_with_one_line(argv, message, tmp_path, capsys, monkeypatch):
+    """Unknown env ids, joints, observers and sensor options, a negative plot window and unusable output paths end
+    the command with one line on stderr, before a rollout or a training starts."""
+    from smo_gym import rl
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work started before the arguments were checked")
+
+    monkeypatch.setattr(lib, "record_rollout", no_work)
+    monkeypatch.setattr(rl, "make_vec", no_work)
+    (tmp_path / "file").write_text("not a folder")
+    argv = [a.format(file=tmp_path / "file", tmp=tmp_path) for a in argv]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert message in err
+
+
+def test_help_shows_every_default_and_explains_every_column(capsys):
+    parser = cli.build_parser()
+    subparsers = next(a for a in parser._actions if a.dest == "command").choices
+    for name in ("compare", "train", "evaluate"):
+        for action in subparsers[name]._actions:
+            if action.dest in ("help", "model"):
+                continue
+            assert "default" in (action.help or ""), f"{name} {action.option_strings} shows no default"
+        with pytest.raises(SystemExit):
+            cli.main([name, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert "%(default)" not in text
+    with pytest.raises(SystemExit):
+        cli.main(["compare", "--help"])
+    text = capsys.readouterr().out
+    for column, meaning in lib.TABLE_COLUMNS.items():
+        assert f"{column} " in text and " ".join(meaning.split()[:4]) in " ".join(text.split())
+    assert "rad/s" in text and "m/s" in text
+
+
+def test_table_has_exactly_the_explained_columns():
+    """No column without an explanation (the former convergence column measured nothing: environments start at
+    rest, so every observer read 0)."""
+    rec = lib.record_rollout("InvertedPendulum-v5", steps=20, seed=0)
+    results = lib.compare_observers(rec, ["finite-difference", "super-twisting"])
+    header = lib.format_table(rec, results).splitlines()[1].split("  ")
+    assert [h.strip() for h in header if h.strip()] == list(lib.TABLE_COLUMNS)
+
+
+def test_sensor_spec_in_compare(tmp_path, capsys):
+    out = tmp_path / "cmp.png"
+    spec = "encoder:counts_per_revolution=1024:noise_std=2e-3+delay:samples=1"
+    assert cli.main(["compare", "--env", "InvertedPendulum-v5", "--steps", "30", "--sensor", spec, "--observers",
+                     "finite-difference", "--out", str(out), "--no-progress"]) == 0
+    assert f"sensor {spec}" in capsys.readouterr().out
+    rec = lib.record_rollout("InvertedPendulum-v5", sensor=spec, steps=30)
+    # one-sample delay: the first two measurements are the first sample, and the grid is 2 pi / 1024 (hinge)
+    np.testing.assert_array_equal(rec.z_measured[0], rec.z_measured[1])
+    hinge = rec.names.index("hinge")
+    k = rec.z_measured[:, hinge] / (2 * np.pi / 1024)
+    np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+
+
+def _diverging(rec, name="diverging", scale=1e189):
+    """An ObserverResult whose estimate blows up to ``scale`` and then becomes non-finite."""
+    v = rec.qvel.copy()
+    n = len(v)
+    v[2:n // 2] = scale * np.where(np.arange(2, n // 2) % 2, 1.0, -1.0)[:, None]
+    v[n // 2:] = np.nan
+    return lib.ObserverResult(name=name, velocity=v, rmse=float("nan"), max_error=float("inf"), cost_us=1.0,
+                              rmse_per_dof=np.full(v.shape[1], np.nan), diverged_at=n // 2 * rec.dt)
+
+
+def test_plot_axes_follow_the_true_velocity_not_a_diverging_observer():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rec = lib.record_rollout("InvertedPendulum-v5", steps=100, seed=4)
+    results = lib.compare_observers(rec, ["finite-difference"]) + [_diverging(rec)]
+    seconds = 0.3
+    fig = lib.velocity_figure(rec, results, ["slider", "hinge"], seconds=seconds)
+    n = round(seconds / rec.dt) + 1
+    axes = fig.axes
+    for ax, d, unit in zip(axes, [0, 1], ["m/s", "rad/s"], strict=True):
+        true = rec.qvel[:n, d]
+        lo, hi = ax.get_ylim()
+        span = true.max() - true.min()
+        assert lo <= true.min() and hi >= true.max()
+        assert (hi - lo) <= 4 * span  # within a small factor of the true range, although one estimate is 1e189
+        assert ax.get_ylabel().endswith(f"[{unit}]")
+    fig.canvas.draw()
+    legend = fig.legends[0]
+    box = legend.get_window_extent()
+    for ax in axes:
+        assert not box.overlaps(ax.get_window_extent()), "the legend covers the data"
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert any("diverging (diverged at" in lbl and "clipped" in lbl and "1e+189" in lbl for lbl in labels)
+    plt.close(fig)
+
+
 def test_environment_ids_of_dm_control_need_no_import_first():
     """``smo-gym compare/train/evaluate --env dm_control/...`` make their environments with ``smo_gym.envs.make``,
     which registers shimmy's ids itself: checked in a fresh interpreter (here shimmy may already be imported)."""
@@ -79,6 +196,29 @@ def test_environment_ids_of_dm_control_need_no_import_first():
 
     code = ("import sys; from smo_gym.envs import make; assert 'shimmy' not in sys.modules; "
             "env = make('dm_control/cartpole-swingup-v0'); env.reset(seed=0); env.close()")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False,
                             env={**os.environ, "MUJOCO_GL": "disable"})
     assert result.returncode == 0, result.stderr[-2000:]
+
+
+def _run_module(*args):
+    import os
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "smo_gym", *args], capture_output=True, text=True, timeout=120, check=False,
+                          env={**os.environ, "MUJOCO_GL": "disable"})
+
+
+def test_python_dash_m_runs_the_command_line():
+    result = _run_module("compare", "--env", "NoSuchEnv-v0")
+    assert result.returncode == 2
+    assert result.stderr.strip() == ("smo-gym compare: error: expected a registered Gymnasium environment id, actual "
+                                     "value: 'NoSuchEnv-v0'")
+
+
+def test_version():
+    import smo_gym
+
+    result = _run_module("--version")
+    assert result.returncode == 0 and result.stdout.strip() == f"smo-gym {smo_gym.__version__}"

@@ -306,3 +306,70 @@ def test_explicit_super_twisting_chatters_where_implicit_does_not():
     assert np.all(np.count_nonzero(v_euler, axis=0) >= v_euler.shape[0] // 2)  # limit cycle 55, 0, -55, 0
     assert np.all(v_implicit == 0.0)
     assert np.all(runs["implicit"][..., 0] == c)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# explicit gains: Levant's lambda sequence is a choice
+# ----------------------------------------------------------------------------------------------------------------
+def test_levant_nonrecursive_gains_of_any_sequence():
+    """:math:`\\Lambda_{i+1} = \\lambda_{k-i}\\Lambda_i^{(k-i)/(k-i+1)}`, computed by hand for (2, 3, 4), and the
+    default sequence gives Livne and Levant's (2, 2.12, 1.1)."""
+    from smo_gym.design import levant_nonrecursive
+    from smo_gym.design.gains import LEVANT_LAMBDAS
+
+    np.testing.assert_allclose(levant_nonrecursive([2.0, 3.0, 4.0]), [4.0, 3.0 * 4.0**0.5, 2.0], rtol=1e-15)
+    np.testing.assert_allclose(levant_nonrecursive(LEVANT_LAMBDAS[:3]), [2.0, 2.12, 1.1], atol=5e-3)
+    with pytest.raises(ValueError, match="expected lambdas > 0"):
+        levant_nonrecursive([1.1, -1.5])
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_levant_default_gains_are_the_papers_sequence(order):
+    """``gains=`` with Levant's printed sequence is the default, bit for bit."""
+    y = signal(np.arange(0.0, 2.0, 1e-3))[:, None]
+    lam = (1.1, 1.5, 2.0, 3.0)[: order + 1]
+    L = lipschitz_for(order)
+    default = estimates_of(Levant(order, 1e-3, L), y)
+    explicit = estimates_of(Levant(order, 1e-3, L, gains=lam), y)
+    np.testing.assert_array_equal(explicit, default)
+
+
+@pytest.mark.parametrize("cls", [Levant, UniformLevant])
+def test_levant_gains_enter_the_step(cls):
+    r"""One explicit Euler step from a known error: with :math:`(\lambda_0, \lambda_1, \lambda_2) = (2, 3, 4)` the
+    corrections are :math:`\tau\Lambda_{i+1}L^{(i+1)/3}|e|^{(2-i)/3}\mathrm{sign}(e)` with
+    :math:`\Lambda = (4, 6, 2)` (by hand), which changes the state differently from the default gains."""
+    dt, L, e = 1e-2, 8.0, 0.125  # |e|^(1/3) = 0.5, L^(1/3) = 2: every factor exact in binary
+    kwargs = dict(discretization="euler")
+    if cls is UniformLevant:
+        kwargs["k"] = [3e-100, 3e-200, 1e-300]  # (s + 1e-100)^3: a uniform part far below rounding
+    obs = cls(2, dt, L, gains=(2.0, 3.0, 4.0), **kwargs)
+    obs.reset(np.zeros(1))
+    state = np.zeros((1, 4))
+    state[0, 0] = e  # x0 - y = e
+    new_state, _ = obs.step(state, np.zeros(1))
+    big = np.array([4.0, 6.0, 2.0])
+    expected = -dt * big * L ** (np.arange(1, 4) / 3) * e ** ((2 - np.arange(3)) / 3)
+    expected[0] += e
+    np.testing.assert_allclose(new_state[0, :3], expected, rtol=1e-13)
+    default = cls(2, dt, L, **kwargs)
+    default.reset(np.zeros(1))
+    assert not np.allclose(default.step(state, np.zeros(1))[0][0, :3], expected)
+
+
+@pytest.mark.parametrize(
+    "factory, error",
+    [
+        (lambda: Levant(2, 1e-3, 1.0, gains=(1.1, 1.5)), ValueError),  # order + 1 = 3 needed
+        (lambda: Levant(2, 1e-3, 1.0, gains=(1.1, -1.5, 2.0)), ValueError),
+        (lambda: Levant(2, 1e-3, 1.0, gains=(1.1, np.nan, 2.0)), ValueError),
+        (lambda: Levant(2, 1e-3, 1.0, gains="big"), TypeError),
+        (lambda: Levant(2, 1e-3, 1.0, gains=(1.1, 1.5, 2.0), discretization="matching"), ValueError),
+        (lambda: UniformLevant(1, 1e-3, 1.0, gains=(1.1, 1.5, 2.0)), ValueError),
+    ],
+)
+def test_levant_gains_are_validated(factory, error):
+    with pytest.raises(error) as excinfo:
+        factory()
+    msg = str(excinfo.value)
+    assert "expected" in msg and "actual value" in msg, msg

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import importlib.resources
+import os
+import subprocess
+import sys
 import warnings
 
 import gymnasium as gym
@@ -109,3 +112,13 @@ def test_furuta_terminates_when_the_pendulum_falls():
 def test_import_registers_once():
     smo_gym.envs.register_envs()  # idempotent
     assert all(env_id in gym.registry for env_id in ENV_IDS)
+
+
+def test_plain_import_registers_the_environments():
+    """``import smo_gym`` alone makes ``gymnasium.make("smo_gym/...")`` work, without loading MuJoCo code first."""
+    code = ("import sys, gymnasium as gym, smo_gym; assert 'smo_gym.envs' not in sys.modules; "
+            "env = gym.make('smo_gym/TwoLinkArm-v0'); env.reset(seed=0); print(type(env.unwrapped).__name__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "MUJOCO_GL": "disable"})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "TwoLinkArmEnv"

@@ -559,3 +559,116 @@ def test_an_overflowing_estimate_is_a_divergence():
     with pytest.raises(DivergenceError, match="channel 0") as excinfo:
         obs.step(state, np.array([-7.47270782e307]))
     assert_worded(excinfo)
+# ----------------------------------------------------------------------------------------------------------------
+# initial derivatives: reset(y0, derivatives=...)
+# ----------------------------------------------------------------------------------------------------------------
+#: every registered family (gains of a fast observer: each converges within a few samples from the true state)
+DERIVATIVE_CASES = CASES + [
+    pytest.param("switched-gain", dict(order=1, mu0=20.0, supervise=False, gain=[2.0, 1.0]), id="switched-gain"),
+    pytest.param("low-power-high-gain", dict(gain=50.0, order=2), id="low-power-high-gain"),
+    pytest.param("ilf-finite", dict(order=1, lipschitz=20.0), id="ilf-finite"),
+]
+
+
+def test_derivative_cases_cover_the_registry():
+    assert {p.values[0] for p in DERIVATIVE_CASES} == set(OBSERVERS) - {"ilf-fixed"}  # the class of ilf-finite
+
+
+@pytest.mark.parametrize("name, kwargs", DERIVATIVE_CASES)
+def test_reset_with_the_true_derivatives_tracks_a_ramp_from_the_first_sample(name, kwargs):
+    """On ramps ``y = a + b t`` (every channel its own), an observer reset with the true slope ``b`` estimates it
+    from the first sample on: every scheme here is exact on ramps started at the true state, up to the rounding
+    that a sliding-mode step turns into a chattering of ``dt * lambda_0 L`` (here below 0.03 of ``b = 5 ... 8``).
+    Reset with a zero slope, the same observer starts wrong (finite differences excepted: the first backward
+    difference of a ramp is exact whatever the state)."""
+    T, shape = 40, (2, 3)
+    t = np.arange(T)[:, None, None] * DT
+    a = np.linspace(-1.0, 1.0, 6).reshape(shape)
+    b = np.linspace(5.0, 8.0, 6).reshape(shape)
+    Y = a + b * t
+    if name in TAKES_LIPSCHITZ:
+        kwargs = dict(kwargs, lipschitz=20.0)
+    obs = make_observer(name, dt=DT, **kwargs)
+    m = obs.order + 1
+    first = obs.reset(Y[0], derivatives=b[..., None])
+    expected = np.zeros(shape + (m,))
+    expected[..., 0], expected[..., 1] = Y[0], b
+    np.testing.assert_array_equal(first, expected)
+    est = np.concatenate([first[None], obs.run(Y[1:])])
+    np.testing.assert_allclose(est[..., 1], np.broadcast_to(b, Y.shape), rtol=0.03)
+    np.testing.assert_allclose(est[..., 0], Y, rtol=0, atol=1e-4)
+    if name != "finite-difference":
+        cold = make_observer(name, dt=DT, **kwargs)
+        cold.reset(Y[0])
+        cold_error, warm_error = np.max(np.abs(cold.update(Y[1])[..., 1] - b)), np.max(np.abs(est[1, ..., 1] - b))
+        assert cold_error > max(0.01 * b.max(), 2.0 * warm_error)
+
+
+@pytest.mark.parametrize("name, kwargs", [c for c in CASES if c.values[0] in ("levant", "high-gain", "kalman-ca")])
+def test_reset_derivatives_partial_masked_and_restart(name, kwargs, rng):
+    """``k < order`` derivatives fill the first ``k`` (the rest start at zero); with a mask only the masked rows
+    take them, bit for bit as a fresh observer reset with them; ``restart`` accepts them as ``reset`` does."""
+    Y = measurements(rng, T=60)
+    obs = build(name, kwargs)
+    k = obs.order - 1 if obs.order > 1 else 1
+    d = rng.standard_normal(BATCH + (k,))
+    first = obs.reset(Y[0], derivatives=d)
+    np.testing.assert_array_equal(first[..., 1:k + 1], d)
+    assert np.all(first[..., k + 1:] == 0.0)
+    # restart = reset with the same derivatives
+    obs.run(Y[1:20])
+    fresh = build(name, kwargs)
+    np.testing.assert_array_equal(obs.restart(Y[20], derivatives=d), fresh.reset(Y[20], derivatives=d))
+    np.testing.assert_array_equal(obs.run(Y[21:30]), fresh.run(Y[21:30]))
+    # masked: only the masked environments restart, with their derivatives
+    mask = np.array([True, False, False, True])
+    untouched = copy.deepcopy(obs)
+    returned = obs.reset(Y[30], mask=mask, derivatives=d)
+    restarted = build(name, kwargs).reset(Y[30], derivatives=d)
+    np.testing.assert_array_equal(returned[mask], restarted[mask])
+    np.testing.assert_array_equal(returned[~mask], untouched.estimate[~mask])
+    ref_fresh = build(name, kwargs)
+    ref_fresh.reset(Y[30], derivatives=d)
+    got, ref_u, ref_f = obs.run(Y[31:]), untouched.run(Y[31:]), ref_fresh.run(Y[31:])
+    np.testing.assert_array_equal(got[:, mask], ref_f[:, mask])
+    np.testing.assert_array_equal(got[:, ~mask], ref_u[:, ~mask])
+
+
+def test_reset_derivatives_of_the_model_based_observers_is_their_initial_velocity():
+    """The mechanical observers spell the same thing ``v0``: ``derivatives[..., 0]``."""
+    from smo_gym.observers import MechanicalSuperTwisting
+
+    class Free:
+        n = 2
+
+        def acceleration(self, q, v, u):
+            return np.zeros_like(q)
+
+        def inertia(self, q):
+            return np.eye(2)
+
+    a, b = MechanicalSuperTwisting(DT, Free(), lipschitz=5.0), MechanicalSuperTwisting(DT, Free(), lipschitz=5.0)
+    v0 = np.array([1.5, -2.0])
+    np.testing.assert_array_equal(a.reset(np.zeros(2), derivatives=v0[:, None]), b.reset(np.zeros(2), v0=v0))
+    assert a.estimate[1, 1] == -2.0
+    with pytest.raises(TypeError, match="expected v0 or derivatives"):
+        a.reset(np.zeros(2), v0=v0, derivatives=v0[:, None])
+
+
+@pytest.mark.parametrize(
+    "derivatives, error, match",
+    [
+        (np.zeros((4, 7, 3)), ValueError, r"k <= order = 2"),  # too many derivatives
+        (np.zeros((4, 7)), ValueError, r"shape \(4, 7, 'k'\)"),  # the derivative axis is missing
+        (np.zeros((7, 4, 1)), ValueError, "shape"),  # channels and batch swapped
+        (np.full((4, 7, 1), np.nan), ValueError, "finite derivatives"),
+        ("fast", TypeError, "array of real numbers"),
+        (np.full((4, 7, 1), 1j), TypeError, "array of real numbers"),
+    ],
+)
+def test_reset_derivatives_are_validated(derivatives, error, match):
+    obs = Levant(order=2, dt=DT, lipschitz=1.0)
+    with pytest.raises(error, match=match) as excinfo:
+        obs.reset(np.zeros(BATCH), derivatives=derivatives)
+    assert_worded(excinfo)
+    assert obs.shape is None  # nothing was set up

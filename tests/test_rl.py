@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -91,3 +92,223 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["train", "--algo", "DQN"])
     assert main(["evaluate", str(tmp_path / "missing"), "--episodes", "1"]) == 2
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# evaluation of checkpoints, run folders, hyperparameter files, dm_control
+# ----------------------------------------------------------------------------------------------------------------
+IP = "InvertedPendulum-v5"
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(tmp_path, monkeypatch):
+    import torch
+
+    torch.set_num_threads(1)
+    monkeypatch.setenv("SMO_GYM_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def _by_hand(model_zip, norm_pkl, sensing, seed, episodes=2):
+    """Returns of a saved model under a sensing, with its statistics, computed without smo_gym.rl.evaluate."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    venv = VecNormalize.load(str(norm_pkl), rl.make_vec(IP, sensing, n_envs=1, seed=seed))
+    venv.training, venv.norm_reward = False, False
+    rewards, _ = evaluate_policy(PPO.load(model_zip, device="cpu"), venv, n_eval_episodes=episodes,
+                                 deterministic=True, return_episode_rewards=True, warn=False)
+    venv.close()
+    return rewards
+
+
+def test_evaluating_a_checkpoint_uses_the_runs_sensing_and_that_checkpoints_statistics(tmp_path, capsys):
+    from smo_gym.cli import main
+
+    out = tmp_path / "run"
+    rl.train(IP, sensing="finite-difference", steps=128, out=out, hyperparams=TINY_PPO, checkpoint_every=64)
+    ckpt = out / "checkpoints" / "model_64_steps.zip"
+    norm = out / "checkpoints" / "model_vecnormalize_64_steps.pkl"
+    assert ckpt.exists() and norm.exists()
+    res = rl.evaluate(ckpt, episodes=2, seed=7)
+    assert res["sensing"] == "finite-difference" and res["vecnormalize"] == str(norm)
+    assert res["returns"] == _by_hand(ckpt, norm, "finite-difference", seed=7)
+    # only the settings that act under the sensing are printed: finite differences have no observer
+    assert main(["evaluate", str(ckpt), "--episodes", "1"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "under finite-difference (sensor encoder-12bit-noisy, rate physics)" in line and "observer" not in line
+    assert main(["evaluate", str(ckpt), "--episodes", "1", "--sensing", "true"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert f"{IP} under true: return" in line and "sensor" not in line
+    # a checkpoint whose statistics are gone is refused, not played unnormalized
+    norm.unlink()
+    with pytest.raises(ValueError, match="normalization statistics"):
+        rl.evaluate(ckpt, episodes=1)
+    # a model without a run.json needs its environment and sensing
+    (out / "run.json").unlink()
+    with pytest.raises(ValueError, match="run.json"):
+        rl.evaluate(out / "model.zip", episodes=1)
+    assert rl.evaluate(out / "model.zip", env_id=IP, sensing="true", episodes=1)["vecnormalize"] == str(
+        out / "vecnormalize.pkl")
+
+
+def test_default_run_folders_name_observer_sensor_and_rate(tmp_path, capsys, monkeypatch):
+    from smo_gym.cli import main
+
+    a = rl.default_run_folder(IP, "estimated", "PPO", 0, sensor="low-cost", observer="levant:order=1", rate="env")
+    b = rl.default_run_folder(IP, "estimated", "PPO", 0, sensor="low-cost", observer="high-gain", rate="env")
+    c = rl.default_run_folder(IP, "estimated", "PPO", 0, sensor="ideal", observer="high-gain", rate="env")
+    d = rl.default_run_folder(IP, "estimated", "PPO", 0, sensor="ideal", observer="high-gain", rate=2)
+    assert len({a, b, c, d}) == 4
+    assert a.name == "InvertedPendulum-v5-estimated-levant_order=1-low-cost-rate-env-PPO-s0"
+    # settings that do not act under the sensing are not in the name
+    assert rl.default_run_folder(IP, "true", "PPO", 0, sensor="ideal").name == "InvertedPendulum-v5-true-PPO-s0"
+    assert rl.default_run_folder("dm_control/cartpole-swingup-v0", "true", "SAC", 1).parent == Path("outputs/runs")
+    monkeypatch.chdir(tmp_path)
+    common = ["train", "--env", IP, "--steps", "64", "--no-progress", "--checkpoint-every", "0", "--eval-episodes",
+              "0", "--rate", "env", "--sensor", "ideal"]
+    assert main(common + ["--observer", "high-gain"]) == 0
+    assert main(common + ["--observer", "finite-difference"]) == 0
+    runs = sorted(p.name for p in (tmp_path / "outputs" / "runs").iterdir())
+    assert runs == ["InvertedPendulum-v5-estimated-finite-difference-ideal-rate-env-PPO-s0",
+                    "InvertedPendulum-v5-estimated-high-gain-ideal-rate-env-PPO-s0"]
+    assert json.loads((tmp_path / "outputs" / "runs" / runs[1] / "run.json").read_text())["observer"] == "high-gain"
+
+
+def test_an_existing_run_is_refused_unless_forced(tmp_path, capsys):
+    from smo_gym.cli import main
+
+    out = tmp_path / "run"
+    args = ["train", "--env", IP, "--sensing", "true", "--steps", "64", "--no-progress", "--checkpoint-every", "0",
+            "--eval-episodes", "0", "--out", str(out)]
+    assert main(args) == 0
+    first = (out / "model.zip").read_bytes()
+    (out / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert main(args + ["--seed", "1"]) == 2
+    assert "holds a run already" in capsys.readouterr().err
+    assert (out / "model.zip").read_bytes() == first
+    assert main(args + ["--seed", "1", "--force"]) == 0
+    assert json.loads((out / "run.json").read_text())["seed"] == 1
+    assert (out / "notes.txt").read_text() == "mine"  # only the run's own files are replaced
+    with pytest.raises(ValueError, match="holds a run already"):
+        rl.train(IP, sensing="true", steps=64, out=out, hyperparams=TINY_PPO)
+
+
+def test_a_failed_start_removes_what_it_created(tmp_path):
+    out = tmp_path / "new" / "deeper" / "run"
+    with pytest.raises(ValueError, match="divisor"):  # Hopper's frame_skip is 4: rate 3 fails building the env
+        rl.train("Hopper-v5", sensing="estimated", rate=3, steps=64, out=out, hyperparams=TINY_PPO)
+    assert not (tmp_path / "new").exists()
+    # a failure during training (an evaluation under an unknown sensing), before any checkpoint
+    with pytest.raises(ValueError, match="expected sensing"):
+        rl.train(IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64],
+                 eval_sensings=["psychic"])
+    assert not (tmp_path / "new").exists()
+    # an existing (empty) folder stays, without the files of the failed run
+    out.mkdir(parents=True)
+    with pytest.raises(ValueError, match="expected sensing"):
+        rl.train(IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64],
+                 eval_sensings=["psychic"])
+    assert out.is_dir() and not any(out.iterdir())
+
+
+ZOO_YAML = """
+InvertedPendulum-v5:
+  n_timesteps: !!float 128
+  policy: 'MlpPolicy'
+  n_envs: 2
+  normalize: "{'norm_obs': True, 'norm_reward': False}"
+  learning_rate: lin_1e-3
+  policy_kwargs: "dict(net_arch=[16, 8], activation_fn=nn.Tanh)"
+  n_steps: 32
+  batch_size: 32
+  n_epochs: 1
+Hopper-v5:
+  n_timesteps: !!float 1e6
+"""
+
+
+def test_train_reads_rl_zoo3_hyperparameters(tmp_path, capsys):
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from smo_gym.cli import main
+
+    file = tmp_path / "ppo.yml"
+    file.write_text(ZOO_YAML)
+    out = tmp_path / "zoo"
+    assert main(["train", "--env", IP, "--sensing", "true", "--hyperparams", str(file), "--out", str(out),
+                 "--no-progress", "--checkpoint-every", "0", "--eval-episodes", "1"]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["n_envs"] == 2 and run["steps"] == 128 and run["trained_steps"] == 128
+    assert run["hyperparams"]["learning_rate"] == "lin_1e-3"
+    model = PPO.load(out / "model.zip", device="cpu")
+    assert model.n_envs == 2 and model.n_steps == 32
+    assert model.lr_schedule(1.0) == pytest.approx(1e-3) and model.lr_schedule(0.25) == pytest.approx(2.5e-4)
+    linears = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
+    assert [m.out_features for m in linears] == [16, 8]
+    assert any(isinstance(m, torch.nn.Tanh) for m in model.policy.mlp_extractor.policy_net)
+    norm = VecNormalize.load(str(out / "vecnormalize.pkl"), rl.make_vec(IP, "true"))
+    assert norm.norm_obs and not norm.norm_reward
+    # command-line flags win over the file
+    assert main(["train", "--env", IP, "--sensing", "true", "--hyperparams", str(file), "--out", str(tmp_path / "z2"),
+                 "--no-progress", "--checkpoint-every", "0", "--eval-episodes", "0", "--n-envs", "1",
+                 "--steps", "64"]) == 0
+    run = json.loads((tmp_path / "z2" / "run.json").read_text())
+    assert run["n_envs"] == 1 and run["steps"] == 64
+
+
+@pytest.mark.parametrize(("entry", "message"), [
+    ("learning_rat: 0.001", "did you mean 'learning_rate'?"),
+    ("env_wrapper: smo_gym.wrappers.EstimatedVelocity", "README"),
+    ("learning_rate: cos_1e-3", "lin_<number>"),
+    ("policy_kwargs: \"dict(net_arch=__import__('os').system('echo hi'))\"", "expected policy_kwargs made of"),
+    ("normalize: \"{'norm_ob': True}\"", "expected normalize options"),
+    ("n_timesteps: -3", "positive integer"),
+])
+def test_bad_hyperparameter_files_are_refused_before_training(entry, message, tmp_path, capsys, monkeypatch):
+    from smo_gym.cli import main
+
+    monkeypatch.setattr(rl, "make_vec", lambda *a, **k: pytest.fail("training started"))
+    file = tmp_path / "bad.yml"
+    file.write_text(f"{IP}:\n  {entry}\n")
+    assert main(["train", "--env", IP, "--hyperparams", str(file), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r").exists()
+    file.write_text("Hopper-v5:\n  n_envs: 2\n")
+    assert main(["train", "--env", "Hopper-v4", "--hyperparams", str(file), "--out", str(tmp_path / "r")]) == 2
+    assert "did you mean 'Hopper-v5'?" in capsys.readouterr().err
+
+
+def test_policy_kwargs_are_evaluated_safely():
+    import torch
+
+    kwargs = rl.parse_policy_kwargs("dict(log_std_init=-2, ortho_init=False, activation_fn=nn.ReLU, "
+                                    "net_arch=dict(pi=[256, 256], vf=[256, 256]), optimizer_class=th.optim.AdamW)")
+    assert kwargs == dict(log_std_init=-2, ortho_init=False, activation_fn=torch.nn.ReLU,
+                          net_arch=dict(pi=[256, 256], vf=[256, 256]), optimizer_class=torch.optim.AdamW)
+    assert rl.parse_policy_kwargs("{'net_arch': (64, 64)}") == {"net_arch": (64, 64)}
+    for text in ("dict(a=os.system)", "dict(**x)", "[1, 2]", "dict(a=1 + 2)", "dict(a=nn.Module)", "open('f')"):
+        with pytest.raises(ValueError, match="policy_kwargs"):
+            rl.parse_policy_kwargs(text)
+
+
+def test_dm_control_observations_are_flattened_for_training(tmp_path, capsys):
+    """The dm_control suite's Dict observation is flattened (position, then velocity) so that an MLP policy can be
+    trained on it; the velocity entries are found in the flattened vector."""
+    from smo_gym.cli import main
+
+    env_id = "dm_control/cartpole-swingup-v0"
+    env = rl.make_env(env_id, "no-velocity", sensor="ideal")
+    assert env.observation_space.shape == (5,)
+    o, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(o[3:], 0.0)  # cartpole: position (3: x, cos, sin), velocity (2)
+    out = tmp_path / "dmc"
+    assert main(["train", "--env", env_id, "--sensing", "estimated", "--steps", "64", "--out", str(out),
+                 "--no-progress", "--checkpoint-every", "0", "--eval-episodes", "0"]) == 0
+    assert main(["evaluate", str(out), "--episodes", "1", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["env"] == env_id and res["sensing"] == "estimated" and np.isfinite(res["mean"])

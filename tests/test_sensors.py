@@ -23,6 +23,7 @@ from smo_gym.sensors import (
     Outliers,
     Quantization,
     UniformNoise,
+    Wrap,
     make_sensor,
 )
 
@@ -327,3 +328,51 @@ def test_sensor_constructors_reject_converted_values(factory):
     with pytest.raises((TypeError, ValueError)) as excinfo:
         factory()
     assert_worded(excinfo)
+# ----------------------------------------------------------------------------------------------------------------
+# single-turn encoders: angles reported modulo 2 pi
+# ----------------------------------------------------------------------------------------------------------------
+TWO_PI = 2 * np.pi
+
+
+def spinning(T: int, offsets=(0.0,), dt: float = 1e-3) -> np.ndarray:
+    """``30 t + offset`` (T, n): about 4.8 turns per second, crossing +-pi many times."""
+    return 30.0 * np.arange(T)[:, None] * dt + np.asarray(offsets)[None, :]
+
+
+def test_single_turn_encoder_reports_the_quantized_angle_modulo_two_pi():
+    """``Encoder(wrap=True)``: the count of the incremental encoder reduced to [-pi, pi), computed here directly;
+    linear channels are quantized but not wrapped."""
+    true = spinning(2000, offsets=(0.0, 1.0))
+    res = TWO_PI / 4096
+    got = measure_all(Encoder(res, wrap=True), true, angular=[True, False])
+    counts = res * np.floor(true / res + 0.5)
+    lin_res = res * 0.01  # the linear channel: the same encoder on 1 cm per radian
+    expected_angle = counts[:, 0] - TWO_PI * np.floor((counts[:, 0] + np.pi) / TWO_PI)
+    np.testing.assert_allclose(got[:, 0], expected_angle, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got[:, 1], lin_res * np.floor(true[:, 1] / lin_res + 0.5), rtol=0, atol=1e-12)
+    assert np.all(got[:, 0] >= -np.pi) and np.all(got[:, 0] < np.pi)
+    assert got[:, 1].max() > 50.0  # not wrapped
+    assert "wrap=True" in repr(Encoder(res, wrap=True))
+
+
+def test_noisy_single_turn_encoder_wraps_after_noise_and_quantization():
+    """Noise acts before the counter and the wrap after it: outputs lie on the grid and in [-pi, pi), and the
+    unwrapped output is the true angle within the noise. The error statistics are unchanged by the wrap."""
+    true = spinning(20000, offsets=(0.3,))
+    res = TWO_PI / 4096
+    enc = Encoder(res, noise_std=1e-3, wrap=True)
+    got = measure_all(enc, true)
+    assert np.all(got >= -np.pi - 1e-12) and np.all(got < np.pi + 1e-12)
+    np.testing.assert_allclose(got, np.round(got / res) * res, rtol=0, atol=1e-12)
+    err = np.unwrap(got, axis=0) - true
+    # 20000 samples: relative standard error of the std 0.5 %, tolerance 5 %
+    np.testing.assert_allclose(err.std(), np.sqrt(1e-6 + res**2 / 12), rtol=0.05)
+    np.testing.assert_array_equal(enc.error_std(1), Encoder(res, noise_std=1e-3).error_std(1))
+    assert [type(s) for s in enc.stages] == [GaussianNoise, Quantization, Wrap]
+    assert Chain(GaussianNoise(1e-3), Quantization(res), Wrap()) == enc
+
+
+def test_encoder_wrap_must_be_a_bool():
+    with pytest.raises(TypeError, match="expected wrap") as excinfo:
+        Encoder(1e-3, wrap="no")
+    assert "actual value" in str(excinfo.value)

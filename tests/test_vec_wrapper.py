@@ -11,6 +11,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from smo_gym.wrappers import EstimatedVelocity, JointSensor, VecEstimatedVelocity, VectorEstimatedVelocity
 
+#: the keys of info["smo"], the same from every wrapper
+SMO_KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")
 ENV = "InvertedDoublePendulum-v5"  # episodes end within ~10-40 steps under random actions: many autoresets
 N = 3
 
@@ -28,10 +30,10 @@ def _pair(n=N, seed=3, positions="measured", env_id=ENV):
 @pytest.mark.parametrize("positions, env_id", [("measured", ENV), ("filtered", ENV),
                                                ("measured", "Hopper-v5")])
 def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
-    """Also with the in-process shortcuts: the environments' own observations are not evaluated in steps and
-    resets (zeros instead: the wrapper rebuilds them), Hopper's clipped selection is built for all environments
-    at once, and InvertedDoublePendulum's (with sines, cosines and a constraint force) is gathered for all
-    environments by compiled calls."""
+    """Also with the in-process shortcuts: Hopper's clipped selection is built for all environments at once, and
+    InvertedDoublePendulum's (with sines, cosines and a constraint force) is gathered for all environments by
+    compiled calls. ``info["smo"]`` has the per-environment wrapper's layout and values, at autoresets too (the
+    finished episode's last sample, like ``terminal_observation``)."""
     ref, vec = _pair(positions=positions, env_id=env_id)
     np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
     rng = np.random.default_rng(0)
@@ -43,14 +45,15 @@ def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
         np.testing.assert_array_equal(d1, d2)
         np.testing.assert_array_equal(r1, r2)
         np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        for i in range(N):
+            assert set(i2[i]["smo"]) == set(i1[i]["smo"]) == set(SMO_KEYS)
+            for key in SMO_KEYS:
+                np.testing.assert_allclose(i2[i]["smo"][key], i1[i]["smo"][key], rtol=0, atol=1e-12)
         for i in np.flatnonzero(d1):
             n_done += 1
             np.testing.assert_allclose(i2[i]["terminal_observation"], i1[i]["terminal_observation"], rtol=0,
                                        atol=1e-12)
-            np.testing.assert_allclose(i2[i]["smo"]["qvel_estimate"], i1[i]["smo"]["qvel_estimate"], rtol=0,
-                                       atol=1e-12)
     assert n_done >= 5  # the comparison covered autoresets
-    assert all(s._placeholder_hook and s._reset_hook for s in vec._local)
     assert (vec._selection() is not None) == (env_id == "Hopper-v5" and positions == "measured")
     assert (vec._entries_plan() is not None) == (env_id == ENV and positions == "measured")
 
@@ -165,6 +168,9 @@ def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():
             o1, _, d1, i1 = a.step(act)
             o2, _, d2, i2 = b.step(act)
             np.testing.assert_allclose(o1, o2, rtol=0, atol=1e-12)
+            for i in range(2):  # the same info["smo"] across the process boundary
+                for key in SMO_KEYS:
+                    np.testing.assert_allclose(i1[i]["smo"][key], i2[i]["smo"][key], rtol=0, atol=1e-12)
             for i in np.flatnonzero(d1):
                 np.testing.assert_allclose(i1[i]["terminal_observation"], i2[i]["terminal_observation"], atol=1e-12)
     finally:
@@ -185,6 +191,52 @@ def test_subproc_without_joint_sensor_raises():
         sub.close()
 
 
+def test_gymnasium_async_without_joint_sensor_is_one_clear_error(capfd):
+    """The workers are asked whether they have a JointSensor (without raising there): one TypeError here, not one
+    traceback per worker."""
+    import warnings
+
+    envs = gym.make_vec(ENV, 2, vectorization_mode="async")
+    try:
+        with warnings.catch_warnings(record=True) as caught, pytest.raises(TypeError, match="JointSensor"):
+            warnings.simplefilter("always")  # Gymnasium reports worker errors as warnings with their tracebacks
+            VectorEstimatedVelocity(envs)
+    finally:
+        envs.close()
+    assert not [w for w in caught if "Traceback" in str(w.message) or "Worker" in str(w.message)]
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_vector_wrappers_say_why_not_at_the_physics_rate():
+    """They sample once per vector step; the error points to per-environment wrappers, which sample inside
+    frame_skip in any vector env (test_make_vec_env_with_per_env_wrapper_physics_rate)."""
+    from gymnasium.vector import SyncVectorEnv
+
+    with pytest.raises(ValueError, match=r"rate='env'.*EstimatedVelocity, rate='physics'"):
+        VectorEstimatedVelocity(SyncVectorEnv([lambda: gym.make(ENV)]), rate="physics")
+    with pytest.raises(ValueError, match=r"rate='env'"):
+        VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV)]), rate="physics")
+    with pytest.raises(ValueError, match=r"rate='env'"):
+        JointSensor(gym.make(ENV), rate=1)
+
+
+def test_gymnasium_vector_wrapper_round_trips_plain_pickle():
+    """Plain pickle, given a picklable vector env (environment functions that are not lambdas)."""
+    import functools
+
+    from gymnasium.vector import SyncVectorEnv
+
+    vec = VectorEstimatedVelocity(SyncVectorEnv([functools.partial(gym.make, ENV)] * 2), "encoder-12bit-noisy",
+                                  "super-twisting")
+    vec.reset(seed=5)
+    twin = pickle.loads(pickle.dumps(vec))
+    o1, _ = vec.reset(seed=6)
+    o2, _ = twin.reset(seed=6)
+    np.testing.assert_array_equal(o1, o2)
+    for a in np.random.default_rng(0).uniform(-1, 1, (10, 2, 1)):
+        np.testing.assert_array_equal(vec.step(a)[0], twin.step(a)[0])
+
+
 def test_make_vec_env_with_per_env_wrapper_physics_rate():
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
@@ -200,6 +252,17 @@ def test_make_vec_env_with_per_env_wrapper_physics_rate():
 
 
 # ---- Gymnasium vector envs --------------------------------------------------------------------------------------
+def _assert_same_smo(reference: dict, infos: dict) -> None:
+    """``infos["smo"]`` of a vector wrapper equals what per-environment wrappers give through Gymnasium's info
+    merging (the rows its ``_smo`` mask selects)."""
+    rows = np.asarray(reference["_smo"], dtype=bool)
+    assert set(infos["smo"]) == set(reference["smo"]) == set(SMO_KEYS) | {f"_{key}" for key in SMO_KEYS}
+    np.testing.assert_array_equal(infos["_smo"], reference["_smo"])
+    for key in SMO_KEYS:
+        np.testing.assert_array_equal(infos["smo"][f"_{key}"], reference["smo"][f"_{key}"])
+        np.testing.assert_allclose(infos["smo"][key][rows], reference["smo"][key][rows], rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep", "Disabled"])
 def test_gymnasium_vector_wrapper_matches_per_env(mode):
     from gymnasium.vector import SyncVectorEnv
@@ -222,9 +285,12 @@ def test_gymnasium_vector_wrapper_matches_per_env(mode):
         np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
         done = t1 | u1
         n_done += int(done.sum())
+        _assert_same_smo(i1, i2)
         if mode == "SameStep":
             for i in np.flatnonzero(done):
                 np.testing.assert_allclose(i2["final_obs"][i], i1["final_obs"][i], rtol=0, atol=1e-12)
+            if done.any():
+                _assert_same_smo(i1["final_info"], i2["final_info"])
         if mode == "Disabled" and done.any():
             o1, _ = ref.reset(options={"reset_mask": done.copy()})
             o2, _ = vec.reset(options={"reset_mask": done.copy()})
@@ -250,9 +316,12 @@ def test_gymnasium_async_vector_env_same_step():
             o1, _, t1, u1, i1 = ref.step(a)
             o2, _, _, _, i2 = vec.step(a)
             np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+            _assert_same_smo(i1, i2)
             for i in np.flatnonzero(t1 | u1):
                 n_done += 1
                 np.testing.assert_allclose(i2["final_obs"][i], i1["final_obs"][i], rtol=0, atol=1e-12)
+            if (t1 | u1).any():
+                _assert_same_smo(i1["final_info"], i2["final_info"])
         assert n_done >= 3
     finally:
         vec.close()

@@ -15,7 +15,7 @@ from smo_gym.wrappers.sensing import FusedSensing, SensingInfo
 from conftest import full_forward_observation
 
 
-KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured")
+KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")
 
 
 def _pair(env_id: str, seed: int, **kwargs):
@@ -315,98 +315,18 @@ def test_info_dicts_are_never_reused_across_steps():
     np.testing.assert_array_equal(kept[-1]["qpos_measured"], env.measurement.measured_qpos())
 
 
-def test_the_env_returns_the_sensed_observation_only_where_its_step_ignores_it():
-    """InvertedPendulum-v5 terminates on its observation: the wrapper evaluates the observation itself; HalfCheetah
-    never reads it: its own step returns the sensed one (one observation per step instead of two), with exactly
-    the observations of the general path (test_fused_path_equals_general_path); an observation wrapper in between
-    disables it."""
-    from smo_gym.wrappers.estimated_velocity import observation_independent_step
-
-    assert not observation_independent_step(gym.make("InvertedPendulum-v5").unwrapped)
-    assert observation_independent_step(gym.make("HalfCheetah-v5").unwrapped)
-    pendulum = EstimatedVelocity(gym.make("InvertedPendulum-v5"), disk_cache=False)
-    pendulum.reset(seed=0)
-    assert pendulum._intercept is False
-    cheetah = EstimatedVelocity(gym.make("HalfCheetah-v5"), disk_cache=False)
-    cheetah.reset(seed=0)
-    assert cheetah._intercept
-    info = cheetah.step(np.zeros(6))[4]
-    assert "_get_obs" not in vars(cheetah.unwrapped)  # the replacement lives only during the step
-    np.testing.assert_array_equal(info["smo"]["qvel_estimate"], cheetah.observer.velocity)
-    inner = EstimatedVelocity(gym.wrappers.NormalizeObservation(gym.make("HalfCheetah-v5")), disk_cache=False)
-    inner.reset(seed=0)
-    assert inner._intercept is False
-
-
-def test_episode_recorders_are_transparent_to_the_interception():
-    """SB3's make_vec_env puts a Monitor under wrapper_class, Gymnasium users RecordEpisodeStatistics: both pass the
-    observation through, so the env's own step still returns the sensed observation, the same as without it."""
-    from stable_baselines3.common.monitor import Monitor
-
-    for recorder in (Monitor, gym.wrappers.RecordEpisodeStatistics):
-        wrapped = EstimatedVelocity(recorder(gym.make("Hopper-v5")), disk_cache=False)
-        plain = EstimatedVelocity(recorder(gym.make("Hopper-v5")), disk_cache=False)
-        first = wrapped.reset(seed=4)[0], plain.reset(seed=4)[0]
-        plain._intercept = False
-        assert wrapped._intercept
-        np.testing.assert_array_equal(*first)
-        rng = np.random.default_rng(4)
-        for _ in range(40):
-            action = rng.uniform(-1, 1, 3)
-            a, b = wrapped.step(action), plain.step(action)
-            np.testing.assert_array_equal(a[0], b[0])
-            assert a[1:4] == b[1:4]
-            np.testing.assert_array_equal(a[4]["smo"]["qvel_estimate"], b[4]["smo"]["qvel_estimate"])
-            if a[2] or a[3]:
-                assert "episode" in a[4] and "episode" in b[4]
-                break
-
-
-def test_observation_dependent_rewards_are_detected():
-    """A step whose reward reads the observation it returns is not intercepted."""
-    from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv
-
-    from smo_gym.wrappers.estimated_velocity import observation_independent_step
-
-    class ObservedReward(HalfCheetahEnv):
-        def step(self, action):
-            obs, reward, terminated, truncated, info = super().step(action)
-            return obs, reward - 1e-3 * float(np.sum(obs ** 2)), terminated, truncated, info
-
-    assert not observation_independent_step(ObservedReward())
-
-
-def test_resets_skip_the_environments_own_observation_only_where_it_is_unused():
-    """From the second reset on, the environment's own first observation is a zero placeholder (the wrapper
-    rebuilds it at the sensed state): the reset observation stays the full forward pass at the measured positions
-    and zero velocity, equal to a wrapper that evaluates the environment's; a reset whose info reads the
-    observation is detected and left alone."""
-    from gymnasium.envs.mujoco.inverted_double_pendulum_v5 import InvertedDoublePendulumEnv
-
-    from smo_gym.wrappers.estimated_velocity import observation_independent_reset, observation_independent_step
-
+def test_reset_observation_is_the_full_forward_pass_at_the_measurement():
+    """The first observation of every episode is the environment's observation at the measured positions and
+    zero velocity (full forward pass), and ``info["smo"]["observation"]`` the environment's own at the true
+    state."""
     env = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), disk_cache=False)
-    plain = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), disk_cache=False)
+    bare = gym.make("InvertedDoublePendulum-v5")
     for seed in (0, 1, 2):
-        obs, plain_obs = env.reset(seed=seed)[0], plain.reset(seed=seed)[0]
-        plain._reset_hook = False
-        assert env._reset_hook
-        np.testing.assert_array_equal(obs, plain_obs)
+        obs, info = env.reset(seed=seed)
         qpos = env.measurement.measured_qpos()
         np.testing.assert_array_equal(obs, full_forward_observation(env, qpos, np.zeros(env.unwrapped.model.nv)))
+        np.testing.assert_array_equal(info["smo"]["observation"], bare.reset(seed=seed)[0])
     assert "_get_obs" not in vars(env.unwrapped)
-
-    class ObservedResetInfo(InvertedDoublePendulumEnv):
-        def reset_model(self):
-            obs = super().reset_model()
-            self.first_norm = float(np.sum(obs ** 2))
-            return obs
-
-        def _get_reset_info(self):
-            return {"first_norm": self.first_norm}
-
-    assert observation_independent_step(ObservedResetInfo())
-    assert not observation_independent_reset(ObservedResetInfo())
 
 
 def test_sines_and_cosines_are_gathered_only_where_they_equal_numpys(monkeypatch):

@@ -393,12 +393,10 @@ def format_table(rows, title: str = "") -> str:
 # plots (matplotlib imported lazily)
 # ---------------------------------------------------------------------------------------------------------------
 def _plt():
-    import matplotlib
+    from .._extras import require
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    require("matplotlib", "plots").use("Agg")
+    return require("matplotlib.pyplot", "plots")
 
 
 def plot_identification(rows, path):

@@ -17,6 +17,8 @@ References
 .. [Mol76] B. P. Molinari, "A strong controllability and observability in linear multivariable control",
    IEEE TAC 21(5), 1976.
 .. [Hau83] M. L. J. Hautus, "Strong detectability and observers", Linear Algebra Appl. 50, 1983.
+.. [EV82] A. Emami-Naeini and P. Van Dooren, "Computation of zeros of linear multivariable systems",
+   Automatica 18(4), 1982 (the staircase reduction behind :func:`invariant_zeros`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
+
+from .._validation import check_positive
 
 __all__ = [
     "LinearPlant",
@@ -55,7 +59,7 @@ def _matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.ndarra
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise TypeError(f"expected {name} to be a real matrix, actual value: {value!r}") from None
-    if arr.ndim == 1 and shape[1] == 1:
+    if arr.ndim == 1 and shape[1] in (1, None):  # a vector is one column
         arr = arr[:, None]
     if arr.ndim != 2 or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
         want = "x".join("*" if s is None else str(s) for s in shape)
@@ -63,6 +67,28 @@ def _matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.ndarra
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"expected finite entries in {name}, actual value: {arr!r}")
     return arr
+
+
+def _check_triple(A, C, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, C, D)`` as float matrices after checking that ``A`` is square and the shapes agree."""
+    A = _matrix("A", A, (None, None))
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ValueError(f"expected a square A, actual value: shape {A.shape}")
+    return A, _matrix("C", np.atleast_2d(C), (None, n)), _matrix("D", D, (n, None))
+
+
+def _triple(plant, C, D, caller: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The checked ``(A, C, D)`` of ``caller(plant)`` or ``caller(A, C, D)``."""
+    if isinstance(plant, LinearPlant):
+        if C is not None or D is not None:
+            raise TypeError(f"expected {caller}(plant) or {caller}(A, C, D), actual value: a LinearPlant and also "
+                            f"C={C!r}, D={D!r}")
+        return plant.A, plant.C, plant.D
+    if C is None or D is None:
+        raise TypeError(f"expected {caller}(plant) with a LinearPlant or {caller}(A, C, D) with three matrices, "
+                        f"actual value: {type(plant).__name__} {plant!r} with C={C!r}, D={D!r}")
+    return _check_triple(plant, C, D)
 
 
 def _rank(M: np.ndarray) -> int:
@@ -110,54 +136,163 @@ def relative_degrees(A, C, D) -> np.ndarray:
     return r
 
 
-def _rosenbrock(A, C, D, s) -> np.ndarray:
-    n, p, m = A.shape[0], C.shape[0], D.shape[1]
-    return np.block([[s * np.eye(n) - A, -D], [C, np.zeros((p, m))]])
+def _svd_full(M: np.ndarray):
+    """``U, s, Vh`` of ``M`` with square ``U`` and ``Vh``; an empty ``M`` gives identities and no singular values."""
+    if min(M.shape) == 0:
+        return np.eye(M.shape[0]), np.zeros(0), np.eye(M.shape[1])
+    return np.linalg.svd(M, full_matrices=True)
 
 
-def invariant_zeros(A, C, D, *, seed: int = 0) -> np.ndarray:
-    r"""Invariant zeros of ``(A, C, D)``: the ``s`` where the Rosenbrock matrix loses column rank.
+def _pow2(x: np.ndarray) -> np.ndarray:
+    """The powers of two nearest to ``x`` (1 where ``x`` is 0 or not finite): scalings that round no entry."""
+    x = np.asarray(x, dtype=float)
+    ok = np.isfinite(x) & (x > 0)
+    return np.where(ok, 2.0 ** np.round(np.log2(np.where(ok, x, 1.0))), 1.0)
+
+
+def _system_matrix(A, B, C) -> np.ndarray:
+    """``[[A, B], [C, 0]]``."""
+    return np.block([[A, B], [C, np.zeros((C.shape[0], B.shape[1]))]])
+
+
+def _balance_system(A, B, C, tol: float):
+    r"""Scale ``(A, B, C)`` by powers of two without changing its zeros.
+
+    Inputs and outputs are scaled first (columns of ``B``, rows of ``C``) to the Frobenius norm of ``A``, so that
+    units do not decide ranks. Then the states, by the diagonal similarity that balances the rows and columns of
+    the system matrix :math:`S = \begin{bmatrix} A & B \\ C & 0 \end{bmatrix}` (Parlett and Reinsch 1969, as
+    SLICOT's ``TB01ID`` does): LAPACK's ``gebal`` on the square matrix with zero input rows and output columns
+    (``gebal`` leaves coordinates with a zero row or column unscaled, so only the states are scaled, with ``B``
+    and ``C`` counted in their row and column norms). All three scalings leave the zeros unchanged.
+
+    Balancing trusts every entry to full relative accuracy. Where roundoff stands in for a zero (a state whose
+    row holds only entries like ``1e-30``, as finite differences leave for a free, unactuated joint), it scales
+    that state so far that its *significant* entries (above ``tol * ||S||_F``) drop below the rank decisions'
+    level ``tol * ||S'||_F`` of the balanced matrix, which invents zeros. A scaling that does so is refused: the
+    balancing is recomputed with the entries at or below ``tol * ||S||_F`` left out, and if that too loses an
+    entry, the states are not scaled.
+    """
+    n, m, p = A.shape[0], B.shape[1], C.shape[0]
+    ref = np.linalg.norm(A) or 1.0
+    with np.errstate(divide="ignore"):
+        B = B * _pow2(ref / np.linalg.norm(B, axis=0))
+        C = C * _pow2(ref / np.linalg.norm(C, axis=1))[:, None]
+    if n == 0:
+        return A, B, C
+    S = _system_matrix(A, B, C)
+    significant = np.abs(S) > tol * np.linalg.norm(S)
+    Z = np.zeros((n + m + p, n + m + p))
+    for T in (S, np.where(significant, S, 0.0)):  # all entries, then the significant ones only
+        Z[:n, :n], Z[:n, n:n + m], Z[n + m:, :n] = T[:n, :n], T[:n, n:], T[n:, :n]
+        d = sla.matrix_balance(Z, permute=False, separate=True)[1][0][:n]
+        As, Bs, Cs = A / d[:, None] * d[None, :], B / d[:, None], C * d[None, :]
+        Ss = _system_matrix(As, Bs, Cs)
+        if np.all(np.abs(Ss[significant]) > tol * np.linalg.norm(Ss)):
+            return As, Bs, Cs
+    return A, B, C
+
+
+def _reduce(A, B, C, F, tol: float):
+    r"""Emami-Naeini and Van Dooren's (1982) procedure *reduce*: the same finite zeros, ``F`` of full row rank.
+
+    System :math:`\dot x = Ax + Bu,\ y = Cx + Fu` (``F`` the direct feedthrough, the paper's ``D``), pencil
+    :math:`S(\lambda) = \begin{bmatrix} A - \lambda I & B \\ C & F \end{bmatrix}`. Each step compresses the rows
+    of ``F`` (SVD: ``U^T F = [F_r; 0]``, ``F_r`` of full row rank ``rho``), then the columns of the output rows
+    that ``u`` does not reach, ``C_0`` (rank ``mu``; state basis ``[ker C_0, row space of C_0]``, orthogonal).
+    A vector in the kernel of ``S(lambda)`` has ``C_0 x = 0``, i.e. no component ``x_2`` along the row space; the
+    rows of ``A`` for ``x_2`` then no longer contain ``lambda`` and become outputs:
+
+    .. math::
+        (A, B, C, F) \leftarrow \left(A_{11},\ B_1,\ \begin{bmatrix} A_{21} \\ C_{r,1} \end{bmatrix},\
+        \begin{bmatrix} B_2 \\ F_r \end{bmatrix}\right),
+
+    a unimodular (constant-row) equivalence that removes ``mu`` states and keeps the finite zeros; rows of
+    ``C_0`` beyond its rank are zero rows of the pencil (left Kronecker structure) and are dropped. It stops when
+    ``mu = 0``. Singular values at or below ``tol`` (absolute) count as zero. All transformations are orthogonal.
+    """
+    while True:
+        n = A.shape[0]
+        U, sf, _ = _svd_full(F)
+        rho = int(np.sum(sf > tol))
+        UC, UF = U.T @ C, U.T @ F
+        C_r, F_r, C_0 = UC[:rho], UF[:rho], UC[rho:]
+        _, sc, Vh = _svd_full(C_0)
+        mu = int(np.sum(sc > tol))
+        if mu == 0:
+            return A, B, C_r, F_r
+        T = np.vstack([Vh[mu:], Vh[:mu]]).T  # columns: ker C_0, then its row space
+        A, B, C_r = T.T @ A @ T, T.T @ B, C_r @ T
+        k = n - mu
+        A, B, C, F = A[:k, :k], B[:k], np.vstack([A[k:, :k], C_r[:, :k]]), np.vstack([B[k:], F_r])
+
+
+def _zeros_and_rank(A, B, C, tol: float) -> tuple[np.ndarray, int]:
+    """Finite zeros of ``(A, B, C, 0)`` and the normal rank of its transfer matrix (see :func:`invariant_zeros`)."""
+    m, p = B.shape[1], C.shape[0]
+    A, B, C = _balance_system(A, B, C, tol)
+    tol_abs = tol * np.linalg.norm(_system_matrix(A, B, C))  # Frobenius norm of the balanced system matrix
+    A, B, C, F = _reduce(A, B, C, np.zeros((p, m)), tol_abs)
+    # the same on the dual system (transposed pencil): F gets full column rank as well, hence square, invertible
+    At, Ct, Bt, Ft = _reduce(A.T, C.T, B.T, F.T, tol_abs)
+    A, B, C, F = At.T, Bt.T, Ct.T, Ft.T
+    r = F.shape[0]
+    if F.shape[1] != r:
+        raise RuntimeError(f"expected a square feedthrough after the two reductions, actual value: shape {F.shape}")
+    nf = A.shape[0]
+    if nf == 0:
+        return np.zeros(0, dtype=complex), r
+    # kernel of [C F] (F invertible): [x; u] = N z; the pencil restricted to it is ([A B] - lambda [I 0]) N
+    _, _, Vh = _svd_full(np.hstack([C, F]))
+    N = Vh[r:].T
+    with np.errstate(all="ignore"):
+        z = sla.eigvals(np.hstack([A, B]) @ N, N[:nf])
+    return np.sort_complex(z[np.isfinite(z)]), r
+
+
+def invariant_zeros(A, C=None, D=None, *, tol: float = RANK_TOL) -> np.ndarray:
+    r"""Invariant zeros of ``(A, C, D)``: the finite ``s`` where the Rosenbrock matrix loses rank.
 
     .. math:: R(s) = \begin{bmatrix} sI - A & -D \\ C & 0 \end{bmatrix},\qquad
-              \operatorname{rank} R(s_0) < n + m .
+              \operatorname{rank} R(s_0) < \operatorname{normal\,rank} R .
 
-    Computed as generalized eigenvalues of the pencil ``s E - F`` (``scipy.linalg.eigvals(F, E)``). For
-    ``p > m`` the pencil is rectangular: it is first squared by a random left projection of the output rows,
-    whose spurious roots are then discarded by checking the rank of the *full* ``R(s_0)`` (smallest singular
-    value). Requires full normal rank ``n + m`` (check with :func:`strong_observability`).
+    Computed as Emami-Naeini and Van Dooren (1982) do (and SLICOT's ``AB08ND``): after a balancing by powers of
+    two (which leaves the zeros unchanged), the staircase procedure *reduce* removes from the system pencil the
+    infinite zeros and the non-square (Kronecker) structure with orthogonal transformations, once for the rows
+    and once, on the dual system, for the columns, which leaves a system with an invertible feedthrough; its
+    zeros are the generalized eigenvalues of a regular pencil of the size of the number of finite zeros, found by
+    QZ. No eigenvalue at infinity is ever formed, so there is nothing to cut off: every value returned is a zero
+    of a system within about ``tol * ||S||_F`` of the balanced one (backward stability of the orthogonal
+    reductions), ``S = [A, D; C, 0]``. Works for any numbers of outputs and unknown inputs; for ``p < m`` or a
+    rank-deficient ``D`` the pencil has deficient normal rank and the zeros are those of its regular part
+    (:func:`strong_observability` reports the normal rank).
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n), or LinearPlant
+        A :class:`LinearPlant` (then ``C`` and ``D`` are taken from it and must be omitted).
+    C : array_like, shape (p, n)
+    D : array_like, shape (n, m)
+        Unknown-input matrix (a vector is one column).
+    tol : float
+        In ``(0, 1)``. Rank decisions: singular values at or below ``tol`` times the Frobenius norm of the balanced system
+        matrix count as zero. The default :data:`RANK_TOL` is the one of every rank decision in this module
+        (models linearized by finite differences carry relative errors near ``1e-10``); a model known to machine
+        precision may use a value down to about ``n * 1e-16``.
 
     Returns
     -------
     ndarray of complex, shape (n_zeros,)
+        Sorted by real part, then imaginary part; complex zeros come in conjugate pairs.
+
+    References
+    ----------
+    .. [EV82] A. Emami-Naeini and P. Van Dooren, "Computation of zeros of linear multivariable systems",
+       Automatica 18(4), 415-430, 1982.
     """
-    A, C, D = np.asarray(A, float), np.asarray(C, float), np.asarray(D, float)
-    n, p, m = A.shape[0], C.shape[0], D.shape[1]
-    if p < m:
-        raise ValueError(f"expected at least as many outputs as unknown inputs for a square-or-tall Rosenbrock "
-                         f"matrix, actual value: p={p} < m={m}")
-    E = np.zeros((n + p, n + m))
-    E[:n, :n] = np.eye(n)
-    F = np.block([[A, D], [-C, np.zeros((p, m))]])
-    if p > m:
-        rng = np.random.default_rng(seed)
-        W = np.zeros((n + m, n + p))
-        W[:n, :n] = np.eye(n)
-        W[n:, n:] = rng.standard_normal((m, p))
-        E2, F2 = W @ E, W @ F
-    else:
-        E2, F2 = E, F
-    with np.errstate(all="ignore"):
-        cand = sla.eigvals(F2, E2)
-    cand = cand[np.isfinite(cand)]
-    scale = max(np.abs(F).max(), 1.0)
-    zeros = []
-    for s0 in cand:
-        if abs(s0) > 1e8 * scale:
-            continue
-        sv = np.linalg.svd(_rosenbrock(A, C, D, s0), compute_uv=False)
-        if sv[-1] <= 1e-7 * sv[0]:
-            zeros.append(s0)
-    return np.array(zeros, dtype=complex)
+    A, C, D = _triple(A, C, D, "invariant_zeros")
+    if check_positive("tol", tol) >= 1.0:
+        raise ValueError(f"expected tol < 1, actual value: {tol!r}")
+    return _zeros_and_rank(A, D, C, float(tol))[0]
 
 
 @dataclass(frozen=True)
@@ -260,20 +395,28 @@ class StrongObservabilityReport:
     molinari: MolinariDecoupling | None = field(default=None, repr=False)
 
 
-def strong_observability(A, C, D) -> StrongObservabilityReport:
+def strong_observability(A, C=None, D=None) -> StrongObservabilityReport:
     r"""Check that ``(A, C, D)`` is strongly observable (paper 004, section 3; [Hau83]).
 
     Equivalent conditions: the state can be recovered from ``y`` and its derivatives whatever ``w`` is; the
     Rosenbrock matrix has full column rank ``n + m`` for every complex ``s`` (full normal rank and no invariant
     zeros); the weakly unobservable subspace is ``{0}`` (``rank M = n`` in Molinari's algorithm). All three are
-    computed and must agree.
+    computed and must agree. The normal rank and the zeros come from one staircase reduction
+    (:func:`invariant_zeros`): normal rank ``n + r``, ``r`` the normal rank of the transfer matrix
+    :math:`C (sI - A)^{-1} D`.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n), or LinearPlant
+        ``strong_observability(plant)`` or ``strong_observability(A, C, D)``.
+    C : array_like, shape (p, n)
+    D : array_like, shape (n, m)
     """
-    A, C, D = np.asarray(A, float), np.asarray(C, float), np.asarray(D, float)
+    A, C, D = _triple(A, C, D, "strong_observability")
     n, p, m = A.shape[0], C.shape[0], D.shape[1]
     rel = relative_degrees(A, C, D)
-    rng = np.random.default_rng(1)
-    s_rand = complex(rng.standard_normal(), rng.standard_normal()) * max(1.0, np.abs(A).max())
-    normal_rank = _rank(_rosenbrock(A, C, D, s_rand))
+    all_zeros, r = _zeros_and_rank(A, D, C, RANK_TOL)
+    normal_rank = n + r
     mol = molinari_decoupling(A, C, D)
     v_dim = n - mol.rank
     zeros = np.array([], dtype=complex)
@@ -288,7 +431,7 @@ def strong_observability(A, C, D) -> StrongObservabilityReport:
         reason = (f"the Rosenbrock matrix [sI - A, -D; C, 0] has normal rank {normal_rank} < n + m = {n + m}: the "
                   "unknown input is not left-invertible from y (the whole complex plane consists of 'zeros')")
     else:
-        zeros = invariant_zeros(A, C, D)
+        zeros = all_zeros
         if zeros.size:
             z = ", ".join(f"{complex(z):.4g}" for z in np.sort_complex(zeros))
             reason = (f"the triple has invariant zeros at s = {z} (rank [sI - A, -D; C, 0] < n + m there): an input "
@@ -331,13 +474,9 @@ class LinearPlant:
     """
 
     def __init__(self, A, B, C, D, *, state_names=None):
-        self.A = _matrix("A", A, (None, None))
+        self.A, self.C, self.D = _check_triple(A, C, D)
         n = self.A.shape[0]
-        if self.A.shape != (n, n):
-            raise ValueError(f"expected a square A, actual value: shape {self.A.shape}")
         self.B = _matrix("B", B, (n, None))
-        self.C = _matrix("C", np.atleast_2d(C), (None, n))
-        self.D = _matrix("D", D, (n, None))
         self.state_names = tuple(state_names) if state_names is not None else tuple(f"x{i}" for i in range(n))
         if len(self.state_names) != n:
             raise ValueError(f"expected {n} state names, actual value: {len(self.state_names)}")
@@ -360,7 +499,7 @@ class LinearPlant:
 
     def strong_observability(self) -> StrongObservabilityReport:
         """See :func:`strong_observability`."""
-        return strong_observability(self.A, self.C, self.D)
+        return strong_observability(self)
 
     def require_strongly_observable(self) -> StrongObservabilityReport:
         """Return the report, or raise :class:`NotStronglyObservableError` saying why the check failed."""

@@ -11,6 +11,7 @@ from .gains import (
     binomial_coefficients,
     levant_gains,
     levant_lambdas,
+    levant_nonrecursive,
     super_twisting_gains,
 )
 from .ilf import (
@@ -48,6 +49,7 @@ __all__ = [
     "ilf_gains",
     "levant_gains",
     "levant_lambdas",
+    "levant_nonrecursive",
     "super_twisting_gains",
     "switched_gain_lmi",
     "switched_gain_lmi_matrix",

@@ -8,7 +8,7 @@ The observer error in the coordinates :math:`\zeta = (\phi_1(e_1), e_2)` obeys
     C = [1\ 0],\quad E = [k_3\ 1],
 
 :math:`\rho_1` the model nonlinearity (bounded through its :math:`\{q, s, r\}`-dissipativity, assumption A-3) and
-:math:`\rho_2` the unknown input (:math:`|w| \le L_w`, assumption A-1). The gain lemma of paper 004 asks for
+:math:`\rho_2` the unknown input (:math:`|w| \le L_w`, assumption A-1). The gain lemma of Fridman's slides asks for
 :math:`P \succ 0`, :math:`\theta_1, \theta_2, \epsilon > 0` with
 
 .. math::
@@ -39,7 +39,7 @@ bounds), returning the smallest feasible scale found, with the certificate re-ve
 References
 ----------
 .. [AMF18] J. C. Apaza-Perez, J. A. Moreno and L. Fridman, "Dissipative approach to sliding mode observers
-   design for uncertain mechanical systems", Automatica 87, 2018 (paper 004, "Dissipative approach",
+   design for uncertain mechanical systems", Automatica 87, 2018 (Fridman's lecture slides, "Dissipative approach",
    Lemma "gain design").
 """
 
@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._extras import require
 from .._validation import check_positive
 
 #: solver-side margin so that the NumPy re-check sees a strictly negative matrix despite solver tolerances
@@ -125,7 +126,7 @@ def apaza_lmi_matrix(P, theta1, theta2, epsilon, *, k1, k2, k3, mu1, mu2, lipsch
 
 
 def _solve(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max, epsilon):
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     A, B, H_E, H_C, c2 = _constants(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max)
     P = cp.Variable((2, 2), symmetric=True)

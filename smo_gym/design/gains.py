@@ -9,7 +9,7 @@ References
    Int. J. Control 76(9-10), 2003.
 .. [2] M. Livne and A. Levant, "Proper discretization of homogeneous differentiators", Automatica 50, 2014.
 .. [3] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear discrete-time
-   observer" (paper 003 in ``shared/papers``), eq. (35).
+   observer", eq. (35).
 """
 
 from __future__ import annotations
@@ -27,10 +27,11 @@ __all__ = [
     "binomial_coefficients",
     "levant_gains",
     "levant_lambdas",
+    "levant_nonrecursive",
     "super_twisting_gains",
 ]
 
-#: Levant's recursive-form parameters ``lambda_0 .. lambda_5`` (paper 004, below eq. (7); [1]).
+#: Levant's recursive-form parameters ``lambda_0 .. lambda_5`` (Fridman's lecture slides, below eq. (7); [1]).
 LEVANT_LAMBDAS = (1.1, 1.5, 2.0, 3.0, 5.0, 8.0)
 #: The table above covers differentiators of order 1 to 5.
 MAX_LEVANT_ORDER = 5
@@ -44,7 +45,7 @@ def levant_lambdas(order: int, form: str = "recursive") -> np.ndarray:
     order : int
         Differentiation order ``k`` in ``[1, 5]``.
     form : {"recursive", "nonrecursive"}
-        ``"recursive"`` returns ``(lambda_k, ..., lambda_0)`` of eq. (7) of paper 004, in state order (the entry
+        ``"recursive"`` returns ``(lambda_k, ..., lambda_0)`` of eq. (7) of Fridman's slides, in state order (the entry
         ``i`` multiplies the correction of ``z_i``). ``"nonrecursive"`` returns the equivalent
         ``(Lambda_1, ..., Lambda_k, lambda_0)`` of the non-recursive form
 
@@ -69,12 +70,34 @@ def levant_lambdas(order: int, form: str = "recursive") -> np.ndarray:
         return recursive
     if form != "nonrecursive":
         raise ValueError(f"expected form to be 'recursive' or 'nonrecursive', actual value: {form!r}")
+    return levant_nonrecursive(LEVANT_LAMBDAS[:k + 1])
+
+
+def levant_nonrecursive(lambdas) -> np.ndarray:
+    r"""The non-recursive gains ``(Lambda_1, ..., Lambda_k, lambda_0)`` of any recursive parameters.
+
+    Parameters
+    ----------
+    lambdas : array_like, shape (k + 1,)
+        :math:`(\lambda_0, \lambda_1, \ldots, \lambda_k)` of eq. (7) of paper 004 [1], indexed as there
+        (:math:`\lambda_k` multiplies the first correction), each ``> 0``.
+
+    Returns
+    -------
+    ndarray, shape (k + 1,)
+        :math:`\Lambda_0 = 1,\ \Lambda_{i+1} = \lambda_{k-i}\Lambda_i^{(k-i)/(k-i+1)}` for ``i < k``, then
+        :math:`\lambda_0` (see :func:`levant_lambdas` for the form they enter).
+    """
+    lam = check_positive_array("lambdas", lambdas)
+    if lam.ndim != 1 or lam.size < 2:
+        raise ValueError(f"expected lambdas with shape (k + 1,), k >= 1, actual value: shape {lam.shape}")
+    k = lam.size - 1
     out = np.empty(k + 1)
     big_lambda = 1.0
     for i in range(k):
-        big_lambda = LEVANT_LAMBDAS[k - i] * big_lambda ** ((k - i) / (k - i + 1))
+        big_lambda = lam[k - i] * big_lambda ** ((k - i) / (k - i + 1))
         out[i] = big_lambda
-    out[k] = LEVANT_LAMBDAS[0]
+    out[k] = lam[0]
     return out
 
 

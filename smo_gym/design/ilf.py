@@ -1,4 +1,4 @@
-r"""Block decomposition and LMI tuning of the implicit-Lyapunov-function (ILF) observers of paper 001.
+r"""Block decomposition and LMI tuning of the implicit-Lyapunov-function (ILF) observers of Lopez-Ramirez et al. 2016.
 
 The finite-time observer (6)-(9) and the fixed-time observer (17)-(18) of Lopez-Ramirez, Polyakov, Efimov and
 Perruquetti work in the block coordinates of the Appendix: a transformation :math:`\Phi` with
@@ -18,7 +18,7 @@ and the returned matrices re-verified in NumPy (every LMI at the solution *and* 
 References
 ----------
 .. [LPEP16] F. Lopez-Ramirez, A. Polyakov, D. Efimov and W. Perruquetti, "Finite-time and fixed-time observers
-   design via implicit Lyapunov function", European Control Conference (ECC), 2016 (paper 001).
+   design via implicit Lyapunov function", European Control Conference (ECC), 2016.
 .. [PEP15] A. Polyakov, D. Efimov and W. Perruquetti, "Finite-time and fixed-time stabilization: implicit
    Lyapunov function approach", Automatica 51, 2015.
 """
@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import null_space
 
+from .._extras import require
 from .._validation import check_choice, check_int_in_range, check_positive
-
-from .lmi import LMIInfeasibleError  # shared with the switched-gain design of paper 000
+from .lmi import LMIInfeasibleError  # shared with the switched-gain design of Efimov et al. 2017
 
 
 __all__ = [
@@ -52,16 +52,16 @@ __all__ = [
     "xi_fixed",
 ]
 
-#: the ``delta`` of the finite-time example of paper 001, section V.A: :math:`(1+\sqrt5)/(3+\sqrt5)`
+#: the ``delta`` of the finite-time example of Lopez-Ramirez et al. 2016, section V.A: :math:`(1+\sqrt5)/(3+\sqrt5)`
 PAPER_001_DELTA = (1.0 + np.sqrt(5.0)) / (3.0 + np.sqrt(5.0))
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# block decomposition (Appendix of paper 001)
+# block decomposition (Appendix of Lopez-Ramirez et al. 2016)
 # ----------------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class BlockDecomposition:
-    r"""Block observability form of an observable pair ``(A, C)`` (paper 001, (5), (31), (32)).
+    r"""Block observability form of an observable pair ``(A, C)`` (Lopez-Ramirez et al. 2016, (5), (31), (32)).
 
     Attributes
     ----------
@@ -161,7 +161,7 @@ def _structure(H: np.ndarray, sizes, k: int) -> tuple[np.ndarray, np.ndarray, fl
 
 
 def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposition:
-    r"""Block decomposition of the Appendix of paper 001.
+    r"""Block decomposition of the Appendix of Lopez-Ramirez et al. 2016.
 
     Without ``Phi``: the orthogonal staircase (30) (:math:`C_m^\perp = \mathrm{null}(C_m)`,
     :math:`\hat C_m = \mathrm{null}(C_m^{\perp T})`, :math:`A_{m+1} = C_m^{\perp T}A_mC_m^\perp`,
@@ -405,7 +405,7 @@ class ILFDesign:
 
 
 def _sym(X):
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     return 0.5 * (X + X.T) if isinstance(X, np.ndarray) else cp.Constant(0.5) * (X + X.T)
 
@@ -419,7 +419,7 @@ def _finite_constraints(v, dec, Hr, grid, delta, eps, numeric=False, proposition
 
     With ``proposition=False`` (15)-(16) are replaced by (14) at the grid points only.
     """
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     bm = np.block if numeric else cp.bmat
     P, Y, Z, M = v["P"], v["Y"], v["Z"], v.get("M")
@@ -461,7 +461,7 @@ def _fixed_constraints(v, dec, mu, alpha, beta, lgrid, ggrid, delta, eps, numeri
 
     With ``proposition=False`` (25)-(29) are replaced by (24) at the grid points only.
     """
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     bm = np.block if numeric else cp.bmat
     n, k = dec.n, dec.C0.shape[0]
@@ -524,7 +524,7 @@ def _max_eig(X) -> float:
 
 
 def _solve(constraints: dict, variables: dict) -> tuple[str, dict]:
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     cons = []
     for M in constraints.values():
@@ -545,7 +545,7 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
               beta: float | None = None, eps: float = 1e-6, max_refinements: int = 5, dense_points: int = 401,
               tol: float = 1e-7, decomposition: BlockDecomposition | None = None,
               condition: str = "proposition") -> ILFDesign:
-    r"""Observer gain of paper 001 by Algorithm 9 (``kind="finite"``) or Algorithm 12 (``kind="fixed"``).
+    r"""Observer gain of Lopez-Ramirez et al. 2016, Algorithm 9 (``kind="finite"``) or 12 (``kind="fixed"``).
 
     Finite time (Theorem 6 with Proposition 8): find :math:`P, Z, M \succ 0` and ``Y`` with
 
@@ -623,7 +623,7 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
     printed one; Proposition 11 with the default :math:`\beta = \tilde r_1` is feasible for ``mu = 0.5``,
     ``alpha = 32/7`` after three refinements (gains of the printed magnitude).
     """
-    import cvxpy as cp
+    cp = require("cvxpy", "design")
 
     kind = check_choice("kind", kind, ("finite", "fixed"))
     condition = check_choice("condition", condition, ("proposition", "points"))

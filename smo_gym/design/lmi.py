@@ -8,7 +8,7 @@ caller receives; an infeasible specification raises :class:`LMIInfeasibleError` 
 References
 ----------
 .. [EPLP17] D. Efimov, A. Polyakov, A. Levant and W. Perruquetti, "Switched gain differentiator with fixed-time
-   convergence", Proc. 20th IFAC World Congress, 2017 (paper 000), Assumption 1, Remark 2, Lemma 3.
+   convergence", Proc. 20th IFAC World Congress, 2017, Assumption 1, Remark 2, Lemma 3.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .._extras import require
 from .._validation import check_int_in_range, check_positive
 
 __all__ = [
@@ -35,7 +36,7 @@ class LMIInfeasibleError(ValueError):
 
 @dataclass(frozen=True)
 class SwitchedGainCertificate:
-    r"""NumPy re-verification of Assumption 1 of paper 000 for a returned ``(l, P)``.
+    r"""NumPy re-verification of Assumption 1 of Efimov et al. 2017 for a returned ``(l, P)``.
 
     Attributes
     ----------
@@ -81,7 +82,7 @@ def _canonical(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def switched_gain_lmi_matrix(P, w, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0) -> np.ndarray:
-    r"""The block matrix of Assumption 1 of paper 000 (Remark 2 when ``gamma = 0``), evaluated in NumPy.
+    r"""The block matrix of Assumption 1 of Efimov et al. 2017 (Remark 2 when ``gamma = 0``), evaluated in NumPy.
 
     .. math::
         \begin{bmatrix} \tilde S & Pb & -w & -Pb\\ b^T P & -\rho_d^2 & 0 & 0\\ -w^T & 0 & -\rho_v^2 & 0\\
@@ -124,7 +125,7 @@ def switched_gain_lmi_matrix(P, w, kappa: float, rho_d: float, rho_v: float, gam
 
 def switched_gain_lmi(n: int, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0, *,
                       eps: float = 1e-6, tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, SwitchedGainCertificate]:
-    r"""Gain ``l`` and Lyapunov matrix ``P`` of Assumption 1 / Remark 2 of paper 000.
+    r"""Gain ``l`` and Lyapunov matrix ``P`` of Assumption 1 / Remark 2 of Efimov et al. 2017.
 
     Solves, over :math:`P = P^T` and :math:`w \in \mathbb R^n`,
 
@@ -180,7 +181,7 @@ def switched_gain_lmi(n: int, kappa: float, rho_d: float, rho_v: float, gamma: f
     l, P, status = _solve_cached(n, kappa, rho_d, rho_v, float(gamma), float(eps))
     if status != "optimal":
         raise LMIInfeasibleError(
-            f"expected a feasible specification for Assumption 1 of paper 000 (n={n}, kappa={kappa}, "
+            f"expected a feasible specification for Assumption 1 of Efimov et al. 2017 (n={n}, kappa={kappa}, "
             f"rho_d={rho_d}, rho_v={rho_v}, gamma={gamma}), actual value: solver status {status!r}; "
             "decrease kappa or gamma, or increase rho_d or rho_v"
         )
@@ -191,7 +192,7 @@ def switched_gain_lmi(n: int, kappa: float, rho_d: float, rho_v: float, gamma: f
 
 def certify_switched_gain(l, P, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0, *,
                           tol: float = 1e-7, status: str = "optimal") -> SwitchedGainCertificate:
-    """Re-verify Assumption 1 of paper 000 for given ``(l, P)`` with NumPy eigenvalues; raise if it fails."""
+    """Re-verify Assumption 1 of Efimov et al. 2017 for given ``(l, P)`` with NumPy eigenvalues; raise if it fails."""
     P = 0.5 * (np.asarray(P, dtype=float) + np.asarray(P, dtype=float).T)
     l = np.asarray(l, dtype=float).ravel()
     n = P.shape[0]
@@ -214,7 +215,7 @@ def certify_switched_gain(l, P, kappa: float, rho_d: float, rho_v: float, gamma:
 
 @lru_cache(maxsize=64)
 def _solve_cached(n: int, kappa: float, rho_d: float, rho_v: float, gamma: float, eps: float):
-    import cvxpy as cp  # local import: cvxpy takes about a second to import
+    cp = require("cvxpy", "design")  # imported here: cvxpy takes about a second to import
 
     A, b, c = _canonical(n)
     P = cp.Variable((n, n), symmetric=True)

@@ -89,7 +89,7 @@ class FurutaPendulumEnv(SmoMujocoEnv):
 
     A horizontal arm (0.2 m, hinge ``arm`` about the vertical axis) carries at its tip a pendulum (0.3 m, hinge
     ``pendulum`` about the arm's axis; 0 is upright). The motor drives the arm; the disturbance enters the same
-    joint (a *matched* disturbance, the setting of the compensation controllers of paper 004, section 6).
+    joint (a *matched* disturbance, the setting of the compensation controllers of Fridman's lecture slides, section 6).
 
     * Observation, ``Box(4)``: ``[q_arm, q_pendulum, qd_arm, qd_pendulum]``.
     * Action, ``Box(1)``: arm torque in ``[-0.5, 0.5]`` N m.

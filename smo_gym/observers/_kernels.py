@@ -22,6 +22,22 @@ diagnostic the observer classes expose as ``output_error``.
 One generic time loop, :func:`run_offline`, drives any batch kernel over a recorded ``(T, N)`` array, so the
 offline :func:`smo_gym.differentiate` and the online ``update`` execute literally the same recursion.
 
+Angles (``wrap``)
+-----------------
+A channel measured modulo :math:`P` (a single-turn absolute encoder reports angles in :math:`[-\pi, \pi)`,
+:math:`P = 2\pi`) jumps by :math:`P` where the angle crosses the cut; a differentiator fed those samples sees a
+velocity spike (:math:`P/\tau` for a finite difference). :func:`unwrap_measurement` is the one operation every
+family shares: before the step, each wrapped measurement is moved to the branch nearest the observer's value
+estimate (column 0 of every state in this package),
+
+.. math:: \tilde y_k = y_k - P\,\bigl\lfloor (y_k - \hat x_0)/P + \tfrac12 \bigr\rfloor,
+
+so that :math:`\tilde y_k - \hat x_0 \in [-P/2, P/2)`: the innovation the step then forms is the shortest
+angular difference (up to the family's prediction :math:`\hat x_0^- - \hat x_0`, one step of motion), and the
+state stays continuous (unwrapped). The kernels themselves are unchanged: ``Observer.update`` calls this function
+first for an observer with wrapped channels, and :func:`run_offline` drives a kernel with it per sample
+(:func:`_drive_wrapped`). Channels with :math:`P = 0` pass through bit for bit.
+
 Prior and posterior
 -------------------
 Explicit schemes in the literature (Livne & Levant 2014; Wetzlinger et al., paper 003) are written as one-step
@@ -189,6 +205,37 @@ def _first_nonfinite(y):
             if not math.isfinite(y[i]):
                 return i
     return -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _unwrap_rows(y, state, period, y_out):
+    """The loop of :func:`unwrap_measurement` on flat ``y`` (N,), ``state`` (N, S), ``period``, ``y_out`` (N,)."""
+    for c in range(y.shape[0]):
+        p = period[c]
+        q = (y[c] - state[c, 0]) / p if p > 0.0 else 0.0  # p = 0: not wrapped, y - 0 * 0 is y bit for bit
+        # a non-finite y stays non-finite (NaN or inf - inf), so the kernel still reports its channel
+        y_out[c] = y[c] - p * np.floor(q + 0.5)
+
+
+@njit(cache=CACHE, error_model="numpy", **_without_nrt())
+def unwrap_measurement(y, state, period, y_out):
+    r"""Move each wrapped measurement to the branch nearest the observer's value estimate (module notes).
+
+    .. math:: \tilde y_c = y_c - P_c\,\bigl\lfloor (y_c - s_{c,0})/P_c + \tfrac12 \bigr\rfloor,
+        \qquad \tilde y_c - s_{c,0} \in [-P_c/2,\ P_c/2),
+
+    Parameters
+    ----------
+    y : ndarray, shape (..., n)
+        The measurement (C-contiguous float64), any batch shape of ``N`` values.
+    state : ndarray, shape (N, S)
+        The observer state before the sample; column 0 is the value estimate :math:`\hat x_0`.
+    period : ndarray, shape (N,)
+        :math:`P_c` per channel: ``2 pi`` for an angle, 0 for a channel that does not wrap (passed through).
+    y_out : ndarray, shape (..., n)
+        Written: :math:`\tilde y` (same shape as ``y``).
+    """
+    _unwrap_rows(y.reshape(y.size), state, period, y_out.reshape(y_out.size))
 
 
 @njit(cache=CACHE, error_model="numpy")
@@ -1112,6 +1159,29 @@ def _drive(kernel, state, Y, params, out):
     return status, done
 
 
+@njit(error_model="numpy", inline="always")
+def _drive_wrapped(kernel, state, Y, params, out, period):
+    """:func:`_drive` with :func:`unwrap_measurement` before every sample (channels with ``period > 0`` wrap).
+
+    A failed sample reports the channel of ``Y[t]``: a non-finite measurement stays non-finite when unwrapped.
+    """
+    cur = state
+    nxt = np.empty_like(state)
+    y = np.empty(Y.shape[1])
+    done = Y.shape[0]
+    status = -1
+    for t in range(Y.shape[0]):
+        _unwrap_rows(Y[t], cur, period, y)
+        status = kernel(cur, y, params, nxt, out[t])
+        if status != -1:
+            done = t
+            break
+        cur, nxt = nxt, cur
+    if done % 2 == 1:
+        state[:, :] = cur
+    return status, done
+
+
 # One cached driver per kernel. A compiled function that takes a kernel as an argument is specialised on the
 # dispatcher's type, which numba's on-disk cache cannot reuse across processes (it recompiled for seconds in every
 # new process and could fail while re-saving its index); drivers that name their kernel cache normally.
@@ -1150,6 +1220,43 @@ def _run_any(kernel, state, Y, params, out):
     return _drive(kernel, state, Y, params, out)
 
 
+# the same with wrapped channels: separate functions, so that observers without angles run the drivers above
+# unchanged, and each of these compiles only when an observer with wrapped channels first runs offline
+@njit(cache=CACHE, error_model="numpy")
+def _run_hosm_wrapped(state, Y, params, out, period):
+    return _drive_wrapped(hosm_kernel, state, Y, params, out, period)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_sta_implicit_wrapped(state, Y, params, out, period):
+    return _drive_wrapped(sta_implicit_kernel, state, Y, params, out, period)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_eigmap_wrapped(state, Y, params, out, period):
+    return _drive_wrapped(eigmap_kernel, state, Y, params, out, period)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_linear_wrapped(state, Y, params, out, period):
+    return _drive_wrapped(linear_kernel, state, Y, params, out, period)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_kalman_ca_wrapped(state, Y, params, out, period):
+    return _drive_wrapped(kalman_ca_kernel, state, Y, params, out, period)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def _run_finite_difference_wrapped(state, Y, params, out, period):
+    return _drive_wrapped(finite_difference_kernel, state, Y, params, out, period)
+
+
+@njit(error_model="numpy")  # not cached: specialised per kernel type (see above)
+def _run_any_wrapped(kernel, state, Y, params, out, period):
+    return _drive_wrapped(kernel, state, Y, params, out, period)
+
+
 _DRIVERS = {
     hosm_kernel: _run_hosm,
     sta_implicit_kernel: _run_sta_implicit,
@@ -1157,6 +1264,16 @@ _DRIVERS = {
     linear_kernel: _run_linear,
     kalman_ca_kernel: _run_kalman_ca,
     finite_difference_kernel: _run_finite_difference,
+}
+
+
+_WRAPPED_DRIVERS = {
+    hosm_kernel: _run_hosm_wrapped,
+    sta_implicit_kernel: _run_sta_implicit_wrapped,
+    eigmap_kernel: _run_eigmap_wrapped,
+    linear_kernel: _run_linear_wrapped,
+    kalman_ca_kernel: _run_kalman_ca_wrapped,
+    finite_difference_kernel: _run_finite_difference_wrapped,
 }
 
 
@@ -1181,14 +1298,20 @@ def register_driver(kernel, driver) -> None:
     _DRIVERS[kernel] = driver
 
 
-def run_offline(kernel, state, Y, params, out):
+def run_offline(kernel, state, Y, params, out, period=None):
     """Apply ``kernel`` to every row of ``Y`` (T, N); write estimates into ``out`` (T, N, m).
 
     Returns ``(status, t)``: ``status`` as the kernel's, ``t`` the sample at which it failed (or ``T``).
     ``state`` holds the last accepted state on return (the final state on success). Kernels of this module run
     through their own cached compiled driver; any other kernel through a generic compiled loop (compiled once per
-    process and kernel).
+    process and kernel). ``period`` (N,), optional: wrap the channels with ``period > 0``
+    (:func:`unwrap_measurement` before every sample).
     """
+    if period is not None:
+        driver = _WRAPPED_DRIVERS.get(kernel)
+        if driver is not None:
+            return driver(state, Y, params, out, period)
+        return _run_any_wrapped(kernel, state, Y, params, out, period)
     driver = _DRIVERS.get(kernel)
     if driver is not None:
         return driver(state, Y, params, out)

@@ -21,7 +21,7 @@ from .._validation import (
 )
 from . import _kernels
 
-__all__ = ["Observer"]
+__all__ = ["Observer", "taylor_matrix"]
 
 _FLOAT64 = np.dtype(np.float64)
 _NDARRAY = np.ndarray
@@ -75,6 +75,31 @@ def as_measurement(y, name: str) -> np.ndarray:
     return arr
 
 
+def taylor_matrix(m: int, dt: float) -> np.ndarray:
+    r"""The ``(m, m)`` matrix :math:`e^{\tau N}` with entries :math:`\tau^{j-i}/(j-i)!` (paper 003, eq. (31)).
+
+    It moves the estimate ``(f, f', ..., f^(m-1))`` of a polynomial of degree ``m - 1`` forward by one step
+    ``tau`` exactly.
+    """
+    A = np.zeros((m, m))
+    for i in range(m):
+        fac = 1.0
+        for j in range(i, m):
+            A[i, j] = fac
+            fac *= dt / (j - i + 1)
+    return A
+
+
+def check_wrap(wrap):
+    """``wrap`` as given after checking it is None, a bool, or an array of bools (one per channel)."""
+    if wrap is None or isinstance(wrap, (bool, np.bool_)):
+        return None if wrap is None else bool(wrap)
+    arr = np.asarray(wrap)
+    if arr.dtype != np.bool_ or arr.ndim == 0:
+        raise TypeError(f"expected wrap to be a bool or an array of bools (one per channel), actual value: {wrap!r}")
+    return arr.copy()
+
+
 def expand_mask(mask, shape: tuple[int, ...]) -> np.ndarray:
     """A reset mask of shape ``shape[:-1]`` (whole batch elements) or ``shape``, as a boolean array of ``shape``."""
     mask = check_mask("mask", mask)
@@ -96,6 +121,15 @@ class Observer:
     Life cycle (scipy ``OdeSolver`` style): ``reset(y0)`` sizes the state from the first measurement and must come
     first; ``update(y)`` validates and keeps the bookkeeping; the recursion itself is the compiled kernel.
 
+    Angles: with ``wrap`` (a constructor argument of every registered family) the measured channels it selects are
+    angles modulo :math:`2\pi` (a single-turn absolute encoder, :class:`smo_gym.sensors.Encoder` with
+    ``wrap=True``). Each such measurement is first moved to the branch nearest the value estimate, so the
+    innovation is the shortest angular difference (in :math:`[-\pi, \pi)`) and crossing the cut at
+    :math:`\pm\pi` produces no velocity spike (:func:`smo_gym.observers._kernels.unwrap_measurement`). The value
+    estimate ``xhat[..., 0]`` is reported **unwrapped** (continuous: it counts turns, which is what a controller
+    needs); ``np.mod(xhat[..., 0] + np.pi, 2 * np.pi) - np.pi`` is the wrapped angle. The derivatives do not
+    depend on the branch.
+
     Attributes
     ----------
     dt : float
@@ -106,6 +140,9 @@ class Observer:
         One of the class's ``discretizations``.
     n_updates : int
         Samples processed since the last full reset.
+    wrap : bool, ndarray of bool or None
+        Which measured channels are angles modulo :math:`2\pi` (True: all; an array broadcast to the measurement
+        shape at the full reset; None or False: none).
     """
 
     #: discretizations the class implements; the first is its default
@@ -115,14 +152,17 @@ class Observer:
     # compiled call of update(), bound lazily (class-level defaults keep subclasses and old pickles working):
     # ``(entry point, params, measurement shape, estimate shape)``, one attribute for the hot path
     _bound = None
+    wrap = None
+    _period = None
 
     @check_keywords
-    def __init__(self, dt: float, order: int, discretization: str | None):
+    def __init__(self, dt: float, order: int, discretization: str | None, wrap=None):
         if type(self)._channel_params is Observer._channel_params:
             raise TypeError(f"expected a concrete observer class (SuperTwisting, Levant, ...; see "
                             f"smo_gym.observers.OBSERVERS), actual value: {type(self).__name__}, which has no "
                             "recursion of its own")
         self.dt = check_positive("dt", dt)
+        self.wrap = check_wrap(wrap)
         self.order = order
         self.discretization = check_choice(
             "discretization", self.discretizations[0] if discretization is None else discretization,
@@ -133,6 +173,7 @@ class Observer:
         self._scratch: np.ndarray | None = None
         self._params: np.ndarray | None = None
         self._estimate: np.ndarray | None = None
+        self._period: np.ndarray | None = None  # (N,) 2 pi for wrapped channels, 0 for the others; None: none wrap
         self.n_updates = 0
         self._unbind()
 
@@ -158,6 +199,18 @@ class Observer:
         state = np.zeros((y0.shape[0], self._state_width()))
         state[:, 0] = y0
         return state
+
+    def _predicts(self) -> bool:
+        """Whether the state is the one-step prediction for the next sample (the explicit schemes; see "Prior and
+        posterior" in :mod:`smo_gym.observers._kernels`) rather than the estimate at the last sample."""
+        return False
+
+    def _load_estimate(self, state: np.ndarray, x0: np.ndarray, params: np.ndarray) -> None:
+        r"""Write the estimate ``x0`` (N, order + 1) at the reset sample into a fresh ``state`` (N, S) of
+        :meth:`_initial_state`: the estimate itself, or its exact polynomial prediction :math:`e^{\tau N} x_0` when
+        the state is a prediction (:meth:`_predicts`). Subclasses whose state has other coordinates override it."""
+        m = x0.shape[1]
+        state[:, :m] = x0 @ taylor_matrix(m, self.dt).T if self._predicts() else x0
 
     # ---- helpers for subclasses -----------------------------------------------------------------------------
     @staticmethod
@@ -194,8 +247,23 @@ class Observer:
         y = np.empty(self._shape)
         kernel, params = self._step_kernel()
         call = _compiled_entry(kernel, (self._state, y, params, self._scratch, out))
+        if self._period is not None:
+            call = self._unwrapping(call, y)
         self._bound = (call, params, self._shape, out.shape)
         return self._bound
+
+    def _unwrapping(self, call, y: np.ndarray):
+        """``call`` preceded by :func:`~smo_gym.observers._kernels.unwrap_measurement` (the wrapped channels moved to
+        the branch nearest the value estimate); a non-finite measurement stays non-finite, so the kernel's status
+        still names its channel."""
+        period, buffer = self._period, np.empty(self._shape)
+        unwrap = _compiled_entry(_kernels.unwrap_measurement, (y, self._state, period, buffer))
+
+        def unwrapped_call(state, y, params, new_state, out):
+            unwrap(y, state, period, buffer)
+            return call(state, buffer, params, new_state, out)
+
+        return unwrapped_call
 
     # ---- public API -----------------------------------------------------------------------------------------
     def _as_measurement(self, y, name: str) -> np.ndarray:
@@ -209,40 +277,114 @@ class Observer:
             + (f" of batch element {index[:-1]}" if len(index) > 1 else "")
         )
 
+    def _initial_estimate(self, y0: np.ndarray, derivatives) -> np.ndarray | None:
+        """The estimate at a reset, shape ``y0.shape + (order + 1,)``: ``y0``, the given derivatives, then zeros.
+
+        ``None`` when no derivatives are given. ``derivatives`` must have shape ``y0.shape + (k,)`` with
+        ``0 <= k <= order`` and finite entries.
+        """
+        if derivatives is None:
+            return None
+        try:
+            d = np.asarray(derivatives)
+            if d.dtype.kind not in "biuf":  # complex, strings, objects
+                raise TypeError
+            d = d.astype(np.float64, copy=False)
+        except (TypeError, ValueError):
+            raise TypeError(
+                f"expected derivatives to be an array of real numbers, actual value: {derivatives!r}"
+            ) from None
+        if d.ndim != y0.ndim + 1 or d.shape[:-1] != y0.shape or d.shape[-1] > self.order:
+            raise ValueError(
+                f"expected derivatives with shape {y0.shape + ('k',)}, k <= order = {self.order} (the derivatives "
+                f"1..k of each channel), actual value: shape {d.shape}"
+            )
+        if not np.isfinite(d).all():
+            index = tuple(int(i) for i in np.argwhere(~np.isfinite(d))[0])
+            raise ValueError(f"expected finite derivatives, actual value: {d[index]!r} at index {index}")
+        if d.shape[-1] == 0:
+            return None
+        x0 = np.zeros(y0.shape + (self.order + 1,))
+        x0[..., 0] = y0
+        x0[..., 1:d.shape[-1] + 1] = d
+        return x0
+
+    def _fresh_state(self, y0: np.ndarray, x0: np.ndarray | None) -> np.ndarray:
+        """:meth:`_initial_state` at ``y0`` (flat), with the estimate ``x0`` loaded if derivatives were given."""
+        state = self._initial_state(y0.reshape(-1), self._params)
+        if x0 is not None:
+            self._load_estimate(state, x0.reshape(-1, self.order + 1), self._params)
+        return state
+
+    def _wrap_periods(self, shape: tuple[int, ...]) -> np.ndarray | None:
+        """``wrap`` as flat periods ``(N,)``: ``2 pi`` for wrapped channels, 0 for the others; None if none wraps."""
+        if self.wrap is None or self.wrap is False:
+            return None
+        try:
+            wrapped = np.broadcast_to(self.wrap, shape).reshape(-1)
+        except ValueError:
+            raise ValueError(
+                f"expected wrap broadcastable to the measurement shape {shape}, actual value: shape "
+                f"{np.shape(self.wrap)}"
+            ) from None
+        if not wrapped.any():
+            return None
+        return np.where(wrapped, 2.0 * np.pi, 0.0)
+
     @check_keywords
-    def reset(self, y0, mask=None) -> np.ndarray:
+    def reset(self, y0, mask=None, *, derivatives=None) -> np.ndarray:
         """Start (or restart) the observer at the measurement ``y0``.
 
         Parameters
         ----------
         y0 : array_like, shape (..., n_channels)
-            First measurement; the value estimate starts there and every derivative at zero.
+            First measurement; the value estimate starts there.
         mask : array_like of bool, optional
             Restart only some rows: shape ``(...)`` (whole batch elements, e.g. one environment of a vector
             env) or ``(..., n_channels)``. Requires a previous full reset with the same shape.
+        derivatives : array_like, shape (..., n_channels, k), optional
+            Initial estimates of the derivatives ``1..k`` of every channel, ``k <= order`` (a known initial
+            velocity, say); the higher ones start at zero. Default: every derivative starts at zero. With
+            ``mask``, only the masked rows are read.
 
         Returns
         -------
         ndarray, shape (..., n_channels, order + 1)
-            The initial estimate.
+            The initial estimate: ``y0``, then ``derivatives`` (or zeros), then zeros.
+
+        Raises
+        ------
+        TypeError
+            ``y0`` or ``derivatives`` is not an array of real numbers.
+        ValueError
+            Non-finite ``y0`` or ``derivatives``, or a shape that does not fit (``mask``, ``derivatives``,
+            ``wrap``, a per-channel gain).
+        RuntimeError
+            A masked reset before any full reset.
         """
         y0 = self._as_measurement(y0, "y0")
         if not np.isfinite(y0).all():
             self._raise_nonfinite(y0, "y0")
+        x0 = self._initial_estimate(y0, derivatives)
         if mask is None:
             # all or nothing: a rejected reset (parameters that do not fit this shape) keeps the previous shape,
             # whose arrays the compiled step would otherwise index out of bounds
-            previous, self._shape = self._shape, y0.shape  # a subclass's _initial_state may read the new shape
+            previous = (self._shape, self._params, self._period)
+            self._shape = y0.shape  # a subclass's _initial_state may read the new shape
             try:
-                params = np.ascontiguousarray(self._channel_params(y0.shape), dtype=np.float64)
-                state = np.ascontiguousarray(self._initial_state(y0.reshape(-1), params), dtype=np.float64)
+                self._params = np.ascontiguousarray(self._channel_params(y0.shape), dtype=np.float64)
+                self._period = self._wrap_periods(y0.shape)
+                state = np.ascontiguousarray(self._fresh_state(y0, x0), dtype=np.float64)
             except BaseException:
-                self._shape = previous
+                self._shape, self._params, self._period = previous
                 raise
-            self._params, self._state = params, state
+            self._state = state
             self._scratch = np.empty_like(self._state)
-            self._estimate = np.zeros(y0.shape + (self.order + 1,))
-            self._estimate[..., 0] = y0
+            if x0 is None:
+                self._estimate = np.zeros(y0.shape + (self.order + 1,))
+                self._estimate[..., 0] = y0
+            else:
+                self._estimate = x0
             self.n_updates = 0
             self._unbind()  # new arrays and shape: the next update binds the entry point again
             return self._estimate.copy()
@@ -261,26 +403,31 @@ class Observer:
         # a loop over the selected blocks of the flat rows: a masked restart runs at every episode end of a vector
         # env (usually one environment), where boolean-mask assignments over a mask broadcast to every channel
         # cost three times as much
-        fresh = self._initial_state(y0.reshape(-1), self._params)
+        fresh = self._fresh_state(y0, x0)
         width = self._state.shape[-1]
         state, fresh = self._state.reshape(-1, block, width), fresh.reshape(-1, block, width)  # views: C-contiguous
         estimate, y0 = self._estimate.reshape(-1, block, self.order + 1), y0.reshape(-1, block)
+        x0 = None if x0 is None else x0.reshape(-1, block, self.order + 1)
         for i in np.flatnonzero(mask):
             state[i] = fresh[i]
-            estimate[i] = 0.0
-            estimate[i, :, 0] = y0[i]
+            if x0 is None:
+                estimate[i] = 0.0
+                estimate[i, :, 0] = y0[i]
+            else:
+                estimate[i] = x0[i]
         return self._estimate.copy()
 
-    def restart(self, y0) -> np.ndarray:
+    def restart(self, y0, *, derivatives=None) -> np.ndarray:
         """``reset(y0)`` for a measurement of the shape of the last full reset, keeping the per-channel parameters.
 
         A new episode of the same environment: the state is rewritten in place (arrays keep their identity, so
-        a compiled caller holding them stays valid), the estimate starts at ``y0`` with zero derivatives and
-        ``n_updates`` at 0, and the parameters are not derived again (a full reset re-validates and re-packs
-        them, ~40 us). Subclasses that override ``reset`` get ``reset(y0)`` itself.
+        a compiled caller holding them stays valid), the estimate starts at ``y0`` with the given
+        ``derivatives`` (as :meth:`reset`; default zero) and ``n_updates`` at 0, and the parameters are not derived
+        again (a full reset re-validates and re-packs them, ~40 us). Subclasses that override ``reset`` get
+        ``reset(y0)`` itself.
         """
         if type(self).reset is not Observer.reset:
-            return self.reset(y0)
+            return self.reset(y0) if derivatives is None else self.reset(y0, derivatives=derivatives)
         if self._state is None:
             raise RuntimeError("expected a full reset(y0) before restart(y0), actual value: never reset")
         y0 = self._as_measurement(y0, "y0")
@@ -288,9 +435,13 @@ class Observer:
             raise ValueError(f"expected y0 with shape {self._shape} for a restart, actual value: {y0.shape}")
         if not np.isfinite(y0).all():  # the method: np.all's Python wrapper costs ~3 us, paid every episode
             self._raise_nonfinite(y0, "y0")
-        self._state[...] = self._initial_state(y0.reshape(-1), self._params)
-        estimate = np.zeros(self._estimate.shape)
-        estimate[..., 0] = y0
+        x0 = self._initial_estimate(y0, derivatives)
+        self._state[...] = self._fresh_state(y0, x0)
+        if x0 is None:
+            estimate = np.zeros(self._estimate.shape)
+            estimate[..., 0] = y0
+        else:
+            estimate = x0
         self._estimate = estimate
         self.n_updates = 0
         return estimate.copy()
@@ -365,12 +516,15 @@ class Observer:
         if self._params is None:
             raise RuntimeError("expected reset(y0) before step(), actual value: the observer was never reset")
         y, state = self._check_step_arguments(state, y)
+        if self._period is not None:
+            y_measured, y = y, np.empty_like(y)
+            _kernels.unwrap_measurement(y_measured, state, self._period, y)
         new_state = np.empty_like(state)
         out = np.empty((state.shape[0], self.order + 1))
         kernel, params = self._step_kernel()
         status = kernel(state, y, params, new_state, out)
         if status != -1:
-            self._raise_status(status, y)
+            self._raise_status(status, y if self._period is None else y_measured)
         return new_state, out
 
     def _check_step_arguments(self, state, y) -> tuple[np.ndarray, np.ndarray]:
@@ -421,7 +575,7 @@ class Observer:
         # all or nothing, like update(): the kernel loop advances a copy, committed only if every sample passed
         state = self._state.copy()
         status, t = _kernels.run_offline(self._kernel, state, Y.reshape(T, -1), self._params,
-                                         out.reshape(T, -1, m))
+                                         out.reshape(T, -1, m), self._period)
         if status != -1:
             self._raise_status(status, Y[t])
         self._state = state
@@ -468,4 +622,6 @@ class Observer:
         return state
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(dt={self.dt}, order={self.order}, discretization={self.discretization!r})"
+        wrap = "" if self.wrap is None else f", wrap={self.wrap!r}"
+        return (f"{type(self).__name__}(dt={self.dt}, order={self.order}, discretization={self.discretization!r}"
+                f"{wrap})")

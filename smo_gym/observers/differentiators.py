@@ -44,11 +44,17 @@ from .._validation import (
     check_positive,
     check_positive_array,
 )
-from ..design.gains import MAX_LEVANT_ORDER, binomial_coefficients, levant_lambdas, super_twisting_gains
+from ..design.gains import (
+    LEVANT_LAMBDAS,
+    MAX_LEVANT_ORDER,
+    binomial_coefficients,
+    levant_nonrecursive,
+    super_twisting_gains,
+)
 from . import _kernels
-from .base import Observer
+from .base import Observer, taylor_matrix
 
-__all__ = ["Levant", "SuperTwisting", "URED", "UniformLevant", "eigenvalue_mapping_vectors"]
+__all__ = ["Levant", "SuperTwisting", "URED", "UniformLevant", "eigenvalue_mapping_vectors", "taylor_matrix"]
 
 
 def _check_optional_positive(**values) -> None:
@@ -72,15 +78,17 @@ def _pack_hosm(dt: float, taylor: bool, gains: np.ndarray, powers: np.ndarray) -
     return np.hstack([head, g.reshape(N, -1), np.broadcast_to(p.reshape(1, -1), (N, m * _kernels.N_TERMS))])
 
 
-def taylor_matrix(m: int, dt: float) -> np.ndarray:
-    r"""The ``(m, m)`` matrix :math:`e^{\tau N}` with entries :math:`\tau^{j-i}/(j-i)!` (paper 003, eq. (31))."""
-    A = np.zeros((m, m))
-    for i in range(m):
-        fac = 1.0
-        for j in range(i, m):
-            A[i, j] = fac
-            fac *= dt / (j - i + 1)
-    return A
+def _levant_sequence(gains, order: int) -> np.ndarray:
+    """Levant's recursive parameters ``(lambda_0, ..., lambda_k)``: ``gains`` validated, or the paper's choice."""
+    if gains is None:
+        return np.array(LEVANT_LAMBDAS[:order + 1])
+    lam = check_positive_array("gains", gains)
+    if lam.shape != (order + 1,):
+        raise ValueError(
+            f"expected gains with shape ({order + 1},), Levant's (lambda_0, ..., lambda_{order}), actual value: "
+            f"shape {lam.shape}"
+        )
+    return lam.copy()
 
 
 def eigenvalue_mapping_vectors(m: int, dt: float) -> np.ndarray:
@@ -134,6 +142,8 @@ class SuperTwisting(Observer):
         ``"implicit"`` (default): the set-valued implicit Euler step [BPE] in closed form; on a constant signal the
         derivative becomes exactly zero, and it is stable at any step. ``"euler"``: explicit Euler, chattering of
         amplitude ``O(k2 tau)`` in the derivative.
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
     Notes
     -----
@@ -147,8 +157,9 @@ class SuperTwisting(Observer):
     name = "super-twisting"
 
     @check_keywords
-    def __init__(self, dt: float, lipschitz=None, *, k1=None, k2=None, discretization: str | None = None):
-        super().__init__(dt, 1, discretization)
+    def __init__(self, dt: float, lipschitz=None, *, k1=None, k2=None, discretization: str | None = None,
+                 wrap=None):
+        super().__init__(dt, 1, discretization, wrap)
         if lipschitz is None and (k1 is None or k2 is None):
             raise ValueError("expected lipschitz > 0 or both k1 and k2, actual value: lipschitz=None")
         _check_optional_positive(lipschitz=lipschitz, k1=k1, k2=k2)  # fail at construction, not at reset
@@ -163,6 +174,9 @@ class SuperTwisting(Observer):
     @property
     def _kernel(self):
         return _kernels.sta_implicit_kernel if self.discretization == "implicit" else _kernels.hosm_kernel
+
+    def _predicts(self):
+        return self.discretization == "euler"
 
     def _channel_params(self, shape):
         k1, k2 = self._gains(shape)
@@ -203,6 +217,18 @@ class Levant(Observer):
         ``p1^(k+1)`` equals Levant's ``lambda_0 L``.
     mu : float
         Paper 003's ``mu >= 0`` (0 gives finite-time, ``mu > 0`` adds the uniform, fixed-time part).
+    gains : array_like, shape (order + 1,), optional
+        Levant's parameters :math:`(\lambda_0, \ldots, \lambda_k)` of the recursive form (7), indexed as in the
+        paper (:math:`\lambda_0` multiplies :math:`L\,\mathrm{sign}` in the last equation, :math:`\lambda_k` the
+        first correction); the kernel runs the equivalent non-recursive gains
+        (:func:`smo_gym.design.levant_nonrecursive`). Default: the sequence of [Lev03] printed below (7) in paper
+        004, :math:`\lambda_0, \ldots, \lambda_5 = 1.1, 1.5, 2, 3, 5, 8`. [Lev03] shows convergence for
+        parameters chosen large enough one after the other, starting from :math:`\lambda_0 > 1`; the printed
+        sequence is one such choice for ``k <= 5``, not a law, so other sequences are accepted as given (only
+        their shape and positivity are checked: convergence with them is the caller's choice). For ``"taylor"``
+        and ``"euler"`` only: the eigenvalue mappings are tuned by ``p1``.
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
     """
 
     discretizations = ("taylor", "euler", "semi-implicit", "matching")
@@ -210,9 +236,9 @@ class Levant(Observer):
 
     @check_keywords
     def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, discretization: str | None = None,
-                 p1=None, mu: float = 0.0):
+                 p1=None, mu: float = 0.0, gains=None, wrap=None):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
-        super().__init__(dt, order, discretization)
+        super().__init__(dt, order, discretization, wrap)
         self.lipschitz = lipschitz
         check_positive_array("lipschitz", lipschitz)  # validate now, not at reset
         eigmap = self.discretization in ("semi-implicit", "matching")
@@ -236,6 +262,12 @@ class Levant(Observer):
             raise ValueError("expected mu only with discretization 'semi-implicit' or 'matching' (the uniform part "
                              f"of Wetzlinger, Reichhartinger and Horn's observer), actual value: mu={mu!r} with "
                              f"discretization {self.discretization!r}")
+        if gains is not None and self.discretization in ("semi-implicit", "matching"):
+            raise ValueError(
+                "expected gains only with discretization 'taylor' or 'euler' (the eigenvalue mappings are tuned "
+                f"by p1), actual value: gains={gains!r} with discretization={self.discretization!r}"
+            )
+        self.gains = _levant_sequence(gains, order)
 
     @property
     def _kernel(self):
@@ -243,13 +275,16 @@ class Levant(Observer):
             return _kernels.eigmap_kernel
         return _kernels.hosm_kernel
 
+    def _predicts(self):
+        return True
+
     def _channel_params(self, shape):
         k, m = self.order, self.order + 1
         L = self._per_channel("lipschitz", self.lipschitz, shape)
         if self.discretization in ("semi-implicit", "matching"):
             p1 = (1.1 * L) ** (1.0 / m) if self.p1 is None else self._per_channel("p1", self.p1, shape)
             return _pack_eigmap(self.dt, p1, self.mu, self.discretization, m)
-        lam = levant_lambdas(k, "nonrecursive")
+        lam = levant_nonrecursive(self.gains)
         gains = lam[None, :] * L[:, None] ** (np.arange(1, m + 1) / m)[None, :]
         powers = ((k - np.arange(m)) / m)[:, None]
         return _pack_hosm(self.dt, self.discretization == "taylor", gains[:, :, None], powers)
@@ -279,6 +314,8 @@ class URED(Observer):
         ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as ``DivergenceError``). For large
         initial errors at a coarse step use ``Levant(discretization="semi-implicit", mu>0)``, paper 003's uniform
         observer, which is stable at any step.
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
     """
 
     discretizations = ("euler",)
@@ -286,8 +323,8 @@ class URED(Observer):
 
     @check_keywords
     def __init__(self, dt: float, lipschitz=1.0, *, k1=None, k2=None, beta: float = 1.0,
-                 discretization: str | None = None):
-        super().__init__(dt, 1, discretization)
+                 discretization: str | None = None, wrap=None):
+        super().__init__(dt, 1, discretization, wrap)
         _check_optional_positive(lipschitz=lipschitz, k1=k1, k2=k2)  # fail at construction, not at reset
         self.lipschitz, self.k1, self.k2 = lipschitz, k1, k2
         self.beta = check_positive("beta", beta)
@@ -295,6 +332,9 @@ class URED(Observer):
     @property
     def _kernel(self):
         return _kernels.hosm_kernel
+
+    def _predicts(self):
+        return True
 
     def _channel_params(self, shape):
         L = self._per_channel("lipschitz", self.lipschitz, shape)
@@ -331,8 +371,13 @@ class UniformLevant(Observer):
     k : array_like, shape (order + 1,), optional
         Coefficients making ``s^n + k_1 s^(n-1) + ... + k_n`` Hurwitz; default those of
         ``(s + L^(1/n))^n`` (so the uniform part has the time scale of the Levant part).
+    gains : array_like, shape (order + 1,), optional
+        Levant's parameters :math:`(\lambda_0, \ldots, \lambda_k)` of the low-degree terms, as for
+        :class:`Levant` (default the sequence of [Lev03]).
     discretization : {"euler", "taylor"}
         Explicit; stiff for large errors like :class:`URED` (errors raise ``DivergenceError``).
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
     Notes
     -----
@@ -348,9 +393,9 @@ class UniformLevant(Observer):
 
     @check_keywords
     def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, alpha: float = 1.0, k=None,
-                 discretization: str | None = None):
+                 gains=None, discretization: str | None = None, wrap=None):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
-        super().__init__(dt, order, discretization)
+        super().__init__(dt, order, discretization, wrap)
         _check_optional_positive(lipschitz=lipschitz)  # fail at construction, not at reset
         self.lipschitz = lipschitz
         self.alpha = check_positive("alpha", alpha)
@@ -363,16 +408,20 @@ class UniformLevant(Observer):
                 raise ValueError(f"expected k making s^n + k_1 s^(n-1) + ... + k_n Hurwitz, actual value: roots "
                                  f"{roots}")
         self.k = k
+        self.gains = _levant_sequence(gains, order)
 
     @property
     def _kernel(self):
         return _kernels.hosm_kernel
 
+    def _predicts(self):
+        return True
+
     def _channel_params(self, shape):
         n = self.order + 1
         L = self._per_channel("lipschitz", self.lipschitz, shape)
         i = np.arange(1, n + 1)
-        lam = levant_lambdas(self.order, "nonrecursive")[None, :] * L[:, None] ** (i / n)[None, :]
+        lam = levant_nonrecursive(self.gains)[None, :] * L[:, None] ** (i / n)[None, :]
         if self.k is None:
             kk = np.stack([binomial_coefficients(n, float(rate)) for rate in L ** (1.0 / n)])
         else:

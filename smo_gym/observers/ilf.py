@@ -491,7 +491,6 @@ class ILFDifferentiator(Observer):
         :math:`L_f`, per channel; sets the default ``rate``.
     order : int
         Derivatives estimated, ``1 <= order <= 4``.
-    kind : {"finite", "fixed"}
     mu : float, optional
         Default 1 (finite) or 0.5 (fixed).
     alpha : float, optional
@@ -503,6 +502,8 @@ class ILFDifferentiator(Observer):
     discretization : {"implicit"}
         Exact chain prediction plus implicit-Euler injection (see :mod:`smo_gym.observers.ilf`); stable at any
         step and any error. Not a compiled kernel: a NumPy step of about 0.5-1 ms.
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
     Notes
     -----
@@ -519,9 +520,9 @@ class ILFDifferentiator(Observer):
     @check_keywords
     def __init__(self, dt: float, lipschitz=None, *, order: int = 1, mu: float | None = None,
                  alpha: float | None = None, rate=None, gain=None, rho_min: float = 1e-14,
-                 discretization: str | None = None):
+                 discretization: str | None = None, wrap=None):
         order = check_int_in_range("order", order, 1, 4)
-        super().__init__(dt, order, discretization)
+        super().__init__(dt, order, discretization, wrap)
         n = order + 1
         self.mu = _DEFAULT_MU[self.kind] if mu is None else check_positive("mu", mu)
         if (self.kind == "finite" and self.mu > 1) or (self.kind == "fixed" and self.mu >= 1):
@@ -551,6 +552,11 @@ class ILFDifferentiator(Observer):
     @property
     def _kernel(self):
         return _ilf_chain_kernel
+
+    def _load_estimate(self, state, x0, params):
+        r"""The state in the time scale :math:`\tau = \omega t`: :math:`\tilde x_i = \hat x_i/\omega^{i-1}`."""
+        m = self.order + 1
+        state[:, :m] = x0 / params[:, 1:2] ** np.arange(m)[None, :]
 
     def _channel_params(self, shape):
         n = self.order + 1

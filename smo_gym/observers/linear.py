@@ -46,6 +46,8 @@ class HighGain(Observer):
     discretization : {"implicit", "euler"}
         ``"implicit"`` (default): backward Euler, stable for every ``ell * tau``; a current estimator.
         ``"euler"``: forward Euler in predictor form, unstable once ``ell * tau`` exceeds about 2/k_1.
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
     """
 
     discretizations = ("implicit", "euler")
@@ -53,9 +55,9 @@ class HighGain(Observer):
 
     @check_keywords
     def __init__(self, dt: float, gain: float, order: int = 1, *, coefficients=None,
-                 discretization: str | None = None):
+                 discretization: str | None = None, wrap=None):
         order = check_int_in_range("order", order, 1, 9)
-        super().__init__(dt, order, discretization)
+        super().__init__(dt, order, discretization, wrap)
         self.gain = check_positive("gain", gain)
         n = order + 1
         if coefficients is None:
@@ -91,6 +93,9 @@ class HighGain(Observer):
     def _kernel(self):
         return _kernels.linear_kernel
 
+    def _predicts(self):
+        return self.discretization == "euler"
+
     def _discrete_row(self) -> np.ndarray:
         """The kernel's parameter row ``[F, g, R]`` of the chosen discretization (shared by every channel)."""
         n, dt = self.order + 1, self.dt
@@ -123,14 +128,21 @@ class FiniteDifference(Observer):
     :math:`\hat a_k = (\hat v_k - \hat v_{k-1})/\tau`.
 
     The baseline: velocity error :math:`O(\tau \max|\ddot f|) + O(2\epsilon/\tau)` with noise ``eps``.
+
+    Parameters
+    ----------
+    dt : float
+    order : {1, 2}
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
     """
 
     discretizations = ("backward",)
     name = "finite-difference"
 
     @check_keywords
-    def __init__(self, dt: float, order: int = 1, *, discretization: str | None = None):
-        super().__init__(dt, check_int_in_range("order", order, 1, 2), discretization)
+    def __init__(self, dt: float, order: int = 1, *, discretization: str | None = None, wrap=None):
+        super().__init__(dt, check_int_in_range("order", order, 1, 2), discretization, wrap)
 
     @property
     def _kernel(self):
@@ -138,6 +150,11 @@ class FiniteDifference(Observer):
 
     def _state_width(self):
         return self.order + 3  # estimates, innovation, samples since reset
+
+    def _load_estimate(self, state, x0, params):
+        super()._load_estimate(state, x0, params)
+        # a given velocity is a previous difference: the next acceleration differentiates it (as after one sample)
+        state[:, self.order + 2] = 1.0
 
     def _channel_params(self, shape):
         return np.full((int(np.prod(shape)), 1), self.dt)
@@ -162,7 +179,10 @@ class KalmanCA(Observer):
     measurement_noise : float
         ``r``, the variance of the measurement noise [units^2].
     initial_std : tuple of 2 floats
-        Prior standard deviations of velocity and acceleration at reset (the value's is ``sqrt(r)``).
+        Prior standard deviations of velocity and acceleration at reset (the value's is ``sqrt(r)``), also when
+        ``reset`` is given initial derivatives (the prior mean).
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
     Attributes
     ----------
@@ -174,8 +194,9 @@ class KalmanCA(Observer):
 
     @check_keywords
     def __init__(self, dt: float, process_noise: float, measurement_noise: float, *,
-                 initial_std: tuple[float, float] = (10.0, 100.0), discretization: str | None = None):
-        super().__init__(dt, 2, discretization)
+                 initial_std: tuple[float, float] = (10.0, 100.0), discretization: str | None = None,
+                 wrap=None):
+        super().__init__(dt, 2, discretization, wrap)
         self.process_noise = check_positive("process_noise", process_noise)
         self.measurement_noise = check_positive("measurement_noise", measurement_noise)
         if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:

@@ -275,6 +275,8 @@ class LowPowerHighGain(Observer):
     readout : {"peaking-free", "low-power"}
         Which states are reported as estimates (see the module docstring).
     discretization : {"implicit"}
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
     Examples
     --------
@@ -291,9 +293,9 @@ class LowPowerHighGain(Observer):
     @check_keywords
     def __init__(self, dt: float, gain: float, order: int = 1, *, bounds=None, coefficients=None,
                  filter_coefficient: float | None = None, readout: str = "peaking-free",
-                 discretization: str | None = None):
+                 discretization: str | None = None, wrap=None):
         order = check_int_in_range("order", order, 1, 9)
-        super().__init__(dt, order, discretization)
+        super().__init__(dt, order, discretization, wrap)
         n = order + 1
         self.gain = check_positive("gain", gain)
         self.readout = check_choice("readout", readout, ("peaking-free", "low-power"))
@@ -362,6 +364,17 @@ class LowPowerHighGain(Observer):
 
     def _innovation_column(self) -> int:
         return 2 * (self.order + 1) - 1
+
+    def _load_estimate(self, state, x0, params):
+        r"""The state of an observer whose every estimate is exact: :math:`\xi_{i,1} = x_i`,
+        :math:`\xi_{i,2} = x_{i+1}`, :math:`\eta = x_n` (both read-outs then return ``x0``), in the kernel's
+        coordinates :math:`\zeta = T^{-1}s` (:meth:`state_scale`)."""
+        n = self.order + 1
+        s = np.empty((x0.shape[0], 2 * n - 1))
+        s[:, 0:2 * n - 2:2] = x0[:, :n - 1]  # xi_{i,1} = x_i
+        s[:, 1:2 * n - 2:2] = x0[:, 1:]  # xi_{i,2} = x_{i+1}
+        s[:, 2 * n - 2] = x0[:, n - 1]  # eta = x_n
+        state[:, :2 * n - 1] = s / self.state_scale()
 
     def state_scale(self) -> np.ndarray:
         r"""Diagonal ``T`` of the internal coordinates: the kernel's state is :math:`\zeta = T^{-1}s` with

@@ -210,13 +210,19 @@ class _ModelBasedSuperTwisting(Observer):
         return state
 
     @check_keywords
-    def reset(self, y0, mask=None, v0=None) -> np.ndarray:
+    def reset(self, y0, mask=None, v0=None, *, derivatives=None) -> np.ndarray:
         """Start at the measurement ``y0`` (shape ``(..., n)``) with velocity estimate ``v0`` (default zero).
 
-        ``mask`` restarts only some batch elements (see :meth:`Observer.reset`). ``v0`` must be finite and
-        broadcast to the shape of ``y0``; anything rejected leaves the observer as it was.
+        ``mask`` restarts only some batch elements (see :meth:`Observer.reset`). ``derivatives`` of shape
+        ``(..., n, 1)`` is the common observer spelling of ``v0`` (``derivatives[..., 0]``); give one of them.
+        ``v0`` must be finite and broadcast to the shape of ``y0``; anything rejected leaves the observer as it was.
         """
         y0 = self._as_measurement(y0, "y0")
+        if derivatives is not None:
+            if v0 is not None:
+                raise TypeError("expected v0 or derivatives (the same initial velocity), actual value: both given")
+            x0 = self._initial_estimate(y0, derivatives)
+            v0 = None if x0 is None else x0[..., 1]
         if v0 is not None:
             v0 = as_real_array("v0", v0)
             try:

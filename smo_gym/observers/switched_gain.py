@@ -315,6 +315,8 @@ class SwitchedGain(Observer):
     restart_threshold : float, optional
         Once settled, restart the schedule when :math:`|y_k - \hat x_{1,k-1} - h\hat x_{2,k-1}|` exceeds it.
     discretization : {"implicit"}
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
     Attributes
     ----------
@@ -346,9 +348,9 @@ class SwitchedGain(Observer):
                  rho_v: float = 1.0, q: float = 2.0, alpha: float | None = None, mu0: float | None = None,
                  disturbance: float | None = None, noise: float | None = None, mu_max: float | None = None,
                  mu_min: float | None = None, T_min: float | None = None, supervise: bool = True,
-                 restart_threshold: float | None = None, discretization: str | None = None):
+                 restart_threshold: float | None = None, discretization: str | None = None, wrap=None):
         order = check_int_in_range("order", order, 1, 9)
-        super().__init__(dt, order, discretization)
+        super().__init__(dt, order, discretization, wrap)
         n = order + 1
         self.kappa = check_positive("kappa", kappa)
         self.rho_d = check_positive("rho_d", rho_d)

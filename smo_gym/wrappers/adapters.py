@@ -65,6 +65,7 @@ contact forces with force/torque sensors or foot switches. ``contact_forces`` de
 from __future__ import annotations
 
 import contextlib
+import copy
 
 import mujoco
 import numpy as np
@@ -74,6 +75,7 @@ __all__ = [
     "register_adapter",
 ]
 
+#: sources of the contact forces (``cfrc_ext``) in a sensed observation: see :class:`EstimatedVelocity`
 CONTACT_FORCES = ("sensor", "estimated", "zero")
 #: the controller's inputs that ``observation`` copies from the live data (those the observation reads, probed)
 _INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")
@@ -104,6 +106,10 @@ class MujocoAdapter:
         raise NotImplementedError
 
     def supports_substeps(self) -> bool:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def copy_environment(self):  # pragma: no cover - interface
+        """A separate copy of the (unwrapped) environment on the live model, for calibration rollouts."""
         raise NotImplementedError
 
 
@@ -196,6 +202,10 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         with _quiet_mujoco():  # the probes feed MuJoCo NaN and huge inputs on purpose
             self.pipeline, self.copies_inputs = self._probe_pipeline()
             self.reads_contacts = self._probe_contacts()
+            if contact_forces != "sensor" and not self.reads_contacts:
+                raise ValueError(
+                    f"expected contact_forces='sensor' for {type(env).__name__}, whose observation has no contact "
+                    f"forces (cfrc_ext), actual value: {contact_forces!r}")
             if self.copies_inputs and self.pipeline != "forward":
                 # the constraint forces of a full forward pass depend on every applied input whenever a constraint
                 # is active, which a probe at a few states need not see (InvertedDoublePendulum's rail limit):
@@ -659,9 +669,9 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
 
     def _probe_contacts(self) -> bool:
         """Whether the observation reads ``cfrc_ext`` (Ant, Humanoid): evaluated at a random state with
-        ``cfrc_ext`` NaN, does it come out non-finite? If not, the per-step copy of the contact forces is skipped."""
-        if self.contact_forces == "estimated":
-            return True  # recomputed by the forward pass, never copied
+        ``cfrc_ext`` NaN (not recomputed), does it come out non-finite? If not, the per-step copy of the contact
+        forces is skipped, and a ``contact_forces`` mode other than ``"sensor"`` is refused."""
+        mode, self.contact_forces = self.contact_forces, "sensor"  # no recomputation during the probe
         rng = np.random.default_rng(54321)
         qpos = np.array(self.env.data.qpos)
         mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
@@ -676,6 +686,25 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             return True
         finally:
             self.reads_contacts = True
+            self.contact_forces = mode
+
+    def copy_environment(self):
+        """A separate copy of the environment on the live model, for calibration rollouts.
+
+        ``copy.deepcopy`` of a Gymnasium ``MujocoEnv`` rebuilds it from its constructor arguments (``EzPickle``),
+        with the model its XML file describes: edits of the live model (masses, ``opt.timestep``) would be lost.
+        The copy gets a copy of the live ``MjModel``, fresh ``MjData`` of it, the live initial state and action
+        space, and keeps the rest (reset distribution, rewards, terminations) from its own construction.
+        """
+        env = self.env
+        sim = copy.deepcopy(env)
+        sim.model = copy.copy(self.model)
+        sim.data = mujoco.MjData(sim.model)
+        for name in ("init_qpos", "init_qvel"):
+            if hasattr(env, name):
+                setattr(sim, name, np.array(getattr(env, name)))
+        sim.action_space = copy.deepcopy(env.action_space)
+        return sim
 
     # ---- sampling inside frame_skip -------------------------------------------------------------------------
     def supports_substeps(self) -> bool:

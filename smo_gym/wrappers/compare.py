@@ -8,24 +8,25 @@ configuration is sampled at the chosen rate with the wrapper's own substep hook
 :class:`~smo_gym.wrappers.sensing.VelocityEstimator`, i.e. exactly what
 :class:`~smo_gym.wrappers.EstimatedVelocity` would feed it.
 
-Metrics (per observer; samples after a reset restart the observer, as the wrapper does):
-
-An observer whose state becomes non-finite (``DivergenceError``) is reported as diverged, with the time.
+Metrics (per observer) are over every estimate (:func:`estimate_errors`): every sample except the first of each
+episode, where the observer is initialized, as the wrapper does, at the first measurement with zero velocity.
+Transients after it are part of the errors (they are not timed separately).
 
 ``rmse``
-    velocity RMSE over all dofs and the samples after convergence;
+    velocity RMSE over all dofs and estimates (rad/s for hinge and rotational dofs, m/s for slide and
+    translational ones, pooled);
 ``max_error``
-    the largest absolute velocity error after convergence;
-``convergence_time``
-    time until the per-sample error (RMS over dofs) first falls inside three times its steady level (the median
-    over the second half of the episode), averaged over episodes;
+    the largest absolute velocity error of any dof and estimate (same units);
 ``cost_us``
     median wall time of one online ``update`` (one sample, all dofs) in microseconds (the median leaves out the
     compilation at the first call and scheduler hiccups).
+
+An observer whose state becomes non-finite (``DivergenceError``) is reported as diverged, with the time.
 """
 
 from __future__ import annotations
 
+import difflib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,24 +35,33 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from .. import _extras as extras
 from .._validation import DivergenceError
 from ..envs import make as make_by_id
-from ..observers import OBSERVERS, make_observer
-from ..sensors import make_sensor
+from ..specs import make_sensor, parse_observer_spec
 from .adapters import make_adapter
 from .estimated_velocity import calibrated_bounds, resolve_rate
-from .sensing import JointMeasurement, VelocityEstimator, angular_dofs, bound_order, default_observer
+from .sensing import (
+    JointMeasurement,
+    VelocityEstimator,
+    angular_dofs,
+    bound_order,
+    default_observer,
+)
 
 __all__ = [
     "ObserverResult",
     "Recording",
     "compare_observers",
     "dof_names",
+    "env_dof_names",
+    "estimate_errors",
     "format_table",
-    "parse_observer_spec",
     "plot_velocities",
     "record_rollout",
+    "resolve_joints",
     "smooth_random_policy",
+    "velocity_units",
 ]
 
 
@@ -165,9 +175,7 @@ def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-no
     start()
     iterator = range(steps)
     if progress:
-        from tqdm.auto import tqdm
-
-        iterator = tqdm(iterator, desc=f"{env_id} rollout", unit="step", leave=False)
+        iterator = extras.progress(iterator, desc=f"{env_id} rollout", unit="step")
     hook = adapter.supports_substeps()
     for step in iterator:
         if hook:
@@ -199,7 +207,6 @@ class ObserverResult:
     velocity: np.ndarray
     rmse: float
     max_error: float
-    convergence_time: float
     cost_us: float
     rmse_per_dof: np.ndarray
     observer: object = field(repr=False, default=None)
@@ -207,44 +214,27 @@ class ObserverResult:
     diverged_at: float | None = None
 
 
-def _convergence_index(err: np.ndarray) -> int:
-    """First sample at which the per-sample error ``err`` (T,) enters three times its steady (median) level."""
-    steady = np.median(err[len(err) // 2:])
-    inside = np.flatnonzero(err <= 3.0 * steady + 1e-12)
-    return int(inside[0]) if inside.size else len(err)
+def estimate_errors(rec: Recording, velocity: np.ndarray) -> np.ndarray:
+    """Velocity errors ``velocity - qvel`` of every sample that is an estimate, shape (T - episodes, nv).
 
-
-def parse_observer_spec(spec: str) -> tuple[str, dict]:
-    """``"levant:order=1:discretization=matching"`` -> ``("levant", {"order": 1, "discretization": "matching"})``.
-
-    Values are read as int, then float, then kept as strings.
+    The first sample of each episode is left out: there the observer is initialized (zero velocity by
+    construction), it has not estimated anything yet.
     """
-    name, *items = spec.split(":")
-    kwargs: dict = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"expected observer options as key=value, actual value: {item!r} in {spec!r}")
-        for cast in (int, float):
-            try:
-                kwargs[key] = cast(value)
-                break
-            except ValueError:
-                continue
-        else:
-            kwargs[key] = value
-    if name not in OBSERVERS:
-        make_observer(name)  # raises the ValueError listing the valid names
-    return name, kwargs
+    estimated = np.ones(len(velocity), dtype=bool)
+    estimated[rec.episode_starts] = False
+    return (velocity - rec.qvel)[estimated]
 
 
-def compare_observers(rec: Recording, observers=("super-twisting", "levant", "levant:discretization=matching",
-                                                 "high-gain", "kalman-ca", "finite-difference"), *, observer_kwargs: dict | None = None,
+DEFAULT_OBSERVERS = ("super-twisting", "levant", "levant:discretization=matching", "high-gain", "kalman-ca",
+                     "finite-difference")
+
+
+def compare_observers(rec: Recording, observers=DEFAULT_OBSERVERS, *, observer_kwargs: dict | None = None,
                       calibration_safety: float = 2.0, progress: bool = False) -> list[ObserverResult]:
     """Run every observer on the recorded measurements.
 
-    ``observers`` are names or specs ``"name:key=value:..."`` (:func:`parse_observer_spec`); ``observer_kwargs``
-    maps a spec to further overrides. The reported name is the spec.
+    ``observers`` are names or specs ``"name:key=value:..."`` (:func:`smo_gym.specs.parse_observer_spec`);
+    ``observer_kwargs`` maps a spec to further overrides. The reported name is the spec.
     """
     names = list(observers)
     specs = {spec: parse_observer_spec(spec) for spec in names}
@@ -254,9 +244,7 @@ def compare_observers(rec: Recording, observers=("super-twisting", "levant", "le
     results = []
     iterator = names
     if progress:
-        from tqdm.auto import tqdm
-
-        iterator = tqdm(names, desc="observers", leave=False)
+        iterator = extras.progress(names, desc="observers")
     for spec in iterator:
         name, kw = specs[spec]
         kw = {**kw, **((observer_kwargs or {}).get(spec) or {})}
@@ -279,99 +267,179 @@ def compare_observers(rec: Recording, observers=("super-twisting", "levant", "le
             except DivergenceError:
                 diverged = i * rec.dt
                 break
+        cost = 1e6 * float(np.median(timings)) if timings else float("nan")
         if diverged is not None:
             results.append(ObserverResult(
-                name=spec, velocity=V, rmse=float("nan"), max_error=float("inf"), convergence_time=float("nan"),
-                cost_us=1e6 * float(np.median(timings)) if timings else float("nan"),
+                name=spec, velocity=V, rmse=float("nan"), max_error=float("inf"), cost_us=cost,
                 rmse_per_dof=np.full(V.shape[1], np.nan), observer=estimator.observer, diverged_at=diverged,
             ))
             continue
-        err = V - rec.qvel
-        per_sample = np.sqrt(np.mean(err**2, axis=1))
-        keep = np.zeros(len(err), dtype=bool)
-        conv_times = []
-        for a, b in zip(starts[:-1], starts[1:], strict=True):
-            c = _convergence_index(per_sample[a:b])
-            keep[a + c:b] = True
-            conv_times.append(c * rec.dt)
-        kept = err[keep] if keep.any() else err
+        err = estimate_errors(rec, V)
         results.append(ObserverResult(
-            name=spec, velocity=V, rmse=float(np.sqrt(np.mean(kept**2))), max_error=float(np.max(np.abs(kept))),
-            convergence_time=float(np.mean(conv_times)),
-            cost_us=1e6 * float(np.median(timings)) if timings else float("nan"),
-            rmse_per_dof=np.sqrt(np.mean(kept**2, axis=0)), observer=estimator.observer,
+            name=spec, velocity=V, rmse=float(np.sqrt(np.mean(err**2))), max_error=float(np.max(np.abs(err))),
+            cost_us=cost, rmse_per_dof=np.sqrt(np.mean(err**2, axis=0)), observer=estimator.observer,
         ))
     return results
+
+
+#: what every column of :func:`format_table` means (also the help of ``smo-gym compare``)
+TABLE_COLUMNS = {
+    "observer": "the observer spec (name:key=value:...); gains not given are calibrated as the wrapper does",
+    "RMSE": "velocity RMSE over every dof and estimate (rad/s for hinge dofs, m/s for slide dofs, pooled)",
+    "max err": "largest absolute velocity error of any dof and estimate (same units)",
+    "us/step": "median wall time of one observer update (one sample, all dofs) in microseconds",
+}
+
+
+def _table(cols, rows) -> list[str]:
+    widths = [max(len(c), *(len(row[i]) for row in rows)) for i, c in enumerate(cols)]
+
+    def line(cells):
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths,
+                                                                                              strict=True)))
+
+    return [line(cols), line(["-" * w for w in widths])] + [line(row) for row in rows]
 
 
 def format_table(rec: Recording, results: list[ObserverResult], *, per_joint: bool = False) -> str:
     """A plain-text table of the metrics (and, with ``per_joint``, the RMSE of every dof)."""
     head = (f"{rec.env_id}, sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s), {len(rec.qvel)} samples, "
-            f"{len(rec.episode_starts)} episode(s); velocity RMS {np.sqrt(np.mean(rec.qvel**2)):.3g}")
-    cols = ("observer", "RMSE", "max err", "conv. [s]", "us/step")
-    rows = [(r.name, f"{r.rmse:.4g}", f"{r.max_error:.4g}", f"{r.convergence_time:.3g}", f"{r.cost_us:.1f}")
-            if r.diverged_at is None else (r.name, "diverged", "-", f"at {r.diverged_at:.3g}", f"{r.cost_us:.1f}")
-            for r in results]
-    widths = [max(len(c), *(len(row[i]) for row in rows)) for i, c in enumerate(cols)]
-    line = lambda cells: "  ".join(c.ljust(w) if i == 0 else c.rjust(w)  # noqa: E731
-                                   for i, (c, w) in enumerate(zip(cells, widths, strict=True)))
-    out = [head, line(cols), line(["-" * w for w in widths])] + [line(row) for row in rows]
+            f"{len(rec.episode_starts)} episode(s); velocity RMS {np.sqrt(np.mean(rec.qvel**2)):.3g} "
+            f"(rad/s for hinge dofs, m/s for slide dofs)")
+    rows = [(r.name, f"{r.rmse:.4g}", f"{r.max_error:.4g}", f"{r.cost_us:.1f}") if r.diverged_at is None
+            else (r.name, f"diverged at {r.diverged_at:.3g} s", "-", f"{r.cost_us:.1f}") for r in results]
+    out = [head] + _table(tuple(TABLE_COLUMNS), rows)
     if per_joint:
+        units = velocity_units(rec)
         out += ["", "RMSE per dof"]
-        jcols = ["dof"] + [r.name for r in results]
-        jrows = [[n] + [f"{r.rmse_per_dof[d]:.4g}" for r in results] for d, n in enumerate(rec.names)]
-        jw = [max(len(c), *(len(row[i]) for row in jrows)) for i, c in enumerate(jcols)]
-        fmt = lambda cells: "  ".join(c.ljust(w) if i == 0 else c.rjust(w)  # noqa: E731
-                                      for i, (c, w) in enumerate(zip(cells, jw, strict=True)))
-        out += [fmt(jcols), fmt(["-" * w for w in jw])] + [fmt(row) for row in jrows]
+        jrows = [[f"{n} [{units[d]}]"] + [f"{r.rmse_per_dof[d]:.4g}" for r in results]
+                 for d, n in enumerate(rec.names)]
+        out += _table(["dof"] + [r.name for r in results], jrows)
     return "\n".join(out)
 
 
-def resolve_joints(rec: Recording, joints) -> list[int]:
-    """Dof indices from names or indices; default: the two non-root dofs with the largest velocity RMS."""
+def velocity_units(rec: Recording) -> list[str]:
+    """``"rad/s"`` for every rotational dof (hinge, ball, a free joint's rotations), ``"m/s"`` for translations."""
+    return ["rad/s" if a else "m/s" for a in rec.context["angular"]]
+
+
+def env_dof_names(env_id: str, env_kwargs: dict | None = None) -> list[str]:
+    """The dof names of ``env_id`` (:func:`dof_names`), from a freshly made environment (no rollout)."""
+    env = make_by_id(env_id, **(env_kwargs or {}))
+    try:
+        return dof_names(make_adapter(env).model)
+    finally:
+        env.close()
+
+
+def resolve_joints(names: list[str], joints, qvel: np.ndarray | None = None, root=None) -> list[int]:
+    """Dof indices of ``joints`` (names or indices into ``names``).
+
+    Without ``joints``: the two dofs with the largest velocity RMS in ``qvel`` (T, nv), leaving out those flagged
+    in ``root`` (the floating base) unless nothing else is left.
+    """
     if not joints:
-        rms = np.sqrt(np.mean(rec.qvel**2, axis=0))
-        model = rec.context["adapter"].model
-        root = model.jnt_type[model.dof_jntid] == mujoco.mjtJoint.mjJNT_FREE
-        root |= np.asarray(model.dof_jntid) == 0
+        if qvel is None:
+            raise ValueError("expected joints or the velocities to choose them from, actual value: neither")
+        rms = np.sqrt(np.mean(qvel**2, axis=0))
+        root = np.zeros(len(names), dtype=bool) if root is None else np.asarray(root, dtype=bool)
         order = [d for d in np.argsort(-rms) if not root[d]] or list(np.argsort(-rms))
         return [int(d) for d in order[:2]]
     out = []
     for j in joints:
         if isinstance(j, (int, np.integer)) or (isinstance(j, str) and j.lstrip("-").isdigit()):
             d = int(j)
-            if not 0 <= d < len(rec.names):
-                raise ValueError(f"expected a dof index in [0, {len(rec.names) - 1}], actual value: {j!r}")
-        elif j in rec.names:
-            d = rec.names.index(j)
+            if not 0 <= d < len(names):
+                raise ValueError(f"expected a dof index in [0, {len(names) - 1}], actual value: {j!r}")
+        elif j in names:
+            d = names.index(j)
         else:
-            raise ValueError(f"expected a dof name in {', '.join(rec.names)}, actual value: {j!r}")
+            match = difflib.get_close_matches(str(j), names, n=1)
+            hint = f" (did you mean {match[0]!r}?)" if match else ""
+            raise ValueError(f"expected a dof name in {', '.join(names)} or an index, actual value: {j!r}{hint}")
         out.append(d)
     return out
 
 
-def plot_velocities(rec: Recording, results: list[ObserverResult], joints, out: str, *, seconds: float = 1.0) -> str:
-    """Write a PNG of true vs estimated velocities of the dofs ``joints`` over the first ``seconds``."""
-    import matplotlib
+def _root_dofs(rec: Recording) -> np.ndarray:
+    model = rec.context["adapter"].model
+    root = model.jnt_type[model.dof_jntid] == mujoco.mjtJoint.mjJNT_FREE
+    return root | (np.asarray(model.dof_jntid) == 0)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    dofs = resolve_joints(rec, joints)
-    n = min(len(rec.qvel), max(2, int(round(seconds / rec.dt)) + 1))
+def plot_limits(true_velocity: np.ndarray, margin: float = 1.0, floor: float = 1e-3) -> tuple[float, float]:
+    """y-limits of a velocity plot from the *true* velocity alone: its range widened by ``margin`` times its span
+    on both sides (span at least ``floor``), so that a chattering or diverged estimate cannot rescale the axis."""
+    lo, hi = float(np.min(true_velocity)), float(np.max(true_velocity))
+    span = max(hi - lo, floor, 0.1 * max(abs(lo), abs(hi)))
+    return lo - margin * span, hi + margin * span
+
+
+def velocity_figure(rec: Recording, results: list[ObserverResult], joints, *, seconds: float = 1.0):
+    """A matplotlib figure of true vs estimated velocities of the dofs ``joints`` over the first ``seconds``.
+
+    The y-axis of each dof is set by its true velocity (:func:`plot_limits`); estimates outside it are drawn
+    clipped at the edge, with triangles where they leave it, and their legend entry says which fraction of the
+    window was off scale and the largest value. The legend sits outside the axes, to the right.
+    """
+    extras.require("matplotlib", "plots").use("Agg")
+    plt = extras.require("matplotlib.pyplot", "plots")
+
+    if not seconds > 0:
+        raise ValueError(f"expected seconds > 0, actual value: {seconds!r}")
+    dofs = resolve_joints(rec.names, joints, rec.qvel, _root_dofs(rec))
+    units = velocity_units(rec)
+    n = min(len(rec.qvel), max(2, round(seconds / rec.dt) + 1))
     t = np.arange(n) * rec.dt
-    fig, axes = plt.subplots(len(dofs), 1, figsize=(9, 2.8 * len(dofs)), sharex=True, squeeze=False)
-    for ax, d in zip(axes[:, 0], dofs, strict=True):
-        for r in results:
-            ax.plot(t, r.velocity[:n, d], lw=0.8, alpha=0.8, label=f"{r.name} (RMSE {r.rmse:.3g})")
-        ax.plot(t, rec.qvel[:n, d], color="k", lw=1.6, label="true", zorder=10)
-        ax.set_ylabel(f"{rec.names[d]} velocity")
+    fig, axes = plt.subplots(len(dofs), 1, figsize=(11, 2.8 * len(dofs) + 0.8), sharex=True, squeeze=False,
+                             layout="constrained")
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    handles, labels = [], []
+    off_scale: dict[str, list[str]] = {}
+    for row, (ax, d) in enumerate(zip(axes[:, 0], dofs, strict=True)):
+        lo, hi = plot_limits(rec.qvel[:n, d])
+        for k, r in enumerate(results):
+            v = r.velocity[:n, d]
+            color = colors[k % len(colors)]
+            (line,) = ax.plot(t, np.clip(v, lo, hi), lw=0.8, alpha=0.8, color=color)
+            outside = np.isfinite(v) & ((v < lo) | (v > hi))
+            if outside.any():
+                # mark where the estimate leaves the window (first sample of each excursion)
+                enter = np.flatnonzero(outside & ~np.r_[False, outside[:-1]])
+                for side, edge, marker in ((v[enter] > hi, hi, "^"), (v[enter] < lo, lo, "v")):
+                    ax.plot(t[enter[side]], np.full(side.sum(), edge), ls="none", color=color, ms=5, marker=marker)
+                peak = float(np.max(np.abs(v[outside])))
+                share = f"{outside.mean():.0%}" if outside.mean() >= 0.005 else "<1%"
+                off_scale.setdefault(r.name, []).append(f"{rec.names[d]} {share} (|v| up to {peak:.3g})")
+            if row == 0:
+                handles.append(line)
+        (true_line,) = ax.plot(t, rec.qvel[:n, d], color="k", lw=1.6, zorder=10)
+        ax.set_ylim(lo, hi)
+        ax.set_ylabel(f"{rec.names[d]} velocity [{units[d]}]")
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(ncol=2, fontsize=7, loc="upper right")
-    axes[0, 0].set_title(f"{rec.env_id}: sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s)")
+    for r in results:
+        if r.diverged_at is not None:
+            label = f"{r.name} (diverged at {r.diverged_at:.3g} s)"
+        else:
+            label = f"{r.name} (RMSE {r.rmse:.3g})"
+        if r.name in off_scale:
+            label += "\n  clipped: " + "; ".join(off_scale[r.name])
+        labels.append(label)
+    handles.append(true_line)
+    labels.append("true")
+    fig.legend(handles, labels, loc="outside right upper", fontsize=7, frameon=False)
+    axes[0, 0].set_title(f"{rec.env_id}: sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s)\n"
+                         "y-axis from the true velocity; estimates beyond it clipped (triangles)", fontsize=9)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.tight_layout()
+    return fig
+
+
+def plot_velocities(rec: Recording, results: list[ObserverResult], joints, out: str, *, seconds: float = 1.0) -> str:
+    """Write :func:`velocity_figure` to ``out`` (PNG or any format matplotlib knows by the suffix); its path."""
+    plt = extras.require("matplotlib.pyplot", "plots")
+
+    fig = velocity_figure(rec, results, joints, seconds=seconds)
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
-    return out
+    return str(out)

@@ -45,7 +45,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._extras import require
 from .adapters import GymnasiumMujocoAdapter, SubstepHook, register_adapter
+from .sensing import stable_repr
 
 __all__ = ["DmControlAdapter", "DmControlTaskView", "is_dm_control_env", "make_dm_control"]
 
@@ -154,7 +156,7 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
     """
 
     def __init__(self, env, contact_forces: str = "sensor"):
-        from dm_control.rl import control
+        control = require("dm_control.rl.control", "dm_control")
 
         dm = getattr(env, "_env", None)
         if not isinstance(dm, control.Environment):
@@ -173,12 +175,19 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         self.flat_size = int(sum(sizes))
         spec = getattr(env, "spec", None)
         if spec is not None and spec.id:
-            self.environment_key = spec.id + (str(sorted(spec.kwargs.items())) if spec.kwargs else "")
+            self.environment_key = spec.id + (stable_repr(spec.kwargs) if spec.kwargs else "")
         else:
             task = dm.task
             settings = {k: v for k, v in sorted(vars(task).items())
                         if isinstance(v, (bool, int, float, str)) and not k.startswith("__")}
             self.environment_key = f"{type(task).__module__}.{type(task).__qualname__}{settings}"
+
+    def copy_environment(self):
+        """A deep copy of shimmy's environment: dm_control's ``Physics`` copies by value, so edits of the live
+        model are kept."""
+        import copy
+
+        return copy.deepcopy(self.gym_env)
 
     # ---- observation structure ------------------------------------------------------------------------------
     def unflatten(self, flat: np.ndarray) -> dict[str, np.ndarray]:
@@ -237,8 +246,9 @@ def make_dm_control(domain: str, task: str, sensor="encoder-12bit-noisy", observ
         Unknown domain/task (the message lists the suite's tasks), and everything ``EstimatedVelocity`` raises.
     """
     import gymnasium as gym
-    import shimmy  # noqa: F401 - registers the dm_control/... ids
-    from dm_control import suite
+
+    require("shimmy", "dm_control")  # registers the dm_control/... ids
+    suite = require("dm_control.suite", "dm_control")
 
     from .estimated_velocity import EstimatedVelocity
 

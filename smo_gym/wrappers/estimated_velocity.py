@@ -7,6 +7,7 @@ import copy
 import gymnasium as gym
 import numpy as np
 
+from .._validation import check_int_in_range, check_positive, check_real_in_range
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import make_adapter
@@ -20,12 +21,15 @@ from .sensing import (
     cached_bounds,
     calibrate_bounds,
     calibration_key,
+    check_action,
     check_finite_observation,
+    check_seed,
     default_observer,
+    stable_repr,
 )
 
-__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "observation_independent_reset",
-           "observation_independent_step", "resolve_rate", "rollout_velocities"]
+__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "observation_wrappers", "resolve_rate",
+           "rollout_velocities"]
 
 #: mixed into the user's seed so the sensor stream differs from the environment's own ``np_random``
 _SEED_SALT = 0x534D4F
@@ -51,21 +55,23 @@ def resolve_rate(rate, frame_skip: int) -> int:
 
 
 def environment_key(unwrapped) -> str:
-    """Identity of an environment for the calibration cache: its registered id and kwargs, or its class/model."""
+    """Identity of an environment for the calibration cache: its registered id and constructor arguments (in a
+    form that is the same in every process, :func:`~smo_gym.wrappers.sensing.stable_repr`), or its class."""
     spec = getattr(unwrapped, "spec", None)
     if spec is not None and spec.id:
-        kwargs = {k: v for k, v in sorted((spec.kwargs or {}).items()) if k != "render_mode"}
-        return f"{spec.id}{kwargs}" if kwargs else spec.id
+        kwargs = {k: v for k, v in (spec.kwargs or {}).items() if k != "render_mode"}
+        return f"{spec.id}{stable_repr(kwargs)}" if kwargs else spec.id
     return f"{type(unwrapped).__module__}.{type(unwrapped).__qualname__}:{getattr(unwrapped, 'fullpath', '')}"
 
 
-def rollout_velocities(unwrapped, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
-    """``qvel`` sampled every ``sample_every`` physics steps on a *copy* of the environment under uniform random
+def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
+    """``qvel`` sampled every ``sample_every`` physics steps on a copy of the environment under uniform random
     actions, with the environment's own (seeded) resets at episode ends: its reset distribution, actions and
-    terminations, for about ``steps`` physics steps. Returns one array ``(T_i, nv)`` per episode, or None if the
-    environment cannot be copied."""
+    terminations, on the live model (:meth:`~smo_gym.wrappers.adapters.MujocoAdapter.copy_environment`: masses
+    or a timestep edited in place count), for about ``steps`` physics steps. Returns one array ``(T_i, nv)`` per
+    episode, or None if the environment cannot be copied."""
     try:
-        sim = copy.deepcopy(unwrapped)  # MujocoEnv pickles (and copies) by its constructor arguments
+        sim = adapter.copy_environment()
         sim.render_mode = None  # never open a window for the calibration
         adapter = make_adapter(sim)
     except Exception:  # noqa: BLE001 - any failure: the caller falls back to a rollout of the bare model
@@ -103,125 +109,84 @@ def rollout_velocities(unwrapped, sample_every: int, steps: int, seed: int = 0) 
     return [V for V in episodes if np.all(np.isfinite(V))]
 
 
-#: wrappers that pass ``step``'s observation through unchanged (``gym.make``'s stack): with only these between
-#: ``EstimatedVelocity`` and the MuJoCo environment, the sensed observation may be returned by the env's own step
-_TRANSPARENT_WRAPPERS = (gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker,
-                         gym.wrappers.RecordEpisodeStatistics)
+#: wrappers that return the observation of the environment beneath them unchanged (exactly these classes)
+_PASS_THROUGH = (gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker,
+                 gym.wrappers.RecordEpisodeStatistics, gym.wrappers.NormalizeReward, gym.wrappers.StickyAction,
+                 gym.wrappers.RecordVideo, gym.wrappers.RenderCollection, gym.wrappers.HumanRendering)
 #: the same, named by module and class (not imported here: importing Stable-Baselines3 imports torch); SB3's
 #: ``make_vec_env`` puts its ``Monitor`` between the environment and ``wrapper_class``
-_TRANSPARENT_BY_NAME = {("stable_baselines3.common.monitor", "Monitor")}
+_PASS_THROUGH_BY_NAME = {("stable_baselines3.common.monitor", "Monitor")}
+#: observation wrappers whose observation depends on earlier ones (running statistics, stacks, delays) or on the
+#: true simulation (rendered frames): replaying them on the sensed observation would mix true and sensed data
+_STATEFUL_OBSERVATIONS = (gym.wrappers.NormalizeObservation, gym.wrappers.FrameStackObservation,
+                          gym.wrappers.DelayObservation, gym.wrappers.MaxAndSkipObservation,
+                          gym.wrappers.AddRenderObservation)
 
 
-def _transparent(wrapper) -> bool:
-    """Whether ``wrapper`` (exactly one of the classes above, not a subclass) passes observations through."""
+def _passes_observations_through(wrapper: gym.Wrapper) -> bool:
+    """Whether ``wrapper`` cannot change the observations of the environment beneath it: a known pass-through
+    class, a reward or action wrapper that keeps its base class's ``step``, or a wrapper that overrides neither
+    ``step`` nor ``reset``."""
     cls = type(wrapper)
-    return cls in _TRANSPARENT_WRAPPERS or (cls.__module__, cls.__qualname__) in _TRANSPARENT_BY_NAME
+    if cls in _PASS_THROUGH or (cls.__module__, cls.__qualname__) in _PASS_THROUGH_BY_NAME:
+        return True
+    for base in (gym.RewardWrapper, gym.ActionWrapper):
+        if isinstance(wrapper, base):
+            return cls.step is base.step
+    if isinstance(wrapper, gym.ObservationWrapper):
+        return False
+    return cls.step is gym.Wrapper.step and cls.reset is gym.Wrapper.reset
 
 
-#: environment id -> (step, reset) observation independence (:func:`observation_independent_step`)
-_OBSERVATION_INDEPENDENT: dict[str, tuple[bool, bool]] = {}
+def observation_wrappers(env: gym.Env, *, replay: bool = True) -> tuple[gym.ObservationWrapper, ...]:
+    r"""The observation wrappers between a sensing wrapper and the MuJoCo environment, innermost first.
 
+    The sensed observation is built by the MuJoCo environment's own observation function (at the measured
+    positions and estimated velocities), so every wrapper of the stack beneath that changes observations must
+    be applied to it again: the wrapper's observation is then ``w_k.observation(...w_1.observation(sensed))``,
+    exactly what the stack would return at the sensed state. That holds for observation wrappers that are
+    functions of the current observation (``TimeAwareObservation``, ``DtypeObservation``, ``FlattenObservation``,
+    ``TransformObservation``, ...), which this returns. Wrappers that pass observations through (``TimeLimit``,
+    ``RecordEpisodeStatistics``, SB3's ``Monitor``, reward and action wrappers) are skipped.
 
-def _same(a, b) -> bool:
-    """Equal results of two steps: numbers and arrays exactly (NaN equal to NaN), dicts key by key."""
-    if isinstance(a, dict) or isinstance(b, dict):
-        return (isinstance(a, dict) and isinstance(b, dict) and a.keys() == b.keys()
-                and all(_same(a[k], b[k]) for k in a))
-    if isinstance(a, (tuple, list)) or isinstance(b, (tuple, list)):
-        return (isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)) and len(a) == len(b)
-                and all(_same(x, y) for x, y in zip(a, b, strict=True)))
-    try:
-        return bool(np.array_equal(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64), equal_nan=True))
-    except (TypeError, ValueError):  # not numeric (a string, an object): plain equality
-        return bool(np.all(a == b))
+    Parameters
+    ----------
+    env : gymnasium.Env
+        The environment a sensing wrapper is about to wrap.
+    replay : bool
+        Whether observation wrappers may be replayed (``False``: the caller needs the bare environment's
+        observation, as the vector wrappers' :class:`~smo_gym.wrappers.JointSensor` does).
 
-
-def observation_independent_step(unwrapped, steps: int = 150, seed: int = 0) -> bool:
-    r"""Whether the environment's ``step`` uses its observation only to return it.
-
-    Then the wrapper can have ``step`` return the *sensed* observation (``_get_obs`` replaced for the duration of
-    the step) instead of evaluating the environment's observation twice, once at the true state (discarded) and
-    once at the sensed state. Checked on copies of the environment (its own seeded resets, random actions, about
-    ``steps`` steps): one as is, one whose ``_get_obs`` returns NaN, one whose ``_get_obs`` returns the observation
-    plus 1000. Rewards, terminations, truncations and infos must be identical in all three (InvertedPendulum-v5
-    terminates on its observation: not independent), and ``_get_obs`` must be called exactly once per step,
-    after the physics. Cached per environment id in memory; False if the environment cannot be copied.
+    Raises
+    ------
+    TypeError
+        ``env`` is already wrapped in a sensing wrapper; or a wrapper beneath keeps state across observations
+        (``NormalizeObservation``, ``FrameStackObservation``, ``DelayObservation``, ...) or may change them in a
+        way that cannot be replayed (any other wrapper that overrides ``step`` or ``reset``): such a wrapper
+        belongs on top of the sensing wrapper, where it sees the sensed observations. The message names it.
     """
-    return _observation_independence(unwrapped, steps, seed)[0]
-
-
-def observation_independent_reset(unwrapped, steps: int = 150, seed: int = 0) -> bool:
-    r"""Whether the environment's ``reset`` uses its observation only to return it (and its ``step`` too).
-
-    Then a wrapper that rebuilds the first observation of an episode at the sensed state need not have the
-    environment evaluate its own (10-20 us of NumPy calls for InvertedDoublePendulum, paid at every episode end
-    of a short-episode environment). The probe of :func:`observation_independent_step`, at each of its resets:
-    the reset infos of the three copies must be identical, ``_get_obs`` called exactly once per reset, and the
-    steps that follow identical as well.
-    """
-    return all(_observation_independence(unwrapped, steps, seed))
-
-
-def _observation_independence(unwrapped, steps: int, seed: int) -> tuple[bool, bool]:
-    key = environment_key(unwrapped)
-    if key not in _OBSERVATION_INDEPENDENT:
-        _OBSERVATION_INDEPENDENT[key] = _probe_observation_independence(unwrapped, steps, seed)
-    return _OBSERVATION_INDEPENDENT[key]
-
-
-def _probe_observation_independence(unwrapped, steps: int, seed: int) -> tuple[bool, bool]:
-    """``(step, reset)`` independence (see :func:`observation_independent_step`); ``(False, False)`` if the
-    environment cannot be copied or anything unexpected happens."""
-    try:
-        sims = [copy.deepcopy(unwrapped) for _ in range(3)]
-    except Exception:  # noqa: BLE001 - an environment that cannot be copied is not probed, nor intercepted
-        return False, False
-    calls = []  # (physics done before the call?) per _get_obs call of the unchanged copy
-    physics = [False]
-    base = sims[0]
-    original_obs = type(base)._get_obs
-    original_step = type(base)._step_mujoco_simulation
-
-    def counted_obs():
-        calls.append(physics[0])
-        return original_obs(base)
-
-    def flagged_step(ctrl, n_frames):
-        physics[0] = True
-        original_step(base, ctrl, n_frames)
-
-    def reset_all(**kwargs) -> bool:
-        """Reset the three copies; whether their infos agree and the unchanged one observed exactly once."""
-        calls.clear()
-        infos = [sim.reset(**kwargs)[1] for sim in sims]
-        return len(calls) == 1 and all(_same(infos[0], info) for info in infos[1:])
-
-    base._get_obs, base._step_mujoco_simulation = counted_obs, flagged_step
-    sims[1]._get_obs = lambda sim=sims[1]: np.full(np.shape(original_obs(sim)), np.nan)
-    sims[2]._get_obs = lambda sim=sims[2]: np.asarray(original_obs(sim), dtype=np.float64) + 1000.0
-    try:
-        for sim in sims:
-            sim.render_mode = None
-        reset_independent = reset_all(seed=seed)
-        space = base.action_space
-        space.seed(seed)
-        for _ in range(steps):
-            action = space.sample()
-            physics[0] = False
-            calls.clear()
-            results = [sim.step(action)[1:] for sim in sims]
-            if calls != [True]:
-                return False, False
-            if not all(_same(results[0], r) for r in results[1:]):
-                return False, False
-            if results[0][1] or results[0][2]:
-                reset_independent &= reset_all()
-        return True, reset_independent
-    except Exception:  # noqa: BLE001 - anything unexpected: do not intercept
-        return False, False
-    finally:
-        for sim in sims:
-            sim.close()
+    chain = []
+    inner = env
+    while isinstance(inner, gym.Wrapper):
+        name = type(inner).__name__
+        if isinstance(inner, EstimatedVelocity):
+            raise TypeError(
+                f"expected an environment without a sensing wrapper, actual value: {name} is already in the stack; "
+                "wrap the environment once")
+        if not _passes_observations_through(inner):
+            if not replay or not isinstance(inner, gym.ObservationWrapper) or isinstance(inner,
+                                                                                         _STATEFUL_OBSERVATIONS):
+                why = ("keeps state across observations or reads the true simulation"
+                       if isinstance(inner, _STATEFUL_OBSERVATIONS) else "changes observations"
+                       if isinstance(inner, gym.ObservationWrapper) else "overrides step() or reset()")
+                raise TypeError(
+                    f"expected only wrappers that pass observations through "
+                    f"{'or are functions of the observation ' if replay else ''}beneath the sensing wrapper, "
+                    f"actual value: {name} {why}; put it on top instead, e.g. {name}(EstimatedVelocity(env, ...)), "
+                    "so that it sees the sensed observations")
+            chain.append(inner)
+        inner = inner.env
+    return tuple(reversed(chain))
 
 
 def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *, safety: float = 2.0,
@@ -241,7 +206,7 @@ def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *,
     dt = float(model.opt.timestep) * int(sample_every)
 
     def compute():
-        episodes = rollout_velocities(unwrapped, int(sample_every), int(steps))
+        episodes = rollout_velocities(adapter, int(sample_every), int(steps))
         if episodes:
             try:
                 return bounds_from_velocities(episodes, dt, derivative=int(derivative), quantile=float(quantile),
@@ -382,6 +347,16 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             calibration_quantile=calibration_quantile, calibration_steps=calibration_steps, disk_cache=disk_cache,
         )
         gym.Wrapper.__init__(self, env)
+        check_positive("calibration_safety", calibration_safety)
+        check_real_in_range("calibration_quantile", calibration_quantile, 0.0, 1.0, low_open=True)
+        check_int_in_range("calibration_steps", calibration_steps, 1, 10**9)
+        if not isinstance(disk_cache, (bool, np.bool_)):
+            raise TypeError(f"expected disk_cache to be True or False, actual value: {disk_cache!r}")
+        if observer_kwargs is not None and not isinstance(observer_kwargs, dict):
+            raise TypeError(f"expected observer_kwargs to be a dict or None, actual value: {observer_kwargs!r}")
+        self._action_shape = tuple(env.action_space.shape)
+        #: the observation wrappers beneath, innermost first, applied to every sensed observation
+        self._observation_wrappers = observation_wrappers(env, replay=self._replays_observation_wrappers)
         if positions not in ("measured", "filtered"):
             raise ValueError(f"expected positions 'measured' or 'filtered', actual value: {positions!r}")
         self.adapter = make_adapter(env, contact_forces=contact_forces)
@@ -398,6 +373,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.measurement = JointMeasurement(model, copy.deepcopy(make_sensor(sensor)), self.sample_dt)
         self.bounds = None
         if isinstance(observer, Observer):
+            if self.measurement.wraps and not np.array_equal(
+                    np.broadcast_to(np.asarray(observer.wrap, dtype=bool), self.measurement.angular.shape),
+                    self.measurement.angular):
+                raise ValueError(
+                    "expected an observer with wrap on the angular channels for a sensor that reports single-turn "
+                    f"angles (wrap={self.measurement.angular.tolist()}), actual value: wrap={observer.wrap!r}")
             if not np.isclose(observer.dt, self.sample_dt, rtol=1e-9, atol=0.0):
                 raise ValueError(
                     f"expected an observer with dt equal to the sampling step {self.sample_dt}, "
@@ -407,6 +388,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             if observer not in OBSERVERS:
                 make_observer(observer)  # raises ValueError listing the valid names
+            if self.measurement.wraps:  # single-turn angles: the innovation takes the shortest angular difference
+                observer_kwargs = {"wrap": self.measurement.angular, **(observer_kwargs or {})}
             self.bounds = calibrated_bounds(env.unwrapped, self.adapter, self.sample_every,
                                             bound_order(observer, observer_kwargs), safety=calibration_safety,
                                             quantile=calibration_quantile, steps=calibration_steps, disk=disk_cache)
@@ -422,11 +405,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
         #: reset, after a subclass has set its estimator)
         self._fused: FusedSensing | None = None
-        #: hook making the env's own step return the sensed observation (None: not decided yet; False: not used)
-        self._intercept = None
-        #: the same for reset, with a zero placeholder (:func:`observation_independent_reset`)
-        self._reset_hook = None
-        self._pending_smo = None
+
+    #: whether observation wrappers beneath are replayed on the sensed observation (:func:`observation_wrappers`)
+    _replays_observation_wrappers = True
 
     @property
     def sensor(self) -> Sensor:
@@ -443,19 +424,26 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return q_meas
         return self.measurement.tangent.to_qpos(q_meas, self.measurement.z_measured, self.estimator.filtered)
 
-    def _observe(self, info: dict) -> np.ndarray:
+    def _wrap(self, obs):
+        """The bare environment's observation through the observation wrappers beneath, innermost first."""
+        if self.adapter.unflatten is not None:  # Dict observation spaces (dm_control): the env's own structure
+            obs = self.adapter.unflatten(obs)
+        for wrapper in self._observation_wrappers:
+            obs = wrapper.observation(obs)
+        return obs
+
+    def _observe(self, info: dict, clean) -> np.ndarray:
+        """The observation at the sensed state (general path), and ``info["smo"]`` with the ``clean`` one."""
         qvel_hat = self.estimator.velocity
         q_meas = self.measurement.measured_qpos()
         obs = self.adapter.observation(q_meas if self.positions == "measured" else self._observation_qpos(),
                                        qvel_hat)
         check_finite_observation(obs)
-        if self.adapter.unflatten is not None:  # Dict observation spaces (dm_control): the env's own structure
-            obs = self.adapter.unflatten(obs)
         data = self.adapter.data
-        info["smo"] = SensingInfo.of(data.qpos, data.qvel, qvel_hat, q_meas)
-        return obs
+        info["smo"] = SensingInfo.of(data.qpos, data.qvel, qvel_hat, q_meas, clean)
+        return self._wrap(obs)
 
-    def _observe_fused(self, block: np.ndarray, info: dict):
+    def _observe_fused(self, block: np.ndarray, info: dict, clean):
         """The observation at the sensed state FusedSensing wrote into the scratch data, and ``info["smo"]``."""
         fused = self._fused
         if fused.maps_observation:  # built by the compiled call from the finite sensed state
@@ -465,10 +453,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             obs = adapter.observe_scratch(fused.copies_inputs)
             if not adapter.checks_observation:
                 check_finite_observation(obs)
-        if self.adapter.unflatten is not None:  # Dict observation spaces (dm_control)
-            obs = self.adapter.unflatten(obs)
-        info["smo"] = SensingInfo.from_block(block, self._info_slices)
-        return obs
+        info["smo"] = SensingInfo.from_block(block, self._info_slices, clean)
+        return self._wrap(obs)
 
     def _substep_hook_for(self, sampler: SubstepSampler):
         """The adapter's hook that fills ``sampler`` during ``env.step`` (made once per reset)."""
@@ -482,13 +468,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         state["_substep_hook"] = None  # holds closures over the live simulation; made again on first use
         state["_live"] = None
         state["_fused"] = None  # bound to this instance's arrays; chosen again at the next reset
-        state["_intercept"] = None  # a closure over this instance; made again at the next reset
-        state["_reset_hook"] = None
         return state
 
     # ---- Gymnasium API --------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        _, info = self._reset_env(seed, options)  # the first observation is rebuilt below, at the sensed state
+        check_seed(seed)
+        clean, info = self.env.reset(seed=seed, options=options)
         if seed is not None:
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
         elif self._rng is None:
@@ -504,101 +489,24 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                            if FusedSensing.supports(self.measurement, self.estimator, self.adapter) else None)
         if self._fused is not None:
             self._fused.prepare()
-            if self._intercept is None:
-                self._intercept = self._interception_hook() or False
-        return self._observe(info), info
-
-    def _reset_env(self, seed, options, placeholder: bool = True):
-        """``self.env.reset(seed=seed, options=options)``; with ``placeholder``, from the second reset on, the
-        environment's own first observation is a zero placeholder (:meth:`_zero_observation_hook`) where its reset
-        only returns it. The first reset runs as is: environment checkers see its real output."""
-        hook = self._reset_hook
-        if hook and placeholder:
-            with hook:
-                result = self.env.reset(seed=seed, options=options)
-        else:
-            result = self.env.reset(seed=seed, options=options)
-        if hook is None:
-            self._reset_hook = self._zero_observation_hook("reset") or False
-        return result
-
-    def _interception_hook(self, function=None, during: str = "step"):
-        """The hook that makes the environment's own ``step`` return the sensed observation (or ``function()``),
-        or None: needs an adapter that can replace ``_get_obs``, only observation-preserving wrappers in between,
-        and an environment whose step does not use its observation (:func:`observation_independent_step`).
-        ``during="reset"``: the hook for ``reset``, which must not use its observation either
-        (:func:`observation_independent_reset`)."""
-        intercept = getattr(self.adapter, "intercept_observation", None)
-        if intercept is None:
-            return None
-        env, unwrapped = self.env, self.env.unwrapped
-        while env is not unwrapped:
-            if not _transparent(env):
-                return None
-            env = env.env
-        independent = observation_independent_reset if during == "reset" else observation_independent_step
-        if not independent(unwrapped):
-            return None
-        return intercept(function or self._sensed_observation)
-
-    def _zero_observation_hook(self, during: str):
-        """:meth:`_interception_hook` with a zero observation of the observation space's shape and dtype, for an
-        observation that is rebuilt at the sensed state anyway (None without a ``Box`` space)."""
-        space = self.observation_space
-        if not isinstance(space, gym.spaces.Box):
-            return None
-        shape, dtype = space.shape, space.dtype
-        return self._interception_hook(lambda: np.zeros(shape, dtype), during)
-
-    def _sensed_observation(self):
-        """``_get_obs`` of the environment during an intercepted step: sense the control period that just ended
-        and return the observation at the sensed state (``info["smo"]`` is kept for ``step``)."""
-        live = self._live
-        sampler = self._sampler
-        samples = sampler.samples[:sampler.n] if self.sample_every < self.adapter.frame_skip else live[1]
-        block = self._fused.sample(samples, live[2])
-        info = {}
-        if block is None:  # the samples straddle the sensor's random block: the general path splits them
-            self.estimator.observer.run(self.measurement.measure_block(samples))
-            obs = self._observe(info)
-        else:
-            obs = self._observe_fused(block, info)
-        self._pending_smo = info["smo"]
-        return obs
+        return self._observe(info, clean), info
 
     def step(self, action):
         """Step the environment, sample its joints (inside ``frame_skip`` if ``rate`` asks), update the observer and
-        return the observation at the sensed state.
+        return the observation at the sensed state (``info["smo"]["observation"]`` is the environment's own).
 
         Written flat on purpose: every Python operation here costs two to three times its micro-benchmark time
         right after the physics step, and a small model's whole step is ~30 us.
         """
         if self._rng is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        check_action(action, self._action_shape)
         data = self.adapter.data
         live = self._live
         if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)
             live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
             if self._fused is not None:  # its input copies read the live data
                 self._fused.prepare()
-        intercept = self._intercept
-        if intercept and self._fused is not None:  # the env's own step returns the sensed observation
-            self._pending_smo = None
-            if self.sample_every < self.adapter.frame_skip:
-                self._sampler.start(live[3])
-                hook = self._substep_hook
-                if hook is None:
-                    hook = self._substep_hook = self._substep_hook_for(self._sampler)
-                with hook, intercept:
-                    obs, reward, terminated, truncated, info = self.env.step(action)
-            else:
-                with intercept:
-                    obs, reward, terminated, truncated, info = self.env.step(action)
-            if self._pending_smo is None:
-                raise RuntimeError("expected the environment's step to call _get_obs after its physics, actual "
-                                   "value: it did not (the probe of observation_independent_step said it would)")
-            info["smo"] = self._pending_smo
-            return obs, reward, terminated, truncated, info
         if self.sample_every < self.adapter.frame_skip:
             sampler = self._sampler
             sampler.start(live[3])
@@ -606,7 +514,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if hook is None:
                 hook = self._substep_hook = self._substep_hook_for(sampler)
             with hook:
-                _, reward, terminated, truncated, info = self.env.step(action)
+                clean, reward, terminated, truncated, info = self.env.step(action)
             if sampler.count == 0 and sampler.n == 0:
                 raise RuntimeError(
                     "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
@@ -614,13 +522,13 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 )
             samples = sampler.samples[:sampler.n]
         else:
-            _, reward, terminated, truncated, info = self.env.step(action)
+            clean, reward, terminated, truncated, info = self.env.step(action)
             samples = live[1]
         fused = self._fused
         if fused is not None:
             block = fused.sample(samples, live[2])
             if block is not None:
-                return self._observe_fused(block, info), reward, terminated, truncated, info
+                return self._observe_fused(block, info, clean), reward, terminated, truncated, info
             # None: the samples straddle the sensor's random block; the general path splits them
         Z = self.measurement.measure_block(samples)
         if len(Z) == 1:
@@ -632,4 +540,4 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             for z in Z:
                 self.estimator.update(z)
-        return self._observe(info), reward, terminated, truncated, info
+        return self._observe(info, clean), reward, terminated, truncated, info

@@ -11,11 +11,15 @@ import pickle
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper
 
-from .vec import _Sensing, attach_sensors, sensing_config
+from .._extras import require
+from .sensing import SensingInfo
+from .vec import _Sensing, attach_sensors, check_vector_rate, sensing_config
 
 __all__ = ["VecEstimatedVelocity"]
+
+_vec_env = require("stable_baselines3.common.vec_env", "rl")
+DummyVecEnv, VecEnvWrapper = _vec_env.DummyVecEnv, _vec_env.VecEnvWrapper
 
 
 class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
@@ -37,13 +41,16 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
 
     Notes
     -----
-    ``infos[i]["smo"]`` holds the true ``qpos``/``qvel`` and ``qvel_estimate``; ``infos[i]["smo_z"]`` the
-    measurement. Pickles without ``venv`` (``__getstate__`` drops it; :meth:`set_venv` attaches one, as SB3's
+    ``infos[i]["smo"]`` is the per-environment wrapper's :class:`~smo_gym.wrappers.sensing.SensingInfo` (true
+    ``qpos``/``qvel``, ``qvel_estimate``, ``qpos_measured`` and the clean ``observation``); for an environment whose
+    episode ended in this step it describes that episode's last sample, like ``terminal_observation``. Sampling
+    is once per environment step (``rate="env"``; see :func:`~smo_gym.wrappers.vec.check_vector_rate`). Pickles without ``venv`` (``__getstate__`` drops it; :meth:`set_venv` attaches one, as SB3's
     ``VecNormalize``); :meth:`save` / :meth:`load`. Stack ``VecNormalize`` *on top*: it then normalizes the
     sensed observations and the rewritten terminal observations.
     """
 
-    def __init__(self, venv, sensor=None, observer=None, observer_kwargs=None, **kwargs):
+    def __init__(self, venv, sensor=None, observer=None, observer_kwargs=None, *, rate="env", **kwargs):
+        check_vector_rate(rate)
         VecEnvWrapper.__init__(self, venv)
         self._requested = None if sensor is None and observer is None and not kwargs and observer_kwargs is None \
             else sensing_config(sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs,
@@ -55,9 +62,14 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
             raise TypeError(f"expected a Box observation space, actual value: {venv.observation_space}")
         base = venv.unwrapped
         sensors = attach_sensors(base.envs, self._requested) if isinstance(base, DummyVecEnv) else None
-        self._setup_sensing(self._requested, venv.num_envs, sensors, lambda name, *a: venv.env_method(name, *a),
-                            venv.has_attr)
+        self._setup_sensing(self._requested, venv.num_envs, sensors)
         self._estimate = None
+
+    def _call_envs(self, name: str, *args) -> list:
+        return self.venv.env_method(name, *args)
+
+    def _all_have(self, name: str) -> bool:
+        return bool(self.venv.has_attr(name))
 
     # ---- VecEnv API -----------------------------------------------------------------------------------------
     def _reset_infos(self):
@@ -95,11 +107,13 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
                 Z0[i] = local[i].z_reset if local is not None else reset_infos[i]["smo_z"]
             est = self.observer.reset(Z0, mask=done)  # those environments' observers restart at their new first sample
         obs, terms = self._observe_all(est, terminal, done if terminal is not None else None)
-        vel = np.array((terminal if terminal is not None else est)[..., 1])  # rows handed out below: owned
+        vel = (terminal if terminal is not None else est)[..., 1]
+        # the step's sample of every environment (a finished episode's last one, as terminal_observation)
+        samples = [s.smo_step for s in local] if local is not None else [info["smo"] for info in infos]
         for i, info in enumerate(infos):
-            # a sensor's smo dict is new at every step: handed over as it is
-            smo = info["smo"] = local[i].smo if local is not None else info.get("smo", {})
-            smo["qvel_estimate"] = vel[i]
+            sample = samples[i]
+            info["smo"] = SensingInfo.of(sample["qpos"], sample["qvel"], vel[i], sample["qpos_measured"],
+                                         sample["observation"])
             if terms[i] is not None:
                 info["terminal_observation"] = terms[i]
         return obs, rewards, dones, infos
@@ -107,7 +121,7 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
     # ---- pickling without the venv (SB3 VecNormalize style) -------------------------------------------------
     def __getstate__(self):
         state = self.__dict__.copy()
-        for key in ("venv", "class_attributes", "_call", "_local", "_index", "_plan_cache"):
+        for key in ("venv", "class_attributes", "_local", "_index", "_plan_cache"):
             state.pop(key, None)
         return state
 

@@ -36,12 +36,11 @@ on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
 
 from __future__ import annotations
 
-import copy
 import hashlib
-import inspect
 import json
 import operator
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -49,12 +48,15 @@ import mujoco
 import numpy as np
 from numba import njit
 
-from ..observers import OBSERVERS, Observer, make_observer
-from ..sensors import BLOCK, Sensor, make_sensor
+from ..calibration import bound_order, default_observer
+from ..observers import Observer
+from ..sensors import BLOCK, Sensor, Wrap, make_sensor
 from ._tangent import integrate_pos, joint_table, tangent_advance
 
 __all__ = [
     "FusedSensing",
+    "check_action",
+    "check_seed",
     "JointMeasurement",
     "SensingInfo",
     "TangentCoordinates",
@@ -66,6 +68,7 @@ __all__ = [
     "cached_bounds",
     "check_finite_observation",
     "default_observer",
+    "stable_repr",
 ]
 
 _FREE, _BALL, _SLIDE, _HINGE = (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL),
@@ -161,6 +164,13 @@ class JointMeasurement:
         self.dt = float(dt)
         self.tangent = TangentCoordinates(model)
         self.angular = angular_dofs(model)
+        #: the sensor reports single-turn angles (a :class:`~smo_gym.sensors.Wrap` stage): observers of its
+        #: measurements need ``wrap`` on the angular channels
+        self.wraps = any(isinstance(stage, Wrap) for stage in self.sensor.stages)
+        if self.wraps and self.tangent.manifold:
+            raise ValueError(
+                "expected a model without free or ball joints for a single-turn (wrapping) encoder, which measures "
+                "hinge angles, actual value: a model with free or ball joints")
         self._z_true = self._z_measured = self._qpos_measured = self._last_qpos = None
         self._fused_block = None
 
@@ -246,21 +256,60 @@ def _first_nonfinite(x) -> int:
 
 
 _FLOAT64 = np.dtype(np.float64)
-_first_nonfinite_entry = None
+#: dtype -> entry point of :func:`_first_nonfinite` for 1-D arrays of that dtype, any layout
+_NONFINITE_ENTRIES: dict = {}
 
 
-def _nonfinite_entry():
-    """Entry point of :func:`_first_nonfinite` for 1-D float64 arrays of any layout (strided views too), so that a
-    caller only has to check the dtype and the number of dimensions."""
-    global _first_nonfinite_entry
-    if _first_nonfinite_entry is None:
+def _nonfinite_entry(dtype: np.dtype):
+    """Entry point of :func:`_first_nonfinite` for 1-D float32 or float64 arrays of any layout (strided views
+    too), so that a caller only has to check the dtype and the number of dimensions."""
+    entry = _NONFINITE_ENTRIES.get(dtype)
+    if entry is None:
         import numba
 
-        sig = (numba.types.Array(numba.types.float64, 1, "A"),)
+        sig = (numba.types.Array(numba.from_dtype(dtype), 1, "A"),)
         if sig not in _first_nonfinite.overloads:
             _first_nonfinite.compile(sig)
-        _first_nonfinite_entry = _first_nonfinite.overloads[sig].entry_point
-    return _first_nonfinite_entry
+        entry = _NONFINITE_ENTRIES[dtype] = _first_nonfinite.overloads[sig].entry_point
+    return entry
+
+
+_FAST_DTYPES = (np.dtype(np.float32), _FLOAT64)
+
+
+def check_action(action, shape: tuple[int, ...]) -> None:
+    """Raise a typed error for an action that is not of ``shape`` or has an entry that is not a finite real number.
+
+    MuJoCo would otherwise zero a NaN or infinite control with a warning printed to stdout, and cast a complex
+    one to its real part, silently. One compiled call for the float32 and float64 actions of RL libraries.
+    """
+    if type(action) is np.ndarray and action.shape == shape and action.dtype in _FAST_DTYPES and action.ndim == 1:
+        bad = (_NONFINITE_ENTRIES.get(action.dtype) or _nonfinite_entry(action.dtype))(action)
+        if bad == -1:
+            return
+        raise ValueError(f"expected a finite action, actual value: {action[bad]!r} at entry {bad}")
+    try:
+        arr = np.asarray(action)
+    except (TypeError, ValueError):
+        arr = np.asarray(None)
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"expected an action of real numbers with shape {shape}, actual value: {action!r:.120}")
+    if arr.shape != shape:
+        raise ValueError(f"expected an action with shape {shape}, actual value: shape {arr.shape}")
+    flat = arr.reshape(-1)
+    bad = np.flatnonzero(~np.isfinite(flat.astype(np.float64)))
+    if bad.size:
+        raise ValueError(f"expected a finite action, actual value: {flat[bad[0]]!r} at entry {int(bad[0])}")
+
+
+def check_seed(seed) -> None:
+    """``reset(seed=...)`` takes None or an integer >= 0 (a typed error instead of Gymnasium's own ``Error``)."""
+    if seed is None:
+        return
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"expected seed to be None or an integer >= 0, actual value: {seed!r:.80}")
+    if seed < 0:
+        raise ValueError(f"expected seed to be None or an integer >= 0, actual value: {seed!r}")
 
 
 def check_finite_observation(obs: np.ndarray) -> None:
@@ -273,7 +322,7 @@ def check_finite_observation(obs: np.ndarray) -> None:
     small model).
     """
     if type(obs) is np.ndarray and obs.dtype is _FLOAT64 and obs.ndim == 1:
-        bad = (_first_nonfinite_entry or _nonfinite_entry())(obs)
+        bad = (_NONFINITE_ENTRIES.get(_FLOAT64) or _nonfinite_entry(_FLOAT64))(obs)
         if bad == -1:
             return
     else:
@@ -288,21 +337,34 @@ def check_finite_observation(obs: np.ndarray) -> None:
 class SensingInfo(dict):
     """``info["smo"]``: the true and the sensed state at the last sample, read-only.
 
-    A dictionary with keys ``"qpos"``, ``"qvel"`` (true, shapes ``(nq,)``, ``(nv,)``), ``"qvel_estimate"``
-    ``(nv,)`` and ``"qpos_measured"`` ``(nq,)``: new arrays at every step, safe to keep. Neither the dictionary
-    nor its arrays can be changed (``dict(info["smo"])`` and ``np.array(info["smo"]["qvel"])`` give mutable
-    copies), so ``copy.copy``/``copy.deepcopy`` return the object itself: SB3's ``DummyVecEnv`` deep-copies
-    every step's infos, and a generic deep copy of four small arrays costs more than a physics step of a small
-    model.
+    The same keys from :class:`~smo_gym.wrappers.EstimatedVelocity` and, per environment, from both vector
+    wrappers:
+
+    ==================  ===============  ==========================================================================
+    key                 shape            what
+    ==================  ===============  ==========================================================================
+    ``qpos``            ``(nq,)``        true joint configuration
+    ``qvel``            ``(nv,)``        true joint velocities
+    ``qvel_estimate``   ``(nv,)``        the observer's velocity estimate (what the observation holds)
+    ``qpos_measured``   ``(nq,)``        the sensor's measured configuration
+    ``observation``     the env's        the *clean* observation: what the wrapped stack returns at the true state
+                                         (for privileged critics, and to measure the estimation error in
+                                         observation space)
+    ==================  ===============  ==========================================================================
+
+    New arrays at every step, safe to keep. Neither the dictionary nor its arrays can be changed
+    (``dict(info["smo"])`` and ``np.array(info["smo"]["qvel"])`` give mutable copies), so
+    ``copy.copy``/``copy.deepcopy`` return the object itself: SB3's ``DummyVecEnv`` deep-copies every step's
+    infos, and a generic deep copy of five small arrays costs more than a physics step of a small model.
     """
 
     __slots__ = ()
 
     @classmethod
-    def of(cls, qpos, qvel, qvel_estimate, qpos_measured) -> SensingInfo:
-        """From the four arrays (copied)."""
+    def of(cls, qpos, qvel, qvel_estimate, qpos_measured, observation) -> SensingInfo:
+        """From the four state arrays (copied) and the clean observation (copied)."""
         return cls.from_block(np.concatenate((qpos, qvel, qvel_estimate, qpos_measured)),
-                              cls.slices(len(qpos), len(qvel)))
+                              cls.slices(len(qpos), len(qvel)), observation)
 
     @staticmethod
     def slices(nq: int, nv: int) -> tuple[slice, slice, slice, slice]:
@@ -311,12 +373,14 @@ class SensingInfo(dict):
         return (slice(0, nq), slice(nq, nq + nv), slice(nq + nv, nq + 2 * nv), slice(nq + 2 * nv, 2 * nq + 2 * nv))
 
     @classmethod
-    def from_block(cls, block: np.ndarray, slices: tuple) -> SensingInfo:
+    def from_block(cls, block: np.ndarray, slices: tuple, observation) -> SensingInfo:
         """From one block ``[qpos, qvel, qvel_estimate, qpos_measured, ...]`` (anything after these four is
-        ignored; ``slices`` from :meth:`slices`), which it owns from now on (made read-only, as are its views)."""
+        ignored; ``slices`` from :meth:`slices`), which it owns from now on (made read-only, as are its views),
+        and the clean observation (an array or a dict of arrays, copied)."""
         block.setflags(write=False)
         s0, s1, s2, s3 = slices
-        return cls(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3])
+        return cls(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3],
+                   observation=_read_only_copy(observation))
 
     def _readonly(self, *args, **kwargs):
         raise TypeError("expected no change to info['smo'] (read-only), actual value: an attempt to modify it; "
@@ -336,9 +400,16 @@ class SensingInfo(dict):
 
 def _sensing_info(items: dict) -> SensingInfo:
     """Unpickle a :class:`SensingInfo` (its ``__setitem__`` refuses the default per-item restore)."""
-    for value in items.values():
-        value.flags.writeable = False
-    return SensingInfo(items)
+    return SensingInfo({key: _read_only_copy(value) for key, value in items.items()})
+
+
+def _read_only_copy(value):
+    """A read-only copy of an array, or of every array of a dict (a dict observation)."""
+    if isinstance(value, dict):
+        return {key: _read_only_copy(item) for key, item in value.items()}
+    value = np.array(value)
+    value.flags.writeable = False
+    return value
 
 
 class VelocityEstimator:
@@ -449,6 +520,7 @@ class FusedSensing:
         observer = estimator.observer
         return (type(estimator) is VelocityEstimator
                 and type(observer).update is Observer.update and type(observer).run is Observer.run
+                and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
                 and observer.order >= 1 and type(measurement.sensor).run is Sensor.run
                 and getattr(observer, "_kernel", None) in FUSED_DRIVERS and hasattr(adapter, "scratch_state"))
 
@@ -585,18 +657,6 @@ class FusedSensing:
 # ----------------------------------------------------------------------------------------------------------------
 # calibration of the default gains
 # ----------------------------------------------------------------------------------------------------------------
-#: observer name -> default differentiation order (their constructors' defaults)
-_DEFAULT_ORDER = {"levant": 2, "uniform-levant": 2}
-
-
-def bound_order(name: str, observer_kwargs: dict | None = None) -> int:
-    """Order of the derivative an observer's gain must bound: ``order + 1`` (2 = acceleration, 3 = jerk)."""
-    kwargs = observer_kwargs or {}
-    if name in ("finite-difference", "kalman-ca", "high-gain", "super-twisting", "ured"):
-        return 2
-    return int(kwargs.get("order", _DEFAULT_ORDER.get(name, 1))) + 1
-
-
 def calibrate_bounds(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray, frame_skip: int, sample_every: int,
                      *, derivative: int = 2, steps: int = 2000, episode: int = 500, quantile: float = 0.99,
                      safety: float = 2.0, seed: int = 0) -> np.ndarray:
@@ -714,66 +774,44 @@ def cached_bounds(key: str, compute, *, disk: bool = True) -> np.ndarray:
 
 
 def calibration_key(env_key: str, model: mujoco.MjModel, **settings) -> str:
-    """Cache key: the environment's identity, the model's sizes and step, and the calibration settings."""
-    text = json.dumps([env_key, model.nq, model.nv, model.nu, float(model.opt.timestep), sorted(settings.items())],
-                      default=str)
+    """Cache key: the environment's identity, the model itself and the calibration settings.
+
+    The model enters by a hash of its binary form (``mj_saveModel``): a model edited in place (masses, the
+    timestep) gets a calibration of its own, and the key is the same in every process.
+    """
+    buffer = np.empty(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    text = json.dumps([env_key, hashlib.sha1(buffer.tobytes()).hexdigest(), sorted(settings.items())], default=str)
     return hashlib.sha1(text.encode()).hexdigest()[:16] + ":" + env_key
 
 
-# ----------------------------------------------------------------------------------------------------------------
-# default observers
-# ----------------------------------------------------------------------------------------------------------------
-def default_observer(name: str, dt: float, bounds: np.ndarray, noise_std: np.ndarray,
-                     observer_kwargs: dict | None = None) -> Observer:
-    r"""An observer of :data:`smo_gym.observers.OBSERVERS` with gains from the calibrated bounds.
+#: `` at 0x7f...``: the address in a default ``repr``, different in every process
+_ADDRESS = re.compile(r" at 0x[0-9a-fA-F]+")
 
-    Parameters
-    ----------
-    name : str
-    dt : float
-        Sampling step.
-    bounds : ndarray, shape (nv,)
-        Per-dof bound on the derivative :func:`bound_order` names (acceleration or jerk).
-    noise_std : ndarray, shape (nv,)
-        The sensor's random error per dof (floored at 1e-6 where a gain formula divides by it).
-    observer_kwargs : dict, optional
-        Override any constructor argument.
 
-    Gains: ``lipschitz = bounds`` (per dof) for the sliding-mode differentiators; ``HighGain.from_bounds``
-    (:math:`\ell = \sqrt{L/\epsilon}`, largest ``L``, mean noise) and ``KalmanCA.from_bounds`` (``q = L^2/\tau``,
-    ``r`` from the noise) for the linear ones; finite differences need nothing. Other observers are matched by
-    their constructor's parameters: ``disturbance``/``noise`` (largest bound, mean noise), or a required ``gain``
-    (:math:`\ell = \sqrt{L/\epsilon}`, the high-gain balance).
+def stable_repr(value) -> str:
+    """A text for ``value`` that is the same in every process (for cache keys).
+
+    Functions are named by module and qualified name plus a hash of their code, constants, defaults, closure
+    values and the module-level numbers, strings and arrays they read, so two different lambdas differ and the
+    same one agrees across processes; arrays by a hash of their bytes; containers element by element; anything
+    else by its ``repr`` without memory addresses.
     """
-    if name not in OBSERVERS:
-        make_observer(name)  # raises the ValueError that lists the valid names
-    kw = dict(observer_kwargs or {})
-    cls = OBSERVERS[name]
-    noise = float(max(np.mean(noise_std), 1e-6))
-    if name == "finite-difference":
-        return cls(dt, **kw)
-    if name == "high-gain":
-        if "gain" in kw:
-            return cls(dt, **kw)
-        order = kw.pop("order", 1)
-        return cls.from_bounds(dt, float(np.max(bounds)), noise, order=order, **kw)
-    if name == "kalman-ca":
-        if "process_noise" in kw and "measurement_noise" in kw:
-            return cls(dt, **kw)
-        return cls.from_bounds(dt, noise, float(np.max(bounds)), **kw)
-    params = inspect.signature(cls).parameters
-    try:
-        if "lipschitz" in params:
-            if "k1" not in kw or "k2" not in kw:
-                kw.setdefault("lipschitz", np.asarray(bounds, dtype=float))
-        elif "disturbance" in params and "noise" in params:
-            kw.setdefault("disturbance", float(np.max(bounds)))
-            kw.setdefault("noise", noise)
-        elif "gain" in params and params["gain"].default is inspect.Parameter.empty:
-            kw.setdefault("gain", float(np.sqrt(np.max(bounds) / noise)))
-        return cls(dt=dt, **kw)
-    except TypeError as exc:
-        raise ValueError(
-            f"expected observer_kwargs completing the parameters of {cls.__name__} (no default gains are known "
-            f"for it), actual value: {observer_kwargs!r} ({exc})"
-        ) from None
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{stable_repr(k)}: {stable_repr(v)}" for k, v in sorted(value.items(), key=str)) + "}"
+    if isinstance(value, (list, tuple)):
+        return type(value).__name__ + "(" + ", ".join(stable_repr(v) for v in value) + ")"
+    if isinstance(value, np.ndarray):
+        return f"array{value.shape}:{hashlib.sha1(np.ascontiguousarray(value).tobytes()).hexdigest()[:12]}"
+    code = getattr(value, "__code__", None)
+    if code is not None:
+        closure = [cell.cell_contents for cell in (value.__closure__ or ())]
+        # module-level numbers, strings and arrays the function reads (modules and functions by name only)
+        names = getattr(value, "__globals__", {})
+        data = {name: names[name] for name in code.co_names
+                if isinstance(names.get(name), (bool, int, float, complex, str, np.ndarray, np.number))}
+        parts = [code.co_code.hex(), stable_repr(list(code.co_consts)), stable_repr(list(value.__defaults__ or ())),
+                 stable_repr(closure), stable_repr(data)]
+        digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:12]
+        return f"{getattr(value, '__module__', '')}.{getattr(value, '__qualname__', '')}:{digest}"
+    return _ADDRESS.sub("", repr(value))

@@ -54,9 +54,9 @@ import mujoco
 import numpy as np
 
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
-from .sensing import check_finite_observation
+from .sensing import check_action, check_finite_observation, check_seed
 
-__all__ = ["JointSensor", "VectorEstimatedVelocity", "sensing_config"]
+__all__ = ["JointSensor", "VectorEstimatedVelocity", "check_vector_rate", "sensing_config", "stack_samples"]
 
 #: keyword arguments of EstimatedVelocity that define the sensing (rate is always "env" here)
 _CONFIG_KEYS = ("sensor", "observer", "observer_kwargs", "positions", "contact_forces", "calibration_safety",
@@ -78,6 +78,18 @@ def sensing_config(sensor="encoder-12bit-noisy", observer="super-twisting", obse
                 calibration_quantile=calibration_quantile, calibration_steps=calibration_steps, disk_cache=disk_cache)
 
 
+def check_vector_rate(rate) -> None:
+    """The vector wrappers sample once per environment step: ``rate`` must be ``"env"`` (a typed error says where
+    physics-rate sampling is)."""
+    if isinstance(rate, str) and rate == "env":
+        return
+    raise ValueError(
+        f"expected rate='env' for a vector wrapper (one batched observer update per vector step), actual value: "
+        f"{rate!r}; to sample inside frame_skip, wrap each environment instead: "
+        "gymnasium.make_vec(id, wrappers=[functools.partial(EstimatedVelocity, rate='physics')]) or "
+        "make_vec_env(id, wrapper_class=EstimatedVelocity, wrapper_kwargs={'rate': 'physics'})")
+
+
 class JointSensor(EstimatedVelocity):
     r"""The sub-environment half of the vectorized wrappers: measure ``qpos`` once per step, rebuild observations.
 
@@ -95,28 +107,38 @@ class JointSensor(EstimatedVelocity):
     """
 
     def __init__(self, env: gym.Env, sensor="encoder-12bit-noisy", observer="super-twisting", observer_kwargs=None,
-                 **kwargs):
+                 *, rate="env", **kwargs):
+        check_vector_rate(rate)
         super().__init__(env, sensor, observer, "env", observer_kwargs, **kwargs)
         self.config = sensing_config(sensor, observer, observer_kwargs, **kwargs)
         self.token = uuid.uuid4().hex
         #: put the measurement and the true state in ``info`` (needed across a process boundary; an in-process
         #: owner reads :attr:`z_step`, :attr:`z_reset` and :attr:`smo` instead, and saves SB3's deepcopy of infos)
         self.emit_info = True
-        #: return the environment's own observation from ``step``; an in-process owner rebuilds every observation
-        #: and sets this False: then, where the environment's step only returns its observation
-        #: (:func:`~smo_gym.wrappers.estimated_velocity.observation_independent_step`), it is not evaluated and
-        #: zeros are returned instead
-        self.emit_observation = True
-        self._placeholder_hook = None
         self.z_step = self.z_reset = None
         self._reset_last = False
-        self.smo = {}
+        #: the true state, measured configuration and clean observation of the last step's and of the last
+        #: reset's sample (:meth:`_record`)
+        self.smo_step = self.smo_reset = None
         self._terminal = None
 
+    #: the owner rebuilds observations from the bare environment's own function: nothing to replay beneath
+    _replays_observation_wrappers = False
+
     # ---- measurements ---------------------------------------------------------------------------------------
+    def _record(self, clean, info: dict) -> dict:
+        """The sample's true state, measured configuration and the environment's own (clean) observation, for the
+        owner's ``info["smo"]`` (:class:`~smo_gym.wrappers.sensing.SensingInfo`, which adds the estimate)."""
+        data = self.adapter.data
+        smo = {"qpos": data.qpos.copy(), "qvel": data.qvel.copy(),
+               "qpos_measured": np.array(self.measurement.measured_qpos()), "observation": clean}
+        if self.emit_info:
+            info["smo"] = smo
+        return smo
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        # an owner that rebuilds every observation needs none from the environment
-        obs, info = self._reset_env(seed, options, placeholder=not self.emit_observation)
+        check_seed(seed)
+        obs, info = self.env.reset(seed=seed, options=options)
         if seed is not None:  # the same stream as EstimatedVelocity's
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
         elif self._rng is None:
@@ -124,6 +146,7 @@ class JointSensor(EstimatedVelocity):
         self.measurement.reset(self.adapter.data.qpos, self._rng)
         self.z_reset = np.array(self.measurement.z_measured, dtype=np.float64)
         self._reset_last = True
+        self.smo_reset = self._record(obs, info)
         if self.emit_info:
             info["smo_z"] = self.z_reset
         return obs, info
@@ -131,38 +154,22 @@ class JointSensor(EstimatedVelocity):
     def step(self, action):
         if self._rng is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        check_action(action, self._action_shape)
         self._terminal = None  # kept across the autoreset that follows an episode's end, dropped here
-        hook = self._placeholder_hook
-        if hook is None and not self.emit_observation:
-            hook = self._placeholder_hook = self._placeholder() or False
-        if hook and not self.emit_observation:
-            with hook:
-                obs, reward, terminated, truncated, info = self.env.step(action)
-        else:
-            obs, reward, terminated, truncated, info = self.env.step(action)
+        obs, reward, terminated, truncated, info = self.env.step(action)
         data = self.adapter.data
         z = self.measurement.measure_block(data.qpos[None])[0]
         self.z_step = np.array(z, dtype=np.float64)
         self._reset_last = False
-        self.smo = {"qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
+        self.smo_step = self._record(obs, info)
         if self.emit_info:
             info["smo_z"] = self.z_step
-            info["smo"] = self.smo
         if terminated or truncated:
             # the environment will be reset before the owner rebuilds the terminal observation: keep what the
             # observation reads from the live data (the controller's inputs and contact forces)
             self._terminal = (self._snapshot(data), self.measurement.measured_qpos().copy(),
                               np.array(self.measurement.z_measured, dtype=np.float64))
         return obs, reward, terminated, truncated, info
-
-    def _placeholder(self):
-        """The hook that replaces the environment's observation by a zero placeholder during ``step``, or None."""
-        return self._zero_observation_hook("step")
-
-    def __getstate__(self):
-        state = super().__getstate__()
-        state["_placeholder_hook"] = None  # a closure over the environment; made again at the next step
-        return state
 
     def _snapshot(self, data):
         """Copy into a preallocated ``MjData`` the fields an observation reads from the live data (``_SNAPSHOT``):
@@ -256,10 +263,22 @@ def attach_sensors(envs: list, config: dict | None) -> list[JointSensor]:
 class _Sensing:
     """The batched observer and the bookkeeping both vector wrappers share."""
 
-    def _setup_sensing(self, config: dict, n_envs: int, sensors, call, has=None) -> None:
-        # sensors: list of JointSensor objects (in-process) or None; call(name, *args) -> list, in env order;
-        # has(name) -> bool: whether every sub-environment has the attribute (None: try the call)
-        self._call = call
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state.pop("_plan_cache", None)  # compiled entry points and this process's addresses: made again when used
+        return state
+
+    def _call_envs(self, name: str, *args) -> list:  # pragma: no cover - provided by the vector wrappers
+        """``getattr(env_i, name)(*args)`` for every sub-environment, in order."""
+        raise NotImplementedError
+
+    def _all_have(self, name: str) -> bool:  # pragma: no cover - provided by the vector wrappers
+        """Whether every sub-environment's wrapper stack has the attribute ``name`` (asked without raising in the
+        workers, so a missing :class:`JointSensor` gives one error here, not one traceback per worker)."""
+        raise NotImplementedError
+
+    def _setup_sensing(self, config: dict, n_envs: int, sensors) -> None:
+        # sensors: list of JointSensor objects (in-process) or None (across a process boundary: _call_envs)
         self._local = sensors
         self.__dict__.pop("_selection_cache", None)
         self.__dict__.pop("_plan_cache", None)
@@ -268,21 +287,17 @@ class _Sensing:
             tokens = [s.token for s in sensors]
             for s in sensors:
                 s.emit_info = False
-                s.emit_observation = False  # rebuilt here: the environment need not evaluate its own
         else:
-            try:
-                if has is not None and not has("observe_rows"):
-                    raise AttributeError("observe_rows")
-                protos = list(call("prototype"))
-                tokens = [p[2] for p in protos]
-            except AttributeError:
+            if not self._all_have("observe_rows"):
                 raise TypeError(
                     "expected every sub-environment wrapped in smo_gym.wrappers.JointSensor (with a process "
                     "boundary the observation must be rebuilt where the MuJoCo state is), actual value: no "
                     "JointSensor found; build the vector env with "
                     "make_vec_env(env_id, wrapper_class=JointSensor, wrapper_kwargs=sensing_config(...)) or "
                     "gymnasium.make_vec(env_id, wrappers=[functools.partial(JointSensor, ...)])"
-                ) from None
+                )
+            protos = list(self._call_envs("prototype"))
+            tokens = [p[2] for p in protos]
         configs = [p[1] for p in protos]
         if any(c != configs[0] for c in configs):
             raise ValueError(f"expected the same sensing in every sub-environment, actual value: {configs}")
@@ -322,7 +337,7 @@ class _Sensing:
                     term = s.observe(tvel[i], None if tfilt is None else tfilt[i], terminal=True)
                 rows.append((obs, term))
         else:
-            rows = self._call("observe_rows", self._index, vel, filt, tvel, tfilt, terminal_mask)
+            rows = self._call_envs("observe_rows", self._index, vel, filt, tvel, tfilt, terminal_mask)
         obs = np.stack([r[0] for r in rows])
         return obs, [r[1] for r in rows]
 
@@ -376,6 +391,40 @@ class _Sensing:
 
     def _update(self, Z: np.ndarray) -> np.ndarray:
         return self.observer.update(Z)
+
+    def _local_samples(self, terminal=None) -> list[dict]:
+        """The in-process environments' last samples (:meth:`JointSensor._record`): the reset's where the
+        environment was reset last, the step's where it was stepped last or where ``terminal`` (an episode that
+        ended in this step, reset since by the vector env) is set."""
+        return [s.smo_step if (terminal is not None and terminal[i]) or not s._reset_last else s.smo_reset
+                for i, s in enumerate(self._local)]
+
+
+def stack_samples(samples: list[dict], velocity: np.ndarray, mask: np.ndarray | None = None) -> dict:
+    """``infos["smo"]`` of a Gymnasium vector env: the keys of :class:`~smo_gym.wrappers.sensing.SensingInfo`
+    with a leading environment dimension (``qpos`` ``(n_envs, nq)``, ..., ``observation`` stacked like the
+    vector env's observations), and Gymnasium's ``_key`` masks (``mask``, default all True), exactly the layout
+    Gymnasium's info merging gives to per-environment wrappers."""
+    mask = np.ones(len(samples), dtype=bool) if mask is None else np.array(mask, dtype=bool)
+
+    def stack(values):
+        if isinstance(values[0], dict):
+            out = {}
+            for key in values[0]:
+                out[key], out[f"_{key}"] = stack([v[key] for v in values]), mask.copy()
+            return out
+        return np.stack([np.asarray(v) for v in values])
+
+    merged = [{**sample, "qvel_estimate": v} for sample, v in zip(samples, velocity, strict=True)]
+    return stack([{key: sample[key] for key in ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")}
+                  for sample in merged])
+
+
+def _rows(stacked: dict, i: int) -> dict:
+    """Row ``i`` of a dict of stacked arrays (nested dicts too, masks dropped): one environment's sample from
+    Gymnasium's merged infos."""
+    return {key: _rows(value, i) if isinstance(value, dict) else value[i] for key, value in stacked.items()
+            if not key.startswith("_")}
 
 
 class _GatheredObservations:
@@ -474,11 +523,24 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
 
     ``SyncVectorEnv``'s environments are wrapped in :class:`JointSensor` here if needed; ``AsyncVectorEnv`` must
     be built with it (``gymnasium.make_vec(id, vectorization_mode="async", wrappers=[partial(JointSensor, ...)])``).
-    ``infos["smo_qvel_estimate"]`` holds the velocity estimates, shape ``(n_envs, nv)``.
+
+    ``infos["smo"]`` has the keys of :class:`~smo_gym.wrappers.sensing.SensingInfo` (the per-environment
+    wrapper's ``info["smo"]``) with a leading environment dimension: ``qpos`` ``(n_envs, nq)``, ``qvel``,
+    ``qvel_estimate`` and ``qpos_measured``, and ``observation``, the clean observations stacked like the
+    returned ones (``infos["_smo"]`` is all True, Gymnasium's convention): what per-environment wrappers inside
+    a ``SyncVectorEnv`` give. So, as there, with ``same-step`` autoresets the row of a finished environment
+    describes the new episode's first sample, and ``infos["final_info"]["smo"]`` (rows where
+    ``infos["final_info"]["_smo"]``) the finished episode's last one.
+
+    Sampling is once per environment step (``rate="env"``); for ``rate="physics"`` put the per-environment
+    :class:`~smo_gym.wrappers.EstimatedVelocity` inside the vector env instead (``gymnasium.make_vec(id,
+    wrappers=[partial(EstimatedVelocity, rate="physics")])``), which samples inside ``frame_skip`` wherever the
+    environment runs.
     """
 
-    def __init__(self, env, sensor=None, observer=None, observer_kwargs=None, **kwargs):
+    def __init__(self, env, sensor=None, observer=None, observer_kwargs=None, *, rate="env", **kwargs):
         gym.vector.VectorWrapper.__init__(self, env)
+        check_vector_rate(rate)
         requested = None if sensor is None and observer is None and not kwargs and observer_kwargs is None \
             else sensing_config(sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs,
                                 **kwargs)
@@ -487,8 +549,25 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         self.autoreset_mode = AutoresetMode(env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP))
         base = env.unwrapped
         sensors = attach_sensors(base.envs, requested) if isinstance(base, SyncVectorEnv) else None
-        self._setup_sensing(requested, env.num_envs, sensors, lambda name, *a: list(env.call(name, *a)))
+        self._setup_sensing(requested, env.num_envs, sensors)
         self._autoreset = np.zeros(env.num_envs, dtype=bool)
+
+    def _call_envs(self, name: str, *args) -> list:
+        return list(self.env.call(name, *args))
+
+    def _all_have(self, name: str) -> bool:
+        return all(self.env.call("has_wrapper_attr", name))
+
+    def _samples(self, infos: dict, terminal=None) -> list[dict]:
+        """Every environment's last sample, or the step's where ``terminal`` (see :meth:`_Sensing._local_samples`),
+        in-process or from ``infos`` (the workers' reset infos, or the step's in ``final_info``)."""
+        if self._local is not None:
+            return self._local_samples(terminal)
+        rows = [_rows(infos["smo"], i) for i in range(self.num_envs)]
+        if terminal is not None:
+            for i in np.flatnonzero(terminal):
+                rows[i] = _rows(infos["final_info"]["smo"], i)
+        return rows
 
     def reset(self, *, seed=None, options=None):
         mask = None if options is None else options.get("reset_mask")
@@ -503,6 +582,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             est = self.observer.estimate
             self._autoreset[mask] = False
         obs, _ = self._observe_all(est)
+        infos["smo"], infos["_smo"] = stack_samples(self._samples(infos), est[..., 1]), np.ones(self.num_envs, bool)
         return obs, infos
 
     def _measurements(self, infos, reset: bool) -> np.ndarray:
@@ -548,5 +628,9 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             final_obs = infos["final_obs"]
             for i in np.flatnonzero(terminal_mask):
                 final_obs[i] = terms[i]
-        infos["smo_qvel_estimate"] = (terminal if terminal is not None else est)[..., 1].copy()
+        infos["smo"], infos["_smo"] = stack_samples(self._samples(infos), est[..., 1]), np.ones(self.num_envs, bool)
+        if terminal_mask is not None:  # Gymnasium's same-step convention: the finished episodes' in final_info
+            final = infos["final_info"]
+            final["smo"] = stack_samples(self._samples(infos, terminal_mask), terminal[..., 1], terminal_mask)
+            final["_smo"] = terminal_mask.copy()
         return obs, rewards, terminated, truncated, infos

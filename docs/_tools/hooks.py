@@ -1,0 +1,112 @@
+"""MkDocs hooks of smo_gym's documentation: benchmark pages built from the files under ``results/``.
+
+Markers in a page's Markdown, replaced before conversion:
+
+``<!-- results-text: PATH -->``
+    a text results file (``results/wrapper/bench_wrapper.txt``): its lines that start with ``|`` are Markdown
+    tables and stay so, a first line ``# command, date`` becomes the command in a code block, every other line
+    a paragraph.
+``<!-- results-returns: PATH -->``
+    ``summary.csv`` of ``scripts/rl_benchmark.py``: mean +- standard deviation over seeds of the return, one row
+    per sensing (trained on -> evaluated on), one column per environment and budget.
+
+After conversion (every page, the API reference included) two conventions of the docstrings are made readable:
+Sphinx roles (``:class:`~smo_gym.observers.Levant``` -> ``Levant`` as code) and the short labels of the five
+source documents (``paper 003``) -> their authors and year (the References page lists them in full).
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: short label of a source document in the code's comments -> author-year citation (see docs/references.md)
+PAPER_CITATIONS = {
+    "000": "Efimov et al. 2017",
+    "001": "Lopez-Ramirez et al. 2016",
+    "002": "Astolfi et al. 2018",
+    "003": "Wetzlinger et al.",
+    "004": "Fridman's lecture slides",
+}
+
+_MARKER = re.compile(r"^<!-- (results-text|results-returns): (\S+) -->$", re.MULTILINE)
+_PAPER = re.compile(r"\b([Pp])aper (00[0-4])\b")
+_ROLE = re.compile(r":(?:py:)?(?:class|func|meth|mod|data|attr|exc|obj|const):<code>(~?)([^<]*)</code>")
+
+
+def _results_text(path: Path) -> str:
+    lines = path.read_text().splitlines()
+    out: list[str] = []
+    in_table = False
+    for k, line in enumerate(lines):
+        if line.startswith("|"):
+            if not in_table:
+                out.append("")
+            out.append(line)
+            in_table = True
+            continue
+        if in_table:
+            out.append("")
+            in_table = False
+        if k == 0 and line.startswith("# "):
+            out += ["```text", line[2:], "```", ""]
+        elif line.strip():
+            out += [html.escape(line.strip()) if not line.lstrip().startswith("- ") else line.strip(), ""]
+    return "\n".join(out)
+
+
+def _results_returns(path: Path) -> str:
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    columns = []  # (env, steps) in file order
+    cells: dict[tuple[str, str], dict[tuple[str, int], str]] = {}
+    for r in rows:
+        col = (r["env"], int(r["steps"]))
+        if col not in columns:
+            columns.append(col)
+        label = (r["train_sensing"], r["eval_sensing"])
+        cells.setdefault(label, {})[col] = f"{float(r['mean']):.0f} +- {float(r['std']):.0f} ({r['seeds']})"
+
+    def name(label):
+        train, ev = label
+        return train if train == ev else f"{train} -> {ev}"
+
+    order = sorted(cells, key=lambda lab: (lab[0] != lab[1], list(cells).index(lab)))
+    head = "| trained on -> evaluated on | " + " | ".join(f"{e.removesuffix('-v5')} {s // 1000}k" for e, s in columns)
+    lines = [head + " |", "|---" * (len(columns) + 1) + "|"]
+    for label in order:
+        lines.append(f"| {name(label)} | " + " | ".join(cells[label].get(c, "-") for c in columns) + " |")
+    return "\n".join(lines)
+
+
+def on_files(files, config):
+    """The figures under ``results/`` join the site at the same relative path (pages link them as
+    ``results/...``)."""
+    from mkdocs.structure.files import File
+
+    for path in sorted((ROOT / "results").rglob("*.png")):
+        files.append(File(str(path.relative_to(ROOT)), src_dir=str(ROOT), dest_dir=config["site_dir"],
+                          use_directory_urls=config["use_directory_urls"]))
+    return files
+
+
+def on_page_markdown(markdown: str, page, config, files) -> str:
+    def replace(match: re.Match) -> str:
+        kind, rel = match.groups()
+        path = ROOT / rel
+        if not path.is_file():
+            raise FileNotFoundError(f"expected the results file {rel} of page {page.file.src_path}, actual value: "
+                                    "missing")
+        return _results_text(path) if kind == "results-text" else _results_returns(path)
+
+    return _MARKER.sub(replace, markdown)
+
+
+def on_page_content(content: str, page, config, files) -> str:
+    content = _ROLE.sub(lambda m: f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>",
+                        content)
+    return _PAPER.sub(lambda m: PAPER_CITATIONS[m.group(2)], content)

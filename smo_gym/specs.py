@@ -1,0 +1,180 @@
+r"""Observers and sensors written as text: ``name:key=value:key=value`` (the command line's syntax).
+
+One syntax for both, shared by ``smo-gym compare``, ``train`` and ``evaluate`` and by
+:mod:`smo_gym.wrappers.compare`:
+
+``levant:order=1:discretization=matching``
+    an observer of :data:`smo_gym.observers.OBSERVERS` with constructor options (gains not given are calibrated
+    by the wrapper, :func:`smo_gym.wrappers.sensing.default_observer`);
+``encoder-12bit-noisy``
+    a sensor preset of :data:`smo_gym.sensors.PRESETS` (presets take no options);
+``encoder:counts_per_revolution=4096:noise_std=1e-3``
+    a sensor model of :mod:`smo_gym.sensors` by its name in :data:`SENSOR_MODELS` with constructor options;
+``encoder:counts_per_revolution=1024+delay:samples=2+dropout:probability=0.02``
+    models chained with ``+`` (applied left to right, :class:`smo_gym.sensors.Chain`).
+
+Values are read by :func:`parse_value` (``true``/``false``, ``none``, integers, floats, else strings). An unknown
+name or option raises ``ValueError`` that lists the valid ones and suggests the closest.
+
+Only :mod:`smo_gym.observers` and :mod:`smo_gym.sensors` are imported: every layer above may use this module.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+import re
+
+from . import sensors
+from .observers import OBSERVERS
+
+__all__ = ["SENSOR_MODELS", "make_sensor", "parse_observer_spec", "parse_spec", "parse_value", "sensor_names"]
+
+#: spec name -> sensor model class (the stages of :mod:`smo_gym.sensors` and the encoder)
+SENSOR_MODELS: dict[str, type[sensors.Sensor]] = {
+    "encoder": sensors.Encoder,
+    "gaussian-noise": sensors.GaussianNoise,
+    "uniform-noise": sensors.UniformNoise,
+    "quantization": sensors.Quantization,
+    "bias": sensors.Bias,
+    "drift": sensors.Drift,
+    "delay": sensors.Delay,
+    "dropout": sensors.Dropout,
+    "outliers": sensors.Outliers,
+}
+
+# "+" joins chained sensor models; not the sign of an exponent such as 1e+3 (a digit follows it there)
+_CHAIN_SPLIT = re.compile(r"\+(?=[A-Za-z])")
+
+
+def parse_value(text: str) -> bool | int | float | str | None:
+    """A spec value: ``true``/``false`` -> bool, ``none`` -> None, then int, then float, else the string itself."""
+    lowered = text.strip().lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    if lowered == "none":
+        return None
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            continue
+    return text
+
+
+def _closest(name: str, choices) -> str:
+    """`` (did you mean 'x'?)`` with the valid choice nearest to ``name`` (one it begins, else difflib's), or ``""``."""
+    choices = list(choices)
+    match = [c for c in choices if c.startswith(str(name))][:1] or difflib.get_close_matches(str(name), choices, n=1,
+                                                                                            cutoff=0.5)
+    return f" (did you mean {match[0]!r}?)" if match else ""
+
+
+def _check_name(kind: str, name: str, choices) -> None:
+    if name not in choices:
+        raise ValueError(f"expected {kind} in {', '.join(choices)}, actual value: {name!r}{_closest(name, choices)}")
+
+
+def parse_spec(spec: str, kind: str = "spec") -> tuple[str, dict]:
+    """Split ``"name:key=value:..."`` into ``(name, {key: parse_value(value)})`` (syntax only; ``kind`` names the
+    thing in error messages)."""
+    if not isinstance(spec, str):
+        raise TypeError(f"expected a {kind} as text name:key=value:..., actual value: {spec!r}")
+    name, *items = spec.strip().split(":")
+    if not name:
+        raise ValueError(f"expected a {kind} as name:key=value:..., actual value: {spec!r}")
+    kwargs: dict = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key or not value.strip():
+            raise ValueError(f"expected {kind} options as key=value, actual value: {item!r} in {spec!r}")
+        if key in kwargs:
+            raise ValueError(f"expected each {kind} option once, actual value: {key!r} twice in {spec!r}")
+        kwargs[key] = parse_value(value.strip())
+    return name, kwargs
+
+
+def _options(callables, skip=("self", "dt")) -> list[str]:
+    """Named parameters of ``callables`` (keyword-only ones of every callable after the first)."""
+    names: list[str] = []
+    for k, fn in enumerate(callables):
+        for p in inspect.signature(fn).parameters.values():
+            if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) or p.name in skip:
+                continue
+            if k > 0 and p.kind is not p.KEYWORD_ONLY:
+                continue
+            if p.name not in names:
+                names.append(p.name)
+    return names
+
+
+def _check_keys(kind: str, name: str, kwargs: dict, valid: list[str], spec: str) -> None:
+    for key in kwargs:
+        if key not in valid:
+            raise ValueError(
+                f"expected options of {kind} {name!r} in {', '.join(valid) or '(none)'}, actual value: {key!r} in "
+                f"{spec!r}{_closest(key, valid)}"
+            )
+
+
+def observer_options(name: str) -> list[str]:
+    """The options an observer spec may set: its constructor's parameters (``dt`` is the sampling step, set by the
+    rate) and the keyword-only ones of its ``from_bounds`` gain design."""
+    _check_name("an observer name", name, list(OBSERVERS))
+    cls = OBSERVERS[name]
+    return _options([cls] + ([cls.from_bounds] if hasattr(cls, "from_bounds") else []))
+
+
+def parse_observer_spec(spec: str) -> tuple[str, dict]:
+    """``"levant:order=1:discretization=matching"`` -> ``("levant", {"order": 1, "discretization": "matching"})``.
+
+    Raises
+    ------
+    ValueError
+        Unknown observer name or option (the message lists the valid ones and suggests the closest).
+    """
+    name, kwargs = parse_spec(spec, "observer")
+    _check_keys("observer", name, kwargs, observer_options(name), spec)
+    return name, kwargs
+
+
+def sensor_names() -> list[str]:
+    """Every sensor name a spec may start with: the presets, then the models."""
+    return list(sensors.PRESETS) + list(SENSOR_MODELS)
+
+
+def _sensor_part(spec: str, whole: str) -> sensors.Sensor:
+    name, kwargs = parse_spec(spec, "sensor")
+    _check_name("a sensor preset or model", name, sensor_names())
+    if name in sensors.PRESETS:
+        if kwargs:
+            raise ValueError(
+                f"expected no options for the sensor preset {name!r} (a fixed model; build one from models "
+                f"instead, e.g. 'encoder:counts_per_revolution=4096:noise_std=1e-3'), actual value: {whole!r}")
+        return sensors.make_sensor(name)
+    cls = SENSOR_MODELS[name]
+    _check_keys("sensor model", name, kwargs, _options([cls]), whole)
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        required = [p.name for p in inspect.signature(cls).parameters.values()
+                    if p.default is p.empty and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+        raise ValueError(f"expected the options {', '.join(required)} of sensor model {name!r}, actual value: "
+                         f"{whole!r} ({exc})") from None
+
+
+def make_sensor(spec: str | sensors.Sensor) -> sensors.Sensor:
+    """A fresh sensor from a spec (see the module docstring), or ``spec`` itself if it already is a sensor.
+
+    Raises
+    ------
+    ValueError
+        Unknown name or option, a preset given options, or values the model rejects.
+    """
+    if isinstance(spec, sensors.Sensor):
+        return spec
+    if not isinstance(spec, str):
+        raise TypeError(f"expected a sensor spec (text) or a smo_gym.sensors.Sensor, actual value: {spec!r}")
+    parts = [_sensor_part(part, spec) for part in _CHAIN_SPLIT.split(spec.strip())]
+    return parts[0] if len(parts) == 1 else sensors.Chain(*parts)

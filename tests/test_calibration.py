@@ -1,0 +1,255 @@
+"""Calibration from data (noise level, derivative bounds, default gains) and ``smo_gym.differentiate`` without gains.
+
+The noise estimates are checked against the standard deviation of the noise that was added, the bounds against
+the closed-form derivatives of the signal, and the gain rules against the wrapper's ``default_observer``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import smo_gym
+from smo_gym import calibration
+from smo_gym.observers import OBSERVERS, HighGain, KalmanCA, SuperTwisting, make_observer
+
+DT = 1e-3
+
+
+def noisy_sine(T=20000, sigma=1e-3, seed=0, amplitude=1.0, omega=3.0, channels=1):
+    t = np.arange(T)[:, None] * DT
+    phase = np.arange(channels)[None, :]
+    clean = amplitude * np.sin(omega * t + phase)
+    return t[:, 0], clean, clean + sigma * np.random.default_rng(seed).standard_normal(clean.shape)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# noise level
+# ----------------------------------------------------------------------------------------------------------------
+def test_noise_std_recovers_gaussian_and_uniform_noise():
+    """With 20000 samples the MAD's relative standard error is about 1 %; the tolerance is 5 %. Uniform noise is
+    over-estimated by about 6 % (its fourth difference is flatter than a Gaussian: a larger MAD for its standard
+    deviation), checked within [1.0, 1.12]."""
+    _, clean, noisy = noisy_sine(sigma=2e-3, channels=2)
+    np.testing.assert_allclose(calibration.noise_std(noisy), [2e-3, 2e-3], rtol=0.05)
+    uniform = clean + 3e-3 * np.random.default_rng(1).uniform(-1.0, 1.0, clean.shape)
+    ratio = calibration.noise_std(uniform) / (3e-3 / np.sqrt(3.0))
+    assert np.all((ratio > 1.0) & (ratio < 1.12)), ratio
+
+
+def test_noise_std_ignores_smooth_signals_and_rare_outliers():
+    t = np.arange(5000) * DT
+    cubic = 1.0 + 2.0 * t - 3.0 * t**2 + 0.5 * t**3  # a 4th difference of exactly 0, to rounding
+    assert calibration.noise_std(cubic) < 1e-12
+    _, clean, noisy = noisy_sine(sigma=1e-3, seed=3)
+    rng = np.random.default_rng(4)
+    hit = rng.random(noisy.shape) < 0.01
+    spiky = noisy + np.where(hit, rng.choice([-1.0, 1.0], noisy.shape), 0.0)  # 1 % gross errors of 1000 sigma
+    np.testing.assert_allclose(calibration.noise_std(spiky), 1e-3, rtol=0.1)
+    assert np.std(np.diff(spiky, 4, axis=0)) / np.sqrt(70) > 0.05  # what a plain standard deviation would say
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# derivative bounds
+# ----------------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("derivative", [2, 3])
+def test_derivative_bound_is_safety_times_the_quantile_of_the_true_derivative(derivative):
+    r"""For :math:`A\sin\omega t` the ``r``-th derivative has amplitude :math:`A\omega^r` and its 99th percentile of
+    absolute values is :math:`A\omega^r\sin(0.99\,\pi/2)`; noise-free and with noise of 1e-3 (which, differentiated
+    at the sampling step, would give a quotient of order :math:`10^{-3}/\tau^r = 10^3` to :math:`10^6`), the
+    bound is twice that to within 10 %."""
+    t, clean, noisy = noisy_sine(T=40000, sigma=1e-3, amplitude=2.0, omega=3.0)
+    expected = 2.0 * 2.0 * 3.0**derivative * np.sin(0.99 * np.pi / 2)
+    np.testing.assert_allclose(calibration.derivative_bound(clean, DT, derivative), expected, rtol=0.02)
+    np.testing.assert_allclose(calibration.derivative_bound(noisy, DT, derivative), expected, rtol=0.10)
+    naive = 2.0 * np.quantile(np.abs(np.diff(noisy[:, 0], derivative)), 0.99) / DT**derivative
+    assert naive > 20 * expected  # without decimation the noise would set the gain
+
+
+def test_long_records_are_calibrated_on_a_random_subset(monkeypatch):
+    """Above ``MAX_SAMPLES`` differences the statistics come from a random subset (fixed seed): the same numbers at
+    every call, within 3 % of those of every difference (2^17 draws: standard errors below 1 %)."""
+    _, _, noisy = noisy_sine(T=400000, sigma=1e-3, channels=2, omega=1.0)
+    sub = calibration.noise_std(noisy), calibration.derivative_bound(noisy, DT, 2)
+    np.testing.assert_array_equal(calibration.noise_std(noisy), sub[0])
+    monkeypatch.setattr(calibration, "MAX_SAMPLES", 10**9)
+    full = calibration.noise_std(noisy), calibration.derivative_bound(noisy, DT, 2)
+    np.testing.assert_allclose(sub[0], full[0], rtol=0.03)
+    np.testing.assert_allclose(sub[1], full[1], rtol=0.03)
+    np.testing.assert_allclose(full[0], 1e-3, rtol=0.02)
+
+
+def test_derivative_bound_per_channel_floor_and_validation():
+    t = np.arange(4000) * DT
+    Y = np.stack([np.sin(t), 10.0 * np.sin(t), np.full_like(t, 0.3)], axis=1).reshape(4000, 1, 3)
+    b = calibration.derivative_bound(Y, DT, 2)
+    assert b.shape == (1, 3)
+    np.testing.assert_allclose(b[0, 1] / b[0, 0], 10.0, rtol=1e-6)
+    assert b[0, 2] == calibration.BOUND_FLOOR  # a constant channel still gets a positive bound
+    for kwargs, error in [
+        (dict(dt=0.0), ValueError),
+        (dict(dt=DT, derivative=0), ValueError),
+        (dict(dt=DT, quantile=1.5), ValueError),
+        (dict(dt=DT, noise=-1.0), ValueError),
+        (dict(dt=DT, derivative=2.0), TypeError),
+    ]:
+        kwargs.setdefault("derivative", 2)
+        with pytest.raises(error) as excinfo:
+            calibration.derivative_bound(Y, **kwargs)
+        assert "expected" in str(excinfo.value) and "actual value" in str(excinfo.value)
+    with pytest.raises(ValueError, match="finite"):
+        calibration.noise_std(np.array([0.0, 1.0, np.nan, 0.0, 1.0, 2.0]))
+    with pytest.raises(TypeError, match="real numbers"):
+        calibration.noise_std("abc")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# gain rules
+# ----------------------------------------------------------------------------------------------------------------
+def test_bound_order_and_needs_calibration():
+    assert calibration.bound_order("super-twisting") == 2
+    assert calibration.bound_order("levant") == 3
+    assert calibration.bound_order("levant", {"order": 4}) == 5
+    assert calibration.bound_order("high-gain", {"order": 2}) == 3  # HighGain.from_bounds bounds f^(order+1)
+    assert calibration.bound_order("kalman-ca") == 2
+    assert not calibration.needs_calibration("finite-difference")
+    assert calibration.needs_calibration("levant", {"order": 2})
+    assert not calibration.needs_calibration("levant", {"lipschitz": 1.0})
+    assert not calibration.needs_calibration("super-twisting", {"k1": 1.0, "k2": 2.0})
+    assert calibration.needs_calibration("super-twisting", {"k1": 1.0})
+    assert not calibration.needs_calibration("kalman-ca", {"process_noise": 1.0, "measurement_noise": 1.0})
+    assert not calibration.needs_calibration("high-gain", {"gain": 3.0})
+    assert not calibration.needs_calibration("ilf-finite", {"rate": 3.0})
+    with pytest.raises(ValueError, match="kalman-ca"):
+        calibration.needs_calibration("no-such-observer")
+
+
+def test_default_observer_gain_formulas():
+    bounds, noise = np.array([4.0, 9.0]), np.array([1e-4, 3e-4])
+    obs = calibration.default_observer("high-gain", DT, bounds, noise)
+    assert isinstance(obs, HighGain) and obs.gain == pytest.approx(np.sqrt(9.0 / 2e-4))
+    obs = calibration.default_observer("high-gain", DT, bounds, noise, {"order": 2})
+    assert obs.gain == pytest.approx((9.0 / 2e-4) ** (1 / 3))
+    obs = calibration.default_observer("kalman-ca", DT, bounds, noise)
+    assert isinstance(obs, KalmanCA)
+    assert obs.process_noise == pytest.approx(81.0 / DT) and obs.measurement_noise == pytest.approx(4e-8)
+    obs = calibration.default_observer("super-twisting", DT, bounds, noise, {"discretization": "euler"})
+    assert isinstance(obs, SuperTwisting) and np.array_equal(obs.lipschitz, bounds)
+    assert obs.discretization == "euler"
+    obs = calibration.default_observer("levant", DT, bounds, noise, {"lipschitz": 2.0})  # given gains win
+    assert obs.lipschitz == 2.0
+
+
+@pytest.mark.parametrize("name", sorted(OBSERVERS))
+def test_default_observer_matches_the_wrappers_rules(name):
+    """The wrapper's ``default_observer`` (``smo_gym.wrappers.sensing``) and this one build the same observer
+    from the same bounds and noise, for the constructors' default orders (the wrapper uses an acceleration bound
+    and a square root for ``high-gain`` and a required ``gain`` whatever the order; see ``bound_order``)."""
+    from smo_gym.wrappers.sensing import bound_order, default_observer
+
+    assert calibration.bound_order(name) == bound_order(name)
+    bounds, noise = np.array([3.0, 5.0, 7.0]), np.array([1e-3, 2e-3, 3e-3])
+    ours = calibration.default_observer(name, DT, bounds, noise)
+    theirs = default_observer(name, DT, bounds, noise)
+    assert type(ours) is type(theirs)
+    y0 = np.zeros(3)
+    ours.reset(y0)
+    theirs.reset(y0)
+    np.testing.assert_array_equal(ours._params, theirs._params)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# differentiate: the wrapper's names, no gains needed
+# ----------------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "name",
+    [
+        "kalman-ca",
+        "high-gain",
+        "super-twisting",
+        "levant",
+        "ured",
+        "switched-gain",
+        "low-power-high-gain",
+        "finite-difference",
+    ],
+)
+def test_differentiate_without_gains_is_calibrated_from_the_data(name):
+    """``observer=`` takes the wrapper's names and every one works with no gains: calibrated from the data, the
+    velocity of a noisy sine is within 0.05 (RMS) of the truth after the transient (finite differences: their
+    noise level :math:`\\sqrt2\\sigma/\\tau`). Before, ``kalman-ca`` and ``high-gain`` raised ``TypeError`` and
+    ``super-twisting`` ``ValueError``."""
+    t, clean, noisy = noisy_sine(T=10000, sigma=1e-4)
+    z = smo_gym.differentiate(noisy[:, 0], DT, observer=name)
+    assert z.shape == (10000, OBSERVERS[name](**_minimal(name)).order + 1)
+    error = z[2000:, 1] - 3.0 * np.cos(3.0 * t[2000:])
+    rms = np.sqrt(np.mean(error**2))
+    assert rms < (0.2 if name == "finite-difference" else 0.05), rms
+
+
+def _minimal(name):
+    """Enough constructor arguments to read the default order."""
+    params = {"dt": DT}
+    if name in ("super-twisting", "ured"):
+        params["lipschitz"] = 1.0
+    if name in ("high-gain", "low-power-high-gain"):
+        params["gain"] = 1.0
+    if name == "kalman-ca":
+        params.update(process_noise=1.0, measurement_noise=1.0)
+    return params
+
+
+@pytest.mark.parametrize("name", ["super-twisting", "kalman-ca"])
+def test_differentiate_calibrated_equals_the_calibration_functions(name):
+    """The calibrated observer is exactly ``default_observer`` with ``derivative_bound`` and ``noise_std`` of the
+    data (passing that object gives the same numbers), per channel for ``(T, 2, 3)`` data."""
+    _, _, noisy = noisy_sine(T=3000, sigma=1e-4, channels=6)
+    Y = noisy.reshape(3000, 2, 3)
+    noise = calibration.noise_std(Y)
+    bounds = calibration.derivative_bound(Y, DT, calibration.bound_order(name), noise=noise)
+    obs = calibration.default_observer(name, DT, bounds, noise)
+    np.testing.assert_array_equal(
+        smo_gym.differentiate(Y, DT, observer=name), smo_gym.differentiate(Y, DT, observer=obs)
+    )
+    assert obs.shape is None  # the object passed in is copied, not run
+
+
+def test_differentiate_method_alias_axis_and_errors():
+    _, _, noisy = noisy_sine(T=500, channels=3)
+    ref = smo_gym.differentiate(noisy, DT, observer="levant", order=2, lipschitz=30.0)
+    np.testing.assert_array_equal(smo_gym.differentiate(noisy, DT, method="levant", order=2, lipschitz=30.0), ref)
+    np.testing.assert_array_equal(smo_gym.differentiate(noisy, DT, "levant", order=2, lipschitz=30.0), ref)
+    along_last = smo_gym.differentiate(noisy.T, DT, observer="levant", axis=-1, order=2, lipschitz=30.0)
+    assert along_last.shape == (3, 500, 3)
+    np.testing.assert_array_equal(along_last, np.moveaxis(ref, 0, 1))
+    cases = [
+        (lambda: smo_gym.differentiate(noisy, DT, observer="levant", method="levant"), TypeError),
+        (
+            lambda: smo_gym.differentiate(noisy, DT, observer=make_observer("finite-difference", dt=DT), order=1),
+            TypeError,
+        ),
+        (lambda: smo_gym.differentiate(noisy, 2 * DT, observer=make_observer("finite-difference", dt=DT)), ValueError),
+        (lambda: smo_gym.differentiate(noisy, DT, axis=2), ValueError),
+        (lambda: smo_gym.differentiate(noisy, -DT), ValueError),
+        (lambda: smo_gym.differentiate(np.zeros((0, 3)), DT), ValueError),
+        (lambda: smo_gym.differentiate(np.where(np.arange(500)[:, None] == 7, np.nan, noisy), DT), ValueError),
+        (lambda: smo_gym.differentiate(noisy, DT, observer="levant", wrap=[True, False]), ValueError),
+    ]
+    for call, error in cases:
+        with pytest.raises(error) as excinfo:
+            call()
+        assert "expected" in str(excinfo.value) and "actual value" in str(excinfo.value), excinfo.value
+
+
+def test_differentiate_calibrates_wrapped_angles_on_the_unwrapped_signal():
+    """With ``wrap`` the calibration sees the continuous angle: the jumps of 2 pi would otherwise set a bound of
+    order ``2 pi / dt^2``. The calibrated observer estimates the spin rate once it has caught up from zero (its
+    gain ``k2 = 1.1 L`` with ``L`` about twice the largest acceleration, 8: about three seconds to reach 30)."""
+    t = np.arange(8000) * DT
+    true = 30.0 * t + 0.5 * np.sin(4.0 * t)
+    wrapped = np.mod(true + np.pi, 2 * np.pi) - np.pi + 1e-4 * np.random.default_rng(5).standard_normal(t.size)
+    z = smo_gym.differentiate(wrapped, DT, observer="super-twisting", wrap=True)
+    rate = 30.0 + 2.0 * np.cos(4.0 * t)
+    assert np.sqrt(np.mean((z[5000:, 1] - rate[5000:]) ** 2)) < 0.1
+    bound = calibration.derivative_bound(np.unwrap(wrapped), DT, 2)
+    assert bound < 100.0 < calibration.derivative_bound(wrapped, DT, 2)
