@@ -45,10 +45,13 @@ def _short(value, limit: int = 200) -> str:
 
 
 def did_you_mean(value, choices: Iterable[str]) -> str:
-    """`` (did you mean 'x'?)`` for the choice closest to ``value`` (difflib ratio >= 0.6), else ``""``."""
+    """`` (did you mean 'x'?)`` for the choice closest to ``value``: the first that begins with it, else difflib's
+    closest (ratio >= 0.5); ``""`` when none is close or ``value`` is not a string."""
     if not isinstance(value, str):
         return ""
-    close = difflib.get_close_matches(value, [c for c in choices if isinstance(c, str)], n=1)
+    choices = [c for c in choices if isinstance(c, str)]
+    close = [c for c in choices if value and c.startswith(value)][:1] or difflib.get_close_matches(
+        value, choices, n=1, cutoff=0.5)
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 

@@ -44,7 +44,7 @@ from math import comb
 
 import numpy as np
 
-from ._validation import check_int_in_range, check_positive
+from ._validation import check_int_in_range, check_positive, did_you_mean
 from .observers import OBSERVERS, Observer, make_observer
 
 __all__ = [
@@ -294,6 +294,13 @@ def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: d
     kw = dict(observer_kwargs or {})
     rule = _gain_rule(name, kw)
     cls = OBSERVERS[name]
+    valid = [p for p in inspect.signature(cls).parameters if p != "dt"]
+    if hasattr(cls, "from_bounds"):  # its keywords pass through to the constructor or tune the rule itself
+        valid += [p for p in inspect.signature(cls.from_bounds).parameters if p not in valid + ["dt", "kwargs"]]
+    for key in kw:  # a misspelled gain would otherwise be calibrated over silently, or reported as a missing one
+        if key not in valid:
+            raise ValueError(f"unknown parameter {key!r} of {cls.__name__}: expected one of {', '.join(valid)}, "
+                             f"actual value: {key}={kw[key]!r}{did_you_mean(key, valid)}")
     noise = float(max(np.mean(noise_std), NOISE_FLOOR))
     largest = float(np.max(bounds)) if rule is not None else 0.0
     if rule == "high-gain":

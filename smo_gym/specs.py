@@ -21,11 +21,11 @@ Only :mod:`smo_gym.observers` and :mod:`smo_gym.sensors` are imported: every lay
 
 from __future__ import annotations
 
-import difflib
 import inspect
 import re
 
 from . import sensors
+from ._validation import did_you_mean
 from .observers import OBSERVERS
 
 __all__ = ["SENSOR_MODELS", "make_sensor", "parse_observer_spec", "parse_spec", "parse_value", "sensor_names"]
@@ -62,17 +62,9 @@ def parse_value(text: str) -> bool | int | float | str | None:
     return text
 
 
-def _closest(name: str, choices) -> str:
-    """`` (did you mean 'x'?)`` with the valid choice nearest to ``name`` (one it begins, else difflib's), or ``""``."""
-    choices = list(choices)
-    match = [c for c in choices if c.startswith(str(name))][:1] or difflib.get_close_matches(str(name), choices, n=1,
-                                                                                            cutoff=0.5)
-    return f" (did you mean {match[0]!r}?)" if match else ""
-
-
 def _check_name(kind: str, name: str, choices) -> None:
     if name not in choices:
-        raise ValueError(f"expected {kind} in {', '.join(choices)}, actual value: {name!r}{_closest(name, choices)}")
+        raise ValueError(f"expected {kind} in {', '.join(choices)}, actual value: {name!r}{did_you_mean(name, choices)}")
 
 
 def parse_spec(spec: str, kind: str = "spec") -> tuple[str, dict]:
@@ -114,7 +106,7 @@ def _check_keys(kind: str, name: str, kwargs: dict, valid: list[str], spec: str)
         if key not in valid:
             raise ValueError(
                 f"expected options of {kind} {name!r} in {', '.join(valid) or '(none)'}, actual value: {key!r} in "
-                f"{spec!r}{_closest(key, valid)}"
+                f"{spec!r}{did_you_mean(key, valid)}"
             )
 
 

@@ -749,8 +749,9 @@ def exercise_observer(data, family: Family, obj, shape):
             Y = data.draw(block(shape))
             if model:
                 U = data.draw(st.sampled_from([None, "same", np.zeros((1, n)), [[0.0] * n, [0.0]]]))
-                if isinstance(U, str):
-                    U = np.zeros((np.shape(Y)[0] if np.ndim(Y) else 1, n))
+                if isinstance(U, str):  # inputs for as many samples as Y has (Y may be ragged: len, not shape)
+                    U = np.zeros((len(Y) if isinstance(Y, (list, tuple)) else np.shape(Y)[0] if np.ndim(Y) else 1,
+                                  n))
                 attempt(name, obj.run, Y, U, snapshot=snap)
             else:
                 attempt(name, obj.run, Y, snapshot=snap)

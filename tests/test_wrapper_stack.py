@@ -226,3 +226,12 @@ def test_single_turn_encoder_through_the_wrapper():
     with pytest.raises(ValueError, match="wrap on the angular channels"):
         EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), sensor=sensors.Encoder(counts_per_revolution=4096, wrap=True),
                           observer=FiniteDifference(dt=env.sample_dt), disk_cache=False)
+
+
+def test_misspelled_observer_kwargs_are_unknown_parameters_with_a_suggestion():
+    with pytest.raises(ValueError, match=r"unknown parameter 'lipschtz' of SuperTwisting.*did you mean 'lipschitz'"):
+        _sensed(gym.make(ENV), observer_kwargs={"lipschtz": 5.0})
+    with pytest.raises(ValueError, match=r"unknown parameter 'ordr' of KalmanCA|unknown parameter 'ordr'"):
+        _sensed(gym.make(ENV), observer="kalman-ca", observer_kwargs={"ordr": 2})
+    with pytest.raises(ValueError, match=r"did you mean 'super-twisting'"):
+        _sensed(gym.make(ENV), observer="super-twist")
