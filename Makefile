@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip -q --disable-pip-version-check
 
-.PHONY: demo test docs bench install clean
+.PHONY: demo test lint docs bench install clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,8 +19,13 @@ install: $(VENV)/.installed
 demo: $(VENV)/.installed
 	MUJOCO_GL=disable $(VENV)/bin/smo-gym compare
 
-test: $(VENV)/.installed
+test: $(VENV)/.installed lint
 	MUJOCO_GL=disable $(PY) -m pytest -q -m "not slow"
+
+# ruff (pinned in the test extra, so that a new release cannot reformat the tree under CI)
+lint: $(VENV)/.installed
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 
 # The documentation site (MkDocs Material + mkdocstrings), strict: any warning fails; offline, into site/.
 docs: $(VENV)/.installed

@@ -38,9 +38,9 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-from smo_gym.observers import OBSERVERS  # noqa: E402
-from smo_gym.wrappers import EstimatedVelocity  # noqa: E402
-from smo_gym.wrappers.compare import compare_observers, record_rollout  # noqa: E402
+from smo_gym.observers import OBSERVERS
+from smo_gym.wrappers import EstimatedVelocity
+from smo_gym.wrappers.compare import compare_observers, record_rollout
 
 ENVS = ("InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5")
 SENSORS = ("ideal", "encoder-12bit", "encoder-12bit-noisy", "low-cost")
@@ -85,13 +85,27 @@ def run(envs, sensors, rates, steps: int, seed: int, names: list[str]) -> list[d
                 results = compare_observers(rec, names)
                 rmse = {r.name: (r.rmse if r.diverged_at is None else float("nan")) for r in results}
                 scale = float(np.sqrt(np.mean(rec.qvel**2)))
-                rows.append(dict(env=env_id, sensor=sensor, rate=rate, dt=rec.dt, samples=len(rec.qvel),
-                                 frame_skip=rec.context["adapter"].frame_skip,
-                                 episodes=len(rec.episode_starts), scale=scale, rmse=rmse,
-                                 diverged={r.name for r in results if r.diverged_at is not None},
-                                 winners=winners(rmse, scale)))
-                print(f"  {env_id} {sensor} {rate}: {len(rec.qvel)} samples, {time.perf_counter() - t0:.1f} s, "
-                      f"best {', '.join(rows[-1]['winners'])}", file=sys.stderr, flush=True)
+                rows.append(
+                    dict(
+                        env=env_id,
+                        sensor=sensor,
+                        rate=rate,
+                        dt=rec.dt,
+                        samples=len(rec.qvel),
+                        frame_skip=rec.context["adapter"].frame_skip,
+                        episodes=len(rec.episode_starts),
+                        scale=scale,
+                        rmse=rmse,
+                        diverged={r.name for r in results if r.diverged_at is not None},
+                        winners=winners(rmse, scale),
+                    )
+                )
+                print(
+                    f"  {env_id} {sensor} {rate}: {len(rec.qvel)} samples, {time.perf_counter() - t0:.1f} s, "
+                    f"best {', '.join(rows[-1]['winners'])}",
+                    file=sys.stderr,
+                    flush=True,
+                )
     return rows
 
 
@@ -112,12 +126,24 @@ def regret_table(rows: list[dict], names: list[str]) -> dict[str, tuple[float, f
 
 
 def format_tables(rows: list[dict], names: list[str]) -> str:
-    short = {"super-twisting": "ST", "levant": "Levant", "ured": "URED", "uniform-levant": "uLevant",
-             "high-gain": "HG", "finite-difference": "FD", "kalman-ca": "KalmanCA", "switched-gain": "SwitchedHG",
-             "low-power-high-gain": "LowPowerHG", "ilf-finite": "ILF-fin", "ilf-fixed": "ILF-fix"}
+    short = {
+        "super-twisting": "ST",
+        "levant": "Levant",
+        "ured": "URED",
+        "uniform-levant": "uLevant",
+        "high-gain": "HG",
+        "finite-difference": "FD",
+        "kalman-ca": "KalmanCA",
+        "switched-gain": "SwitchedHG",
+        "low-power-high-gain": "LowPowerHG",
+        "ilf-finite": "ILF-fin",
+        "ilf-fixed": "ILF-fix",
+    }
     cols = [short.get(n, n) for n in names]
-    out = ["| environment | sensor | rate | vel. RMS | " + " | ".join(cols) + " |",
-           "|---|---|---|---:|" + "---:|" * len(cols)]
+    out = [
+        "| environment | sensor | rate | vel. RMS | " + " | ".join(cols) + " |",
+        "|---|---|---|---:|" + "---:|" * len(cols),
+    ]
     for row in rows:
         cells = []
         for n in names:
@@ -128,58 +154,86 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
         rate = "physics = env" if row["frame_skip"] == 1 else row["rate"]
         out.append(f"| {env} | {row['sensor']} | {rate} | {row['scale']:.3g} | " + " | ".join(cells) + " |")
     default = default_observer_name()
-    out += ["", f"Wins per observer over {len(rows)} rows (shared wins count for each; the wrapper's default is "
-            f"`{default}`). Regret: RMSE / best RMSE of the row, the best floored at {REGRET_FLOOR:g} x the velocity "
-            "RMS (so round-off-exact rows do not dominate); geometric mean and worst over the rows (diverged or "
-            "non-finite: counted as the worst finite regret of the table).", "",
-            "| observer | wins | at rate=\"physics\" | at rate=\"env\" | wins, sensor not ideal | regret, geo. mean | "
-            "regret, worst | diverged |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    out += [
+        "",
+        f"Wins per observer over {len(rows)} rows (shared wins count for each; the wrapper's default is "
+        f"`{default}`). Regret: RMSE / best RMSE of the row, the best floored at {REGRET_FLOOR:g} x the velocity "
+        "RMS (so round-off-exact rows do not dominate); geometric mean and worst over the rows (diverged or "
+        "non-finite: counted as the worst finite regret of the table).",
+        "",
+        '| observer | wins | at rate="physics" | at rate="env" | wins, sensor not ideal | regret, geo. mean | '
+        "regret, worst | diverged |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     regrets = regret_table(rows, names)
     for n in sorted(names, key=lambda n: -sum(n in r["winners"] for r in rows)):
         wins = [r for r in rows if n in r["winners"]]
         g, worst = regrets[n]
-        out.append(f"| {n} | {len(wins)} | {sum(r['rate'] == 'physics' for r in wins)} | "
-                   f"{sum(r['rate'] == 'env' for r in wins)} | {sum(r['sensor'] != 'ideal' for r in wins)} | "
-                   f"{g:.3g} | {worst:.3g} | {sum(n in r['diverged'] for r in rows)} |")
+        out.append(
+            f"| {n} | {len(wins)} | {sum(r['rate'] == 'physics' for r in wins)} | "
+            f"{sum(r['rate'] == 'env' for r in wins)} | {sum(r['sensor'] != 'ideal' for r in wins)} | "
+            f"{g:.3g} | {worst:.3g} | {sum(n in r['diverged'] for r in rows)} |"
+        )
     counts = {n: sum(n in r["winners"] for r in rows) for n in names}
     top = max(counts.values())
     leaders = [n for n, c in counts.items() if c == top]
-    verdict = ("wins most rows" if default in leaders and len(leaders) == 1 else
-               "shares the most wins" if default in leaders else
-               f"does not win most rows ({counts[default]} wins against {top} for {', '.join(leaders)})")
+    verdict = (
+        "wins most rows"
+        if default in leaders and len(leaders) == 1
+        else "shares the most wins"
+        if default in leaders
+        else f"does not win most rows ({counts[default]} wins against {top} for {', '.join(leaders)})"
+    )
     out += ["", f"Default observer `{default}` {verdict}."]
     return "\n".join(out)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--envs", default=",".join(ENVS),
-                        help="Gymnasium ids; dm_control suite tasks as dm_control/<domain>-<task>-v0")
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--envs", default=",".join(ENVS), help="Gymnasium ids; dm_control suite tasks as dm_control/<domain>-<task>-v0"
+    )
     parser.add_argument("--sensors", default=",".join(SENSORS))
     parser.add_argument("--rates", default=",".join(RATES))
     parser.add_argument("--steps", type=int, default=400, help="environment steps per rollout")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--observers", default="", help="comma-separated subset (default: all of OBSERVERS)")
-    parser.add_argument("--quick", action="store_true",
-                        help="InvertedDoublePendulum-v5 and HalfCheetah-v5, ideal and noisy encoder, 150 steps")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="InvertedDoublePendulum-v5 and HalfCheetah-v5, ideal and noisy encoder, 150 steps",
+    )
     parser.add_argument("--markdown", metavar="FILE", help="also write the tables to FILE")
     args = parser.parse_args(argv)
     if args.quick:
-        args.envs, args.sensors, args.steps = "InvertedDoublePendulum-v5,HalfCheetah-v5", "ideal,encoder-12bit-noisy", 150
+        args.envs, args.sensors, args.steps = (
+            "InvertedDoublePendulum-v5,HalfCheetah-v5",
+            "ideal,encoder-12bit-noisy",
+            150,
+        )
     warnings.filterwarnings("ignore")
     names = [n.strip() for n in args.observers.split(",") if n.strip()] or observer_names()
     unknown = [n for n in names if n not in OBSERVERS]
     if unknown:
         parser.error(f"expected observer names in {', '.join(OBSERVERS)}, actual value: {', '.join(unknown)}")
     if "dm_control/" in args.envs:
-        import shimmy  # noqa: F401 - registers the dm_control/<domain>-<task>-v0 ids (DmControlAdapter)
+        import shimmy  # noqa: F401  (registers the dm_control/... ids)
     t0 = time.perf_counter()
-    rows = run([e for e in args.envs.split(",") if e], [s for s in args.sensors.split(",") if s],
-               [r for r in args.rates.split(",") if r], args.steps, args.seed, names)
+    rows = run(
+        [e for e in args.envs.split(",") if e],
+        [s for s in args.sensors.split(",") if s],
+        [r for r in args.rates.split(",") if r],
+        args.steps,
+        args.seed,
+        names,
+    )
     text = format_tables(rows, names)
-    header = (f"Velocity RMSE (rad/s or m/s, all dofs, every sample but each episode's first), {args.steps} env steps "
-              f"per rollout, seed {args.seed}, smooth random policy; bold = best of the row (ties within 1 %)\n")
+    header = (
+        f"Velocity RMSE (rad/s or m/s, all dofs, every sample but each episode's first), {args.steps} env steps "
+        f"per rollout, seed {args.seed}, smooth random policy; bold = best of the row (ties within 1 %)\n"
+    )
     print(header)
     print(text)
     print(f"\n({time.perf_counter() - t0:.0f} s)", file=sys.stderr)

@@ -40,12 +40,11 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import gymnasium as gym  # noqa: E402
-import mujoco  # noqa: E402
+import gymnasium as gym
+import mujoco
 
-import smo_gym.envs  # noqa: E402, F401
-from smo_gym.mechanics import MujocoDynamics  # noqa: E402
-from smo_gym.observers import FiniteDifference, KalmanCA, MechanicalSuperTwisting, SuperTwisting  # noqa: E402
+from smo_gym.mechanics import MujocoDynamics
+from smo_gym.observers import FiniteDifference, KalmanCA, MechanicalSuperTwisting, SuperTwisting
 
 RES = 2 * np.pi / 4096
 NOISE = 1e-3
@@ -103,9 +102,17 @@ def record(env_id, T, seed, disturbance=None, pd=False, fine=False):
         V.append(d.qvel.copy())
         U.append(u.copy())
         D.append(d.qfrc_applied.copy())
-    return {"env": env, "model": m, "Q": np.array(Q), "V": np.array(V), "U": np.array(U), "D": np.array(D),
-            "h": float(m.opt.timestep), "euler": int(m.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER),
-            "frame_skip": env.frame_skip}
+    return {
+        "env": env,
+        "model": m,
+        "Q": np.array(Q),
+        "V": np.array(V),
+        "U": np.array(U),
+        "D": np.array(D),
+        "h": float(m.opt.timestep),
+        "euler": int(m.opt.integrator) == int(mujoco.mjtIntegrator.mjINT_EULER),
+        "frame_skip": env.frame_skip,
+    }
 
 
 def calibrate(run, dyn):
@@ -118,26 +125,29 @@ def calibrate(run, dyn):
 
 def rmse(est_v, V, skip=0.2):
     err = est_v - V
-    return float(np.sqrt(np.mean(err[int(len(err) * skip):] ** 2)))
+    return float(np.sqrt(np.mean(err[int(len(err) * skip) :] ** 2)))
 
 
 def run_model_based(run, dyn, n, L, accel_bound, Y=None, discretization="semi-implicit", **kw):
     Q, U, V = run["Q"], run["U"], run["V"]
     Y = Q if Y is None else Y
     kw.setdefault("euler_substeps", n if run["euler"] else None)
-    obs = MechanicalSuperTwisting(run["h"] * n, dyn, lipschitz=L, accel_bound=accel_bound,
-                                  discretization=discretization, **kw)
+    obs = MechanicalSuperTwisting(
+        run["h"] * n, dyn, lipschitz=L, accel_bound=accel_bound, discretization=discretization, **kw
+    )
     obs.reset(Y[0], v0=V[0])
-    est = np.stack([obs.update(y, u) for y, u in zip(Y[n::n], U[n::n])])
+    est = np.stack([obs.update(y, u) for y, u in zip(Y[n::n], U[n::n], strict=False)])
     return est[..., 1], obs
 
 
 def run_model_free(run, n, Y, acc_max):
     h = run["h"] * n
     out = {}
-    for name, obs in (("FiniteDifference", FiniteDifference(h)),
-                      ("KalmanCA", KalmanCA.from_bounds(h, NOISE, float(acc_max.max()), resolution=RES)),
-                      ("SuperTwisting", SuperTwisting(h, acc_max))):
+    for name, obs in (
+        ("FiniteDifference", FiniteDifference(h)),
+        ("KalmanCA", KalmanCA.from_bounds(h, NOISE, float(acc_max.max()), resolution=RES)),
+        ("SuperTwisting", SuperTwisting(h, acc_max)),
+    ):
         obs.reset(Y[0])
         out[name] = np.stack([obs.update(y) for y in Y[n::n]])[..., 1]
     return out
@@ -160,14 +170,19 @@ def table_order(T):
                 errs.append(rmse(v, run["V"][n::n]))
             hs = run["h"] * np.array([2, 4, 8])
             slope = np.polyfit(np.log(hs), np.log(errs[1:]), 1)[0]
-            print(f"| {env_id} (h={run['h'] * 1e3:g} ms) | {disc} | " + " | ".join(f"{e:.2e}" for e in errs)
-                  + f" | {slope:.2f} |")
+            print(
+                f"| {env_id} (h={run['h'] * 1e3:g} ms) | {disc} | "
+                + " | ".join(f"{e:.2e}" for e in errs)
+                + f" | {slope:.2f} |"
+            )
 
 
 def table_noise(T):
     print("\n### 2. 10 % mass mismatch, 12-bit encoder + 1e-3 rad noise (velocity RMSE)\n")
-    print("| system | rate | MechanicalSTA semi-implicit | MechanicalSTA euler | MechanicalSTA substeps | "
-          "FiniteDifference | KalmanCA | SuperTwisting | L (model miss) |")
+    print(
+        "| system | rate | MechanicalSTA semi-implicit | MechanicalSTA euler | MechanicalSTA substeps | "
+        "FiniteDifference | KalmanCA | SuperTwisting | L (model miss) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for env_id in ("smo_gym/TwoLinkArm-v0", "InvertedDoublePendulum-v5"):
         run = record(env_id, T, seed=0)
@@ -175,52 +190,69 @@ def table_noise(T):
         L, acc_max, _ = calibrate(record(env_id, T // 2, seed=100), dyn)
         Y = encoder(run["Q"], seed=1)
         for label, n in (("physics", 1), ("env", run["frame_skip"])):
-            mb = {d: rmse(run_model_based(run, dyn, n, L, 2 * acc_max, Y=Y, discretization=d)[0], run["V"][n::n])
-                  for d in ("semi-implicit", "euler")}
-            mb["substeps"] = rmse(run_model_based(run, dyn, n, L, 2 * acc_max, Y=Y, model_substeps=n)[0],
-                                  run["V"][n::n])
+            mb = {
+                d: rmse(run_model_based(run, dyn, n, L, 2 * acc_max, Y=Y, discretization=d)[0], run["V"][n::n])
+                for d in ("semi-implicit", "euler")
+            }
+            mb["substeps"] = rmse(
+                run_model_based(run, dyn, n, L, 2 * acc_max, Y=Y, model_substeps=n)[0], run["V"][n::n]
+            )
             mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max).items()}
-            print(f"| {env_id} | {label} ({run['h'] * n * 1e3:g} ms) | {mb['semi-implicit']:.4f} | "
-                  f"{mb['euler']:.4f} | {mb['substeps']:.4f} (n={n}) | {mf['FiniteDifference']:.4f} | {mf['KalmanCA']:.4f} | "
-                  f"{mf['SuperTwisting']:.4f} | {np.array2string(L, precision=1)} |")
+            print(
+                f"| {env_id} | {label} ({run['h'] * n * 1e3:g} ms) | {mb['semi-implicit']:.4f} | "
+                f"{mb['euler']:.4f} | {mb['substeps']:.4f} (n={n}) | {mf['FiniteDifference']:.4f} | "
+                f"{mf['KalmanCA']:.4f} | "
+                f"{mf['SuperTwisting']:.4f} | {np.array2string(L, precision=1)} |"
+            )
 
 
 def table_disturbance(T):
-    print("\n### 3. Disturbance estimate: 0.5 sin(2t) + 0.2 N m on both joints of the two-link arm "
-          "(external-torque RMSE, N m, shoulder / elbow)\n")
+    print(
+        "\n### 3. Disturbance estimate: 0.5 sin(2t) + 0.2 N m on both joints of the two-link arm "
+        "(external-torque RMSE, N m, shoulder / elbow)\n"
+    )
     print("| model | measurement | rate | filter | torque RMSE | velocity RMSE |")
     print("|---|---|---|---|---|---|")
-    dist = lambda t: np.full(2, 0.5 * np.sin(2 * t) + 0.2)  # noqa: E731
+    dist = lambda t: np.full(2, 0.5 * np.sin(2 * t) + 0.2)
     run = record("smo_gym/TwoLinkArm-v0", T, seed=0, disturbance=dist, pd=True)
     for mass in (1.0, 1.1):
         dyn = MujocoDynamics(run["model"], mass_scale=mass)
         for noisy in (False, True):
             Y = encoder(run["Q"], seed=1) if noisy else run["Q"]
             for n in (1, 5):
-                for tc in ((0.02,) if not noisy else (0.1,)):
+                for tc in (0.02,) if not noisy else (0.1,):
                     h = run["h"] * n
-                    obs = MechanicalSuperTwisting(h, dyn, lipschitz=50.0, accel_bound=1000.0,
-                                                  disturbance_time_constant=tc)
+                    obs = MechanicalSuperTwisting(
+                        h, dyn, lipschitz=50.0, accel_bound=1000.0, disturbance_time_constant=tc
+                    )
                     obs.reset(Y[0], v0=run["V"][0])
                     tq, vv = [], []
-                    for y, u in zip(Y[n::n], run["U"][n::n]):
+                    for y, u in zip(Y[n::n], run["U"][n::n], strict=False):
                         vv.append(obs.update(y, u)[..., 1])
                         tq.append(obs.external_torque)
-                    err = (np.array(tq) - run["D"][n::n])[len(tq) // 5:]
+                    err = (np.array(tq) - run["D"][n::n])[len(tq) // 5 :]
                     t_rmse = np.sqrt(np.mean(err**2, axis=0))
-                    print(f"| {'exact' if mass == 1 else '10 % heavier'} | {'12-bit + noise' if noisy else 'exact'} "
-                          f"| {h * 1e3:g} ms | {tc} s | {t_rmse[0]:.3f} / {t_rmse[1]:.3f} | "
-                          f"{rmse(np.array(vv), run['V'][n::n]):.4f} |")
-    print("\nWith a 10 % mass error the estimate is the *total* unknown generalized force (external torque plus "
-          "the mismatch torque (M_true - M_model) qdd + gravity error), so its distance to the external torque alone "
-          "is the mismatch torque.")
+                    print(
+                        f"| {'exact' if mass == 1 else '10 % heavier'} | {'12-bit + noise' if noisy else 'exact'} "
+                        f"| {h * 1e3:g} ms | {tc} s | {t_rmse[0]:.3f} / {t_rmse[1]:.3f} | "
+                        f"{rmse(np.array(vv), run['V'][n::n]):.4f} |"
+                    )
+    print(
+        "\nWith a 10 % mass error the estimate is the *total* unknown generalized force (external torque plus "
+        "the mismatch torque (M_true - M_model) qdd + gravity error), so its distance to the external torque alone "
+        "is the mismatch torque."
+    )
 
 
 def table_contact(T):
-    print("\n### 4. Contacts: contact model at the measured configuration vs contact as an unknown input "
-          "(12-bit + noise, exact model otherwise; velocity RMSE; model-based with model_substeps = n)\n")
-    print("| system | rate | contact=measured | contact=measured, one model step per sample | contact=unknown "
-          "| FiniteDifference | KalmanCA | SuperTwisting | model miss rms / max (measured) | (unknown) |")
+    print(
+        "\n### 4. Contacts: contact model at the measured configuration vs contact as an unknown input "
+        "(12-bit + noise, exact model otherwise; velocity RMSE; model-based with model_substeps = n)\n"
+    )
+    print(
+        "| system | rate | contact=measured | contact=measured, one model step per sample | contact=unknown "
+        "| FiniteDifference | KalmanCA | SuperTwisting | model miss rms / max (measured) | (unknown) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for env_id in ("Hopper-v5", "HalfCheetah-v5"):
         run = record(env_id, T, seed=0)
@@ -230,16 +262,21 @@ def table_contact(T):
         cals = {c: calibrate(cal, d) for c, d in dyns.items()}
         acc_max = cals["unknown"][1]
         for label, n in (("physics", 1), ("env", run["frame_skip"])):
-            res = {c: rmse(run_model_based(run, d, n, cals[c][0], 2 * acc_max, Y=Y, model_substeps=n)[0],
-                           run["V"][n::n]) for c, d in dyns.items()}
-            one = rmse(run_model_based(run, dyns["measured"], n, cals["measured"][0], 2 * acc_max, Y=Y)[0],
-                       run["V"][n::n])
+            res = {
+                c: rmse(run_model_based(run, d, n, cals[c][0], 2 * acc_max, Y=Y, model_substeps=n)[0], run["V"][n::n])
+                for c, d in dyns.items()
+            }
+            one = rmse(
+                run_model_based(run, dyns["measured"], n, cals["measured"][0], 2 * acc_max, Y=Y)[0], run["V"][n::n]
+            )
             mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max).items()}
             miss = {c: f"{np.sqrt(np.mean(cals[c][2] ** 2)):.3g} / {cals[c][0].max():.3g}" for c in cals}
-            print(f"| {env_id} | {label} ({run['h'] * n * 1e3:g} ms) | {res['measured']:.4f} | {one:.4f} "
-                  f"| {res['unknown']:.4f} "
-                  f"| {mf['FiniteDifference']:.4f} | {mf['KalmanCA']:.4f} | {mf['SuperTwisting']:.4f} "
-                  f"| {miss['measured']} | {miss['unknown']} |")
+            print(
+                f"| {env_id} | {label} ({run['h'] * n * 1e3:g} ms) | {res['measured']:.4f} | {one:.4f} "
+                f"| {res['unknown']:.4f} "
+                f"| {mf['FiniteDifference']:.4f} | {mf['KalmanCA']:.4f} | {mf['SuperTwisting']:.4f} "
+                f"| {miss['measured']} | {miss['unknown']} |"
+            )
 
 
 def table_cost(T):
@@ -252,8 +289,9 @@ def table_cost(T):
     print("| contact | mj_step | observer update (dynamics + step) | ratio (mj_step + observer) / mj_step |")
     print("|---|---|---|---|")
     for contact in ("unknown", "measured"):
-        obs = MechanicalSuperTwisting(m.opt.timestep, MujocoDynamics(m, contact=contact), lipschitz=1000.0,
-                                      accel_bound=1e4)
+        obs = MechanicalSuperTwisting(
+            m.opt.timestep, MujocoDynamics(m, contact=contact), lipschitz=1000.0, accel_bound=1e4
+        )
         obs.reset(d.qpos.copy())
         blocks = []
         for _ in range(5):
@@ -294,16 +332,25 @@ def table_variable_inertia(T):
         h = run["h"] * n
         ds = DissipativeSuperTwisting(h, dyn, tr, gains)
         ds.reset(Y[0], v0=run["V"][0])
-        r_ds = rmse(np.stack([ds.update(y, u) for y, u in zip(Y[n::n], run["U"][n::n])])[..., 1], run["V"][n::n])
+        estimates = np.stack([ds.update(y, u) for y, u in zip(Y[n::n], run["U"][n::n], strict=False)])
+        r_ds = rmse(estimates[..., 1], run["V"][n::n])
         r_mb = rmse(run_model_based(run, dyn, n, L, None, Y=Y)[0], run["V"][n::n])
         mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max).items()}
-        print(f"| {h * 1e3:g} ms | {r_ds:.4f} | {r_mb:.4f} | {mf['FiniteDifference']:.4f} | {mf['KalmanCA']:.4f} "
-              f"| {mf['SuperTwisting']:.4f} |")
+        print(
+            f"| {h * 1e3:g} ms | {r_ds:.4f} | {r_mb:.4f} | {mf['FiniteDifference']:.4f} | {mf['KalmanCA']:.4f} "
+            f"| {mf['SuperTwisting']:.4f} |"
+        )
     print(f"\n(lemma gains: {gains.as_dict()})")
 
 
-TABLES = {"order": table_order, "noise": table_noise, "disturbance": table_disturbance,
-          "contact": table_contact, "cost": table_cost, "variable_inertia": table_variable_inertia}
+TABLES = {
+    "order": table_order,
+    "noise": table_noise,
+    "disturbance": table_disturbance,
+    "contact": table_contact,
+    "cost": table_cost,
+    "variable_inertia": table_variable_inertia,
+}
 
 
 def main(argv=None):

@@ -33,10 +33,10 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import smo_gym  # noqa: E402
-from smo_gym import observers  # noqa: E402
-from smo_gym.design.gains import binomial_coefficients, levant_lambdas, super_twisting_gains  # noqa: E402
-from smo_gym.observers.differentiators import eigenvalue_mapping_vectors, taylor_matrix  # noqa: E402
+import smo_gym
+from smo_gym import observers
+from smo_gym.design.gains import binomial_coefficients, levant_lambdas, super_twisting_gains
+from smo_gym.observers.differentiators import eigenvalue_mapping_vectors, taylor_matrix
 
 CHANNELS = (1, 8, 32, 256)
 #: CPU time of this thread: the machines these run on are shared, and wall time would count other jobs' load
@@ -63,8 +63,7 @@ def variants(L1, L2, dt: float, noise: float = 1e-3):
         ("Levant k=2 matching", "levant", dict(order=2, lipschitz=L2, discretization="matching")),
         ("URED", "ured", dict(lipschitz=L1)),
         ("UniformLevant k=2", "uniform-levant", dict(order=2, lipschitz=L2)),
-        ("HighGain k=1 (from_bounds)", "high-gain",
-         dict(gain=math.sqrt(L1s / noise), order=1)),
+        ("HighGain k=1 (from_bounds)", "high-gain", dict(gain=math.sqrt(L1s / noise), order=1)),
         ("FiniteDifference", "finite-difference", dict()),
         ("KalmanCA (from_bounds)", "kalman-ca", dict(_from_bounds=(noise, L1s))),
     ]
@@ -202,8 +201,9 @@ class NumpyKalmanCA:
 
     def __init__(self, dt, q, r, initial_std):
         self.F = taylor_matrix(3, dt)
-        self.Q = q * np.array([[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2],
-                               [dt**3 / 6, dt**2 / 2, dt]])
+        self.Q = q * np.array(
+            [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]]
+        )
         self.r, self.s0 = r, initial_std
 
     def reset(self, y0):
@@ -213,12 +213,12 @@ class NumpyKalmanCA:
         self.P[:] = np.diag([self.r, self.s0[0] ** 2, self.s0[1] ** 2])
 
     def update(self, y):
-        x = self.x @ self.F.T                                   # x^- = F x
-        P = self.F @ self.P @ self.F.T + self.Q                 # P^- = F P F^T + Q
-        S = P[:, 0, 0] + self.r                                 # S = c P^- c^T + r
-        K = P[:, :, 0] / S[:, None]                             # K = P^- c / S
-        self.x = x + K * (y - x[:, 0])[:, None]                 # x^+ = x^- + K nu
-        self.P = P - K[:, :, None] * P[:, 0, None, :]           # P^+ = (I - K c) P^-
+        x = self.x @ self.F.T  # x^- = F x
+        P = self.F @ self.P @ self.F.T + self.Q  # P^- = F P F^T + Q
+        S = P[:, 0, 0] + self.r  # S = c P^- c^T + r
+        K = P[:, :, 0] / S[:, None]  # K = P^- c / S
+        self.x = x + K * (y - x[:, 0])[:, None]  # x^+ = x^- + K nu
+        self.P = P - K[:, :, None] * P[:, 0, None, :]  # P^+ = (I - K c) P^-
         return self.x.copy()
 
 
@@ -401,18 +401,23 @@ def table_speed(quick: bool) -> list[str]:
     ok = np.zeros((2, 3), dtype=int)  # (median, min) x (update, dispatcher, entry point)
     total = 0
     for label, name, params in variants(L1, L2, dt, noise=1e-4):
-        for n in (CHANNELS[:2] if quick else CHANNELS):
+        for n in CHANNELS[:2] if quick else CHANNELS:
             times = time_one(label, name, params, dt, n, n_rows, repeats)
             t_up, t_k, t_e, t_np, rel = times
             ratio = np.median(t_np) / np.median(t_up)
-            lines.append(f"| {label} | {n} | {_fmt(t_up)} | {_fmt(t_k)} | {_fmt(t_e)} | {_fmt(t_np)} | {ratio:.1f}x "
-                         f"| {rel:.0e} |")
+            lines.append(
+                f"| {label} | {n} | {_fmt(t_up)} | {_fmt(t_k)} | {_fmt(t_e)} | {_fmt(t_np)} | {ratio:.1f}x "
+                f"| {rel:.0e} |"
+            )
             if n <= 32:
                 total += 1
                 for row, stat in enumerate((np.median, np.min)):
                     ok[row] += [stat(t_up) <= 2.0, stat(t_k) <= 0.5, stat(t_e) <= 0.5]
-            print(f"  timed {label:28s} {n:4d} ch: update {_fmt(t_up)} us, kernel {_fmt(t_e)} us, "
-                  f"numpy {_fmt(t_np)} us", file=sys.stderr, flush=True)
+            print(
+                f"  timed {label:28s} {n:4d} ch: update {_fmt(t_up)} us, kernel {_fmt(t_e)} us, numpy {_fmt(t_np)} us",
+                file=sys.stderr,
+                flush=True,
+            )
     notes = [
         "",
         f"Call floor, an empty numba kernel with the same five array arguments: {floor:.2f} us through the "
@@ -435,8 +440,11 @@ def table_throughput(quick: bool) -> list[str]:
     n_ch = 8
     Y, w = test_signal(n_ch, T, dt)
     L1, L2 = 1.5 * w**2, 1.5 * w**3
-    lines = [f"| observer | `differentiate` on ({T:_}, {n_ch}) [s], median (min) of {repeats} "
-             "| channel-samples / s, median (best) |", "|---|---:|---:|"]
+    lines = [
+        f"| observer | `differentiate` on ({T:_}, {n_ch}) [s], median (min) of {repeats} "
+        "| channel-samples / s, median (best) |",
+        "|---|---:|---:|",
+    ]
     target = None
     for label, name, params in variants(L1, L2, dt, noise=1e-4):
         mp = method_params(name, dt, params)
@@ -461,10 +469,13 @@ def table_throughput(quick: bool) -> list[str]:
         obs.run(Y)
         times.append(CLOCK() - t0)
     run_rate = T * n_ch / np.median(times), T * n_ch / np.min(times)
-    lines += ["", f"Target: >= 50 M/s for SuperTwisting; measured {target[0] / 1e6:.0f} M/s median, "
-              f"{target[1] / 1e6:.0f} M/s best ({label}, the default). The time includes building the observer "
-              "and allocating the output array (T, 8, order + 1); `Observer.run` alone on the same array: "
-              f"{run_rate[0] / 1e6:.0f} M/s median, {run_rate[1] / 1e6:.0f} M/s best."]
+    lines += [
+        "",
+        f"Target: >= 50 M/s for SuperTwisting; measured {target[0] / 1e6:.0f} M/s median, "
+        f"{target[1] / 1e6:.0f} M/s best ({label}, the default). The time includes building the observer "
+        "and allocating the output array (T, 8, order + 1); `Observer.run` alone on the same array: "
+        f"{run_rate[0] / 1e6:.0f} M/s median, {run_rate[1] / 1e6:.0f} M/s best.",
+    ]
     return lines
 
 
@@ -549,11 +560,18 @@ def accuracy_rows(Y, V, dt, L1, L2, start, quick):
     rows.append(("KalmanCA (oracle q per joint)", "causal, oracle-tuned", _best_per_joint(cand, V, start)))
     # the sliding-mode observers with L scaled down (oracle): how much the bound from the trajectory costs
     scales = 10.0 ** np.arange(-4, 0.5, 0.5 if not quick else 1.0)
-    for label, name, extra, Lb in [("SuperTwisting euler", "super-twisting", dict(discretization="euler"), L1),
-                                   ("Levant k=2 taylor", "levant", dict(order=2), L2)]:
+    for label, name, extra, Lb in [
+        ("SuperTwisting euler", "super-twisting", dict(discretization="euler"), L1),
+        ("Levant k=2 taylor", "levant", dict(order=2), L2),
+    ]:
         cand = [run_causal(name, dt, dict(extra, lipschitz=s * Lb), Y) for s in scales]
-        rows.append((f"{label} (oracle L scaled by 10^-4..1 per joint)", "causal, oracle-tuned",
-                     _best_per_joint(cand, V, start)))
+        rows.append(
+            (
+                f"{label} (oracle L scaled by 10^-4..1 per joint)",
+                "causal, oracle-tuned",
+                _best_per_joint(cand, V, start),
+            )
+        )
     rows += pynumdiff_rows(Y, V, dt, start, quick)
     return rows
 
@@ -573,19 +591,33 @@ def pynumdiff_rows(Y, V, dt, start, quick):
     rows = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        rows.append(("pynumdiff finitediff (central, order 2)", "offline",
-                     pynumdiff.finitediff(Y, dt, order=2, axis=0)[1]))
-        cand = [pynumdiff.butterdiff(Y, dt, filter_order=2, cutoff_freq=c, axis=0)[1]
-                for c in (0.05, 0.1, 0.2, 0.3, 0.5, 0.8)]
+        rows.append(
+            ("pynumdiff finitediff (central, order 2)", "offline", pynumdiff.finitediff(Y, dt, order=2, axis=0)[1])
+        )
+        cand = [
+            pynumdiff.butterdiff(Y, dt, filter_order=2, cutoff_freq=c, axis=0)[1]
+            for c in (0.05, 0.1, 0.2, 0.3, 0.5, 0.8)
+        ]
         rows.append(("pynumdiff butterdiff (oracle cutoff)", "offline, oracle-tuned", _best_per_joint(cand, V, start)))
-        cand = [pynumdiff.savgoldiff(Y, dt, degree=d, window_size=w, smoothing_win=w, axis=0)[1]
-                for d in (2, 3) for w in (5, 9, 15, 25)]
-        rows.append(("pynumdiff savgoldiff (oracle degree, window)", "offline, oracle-tuned",
-                     _best_per_joint(cand, V, start)))
-        cand = [pynumdiff.rtsdiff(Y, dt, order=2, log_qr_ratio=lq, forwardbackward=False, axis=0)[1]
-                for lq in range(2, 15, 2 if not quick else 4)]
-        rows.append(("pynumdiff rtsdiff (CA Kalman + RTS smoother, oracle q/r)", "offline, oracle-tuned",
-                     _best_per_joint(cand, V, start)))
+        cand = [
+            pynumdiff.savgoldiff(Y, dt, degree=d, window_size=w, smoothing_win=w, axis=0)[1]
+            for d in (2, 3)
+            for w in (5, 9, 15, 25)
+        ]
+        rows.append(
+            ("pynumdiff savgoldiff (oracle degree, window)", "offline, oracle-tuned", _best_per_joint(cand, V, start))
+        )
+        cand = [
+            pynumdiff.rtsdiff(Y, dt, order=2, log_qr_ratio=lq, forwardbackward=False, axis=0)[1]
+            for lq in range(2, 15, 2 if not quick else 4)
+        ]
+        rows.append(
+            (
+                "pynumdiff rtsdiff (CA Kalman + RTS smoother, oracle q/r)",
+                "offline, oracle-tuned",
+                _best_per_joint(cand, V, start),
+            )
+        )
         if not quick:
             # total variation regularization is a convex program per joint: only the first TV_SECONDS
             n = min(len(Y), int(round(TV_SECONDS / dt)))
@@ -597,15 +629,16 @@ def pynumdiff_rows(Y, V, dt, start, quick):
             best = _best_per_joint([c[:n] for c in cand], V[:n], start)
             v = np.full(Y.shape, np.nan)
             v[:n] = best
-            rows.append((f"pynumdiff tvrdiff order 2 (oracle gamma; first {TV_SECONDS:g} s only)", "offline, oracle-tuned",
-                         v))
+            rows.append(
+                (f"pynumdiff tvrdiff order 2 (oracle gamma; first {TV_SECONDS:g} s only)", "offline, oracle-tuned", v)
+            )
     return rows
 
 
 def table_accuracy(quick: bool, seed: int) -> list[str]:
     seconds = 20.0 if quick else 60.0
     h, skip, names, qpos, qvel = record_half_cheetah(seconds, seed)
-    acc = np.diff(qvel, axis=0) / h        # Euler integrator: qvel_{k+1} = qvel_k + h qacc_k
+    acc = np.diff(qvel, axis=0) / h  # Euler integrator: qvel_{k+1} = qvel_k + h qacc_k
     jerk = np.diff(acc, axis=0) / h
     L1 = SAFETY * np.max(np.abs(acc), axis=0)
     L2 = SAFETY * np.max(np.abs(jerk), axis=0)
@@ -683,8 +716,9 @@ def interpretation(h, max_acc, L1, L2, results, fd, euler_gap, half_step) -> str
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats, channels and samples (~1 min)")
-    parser.add_argument("--tables", default="speed,throughput,accuracy",
-                        help="comma-separated subset of speed,throughput,accuracy")
+    parser.add_argument(
+        "--tables", default="speed,throughput,accuracy", help="comma-separated subset of speed,throughput,accuracy"
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     tables = set(args.tables.split(","))

@@ -40,15 +40,28 @@ def _venv(env_id: str, kind: str, n_envs: int, subproc: bool = False):
     if kind == "unwrapped":
         return make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=cls)
     if kind == "per-env physics":
-        return make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=cls, wrapper_class=EstimatedVelocity,
-                            wrapper_kwargs=dict(rate="physics"))
+        return make_vec_env(
+            env_id,
+            n_envs=n_envs,
+            seed=0,
+            vec_env_cls=cls,
+            wrapper_class=EstimatedVelocity,
+            wrapper_kwargs=dict(rate="physics"),
+        )
     if kind == "per-env env":
-        return make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=cls, wrapper_class=EstimatedVelocity,
-                            wrapper_kwargs=dict(rate="env"))
+        return make_vec_env(
+            env_id,
+            n_envs=n_envs,
+            seed=0,
+            vec_env_cls=cls,
+            wrapper_class=EstimatedVelocity,
+            wrapper_kwargs=dict(rate="env"),
+        )
     if kind == "vec env":
         if subproc:
-            return VecEstimatedVelocity(make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=cls,
-                                                     wrapper_class=JointSensor))
+            return VecEstimatedVelocity(
+                make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=cls, wrapper_class=JointSensor)
+            )
         return VecEstimatedVelocity(make_vec_env(lambda: gym.make(env_id), n_envs=n_envs, seed=0))
     raise ValueError(kind)
 
@@ -58,8 +71,10 @@ KINDS = ("unwrapped", "per-env physics", "per-env env", "vec env")
 
 #: PPO settings: the RL benchmark's (4 envs, large minibatches: little learning cost per step, so the environment
 #: and the wrapper weigh the most) and SB3's defaults (1 env, 2048 steps, minibatches of 64, 10 epochs)
-SETTINGS = {"rl_benchmark": dict(n_envs=4, n_steps=512, batch_size=256),
-            "sb3-default": dict(n_envs=1, n_steps=2048, batch_size=64)}
+SETTINGS = {
+    "rl_benchmark": dict(n_envs=4, n_steps=512, batch_size=256),
+    "sb3-default": dict(n_envs=1, n_steps=2048, batch_size=64),
+}
 
 
 def training(env_id: str, rounds: int, setting: str) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
@@ -71,8 +86,7 @@ def training(env_id: str, rounds: int, setting: str) -> tuple[dict[str, list[flo
     torch.set_num_threads(1)
     cfg = dict(SETTINGS[setting])
     n_envs = cfg.pop("n_envs")
-    models = {k: PPO("MlpPolicy", VecNormalize(_venv(env_id, k, n_envs)), seed=0, device="cpu", **cfg)
-              for k in KINDS}
+    models = {k: PPO("MlpPolicy", VecNormalize(_venv(env_id, k, n_envs)), seed=0, device="cpu", **cfg) for k in KINDS}
     per_round = cfg["n_steps"] * n_envs
     for m in models.values():  # warm-up: compilation, calibration caches, first allocations
         m.learn(per_round)
@@ -118,10 +132,14 @@ def main(argv=None) -> int:
     p.add_argument("--settings", default=",".join(SETTINGS), help=f"PPO settings among {', '.join(SETTINGS)}")
     p.add_argument("--no-subproc", action="store_true")
     args = p.parse_args(argv)
-    print("PPO training throughput: env steps per second of wall clock and of process CPU time (median of "
-          "interleaved rounds) and their ratio to unwrapped")
-    print(f"{'env':26s} {'PPO setting':13s} {'configuration':16s} {'wall/s':>7s} {'ratio':>6s} {'cpu/s':>7s} "
-          f"{'ratio':>6s}")
+    print(
+        "PPO training throughput: env steps per second of wall clock and of process CPU time (median of "
+        "interleaved rounds) and their ratio to unwrapped"
+    )
+    print(
+        f"{'env':26s} {'PPO setting':13s} {'configuration':16s} {'wall/s':>7s} {'ratio':>6s} {'cpu/s':>7s} "
+        f"{'ratio':>6s}"
+    )
     worst = {"wall": np.inf, "cpu": np.inf}
     for env_id in args.envs.split(","):
         for setting in args.settings.split(","):
@@ -132,8 +150,9 @@ def main(argv=None) -> int:
                 if k != "unwrapped":
                     worst["wall"] = min(worst["wall"], mw / bw)
                     worst["cpu"] = min(worst["cpu"], mc / bc)
-                print(f"{env_id:26s} {setting:13s} {k:16s} {mw:7.0f} {mw / bw:6.2f} {mc:7.0f} {mc / bc:6.2f}",
-                      flush=True)
+                print(
+                    f"{env_id:26s} {setting:13s} {k:16s} {mw:7.0f} {mw / bw:6.2f} {mc:7.0f} {mc / bc:6.2f}", flush=True
+                )
     print(f"worst ratio: wall {worst['wall']:.2f}, cpu {worst['cpu']:.2f} (target >= 0.90)")
     if not args.no_subproc:
         print("\nSubprocVecEnv, 2 workers: time per vector step (us, median), no learning")

@@ -51,9 +51,9 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import gymnasium as gym  # noqa: E402
+import gymnasium as gym
 
-from smo_gym.wrappers import EstimatedVelocity  # noqa: E402
+from smo_gym.wrappers import EstimatedVelocity
 
 ENVS = ("InvertedPendulum-v5", "Hopper-v5", "HalfCheetah-v5", "Humanoid-v5")
 #: env id -> (target at rate="env", target at rate="physics")
@@ -103,8 +103,9 @@ def timed_block(env: gym.Env, actions: list[np.ndarray], seed: int) -> float:
     return total + (clock() - t0)
 
 
-def bench_env(env_id: str, repeats: int, steps: int, seed: int = 0, observer: str = "super-twisting",
-              envs: dict | None = None) -> dict:
+def bench_env(
+    env_id: str, repeats: int, steps: int, seed: int = 0, observer: str = "super-twisting", envs: dict | None = None
+) -> dict:
     """Median step-time ratios against ``raw`` (interleaved, see the module docstring); ``envs`` maps variant
     names to environments (default: :data:`VARIANTS`), one of them ``"raw"``."""
     envs = envs or {v: make_variant(env_id, v, observer) for v in VARIANTS}
@@ -140,8 +141,10 @@ def bench_env(env_id: str, repeats: int, steps: int, seed: int = 0, observer: st
 
 def format_table(results: list[dict]) -> str:
     """Markdown table: raw cost, ratio of each variant (median [IQR]), targets and pass/fail."""
-    head = ("| environment | raw us/step | NormalizeObservation | rate=\"env\" | target | pass | "
-            "rate=\"physics\" | target | pass |")
+    head = (
+        '| environment | raw us/step | NormalizeObservation | rate="env" | target | pass | '
+        'rate="physics" | target | pass |'
+    )
     lines = [head, "|---|---:|---:|---:|---:|:-:|---:|---:|:-:|"]
 
     def cell(res):
@@ -172,6 +175,7 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     at all: also no finiteness check and no ``info["smo"]``); ``-sensing`` (also no sensor and no observer
     update: what remains is the wrapper's skeleton and, at ``rate="physics"``, the substep hook that copies
     ``qpos`` after every physics step). The wrapper's hot path (``FusedSensing``) is what is switched off."""
+
     def wrapped():
         env = make_variant(env_id, rate, observer)
         env.reset(seed=0)
@@ -184,6 +188,7 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     for env in (no_scratch, no_observe, no_sensing):
         env.adapter.observe_scratch = lambda *args, c=const: c
         env._fused.maps_observation = False  # a selection built by the compiled call is switched off here too
+
     def no_observation(block, info, clean, c=const):
         info["smo"] = {}
         return c
@@ -192,8 +197,13 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
         env._observe_fused = no_observation
     block = np.zeros(2 * full.adapter.model.nq + 4 * full.adapter.model.nv)
     no_sensing._fused.sample = lambda samples, qvel, b=block: b
-    return {"raw": make_variant(env_id, "raw"), "full": full, "-scratch obs": no_scratch, "-observe": no_observe,
-            "-sensing": no_sensing}
+    return {
+        "raw": make_variant(env_id, "raw"),
+        "full": full,
+        "-scratch obs": no_scratch,
+        "-observe": no_observe,
+        "-sensing": no_sensing,
+    }
 
 
 def format_ablation(env_id: str, rate: str, res: dict) -> str:
@@ -205,15 +215,24 @@ def format_ablation(env_id: str, rate: str, res: dict) -> str:
     def diff(a, b):
         return 1e6 * float(np.median(np.array(times[a]) - np.array(times[b]))) / steps
 
-    parts = [("observation at the sensed state (adapter.observe_scratch, or built by the compiled call)",
-              diff("full", "-scratch obs")),
-             ("finiteness check and info['smo']", diff("-scratch obs", "-observe")),
-             ("sensor + observer + outputs (FusedSensing.sample, one compiled call)", diff("-observe", "-sensing")),
-             ("skeleton (Wrapper.step, bookkeeping" + (", substep hook and sampling)" if rate != "env" else ")"),
-              diff("-sensing", "raw"))]
-    lines = [f"{env_id}, rate={rate!r}: raw {raw_us:.1f} us/step, wrapped {res['full']['us']:.1f} us/step "
-             f"(ratio {res['full']['ratio']:.3f}; total overhead, paired: {diff('full', 'raw'):.1f} us)",
-             "| part | us/step | share of the raw step |", "|---|---:|---:|"]
+    parts = [
+        (
+            "observation at the sensed state (adapter.observe_scratch, or built by the compiled call)",
+            diff("full", "-scratch obs"),
+        ),
+        ("finiteness check and info['smo']", diff("-scratch obs", "-observe")),
+        ("sensor + observer + outputs (FusedSensing.sample, one compiled call)", diff("-observe", "-sensing")),
+        (
+            "skeleton (Wrapper.step, bookkeeping" + (", substep hook and sampling)" if rate != "env" else ")"),
+            diff("-sensing", "raw"),
+        ),
+    ]
+    lines = [
+        f"{env_id}, rate={rate!r}: raw {raw_us:.1f} us/step, wrapped {res['full']['us']:.1f} us/step "
+        f"(ratio {res['full']['ratio']:.3f}; total overhead, paired: {diff('full', 'raw'):.1f} us)",
+        "| part | us/step | share of the raw step |",
+        "|---|---:|---:|",
+    ]
     lines += [f"| {name} | {v:.1f} | {v / raw_us:.1%} |" for name, v in parts]
     return "\n".join(lines)
 
@@ -242,8 +261,10 @@ def cold_path(env_id: str, n: int = 3000, repeats: int = 5) -> str:
         return best
 
     step0, step1, step2, alone = run(0), run(1), run(2), run(1, with_step=False)
-    return (f"{env_id}: env.step {step0:.1f} us; first sensor+observer pair after it +{step1 - step0:.1f} us, "
-            f"second pair +{step2 - step1:.1f} us, the pair alone in a hot loop {alone:.1f} us")
+    return (
+        f"{env_id}: env.step {step0:.1f} us; first sensor+observer pair after it +{step1 - step0:.1f} us, "
+        f"second pair +{step2 - step1:.1f} us, the pair alone in a hot loop {alone:.1f} us"
+    )
 
 
 def profile(env_id: str, steps: int, rate: str, observer: str = "super-twisting", top: int = 25) -> str:
@@ -265,18 +286,25 @@ def profile(env_id: str, steps: int, rate: str, observer: str = "super-twisting"
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--envs", default=",".join(ENVS), help="comma-separated environment ids")
     parser.add_argument("--repeats", type=int, default=21, help="timed blocks per variant (median over them)")
     parser.add_argument("--steps", type=int, default=400, help="env steps per timed block")
     parser.add_argument("--observer", default="super-twisting")
     parser.add_argument("--quick", action="store_true", help="7 repeats of 200 steps")
     parser.add_argument("--profile", metavar="ENV", help="print a cProfile of the wrapped step on ENV and exit")
-    parser.add_argument("--cold-path", action="store_true",
-                        help="also print the first-call (cold path) cost of sensor+observer after env.step")
-    parser.add_argument("--ablate", action="store_true",
-                        help="also print the marginal cost of each part of the wrapper (see ablations())")
+    parser.add_argument(
+        "--cold-path",
+        action="store_true",
+        help="also print the first-call (cold path) cost of sensor+observer after env.step",
+    )
+    parser.add_argument(
+        "--ablate",
+        action="store_true",
+        help="also print the marginal cost of each part of the wrapper (see ablations())",
+    )
     args = parser.parse_args(argv)
     if args.quick:
         args.repeats, args.steps = 7, 200
@@ -287,9 +315,12 @@ def main(argv=None) -> int:
             print(profile(args.profile, args.steps * 5, rate, args.observer))
         return 0
     envs = [e.strip() for e in args.envs.split(",") if e.strip()]
-    print(f"EstimatedVelocity step time / raw step time ({args.observer}, default sensor), medians over "
-          f"{args.repeats} interleaved blocks of {args.steps} steps (thread CPU time); [IQR of the ratio]; "
-          f"pass = ratio <= target and < NormalizeObservation's ratio\n", flush=True)
+    print(
+        f"EstimatedVelocity step time / raw step time ({args.observer}, default sensor), medians over "
+        f"{args.repeats} interleaved blocks of {args.steps} steps (thread CPU time); [IQR of the ratio]; "
+        f"pass = ratio <= target and < NormalizeObservation's ratio\n",
+        flush=True,
+    )
     results = []
     for env_id in envs:
         t0 = time.perf_counter()
@@ -301,12 +332,19 @@ def main(argv=None) -> int:
         for env_id in envs:
             print("- " + cold_path(env_id), flush=True)
     if args.ablate:
-        print("\nWhere the wrapper's time goes: marginal cost of each part, measured in situ by switching the parts "
-              "off one after the other (interleaved medians)\n")
+        print(
+            "\nWhere the wrapper's time goes: marginal cost of each part, measured in situ by switching the parts "
+            "off one after the other (interleaved medians)\n"
+        )
         for env_id in envs:
             for rate in ("env", "physics"):
-                res = bench_env(env_id, args.repeats, args.steps, observer=args.observer,
-                                envs=ablations(env_id, rate, args.observer))
+                res = bench_env(
+                    env_id,
+                    args.repeats,
+                    args.steps,
+                    observer=args.observer,
+                    envs=ablations(env_id, rate, args.observer),
+                )
                 print(format_ablation(env_id, rate, res) + "\n", flush=True)
     return 0
 

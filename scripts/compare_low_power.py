@@ -37,16 +37,16 @@ def transient_peaks(observer_cls, ell: float, order: int, **kwargs) -> np.ndarra
 def peaking_exponents(order: int, bound: float = 1.5) -> dict[str, np.ndarray]:
     """Peaks for ``ELLS`` and the fitted exponents ``p_i`` of ``peak_i ~ ell^p_i`` (least squares in log-log)."""
     out = {}
-    for name, cls, kw in (("high-gain", HighGain, {}),
-                          ("low-power-high-gain", LowPowerHighGain, {"bounds": bound})):
+    for name, cls, kw in (("high-gain", HighGain, {}), ("low-power-high-gain", LowPowerHighGain, {"bounds": bound})):
         peaks = np.array([transient_peaks(cls, ell, order, **kw) for ell in ELLS])
         slope = np.polyfit(np.log(ELLS), np.log(peaks), 1)[0]
         out[name] = {"peaks": peaks, "exponents": slope}
     return out
 
 
-def noise_errors(order: int, ell: float = 50.0, noise: str = "white", amplitude: float = 1e-3,
-                 h: float = 1e-4, seed: int = 0) -> dict[str, np.ndarray]:
+def noise_errors(
+    order: int, ell: float = 50.0, noise: str = "white", amplitude: float = 1e-3, h: float = 1e-4, seed: int = 0
+) -> dict[str, np.ndarray]:
     """Steady-state RMS error of every estimate on [1, 2] s with measurement noise, at equal convergence rate.
 
     Returns, per observer, ``{"total": RMS of xhat - x, "noise": RMS of xhat(noisy y) - xhat(clean y)}`` (the
@@ -63,15 +63,19 @@ def noise_errors(order: int, ell: float = 50.0, noise: str = "white", amplitude:
     y = x[:, 0] + v
     out = {}
     ss = t >= 1.0
-    for name, make in (("high-gain", lambda: HighGain(dt=h, gain=ell, order=order)),
-                       ("low-power-high-gain", lambda: LowPowerHighGain(dt=h, gain=ell, order=order, bounds=2.0))):
+    for name, make in (
+        ("high-gain", lambda: HighGain(dt=h, gain=ell, order=order)),
+        ("low-power-high-gain", lambda: LowPowerHighGain(dt=h, gain=ell, order=order, bounds=2.0)),
+    ):
         z = {}
         for key, signal in (("noisy", y), ("clean", x[:, 0])):
             obs = make()
             first = obs.reset(signal[:1])
             z[key] = np.concatenate([first[None], obs.run(signal[1:, None])])[:, 0]
-        out[name] = {"total": np.sqrt(np.mean((z["noisy"][ss] - x[ss]) ** 2, axis=0)),
-                     "noise": np.sqrt(np.mean((z["noisy"][ss] - z["clean"][ss]) ** 2, axis=0))}
+        out[name] = {
+            "total": np.sqrt(np.mean((z["noisy"][ss] - x[ss]) ** 2, axis=0)),
+            "noise": np.sqrt(np.mean((z["noisy"][ss] - z["clean"][ss]) ** 2, axis=0)),
+        }
     return out
 
 
@@ -82,15 +86,17 @@ def main() -> None:
         res = peaking_exponents(order)
         for name, r in res.items():
             print(f"  n = {order + 1} {name:>20}: exponents p_i = {np.round(r['exponents'], 2)}")
-            for ell, p in zip(ELLS, r["peaks"]):
+            for ell, p in zip(ELLS, r["peaks"], strict=False):
                 print(f"  {'':>27} ell = {ell:6.0f}: peaks = {p}")
     print("Steady-state RMS error of xhat_1..xhat_n under noise 1e-3 (ell = 50, both with all poles at -ell):")
     print("total error, and in brackets the part due to the noise alone")
     for order in (1, 2, 3):
         for noise in ("white", "sine"):
             res = noise_errors(order, noise=noise)
-            print(f"  n = {order + 1}, {noise:>5} noise: "
-                  + "; ".join(f"{k}: {v['total']} [{v['noise']}]" for k, v in res.items()))
+            print(
+                f"  n = {order + 1}, {noise:>5} noise: "
+                + "; ".join(f"{k}: {v['total']} [{v['noise']}]" for k, v in res.items())
+            )
 
 
 if __name__ == "__main__":

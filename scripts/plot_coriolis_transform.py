@@ -27,17 +27,16 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import gymnasium as gym  # noqa: E402
-import matplotlib  # noqa: E402
+import gymnasium as gym
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
-import smo_gym.envs  # noqa: E402, F401
-from smo_gym import design  # noqa: E402
-from smo_gym._validation import DivergenceError  # noqa: E402
-from smo_gym.mechanics import MujocoDynamics  # noqa: E402
-from smo_gym.observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting  # noqa: E402
+from smo_gym import design
+from smo_gym._validation import DivergenceError
+from smo_gym.mechanics import MujocoDynamics
+from smo_gym.observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting
 
 TOL = 0.05
 
@@ -91,29 +90,37 @@ def main(argv=None):
     typical = float(np.sqrt(np.mean(V**2)))
     L = args.lipschitz
     gains = design.apaza_gains(L, q=-1.0, s=-0.5, r=0.0, upsilon_max=float(tr.grid_upsilon.max()))
-    print(f"typical |v| = {typical:.3f} rad/s, L = {L}, lemma gains {gains.as_dict()}, "
-          f"LMI max eigenvalue {gains.lmi_max_eigenvalue:.2e}")
+    print(
+        f"typical |v| = {typical:.3f} rad/s, L = {L}, lemma gains {gains.as_dict()}, "
+        f"LMI max eigenvalue {gains.lmi_max_eigenvalue:.2e}"
+    )
     bound = 1.5 * float(np.abs(np.diff(V[:, 0]) / dt).max())
     makers = {
         "dissipative (transformed)": lambda: DissipativeSuperTwisting(dt, dyn, tr, gains),
         "untransformed, unsaturated": lambda: MechanicalSuperTwisting(dt, dyn, lipschitz=L),
-        f"untransformed, saturated at {bound:.0f}": lambda: MechanicalSuperTwisting(dt, dyn, lipschitz=2 * bound + L,
-                                                                                   accel_bound=bound),
+        f"untransformed, saturated at {bound:.0f}": lambda: MechanicalSuperTwisting(
+            dt, dyn, lipschitz=2 * bound + L, accel_bound=bound
+        ),
     }
     factors = (10, -10, 100, -100)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
     t = dt * np.arange(1, len(Q))
     print("\n| observer | " + " | ".join(f"v0 error {f:+d}x" for f in factors) + " |")
     print("|---|" + "---|" * len(factors))
-    styles = {f: s for f, s in zip(factors, ("-", "--", "-", "--"))}
-    colors = dict(zip(makers, ("C0", "C3", "C2")))
+    styles = {f: s for f, s in zip(factors, ("-", "--", "-", "--"), strict=False)}
+    colors = dict(zip(makers, ("C0", "C3", "C2"), strict=False))
     for name, make in makers.items():
         cells = []
         for f in factors:
             err, escaped = errors(make(), Q, V, U, f * typical)
             ax = axes[0] if abs(f) == 10 else axes[1]
-            ax.semilogy(t[:len(err)], np.clip(err, 1e-8, 1e6), styles[f], color=colors[name],
-                        label=f"{name}, {f:+d}x" + (" (escapes)" if escaped else ""))
+            ax.semilogy(
+                t[: len(err)],
+                np.clip(err, 1e-8, 1e6),
+                styles[f],
+                color=colors[name],
+                label=f"{name}, {f:+d}x" + (" (escapes)" if escaped else ""),
+            )
             if escaped:
                 ax.plot(t[len(err) - 1], min(max(err[-1], 1e-8), 1e6), "x", color=colors[name], ms=10)
                 cells.append(f"escapes at {len(err) * dt:.2f} s")
@@ -121,7 +128,7 @@ def main(argv=None):
                 tc = convergence_time(err, dt)
                 cells.append(f"{tc:.2f} s" if np.isfinite(tc) else "not converged")
         print(f"| {name} | " + " | ".join(cells) + " |")
-    for ax, f in zip(axes[:2], (10, 100)):
+    for ax, f in zip(axes[:2], (10, 100), strict=False):
         ax.axhline(TOL, color="k", lw=0.5)
         ax.set_ylim(1e-8, 2e6)
         ax.set_title(f"initial velocity error +-{f}x typical ({f * typical:.0f} rad/s)")

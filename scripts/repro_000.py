@@ -73,8 +73,10 @@ def noise_free_errors(h: float) -> dict[str, float]:
     t = np.arange(0.0, T_END + 0.5 * h, h)
     _, f, df = signal(t, 0.0)
     out = {}
-    for name, obs in (("switched", SwitchedGain(dt=h, order=1, q=2.0, alpha=1.0, mu0=10.0, disturbance=D, noise=V)),
-                      ("sta", SuperTwisting(dt=h, lipschitz=D, discretization="euler"))):
+    for name, obs in (
+        ("switched", SwitchedGain(dt=h, order=1, q=2.0, alpha=1.0, mu0=10.0, disturbance=D, noise=V)),
+        ("sta", SuperTwisting(dt=h, lipschitz=D, discretization="euler")),
+    ):
         first = obs.reset(np.zeros(1))
         z = np.concatenate([first, obs.run(f[1:, None])[:, 0]], axis=0)
         ss = t >= STEADY
@@ -99,27 +101,33 @@ def reproduce_000(out_dir) -> list[dict]:
     results: list[dict] = []
 
     l, P, cert = switched_gain_lmi(2, kappa=1.0, rho_d=1.0, rho_v=1.0)
-    results.append({
-        "claim": "LMI of Remark 2 (kappa = rho_d = rho_v = 1) is satisfied for l = [2.6 2.1], "
-                 "P = [[0.76 -0.48] [-0.48 0.6]]",
-        "measured": f"l = {np.round(l, 3).tolist()}, P = {np.round(P, 3).tolist()} (max lambda_min(P)); "
-                    f"max eig of the LMI at the solution {cert.max_eig_lmi:.1e}",
-        "ok": bool(np.max(np.abs(l - PRINTED_L)) < 0.05 and np.max(np.abs(P - PRINTED_P)) < 0.02),
-    })
+    results.append(
+        {
+            "claim": "LMI of Remark 2 (kappa = rho_d = rho_v = 1) is satisfied for l = [2.6 2.1], "
+            "P = [[0.76 -0.48] [-0.48 0.6]]",
+            "measured": f"l = {np.round(l, 3).tolist()}, P = {np.round(P, 3).tolist()} (max lambda_min(P)); "
+            f"max eig of the LMI at the solution {cert.max_eig_lmi:.1e}",
+            "ok": bool(np.max(np.abs(l - PRINTED_L)) < 0.05 and np.max(np.abs(P - PRINTED_P)) < 0.02),
+        }
+    )
 
     runs = {case: simulate(*case) for case in CASES}
     obs = runs[CASES[0]]["observer"]
-    results.append({
-        "claim": f"mu_min = {PRINTED_MU_MIN}, mu_max = {PRINTED_MU_MAX} (D = 1 + pi^2, V = 0.1)",
-        "measured": f"mu_min = {obs.mu_min:.4f}, mu_max = {obs.mu_max:.4f}",
-        "ok": bool(abs(obs.mu_min - PRINTED_MU_MIN) < 0.01 and abs(obs.mu_max - PRINTED_MU_MAX) < 0.02),
-    })
+    results.append(
+        {
+            "claim": f"mu_min = {PRINTED_MU_MIN}, mu_max = {PRINTED_MU_MAX} (D = 1 + pi^2, V = 0.1)",
+            "measured": f"mu_min = {obs.mu_min:.4f}, mu_max = {obs.mu_max:.4f}",
+            "ok": bool(abs(obs.mu_min - PRINTED_MU_MIN) < 0.01 and abs(obs.mu_max - PRINTED_MU_MAX) < 0.02),
+        }
+    )
     T0 = obs.convergence_time_bound()
-    results.append({
-        "claim": f"uniform global convergence time estimate T0 = {PRINTED_T0}",
-        "measured": f"T0 = {T0:.4f} (Theorem 6 with the LMI solution, q = 2, alpha = 1)",
-        "ok": bool(abs(T0 - PRINTED_T0) < 0.01),
-    })
+    results.append(
+        {
+            "claim": f"uniform global convergence time estimate T0 = {PRINTED_T0}",
+            "measured": f"T0 = {T0:.4f} (Theorem 6 with the LMI solution, q = 2, alpha = 1)",
+            "ok": bool(abs(T0 - PRINTED_T0) < 0.01),
+        }
+    )
 
     plan = obs.schedule()
     for (h, omega), run in runs.items():
@@ -128,16 +136,21 @@ def reproduce_000(out_dir) -> list[dict]:
         idx = np.flatnonzero(np.diff(mu) != 0.0) + 1
         # mu[k] is the gain after the update at t_k (used from t_k on): the switch happened at t[k]
         measured = [(float(t[0]), float(mu[0]))] + [(float(t[k]), float(mu[k])) for k in idx]
-        same_gains = len(measured) == len(plan) and all(abs(a[1] - b[1]) < 1e-9 for a, b in zip(measured, plan))
-        timing = max((abs(a[0] - b[0]) for a, b in zip(measured, plan)), default=np.inf) if same_gains else np.inf
-        results.append({
-            "claim": f"h = {h}: switching while T_i > T_min = 3h and mu_i <= mu_max, mu_0 = 10, q = 2, then reset "
-                     "to mu_min (schedule (7), (9), Remark 9)",
-            "measured": "switches (t, mu): " + ", ".join(f"({a:.3f}, {b:.2f})" for a, b in measured)
-                        + f"; planned " + ", ".join(f"({a:.3f}, {b:.2f})" for a, b in plan)
-                        + f"; max timing difference {timing:.4f} s",
-            "ok": bool(same_gains and timing <= h + 1e-9),
-        })
+        pairs = list(zip(measured, plan, strict=False))
+        same_gains = len(measured) == len(plan) and all(abs(a[1] - b[1]) < 1e-9 for a, b in pairs)
+        timing = max((abs(a[0] - b[0]) for a, b in pairs), default=np.inf) if same_gains else np.inf
+        results.append(
+            {
+                "claim": f"h = {h}: switching while T_i > T_min = 3h and mu_i <= mu_max, mu_0 = 10, q = 2, then reset "
+                "to mu_min (schedule (7), (9), Remark 9)",
+                "measured": "switches (t, mu): "
+                + ", ".join(f"({a:.3f}, {b:.2f})" for a, b in measured)
+                + "; planned "
+                + ", ".join(f"({a:.3f}, {b:.2f})" for a, b in plan)
+                + f"; max timing difference {timing:.4f} s",
+                "ok": bool(same_gains and timing <= h + 1e-9),
+            }
+        )
 
     for (h, omega), run in runs.items():
         tr = run["t"] <= TRANSIENT
@@ -145,13 +158,16 @@ def reproduce_000(out_dir) -> list[dict]:
         peak_fx = float(np.max(np.abs(run["fixed"][tr, 1])))
         err_sw = float(np.max(np.abs(run["switched"][tr, 1] - run["df"][tr])))
         err_fx = float(np.max(np.abs(run["fixed"][tr, 1] - run["df"][tr])))
-        results.append({
-            "claim": f"h = {h}, omega = {omega}: gain switching reduces peaking compared with the fixed gain mu = 30",
-            "measured": f"transient peak |xhat_2|: switched {peak_sw:.2f}, fixed {peak_fx:.2f} (ratio "
-                        f"{peak_fx / peak_sw:.2f}); peak |xhat_2 - f'|: switched {err_sw:.2f}, fixed {err_fx:.2f}; "
-                        f"max |f'| = {1 + np.pi:.2f}",
-            "ok": bool(peak_sw < peak_fx and err_sw < err_fx),
-        })
+        results.append(
+            {
+                "claim": f"h = {h}, omega = {omega}: gain switching reduces peaking compared with the fixed gain "
+                "mu = 30",
+                "measured": f"transient peak |xhat_2|: switched {peak_sw:.2f}, fixed {peak_fx:.2f} (ratio "
+                f"{peak_fx / peak_sw:.2f}); peak |xhat_2 - f'|: switched {err_sw:.2f}, fixed {err_fx:.2f}; "
+                f"max |f'| = {1 + np.pi:.2f}",
+                "ok": bool(peak_sw < peak_fx and err_sw < err_fx),
+            }
+        )
 
     steady = {}
     for (h, omega), run in runs.items():
@@ -161,32 +177,43 @@ def reproduce_000(out_dir) -> list[dict]:
     clean = {h: noise_free_errors(h) for h, _ in CASES}
     (h1, _), (h2, _) = CASES
     change = {name: clean[h1][name] / clean[h2][name] for name in ("switched", "sta")}
-    results.append({
-        "claim": "the switched-gain differentiator (implicit Euler) is less sensitive to the step h than the "
-                 "super-twisting differentiator (explicit Euler)",
-        "measured": "noise-free steady-state RMS of xhat_2 - f' on [5, 10] s: "
-                    + "; ".join(f"h = {h}: switched {v['switched']:.4f}, super-twisting {v['sta']:.4f}"
-                                for h, v in clean.items())
-                    + f"; ratio h={h1} / h={h2}: switched {change['switched']:.2f}, super-twisting "
-                      f"{change['sta']:.2f}. With the noise of Figs. 1-2: "
-                    + "; ".join(f"h = {h}: switched {v['switched']:.3f}, fixed mu=30 {v['fixed']:.3f}, "
-                                f"super-twisting {v['sta']:.3f}" for h, v in steady.items())
-                    + ". The relative sensitivity claim holds; in absolute terms the super-twisting error is "
-                      "smaller noise-free (the linear observer at mu_min = 10.4 keeps a lag error of order "
-                      "D/mu_min) and all three are comparable with the noise.",
-        "ok": bool(abs(np.log(change["switched"])) < abs(np.log(change["sta"]))),
-    })
+    results.append(
+        {
+            "claim": "the switched-gain differentiator (implicit Euler) is less sensitive to the step h than the "
+            "super-twisting differentiator (explicit Euler)",
+            "measured": "noise-free steady-state RMS of xhat_2 - f' on [5, 10] s: "
+            + "; ".join(
+                f"h = {h}: switched {v['switched']:.4f}, super-twisting {v['sta']:.4f}" for h, v in clean.items()
+            )
+            + f"; ratio h={h1} / h={h2}: switched {change['switched']:.2f}, super-twisting "
+            f"{change['sta']:.2f}. With the noise of Figs. 1-2: "
+            + "; ".join(
+                f"h = {h}: switched {v['switched']:.3f}, fixed mu=30 {v['fixed']:.3f}, super-twisting {v['sta']:.3f}"
+                for h, v in steady.items()
+            )
+            + ". The relative sensitivity claim holds; in absolute terms the super-twisting error is "
+            "smaller noise-free (the linear observer at mu_min = 10.4 keeps a lag error of order "
+            "D/mu_min) and all three are comparable with the noise.",
+            "ok": bool(abs(np.log(change["switched"])) < abs(np.log(change["sta"]))),
+        }
+    )
 
     ratios, times, t_fixed = fixed_time_contraction()
-    results.append({
-        "claim": f"noise-free, the switched gain converges globally in a fixed time bounded by T0 = {PRINTED_T0} "
-                 "(Theorem 6, mu0 = 1); not simulated in the paper",
-        "measured": "||e(T0)|| / ||e(0)|| for initial errors 1, 1e3, 1e6 (f = 1, D = 0, h = 1e-3, T_min = 3h): "
-                    + ", ".join(f"{r:.1e}" for r in ratios) + " (the absolute error reaches the rounding floor); "
-                    "contraction by 1e-6 reached at t = " + ", ".join(f"{x:.2f}" for x in times)
-                    + f" s, against {t_fixed:.2f} s for the fixed gain mu = 1",
-        "ok": bool(max(ratios) < 1e-6 and max(times) - min(times) <= 1e-9 and max(times) < min(PRINTED_T0, t_fixed)),
-    })
+    results.append(
+        {
+            "claim": f"noise-free, the switched gain converges globally in a fixed time bounded by T0 = {PRINTED_T0} "
+            "(Theorem 6, mu0 = 1); not simulated in the paper",
+            "measured": "||e(T0)|| / ||e(0)|| for initial errors 1, 1e3, 1e6 (f = 1, D = 0, h = 1e-3, T_min = 3h): "
+            + ", ".join(f"{r:.1e}" for r in ratios)
+            + " (the absolute error reaches the rounding floor); "
+            "contraction by 1e-6 reached at t = "
+            + ", ".join(f"{x:.2f}" for x in times)
+            + f" s, against {t_fixed:.2f} s for the fixed gain mu = 1",
+            "ok": bool(
+                max(ratios) < 1e-6 and max(times) - min(times) <= 1e-9 and max(times) < min(PRINTED_T0, t_fixed)
+            ),
+        }
+    )
 
     _figures(runs, out_dir)
     return results
@@ -233,8 +260,11 @@ def _figures(runs, out_dir: Path) -> None:
         axes[0].plot(t, run["f"], "k", lw=1.5, label="f")
         axes[1].plot(t, run["df"], "k", lw=1.5, label="f'")
         for name, style in (("switched", "C0"), ("fixed", "C1"), ("sta", "C2")):
-            label = {"switched": "switched gain (4), (7), (9)", "fixed": "fixed mu = 30",
-                     "sta": "super-twisting (explicit Euler)"}[name]
+            label = {
+                "switched": "switched gain (4), (7), (9)",
+                "fixed": "fixed mu = 30",
+                "sta": "super-twisting (explicit Euler)",
+            }[name]
             axes[0].plot(t, run[name][:, 0], style, lw=0.8, label=label)
             axes[1].plot(t, run[name][:, 1], style, lw=0.8, label=label)
         axes[1].set_ylim(-25, 25)

@@ -39,9 +39,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from smo_gym.design import ackermann_observer_gain, block_decomposition, ilf_gains  # noqa: E402
-from smo_gym.design.lmi import LMIInfeasibleError  # noqa: E402
-from smo_gym.observers import DiscreteTimeHOSM, ILFObserver  # noqa: E402
+from smo_gym.design import ackermann_observer_gain, block_decomposition, ilf_gains
+from smo_gym.design.lmi import LMIInfeasibleError
+from smo_gym.observers import DiscreteTimeHOSM, ILFObserver
 
 # ----------------------------------------------------------------------------------------------------------------
 # Lopez-Ramirez et al. 2016, section V
@@ -53,19 +53,40 @@ def example_001() -> dict:
     A = np.array([[1, 1, 2, 4, 5], [1, 3, 2, -1, -3], [2, 1, -3, 7, 3], [4, -2, 9, 1, -1], [1, -1, 0, 2, 1]], float)
     B = np.array([[0.0], [0.0], [0.0], [0.0], [1.0]])
     C = np.array([[1, 0, 0, 0, 0], [0, 0, 0, 0, 1]], float)
-    Phi = np.array([
-        [1.0, 0, 0, 0, 0],
-        [0, 0, 0, 0, 1.0],
-        [-1.2333, -0.0793, 0.2673, 0.9604, 2.6729],
-        [0.8995, -0.8414, -0.5345, 0.0793, 0.3865],
-        [-0.2083, -0.9068, 0.8159, 0.5198, -3.1524],
-    ])
-    L_finite = np.array([[-5.2009, -0.9657], [-0.8583, -4.6400], [-7.6469, -6.6227], [-0.4210, -7.7855],
-                         [-2.0775, -1.4736]])
-    L_fixed = np.array([[-22.9151, -4.7168], [-4.8386, -19.1328], [-170.0681, -138.8725], [-17.5165, -152.9384],
-                        [-234.9672, -159.6799]])
-    return dict(A=A, B=B, C=C, Phi=Phi, L_finite=L_finite, L_fixed=L_fixed, mu_finite=1.0, mu_fixed=0.5,
-                alpha=32.0 / 7.0, T_max=1.75, x_star=np.array([1.0, -1.0, 1.0, -1.0, 1.0]))
+    Phi = np.array(
+        [
+            [1.0, 0, 0, 0, 0],
+            [0, 0, 0, 0, 1.0],
+            [-1.2333, -0.0793, 0.2673, 0.9604, 2.6729],
+            [0.8995, -0.8414, -0.5345, 0.0793, 0.3865],
+            [-0.2083, -0.9068, 0.8159, 0.5198, -3.1524],
+        ]
+    )
+    L_finite = np.array(
+        [[-5.2009, -0.9657], [-0.8583, -4.6400], [-7.6469, -6.6227], [-0.4210, -7.7855], [-2.0775, -1.4736]]
+    )
+    L_fixed = np.array(
+        [
+            [-22.9151, -4.7168],
+            [-4.8386, -19.1328],
+            [-170.0681, -138.8725],
+            [-17.5165, -152.9384],
+            [-234.9672, -159.6799],
+        ]
+    )
+    return dict(
+        A=A,
+        B=B,
+        C=C,
+        Phi=Phi,
+        L_finite=L_finite,
+        L_fixed=L_fixed,
+        mu_finite=1.0,
+        mu_fixed=0.5,
+        alpha=32.0 / 7.0,
+        T_max=1.75,
+        x_star=np.array([1.0, -1.0, 1.0, -1.0, 1.0]),
+    )
 
 
 def run_ilf_errors(observer: ILFObserver, x0: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
@@ -127,11 +148,14 @@ def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> 
     claims: list[dict] = []
     dec_paper = block_decomposition(A, C, Phi=ex["Phi"])
     dec = block_decomposition(A, C)
-    claims.append(dict(
-        claim="Appendix decomposition gives the printed Phi (4 decimals)",
-        measured=f"max |Phi_computed - Phi_printed| = {np.abs(dec.Phi - ex['Phi']).max():.2e}, "
-                 f"blocks {dec.block_sizes}",
-        ok=bool(np.abs(dec.Phi - ex["Phi"]).max() < 1e-4)))
+    claims.append(
+        dict(
+            claim="Appendix decomposition gives the printed Phi (4 decimals)",
+            measured=f"max |Phi_computed - Phi_printed| = {np.abs(dec.Phi - ex['Phi']).max():.2e}, "
+            f"blocks {dec.block_sizes}",
+            ok=bool(np.abs(dec.Phi - ex["Phi"]).max() < 1e-4),
+        )
+    )
 
     # LMI designs (Algorithms 9 and 12)
     t0 = time.perf_counter()
@@ -142,19 +166,26 @@ def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> 
         prop8 = "infeasible (r_m = 1 zeroes a diagonal block of (16))"
     des_f = ilf_gains(A, C, ex["mu_finite"], "finite", condition="points")
     des_x = ilf_gains(A, C, ex["mu_fixed"], "fixed", alpha=ex["alpha"])  # Algorithm 12 with Proposition 11
-    claims.append(dict(
-        claim="Algorithm 9 finds L for mu = 1, delta = (1+sqrt5)/(3+sqrt5) (paper: L printed in V.A)",
-        measured=f"Prop. 8 grid: {prop8}; (14) on grid points: feasible, certified on "
-                 f"{des_f.certificate.dense_points} points (margin {des_f.certificate.parametric_margin:.1e}); "
-                 f"L^T = {np.array2string(des_f.L.T, precision=2)}",
-        ok=des_f.certificate.ok))
-    claims.append(dict(
-        claim="Algorithm 12 finds L for mu = 0.5, alpha = 32/7 (T_max <= 1.75) (paper: L printed in V.B)",
-        measured=f"Prop. 11 grid (beta = r_1 = {des_x.variables.get('beta', 0.25)}), {des_x.refinements} refinements, "
-                 f"certified (margin {des_x.certificate.parametric_margin:.1e}, T_max bound "
-                 f"{des_x.settling_time_bound:.3f}); L^T = {np.array2string(des_x.L.T, precision=1)}; paper "
-                 f"L^T = {np.array2string(ex['L_fixed'].T, precision=1)}",
-        ok=des_x.certificate.ok and abs(des_x.settling_time_bound - 1.75) < 1e-9))
+    claims.append(
+        dict(
+            claim="Algorithm 9 finds L for mu = 1, delta = (1+sqrt5)/(3+sqrt5) (paper: L printed in V.A)",
+            measured=f"Prop. 8 grid: {prop8}; (14) on grid points: feasible, certified on "
+            f"{des_f.certificate.dense_points} points (margin {des_f.certificate.parametric_margin:.1e}); "
+            f"L^T = {np.array2string(des_f.L.T, precision=2)}",
+            ok=des_f.certificate.ok,
+        )
+    )
+    claims.append(
+        dict(
+            claim="Algorithm 12 finds L for mu = 0.5, alpha = 32/7 (T_max <= 1.75) (paper: L printed in V.B)",
+            measured=f"Prop. 11 grid (beta = r_1 = {des_x.variables.get('beta', 0.25)}), "
+            f"{des_x.refinements} refinements, "
+            f"certified (margin {des_x.certificate.parametric_margin:.1e}, T_max bound "
+            f"{des_x.settling_time_bound:.3f}); L^T = {np.array2string(des_x.L.T, precision=1)}; paper "
+            f"L^T = {np.array2string(ex['L_fixed'].T, precision=1)}",
+            ok=des_x.certificate.ok and abs(des_x.settling_time_bound - 1.75) < 1e-9,
+        )
+    )
     lmi_time = time.perf_counter() - t0
 
     # fixed-time observer, three initial conditions, paper gains and ours
@@ -168,48 +199,73 @@ def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> 
         k175 = int(round(1.75 / h))
         e175 = norms[k175]
         Tc = convergence_time(t, norms, 2e-4)
-        claims.append(dict(
-            claim=f"fixed-time ({label}): ||e(1.75)|| <= 2e-4 for x(0) = 1e2, 1e3, 1e4 x*",
-            measured="||e(1.75)|| = " + ", ".join(f"{v:.1e}" for v in e175)
-                     + "; time to ||e|| <= 2e-4: " + ", ".join(f"{v:.3f}" for v in Tc) + " s",
-            ok=bool(np.all(e175 <= 2e-4) and np.all(Tc <= 1.75))))
+        claims.append(
+            dict(
+                claim=f"fixed-time ({label}): ||e(1.75)|| <= 2e-4 for x(0) = 1e2, 1e3, 1e4 x*",
+                measured="||e(1.75)|| = "
+                + ", ".join(f"{v:.1e}" for v in e175)
+                + "; time to ||e|| <= 2e-4: "
+                + ", ".join(f"{v:.3f}" for v in Tc)
+                + " s",
+                ok=bool(np.all(e175 <= 2e-4) and np.all(Tc <= 1.75)),
+            )
+        )
 
     # finite-time observer: from 1e3 x* (and the growth of its convergence time)
     obs_f = ILFObserver(A, C, ex["L_finite"], ex["mu_finite"], "finite", dt=h, B=B, decomposition=dec_paper)
     t, norms_big = run_ilf_errors(obs_f, 1e3 * xs, 2.0)
     e175 = norms_big[int(round(1.75 / h)), 0]
-    claims.append(dict(claim="finite-time: ||e(1.75)|| >= 100 for x(0) = 1e3 x*",
-                       measured=f"||e(1.75)|| = {e175:.3g}", ok=bool(e175 >= 100)))
+    claims.append(
+        dict(
+            claim="finite-time: ||e(1.75)|| >= 100 for x(0) = 1e3 x*",
+            measured=f"||e(1.75)|| = {e175:.3g}",
+            ok=bool(e175 >= 100),
+        )
+    )
     h_long = 2e-3
     grow_scales = np.array([1e-1, 1.0, 3.0]) if fast else np.array([1e-1, 1.0, 3.0, 1e1])
     obs_long = ILFObserver(A, C, ex["L_finite"], ex["mu_finite"], "finite", dt=h_long, B=B, decomposition=dec_paper)
     t_long, norms_long = run_ilf_errors(obs_long, grow_scales[:, None] * xs, 8.0 if fast else 25.0)
     Tc_f = convergence_time(t_long, norms_long, 1e-3)
-    claims.append(dict(
-        claim="finite-time: settling time grows with the initial error (Theorem 6: T <= 3 V(e0)^(1/3))",
-        measured="time to ||e|| <= 1e-3 from " + ", ".join(f"{s:g}" for s in grow_scales) + " x*: "
-                 + ", ".join(f"{v:.2f}" for v in Tc_f) + f" s (h = {h_long}); from 1e2 x* it has not converged "
-                 "after 20 s (||e|| ~ 1e6 and growing: the injection weakens as rho^-r_i at large errors)",
-        ok=bool(np.all(np.isfinite(Tc_f)) and np.all(np.diff(Tc_f) > 0))))
+    claims.append(
+        dict(
+            claim="finite-time: settling time grows with the initial error (Theorem 6: T <= 3 V(e0)^(1/3))",
+            measured="time to ||e|| <= 1e-3 from "
+            + ", ".join(f"{s:g}" for s in grow_scales)
+            + " x*: "
+            + ", ".join(f"{v:.2f}" for v in Tc_f)
+            + f" s (h = {h_long}); from 1e2 x* it has not converged "
+            "after 20 s (||e|| ~ 1e6 and growing: the injection weakens as rho^-r_i at large errors)",
+            ok=bool(np.all(np.isfinite(Tc_f)) and np.all(np.diff(Tc_f) > 0)),
+        )
+    )
 
     # Fig. 1: real plant, u = sin t, x(0) = 0.1 (1, -1, 1, -1, 1), xhat(0) = 0
     obs_fig1 = ILFObserver(A, C, ex["L_finite"], ex["mu_finite"], "finite", dt=h, B=B, decomposition=dec_paper)
     t1, x, xh = run_real_plant_001(obs_fig1, 0.1 * xs, 1.5)
     e1 = np.linalg.norm(x - xh, axis=1)
     x_at_1 = np.linalg.norm(x[int(round(1.0 / h))])
-    claims.append(dict(
-        claim="Fig. 1: ||x(1)|| ~ 1e7 for x(0) = 0.1 (1,-1,1,-1,1), u = sin t",
-        measured=f"||x(1)|| = {x_at_1:.3g} (largest eigenvalue of A is "
-                 f"{np.max(np.linalg.eigvals(A).real):.2f}, so ||x(1)|| ~ 1e7 does not follow from the printed A)",
-        ok=bool(1e6 <= x_at_1 <= 1e8)))
+    claims.append(
+        dict(
+            claim="Fig. 1: ||x(1)|| ~ 1e7 for x(0) = 0.1 (1,-1,1,-1,1), u = sin t",
+            measured=f"||x(1)|| = {x_at_1:.3g} (largest eigenvalue of A is "
+            f"{np.max(np.linalg.eigvals(A).real):.2f}, so ||x(1)|| ~ 1e7 does not follow from the printed A)",
+            ok=bool(1e6 <= x_at_1 <= 1e8),
+        )
+    )
     Tc1 = convergence_time(t1, e1[:, None], 1e-5)[0]
-    claims.append(dict(claim="Fig. 1: the finite-time observer converges (real plant, x(0) = 0.1 x*-like)",
-                       measured=f"||e|| <= 1e-5 from t = {Tc1:.3f} s; ||e(1.5)|| = {e1[-1]:.1e} (float resolution "
-                                f"of x - xhat with ||x(1.5)|| = {np.linalg.norm(x[-1]):.1e})",
-                       ok=bool(np.isfinite(Tc1))))
+    claims.append(
+        dict(
+            claim="Fig. 1: the finite-time observer converges (real plant, x(0) = 0.1 x*-like)",
+            measured=f"||e|| <= 1e-5 from t = {Tc1:.3f} s; ||e(1.5)|| = {e1[-1]:.1e} (float resolution "
+            f"of x - xhat with ||x(1.5)|| = {np.linalg.norm(x[-1]):.1e})",
+            ok=bool(np.isfinite(Tc1)),
+        )
+    )
 
     if out_dir is not None:
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
@@ -218,8 +274,12 @@ def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> 
         axes[0].set(title="001 Fig. 1: finite-time observer, real plant", xlabel="t [s]", ylabel="||x - xhat||")
         for label, (t, norms) in runs.items():
             for j, s in enumerate(scales):
-                axes[1].semilogy(t, np.maximum(norms[:, j], 1e-300), label=f"{label}, x(0) = {s:.0e} x*",
-                                 ls="-" if label == "paper L" else "--")
+                axes[1].semilogy(
+                    t,
+                    np.maximum(norms[:, j], 1e-300),
+                    label=f"{label}, x(0) = {s:.0e} x*",
+                    ls="-" if label == "paper L" else "--",
+                )
         axes[1].axvline(1.75, color="k", lw=0.5)
         axes[1].set(title="001 Fig. 2: fixed-time observer", xlabel="t [s]", ylim=(1e-20, 1e8))
         axes[1].legend(fontsize=7)
@@ -279,9 +339,15 @@ def sigma3_observers(h: float = 0.01, p1: float = 30.0, mu: float = 1.0):
     (15), saturated model terms (77)-(78) with level 1, Ackermann gain (35) (not the printed (79)-(82)). Sigma3:
     Luenberger observer of the ZOH linearisation (84)-(85) with the triple eigenvalue 0.1.
     """
-    sig2 = DiscreteTimeHOSM(3, h, p1, mu, "semi-implicit",
-                            gamma=[None, lambda xi, u: np.sin(xi[..., 0]) * u, lambda xi, u: -np.sin(xi[..., 1]) * u],
-                            L_gamma=[np.inf, 1.0, 1.0])
+    sig2 = DiscreteTimeHOSM(
+        3,
+        h,
+        p1,
+        mu,
+        "semi-implicit",
+        gamma=[None, lambda xi, u: np.sin(xi[..., 0]) * u, lambda xi, u: -np.sin(xi[..., 1]) * u],
+        L_gamma=[np.inf, 1.0, 1.0],
+    )
     A = sig2.A
     l0 = sig2.gain(0.0)
     Abar = np.array([[1 + h * h / 2, h, h * h / 2], [h, 1.0, h], [-h * h / 2, -h, 1 - h * h / 2]])  # (85)
@@ -321,10 +387,15 @@ def simulate_003_fourth(h: float = 0.01, T: float = 10.0, x0=(0.0, 0.0, 0.0, np.
     """The fourth-order example (p1 = 40, mu = 10): errors ``(K, 4)``; channel 4's ``-sin(x3) u`` unknown."""
     X = simulate_plant(system_4th, list(x0), h, T)
     K = X.shape[0] - 1
-    obs = DiscreteTimeHOSM(4, h, 40.0, 10.0, "semi-implicit",
-                           gamma=[None, lambda xi, u: -np.sin(xi[..., 0]) * u, lambda xi, u: -np.sin(xi[..., 1]) * u,
-                                  None],
-                           L_gamma=[np.inf, 1.0, 1.0, 0.0])
+    obs = DiscreteTimeHOSM(
+        4,
+        h,
+        40.0,
+        10.0,
+        "semi-implicit",
+        gamma=[None, lambda xi, u: -np.sin(xi[..., 0]) * u, lambda xi, u: -np.sin(xi[..., 1]) * u, None],
+        L_gamma=[np.inf, 1.0, 1.0, 0.0],
+    )
     obs.reset(np.zeros(1), xi0=np.zeros((1, 4)))
     E = np.empty((K, 4))
     for k in range(K):
@@ -344,26 +415,38 @@ def reproduce_003(out_dir: Path | None, T: float = 10.0) -> list[dict]:
     b = {name: band(res[name], t, 1.0) for name in ("Sigma1", "Sigma2", "Sigma3")}
     r1, r3 = b["Sigma1"][2] / b["Sigma2"][2], b["Sigma3"][2] / b["Sigma2"][2]
     claims = [
-        dict(claim="Sigma2 drives sigma_3 to a band |sigma_3| < 2e-3",
-             measured=f"max |sigma_3| for t >= 1 s: {b['Sigma2'][2]:.2e}", ok=bool(b["Sigma2"][2] < 2e-3)),
-        dict(claim="with Sigma1 and Sigma3 the band of sigma_3 is ~500 times larger",
-             measured=f"ratios {r1:.0f} (Sigma1) and {r3:.0f} "
-                      f"(Sigma3); bands {b['Sigma1'][2]:.2f}, {b['Sigma3'][2]:.2f}",
-             ok=bool(200 <= r1 <= 1000 and 200 <= r3 <= 1000)),
-        dict(claim="p1 = 30, mu = 1 fulfil the stability condition (71)",
-             measured=f"z* - z_max = {res['stability_margin']:.3f} by (51) and (70): outside the proven region "
-                      "((71) as printed is inconsistent with (51)); the observer converges nonetheless",
-             ok=bool(res["stability_margin"] >= 0)),
+        dict(
+            claim="Sigma2 drives sigma_3 to a band |sigma_3| < 2e-3",
+            measured=f"max |sigma_3| for t >= 1 s: {b['Sigma2'][2]:.2e}",
+            ok=bool(b["Sigma2"][2] < 2e-3),
+        ),
+        dict(
+            claim="with Sigma1 and Sigma3 the band of sigma_3 is ~500 times larger",
+            measured=f"ratios {r1:.0f} (Sigma1) and {r3:.0f} "
+            f"(Sigma3); bands {b['Sigma1'][2]:.2f}, {b['Sigma3'][2]:.2f}",
+            ok=bool(200 <= r1 <= 1000 and 200 <= r3 <= 1000),
+        ),
+        dict(
+            claim="p1 = 30, mu = 1 fulfil the stability condition (71)",
+            measured=f"z* - z_max = {res['stability_margin']:.3f} by (51) and (70): outside the proven region "
+            "((71) as printed is inconsistent with (51)); the observer converges nonetheless",
+            ok=bool(res["stability_margin"] >= 0),
+        ),
     ]
     four = simulate_003_fourth(T=T)
     b4 = band(four["errors"], four["t"], 1.0)
-    claims.append(dict(
-        claim="4th-order example: precision from ~1e-7 (first state) to ~0.4 (last state)",
-        measured="max |sigma_i| for t >= 1 s: " + ", ".join(f"{v:.1e}" for v in b4)
-                 + " (x0 = (0, 0, 0, pi/8): the printed x0 lost one entry)",
-        ok=bool(b4[0] <= 1e-7 and b4[-1] <= 0.4 and np.all(np.diff(b4) > 0))))
+    claims.append(
+        dict(
+            claim="4th-order example: precision from ~1e-7 (first state) to ~0.4 (last state)",
+            measured="max |sigma_i| for t >= 1 s: "
+            + ", ".join(f"{v:.1e}" for v in b4)
+            + " (x0 = (0, 0, 0, pi/8): the printed x0 lost one entry)",
+            ok=bool(b4[0] <= 1e-7 and b4[-1] <= 0.4 and np.all(np.diff(b4) > 0)),
+        )
+    )
     if out_dir is not None:
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
@@ -400,9 +483,11 @@ def reproduce_000(out_dir: Path | None) -> list[dict] | None:
 
 
 #: ``--papers`` choice -> (citation, reproducing function's key)
-PAPERS = {"efimov2017": ("Efimov, Polyakov, Levant and Perruquetti 2017", "000"),
-          "lopez-ramirez2016": ("Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016", "001"),
-          "wetzlinger": ("Wetzlinger, Reichhartinger and Horn", "003")}
+PAPERS = {
+    "efimov2017": ("Efimov, Polyakov, Levant and Perruquetti 2017", "000"),
+    "lopez-ramirez2016": ("Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016", "001"),
+    "wetzlinger": ("Wetzlinger, Reichhartinger and Horn", "003"),
+}
 
 
 def _print(paper: str, claims: list[dict] | None) -> None:

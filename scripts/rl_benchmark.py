@@ -43,8 +43,24 @@ SENSOR = "encoder-12bit-noisy"
 #: (2048 samples per update as the default; fewer, larger minibatches fit the time budget on 2 cores)
 HYPERPARAMS = dict(n_steps=512, batch_size=256)
 N_ENVS = 4
-FIELDS = ("env", "train_sensing", "eval_sensing", "steps", "seed", "mean_return", "std_return", "episodes",
-          "budget", "train_seconds", "steps_per_second", "sensor", "observer", "rate", "n_envs", "hyperparams")
+FIELDS = (
+    "env",
+    "train_sensing",
+    "eval_sensing",
+    "steps",
+    "seed",
+    "mean_return",
+    "std_return",
+    "episodes",
+    "budget",
+    "train_seconds",
+    "steps_per_second",
+    "sensor",
+    "observer",
+    "rate",
+    "n_envs",
+    "hyperparams",
+)
 
 
 def run_one(env_id: str, sensing: str, seed: int, steps: int, models: str, episodes: int) -> list[dict]:
@@ -53,17 +69,42 @@ def run_one(env_id: str, sensing: str, seed: int, steps: int, models: str, episo
 
     evals = [sensing] + (list(CROSS) if sensing == "true" else [])
     folder = Path(models) / f"{env_id}-{sensing}-s{seed}"
-    summary = rl.train(env_id, sensing=sensing, sensor=SENSOR, steps=steps, seed=seed, n_envs=N_ENVS, out=folder,
-                       hyperparams=HYPERPARAMS, evaluate_at=[steps // 2, steps], eval_sensings=evals,
-                       eval_episodes=episodes, overwrite=True)  # a rerun of the benchmark replaces its runs
+    summary = rl.train(
+        env_id,
+        sensing=sensing,
+        sensor=SENSOR,
+        steps=steps,
+        seed=seed,
+        n_envs=N_ENVS,
+        out=folder,
+        hyperparams=HYPERPARAMS,
+        evaluate_at=[steps // 2, steps],
+        eval_sensings=evals,
+        eval_episodes=episodes,
+        overwrite=True,
+    )  # a rerun of the benchmark replaces its runs
     rows = []
     for ev in summary["evaluations"]:
-        rows.append(dict(env=env_id, train_sensing=sensing, eval_sensing=ev["sensing"], steps=ev["steps"], seed=seed,
-                         mean_return=ev["mean"], std_return=ev["std"], episodes=len(ev["returns"]), budget=steps,
-                         train_seconds=round(summary["seconds"], 1),
-                         steps_per_second=round(summary["steps_per_second"], 1), sensor=SENSOR,
-                         observer=summary["observer"], rate=summary["rate"], n_envs=N_ENVS,
-                         hyperparams=str(HYPERPARAMS)))
+        rows.append(
+            dict(
+                env=env_id,
+                train_sensing=sensing,
+                eval_sensing=ev["sensing"],
+                steps=ev["steps"],
+                seed=seed,
+                mean_return=ev["mean"],
+                std_return=ev["std"],
+                episodes=len(ev["returns"]),
+                budget=steps,
+                train_seconds=round(summary["seconds"], 1),
+                steps_per_second=round(summary["steps_per_second"], 1),
+                sensor=SENSOR,
+                observer=summary["observer"],
+                rate=summary["rate"],
+                n_envs=N_ENVS,
+                hyperparams=str(HYPERPARAMS),
+            )
+        )
     return rows
 
 
@@ -80,12 +121,26 @@ def summarize(rows: list[dict]) -> list[dict]:
         key = (r["env"], r["train_sensing"], r["eval_sensing"], int(r["steps"]))
         groups.setdefault(key, []).append(float(r["mean_return"]))
     out = []
-    for (env, tr, ev, steps), vals in sorted(groups.items(), key=lambda kv: (ENVS.index(kv[0][0])
-                                                                           if kv[0][0] in ENVS else 9,
-                                                                           kv[0][3], SENSINGS.index(kv[0][1]),
-                                                                           SENSINGS.index(kv[0][2]))):
-        out.append(dict(env=env, train_sensing=tr, eval_sensing=ev, steps=steps, seeds=len(vals),
-                        mean=round(float(np.mean(vals)), 1), std=round(float(np.std(vals)), 1)))
+    for (env, tr, ev, steps), vals in sorted(
+        groups.items(),
+        key=lambda kv: (
+            ENVS.index(kv[0][0]) if kv[0][0] in ENVS else 9,
+            kv[0][3],
+            SENSINGS.index(kv[0][1]),
+            SENSINGS.index(kv[0][2]),
+        ),
+    ):
+        out.append(
+            dict(
+                env=env,
+                train_sensing=tr,
+                eval_sensing=ev,
+                steps=steps,
+                seeds=len(vals),
+                mean=round(float(np.mean(vals)), 1),
+                std=round(float(np.std(vals)), 1),
+            )
+        )
     return out
 
 
@@ -102,8 +157,10 @@ def plot(summary: list[dict], path: Path) -> None:
     for ax, env in zip(axes[0], envs, strict=True):
         rows = [s for s in summary if s["env"] == env]
         budgets = sorted({s["steps"] for s in rows})
-        labels = [f"{tr}" if tr == ev else f"{tr} -> {ev}" for tr, ev in
-                  [(t, t) for t in SENSINGS] + [("true", c) for c in CROSS]]
+        labels = [
+            f"{tr}" if tr == ev else f"{tr} -> {ev}"
+            for tr, ev in [(t, t) for t in SENSINGS] + [("true", c) for c in CROSS]
+        ]
         pairs = [(t, t) for t in SENSINGS] + [("true", c) for c in CROSS]
         width = 0.8 / max(len(budgets), 1)
         for b_i, b in enumerate(budgets):
@@ -158,14 +215,21 @@ def main(argv=None) -> int:
     if not args.resume and runs_csv.exists():
         runs_csv.unlink()
     done = {(r["env"], r["train_sensing"], int(r["seed"]), int(r["budget"])) for r in read_rows(runs_csv)}
-    tasks = [(e, s, seed) for e in args.envs.split(",") for seed in range(args.seeds) for s in args.sensings.split(",")
-             if (e, s, seed, args.steps) not in done]
+    tasks = [
+        (e, s, seed)
+        for e in args.envs.split(",")
+        for seed in range(args.seeds)
+        for s in args.sensings.split(",")
+        if (e, s, seed, args.steps) not in done
+    ]
     print(f"{len(tasks)} runs of {args.steps} steps, {args.jobs} at a time", flush=True)
     t0 = time.perf_counter()
     ctx = mp.get_context("spawn")
     with cf.ProcessPoolExecutor(max_workers=args.jobs, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futures = {pool.submit(run_one, e, s, seed, args.steps, args.models, args.episodes): (e, s, seed)
-                   for e, s, seed in tasks}
+        futures = {
+            pool.submit(run_one, e, s, seed, args.steps, args.models, args.episodes): (e, s, seed)
+            for e, s, seed in tasks
+        }
         for fut in cf.as_completed(futures):
             e, s, seed = futures[fut]
             try:
@@ -180,9 +244,12 @@ def main(argv=None) -> int:
                     w.writeheader()
                 w.writerows(rows)
             final = [r for r in rows if r["steps"] == args.steps]
-            print(f"[{time.perf_counter() - t0:6.0f} s] {e} {s} seed {seed}: "
-                  + ", ".join(f"{r['eval_sensing']} {r['mean_return']:.0f}" for r in final)
-                  + f" ({rows[0]['train_seconds']:.0f} s, {rows[0]['steps_per_second']:.0f} steps/s)", flush=True)
+            print(
+                f"[{time.perf_counter() - t0:6.0f} s] {e} {s} seed {seed}: "
+                + ", ".join(f"{r['eval_sensing']} {r['mean_return']:.0f}" for r in final)
+                + f" ({rows[0]['train_seconds']:.0f} s, {rows[0]['steps_per_second']:.0f} steps/s)",
+                flush=True,
+            )
     for s in write_summary(out):
         print(s)
     return 0

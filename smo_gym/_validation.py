@@ -29,8 +29,8 @@ __all__ = [
     "check_positive",
     "check_positive_array",
     "check_real",
-    "did_you_mean",
     "check_real_in_range",
+    "did_you_mean",
 ]
 
 
@@ -51,7 +51,8 @@ def did_you_mean(value, choices: Iterable[str]) -> str:
         return ""
     choices = [c for c in choices if isinstance(c, str)]
     close = [c for c in choices if value and c.startswith(value)][:1] or difflib.get_close_matches(
-        value, choices, n=1, cutoff=0.5)
+        value, choices, n=1, cutoff=0.5
+    )
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
@@ -114,9 +115,9 @@ def as_real_array(name: str, value, *, copy: bool = False) -> np.ndarray:
         kind = "f"  # e.g. Fractions, or Python ints too large for int64
     if kind not in "iuf":
         what = {"b": "bool", "c": "complex", "M": "datetime", "m": "timedelta", "U": "str", "S": "bytes"}.get(
-            kind, str(arr.dtype))
-        raise TypeError(
-            f"expected {name} to be an array of real numbers, actual value: {what} values {_short(value)}")
+            kind, str(arr.dtype)
+        )
+        raise TypeError(f"expected {name} to be an array of real numbers, actual value: {what} values {_short(value)}")
     try:
         return np.asarray(arr, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
@@ -134,8 +135,9 @@ def check_positive_array(name: str, value) -> np.ndarray:
     return arr
 
 
-def check_real_in_range(name: str, value, low: float, high: float, *, low_open: bool = False,
-                        high_open: bool = False) -> float:
+def check_real_in_range(
+    name: str, value, low: float, high: float, *, low_open: bool = False, high_open: bool = False
+) -> float:
     """Return ``value`` as a float after checking it is a real number (not a bool) in the interval from ``low`` to
     ``high``, each end closed unless ``low_open``/``high_open``."""
     if not _is_real_scalar(value):
@@ -180,8 +182,10 @@ def check_choice(name: str, value, choices: Iterable[str]) -> str:
     except (TypeError, ValueError):  # an object whose == does not give one bool (an array, say)
         known = False
     if not known or not isinstance(value, str):
-        raise ValueError(f"expected {name} to be one of {', '.join(map(repr, choices))}, actual value: "
-                         f"{_short(value)}{did_you_mean(value, choices)}")
+        raise ValueError(
+            f"expected {name} to be one of {', '.join(map(repr, choices))}, actual value: "
+            f"{_short(value)}{did_you_mean(value, choices)}"
+        )
     return value
 
 
@@ -226,17 +230,23 @@ def _binding_error(owner: str, signature: inspect.Signature, args: tuple, kwargs
     takes_kwargs = any(v.kind is v.VAR_KEYWORD for v in params.values())
     for key, value in kwargs.items():
         if key not in params and not takes_kwargs:
-            return TypeError(f"unknown parameter {key!r} of {owner}: expected one of {', '.join(names)}, "
-                             f"actual value: {key}={_short(value, 80)}{did_you_mean(key, names)}")
+            return TypeError(
+                f"unknown parameter {key!r} of {owner}: expected one of {', '.join(names)}, "
+                f"actual value: {key}={_short(value, 80)}{did_you_mean(key, names)}"
+            )
     positional = [p for p, v in params.items() if v.kind in (v.POSITIONAL_ONLY, v.POSITIONAL_OR_KEYWORD)]
     if len(args) > len(positional) and not any(v.kind is v.VAR_POSITIONAL for v in params.values()):
-        return TypeError(f"expected at most {len(positional) - ('self' in params)} positional arguments to "
-                         f"{owner} ({', '.join(p for p in positional if p != 'self')}), actual value: "
-                         f"{len(args) - ('self' in params)}")
+        return TypeError(
+            f"expected at most {len(positional) - ('self' in params)} positional arguments to "
+            f"{owner} ({', '.join(p for p in positional if p != 'self')}), actual value: "
+            f"{len(args) - ('self' in params)}"
+        )
     given = set(positional[: len(args)]) | set(kwargs)
     for p, v in params.items():
         if v.default is v.empty and v.kind not in (v.VAR_POSITIONAL, v.VAR_KEYWORD) and p not in given:
             return TypeError(f"expected argument {p!r} of {owner}, actual value: missing")
     duplicated = set(positional[: len(args)]) & set(kwargs)
-    return TypeError(f"expected each argument of {owner} once, actual value: {', '.join(sorted(duplicated))} "
-                     "given by position and by keyword")
+    return TypeError(
+        f"expected each argument of {owner} once, actual value: {', '.join(sorted(duplicated))} "
+        "given by position and by keyword"
+    )

@@ -184,7 +184,7 @@ def derivative_bound(
         raise ValueError(f"expected quantile in (0, 1], actual value: {quantile!r}")
     y = _time_series(y)
     T = y.shape[0]
-    if T <= r:
+    if r >= T:
         raise ValueError(f"expected more than derivative = {r} samples, actual value: {T}")
     if noise is None:
         sigma = noise_std(y) if T > 4 else np.zeros(y.shape[1:])  # four samples cannot show the noise
@@ -299,8 +299,10 @@ def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: d
         valid += [p for p in inspect.signature(cls.from_bounds).parameters if p not in valid + ["dt", "kwargs"]]
     for key in kw:  # a misspelled gain would otherwise be calibrated over silently, or reported as a missing one
         if key not in valid:
-            raise ValueError(f"unknown parameter {key!r} of {cls.__name__}: expected one of {', '.join(valid)}, "
-                             f"actual value: {key}={kw[key]!r}{did_you_mean(key, valid)}")
+            raise ValueError(
+                f"unknown parameter {key!r} of {cls.__name__}: expected one of {', '.join(valid)}, "
+                f"actual value: {key}={kw[key]!r}{did_you_mean(key, valid)}"
+            )
     noise = float(max(np.mean(noise_std), NOISE_FLOOR))
     largest = float(np.max(bounds)) if rule is not None else 0.0
     if rule == "high-gain":

@@ -51,15 +51,23 @@ def spec_help(kind: str) -> str:
     def item(head: str, text: str) -> str:
         return textwrap.fill(text, 100, initial_indent=f"  {head:<11}", subsequent_indent=" " * 13)
 
-    return "\n".join([
-        f"{kind} are written name:key=value:key=value (values: numbers, true/false, none or text).",
-        item("observers:", f"{', '.join(OBSERVERS)}; options are constructor arguments, e.g. "
-                           "levant:order=1:lipschitz=50 (gains not given are calibrated from a rollout, as the "
-                           "wrapper does)"),
-        item("sensors:", f"a preset ({', '.join(PRESETS)}) or a model ({', '.join(SENSOR_MODELS)}) with its "
-                         "constructor arguments, e.g. encoder:counts_per_revolution=4096:noise_std=1e-3; models "
-                         "chain with +, e.g. encoder:counts_per_revolution=1024+delay:samples=2"),
-    ])
+    return "\n".join(
+        [
+            f"{kind} are written name:key=value:key=value (values: numbers, true/false, none or text).",
+            item(
+                "observers:",
+                f"{', '.join(OBSERVERS)}; options are constructor arguments, e.g. "
+                "levant:order=1:lipschitz=50 (gains not given are calibrated from a rollout, as the "
+                "wrapper does)",
+            ),
+            item(
+                "sensors:",
+                f"a preset ({', '.join(PRESETS)}) or a model ({', '.join(SENSOR_MODELS)}) with its "
+                "constructor arguments, e.g. encoder:counts_per_revolution=4096:noise_std=1e-3; models "
+                "chain with +, e.g. encoder:counts_per_revolution=1024+delay:samples=2",
+            ),
+        ]
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,33 +79,47 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     columns = "\n".join(f"  {name:<9} {text}" for name, text in TABLE_COLUMNS.items())
     cmp_ = sub.add_parser(
-        "compare", help="compare velocity observers on one MuJoCo rollout", formatter_class=HelpFormatter,
+        "compare",
+        help="compare velocity observers on one MuJoCo rollout",
+        formatter_class=HelpFormatter,
         description="Run one Gymnasium MuJoCo environment under a seeded smooth random policy, measure its joint "
-                    "positions with\na sensor, and run several velocity observers on the same measurements. Prints "
-                    "a table and writes a plot\nof true and estimated velocities.",
+        "positions with\na sensor, and run several velocity observers on the same measurements. Prints "
+        "a table and writes a plot\nof true and estimated velocities.",
         epilog=f"table columns (metrics over every estimate: each sample but the first of each episode, where the\n"
-               f"observer starts at the first measurement with zero velocity; transients after it are included):\n"
-               f"{columns}\n"
-               f"  a diverged observer (non-finite state) shows the time it diverged instead of its errors.\n\n"
-               f"plot: the y-axis of each dof is set by its true velocity; estimates beyond it are clipped at the\n"
-               f"edge, marked with triangles, and their legend entry gives the fraction off scale and the peak.\n"
-               f"Units: rad/s for hinge (and rotational) dofs, m/s for slide (and translational) dofs.\n\n"
-               + spec_help("observers and the sensor"),
+        f"observer starts at the first measurement with zero velocity; transients after it are included):\n"
+        f"{columns}\n"
+        f"  a diverged observer (non-finite state) shows the time it diverged instead of its errors.\n\n"
+        f"plot: the y-axis of each dof is set by its true velocity; estimates beyond it are clipped at the\n"
+        f"edge, marked with triangles, and their legend entry gives the fraction off scale and the peak.\n"
+        f"Units: rad/s for hinge (and rotational) dofs, m/s for slide (and translational) dofs.\n\n"
+        + spec_help("observers and the sensor"),
     )
-    cmp_.add_argument("--env", default="Hopper-v5",
-                      help="Gymnasium MuJoCo environment id, also smo_gym/... and dm_control/... (default %(default)s)")
+    cmp_.add_argument(
+        "--env",
+        default="Hopper-v5",
+        help="Gymnasium MuJoCo environment id, also smo_gym/... and dm_control/... (default %(default)s)",
+    )
     cmp_.add_argument("--sensor", default="encoder-12bit-noisy", help="sensor spec (default %(default)s)")
-    cmp_.add_argument("--observers", default=DEFAULT_OBSERVERS,
-                      help="comma-separated observer specs (default %(default)s)")
-    cmp_.add_argument("--rate", type=parse_rate, default="physics",
-                      help="'physics', 'env' or k physics steps per sample (default %(default)s)")
+    cmp_.add_argument(
+        "--observers", default=DEFAULT_OBSERVERS, help="comma-separated observer specs (default %(default)s)"
+    )
+    cmp_.add_argument(
+        "--rate",
+        type=parse_rate,
+        default="physics",
+        help="'physics', 'env' or k physics steps per sample (default %(default)s)",
+    )
     cmp_.add_argument("--steps", type=int, default=1000, help="environment steps (default %(default)s)")
-    cmp_.add_argument("--seed", type=int, default=0, help="seed of policy, environment and sensor (default %(default)s)")
-    cmp_.add_argument("--joints", default="",
-                      help="comma-separated dof names or indices to plot (default: the two most active)")
+    cmp_.add_argument(
+        "--seed", type=int, default=0, help="seed of policy, environment and sensor (default %(default)s)"
+    )
+    cmp_.add_argument(
+        "--joints", default="", help="comma-separated dof names or indices to plot (default: the two most active)"
+    )
     cmp_.add_argument("--out", default="outputs/smo_gym_compare.png", help="plot file (default %(default)s)")
-    cmp_.add_argument("--plot-seconds", type=float, default=1.0,
-                      help="time window of the plot in seconds (default %(default)s)")
+    cmp_.add_argument(
+        "--plot-seconds", type=float, default=1.0, help="time window of the plot in seconds (default %(default)s)"
+    )
     cmp_.add_argument("--per-joint", action="store_true", help="also print the RMSE of every dof (default: off)")
     cmp_.add_argument("--no-progress", action="store_true", help="no progress bar (default: a bar from 200 steps)")
     from .control.experiments import add_subcommand as add_control
@@ -123,8 +145,6 @@ def check_env_id(env_id: str) -> str:
     import difflib
 
     import gymnasium as gym
-
-    from . import envs  # noqa: F401 - registers smo_gym/...
 
     if env_id.startswith("dm_control/"):
         require("shimmy", "dm_control")  # registers dm_control/...
@@ -177,8 +197,9 @@ def compare(args: argparse.Namespace) -> int:
     if joints:
         lib.resolve_joints(lib.env_dof_names(args.env), joints)
     progress = not args.no_progress and args.steps >= 200
-    rec = lib.record_rollout(args.env, sensor=args.sensor, rate=args.rate, steps=args.steps, seed=args.seed,
-                             progress=progress)
+    rec = lib.record_rollout(
+        args.env, sensor=args.sensor, rate=args.rate, steps=args.steps, seed=args.seed, progress=progress
+    )
     results = lib.compare_observers(rec, observers, progress=progress)
     print(lib.format_table(rec, results, per_joint=args.per_joint))
     path = lib.plot_velocities(rec, results, joints, args.out, seconds=args.plot_seconds)

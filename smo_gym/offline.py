@@ -122,8 +122,9 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
     if squeeze:
         y = y[:, None]
     if y.size == 0:  # before any calibration: the observers refuse empty channels in the same words
-        raise ValueError(f"expected y with at least one channel and no empty batch dimension, actual value: shape "
-                         f"{y.shape}")
+        raise ValueError(
+            f"expected y with at least one channel and no empty batch dimension, actual value: shape {y.shape}"
+        )
     obs = _build(observer, dt, y, params)
     first = obs.reset(y[0])
     out = np.empty((y.shape[0],) + first.shape)

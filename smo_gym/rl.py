@@ -26,6 +26,7 @@ trained on true velocities, deployed on estimates), with the training normalizat
 from __future__ import annotations
 
 import copy
+import importlib.util
 import json
 import os
 import re
@@ -117,8 +118,7 @@ class SelectEntries(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         gym.ObservationWrapper.__init__(self, env)
         self.indices = np.asarray(indices, dtype=int)
         space = env.observation_space
-        self.observation_space = gym.spaces.Box(space.low[self.indices], space.high[self.indices],
-                                                dtype=space.dtype)
+        self.observation_space = gym.spaces.Box(space.low[self.indices], space.high[self.indices], dtype=space.dtype)
 
     def observation(self, observation):
         return np.asarray(observation)[self.indices]
@@ -151,9 +151,16 @@ def _observer(sensing: str, observer: str, observer_kwargs: dict | None) -> tupl
     return name, kwargs or None
 
 
-def make_env(env_id: str, sensing: str = "estimated", *, sensor: str = "encoder-12bit-noisy",
-             observer: str = "super-twisting", rate="physics", observer_kwargs: dict | None = None,
-             env_kwargs: dict | None = None) -> gym.Env:
+def make_env(
+    env_id: str,
+    sensing: str = "estimated",
+    *,
+    sensor: str = "encoder-12bit-noisy",
+    observer: str = "super-twisting",
+    rate="physics",
+    observer_kwargs: dict | None = None,
+    env_kwargs: dict | None = None,
+) -> gym.Env:
     """One environment under a sensing (see the module docstring).
 
     ``sensor`` and ``observer`` are specs (:mod:`smo_gym.specs`, e.g. ``"encoder:counts_per_revolution=1024"``,
@@ -181,9 +188,19 @@ def make_env(env_id: str, sensing: str = "estimated", *, sensor: str = "encoder-
     return gym.wrappers.FlattenObservation(env)
 
 
-def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: int | None = 0,
-             sensor: str = "encoder-12bit-noisy", observer: str = "super-twisting", rate="physics",
-             observer_kwargs: dict | None = None, env_kwargs: dict | None = None, vectorized: bool | None = None):
+def make_vec(
+    env_id: str,
+    sensing: str = "estimated",
+    *,
+    n_envs: int = 1,
+    seed: int | None = 0,
+    sensor: str = "encoder-12bit-noisy",
+    observer: str = "super-twisting",
+    rate="physics",
+    observer_kwargs: dict | None = None,
+    env_kwargs: dict | None = None,
+    vectorized: bool | None = None,
+):
     """A ``DummyVecEnv`` (with ``Monitor``) of :func:`make_env` environments.
 
     With ``rate="env"``, an estimating sensing (``"estimated"``, ``"finite-difference"``) and a ``Box`` observation
@@ -199,8 +216,9 @@ def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: 
         vectorized = rate == "env" and sensing in ("estimated", "finite-difference")
     if vectorized:
         if sensing not in ("estimated", "finite-difference"):
-            raise ValueError(f"expected sensing 'estimated' or 'finite-difference' for vectorized sensing, "
-                             f"actual value: {sensing!r}")
+            raise ValueError(
+                f"expected sensing 'estimated' or 'finite-difference' for vectorized sensing, actual value: {sensing!r}"
+            )
         from .wrappers import VecEstimatedVelocity, sensing_config
 
         name, kwargs = _observer(sensing, observer, observer_kwargs)
@@ -209,11 +227,23 @@ def make_vec(env_id: str, sensing: str = "estimated", *, n_envs: int = 1, seed: 
             return VecEstimatedVelocity(venv, **sensing_config(make_sensor(sensor), name, kwargs))
         venv.close()
         if explicit:
-            raise ValueError(f"expected a Box observation for vectorized sensing, actual value: "
-                             f"{venv.observation_space} (use vectorized=False: per-environment wrappers flatten it)")
-    return make_vec_env(lambda: make_env(env_id, sensing, sensor=sensor, observer=observer, rate=rate,
-                                         observer_kwargs=observer_kwargs, env_kwargs=env_kwargs),
-                        n_envs=n_envs, seed=seed)
+            raise ValueError(
+                f"expected a Box observation for vectorized sensing, actual value: "
+                f"{venv.observation_space} (use vectorized=False: per-environment wrappers flatten it)"
+            )
+    return make_vec_env(
+        lambda: make_env(
+            env_id,
+            sensing,
+            sensor=sensor,
+            observer=observer,
+            rate=rate,
+            observer_kwargs=observer_kwargs,
+            env_kwargs=env_kwargs,
+        ),
+        n_envs=n_envs,
+        seed=seed,
+    )
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -224,7 +254,7 @@ RUN_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs")
 #: rl-zoo3 keys with no meaning here, and why
 UNSUPPORTED_KEYS = {
     "env_wrapper": "the sensing is smo-gym's own (--sensing, --sensor, --observer, --rate); the env_wrapper recipe "
-                   "is for rl-zoo3 itself (see the README)",
+    "is for rl-zoo3 itself (see the README)",
     "vec_env_wrapper": "not supported by smo-gym train",
     "frame_stack": "not supported by smo-gym train (sensing 'stacked-positions' stacks measured positions)",
     "callback": "not supported by smo-gym train",
@@ -257,12 +287,17 @@ def _policy_kwargs_node(node, text: str):
     def bad(what: str):
         return ValueError(
             f"expected policy_kwargs made of dict(...), literals, nn.<activation> ({', '.join(_ACTIVATIONS)}) and "
-            f"optim.<optimizer> ({', '.join(_OPTIMIZERS)}), actual value: {what} in {text!r}")
+            f"optim.<optimizer> ({', '.join(_OPTIMIZERS)}), actual value: {what} in {text!r}"
+        )
 
     if isinstance(node, ast.Constant) and isinstance(node.value, (int, float, str, bool, type(None))):
         return node.value
-    if (isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd))
-            and isinstance(node.operand, ast.Constant) and isinstance(node.operand.value, (int, float))):
+    if (
+        isinstance(node, ast.UnaryOp)
+        and isinstance(node.op, (ast.USub, ast.UAdd))
+        and isinstance(node.operand, ast.Constant)
+        and isinstance(node.operand.value, (int, float))
+    ):
         return -node.operand.value if isinstance(node.op, ast.USub) else node.operand.value
     if isinstance(node, (ast.List, ast.Tuple)):
         items = [_policy_kwargs_node(e, text) for e in node.elts]
@@ -270,8 +305,10 @@ def _policy_kwargs_node(node, text: str):
     if isinstance(node, ast.Dict):
         if any(k is None for k in node.keys):
             raise bad("'**' unpacking")
-        return {_policy_kwargs_node(k, text): _policy_kwargs_node(v, text)
-                for k, v in zip(node.keys, node.values, strict=True)}
+        return {
+            _policy_kwargs_node(k, text): _policy_kwargs_node(v, text)
+            for k, v in zip(node.keys, node.values, strict=True)
+        }
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict":
         if node.args or any(kw.arg is None for kw in node.keywords):
             raise bad(repr(ast.unparse(node)))
@@ -328,13 +365,15 @@ def algo_kwargs(algo: str, hyperparams: dict | None) -> dict:
     out = {}
     for key, value in (hyperparams or {}).items():
         if key in UNSUPPORTED_KEYS:
-            raise ValueError(f"expected hyperparameters smo-gym train supports, actual value: {key!r} "
-                             f"({UNSUPPORTED_KEYS[key]})")
+            raise ValueError(
+                f"expected hyperparameters smo-gym train supports, actual value: {key!r} ({UNSUPPORTED_KEYS[key]})"
+            )
         if key not in valid:
             match = difflib.get_close_matches(key, valid + list(RUN_KEYS), n=1)
             hint = f" (did you mean {match[0]!r}?)" if match else ""
-            raise ValueError(f"expected a hyperparameter of {algo} or one of {', '.join(RUN_KEYS)}, actual value: "
-                             f"{key!r}{hint}")
+            raise ValueError(
+                f"expected a hyperparameter of {algo} or one of {', '.join(RUN_KEYS)}, actual value: {key!r}{hint}"
+            )
         if key in SCHEDULE_KEYS and isinstance(value, str):
             if not value.startswith("lin_"):
                 raise ValueError(f"expected {key} as a number or lin_<number>, actual value: {value!r}")
@@ -356,8 +395,10 @@ def _normalize_option(value) -> bool | dict:
         try:
             value = ast.literal_eval(value)
         except (ValueError, SyntaxError):
-            raise ValueError(f"expected normalize as true/false or a dict string such as "
-                             f"\"{{'norm_obs': True, 'norm_reward': False}}\", actual value: {value!r}") from None
+            raise ValueError(
+                f"expected normalize as true/false or a dict string such as "
+                f"\"{{'norm_obs': True, 'norm_reward': False}}\", actual value: {value!r}"
+            ) from None
     if isinstance(value, bool):
         return value
     if isinstance(value, dict):
@@ -409,13 +450,17 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") ->
     except yaml.YAMLError as exc:
         raise ValueError(f"expected a yaml file, actual value: {str(path)!r} ({str(exc).splitlines()[0]})") from None
     if not isinstance(content, dict):
-        raise ValueError(f"expected a yaml mapping of env ids to hyperparameters, actual value: {type(content).__name__}"
-                         f" in {str(path)!r}")
+        raise ValueError(
+            f"expected a yaml mapping of env ids to hyperparameters, actual value: {type(content).__name__}"
+            f" in {str(path)!r}"
+        )
     if env_id not in content:
         match = difflib.get_close_matches(env_id, [str(k) for k in content], n=1)
         hint = f" (did you mean {match[0]!r}?)" if match else ""
-        raise ValueError(f"expected an entry for {env_id!r} in {str(path)!r}, actual value: entries "
-                         f"{', '.join(map(str, content)) or '(none)'}{hint}")
+        raise ValueError(
+            f"expected an entry for {env_id!r} in {str(path)!r}, actual value: entries "
+            f"{', '.join(map(str, content)) or '(none)'}{hint}"
+        )
     entry = dict(content[env_id] or {})
     out: dict = {}
     if "n_timesteps" in entry:
@@ -453,8 +498,17 @@ def _slug(text) -> str:
     return re.sub(r"[^A-Za-z0-9._=+-]+", "_", str(text)).strip("_")
 
 
-def default_run_folder(env_id: str, sensing: str, algo: str, seed: int, *, sensor="encoder-12bit-noisy",
-                       observer="super-twisting", rate="physics", root="outputs/runs") -> Path:
+def default_run_folder(
+    env_id: str,
+    sensing: str,
+    algo: str,
+    seed: int,
+    *,
+    sensor="encoder-12bit-noisy",
+    observer="super-twisting",
+    rate="physics",
+    root="outputs/runs",
+) -> Path:
     """``root/ENV-SENSING[-OBSERVER][-SENSOR][-rate-RATE]-ALGO-sSEED``, naming only the settings that act under the
     sensing (:func:`sensing_settings`), so that runs differing in any of them get different folders."""
     values = {"sensor": sensor, "observer": observer, "rate": f"rate-{rate}"}
@@ -481,8 +535,10 @@ def check_run_folder(out: str | os.PathLike, overwrite: bool = False) -> Path:
     if out.exists() and not out.is_dir():
         raise ValueError(f"expected a run folder, actual value: {str(out)!r} is a file")
     if holds_run(out) and not overwrite:
-        raise ValueError(f"expected a new run folder, actual value: {str(out)!r} holds a run already "
-                         "(choose another folder, or overwrite it: --force / overwrite=True)")
+        raise ValueError(
+            f"expected a new run folder, actual value: {str(out)!r} holds a run already "
+            "(choose another folder, or overwrite it: --force / overwrite=True)"
+        )
     parent = out
     while not parent.exists():
         parent = parent.parent
@@ -513,37 +569,30 @@ def _progress_callback():
     callbacks = require("stable_baselines3.common.callbacks", "rl")
     BaseCallback, ProgressBarCallback = callbacks.BaseCallback, callbacks.ProgressBarCallback
 
-    try:
-        import rich  # noqa: F401
-
+    if importlib.util.find_spec("rich") is not None:  # SB3's progress bar needs rich
         return ProgressBarCallback()
-    except ImportError:
-        tqdm = require("tqdm.auto", "rl").tqdm
+    tqdm = require("tqdm.auto", "rl").tqdm
 
-        class TqdmProgress(BaseCallback):
-            def _on_training_start(self):
-                self.pbar = tqdm(total=self.locals["total_timesteps"] - self.model.num_timesteps, unit="step")
+    class TqdmProgress(BaseCallback):
+        def _on_training_start(self):
+            self.pbar = tqdm(total=self.locals["total_timesteps"] - self.model.num_timesteps, unit="step")
 
-            def _on_step(self):
-                self.pbar.update(self.training_env.num_envs)
-                return True
+        def _on_step(self):
+            self.pbar.update(self.training_env.num_envs)
+            return True
 
-            def _on_training_end(self):
-                self.pbar.close()
+        def _on_training_end(self):
+            self.pbar.close()
 
-        return TqdmProgress()
+    return TqdmProgress()
 
 
 def _logger(folder: Path, verbose: int):
     configure = require("stable_baselines3.common.logger", "rl").configure
 
     formats = ["csv"] + (["stdout"] if verbose else [])
-    try:
-        import tensorboard  # noqa: F401
-
+    if importlib.util.find_spec("tensorboard") is not None:
         formats.append("tensorboard")
-    except ImportError:
-        pass
     return configure(str(folder), formats)
 
 
@@ -553,8 +602,9 @@ def _frozen_normalization(train_venv, eval_venv):
 
     if not isinstance(train_venv, VecNormalize):
         return eval_venv
-    norm = VecNormalize(eval_venv, training=False, norm_obs=train_venv.norm_obs, norm_reward=False,
-                        clip_obs=train_venv.clip_obs)
+    norm = VecNormalize(
+        eval_venv, training=False, norm_obs=train_venv.norm_obs, norm_reward=False, clip_obs=train_venv.clip_obs
+    )
     norm.obs_rms = copy.deepcopy(train_venv.obs_rms)
     return norm
 
@@ -562,8 +612,9 @@ def _frozen_normalization(train_venv, eval_venv):
 def _returns(model, venv, episodes: int, deterministic: bool = True) -> np.ndarray:
     evaluate_policy = require("stable_baselines3.common.evaluation", "rl").evaluate_policy
 
-    rewards, _ = evaluate_policy(model, venv, n_eval_episodes=episodes, deterministic=deterministic,
-                                 return_episode_rewards=True, warn=False)
+    rewards, _ = evaluate_policy(
+        model, venv, n_eval_episodes=episodes, deterministic=deterministic, return_episode_rewards=True, warn=False
+    )
     return np.asarray(rewards, dtype=float)
 
 
@@ -577,13 +628,32 @@ def _describe(sensor) -> str:
     return sensor if isinstance(sensor, str) else repr(sensor)
 
 
-def train(env_id: str, *, sensing: str = "estimated", sensor: str = "encoder-12bit-noisy",
-          observer: str = "super-twisting", rate="physics", algo: str = "PPO", steps: int = 100_000, seed: int = 0,
-          n_envs: int = 1, out: str | os.PathLike = "outputs/runs/run", normalize: bool | dict | None = None,
-          hyperparams: dict | None = None, policy: str = "MlpPolicy", env_kwargs: dict | None = None,
-          checkpoint_every: int = 0, evaluate_at=(), eval_sensings=None, eval_episodes: int = 10,
-          progress_bar: bool = False, verbose: int = 0, vectorized: bool | None = None,
-          observer_kwargs: dict | None = None, overwrite: bool = False) -> dict:
+def train(
+    env_id: str,
+    *,
+    sensing: str = "estimated",
+    sensor: str = "encoder-12bit-noisy",
+    observer: str = "super-twisting",
+    rate="physics",
+    algo: str = "PPO",
+    steps: int = 100_000,
+    seed: int = 0,
+    n_envs: int = 1,
+    out: str | os.PathLike = "outputs/runs/run",
+    normalize: bool | dict | None = None,
+    hyperparams: dict | None = None,
+    policy: str = "MlpPolicy",
+    env_kwargs: dict | None = None,
+    checkpoint_every: int = 0,
+    evaluate_at=(),
+    eval_sensings=None,
+    eval_episodes: int = 10,
+    progress_bar: bool = False,
+    verbose: int = 0,
+    vectorized: bool | None = None,
+    observer_kwargs: dict | None = None,
+    overwrite: bool = False,
+) -> dict:
     r"""Train an SB3 agent on ``env_id`` under a sensing; returns the run summary (also in ``out/run.json``).
 
     Parameters
@@ -644,14 +714,29 @@ def train(env_id: str, *, sensing: str = "estimated", sensor: str = "encoder-12b
     created = None if out.exists() else created
     torch.set_num_threads(1)
     sense = dict(sensor=sensor, observer=observer, rate=rate, observer_kwargs=observer_kwargs)
-    summary = dict(env=env_id, sensing=sensing, algo=algo, steps=int(steps), seed=int(seed), n_envs=int(n_envs),
-                   normalize=normalize, policy=policy, hyperparams=raw_params, env_kwargs=env_kwargs,
-                   sensor=_describe(sensor), observer=observer, rate=rate, observer_kwargs=observer_kwargs,
-                   settings=list(sensing_settings(sensing)), status="training")
+    summary = dict(
+        env=env_id,
+        sensing=sensing,
+        algo=algo,
+        steps=int(steps),
+        seed=int(seed),
+        n_envs=int(n_envs),
+        normalize=normalize,
+        policy=policy,
+        hyperparams=raw_params,
+        env_kwargs=env_kwargs,
+        sensor=_describe(sensor),
+        observer=observer,
+        rate=rate,
+        observer_kwargs=observer_kwargs,
+        settings=list(sensing_settings(sensing)),
+        status="training",
+    )
     venv = None
     try:
-        venv = make_vec(env_id, sensing, n_envs=n_envs, seed=seed, vectorized=vectorized, env_kwargs=env_kwargs,
-                        **sense)
+        venv = make_vec(
+            env_id, sensing, n_envs=n_envs, seed=seed, vectorized=vectorized, env_kwargs=env_kwargs, **sense
+        )
         if normalize:
             venv = VecNormalize(venv, **(normalize if isinstance(normalize, dict) else {}))
         model = cls(policy, venv, seed=seed, verbose=verbose, device="cpu", **params)
@@ -680,17 +765,33 @@ def train(env_id: str, *, sensing: str = "estimated", sensor: str = "encoder-12b
                 while budgets and self_cb.num_timesteps >= budgets[0]:
                     at = budgets.pop(0)
                     for k, s in enumerate(eval_sensings):
-                        ev = _frozen_normalization(self_cb.training_env, make_vec(
-                            env_id, s, n_envs=1, seed=10_000 + seed * 100 + k, env_kwargs=env_kwargs, **sense))
+                        ev = _frozen_normalization(
+                            self_cb.training_env,
+                            make_vec(env_id, s, n_envs=1, seed=10_000 + seed * 100 + k, env_kwargs=env_kwargs, **sense),
+                        )
                         r = _returns(self_cb.model, ev, eval_episodes)
                         ev.close()
-                        evaluations.append(dict(steps=at, trained_steps=int(self_cb.num_timesteps), sensing=s,
-                                                returns=r.tolist(), mean=float(r.mean()), std=float(r.std())))
+                        evaluations.append(
+                            dict(
+                                steps=at,
+                                trained_steps=int(self_cb.num_timesteps),
+                                sensing=s,
+                                returns=r.tolist(),
+                                mean=float(r.mean()),
+                                std=float(r.std()),
+                            )
+                        )
 
         callbacks = [Budgets()]
         if checkpoint_every > 0:
-            callbacks.append(CheckpointCallback(max(checkpoint_every // n_envs, 1), str(out / "checkpoints"),
-                                                name_prefix="model", save_vecnormalize=bool(normalize)))
+            callbacks.append(
+                CheckpointCallback(
+                    max(checkpoint_every // n_envs, 1),
+                    str(out / "checkpoints"),
+                    name_prefix="model",
+                    save_vecnormalize=bool(normalize),
+                )
+            )
         if progress_bar:
             callbacks.append(_progress_callback())
         t0 = time.perf_counter()
@@ -708,8 +809,13 @@ def train(env_id: str, *, sensing: str = "estimated", sensor: str = "encoder-12b
     model.save(out / "model.zip")
     if normalize:
         venv.save(str(out / "vecnormalize.pkl"))
-    summary.update(trained_steps=int(model.num_timesteps), seconds=seconds,
-                   steps_per_second=model.num_timesteps / seconds, evaluations=evaluations, status="done")
+    summary.update(
+        trained_steps=int(model.num_timesteps),
+        seconds=seconds,
+        steps_per_second=model.num_timesteps / seconds,
+        evaluations=evaluations,
+        status="done",
+    )
     (out / "run.json").write_text(json.dumps(summary, indent=1, default=str))
     venv.close()
     return summary
@@ -734,8 +840,9 @@ def run_files(path: str | os.PathLike) -> dict:
     else:
         folder, model = path.parent, path
     if not model.is_file():
-        raise ValueError(f"expected a run folder, model.zip or checkpoint, actual value: {str(path)!r} "
-                         f"(no {str(model)!r})")
+        raise ValueError(
+            f"expected a run folder, model.zip or checkpoint, actual value: {str(path)!r} (no {str(model)!r})"
+        )
     match = _CHECKPOINT.fullmatch(model.name)
     if match:
         norm = folder / f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl"
@@ -753,9 +860,18 @@ def load_run(path: str | os.PathLike):
     return _algo_class(run.get("algo", "PPO")).load(files["model"], device="cpu"), run
 
 
-def evaluate(model: str | os.PathLike, *, env_id: str | None = None, sensing: str | None = None,
-             sensor: str | None = None, observer: str | None = None, rate=None, episodes: int = 10,
-             seed: int = 10_000, deterministic: bool = True) -> dict:
+def evaluate(
+    model: str | os.PathLike,
+    *,
+    env_id: str | None = None,
+    sensing: str | None = None,
+    sensor: str | None = None,
+    observer: str | None = None,
+    rate=None,
+    episodes: int = 10,
+    seed: int = 10_000,
+    deterministic: bool = True,
+) -> dict:
     """Play a trained run under a sensing (default: the one it was trained with); the true return per episode.
 
     ``model`` is a run folder, its ``model.zip`` or one of its checkpoints (:func:`run_files`): the run's
@@ -782,36 +898,58 @@ def evaluate(model: str | os.PathLike, *, env_id: str | None = None, sensing: st
     files = run_files(model)
     agent, run = load_run(model)
     if not run and (env_id is None or sensing is None):
-        raise ValueError(f"expected the run.json of {str(files['model'])!r} beside it or in the folder above (it "
-                         "names the environment and the sensing), actual value: none; give env_id and sensing")
+        raise ValueError(
+            f"expected the run.json of {str(files['model'])!r} beside it or in the folder above (it "
+            "names the environment and the sensing), actual value: none; give env_id and sensing"
+        )
     env_id = env_id or run.get("env")
     sensing = sensing or run.get("sensing")
     _check_sensing(sensing)
     if run.get("normalize") and files["vecnormalize"] is None:
-        raise ValueError(f"expected the normalization statistics saved with {str(files['model'])!r} (the run trained "
-                         "on normalized observations), actual value: none found beside it")
-    sense = dict(sensor=sensor or run.get("sensor") or "encoder-12bit-noisy",
-                 observer=observer or run.get("observer") or "super-twisting",
-                 rate=rate if rate is not None else run.get("rate") or "physics")
-    venv = make_vec(env_id, sensing, n_envs=1, seed=seed, env_kwargs=run.get("env_kwargs"),
-                    observer_kwargs=run.get("observer_kwargs") if sensing == "estimated" and observer is None
-                    else None, **sense)
+        raise ValueError(
+            f"expected the normalization statistics saved with {str(files['model'])!r} (the run trained "
+            "on normalized observations), actual value: none found beside it"
+        )
+    sense = dict(
+        sensor=sensor or run.get("sensor") or "encoder-12bit-noisy",
+        observer=observer or run.get("observer") or "super-twisting",
+        rate=rate if rate is not None else run.get("rate") or "physics",
+    )
+    venv = make_vec(
+        env_id,
+        sensing,
+        n_envs=1,
+        seed=seed,
+        env_kwargs=run.get("env_kwargs"),
+        observer_kwargs=run.get("observer_kwargs") if sensing == "estimated" and observer is None else None,
+        **sense,
+    )
     if venv.observation_space.shape != agent.observation_space.shape:
         venv.close()
         raise ValueError(
             f"expected a sensing with the model's observation shape {agent.observation_space.shape}, actual value: "
-            f"{venv.observation_space.shape} under sensing {sensing!r}")
+            f"{venv.observation_space.shape} under sensing {sensing!r}"
+        )
     if files["vecnormalize"] is not None:
         venv = VecNormalize.load(str(files["vecnormalize"]), venv)
         venv.training = False
         venv.norm_reward = False
     evaluate_policy = require("stable_baselines3.common.evaluation", "rl").evaluate_policy
 
-    rewards, lengths = evaluate_policy(agent, venv, n_eval_episodes=episodes, deterministic=deterministic,
-                                       return_episode_rewards=True, warn=False)
+    rewards, lengths = evaluate_policy(
+        agent, venv, n_eval_episodes=episodes, deterministic=deterministic, return_episode_rewards=True, warn=False
+    )
     venv.close()
     r = np.asarray(rewards, dtype=float)
     acting = sensing_settings(sensing)
-    return dict(env=env_id, sensing=sensing, **{k: (v if k in acting else None) for k, v in sense.items()},
-                returns=r.tolist(), lengths=list(map(int, lengths)), mean=float(r.mean()), std=float(r.std()),
-                model=str(files["model"]), vecnormalize=str(files["vecnormalize"]) if files["vecnormalize"] else None)
+    return dict(
+        env=env_id,
+        sensing=sensing,
+        **{k: (v if k in acting else None) for k, v in sense.items()},
+        returns=r.tolist(),
+        lengths=list(map(int, lengths)),
+        mean=float(r.mean()),
+        std=float(r.std()),
+        model=str(files["model"]),
+        vecnormalize=str(files["vecnormalize"]) if files["vecnormalize"] else None,
+    )

@@ -7,7 +7,7 @@ reads. Models are *stages* applied in order; ``stage_a | stage_b`` (or :class:`C
 :class:`GaussianNoise`   :math:`x \leftarrow x + \sigma\,n_k,\ n_k \sim \mathcal N(0, 1)`
 :class:`UniformNoise`    :math:`x \leftarrow x + b\,u_k,\ u_k \sim \mathcal U(-1, 1)` (bounded noise, the SMO setting)
 :class:`Quantization`    :math:`x \leftarrow \Delta\,\lfloor x/\Delta + 1/2\rfloor` (an encoder's counts)
-:class:`Bias`            :math:`x \leftarrow x + b`, ``b`` fixed or drawn once per episode from :math:`\mathcal N(0, s^2)`
+:class:`Bias`            :math:`x \leftarrow x + b`, ``b`` fixed or drawn per episode from :math:`\mathcal N(0, s^2)`
 :class:`Drift`           :math:`d_k = d_{k-1} + \sigma_d\sqrt{\tau}\,n_k,\ x \leftarrow x + d_k` (random walk)
 :class:`Delay`           :math:`x_k \leftarrow x_{k-d}` (``d`` samples of transport delay)
 :class:`Dropout`         with probability ``p`` the sample is lost and the last output is held
@@ -198,8 +198,9 @@ def _as_block_input(y, name: str = "y") -> np.ndarray:
 def _nonneg(name: str, value) -> np.ndarray:
     arr = as_real_array(name, value)
     if arr.size == 0 or arr.ndim > 1:
-        raise ValueError(f"expected {name} to be a number or one per channel (shape (n_channels,)), actual value: "
-                         f"shape {arr.shape}")
+        raise ValueError(
+            f"expected {name} to be a number or one per channel (shape (n_channels,)), actual value: shape {arr.shape}"
+        )
     if np.any(~np.isfinite(arr) | (arr < 0.0)):
         raise ValueError(f"expected {name} >= 0 and finite everywhere, actual value: {value!r}")
     return arr
@@ -251,8 +252,10 @@ class Sensor:
 
     @property
     def stages(self) -> tuple[Stage, ...]:
-        raise NotImplementedError(f"expected a sensor model (a Stage, a Chain or a preset of make_sensor), actual "
-                                  f"value: the base class {type(self).__name__}, which has no stages")
+        raise NotImplementedError(
+            f"expected a sensor model (a Stage, a Chain or a preset of make_sensor), actual "
+            f"value: the base class {type(self).__name__}, which has no stages"
+        )
 
     def __or__(self, other: Sensor) -> Chain:
         if not isinstance(other, Sensor):
@@ -285,8 +288,9 @@ class Sensor:
 
     # ---- life cycle -----------------------------------------------------------------------------------------
     @check_keywords
-    def reset(self, y0, *, seed=None, rng: np.random.Generator | None = None, dt: float = 1.0,
-              angular=None) -> np.ndarray:
+    def reset(
+        self, y0, *, seed=None, rng: np.random.Generator | None = None, dt: float = 1.0, angular=None
+    ) -> np.ndarray:
         """Start the sensor at the true signal ``y0`` and return the first measurement.
 
         Parameters
@@ -316,12 +320,15 @@ class Sensor:
         if y0.ndim == 0:
             raise ValueError(f"expected y0 with shape (..., n_channels), actual value: a scalar {float(y0)!r}")
         if y0.size == 0:
-            raise ValueError(f"expected y0 with at least one channel and no empty batch dimension, actual value: "
-                             f"shape {y0.shape}")
+            raise ValueError(
+                f"expected y0 with at least one channel and no empty batch dimension, actual value: shape {y0.shape}"
+            )
         if not np.isfinite(y0).all():
             channel = int(np.flatnonzero(~np.isfinite(y0))[0])
-            raise ValueError(f"expected a finite measurement, actual value: {y0.reshape(-1)[channel]!r} at "
-                             f"{self._where(channel, y0.shape)} in the true signal y0; the sensor's state was kept")
+            raise ValueError(
+                f"expected a finite measurement, actual value: {y0.reshape(-1)[channel]!r} at "
+                f"{self._where(channel, y0.shape)} in the true signal y0; the sensor's state was kept"
+            )
         dt = check_positive("dt", dt)
         if rng is not None and not isinstance(rng, np.random.Generator):
             raise TypeError(f"expected rng to be a numpy.random.Generator (or None), actual value: {rng!r}")
@@ -329,8 +336,10 @@ class Sensor:
             try:
                 fresh = np.random.default_rng(seed)
             except (TypeError, ValueError):
-                raise TypeError("expected seed to be None, a non-negative int, a SeedSequence or a Generator, actual "
-                                f"value: {seed!r}") from None
+                raise TypeError(
+                    "expected seed to be None, a non-negative int, a SeedSequence or a Generator, actual "
+                    f"value: {seed!r}"
+                ) from None
         n = y0.size
         if not (type(angular) is np.ndarray and angular.dtype == bool and angular.shape == (n,)):
             if angular is not None:
@@ -338,8 +347,10 @@ class Sensor:
                 try:
                     angular = np.broadcast_to(angular, y0.shape)
                 except ValueError:
-                    raise ValueError(f"expected angular broadcastable to the shape of y0 {y0.shape}, actual value: "
-                                     f"shape {angular.shape}") from None
+                    raise ValueError(
+                        f"expected angular broadcastable to the shape of y0 {y0.shape}, actual value: "
+                        f"shape {angular.shape}"
+                    ) from None
             angular = self._angular(n, angular)
         config = (y0.shape, float(dt), angular.tobytes())
         if rng is not None and rng is self._rng and config == self._config:
@@ -363,8 +374,9 @@ class Sensor:
             self._ring = np.zeros((S, K, n))
             self._ring_pos = np.zeros(S, dtype=np.int64)
             # stages whose state is drawn per episode (Bias); the others start at zero
-            self._drawn = [(s, st) for s, st in enumerate(stages)
-                           if type(st)._initial_state is not Stage._initial_state]
+            self._drawn = [
+                (s, st) for s, st in enumerate(stages) if type(st)._initial_state is not Stage._initial_state
+            ]
             self._rand = np.zeros((BLOCK, 2, S, n))
             self._t = BLOCK  # drawn at the first sample
             self._block_call = None
@@ -376,8 +388,9 @@ class Sensor:
             self._bind()
         out = np.empty((1, n))
         y0f = y0.reshape(1, n)
-        status = self._block_call(y0f, self._kinds, self._params, self._state, self._ring, self._ring_pos,
-                                  self._rand, self._t, out, True)
+        status = self._block_call(
+            y0f, self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand, self._t, out, True
+        )
         self._t += 1
         if status != -1:
             self._raise(status, y0f[0], out[0])
@@ -393,14 +406,17 @@ class Sensor:
     @staticmethod
     def _where(channel: int, shape: tuple[int, ...]) -> str:
         index = np.unravel_index(channel, shape)
-        return f"channel {index[-1]}" + (f" of batch element {tuple(int(i) for i in index[:-1])}"
-                                         if len(index) > 1 else "")
+        return f"channel {index[-1]}" + (
+            f" of batch element {tuple(int(i) for i in index[:-1])}" if len(index) > 1 else ""
+        )
 
     def _raise(self, channel: int, y: np.ndarray, out: np.ndarray):
         where = self._where(channel, self._shape)
         if not np.isfinite(y[channel]):  # rejected before any stage ran: the sensor's state is unchanged
-            raise ValueError(f"expected a finite measurement, actual value: {y[channel]!r} at {where} in the true "
-                             "signal; the sample was rejected before any stage ran and the sensor's state kept")
+            raise ValueError(
+                f"expected a finite measurement, actual value: {y[channel]!r} at {where} in the true "
+                "signal; the sample was rejected before any stage ran and the sensor's state kept"
+            )
         raise ValueError(
             f"expected a finite measurement, actual value: {out[channel]!r} at {where}, produced by the sensor model "
             f"{self!r}; a non-finite measurement is never passed on"
@@ -420,8 +436,21 @@ class Sensor:
         from .observers.base import _compiled_entry
 
         Y = np.empty((1, self._size))
-        self._block_call = _compiled_entry(_chain_block, (Y, self._kinds, self._params, self._state, self._ring,
-                                                          self._ring_pos, self._rand, np.int64(0), Y, np.bool_(False)))
+        self._block_call = _compiled_entry(
+            _chain_block,
+            (
+                Y,
+                self._kinds,
+                self._params,
+                self._state,
+                self._ring,
+                self._ring_pos,
+                self._rand,
+                np.int64(0),
+                Y,
+                np.bool_(False),
+            ),
+        )
 
     def measure(self, y) -> np.ndarray:
         """Measure one sample of the true signal ``y`` (shape as at ``reset``); returns a new array."""
@@ -454,7 +483,7 @@ class Sensor:
         if call is None:
             self._bind()
             call = self._block_call
-        if T > BLOCK - self._t and not np.isfinite(Y).all():
+        if BLOCK - self._t < T and not np.isfinite(Y).all():
             # a block over several refills runs in several calls: check it all first, so that a non-finite true
             # signal anywhere leaves the state (and the random stream) as it was, as within one call
             t, channel = divmod(int(np.flatnonzero(~np.isfinite(Y))[0]), self._size)
@@ -464,9 +493,10 @@ class Sensor:
             if self._t >= BLOCK:
                 self._refill()
             m = min(T - done, BLOCK - self._t)
-            Yb, outb = (Y, out) if m == T else (Y[done:done + m], out[done:done + m])
-            status = call(Yb, self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand,
-                          self._t, outb, False)
+            Yb, outb = (Y, out) if m == T else (Y[done : done + m], out[done : done + m])
+            status = call(
+                Yb, self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand, self._t, outb, False
+            )
             if status != -1:
                 t, channel = divmod(status, self._size)
                 if np.isfinite(Yb[t, channel]):  # produced by the model: these random numbers are used
@@ -585,8 +615,7 @@ class Quantization(Stage):
     @check_keywords
     def __init__(self, resolution, linear_resolution=None):
         self.resolution = _nonneg("resolution", resolution)
-        self.linear_resolution = None if linear_resolution is None else _nonneg("linear_resolution",
-                                                                                  linear_resolution)
+        self.linear_resolution = None if linear_resolution is None else _nonneg("linear_resolution", linear_resolution)
 
     @classmethod
     @check_keywords
@@ -597,8 +626,11 @@ class Quantization(Stage):
 
     def _resolutions(self, n, angular):
         ang = _per_channel("resolution", self.resolution, n)
-        lin = (ang * LINEAR_TRAVEL / (2.0 * np.pi) if self.linear_resolution is None
-               else _per_channel("linear_resolution", self.linear_resolution, n))
+        lin = (
+            ang * LINEAR_TRAVEL / (2.0 * np.pi)
+            if self.linear_resolution is None
+            else _per_channel("linear_resolution", self.linear_resolution, n)
+        )
         return np.where(angular, ang, lin)
 
     def _pack(self, n, angular, dt):
@@ -808,8 +840,15 @@ class Encoder(Chain):
     """
 
     @check_keywords
-    def __init__(self, resolution=None, noise_std=0.0, *, counts_per_revolution: int | None = None,
-                 linear_resolution=None, wrap: bool = False):
+    def __init__(
+        self,
+        resolution=None,
+        noise_std=0.0,
+        *,
+        counts_per_revolution: int | None = None,
+        linear_resolution=None,
+        wrap: bool = False,
+    ):
         if (resolution is None) == (counts_per_revolution is None):
             raise ValueError(
                 "expected exactly one of resolution and counts_per_revolution, actual value: "

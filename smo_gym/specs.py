@@ -64,7 +64,9 @@ def parse_value(text: str) -> bool | int | float | str | None:
 
 def _check_name(kind: str, name: str, choices) -> None:
     if name not in choices:
-        raise ValueError(f"expected {kind} in {', '.join(choices)}, actual value: {name!r}{did_you_mean(name, choices)}")
+        raise ValueError(
+            f"expected {kind} in {', '.join(choices)}, actual value: {name!r}{did_you_mean(name, choices)}"
+        )
 
 
 def parse_spec(spec: str, kind: str = "spec") -> tuple[str, dict]:
@@ -143,17 +145,22 @@ def _sensor_part(spec: str, whole: str) -> sensors.Sensor:
         if kwargs:
             raise ValueError(
                 f"expected no options for the sensor preset {name!r} (a fixed model; build one from models "
-                f"instead, e.g. 'encoder:counts_per_revolution=4096:noise_std=1e-3'), actual value: {whole!r}")
+                f"instead, e.g. 'encoder:counts_per_revolution=4096:noise_std=1e-3'), actual value: {whole!r}"
+            )
         return sensors.make_sensor(name)
     cls = SENSOR_MODELS[name]
     _check_keys("sensor model", name, kwargs, _options([cls]), whole)
     try:
         return cls(**kwargs)
     except TypeError as exc:
-        required = [p.name for p in inspect.signature(cls).parameters.values()
-                    if p.default is p.empty and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
-        raise ValueError(f"expected the options {', '.join(required)} of sensor model {name!r}, actual value: "
-                         f"{whole!r} ({exc})") from None
+        required = [
+            p.name
+            for p in inspect.signature(cls).parameters.values()
+            if p.default is p.empty and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+        ]
+        raise ValueError(
+            f"expected the options {', '.join(required)} of sensor model {name!r}, actual value: {whole!r} ({exc})"
+        ) from None
 
 
 def make_sensor(spec: str | sensors.Sensor) -> sensors.Sensor:

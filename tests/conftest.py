@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 import pytest
 
+
 @contextlib.contextmanager
 def _environment_variable(name: str, value: str):
     """``os.environ[name] = value`` within the block (subprocesses inherit it), the previous state restored."""

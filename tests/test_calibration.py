@@ -41,7 +41,7 @@ def test_noise_std_ignores_smooth_signals_and_rare_outliers():
     t = np.arange(5000) * DT
     cubic = 1.0 + 2.0 * t - 3.0 * t**2 + 0.5 * t**3  # a 4th difference of exactly 0, to rounding
     assert calibration.noise_std(cubic) < 1e-12
-    _, clean, noisy = noisy_sine(sigma=1e-3, seed=3)
+    _, _clean, noisy = noisy_sine(sigma=1e-3, seed=3)
     rng = np.random.default_rng(4)
     hit = rng.random(noisy.shape) < 0.01
     spiky = noisy + np.where(hit, rng.choice([-1.0, 1.0], noisy.shape), 0.0)  # 1 % gross errors of 1000 sigma
@@ -58,7 +58,7 @@ def test_derivative_bound_is_safety_times_the_quantile_of_the_true_derivative(de
     absolute values is :math:`A\omega^r\sin(0.99\,\pi/2)`; noise-free and with noise of 1e-3 (which, differentiated
     at the sampling step, would give a quotient of order :math:`10^{-3}/\tau^r = 10^3` to :math:`10^6`), the
     bound is twice that to within 10 %."""
-    t, clean, noisy = noisy_sine(T=40000, sigma=1e-3, amplitude=2.0, omega=3.0)
+    _t, clean, noisy = noisy_sine(T=40000, sigma=1e-3, amplitude=2.0, omega=3.0)
     expected = 2.0 * 2.0 * 3.0**derivative * np.sin(0.99 * np.pi / 2)
     np.testing.assert_allclose(calibration.derivative_bound(clean, DT, derivative), expected, rtol=0.02)
     np.testing.assert_allclose(calibration.derivative_bound(noisy, DT, derivative), expected, rtol=0.10)
@@ -179,7 +179,7 @@ def test_differentiate_without_gains_is_calibrated_from_the_data(name):
     velocity of a noisy sine is within 0.05 (RMS) of the truth after the transient (finite differences: their
     noise level :math:`\\sqrt2\\sigma/\\tau`). Before, ``kalman-ca`` and ``high-gain`` raised ``TypeError`` and
     ``super-twisting`` ``ValueError``."""
-    t, clean, noisy = noisy_sine(T=10000, sigma=1e-4)
+    t, _clean, noisy = noisy_sine(T=10000, sigma=1e-4)
     z = smo_gym.differentiate(noisy[:, 0], DT, observer=name)
     assert z.shape == (10000, OBSERVERS[name](**_minimal(name)).order + 1)
     error = z[2000:, 1] - 3.0 * np.cos(3.0 * t[2000:])

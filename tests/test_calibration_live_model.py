@@ -76,8 +76,13 @@ print(calibration_key(environment_key(env.unwrapped), env.unwrapped.model, deriv
 
 
 def _key_in_new_process(scale: float) -> str:
-    out = subprocess.run([sys.executable, "-c", _KEY_SCRIPT.format(scale=scale)], capture_output=True, text=True,
-                         timeout=120, env={**os.environ, "MUJOCO_GL": "disable"})
+    out = subprocess.run(
+        [sys.executable, "-c", _KEY_SCRIPT.format(scale=scale)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "MUJOCO_GL": "disable"},
+    )
     assert out.returncode == 0, out.stderr
     return out.stdout.strip()
 
@@ -91,9 +96,12 @@ def test_cache_key_is_the_same_in_every_process():
     assert "0x" not in first
 
 
-@pytest.mark.parametrize("value, expected", [
-    ({"b": 1, "a": [1.5, "x"]}, "{'a': list(1.5, 'x'), 'b': 1}"),
-    (object(), "<object object>"),
-])
+@pytest.mark.parametrize(
+    "value, expected",
+    [
+        ({"b": 1, "a": [1.5, "x"]}, "{'a': list(1.5, 'x'), 'b': 1}"),
+        (object(), "<object object>"),
+    ],
+)
 def test_stable_repr(value, expected):
     assert stable_repr(value) == expected

@@ -18,13 +18,41 @@ def _private_cache(tmp_path, monkeypatch):
 
 def test_compare_prints_table_and_writes_png(tmp_path, capsys):
     out = tmp_path / "cmp.png"
-    code = cli.main(["compare", "--env", "InvertedPendulum-v5", "--steps", "60", "--seed", "1", "--out", str(out),
-                     "--observers", "super-twisting,finite-difference,levant:order=1:discretization=matching",
-                     "--per-joint", "--joints", "hinge,0", "--sensor", "low-cost", "--rate", "1"])
+    code = cli.main(
+        [
+            "compare",
+            "--env",
+            "InvertedPendulum-v5",
+            "--steps",
+            "60",
+            "--seed",
+            "1",
+            "--out",
+            str(out),
+            "--observers",
+            "super-twisting,finite-difference,levant:order=1:discretization=matching",
+            "--per-joint",
+            "--joints",
+            "hinge,0",
+            "--sensor",
+            "low-cost",
+            "--rate",
+            "1",
+        ]
+    )
     text = capsys.readouterr().out
     assert code == 0
-    for word in ("observer", "RMSE", "max err", "us/step", "super-twisting",
-                 "levant:order=1:discretization=matching", "RMSE per dof", "slider [m/s]", "hinge [rad/s]"):
+    for word in (
+        "observer",
+        "RMSE",
+        "max err",
+        "us/step",
+        "super-twisting",
+        "levant:order=1:discretization=matching",
+        "RMSE per dof",
+        "slider [m/s]",
+        "hinge [rad/s]",
+    ):
         assert word in text
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -35,8 +63,9 @@ def test_finite_difference_row_is_the_backward_difference_of_the_measurements():
     starts = set(rec.episode_starts.tolist())
     for i in range(1, len(rec.z_measured)):
         if i not in starts and i - 1 not in starts:
-            np.testing.assert_allclose(fd.velocity[i], (rec.z_measured[i] - rec.z_measured[i - 1]) / rec.dt,
-                                       rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose(
+                fd.velocity[i], (rec.z_measured[i] - rec.z_measured[i - 1]) / rec.dt, rtol=1e-12, atol=1e-9
+            )
     # the metrics are over every estimate: all samples but the first of each episode (the observer's start)
     err = np.delete(fd.velocity - rec.qvel, rec.episode_starts, axis=0)
     assert len(err) == len(rec.qvel) - len(rec.episode_starts)
@@ -73,20 +102,23 @@ def test_bad_input_exit_codes(capsys):
         cli.main([])
 
 
-@pytest.mark.parametrize(("argv", "message"), [
-    (["compare", "--env", "Hoper-v5"], "did you mean 'Hopper-v5'?"),
-    (["compare", "--joints", "thigh"], "did you mean 'thigh_joint'?"),
-    (["compare", "--joints", "7"], "expected a dof index in [0, 5]"),
-    (["compare", "--plot-seconds", "-1"], "expected --plot-seconds > 0, actual value: -1.0"),
-    (["compare", "--out", "{file}/plot.png"], "is a file"),
-    (["compare", "--out", "{tmp}"], "expected a plot file ending in"),
-    (["compare", "--observers", "levant:ordr=1"], "did you mean 'order'?"),
-    (["compare", "--sensor", "encoder:counts=1024"], "did you mean 'counts_per_revolution'?"),
-    (["train", "--env", "Hopper-v55"], "did you mean 'Hopper-v5'?"),
-    (["train", "--env", "Hopper-v5", "--out", "{file}/run"], "is a file"),
-    (["train", "--env", "Hopper-v5", "--observer", "levnat"], "did you mean 'levant'?"),
-    (["evaluate", "{tmp}/missing"], "expected a run folder, model.zip or checkpoint"),
-])
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["compare", "--env", "Hoper-v5"], "did you mean 'Hopper-v5'?"),
+        (["compare", "--joints", "thigh"], "did you mean 'thigh_joint'?"),
+        (["compare", "--joints", "7"], "expected a dof index in [0, 5]"),
+        (["compare", "--plot-seconds", "-1"], "expected --plot-seconds > 0, actual value: -1.0"),
+        (["compare", "--out", "{file}/plot.png"], "is a file"),
+        (["compare", "--out", "{tmp}"], "expected a plot file ending in"),
+        (["compare", "--observers", "levant:ordr=1"], "did you mean 'order'?"),
+        (["compare", "--sensor", "encoder:counts=1024"], "did you mean 'counts_per_revolution'?"),
+        (["train", "--env", "Hopper-v55"], "did you mean 'Hopper-v5'?"),
+        (["train", "--env", "Hopper-v5", "--out", "{file}/run"], "is a file"),
+        (["train", "--env", "Hopper-v5", "--observer", "levnat"], "did you mean 'levant'?"),
+        (["evaluate", "{tmp}/missing"], "expected a run folder, model.zip or checkpoint"),
+    ],
+)
 def test_bad_arguments_are_refused_before_any_work_with_one_line(argv, message, tmp_path, capsys, monkeypatch):
     """Unknown env ids, joints, observers and sensor options, a negative plot window and unusable output paths end
     the command with one line on stderr, before a rollout or a training starts."""
@@ -137,8 +169,25 @@ def test_table_has_exactly_the_explained_columns():
 def test_sensor_spec_in_compare(tmp_path, capsys):
     out = tmp_path / "cmp.png"
     spec = "encoder:counts_per_revolution=1024:noise_std=2e-3+delay:samples=1"
-    assert cli.main(["compare", "--env", "InvertedPendulum-v5", "--steps", "30", "--sensor", spec, "--observers",
-                     "finite-difference", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        cli.main(
+            [
+                "compare",
+                "--env",
+                "InvertedPendulum-v5",
+                "--steps",
+                "30",
+                "--sensor",
+                spec,
+                "--observers",
+                "finite-difference",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert f"sensor {spec}" in capsys.readouterr().out
     rec = lib.record_rollout("InvertedPendulum-v5", sensor=spec, steps=30)
     # one-sample delay: the first two measurements are the first sample, and the grid is 2 pi / 1024 (hinge)
@@ -152,10 +201,17 @@ def _diverging(rec, name="diverging", scale=1e189):
     """An ObserverResult whose estimate blows up to ``scale`` and then becomes non-finite."""
     v = rec.qvel.copy()
     n = len(v)
-    v[2:n // 2] = scale * np.where(np.arange(2, n // 2) % 2, 1.0, -1.0)[:, None]
-    v[n // 2:] = np.nan
-    return lib.ObserverResult(name=name, velocity=v, rmse=float("nan"), max_error=float("inf"), cost_us=1.0,
-                              rmse_per_dof=np.full(v.shape[1], np.nan), diverged_at=n // 2 * rec.dt)
+    v[2 : n // 2] = scale * np.where(np.arange(2, n // 2) % 2, 1.0, -1.0)[:, None]
+    v[n // 2 :] = np.nan
+    return lib.ObserverResult(
+        name=name,
+        velocity=v,
+        rmse=float("nan"),
+        max_error=float("inf"),
+        cost_us=1.0,
+        rmse_per_dof=np.full(v.shape[1], np.nan),
+        diverged_at=n // 2 * rec.dt,
+    )
 
 
 def test_plot_axes_follow_the_true_velocity_not_a_diverging_observer():
@@ -194,10 +250,18 @@ def test_environment_ids_of_dm_control_need_no_import_first():
     import subprocess
     import sys
 
-    code = ("import sys; from smo_gym.envs import make; assert 'shimmy' not in sys.modules; "
-            "env = make('dm_control/cartpole-swingup-v0'); env.reset(seed=0); env.close()")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False,
-                            env={**os.environ, "MUJOCO_GL": "disable"})
+    code = (
+        "import sys; from smo_gym.envs import make; assert 'shimmy' not in sys.modules; "
+        "env = make('dm_control/cartpole-swingup-v0'); env.reset(seed=0); env.close()"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        env={**os.environ, "MUJOCO_GL": "disable"},
+    )
     assert result.returncode == 0, result.stderr[-2000:]
 
 
@@ -206,15 +270,22 @@ def _run_module(*args):
     import subprocess
     import sys
 
-    return subprocess.run([sys.executable, "-m", "smo_gym", *args], capture_output=True, text=True, timeout=120, check=False,
-                          env={**os.environ, "MUJOCO_GL": "disable"})
+    return subprocess.run(
+        [sys.executable, "-m", "smo_gym", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        env={**os.environ, "MUJOCO_GL": "disable"},
+    )
 
 
 def test_python_dash_m_runs_the_command_line():
     result = _run_module("compare", "--env", "NoSuchEnv-v0")
     assert result.returncode == 2
-    assert result.stderr.strip() == ("smo-gym compare: error: expected a registered Gymnasium environment id, actual "
-                                     "value: 'NoSuchEnv-v0'")
+    assert result.stderr.strip() == (
+        "smo-gym compare: error: expected a registered Gymnasium environment id, actual value: 'NoSuchEnv-v0'"
+    )
 
 
 def test_version():

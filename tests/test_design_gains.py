@@ -201,7 +201,7 @@ def test_eigenvalue_mapping_step(mode, k, rng):
     y = rng.normal(size=n_ch) * np.logspace(-6, 3, n_ch)
     state = np.zeros((n_ch, m + 1))
     state[:, :m] = xi
-    new_state, out = obs.step(state, y)
+    new_state, _out = obs.step(state, y)
     A = taylor_matrix(m, dt)
     for c in range(n_ch):
         sigma = y[c] - xi[c, 0]
@@ -220,8 +220,9 @@ def test_eigenvalue_mapping_step(mode, k, rng):
 def textbook_kalman_ca(Y, dt, q, r, s_v, s_a):
     """Constant-acceleration Kalman filter, written out with matrices (Bar-Shalom et al. 2001, 6.2.3)."""
     F = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-    Q = q * np.array([[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2],
-                      [dt**3 / 6, dt**2 / 2, dt]])
+    Q = q * np.array(
+        [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]]
+    )
     H = np.array([[1.0, 0.0, 0.0]])
     x = np.array([Y[0], 0.0, 0.0])
     P = np.diag([r, s_v**2, s_a**2])
@@ -284,7 +285,7 @@ def test_high_gain_implicit_is_backward_euler(order, rng):
 def test_high_gain_euler_is_forward_euler_predictor(rng):
     r"""``discretization="euler"``: :math:`x_{k+1} = x_k + \tau((N - Hc^T)x_k + H y_k)`, reported moved back by
     :math:`e^{-\tau N}`."""
-    dt, ell, n = 0.002, 30.0, 2
+    dt, ell = 0.002, 30.0
     H = np.array([2 * ell, ell**2])
     Y = np.sin(np.arange(100) * dt) + 1e-3 * rng.standard_normal(100)
     obs = HighGain(dt, ell, 1, discretization="euler")

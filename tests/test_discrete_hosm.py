@@ -19,7 +19,8 @@ from smo_gym.observers.discrete_hosm import (
 )
 
 _spec = importlib.util.spec_from_file_location(
-    "reproduce_papers", Path(__file__).resolve().parents[1] / "scripts" / "reproduce_papers.py")
+    "reproduce_papers", Path(__file__).resolve().parents[1] / "scripts" / "reproduce_papers.py"
+)
 repro = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(repro)
 
@@ -107,8 +108,11 @@ def test_mappings_match_the_compiled_kernel_and_the_closed_forms():
             a = np.abs(e[::997])
             root = a ** (1.0 / n) * (1.0 + 1e-12)
             with np.errstate(divide="ignore", invalid="ignore"):
-                wrong = (root / (hp * mu * a + root + hp) if mapping == "semi-implicit"
-                         else np.exp(-hp * (1.0 + mu * a) / root))
+                wrong = (
+                    root / (hp * mu * a + root + hp)
+                    if mapping == "semi-implicit"
+                    else np.exp(-hp * (1.0 + mu * a) / root)
+                )
             assert np.any(np.abs(np.where(a > 0, wrong, 0.0) - ref) > tol)
             assert z.max() == pytest.approx(max_eigenvalue(n, 1.0, hp, mu, mapping), rel=1e-8)
             assert abs(e[np.argmax(z)]) == pytest.approx(1.0 / (mu * (n - 1)), rel=1e-3)
@@ -162,7 +166,7 @@ def test_exact_on_polynomials_of_degree_below_n(n, p1):
     obs = DiscreteTimeHOSM(n, dt, p1, mu=1.0)
     obs.reset(y[:1] + 1.0)
     for k in range(t.size - 1):
-        pred = obs.update(y[k:k + 1])
+        pred = obs.update(y[k : k + 1])
     truth = [np.polyval(np.polyder(coeffs, i), t[-1]) if i else y[-1] for i in range(n)]
     np.testing.assert_allclose(pred[0], truth, rtol=1e-7, atol=1e-9)
 
@@ -179,8 +183,8 @@ def test_batch_equals_per_channel_loop_with_model_terms(rng):
     for i in range(2):
         for j in range(3):
             single = DiscreteTimeHOSM(3, 0.01, p1[i, j], 1.0, gamma=gamma, L_gamma=[np.inf, 1.0, 0.5])
-            single.reset(Y[0, i, j:j + 1])
-            ref = single.run(Y[:, i, j:j + 1], U[:, i, j:j + 1])
+            single.reset(Y[0, i, j : j + 1])
+            ref = single.run(Y[:, i, j : j + 1], U[:, i, j : j + 1])
             np.testing.assert_allclose(batch[:, i, j], ref[:, 0], rtol=1e-12, atol=1e-12)
 
 

@@ -20,19 +20,17 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-
-from smo_gym.wrappers import DmControlAdapter, EstimatedVelocity, make_dm_control
 from conftest import smooth_actions
 
+from smo_gym.wrappers import DmControlAdapter, EstimatedVelocity, make_dm_control
+
 os.environ.setdefault("MUJOCO_GL", "disable")
-import shimmy  # noqa: E402, F401  (registers dm_control/...; a declared dependency: missing must fail, not skip)
+import shimmy  # noqa: F401  (registers the dm_control/... ids)
 
 TASKS = [("cartpole", "swingup"), ("acrobot", "swingup"), ("cheetah", "run"), ("walker", "walk")]
 
 
 pytestmark = pytest.mark.usefixtures("private_calibration_cache")
-
-
 
 
 def rollout(env, actions, seed):
@@ -171,7 +169,7 @@ def test_bad_inputs():
     class Fake:
         _env = object()
 
-    with pytest.raises(TypeError, match="dm_control.rl.control.Environment"):
+    with pytest.raises(TypeError, match=r"dm_control.rl.control.Environment"):
         DmControlAdapter(Fake())
 
 

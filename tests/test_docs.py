@@ -34,8 +34,15 @@ INTERNAL_LABEL = re.compile(r"\b(?:[Pp]aper 00\d|[Ii]ssue \d+)\b")
 def site(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("site")
     env = {**os.environ, "MUJOCO_GL": "disable", "NO_MKDOCS_2_WARNING": "1"}
-    res = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)], cwd=ROOT,
-                         capture_output=True, text=True, timeout=300, check=False, env=env)
+    res = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+        env=env,
+    )
     assert res.returncode == 0, res.stdout + res.stderr
     return out
 
@@ -48,9 +55,18 @@ def package():
 
 
 def test_the_public_modules_have_pages():
-    assert {"smo_gym", "smo_gym.observers", "smo_gym.sensors", "smo_gym.wrappers", "smo_gym.design",
-            "smo_gym.control", "smo_gym.mechanics", "smo_gym.envs", "smo_gym.rl", "smo_gym.specs"} <= set(
-        PUBLIC_MODULES)
+    assert {
+        "smo_gym",
+        "smo_gym.observers",
+        "smo_gym.sensors",
+        "smo_gym.wrappers",
+        "smo_gym.design",
+        "smo_gym.control",
+        "smo_gym.mechanics",
+        "smo_gym.envs",
+        "smo_gym.rl",
+        "smo_gym.specs",
+    } <= set(PUBLIC_MODULES)
     for module in PUBLIC_MODULES:
         assert f"::: {module}\n" in (API / f"{module}.md").read_text()
 
@@ -114,16 +130,25 @@ def test_benchmark_pages_are_built_from_the_results_files(site):
     """The tables come from the files: a row of each file appears on its page, the RL returns as summary.csv
     gives them, and the hook refuses a missing file rather than leaving the marker."""
     pages = {
-        "benchmarks/observers": ["results/observers/accuracy.md", "results/observers/speed.md",
-                                 "results/observers/throughput.md"],
+        "benchmarks/observers": [
+            "results/observers/accuracy.md",
+            "results/observers/speed.md",
+            "results/observers/throughput.md",
+        ],
         "benchmarks/wrapper-accuracy": ["results/accuracy/gymnasium.md", "results/accuracy/dm_control.md"],
         "benchmarks/wrapper-cost": ["results/wrapper/bench_wrapper.txt"],
     }
     for page, files in pages.items():
         html = (site / page / "index.html").read_text()
         for rel in files:
-            row = next(line for line in (ROOT / rel).read_text().splitlines() if line.startswith("| ") and "---" not
-                       in line and not line.startswith("| environment |") and not line.startswith("| observer |"))
+            row = next(
+                line
+                for line in (ROOT / rel).read_text().splitlines()
+                if line.startswith("| ")
+                and "---" not in line
+                and not line.startswith("| environment |")
+                and not line.startswith("| observer |")
+            )
             first_cell = row.split("|")[1].strip().strip("*`")
             assert first_cell in html, (page, rel, first_cell)
     rl = (site / "benchmarks" / "rl" / "index.html").read_text()
@@ -141,8 +166,10 @@ def test_the_returns_table_reads_summary_csv(tmp_path):
     finally:
         sys.path.pop(0)
     csv = tmp_path / "summary.csv"
-    csv.write_text("env,train_sensing,eval_sensing,steps,seeds,mean,std\n"
-                   "A-v5,true,true,50000,3,10.4,1.6\nA-v5,true,est,50000,3,7.5,0.5\nA-v5,est,est,50000,2,8.0,2.0\n")
+    csv.write_text(
+        "env,train_sensing,eval_sensing,steps,seeds,mean,std\n"
+        "A-v5,true,true,50000,3,10.4,1.6\nA-v5,true,est,50000,3,7.5,0.5\nA-v5,est,est,50000,2,8.0,2.0\n"
+    )
     lines = hooks._results_returns(csv).splitlines()
     assert lines[0] == "| trained on -> evaluated on | A 50k |"
     assert lines[2:] == ["| true | 10 +- 2 (3) |", "| est | 8 +- 2 (2) |", "| true -> est | 8 +- 0 (3) |"]

@@ -25,7 +25,7 @@ def test_registered_and_passes_check_env(env_id):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the checker's advice on unbounded Box spaces and unnormalised actions
         check_env(env.unwrapped, skip_render_check=True)
-    obs, info = env.reset(seed=3)
+    obs, _info = env.reset(seed=3)
     assert obs.shape == env.observation_space.shape == (env.unwrapped.model.nq + env.unwrapped.model.nv,)
     obs2, *_ = env.step(env.action_space.sample())
     assert np.all(np.isfinite(obs2))
@@ -68,7 +68,7 @@ def test_disturbance_input_acts_like_a_joint_torque():
 
 
 def test_time_varying_disturbance_uses_physics_time():
-    f = lambda t: np.array([0.5 * np.sin(2 * t) + 0.2])  # noqa: E731
+    f = lambda t: np.array([0.5 * np.sin(2 * t) + 0.2])
     env = gym.make("smo_gym/FurutaPendulum-v0", disturbance=f).unwrapped
     env.reset(seed=0)
     *_, info = env.step(np.zeros(1))
@@ -116,9 +116,16 @@ def test_import_registers_once():
 
 def test_plain_import_registers_the_environments():
     """``import smo_gym`` alone makes ``gymnasium.make("smo_gym/...")`` work, without loading MuJoCo code first."""
-    code = ("import sys, gymnasium as gym, smo_gym; assert 'smo_gym.envs' not in sys.modules; "
-            "env = gym.make('smo_gym/TwoLinkArm-v0'); env.reset(seed=0); print(type(env.unwrapped).__name__)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                         env={**os.environ, "MUJOCO_GL": "disable"})
+    code = (
+        "import sys, gymnasium as gym, smo_gym; assert 'smo_gym.envs' not in sys.modules; "
+        "env = gym.make('smo_gym/TwoLinkArm-v0'); env.reset(seed=0); print(type(env.unwrapped).__name__)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "MUJOCO_GL": "disable"},
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "TwoLinkArmEnv"

@@ -13,15 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import signal_derivatives
 
 from smo_gym.design import LMIInfeasibleError, block_decomposition, ilf_gains
 from smo_gym.design.ilf import ilf_degrees
 from smo_gym.observers import OBSERVERS, ILFObserver, make_observer
 
-from conftest import signal_derivatives
-
 _spec = importlib.util.spec_from_file_location(
-    "reproduce_papers", Path(__file__).resolve().parents[1] / "scripts" / "reproduce_papers.py")
+    "reproduce_papers", Path(__file__).resolve().parents[1] / "scripts" / "reproduce_papers.py"
+)
 repro = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(repro)
 
@@ -112,8 +112,7 @@ def test_finite_design_is_certified_and_rechecked(finite_design):
     E1 = dec.C_tilde.T @ dec.C_tilde
     assert np.min(np.linalg.eigvalsh(P - d.delta * E1 @ P @ E1)) > 0
     lam = np.random.default_rng(5).uniform(0, d.delta**-0.5, 3000)
-    worst = max(np.max(np.linalg.eigvalsh(np.diag(_xi_finite(x, r)) @ Z @ np.diag(_xi_finite(x, r)) - P))
-                for x in lam)
+    worst = max(np.max(np.linalg.eigvalsh(np.diag(_xi_finite(x, r)) @ Z @ np.diag(_xi_finite(x, r)) - P)) for x in lam)
     assert worst <= 1e-7
     Y = P @ L  # (11) with Y = P L
     M11 = P @ dec.A_tilde + dec.A_tilde.T @ P + dec.C_tilde.T @ Y.T + Y @ dec.C_tilde + P + P @ Hr + Hr @ P
@@ -204,7 +203,7 @@ def test_error_sequence_is_independent_of_the_plant(paper_decomposition):
     """The exact ZOH prediction makes the error autonomous: the real plant (u = sin t, x(0) = 0.1 x*, xhat(0) = 0)
     and the zero plant with xhat(0) = -0.1 x* give the same errors (to float resolution of the plant state)."""
     kw = dict(dt=1e-2, B=B, decomposition=paper_decomposition)
-    t, x, xh = repro.run_real_plant_001(ILFObserver(A, C, EX["L_finite"], 1.0, "finite", **kw), 0.1 * XS, 0.6)
+    _t, x, xh = repro.run_real_plant_001(ILFObserver(A, C, EX["L_finite"], 1.0, "finite", **kw), 0.1 * XS, 0.6)
     _, norms = repro.run_ilf_errors(ILFObserver(A, C, EX["L_finite"], 1.0, "finite", **kw), 0.1 * XS, 0.6)
     real = np.linalg.norm(x - xh, axis=1)
     np.testing.assert_allclose(real, norms[:, 0], rtol=1e-6, atol=1e-12 * np.abs(x).max())
@@ -214,7 +213,7 @@ def test_coarse_step_stays_stable_from_huge_errors(paper_decomposition):
     """Implicit injection: at h = 50 ms (explicit Euler of these gains diverges) the fixed-time observer from
     1e6 x* stays finite and converges within a few T_max."""
     obs = ILFObserver(A, C, EX["L_fixed"], 0.5, "fixed", dt=5e-2, B=B, decomposition=paper_decomposition)
-    t, norms = repro.run_ilf_errors(obs, 1e6 * XS, 5.0)
+    _t, norms = repro.run_ilf_errors(obs, 1e6 * XS, 5.0)
     assert np.all(np.isfinite(norms)) and norms[-1, 0] < 1e-6
 
 
@@ -276,8 +275,8 @@ def test_ilf_finite_differentiates_and_batches(rng):
     assert err.max() < 0.05
     j = 2
     single = make_observer("ilf-finite", dt=dt, lipschitz=L[j])
-    single.reset(Y[0, j:j + 1])
-    np.testing.assert_allclose(single.run(Y[1:, j:j + 1])[:, 0], est[:, j], rtol=1e-12, atol=1e-12)
+    single.reset(Y[0, j : j + 1])
+    np.testing.assert_allclose(single.run(Y[1:, j : j + 1])[:, 0], est[:, j], rtol=1e-12, atol=1e-12)
     with pytest.raises(RuntimeError):
         make_observer("ilf-fixed", dt=dt, lipschitz=1.0).update(np.zeros(1))
     with pytest.raises(ValueError, match="lipschitz"):

@@ -301,7 +301,6 @@ def linearizations():
     """``{env id: (model, plant)}``: ``linearize(model)`` at ``qpos0``, all positions measured, ``D = B``."""
     gym = pytest.importorskip("gymnasium")
     pytest.importorskip("mujoco")
-    import smo_gym.envs  # noqa: F401  (registers the smo_gym/... ids)
 
     out = {}
     for env_id in ENV_IDS:

@@ -43,10 +43,20 @@ BLOCKER = textwrap.dedent(
 
 def run_light(code: str, timeout: float = 240) -> subprocess.CompletedProcess:
     """Run ``code`` in a fresh interpreter (this checkout first on the path) with the optional modules hidden."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-           "MUJOCO_GL": "disable"}
-    return subprocess.run([sys.executable, "-c", BLOCKER + textwrap.dedent(code)], capture_output=True, text=True,
-                          env=env, cwd=ROOT, timeout=timeout, check=False)
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+        "MUJOCO_GL": "disable",
+    }
+    return subprocess.run(
+        [sys.executable, "-c", BLOCKER + textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=ROOT,
+        timeout=timeout,
+        check=False,
+    )
 
 
 def test_the_blocker_hides_the_optional_modules():

@@ -24,7 +24,7 @@ def _assumption1(P, l, kappa, rho_d, rho_v, gamma):
     z = np.zeros((1, 1))
     rows = [[S, P @ b, -w], [b.T @ P, -(rho_d**2) + z, z], [-w.T, z, -(rho_v**2) + z]]
     if gamma > 0:
-        rows = [r + [extra] for r, extra in zip(rows, [-P @ b, z, z])]
+        rows = [r + [extra] for r, extra in zip(rows, [-P @ b, z, z], strict=False)]
         rows.append([-b.T @ P, z, z, -(gamma**-2) + z])
     return np.block(rows)
 
@@ -37,10 +37,16 @@ def test_reproduces_the_printed_gain_of_section_6():
     assert isinstance(cert, SwitchedGainCertificate) and cert.status == "optimal"
 
 
-@pytest.mark.parametrize("n, kappa, rho_d, rho_v, gamma", [
-    (2, 1.0, 1.0, 1.0, 0.0), (3, 1.0, 1.0, 1.0, 0.0), (4, 2.0, 1.0, 0.5, 0.0), (2, 0.1, 2.0, 2.0, 0.2),
-    (3, 0.2, 5.0, 5.0, 0.1),
-])
+@pytest.mark.parametrize(
+    "n, kappa, rho_d, rho_v, gamma",
+    [
+        (2, 1.0, 1.0, 1.0, 0.0),
+        (3, 1.0, 1.0, 1.0, 0.0),
+        (4, 2.0, 1.0, 0.5, 0.0),
+        (2, 0.1, 2.0, 2.0, 0.2),
+        (3, 0.2, 5.0, 5.0, 0.1),
+    ],
+)
 def test_solution_is_reverified_in_numpy(n, kappa, rho_d, rho_v, gamma):
     l, P, cert = switched_gain_lmi(n, kappa, rho_d, rho_v, gamma)
     assert np.allclose(P, P.T)
@@ -70,13 +76,16 @@ def test_printed_rounded_values_fail_the_strict_check():
         certify_switched_gain(l, P, 1.0, 1.0, 1.0)
 
 
-@pytest.mark.parametrize("kwargs, exc", [
-    (dict(n=1, kappa=1.0, rho_d=1.0, rho_v=1.0), ValueError),
-    (dict(n=2.0, kappa=1.0, rho_d=1.0, rho_v=1.0), TypeError),
-    (dict(n=2, kappa=-1.0, rho_d=1.0, rho_v=1.0), ValueError),
-    (dict(n=2, kappa=1.0, rho_d="a", rho_v=1.0), TypeError),
-    (dict(n=2, kappa=1.0, rho_d=1.0, rho_v=1.0, gamma=-0.1), ValueError),
-])
+@pytest.mark.parametrize(
+    "kwargs, exc",
+    [
+        (dict(n=1, kappa=1.0, rho_d=1.0, rho_v=1.0), ValueError),
+        (dict(n=2.0, kappa=1.0, rho_d=1.0, rho_v=1.0), TypeError),
+        (dict(n=2, kappa=-1.0, rho_d=1.0, rho_v=1.0), ValueError),
+        (dict(n=2, kappa=1.0, rho_d="a", rho_v=1.0), TypeError),
+        (dict(n=2, kappa=1.0, rho_d=1.0, rho_v=1.0, gamma=-0.1), ValueError),
+    ],
+)
 def test_bad_input_raises_typed_errors(kwargs, exc):
     with pytest.raises(exc, match="expected"):
         switched_gain_lmi(**kwargs)

@@ -115,8 +115,9 @@ def test_auxiliary_states_peak_like_ell_not_ell_power_n_minus_1(order):
     """Astolfi et al. 2018, Introduction: with the saturations the n - 1 auxiliary states xi_(i,2) may reach values
     proportional to ell, not ell^(n-1). Measured exponents 0.99-1.11 for n = 3, 4."""
     compare = _load_compare()
-    peaks = np.array([compare.transient_peaks(LowPowerHighGain, ell, order, bounds=1.5, readout="low-power")
-                      for ell in compare.ELLS])
+    peaks = np.array(
+        [compare.transient_peaks(LowPowerHighGain, ell, order, bounds=1.5, readout="low-power") for ell in compare.ELLS]
+    )
     exponents = np.polyfit(np.log(compare.ELLS), np.log(peaks), 1)[0]
     assert np.all(np.abs(exponents[1:] - 1.0) < 0.2), exponents
 
@@ -218,18 +219,21 @@ def test_masked_reset_and_nan():
         obs.update(y)
 
 
-@pytest.mark.parametrize("kwargs, exc", [
-    (dict(dt=1e-3, gain=-1.0), ValueError),
-    (dict(dt=1e-3, gain="10"), TypeError),
-    (dict(dt=1e-3, gain=10.0, order=0), ValueError),
-    (dict(dt=1e-3, gain=10.0, order=2.0), TypeError),
-    (dict(dt=1e-3, gain=10.0, order=2, bounds=[1.0, -1.0]), ValueError),
-    (dict(dt=1e-3, gain=10.0, order=2, bounds=[1.0, 1.0, 1.0]), ValueError),
-    (dict(dt=1e-3, gain=10.0, order=3, coefficients=[[1.0, 1.0]] * 3), ValueError),
-    (dict(dt=1e-3, gain=10.0, order=2, coefficients=[[1.0, 1.0]]), ValueError),
-    (dict(dt=1e-3, gain=10.0, readout="fast"), ValueError),
-    (dict(dt=0.0, gain=10.0), ValueError),
-])
+@pytest.mark.parametrize(
+    "kwargs, exc",
+    [
+        (dict(dt=1e-3, gain=-1.0), ValueError),
+        (dict(dt=1e-3, gain="10"), TypeError),
+        (dict(dt=1e-3, gain=10.0, order=0), ValueError),
+        (dict(dt=1e-3, gain=10.0, order=2.0), TypeError),
+        (dict(dt=1e-3, gain=10.0, order=2, bounds=[1.0, -1.0]), ValueError),
+        (dict(dt=1e-3, gain=10.0, order=2, bounds=[1.0, 1.0, 1.0]), ValueError),
+        (dict(dt=1e-3, gain=10.0, order=3, coefficients=[[1.0, 1.0]] * 3), ValueError),
+        (dict(dt=1e-3, gain=10.0, order=2, coefficients=[[1.0, 1.0]]), ValueError),
+        (dict(dt=1e-3, gain=10.0, readout="fast"), ValueError),
+        (dict(dt=0.0, gain=10.0), ValueError),
+    ],
+)
 def test_bad_parameters_raise_typed_errors(kwargs, exc):
     with pytest.raises(exc, match="expected"):
         LowPowerHighGain(**kwargs)

@@ -7,7 +7,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import smo_gym.envs  # noqa: F401
 from smo_gym import design
 from smo_gym._validation import DivergenceError
 from smo_gym.mechanics import MujocoDynamics
@@ -72,7 +71,7 @@ def run_loop(obs, Y):
 
 def rmse_after(est_v, V, frac=0.25):
     err = est_v - V
-    return float(np.sqrt(np.mean(err[int(len(err) * frac):] ** 2)))
+    return float(np.sqrt(np.mean(err[int(len(err) * frac) :] ** 2)))
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +106,7 @@ def test_semi_implicit_step_solves_its_implicit_equation(g):
 
 def test_dissipative_with_identity_transform_equals_mechanical(arm_run):
     """alpha = 0, mu1 = 1, mu2 = 0, k2' = 2 k2: the dissipative observer is Davila's observer, sample for sample."""
-    env, Q, V, U = arm_run
+    env, Q, _V, U = arm_run
     dyn = MujocoDynamics(env.model)
     ident = CoordinateTransform(lambda Y: np.zeros_like(Y), lower=[-10, -10], upper=[10, 10])
     a = MechanicalSuperTwisting(env.dt, dyn, k1=5.0, k2=20.0)
@@ -165,19 +164,20 @@ def test_mismatch_and_noise_beat_model_free(arm_run):
 def test_disturbance_estimate_tracks_external_torque():
     """0.5 sin(2t) + 0.2 N m on both joints through qfrc_applied, exact model, no noise: the filtered equivalent
     injection times M(q) tracks it (measured RMSE 0.013 / 0.017 N m; bound 0.05)."""
-    dist = lambda t: np.full(2, 0.5 * np.sin(2 * t) + 0.2)  # noqa: E731
+    dist = lambda t: np.full(2, 0.5 * np.sin(2 * t) + 0.2)
     env, Q, V, U, D = pd_tracking(T=2500, disturbance=dist)
-    obs = MechanicalSuperTwisting(env.dt, MujocoDynamics(env.model), lipschitz=50.0, accel_bound=1000.0,
-                                  disturbance_time_constant=0.02)
+    obs = MechanicalSuperTwisting(
+        env.dt, MujocoDynamics(env.model), lipschitz=50.0, accel_bound=1000.0, disturbance_time_constant=0.02
+    )
     obs.reset(Q[0], v0=V[0])
     tq = []
     for k in range(1, len(Q)):
         obs.update(Q[k], U[k])
         tq.append(obs.external_torque)
-    err = (np.array(tq) - D[1:])[len(tq) // 5:]
+    err = (np.array(tq) - D[1:])[len(tq) // 5 :]
     assert np.all(np.sqrt(np.mean(err**2, axis=0)) < 0.05)
     # and it is the disturbance that is estimated, not noise: without it the estimate is near zero
-    env0, Q0, V0, U0, _ = pd_tracking(T=600)
+    _env0, Q0, V0, U0, _ = pd_tracking(T=600)
     obs.reset(Q0[0], v0=V0[0])
     for k in range(1, len(Q0)):
         obs.update(Q0[k], U0[k])
@@ -196,7 +196,7 @@ def variable_inertia():
 
 def test_transform_removes_the_quadratic_term(variable_inertia):
     """d/dt (Upsilon(q) v) = Upsilon (f - alpha v^2): the transformed acceleration has no v^2 term."""
-    env, dyn, tr, *_ = variable_inertia
+    _env, dyn, tr, *_ = variable_inertia
     q = np.array([0.7])
     M0 = dyn.inertia(np.array([0.0]))[0, 0]
     # trapezoidal tabulation on 401 points over 4 rad: relative error ~1e-5
@@ -210,8 +210,11 @@ def test_transform_removes_the_quadratic_term(variable_inertia):
 
     # second difference in v isolates the v^2 coefficient (the damping term is linear in v)
     curvature = (x2dot(5.0) - 2 * x2dot(0.0) + x2dot(-5.0)) / 50.0
-    raw_curvature = (dyn.acceleration(q, np.array([5.0]))[0] - 2 * dyn.acceleration(q, np.array([0.0]))[0]
-                     + dyn.acceleration(q, np.array([-5.0]))[0]) / 50.0
+    raw_curvature = (
+        dyn.acceleration(q, np.array([5.0]))[0]
+        - 2 * dyn.acceleration(q, np.array([0.0]))[0]
+        + dyn.acceleration(q, np.array([-5.0]))[0]
+    ) / 50.0
     assert abs(raw_curvature) > 0.3
     assert abs(curvature) < 1e-3 * abs(raw_curvature)
 
@@ -233,7 +236,7 @@ def test_dissipative_converges_where_untransformed_escapes(variable_inertia):
     gains from the lemma converges in finite time from both signs (measured 0.5 s); the untransformed,
     unsaturated observer with the same disturbance bound escapes for the sign where alpha(q) v_hat > 0 (finite
     escape time of v' = alpha v^2; where alpha v_hat < 0 the quadratic term helps it, measured 1.4 s)."""
-    env, dyn, tr, Q, V, U, dt = variable_inertia
+    _env, dyn, tr, Q, V, U, dt = variable_inertia
     typical = np.sqrt(np.mean(V**2))
     L = 5.0
     damping_max = 1.0  # |d psi / d v| <= (b_arm + b_bead r'^2) / M over the range, generously
@@ -259,7 +262,7 @@ def test_saturation_prevents_escape(variable_inertia):
     errs by at most 2 L_gamma while the estimate is wrong, so the theory guarantees convergence once the
     discontinuous gain covers that (L = 2 L_gamma + the true disturbance bound), and not with the small L alone
     (measured: with L = 5 and L_gamma = 100 the +100x case does not converge in 4 s)."""
-    env, dyn, tr, Q, V, U, dt = variable_inertia
+    _env, dyn, _tr, Q, V, U, dt = variable_inertia
     typical = np.sqrt(np.mean(V**2))
     true_acc = np.abs(np.diff(V[:, 0]) / dt).max()
     bound = 1.5 * true_acc
@@ -271,8 +274,22 @@ def test_saturation_prevents_escape(variable_inertia):
 # ---- gain design ----------------------------------------------------------------------------------------------------
 def test_apaza_gains_certificate_verifies_independently():
     g = design.apaza_gains(5.0, q=-1.0, s=-0.5, r=0.0, upsilon_max=4.5)
-    M = design.apaza_lmi_matrix(g.P, g.theta1, g.theta2, g.epsilon, k1=g.k1, k2=g.k2, k3=g.k3, mu1=g.mu1,
-                                mu2=g.mu2, lipschitz=5.0, q=-1.0, s=-0.5, r=0.0, upsilon_max=4.5)
+    M = design.apaza_lmi_matrix(
+        g.P,
+        g.theta1,
+        g.theta2,
+        g.epsilon,
+        k1=g.k1,
+        k2=g.k2,
+        k3=g.k3,
+        mu1=g.mu1,
+        mu2=g.mu2,
+        lipschitz=5.0,
+        q=-1.0,
+        s=-0.5,
+        r=0.0,
+        upsilon_max=4.5,
+    )
     assert np.allclose(M, M.T)
     assert np.linalg.eigvalsh(M).max() < 0
     assert np.linalg.eigvalsh(g.P).min() > 0
@@ -297,7 +314,7 @@ def test_apaza_gains_rejects_bad_and_infeasible_data():
 
 # ---- API ------------------------------------------------------------------------------------------------------------
 def test_api_errors_and_batching(arm_run):
-    env, Q, V, U = arm_run
+    env, Q, _V, U = arm_run
     dyn = MujocoDynamics(env.model)
     with pytest.raises(TypeError, match="dynamics object"):
         MechanicalSuperTwisting(0.01, object(), lipschitz=1.0)
@@ -360,7 +377,7 @@ def test_pickle_and_copy_continue_identically(arm_run):
     import copy
     import pickle
 
-    env, Q, V, U = arm_run
+    env, Q, _V, U = arm_run
     obs = MechanicalSuperTwisting(env.dt, MujocoDynamics(env.model), lipschitz=20.0, accel_bound=500.0)
     obs.reset(Q[0])
     obs.run(Q[1:20], U[1:20])
@@ -423,8 +440,10 @@ def test_non_finite_velocity_and_input_are_rejected_with_the_state_kept(arm_run,
     dyn = MujocoDynamics(env.model)
     transform = CoordinateTransform(lambda Y: np.zeros_like(Y), -np.pi * np.ones(2), np.pi * np.ones(2))
     gains = dict(k1=5.0, k2=40.0, k3=0.0, mu1=1.0, mu2=0.0)
-    for make in (lambda: MechanicalSuperTwisting(env.dt, dyn, lipschitz=20.0),
-                 lambda: DissipativeSuperTwisting(env.dt, dyn, transform, gains)):
+    for make in (
+        lambda: MechanicalSuperTwisting(env.dt, dyn, lipschitz=20.0),
+        lambda: DissipativeSuperTwisting(env.dt, dyn, transform, gains),
+    ):
         obs, reference = make(), make()
         for v0 in ([np.nan, 0.0], [0.0, np.inf], [1.0 + 1j, 0.0], [0.0, 0.0, 0.0]):
             with pytest.raises((ValueError, TypeError), match="v0") as excinfo:

@@ -7,7 +7,6 @@ import mujoco
 import numpy as np
 import pytest
 
-import smo_gym.envs  # noqa: F401  (registers the environments)
 from smo_gym.mechanics import MujocoDynamics
 from smo_gym.observers import Dynamics
 
@@ -30,7 +29,7 @@ def test_protocol_and_private_data(arm):
     before = (arm.data.qpos.copy(), arm.data.qvel.copy(), arm.data.qacc.copy())
     dyn.acceleration(np.array([1.0, -1.0]), np.array([3.0, 2.0]), np.array([1.0, 1.0]))
     dyn.inertia(np.array([0.2, 0.3]))
-    for a, b in zip(before, (arm.data.qpos, arm.data.qvel, arm.data.qacc)):
+    for a, b in zip(before, (arm.data.qpos, arm.data.qvel, arm.data.qacc), strict=False):
         np.testing.assert_array_equal(a, b)
 
 
@@ -49,8 +48,12 @@ def test_acceleration_and_inertia_match_mujoco(arm):
         np.testing.assert_allclose(dyn.inertia(q), M, rtol=1e-12)
         t = dyn.terms(q, v, u)
         # f = M^-1 (actuator + passive - bias), term by term
-        np.testing.assert_allclose(np.linalg.solve(t["inertia"], t["actuator"] + t["passive"] - t["bias"]),
-                                   t["acceleration"], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(
+            np.linalg.solve(t["inertia"], t["actuator"] + t["passive"] - t["bias"]),
+            t["acceleration"],
+            rtol=1e-9,
+            atol=1e-9,
+        )
 
 
 def test_batched_equals_loop(arm):
@@ -86,7 +89,7 @@ def test_coupling_elimination_inertia_and_alpha_analytic(pendulum):
     for th in (-1.1, 0.3, 0.8):
         r, rp, rpp = 0.2 + 0.3 * th**2, 0.6 * th, 0.6
         M = dyn.inertia(np.array([th]))[0, 0]
-        assert M - M0 == pytest.approx(r**2 + rp**2 - 0.04, rel=1e-9)
+        assert pytest.approx(r**2 + rp**2 - 0.04, rel=1e-9) == M - M0
         dM = 2.0 * rp * (r + rpp)
         assert dyn.self_quadratic_coefficient(np.array([th]))[0] == pytest.approx(-dM / (2 * M), rel=1e-6)
 
@@ -132,7 +135,8 @@ def test_contact_modes_on_hopper():
 
 def test_rejects_free_joints_and_bad_arguments(arm):
     free = mujoco.MjModel.from_xml_string(
-        "<mujoco><worldbody><body><freejoint/><geom size='0.1'/></body></worldbody></mujoco>")
+        "<mujoco><worldbody><body><freejoint/><geom size='0.1'/></body></worldbody></mujoco>"
+    )
     with pytest.raises(ValueError, match="hinge and slide"):
         MujocoDynamics(free)
     with pytest.raises(TypeError, match="MjModel"):

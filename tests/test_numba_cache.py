@@ -9,8 +9,9 @@ from smo_gym._numba_cache import drop_stale
 
 
 def _fake_dispatcher(index_path):
-    return types.SimpleNamespace(_cache=types.SimpleNamespace(_cache_file=types.SimpleNamespace(
-        _index_path=str(index_path))))
+    return types.SimpleNamespace(
+        _cache=types.SimpleNamespace(_cache_file=types.SimpleNamespace(_index_path=str(index_path)))
+    )
 
 
 def test_drop_stale_removes_only_indexes_older_than_a_dependency(tmp_path):

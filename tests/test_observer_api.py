@@ -45,8 +45,7 @@ CONFIGS: dict[str, list[tuple[str, dict]]] = {
     ],
     "levant": [
         (f"k{k}-{d}", dict(order=k, discretization=d))
-        for k, d in [(1, "taylor"), (2, "taylor"), (3, "euler"), (2, "semi-implicit"), (3, "matching"),
-                     (5, "taylor")]
+        for k, d in [(1, "taylor"), (2, "taylor"), (3, "euler"), (2, "semi-implicit"), (3, "matching"), (5, "taylor")]
     ],
     "ured": [("euler", dict())],
     "uniform-levant": [("k2-euler", dict(order=2)), ("k3-taylor", dict(order=3, discretization="taylor"))],
@@ -151,7 +150,7 @@ def test_masked_reset_restarts_only_masked_rows(name, kwargs, mask_shape, rng):
     np.testing.assert_array_equal(returned[full_mask], fresh_first[full_mask])
     np.testing.assert_array_equal(returned[~full_mask], before[~full_mask])
 
-    got, ref_untouched, ref_fresh = obs.run(Y[n1 + 1:]), untouched.run(Y[n1 + 1:]), fresh.run(Y[n1 + 1:])
+    got, ref_untouched, ref_fresh = obs.run(Y[n1 + 1 :]), untouched.run(Y[n1 + 1 :]), fresh.run(Y[n1 + 1 :])
     np.testing.assert_array_equal(got[:, full_mask], ref_fresh[:, full_mask])
     np.testing.assert_array_equal(got[:, ~full_mask], ref_untouched[:, ~full_mask])
 
@@ -435,9 +434,14 @@ def test_unknown_observer_name():
 @pytest.mark.parametrize("name, kwargs", CASES)
 def test_use_before_reset(name, kwargs):
     obs = build(name, kwargs)
-    calls = [lambda: obs.update(np.zeros(BATCH)), lambda: obs.run(np.zeros((3,) + BATCH)),
-             lambda: obs.step(np.zeros((28, 4)), np.zeros(28)), lambda: obs.velocity, lambda: obs.estimate,
-             lambda: obs.reset(np.zeros(BATCH), mask=np.ones(4, bool))]
+    calls = [
+        lambda: obs.update(np.zeros(BATCH)),
+        lambda: obs.run(np.zeros((3,) + BATCH)),
+        lambda: obs.step(np.zeros((28, 4)), np.zeros(28)),
+        lambda: obs.velocity,
+        lambda: obs.estimate,
+        lambda: obs.reset(np.zeros(BATCH), mask=np.ones(4, bool)),
+    ]
     for call in calls:
         with pytest.raises(RuntimeError) as excinfo:
             call()
@@ -492,9 +496,16 @@ def test_levant_p1_only_with_an_eigenvalue_mapping(discretization, p1):
 @pytest.mark.parametrize("make", [lambda: Levant(2, 1e-3, 5.0), lambda: SuperTwisting(1e-3, 5.0)])
 @pytest.mark.parametrize(
     "bad",
-    [np.ones((2, 3), complex), np.full((2, 3), np.datetime64("2020-01-01", "D")), np.ones((2, 3), dtype="m8[s]"),
-     np.ones((2, 3), bool), np.full((2, 3), "1.0"), [[1.0, 2.0, 3.0], [4.0, 5.0]], [["1", 2.0, 3.0]] * 2,
-     np.array([[None] * 3] * 2)],
+    [
+        np.ones((2, 3), complex),
+        np.full((2, 3), np.datetime64("2020-01-01", "D")),
+        np.ones((2, 3), dtype="m8[s]"),
+        np.ones((2, 3), bool),
+        np.full((2, 3), "1.0"),
+        [[1.0, 2.0, 3.0], [4.0, 5.0]],
+        [["1", 2.0, 3.0]] * 2,
+        np.array([[None] * 3] * 2),
+    ],
     ids=["complex", "datetime", "timedelta", "bool", "str", "ragged", "mixed-str", "object"],
 )
 def test_measurements_of_other_dtypes_are_rejected(make, bad):
@@ -513,8 +524,9 @@ def test_measurements_of_other_dtypes_are_rejected(make, bad):
         obs.run(np.array([bad, bad], dtype=object) if isinstance(bad, list) else np.stack([bad, bad]))
     np.testing.assert_array_equal(obs.state, state)
     with pytest.raises(TypeError):
-        smo_gym.differentiate(np.array([bad, bad], dtype=object) if isinstance(bad, list) else np.stack([bad] * 2),
-                              1e-3, "levant")
+        smo_gym.differentiate(
+            np.array([bad, bad], dtype=object) if isinstance(bad, list) else np.stack([bad] * 2), 1e-3, "levant"
+        )
 
 
 def test_rejected_full_reset_keeps_the_previous_shape():
@@ -542,8 +554,11 @@ def test_ragged_and_object_blocks_in_run():
 
 def test_huge_gains_fail_at_construction_not_at_reset():
     """Injection gains that overflow (``k_i ell^i``) used to reach ``numpy.linalg.inv`` at ``reset`` (LinAlgError)."""
-    for factory in (lambda: HighGain(1e-3, 1e300, 3), lambda: LowPowerHighGain(1e-3, 1e300, 3),
-                    lambda: HighGain(1e-3, 1e200, 2, discretization="euler")):
+    for factory in (
+        lambda: HighGain(1e-3, 1e300, 3),
+        lambda: LowPowerHighGain(1e-3, 1e300, 3),
+        lambda: HighGain(1e-3, 1e200, 2, discretization="euler"),
+    ):
         with pytest.raises(ValueError) as excinfo:
             factory()
         assert_worded(excinfo)
@@ -559,6 +574,8 @@ def test_an_overflowing_estimate_is_a_divergence():
     with pytest.raises(DivergenceError, match="channel 0") as excinfo:
         obs.step(state, np.array([-7.47270782e307]))
     assert_worded(excinfo)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # initial derivatives: reset(y0, derivatives=...)
 # ----------------------------------------------------------------------------------------------------------------
@@ -613,8 +630,8 @@ def test_reset_derivatives_partial_masked_and_restart(name, kwargs, rng):
     k = obs.order - 1 if obs.order > 1 else 1
     d = rng.standard_normal(BATCH + (k,))
     first = obs.reset(Y[0], derivatives=d)
-    np.testing.assert_array_equal(first[..., 1:k + 1], d)
-    assert np.all(first[..., k + 1:] == 0.0)
+    np.testing.assert_array_equal(first[..., 1 : k + 1], d)
+    assert np.all(first[..., k + 1 :] == 0.0)
     # restart = reset with the same derivatives
     obs.run(Y[1:20])
     fresh = build(name, kwargs)

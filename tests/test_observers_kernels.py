@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from numba import njit
 
-from smo_gym.observers import _kernels as K
 from smo_gym.observers import URED, Levant, SuperTwisting, UniformLevant
+from smo_gym.observers import _kernels as K
 
 
 @njit(error_model="numpy")
@@ -53,16 +53,26 @@ def _ulp_error(got, ref):
 
 
 def test_cbrt_is_within_one_ulp_including_zero_and_subnormals():
-    x = np.concatenate([[0.0, 5e-324, 1e-310, 2.2250738585072014e-308, 1.0, 8.0, 27.0, 1e300],
-                        np.logspace(-320, 307, 20001), np.random.default_rng(0).uniform(0, 10, 20000)])
+    x = np.concatenate(
+        [
+            [0.0, 5e-324, 1e-310, 2.2250738585072014e-308, 1.0, 8.0, 27.0, 1e300],
+            np.logspace(-320, 307, 20001),
+            np.random.default_rng(0).uniform(0, 10, 20000),
+        ]
+    )
     got = _cbrt_all(x)
     assert got[0] == 0.0 and got[5] == 2.0 and got[6] == 3.0
     assert _ulp_error(got[1:], np.cbrt(x[1:].astype(np.longdouble))).max() < 1.0
 
 
 def test_exp_nonpositive_is_within_one_ulp_and_underflows_to_zero():
-    x = np.concatenate([[0.0, -0.0, -1e-300, -708.4, -709.0, -744.0, -745.1],
-                        -np.logspace(-20, np.log10(700.0), 20001), -np.random.default_rng(1).uniform(0, 50, 20000)])
+    x = np.concatenate(
+        [
+            [0.0, -0.0, -1e-300, -708.4, -709.0, -744.0, -745.1],
+            -np.logspace(-20, np.log10(700.0), 20001),
+            -np.random.default_rng(1).uniform(0, 50, 20000),
+        ]
+    )
     got = _exp_all(x)
     assert _ulp_error(got, np.exp(x.astype(np.longdouble))).max() < 1.0
     assert _exp_all(np.array([-746.0, -1e300, -np.inf])).tolist() == [0.0, 0.0, 0.0]
@@ -91,7 +101,7 @@ def test_specialised_hosm_steps_equal_the_generic_step(name, build, n):
     y0 = rng.standard_normal(n)
     obs.reset(y0)
     state = obs.state
-    state[:, 1:obs.order + 1] = rng.standard_normal((n, obs.order))
+    state[:, 1 : obs.order + 1] = rng.standard_normal((n, obs.order))
     for y in (y0 + 1e-3 * rng.standard_normal(n), y0 + 10.0 * rng.standard_normal(n)):
         y[-1] = state[-1, 0]  # a zero error (sign 0) in the batch
         fast_state, fast_out = np.empty_like(state), np.empty((n, obs.order + 1))
@@ -123,9 +133,15 @@ def test_eigenvalue_mapping_kernel_equals_the_generic_step(mixed):
     np.testing.assert_array_equal(fast_out, ref_out)
 
 
-@pytest.mark.parametrize("build", [lambda: Levant(2, 1e-3, 5.0), lambda: URED(1e-3, 5.0),
-                                   lambda: Levant(2, 1e-3, 5.0, discretization="matching"),
-                                   lambda: SuperTwisting(1e-3, 5.0)])
+@pytest.mark.parametrize(
+    "build",
+    [
+        lambda: Levant(2, 1e-3, 5.0),
+        lambda: URED(1e-3, 5.0),
+        lambda: Levant(2, 1e-3, 5.0, discretization="matching"),
+        lambda: SuperTwisting(1e-3, 5.0),
+    ],
+)
 def test_status_codes_of_the_vectorized_loops(build):
     """A non-finite measurement: its index, nothing written; a non-finite new state: ``-2 - i`` of the first."""
     obs = build()

@@ -37,8 +37,10 @@ def test_the_readme_has_python_snippets():
 
 
 def test_no_test_marks_only_the_next_block():
-    text = ("x\n<!-- no-test: not installed -->\n```python\nA\n```\n\n```python\nB\n```\n"
-            "<!-- no-test -->\n```python\nC\n```\n")  # the last mark gives no reason: not honoured
+    text = (
+        "x\n<!-- no-test: not installed -->\n```python\nA\n```\n\n```python\nB\n```\n"
+        "<!-- no-test -->\n```python\nC\n```\n"
+    )  # the last mark gives no reason: not honoured
     blocks = [(source, tested) for _, source, tested in python_blocks(text)]
     assert blocks == [("A\n", False), ("B\n", True), ("C\n", True)]
 

@@ -44,11 +44,24 @@ def test_sensings_shapes_and_masking():
 
 def test_train_evaluate_cross_sensing(tmp_path):
     out = tmp_path / "run"
-    summary = rl.train("InvertedDoublePendulum-v5", sensing="true", steps=128, seed=0, out=out,
-                       hyperparams=TINY_PPO, evaluate_at=[64, 128], eval_sensings=["true", "estimated"],
-                       eval_episodes=2, checkpoint_every=64)
+    summary = rl.train(
+        "InvertedDoublePendulum-v5",
+        sensing="true",
+        steps=128,
+        seed=0,
+        out=out,
+        hyperparams=TINY_PPO,
+        evaluate_at=[64, 128],
+        eval_sensings=["true", "estimated"],
+        eval_episodes=2,
+        checkpoint_every=64,
+    )
     assert {(e["steps"], e["sensing"]) for e in summary["evaluations"]} == {
-        (64, "true"), (64, "estimated"), (128, "true"), (128, "estimated")}
+        (64, "true"),
+        (64, "estimated"),
+        (128, "true"),
+        (128, "estimated"),
+    }
     assert all(e["trained_steps"] >= e["steps"] for e in summary["evaluations"])
     assert (out / "model.zip").exists() and (out / "vecnormalize.pkl").exists()
     assert (out / "progress.csv").exists() and list((out / "checkpoints").glob("*.zip"))
@@ -67,14 +80,27 @@ def test_vectorized_sensing_in_training(tmp_path):
     venv = rl.make_vec("InvertedDoublePendulum-v5", "estimated", n_envs=2, rate="env")
     assert isinstance(venv, VecEstimatedVelocity)
     venv.close()
-    summary = rl.train("InvertedDoublePendulum-v5", sensing="estimated", rate="env", steps=128, n_envs=2,
-                       out=tmp_path / "v", hyperparams=TINY_PPO)
+    summary = rl.train(
+        "InvertedDoublePendulum-v5",
+        sensing="estimated",
+        rate="env",
+        steps=128,
+        n_envs=2,
+        out=tmp_path / "v",
+        hyperparams=TINY_PPO,
+    )
     assert summary["trained_steps"] >= 128
 
 
 def test_sac_learns_briefly(tmp_path):
-    summary = rl.train("InvertedDoublePendulum-v5", sensing="estimated", algo="SAC", steps=80, out=tmp_path / "s",
-                       hyperparams=dict(learning_starts=40, batch_size=16))
+    summary = rl.train(
+        "InvertedDoublePendulum-v5",
+        sensing="estimated",
+        algo="SAC",
+        steps=80,
+        out=tmp_path / "s",
+        hyperparams=dict(learning_starts=40, batch_size=16),
+    )
     assert summary["algo"] == "SAC" and summary["trained_steps"] >= 80 and not summary["normalize"]
     assert np.isfinite(rl.evaluate(tmp_path / "s", sensing="true", episodes=1)["mean"])
 
@@ -83,8 +109,25 @@ def test_cli_train_and_evaluate(tmp_path, capsys):
     from smo_gym.cli import main
 
     out = tmp_path / "cli"
-    assert main(["train", "--env", "InvertedDoublePendulum-v5", "--steps", "64", "--out", str(out),
-                 "--no-progress", "--checkpoint-every", "0", "--eval-episodes", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--env",
+                "InvertedDoublePendulum-v5",
+                "--steps",
+                "64",
+                "--out",
+                str(out),
+                "--no-progress",
+                "--checkpoint-every",
+                "0",
+                "--eval-episodes",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert "steps/s" in capsys.readouterr().out
     assert main(["evaluate", str(out), "--sensing", "true", "--episodes", "1", "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -116,8 +159,14 @@ def _by_hand(model_zip, norm_pkl, sensing, seed, episodes=2):
 
     venv = VecNormalize.load(str(norm_pkl), rl.make_vec(IP, sensing, n_envs=1, seed=seed))
     venv.training, venv.norm_reward = False, False
-    rewards, _ = evaluate_policy(PPO.load(model_zip, device="cpu"), venv, n_eval_episodes=episodes,
-                                 deterministic=True, return_episode_rewards=True, warn=False)
+    rewards, _ = evaluate_policy(
+        PPO.load(model_zip, device="cpu"),
+        venv,
+        n_eval_episodes=episodes,
+        deterministic=True,
+        return_episode_rewards=True,
+        warn=False,
+    )
     venv.close()
     return rewards
 
@@ -146,10 +195,11 @@ def test_evaluating_a_checkpoint_uses_the_runs_sensing_and_that_checkpoints_stat
         rl.evaluate(ckpt, episodes=1)
     # a model without a run.json needs its environment and sensing
     (out / "run.json").unlink()
-    with pytest.raises(ValueError, match="run.json"):
+    with pytest.raises(ValueError, match=r"run.json"):
         rl.evaluate(out / "model.zip", episodes=1)
     assert rl.evaluate(out / "model.zip", env_id=IP, sensing="true", episodes=1)["vecnormalize"] == str(
-        out / "vecnormalize.pkl")
+        out / "vecnormalize.pkl"
+    )
 
 
 def test_default_run_folders_name_observer_sensor_and_rate(tmp_path, capsys, monkeypatch):
@@ -165,13 +215,29 @@ def test_default_run_folders_name_observer_sensor_and_rate(tmp_path, capsys, mon
     assert rl.default_run_folder(IP, "true", "PPO", 0, sensor="ideal").name == "InvertedPendulum-v5-true-PPO-s0"
     assert rl.default_run_folder("dm_control/cartpole-swingup-v0", "true", "SAC", 1).parent == Path("outputs/runs")
     monkeypatch.chdir(tmp_path)
-    common = ["train", "--env", IP, "--steps", "64", "--no-progress", "--checkpoint-every", "0", "--eval-episodes",
-              "0", "--rate", "env", "--sensor", "ideal"]
+    common = [
+        "train",
+        "--env",
+        IP,
+        "--steps",
+        "64",
+        "--no-progress",
+        "--checkpoint-every",
+        "0",
+        "--eval-episodes",
+        "0",
+        "--rate",
+        "env",
+        "--sensor",
+        "ideal",
+    ]
     assert main(common + ["--observer", "high-gain"]) == 0
     assert main(common + ["--observer", "finite-difference"]) == 0
     runs = sorted(p.name for p in (tmp_path / "outputs" / "runs").iterdir())
-    assert runs == ["InvertedPendulum-v5-estimated-finite-difference-ideal-rate-env-PPO-s0",
-                    "InvertedPendulum-v5-estimated-high-gain-ideal-rate-env-PPO-s0"]
+    assert runs == [
+        "InvertedPendulum-v5-estimated-finite-difference-ideal-rate-env-PPO-s0",
+        "InvertedPendulum-v5-estimated-high-gain-ideal-rate-env-PPO-s0",
+    ]
     assert json.loads((tmp_path / "outputs" / "runs" / runs[1] / "run.json").read_text())["observer"] == "high-gain"
 
 
@@ -179,8 +245,22 @@ def test_an_existing_run_is_refused_unless_forced(tmp_path, capsys):
     from smo_gym.cli import main
 
     out = tmp_path / "run"
-    args = ["train", "--env", IP, "--sensing", "true", "--steps", "64", "--no-progress", "--checkpoint-every", "0",
-            "--eval-episodes", "0", "--out", str(out)]
+    args = [
+        "train",
+        "--env",
+        IP,
+        "--sensing",
+        "true",
+        "--steps",
+        "64",
+        "--no-progress",
+        "--checkpoint-every",
+        "0",
+        "--eval-episodes",
+        "0",
+        "--out",
+        str(out),
+    ]
     assert main(args) == 0
     first = (out / "model.zip").read_bytes()
     (out / "notes.txt").write_text("mine")
@@ -202,14 +282,16 @@ def test_a_failed_start_removes_what_it_created(tmp_path):
     assert not (tmp_path / "new").exists()
     # a failure during training (an evaluation under an unknown sensing), before any checkpoint
     with pytest.raises(ValueError, match="expected sensing"):
-        rl.train(IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64],
-                 eval_sensings=["psychic"])
+        rl.train(
+            IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64], eval_sensings=["psychic"]
+        )
     assert not (tmp_path / "new").exists()
     # an existing (empty) folder stays, without the files of the failed run
     out.mkdir(parents=True)
     with pytest.raises(ValueError, match="expected sensing"):
-        rl.train(IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64],
-                 eval_sensings=["psychic"])
+        rl.train(
+            IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64], eval_sensings=["psychic"]
+        )
     assert out.is_dir() and not any(out.iterdir())
 
 
@@ -239,8 +321,27 @@ def test_train_reads_rl_zoo3_hyperparameters(tmp_path, capsys):
     file = tmp_path / "ppo.yml"
     file.write_text(ZOO_YAML)
     out = tmp_path / "zoo"
-    assert main(["train", "--env", IP, "--sensing", "true", "--hyperparams", str(file), "--out", str(out),
-                 "--no-progress", "--checkpoint-every", "0", "--eval-episodes", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--env",
+                IP,
+                "--sensing",
+                "true",
+                "--hyperparams",
+                str(file),
+                "--out",
+                str(out),
+                "--no-progress",
+                "--checkpoint-every",
+                "0",
+                "--eval-episodes",
+                "1",
+            ]
+        )
+        == 0
+    )
     run = json.loads((out / "run.json").read_text())
     assert run["n_envs"] == 2 and run["steps"] == 128 and run["trained_steps"] == 128
     assert run["hyperparams"]["learning_rate"] == "lin_1e-3"
@@ -253,21 +354,46 @@ def test_train_reads_rl_zoo3_hyperparameters(tmp_path, capsys):
     norm = VecNormalize.load(str(out / "vecnormalize.pkl"), rl.make_vec(IP, "true"))
     assert norm.norm_obs and not norm.norm_reward
     # command-line flags win over the file
-    assert main(["train", "--env", IP, "--sensing", "true", "--hyperparams", str(file), "--out", str(tmp_path / "z2"),
-                 "--no-progress", "--checkpoint-every", "0", "--eval-episodes", "0", "--n-envs", "1",
-                 "--steps", "64"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--env",
+                IP,
+                "--sensing",
+                "true",
+                "--hyperparams",
+                str(file),
+                "--out",
+                str(tmp_path / "z2"),
+                "--no-progress",
+                "--checkpoint-every",
+                "0",
+                "--eval-episodes",
+                "0",
+                "--n-envs",
+                "1",
+                "--steps",
+                "64",
+            ]
+        )
+        == 0
+    )
     run = json.loads((tmp_path / "z2" / "run.json").read_text())
     assert run["n_envs"] == 1 and run["steps"] == 64
 
 
-@pytest.mark.parametrize(("entry", "message"), [
-    ("learning_rat: 0.001", "did you mean 'learning_rate'?"),
-    ("env_wrapper: smo_gym.wrappers.EstimatedVelocity", "README"),
-    ("learning_rate: cos_1e-3", "lin_<number>"),
-    ("policy_kwargs: \"dict(net_arch=__import__('os').system('echo hi'))\"", "expected policy_kwargs made of"),
-    ("normalize: \"{'norm_ob': True}\"", "expected normalize options"),
-    ("n_timesteps: -3", "positive integer"),
-])
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ("learning_rat: 0.001", "did you mean 'learning_rate'?"),
+        ("env_wrapper: smo_gym.wrappers.EstimatedVelocity", "README"),
+        ("learning_rate: cos_1e-3", "lin_<number>"),
+        ("policy_kwargs: \"dict(net_arch=__import__('os').system('echo hi'))\"", "expected policy_kwargs made of"),
+        ("normalize: \"{'norm_ob': True}\"", "expected normalize options"),
+        ("n_timesteps: -3", "positive integer"),
+    ],
+)
 def test_bad_hyperparameter_files_are_refused_before_training(entry, message, tmp_path, capsys, monkeypatch):
     from smo_gym.cli import main
 
@@ -286,10 +412,17 @@ def test_bad_hyperparameter_files_are_refused_before_training(entry, message, tm
 def test_policy_kwargs_are_evaluated_safely():
     import torch
 
-    kwargs = rl.parse_policy_kwargs("dict(log_std_init=-2, ortho_init=False, activation_fn=nn.ReLU, "
-                                    "net_arch=dict(pi=[256, 256], vf=[256, 256]), optimizer_class=th.optim.AdamW)")
-    assert kwargs == dict(log_std_init=-2, ortho_init=False, activation_fn=torch.nn.ReLU,
-                          net_arch=dict(pi=[256, 256], vf=[256, 256]), optimizer_class=torch.optim.AdamW)
+    kwargs = rl.parse_policy_kwargs(
+        "dict(log_std_init=-2, ortho_init=False, activation_fn=nn.ReLU, "
+        "net_arch=dict(pi=[256, 256], vf=[256, 256]), optimizer_class=th.optim.AdamW)"
+    )
+    assert kwargs == dict(
+        log_std_init=-2,
+        ortho_init=False,
+        activation_fn=torch.nn.ReLU,
+        net_arch=dict(pi=[256, 256], vf=[256, 256]),
+        optimizer_class=torch.optim.AdamW,
+    )
     assert rl.parse_policy_kwargs("{'net_arch': (64, 64)}") == {"net_arch": (64, 64)}
     for text in ("dict(a=os.system)", "dict(**x)", "[1, 2]", "dict(a=1 + 2)", "dict(a=nn.Module)", "open('f')"):
         with pytest.raises(ValueError, match="policy_kwargs"):
@@ -307,8 +440,27 @@ def test_dm_control_observations_are_flattened_for_training(tmp_path, capsys):
     o, _ = env.reset(seed=0)
     np.testing.assert_array_equal(o[3:], 0.0)  # cartpole: position (3: x, cos, sin), velocity (2)
     out = tmp_path / "dmc"
-    assert main(["train", "--env", env_id, "--sensing", "estimated", "--steps", "64", "--out", str(out),
-                 "--no-progress", "--checkpoint-every", "0", "--eval-episodes", "0"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--env",
+                env_id,
+                "--sensing",
+                "estimated",
+                "--steps",
+                "64",
+                "--out",
+                str(out),
+                "--no-progress",
+                "--checkpoint-every",
+                "0",
+                "--eval-episodes",
+                "0",
+            ]
+        )
+        == 0
+    )
     assert main(["evaluate", str(out), "--episodes", "1", "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert res["env"] == env_id and res["sensing"] == "estimated" and np.isfinite(res["mean"])

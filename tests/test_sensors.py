@@ -100,8 +100,9 @@ def test_noisy_encoder_output_on_grid_and_error_std():
 
 def test_bias_fixed_and_per_episode():
     Y = ramp(100, 3)
-    np.testing.assert_allclose(measure_all(Bias([0.1, -0.2, 0.0]), Y) - Y, np.broadcast_to([0.1, -0.2, 0.0], Y.shape),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        measure_all(Bias([0.1, -0.2, 0.0]), Y) - Y, np.broadcast_to([0.1, -0.2, 0.0], Y.shape), atol=1e-12
+    )
     s = Bias(std=0.01)
     e1 = measure_all(s, Y, seed=1) - Y
     e2 = measure_all(s, Y, seed=2) - Y
@@ -186,14 +187,14 @@ def test_every_preset_runs_and_unknown_names_are_listed():
     for name in sensors.PRESETS:
         out = measure_all(make_sensor(name), Y, dt=1e-3)
         assert out.shape == Y.shape and np.all(np.isfinite(out))
-    with pytest.raises(ValueError, match="encoder-12bit-noisy.*actual value: 'nope'"):
+    with pytest.raises(ValueError, match=r"encoder-12bit-noisy.*actual value: 'nope'"):
         make_sensor("nope")
 
 
 def test_nan_never_passes_silently():
     s = make_sensor("encoder-12bit")
     s.reset(np.zeros(3), seed=0)
-    with pytest.raises(ValueError, match="finite measurement.*channel 1.*true signal"):
+    with pytest.raises(ValueError, match=r"finite measurement.*channel 1.*true signal"):
         s.measure(np.array([0.0, np.nan, 0.0]))
     with pytest.raises(ValueError, match="finite measurement"):
         s.run(np.array([[0.0, 0.0, np.inf]]))
@@ -238,8 +239,9 @@ def test_restart_with_the_same_generator_continues_the_stream_and_restarts_the_s
 
 
 # ---- bad input ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("sensor", [Delay(2), Dropout(0.5), Delay(3) | Dropout(0.3) | GaussianNoise(1e-3),
-                                    make_sensor("low-cost")], ids=repr)
+@pytest.mark.parametrize(
+    "sensor", [Delay(2), Dropout(0.5), Delay(3) | Dropout(0.3) | GaussianNoise(1e-3), make_sensor("low-cost")], ids=repr
+)
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_sensor_rejects_a_non_finite_true_signal_at_once_and_keeps_its_state(sensor, bad):
     """A delay line or a held sample used to store a NaN true signal and pass it on ``d`` samples later, blaming
@@ -307,8 +309,15 @@ def test_sensor_reset_arguments_are_checked(call):
 def test_sensor_measure_rejects_converted_dtypes():
     sensor = GaussianNoise(1e-3)
     sensor.reset(np.zeros(2), seed=0)
-    for bad in (np.ones(2, complex), np.array(["1", "2"]), np.array([True, False]), [[1.0], [2.0, 3.0]], "1.0",
-                np.array([None, 1.0]), np.array([1, 2], dtype="timedelta64[s]")):
+    for bad in (
+        np.ones(2, complex),
+        np.array(["1", "2"]),
+        np.array([True, False]),
+        [[1.0], [2.0, 3.0]],
+        "1.0",
+        np.array([None, 1.0]),
+        np.array([1, 2], dtype="timedelta64[s]"),
+    ):
         with pytest.raises(TypeError) as excinfo:
             sensor.measure(bad)
         assert_worded(excinfo)
@@ -318,16 +327,29 @@ def test_sensor_measure_rejects_converted_dtypes():
 
 @pytest.mark.parametrize(
     "factory",
-    [lambda: GaussianNoise(True), lambda: GaussianNoise("0.1"), lambda: GaussianNoise(1e-3 + 1j),
-     lambda: GaussianNoise(np.zeros((2, 2))), lambda: Quantization(np.datetime64("2020")), lambda: Bias("1"),
-     lambda: Dropout(0.1, per_channel="yes"), lambda: Dropout(True), lambda: Delay(2.0), lambda: Outliers(0.1, [1j]),
-     lambda: Encoder(counts_per_revolution=4096.0), lambda: Quantization.from_counts(4096, linear_travel="1"),
-     lambda: GaussianNoise(std=1e-3, mean=0.0), lambda: Chain(GaussianNoise(1e-3), 3.0)],
+    [
+        lambda: GaussianNoise(True),
+        lambda: GaussianNoise("0.1"),
+        lambda: GaussianNoise(1e-3 + 1j),
+        lambda: GaussianNoise(np.zeros((2, 2))),
+        lambda: Quantization(np.datetime64("2020")),
+        lambda: Bias("1"),
+        lambda: Dropout(0.1, per_channel="yes"),
+        lambda: Dropout(True),
+        lambda: Delay(2.0),
+        lambda: Outliers(0.1, [1j]),
+        lambda: Encoder(counts_per_revolution=4096.0),
+        lambda: Quantization.from_counts(4096, linear_travel="1"),
+        lambda: GaussianNoise(std=1e-3, mean=0.0),
+        lambda: Chain(GaussianNoise(1e-3), 3.0),
+    ],
 )
 def test_sensor_constructors_reject_converted_values(factory):
     with pytest.raises((TypeError, ValueError)) as excinfo:
         factory()
     assert_worded(excinfo)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # single-turn encoders: angles reported modulo 2 pi
 # ----------------------------------------------------------------------------------------------------------------

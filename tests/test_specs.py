@@ -8,10 +8,20 @@ import pytest
 from smo_gym import sensors, specs
 
 
-@pytest.mark.parametrize(("text", "value"), [
-    ("true", True), ("False", False), ("none", None), ("3", 3), ("-2", -2), ("1e-3", 1e-3), ("2.5", 2.5),
-    ("1e+3", 1000.0), ("matching", "matching"),
-])
+@pytest.mark.parametrize(
+    ("text", "value"),
+    [
+        ("true", True),
+        ("False", False),
+        ("none", None),
+        ("3", 3),
+        ("-2", -2),
+        ("1e-3", 1e-3),
+        ("2.5", 2.5),
+        ("1e+3", 1000.0),
+        ("matching", "matching"),
+    ],
+)
 def test_parse_value(text, value):
     parsed = specs.parse_value(text)
     assert parsed == value and type(parsed) is type(value)
@@ -19,7 +29,9 @@ def test_parse_value(text, value):
 
 def test_observer_spec_parses_options_and_checks_them():
     assert specs.parse_observer_spec("levant:order=1:discretization=matching") == (
-        "levant", {"order": 1, "discretization": "matching"})
+        "levant",
+        {"order": 1, "discretization": "matching"},
+    )
     assert specs.parse_observer_spec("kalman-ca:resolution=0.001") == ("kalman-ca", {"resolution": 0.001})
     with pytest.raises(ValueError, match=r"actual value: 'levnat' \(did you mean 'levant'\?\)"):
         specs.parse_observer_spec("levnat")
@@ -32,18 +44,30 @@ def test_observer_spec_parses_options_and_checks_them():
 
 
 def test_sensor_specs_build_the_same_models_as_the_classes():
-    assert specs.make_sensor("encoder:counts_per_revolution=4096:noise_std=1e-3").stages == sensors.Encoder(
-        counts_per_revolution=4096, noise_std=1e-3).stages
-    chain = specs.make_sensor("gaussian-noise:std=3e-3+quantization:resolution=1e-2+delay:samples=2"
-                              "+dropout:probability=0.02:per_channel=true")
-    assert chain.stages == sensors.Chain(sensors.GaussianNoise(3e-3), sensors.Quantization(1e-2), sensors.Delay(2),
-                                         sensors.Dropout(0.02, per_channel=True)).stages
+    assert (
+        specs.make_sensor("encoder:counts_per_revolution=4096:noise_std=1e-3").stages
+        == sensors.Encoder(counts_per_revolution=4096, noise_std=1e-3).stages
+    )
+    chain = specs.make_sensor(
+        "gaussian-noise:std=3e-3+quantization:resolution=1e-2+delay:samples=2+dropout:probability=0.02:per_channel=true"
+    )
+    assert (
+        chain.stages
+        == sensors.Chain(
+            sensors.GaussianNoise(3e-3),
+            sensors.Quantization(1e-2),
+            sensors.Delay(2),
+            sensors.Dropout(0.02, per_channel=True),
+        ).stages
+    )
     for name in sensors.PRESETS:  # presets by name, the same models as make_sensor's
         assert specs.make_sensor(name).stages == sensors.make_sensor(name).stages
     # the same measurements from the spec and from the class with the same seed
     y = np.linspace(0.0, 1.0, 50)[:, None] * np.ones((1, 2))
-    a, b = specs.make_sensor("encoder:counts_per_revolution=1024:noise_std=2e-3"), sensors.Encoder(
-        counts_per_revolution=1024, noise_std=2e-3)
+    a, b = (
+        specs.make_sensor("encoder:counts_per_revolution=1024:noise_std=2e-3"),
+        sensors.Encoder(counts_per_revolution=1024, noise_std=2e-3),
+    )
     np.testing.assert_array_equal(a.reset(y[0], seed=3, dt=0.01), b.reset(y[0], seed=3, dt=0.01))
     np.testing.assert_array_equal(a.run(y[1:]), b.run(y[1:]))
 

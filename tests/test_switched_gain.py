@@ -45,7 +45,9 @@ def test_section6_reproduction(tmp_path):
     assert not failed, failed
     assert len(results) == 9
     assert sorted(p.name for p in tmp_path.glob("*.png")) == [
-        "paper000_fig1_h0.01_omega25.png", "paper000_fig2_h0.001_omega250.png"]
+        "paper000_fig1_h0.01_omega25.png",
+        "paper000_fig2_h0.001_omega250.png",
+    ]
     obs = SwitchedGain(dt=0.001, order=1, q=2.0, alpha=1.0, mu0=10.0, disturbance=1 + np.pi**2, noise=0.1)
     gains = [mu for _, mu in obs.schedule()]
     assert gains[:4] == [10.0, 20.0, 40.0, 80.0] and gains[4] == pytest.approx(10.42, abs=0.01)
@@ -68,7 +70,7 @@ def test_step_is_implicit_euler_11(order):
     state = obs.state
     state[:, :n] = rng.normal(size=(3, n))
     y = rng.normal(size=3)
-    new_state, est = obs.step(state, y)
+    _new_state, est = obs.step(state, y)
     A = np.eye(n, k=1)
     Minv_l = mu ** np.arange(n) * l  # M^{-1} l, M = diag(mu^(1-k))
     O = np.eye(n) - h * A + h * mu * np.outer(Minv_l, np.eye(n)[0])
@@ -93,7 +95,7 @@ def test_noise_optimal_gains():
     assert mu_min == pytest.approx(np.sqrt(D / V)) and mu_max == pytest.approx(D / V)
     for n in (3, 4):
         mu_min, mu_max = noise_optimal_gains(n, 2.0, 0.5, 10.0, 0.01)
-        r = lambda mu: 2.0 * 10.0 / mu + mu ** (n - 1) * 0.5 * 0.01  # noqa: E731
+        r = lambda mu: 2.0 * 10.0 / mu + mu ** (n - 1) * 0.5 * 0.01
         assert r(mu_min) < min(r(0.99 * mu_min), r(1.01 * mu_min))
         assert r(mu_max) == pytest.approx(r(1.0), rel=1e-10) and mu_max > mu_min
     with pytest.raises(ValueError, match="condition \\(10\\)"):
@@ -114,7 +116,7 @@ def test_noise_free_error_contracts_by_q_per_dwell_interval():
     ks = [int(round(ti / h)) for ti, _ in plan]
     assert len(ks) >= 5
     checked = 0
-    for a, b in zip(ks[:-1], ks[1:]):
+    for a, b in zip(ks[:-1], ks[1:], strict=False):
         if err[a] > 1e-8:  # above the rounding floor
             assert err[b] <= err[a] / obs.q * 1.02
             checked += 1
@@ -124,7 +126,7 @@ def test_noise_free_error_contracts_by_q_per_dwell_interval():
 def test_schedule_stops_on_T_min_and_mu_max():
     s = 0.4
     plan = switching_schedule(2, 1.0, s, 2.0, 1.0, mu0=1.0, mu_max=np.inf, T_min=0.05)
-    T = [b[0] - a[0] for a, b in zip(plan[:-1], plan[1:])]
+    T = [b[0] - a[0] for a, b in zip(plan[:-1], plan[1:], strict=False)]
     assert all(x > 0.05 for x in T) and dwell_time(plan[-1][1] * 2, 2, 1.0, s, 2.0) <= 0.05
     plan = switching_schedule(2, 1.0, s, 2.0, 1.0, mu0=10.0, mu_max=100.0, mu_reset=12.0)
     assert [mu for _, mu in plan] == [10.0, 20.0, 40.0, 80.0, 12.0]
@@ -190,21 +192,24 @@ def test_nan_names_the_channel_and_state_is_kept():
     np.testing.assert_array_equal(obs.state, before)
 
 
-@pytest.mark.parametrize("kwargs, exc", [
-    (dict(dt=-1.0), ValueError),
-    (dict(dt=1e-3, order=0), ValueError),
-    (dict(dt=1e-3, order=1.5), TypeError),
-    (dict(dt=1e-3, q=1.0), ValueError),
-    (dict(dt=1e-3, order=2, alpha=1.0), ValueError),
-    (dict(dt=1e-3, mu0=0.5), ValueError),
-    (dict(dt=1e-3, gain=[1.0, 1.0, 1.0]), ValueError),
-    (dict(dt=1e-3, gain=[-1.0, 1.0], P=np.eye(2)), ValueError),
-    (dict(dt=1e-3, gain=[2.0, 1.0]), ValueError),
-    (dict(dt=1e-3, gain=[2.0, 1.0], P=-np.eye(2)), ValueError),
-    (dict(dt=1e-3, noise=0.1), ValueError),
-    (dict(dt=1e-3, supervise="yes"), TypeError),
-    (dict(dt=1e-3, kappa="1"), TypeError),
-])
+@pytest.mark.parametrize(
+    "kwargs, exc",
+    [
+        (dict(dt=-1.0), ValueError),
+        (dict(dt=1e-3, order=0), ValueError),
+        (dict(dt=1e-3, order=1.5), TypeError),
+        (dict(dt=1e-3, q=1.0), ValueError),
+        (dict(dt=1e-3, order=2, alpha=1.0), ValueError),
+        (dict(dt=1e-3, mu0=0.5), ValueError),
+        (dict(dt=1e-3, gain=[1.0, 1.0, 1.0]), ValueError),
+        (dict(dt=1e-3, gain=[-1.0, 1.0], P=np.eye(2)), ValueError),
+        (dict(dt=1e-3, gain=[2.0, 1.0]), ValueError),
+        (dict(dt=1e-3, gain=[2.0, 1.0], P=-np.eye(2)), ValueError),
+        (dict(dt=1e-3, noise=0.1), ValueError),
+        (dict(dt=1e-3, supervise="yes"), TypeError),
+        (dict(dt=1e-3, kappa="1"), TypeError),
+    ],
+)
 def test_bad_parameters_raise_typed_errors(kwargs, exc):
     with pytest.raises(exc, match="expected"):
         SwitchedGain(**kwargs)

@@ -18,17 +18,19 @@ N = 3
 
 
 def _pair(n=N, seed=3, positions="measured", env_id=ENV):
-    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(env_id), rate="env", positions=positions)
-                       for _ in range(n)])
-    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(env_id) for _ in range(n)]), "encoder-12bit-noisy",
-                               "super-twisting", positions=positions)
+    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(env_id), rate="env", positions=positions) for _ in range(n)])
+    vec = VecEstimatedVelocity(
+        DummyVecEnv([lambda: gym.make(env_id) for _ in range(n)]),
+        "encoder-12bit-noisy",
+        "super-twisting",
+        positions=positions,
+    )
     ref.seed(seed)
     vec.seed(seed)
     return ref, vec
 
 
-@pytest.mark.parametrize("positions, env_id", [("measured", ENV), ("filtered", ENV),
-                                               ("measured", "Hopper-v5")])
+@pytest.mark.parametrize("positions, env_id", [("measured", ENV), ("filtered", ENV), ("measured", "Hopper-v5")])
 def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
     """Also with the in-process shortcuts: Hopper's clipped selection is built for all environments at once, and
     InvertedDoublePendulum's (with sines, cosines and a constraint force) is gathered for all environments by
@@ -51,8 +53,7 @@ def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
                 np.testing.assert_allclose(i2[i]["smo"][key], i1[i]["smo"][key], rtol=0, atol=1e-12)
         for i in np.flatnonzero(d1):
             n_done += 1
-            np.testing.assert_allclose(i2[i]["terminal_observation"], i1[i]["terminal_observation"], rtol=0,
-                                       atol=1e-12)
+            np.testing.assert_allclose(i2[i]["terminal_observation"], i1[i]["terminal_observation"], rtol=0, atol=1e-12)
     assert n_done >= 5  # the comparison covered autoresets
     assert (vec._selection() is not None) == (env_id == "Hopper-v5" and positions == "measured")
     assert (vec._entries_plan() is not None) == (env_id == ENV and positions == "measured")
@@ -70,7 +71,7 @@ def test_gathered_observations_follow_a_replaced_mjdata():
     plan = vec._entries_plan()
     unwrapped = vec._local[1].unwrapped
     unwrapped.data = copy.copy(unwrapped.data)
-    obs, _, done, _ = vec.step(rng.uniform(-1, 1, (N, 1)))
+    obs, _, _done, _ = vec.step(rng.uniform(-1, 1, (N, 1)))
     assert vec._entries_plan() is not plan and vec._entries_plan().current()
     velocity = vec.observer.estimate[..., 1]
     for i, sensor in enumerate(vec._local):
@@ -128,8 +129,8 @@ def test_ppo_learns_on_vec_stack_and_save_load(tmp_path):
     np.testing.assert_allclose(fresh_norm.reset(), norm.reset(), rtol=0, atol=1e-12)
     a = np.full((2, 1), 0.3)
     for _ in range(20):
-        o1, _, d1, _ = norm.step(a)
-        o2, _, d2, _ = fresh_norm.step(a)
+        o1, _, _d1, _ = norm.step(a)
+        o2, _, _d2, _ = fresh_norm.step(a)
         np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
     model.set_env(fresh_norm)
     model.learn(64, reset_num_timesteps=False)
@@ -156,8 +157,7 @@ def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():
     from smo_gym.wrappers import sensing_config
 
     kw = sensing_config("encoder-12bit-noisy", "super-twisting")
-    sub = make_vec_env(ENV, n_envs=2, seed=4, vec_env_cls=SubprocVecEnv, wrapper_class=JointSensor,
-                       wrapper_kwargs=kw)
+    sub = make_vec_env(ENV, n_envs=2, seed=4, vec_env_cls=SubprocVecEnv, wrapper_class=JointSensor, wrapper_kwargs=kw)
     dummy = make_vec_env(ENV, n_envs=2, seed=4, wrapper_class=JointSensor, wrapper_kwargs=kw)
     try:
         a, b = VecEstimatedVelocity(sub), VecEstimatedVelocity(dummy)
@@ -166,7 +166,7 @@ def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():
         for _ in range(40):
             act = rng.uniform(-1, 1, (2, 1))
             o1, _, d1, i1 = a.step(act)
-            o2, _, d2, i2 = b.step(act)
+            o2, _, _d2, i2 = b.step(act)
             np.testing.assert_allclose(o1, o2, rtol=0, atol=1e-12)
             for i in range(2):  # the same info["smo"] across the process boundary
                 for key in SMO_KEYS:
@@ -176,8 +176,9 @@ def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():
     finally:
         sub.close()
     with pytest.raises(ValueError, match="sensing"):
-        VecEstimatedVelocity(make_vec_env(ENV, n_envs=1, wrapper_class=JointSensor, wrapper_kwargs=kw),
-                             "ideal", "super-twisting")
+        VecEstimatedVelocity(
+            make_vec_env(ENV, n_envs=1, wrapper_class=JointSensor, wrapper_kwargs=kw), "ideal", "super-twisting"
+        )
 
 
 def test_subproc_without_joint_sensor_raises():
@@ -226,8 +227,9 @@ def test_gymnasium_vector_wrapper_round_trips_plain_pickle():
 
     from gymnasium.vector import SyncVectorEnv
 
-    vec = VectorEstimatedVelocity(SyncVectorEnv([functools.partial(gym.make, ENV)] * 2), "encoder-12bit-noisy",
-                                  "super-twisting")
+    vec = VectorEstimatedVelocity(
+        SyncVectorEnv([functools.partial(gym.make, ENV)] * 2), "encoder-12bit-noisy", "super-twisting"
+    )
     vec.reset(seed=5)
     twin = pickle.loads(pickle.dumps(vec))
     o1, _ = vec.reset(seed=6)
@@ -241,8 +243,9 @@ def test_make_vec_env_with_per_env_wrapper_physics_rate():
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
 
-    venv = make_vec_env("Hopper-v5", n_envs=2, seed=0, wrapper_class=EstimatedVelocity,
-                        wrapper_kwargs=dict(rate="physics"))
+    venv = make_vec_env(
+        "Hopper-v5", n_envs=2, seed=0, wrapper_class=EstimatedVelocity, wrapper_kwargs=dict(rate="physics")
+    )
     obs = venv.reset()
     assert obs.shape == (2, 11)
     _, _, _, infos = venv.step(np.zeros((2, 3)))
@@ -267,10 +270,12 @@ def _assert_same_smo(reference: dict, infos: dict) -> None:
 def test_gymnasium_vector_wrapper_matches_per_env(mode):
     from gymnasium.vector import SyncVectorEnv
 
-    ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(N)],
-                        autoreset_mode=mode)
-    vec = VectorEstimatedVelocity(SyncVectorEnv([lambda: gym.make(ENV) for _ in range(N)], autoreset_mode=mode),
-                                  "encoder-12bit-noisy", "super-twisting")
+    ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(N)], autoreset_mode=mode)
+    vec = VectorEstimatedVelocity(
+        SyncVectorEnv([lambda: gym.make(ENV) for _ in range(N)], autoreset_mode=mode),
+        "encoder-12bit-noisy",
+        "super-twisting",
+    )
     o1, _ = ref.reset(seed=7)
     o2, _ = vec.reset(seed=7)
     np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
@@ -279,7 +284,7 @@ def test_gymnasium_vector_wrapper_matches_per_env(mode):
     for _ in range(120):
         a = rng.uniform(-1, 1, (N, 1))
         o1, r1, t1, u1, i1 = ref.step(a)
-        o2, r2, t2, u2, i2 = vec.step(a)
+        o2, r2, t2, _u2, i2 = vec.step(a)
         np.testing.assert_array_equal(t1, t2)
         np.testing.assert_array_equal(r1, r2)
         np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
@@ -301,10 +306,14 @@ def test_gymnasium_vector_wrapper_matches_per_env(mode):
 def test_gymnasium_async_vector_env_same_step():
     from gymnasium.vector import SyncVectorEnv
 
-    vec = VectorEstimatedVelocity(gym.make_vec(ENV, 2, vectorization_mode="async", wrappers=[JointSensor],
-                                               vector_kwargs=dict(autoreset_mode="SameStep")))
-    ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(2)],
-                        autoreset_mode="SameStep")
+    vec = VectorEstimatedVelocity(
+        gym.make_vec(
+            ENV, 2, vectorization_mode="async", wrappers=[JointSensor], vector_kwargs=dict(autoreset_mode="SameStep")
+        )
+    )
+    ref = SyncVectorEnv(
+        [lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(2)], autoreset_mode="SameStep"
+    )
     try:
         o1, _ = ref.reset(seed=1)
         o2, _ = vec.reset(seed=1)

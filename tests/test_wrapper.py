@@ -20,15 +20,24 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from conftest import full_forward_observation, smooth_actions
 
 from smo_gym import observers, sensors
 from smo_gym.wrappers import EstimatedVelocity, sensing
 from smo_gym.wrappers import estimated_velocity as ev_module
-from conftest import full_forward_observation, smooth_actions
 
 ENVS = [
-    "InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Reacher-v5", "Pusher-v5", "Swimmer-v5", "Hopper-v5",
-    "HalfCheetah-v5", "Walker2d-v5", "Ant-v5", "Humanoid-v5", "HumanoidStandup-v5",
+    "InvertedPendulum-v5",
+    "InvertedDoublePendulum-v5",
+    "Reacher-v5",
+    "Pusher-v5",
+    "Swimmer-v5",
+    "Hopper-v5",
+    "HalfCheetah-v5",
+    "Walker2d-v5",
+    "Ant-v5",
+    "Humanoid-v5",
+    "HumanoidStandup-v5",
 ]
 
 
@@ -56,8 +65,6 @@ def rollout(env, actions, seed, *, until_done=True):
     return out
 
 
-
-
 @pytest.mark.parametrize("env_id", ENVS)
 def test_every_v5_env(env_id):
     from gymnasium.utils.env_checker import check_env
@@ -74,10 +81,15 @@ def test_every_v5_env(env_id):
     steps = 200
     actions = smooth_actions(raw.action_space, steps, seed=1)
     ref = rollout(raw, actions, seed=5, until_done=False)
-    sta = rollout(EstimatedVelocity(gym.make(env_id), sensor="ideal", rate="physics"), actions, seed=5,
-                  until_done=False)
-    fd = rollout(EstimatedVelocity(gym.make(env_id), sensor="ideal", observer="finite-difference", rate="physics"),
-                 actions, seed=5, until_done=False)
+    sta = rollout(
+        EstimatedVelocity(gym.make(env_id), sensor="ideal", rate="physics"), actions, seed=5, until_done=False
+    )
+    fd = rollout(
+        EstimatedVelocity(gym.make(env_id), sensor="ideal", observer="finite-difference", rate="physics"),
+        actions,
+        seed=5,
+        until_done=False,
+    )
     # stepping the physics ourselves (to sample inside frame_skip) changes nothing of the simulation
     assert sta["reward"] == ref["reward"] and sta["terminated"] == ref["terminated"]
     assert all(wrapped.observation_space.contains(o) for o in sta["obs"])
@@ -88,7 +100,7 @@ def test_every_v5_env(env_id):
     np.testing.assert_array_equal(true, np.array([s["qvel"] for s in fd["smo"]])[keep])
     e_sta = np.array([s["qvel_estimate"] for s in sta["smo"]])[keep] - true
     e_fd = np.array([s["qvel_estimate"] for s in fd["smo"]])[keep] - true
-    scale = np.sqrt(np.mean(true ** 2))
+    scale = np.sqrt(np.mean(true**2))
     # typical sample: the sliding super-twisting is as accurate as the backward difference (round-off on Euler envs)
     med_sta, med_fd = np.median(np.abs(e_sta).max(axis=1)), np.median(np.abs(e_fd).max(axis=1))
     assert med_sta <= 1.5 * med_fd + 1e-9 * scale, (med_sta, med_fd, scale)
@@ -153,10 +165,17 @@ def test_scratch_observation_equals_a_full_forward_pass(env_id):
         np.testing.assert_array_equal(env.adapter.observation(qpos, qvel), want)
 
 
-@pytest.mark.parametrize("env_id, contact_forces", [
-    ("Humanoid-v5", "estimated"), ("Humanoid-v5", "sensor"), ("Ant-v5", "estimated"), ("Ant-v5", "sensor"),
-    ("InvertedDoublePendulum-v5", "sensor"), ("Pusher-v5", "sensor"),
-])
+@pytest.mark.parametrize(
+    "env_id, contact_forces",
+    [
+        ("Humanoid-v5", "estimated"),
+        ("Humanoid-v5", "sensor"),
+        ("Ant-v5", "estimated"),
+        ("Ant-v5", "sensor"),
+        ("InvertedDoublePendulum-v5", "sensor"),
+        ("Pusher-v5", "sensor"),
+    ],
+)
 def test_no_leakage_of_true_velocity(env_id, contact_forces):
     """Changing the true velocity (and everything mj_forward derives from it) with the measurements and estimates
     fixed changes no observation entry, except the contact forces taken from 'sensors' in that mode (only Ant's
@@ -201,12 +220,16 @@ def _noise(info_smo, i):
 
 @pytest.mark.parametrize("mode", ["sync", "async"])
 def test_vector_env_gives_each_env_its_own_noise(mode):
-    envs = gym.make_vec("Hopper-v5", num_envs=2, vectorization_mode=mode,
-                        wrappers=[lambda e: EstimatedVelocity(e, sensor="encoder-12bit-noisy")])
+    envs = gym.make_vec(
+        "Hopper-v5",
+        num_envs=2,
+        vectorization_mode=mode,
+        wrappers=[lambda e: EstimatedVelocity(e, sensor="encoder-12bit-noisy")],
+    )
     try:
         obs, info = envs.reset(seed=0)
         for _ in range(5):
-            obs, r, term, trunc, info = envs.step(envs.action_space.sample())
+            obs, _r, _term, _trunc, info = envs.step(envs.action_space.sample())
         e0, e1 = _noise(info["smo"], 0), _noise(info["smo"], 1)
         assert np.any(e0 != 0) and np.any(e1 != 0) and not np.allclose(e0, e1)
         assert obs.shape == (2,) + gym.make("Hopper-v5").observation_space.shape
@@ -222,7 +245,7 @@ def test_sb3_subproc_vec_env():
         venv.seed(0)
         venv.reset()
         for _ in range(5):
-            obs, rewards, dones, infos = venv.step(np.zeros((2, 1), dtype=np.float32))
+            obs, _rewards, _dones, infos = venv.step(np.zeros((2, 1), dtype=np.float32))
         assert obs.shape == (2, 4) and "smo" in infos[0]
     finally:
         venv.close()
@@ -283,9 +306,9 @@ def test_free_joint_tangent_coordinates_differentiate_to_qvel():
 def test_filtered_positions_and_gain_override():
     env = EstimatedVelocity(gym.make("Hopper-v5"), positions="filtered", observer_kwargs={"lipschitz": 123.0})
     assert env.observer.lipschitz == 123.0
-    obs, info = env.reset(seed=0)
+    obs, _ = env.reset(seed=0)
     for a in smooth_actions(env.action_space, 5, 0):
-        obs, *_, info = env.step(a)
+        obs, *_ = env.step(a)
     np.testing.assert_allclose(obs[:5], env.estimator.filtered[1:])
     for name in observers.OBSERVERS:
         EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer=name).reset(seed=0)
@@ -304,11 +327,11 @@ def test_calibration_is_cached_in_memory_and_on_disk(monkeypatch):
 
 
 def test_bad_inputs():
-    with pytest.raises(TypeError, match="MuJoCo.*CartPoleEnv has no model"):
+    with pytest.raises(TypeError, match=r"MuJoCo.*CartPoleEnv has no model"):
         EstimatedVelocity(gym.make("CartPole-v1"))
-    with pytest.raises(ValueError, match="encoder-12bit.*low-cost.*actual value: 'fancy'"):
+    with pytest.raises(ValueError, match=r"encoder-12bit.*low-cost.*actual value: 'fancy'"):
         EstimatedVelocity(gym.make("Hopper-v5"), sensor="fancy")
-    with pytest.raises(ValueError, match="super-twisting.*actual value: 'magic'"):
+    with pytest.raises(ValueError, match=r"super-twisting.*actual value: 'magic'"):
         EstimatedVelocity(gym.make("Hopper-v5"), observer="magic")
     with pytest.raises(ValueError, match="divisor of frame_skip=4"):
         EstimatedVelocity(gym.make("Hopper-v5"), rate=3)
@@ -395,6 +418,6 @@ def test_user_mujoco_env_with_a_ball_joint(tmp_path):
     assert scale > 0.3  # the ball joint does swing
     assert err_fd < 0.02 * scale and err_sta <= 1.5 * err_fd + 1e-9
     noisy = EstimatedVelocity(_ball_env(tmp_path), sensor="encoder-12bit-noisy", disk_cache=False)
-    obs, info = noisy.reset(seed=0)
+    _obs, info = noisy.reset(seed=0)
     q = info["smo"]["qpos_measured"]
     assert np.isclose(np.linalg.norm(q[:4]), 1.0) and not np.allclose(q, info["smo"]["qpos"])

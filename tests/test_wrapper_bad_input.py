@@ -25,25 +25,55 @@ TYPED = (TypeError, ValueError, RuntimeError)
 #: the number of examples each sweep ran, checked at the end (the closing note reports them)
 TRIED = {"construct": 0, "constructed": 0, "methods": 0}
 
-junk = st.one_of(st.none(), st.booleans(), st.integers(-5, 5), st.floats(allow_nan=True, allow_infinity=True),
-                 st.text(max_size=8), st.lists(st.floats(-1, 1), max_size=3), st.just(1 + 2j),
-                 st.just(np.datetime64("2026-01-01")), st.just(object()))
+junk = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-5, 5),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+    st.lists(st.floats(-1, 1), max_size=3),
+    st.just(1 + 2j),
+    st.just(np.datetime64("2026-01-01")),
+    st.just(object()),
+)
 
 #: per constructor argument: (valid values, invalid values)
 ARGUMENTS = {
-    "sensor": (st.one_of(st.sampled_from(sorted(sensors.PRESETS)),
-                         st.builds(sensors.Encoder, counts_per_revolution=st.sampled_from([256, 4096]))),
-               st.one_of(st.sampled_from(["encoder-12bt", "", "ENCODER"]), junk)),
-    "observer": (st.one_of(st.sampled_from(sorted(OBSERVERS)), st.just(SuperTwisting(dt=0.02, lipschitz=50.0))),
-                 st.one_of(st.sampled_from(["super-twist", "levant2", ""]),
-                           st.just(SuperTwisting(dt=0.01, lipschitz=50.0)), junk)),
-    "rate": (st.sampled_from(["physics", "env", 1, 2]), st.one_of(st.sampled_from([3, 0, -1, 1.5, True, "fast"]),
-                                                                  junk)),
-    "observer_kwargs": (st.none(), st.one_of(
-        st.dictionaries(st.sampled_from(["lipschitz", "lipschtz", "order", "discretization", "k1", "gain"]),
-                        st.one_of(st.floats(-10, 100), st.just(float("nan")), st.integers(-1, 4),
-                                  st.sampled_from(["implicit", "euler", "matching", "x"]), st.booleans()),
-                        min_size=1, max_size=2), junk)),
+    "sensor": (
+        st.one_of(
+            st.sampled_from(sorted(sensors.PRESETS)),
+            st.builds(sensors.Encoder, counts_per_revolution=st.sampled_from([256, 4096])),
+        ),
+        st.one_of(st.sampled_from(["encoder-12bt", "", "ENCODER"]), junk),
+    ),
+    "observer": (
+        st.one_of(st.sampled_from(sorted(OBSERVERS)), st.just(SuperTwisting(dt=0.02, lipschitz=50.0))),
+        st.one_of(
+            st.sampled_from(["super-twist", "levant2", ""]), st.just(SuperTwisting(dt=0.01, lipschitz=50.0)), junk
+        ),
+    ),
+    "rate": (
+        st.sampled_from(["physics", "env", 1, 2]),
+        st.one_of(st.sampled_from([3, 0, -1, 1.5, True, "fast"]), junk),
+    ),
+    "observer_kwargs": (
+        st.none(),
+        st.one_of(
+            st.dictionaries(
+                st.sampled_from(["lipschitz", "lipschtz", "order", "discretization", "k1", "gain"]),
+                st.one_of(
+                    st.floats(-10, 100),
+                    st.just(float("nan")),
+                    st.integers(-1, 4),
+                    st.sampled_from(["implicit", "euler", "matching", "x"]),
+                    st.booleans(),
+                ),
+                min_size=1,
+                max_size=2,
+            ),
+            junk,
+        ),
+    ),
     "positions": (st.sampled_from(["measured", "filtered"]), st.one_of(st.just("estimated"), junk)),
     "contact_forces": (st.just("sensor"), st.one_of(st.sampled_from(["estimated", "zero", "none"]), junk)),
     "calibration_safety": (st.floats(0.5, 5), st.one_of(st.floats(-1, 0), junk)),
@@ -76,7 +106,7 @@ def test_constructor_sweep(kwargs):
     TRIED["construct"] += 1
     try:
         env = _construct(**kwargs)
-    except Exception as exc:  # noqa: BLE001 - the property: every refusal is typed and says what was expected
+    except Exception as exc:
         _check_typed(exc)
         return
     TRIED["constructed"] += 1
@@ -85,7 +115,7 @@ def test_constructor_sweep(kwargs):
     for _ in range(3):
         try:
             obs = env.step(env.action_space.sample())[0]
-        except Exception as exc:  # noqa: BLE001 - e.g. an explicit gain that diverges: a typed error
+        except Exception as exc:
             _check_typed(exc)
             return
         assert np.all(np.isfinite(obs))
@@ -94,8 +124,10 @@ def test_constructor_sweep(kwargs):
 action_values = st.one_of(
     st.builds(lambda x: np.array([x]), st.floats(allow_nan=True, allow_infinity=True)),
     st.builds(lambda x: np.array([x], dtype=np.float32), st.floats(-3, 3, width=32)),
-    st.lists(st.floats(-3, 3), min_size=0, max_size=3), st.builds(np.zeros, st.sampled_from([(2,), (1, 1), ()])),
-    junk)
+    st.lists(st.floats(-3, 3), min_size=0, max_size=3),
+    st.builds(np.zeros, st.sampled_from([(2,), (1, 1), ()])),
+    junk,
+)
 
 
 @pytest.fixture(scope="module")
@@ -104,22 +136,24 @@ def sensed():
 
 
 @settings(max_examples=150, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
-@given(seed=st.one_of(st.none(), st.integers(0, 2**64), st.integers(-5, -1), junk),
-       actions=st.lists(action_values, min_size=1, max_size=4))
+@given(
+    seed=st.one_of(st.none(), st.integers(0, 2**64), st.integers(-5, -1), junk),
+    actions=st.lists(action_values, min_size=1, max_size=4),
+)
 def test_method_sweep(sensed, seed, actions):
     """reset(seed=...) with any value, then steps with any action: typed errors, or finite observations in the
     space; a refused action leaves the wrapper usable (the next valid step works)."""
     TRIED["methods"] += 1
     try:
         obs, info = sensed.reset(seed=seed)
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         _check_typed(exc)
         obs, info = sensed.reset(seed=0)
     assert sensed.observation_space.contains(obs)
     for action in actions:
         try:
             obs, _, terminated, truncated, info = sensed.step(action)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             _check_typed(exc)
             continue
         assert np.all(np.isfinite(obs)) and np.all(np.isfinite(info["smo"]["qvel_estimate"]))
@@ -131,6 +165,8 @@ def test_method_sweep(sensed, seed, actions):
 
 def test_the_sweeps_ran():
     """Runs after the sweeps (file order): the number of inputs they tried."""
-    print(f"wrapper sweep: {TRIED['construct']} constructions ({TRIED['constructed']} accepted), "
-          f"{TRIED['methods']} method sequences")
+    print(
+        f"wrapper sweep: {TRIED['construct']} constructions ({TRIED['constructed']} accepted), "
+        f"{TRIED['methods']} method sequences"
+    )
     assert TRIED["construct"] >= 100 and TRIED["constructed"] >= 10 and TRIED["methods"] >= 100

@@ -8,12 +8,11 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import full_forward_observation
 
 from smo_gym.observers import DivergenceError
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers.sensing import FusedSensing, SensingInfo
-from conftest import full_forward_observation
-
 
 KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")
 
@@ -48,8 +47,7 @@ def _pair(env_id: str, seed: int, **kwargs):
 def test_fused_path_equals_general_path(env_id, observer, rate, sensor, positions):
     # HalfCheetah: frame_skip 5, so at rate="physics" control periods straddle the sensor's 256-sample random
     # blocks (the fused path hands those to the general path) and the stream must stay the same throughout
-    fused, general, (obs_f, obs_g) = _pair(env_id, 3, observer=observer, rate=rate, sensor=sensor,
-                                           positions=positions)
+    fused, general, (obs_f, obs_g) = _pair(env_id, 3, observer=observer, rate=rate, sensor=sensor, positions=positions)
     assert isinstance(fused._fused, FusedSensing)
     np.testing.assert_array_equal(obs_f, obs_g)
     rng = np.random.default_rng(0)
@@ -120,8 +118,9 @@ def test_fused_errors_name_the_channel_and_keep_the_state():
     np.testing.assert_array_equal(env.observer.state, state)
     assert env.sensor._t == t + 1  # the sample was consumed, as Sensor.run does
     # a diverging observer: a finite jump whose difference quotient overflows (1.7e308 / dt)
-    env = EstimatedVelocity(gym.make("Hopper-v5"), sensor="ideal", rate="env", observer="finite-difference",
-                            disk_cache=False)
+    env = EstimatedVelocity(
+        gym.make("Hopper-v5"), sensor="ideal", rate="env", observer="finite-difference", disk_cache=False
+    )
     env.reset(seed=0)
     state = env.observer.state
     Q = np.array(env.unwrapped.data.qpos)[None]
@@ -178,8 +177,7 @@ def test_adapter_probes_what_the_observation_reads():
     assert not hopper.reads_contacts and hopper.fresh_observation and hopper._bare
     ant = EstimatedVelocity(gym.make("Ant-v5"), disk_cache=False).adapter
     assert ant.reads_contacts  # Ant-v5's observation includes cfrc_ext
-    no_contacts = EstimatedVelocity(gym.make("Ant-v5", include_cfrc_ext_in_observation=False),
-                                    disk_cache=False).adapter
+    no_contacts = EstimatedVelocity(gym.make("Ant-v5", include_cfrc_ext_in_observation=False), disk_cache=False).adapter
     assert not no_contacts.reads_contacts
 
 
@@ -222,8 +220,9 @@ def test_observation_map_is_found_only_for_clipped_selections():
     np.testing.assert_array_equal(index, np.arange(1, 12))
     np.testing.assert_array_equal(bounds[:, :5], [[-np.inf] * 5, [np.inf] * 5])
     np.testing.assert_array_equal(bounds[:, 5:], [[-10.0] * 6, [10.0] * 6])
-    index, _ = make_adapter(gym.make("Hopper-v5", exclude_current_positions_from_observation=False)
-                            .unwrapped).observation_map
+    index, _ = make_adapter(
+        gym.make("Hopper-v5", exclude_current_positions_from_observation=False).unwrapped
+    ).observation_map
     np.testing.assert_array_equal(index, np.arange(12))
 
     class Transformed(HopperEnv):
@@ -234,12 +233,14 @@ def test_observation_map_is_found_only_for_clipped_selections():
         def _get_obs(self):
             return self.transform(self.data.qpos.copy(), self.data.qvel.copy())
 
-    for transform in (lambda q, v: np.concatenate([np.sin(q), v]),  # not the entry itself
-                      lambda q, v: np.concatenate([q, 2.0 * v]),  # not unit slope
-                      lambda q, v: np.concatenate([q, v[:3] + v[3:]]),  # follows two entries
-                      lambda q, v: np.concatenate([q, v, [1.0]]),  # a constant entry
-                      lambda q, v: np.concatenate([q, np.clip(v, -10, 10) * (np.abs(v) < 1e5)]),  # only for small
-                      lambda q, v: np.concatenate([q, v]).astype(np.float32)):
+    for transform in (
+        lambda q, v: np.concatenate([np.sin(q), v]),  # not the entry itself
+        lambda q, v: np.concatenate([q, 2.0 * v]),  # not unit slope
+        lambda q, v: np.concatenate([q, v[:3] + v[3:]]),  # follows two entries
+        lambda q, v: np.concatenate([q, v, [1.0]]),  # a constant entry
+        lambda q, v: np.concatenate([q, np.clip(v, -10, 10) * (np.abs(v) < 1e5)]),  # only for small
+        lambda q, v: np.concatenate([q, v]).astype(np.float32),
+    ):
         adapter = make_adapter(Transformed(transform))
         assert adapter._bare and adapter.observation_map is None
     env = EstimatedVelocity(Transformed(lambda q, v: np.concatenate([q, 2.0 * v])), disk_cache=False)

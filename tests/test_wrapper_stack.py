@@ -33,8 +33,9 @@ def _bare_observation(env: EstimatedVelocity) -> np.ndarray:
 STATELESS = {
     "TimeAwareObservation": gym.wrappers.TimeAwareObservation,
     "DtypeObservation": lambda e: gym.wrappers.DtypeObservation(e, np.float32),
-    "TransformObservation": lambda e: gym.wrappers.TransformObservation(e, lambda o: 2.0 * o + 1.0,
-                                                                          e.observation_space),
+    "TransformObservation": lambda e: gym.wrappers.TransformObservation(
+        e, lambda o: 2.0 * o + 1.0, e.observation_space
+    ),
     "ReshapeObservation": lambda e: gym.wrappers.ReshapeObservation(gym.wrappers.TimeAwareObservation(e), (3, 4)),
 }
 
@@ -84,11 +85,14 @@ def test_double_float32_dtype_is_kept():
     assert env.step(np.zeros(3))[0].dtype == np.float32
 
 
-@pytest.mark.parametrize("make, name", [
-    (gym.wrappers.NormalizeObservation, "NormalizeObservation"),
-    (lambda e: gym.wrappers.FrameStackObservation(e, 3), "FrameStackObservation"),
-    (lambda e: gym.wrappers.DelayObservation(e, 2), "DelayObservation"),
-])
+@pytest.mark.parametrize(
+    "make, name",
+    [
+        (gym.wrappers.NormalizeObservation, "NormalizeObservation"),
+        (lambda e: gym.wrappers.FrameStackObservation(e, 3), "FrameStackObservation"),
+        (lambda e: gym.wrappers.DelayObservation(e, 2), "DelayObservation"),
+    ],
+)
 def test_stateful_observation_wrappers_beneath_are_refused_by_name(make, name):
     """A wrapper whose observation depends on earlier ones would mix true and sensed observations: the error
     names it and says to put it on top, where it works."""
@@ -114,8 +118,13 @@ def test_pass_through_wrappers_beneath_change_nothing():
     """Episode recorders, reward and action wrappers beneath give exactly the observations of the bare stack."""
     from stable_baselines3.common.monitor import Monitor
 
-    stacks = [Monitor, gym.wrappers.RecordEpisodeStatistics, lambda e: gym.wrappers.ClipReward(e, -1.0, 1.0),
-              lambda e: gym.wrappers.ClipAction(e), gym.wrappers.NormalizeReward]
+    stacks = [
+        Monitor,
+        gym.wrappers.RecordEpisodeStatistics,
+        lambda e: gym.wrappers.ClipReward(e, -1.0, 1.0),
+        lambda e: gym.wrappers.ClipAction(e),
+        gym.wrappers.NormalizeReward,
+    ]
     for make in stacks:
         wrapped, plain = _sensed(make(gym.make(ENV))), _sensed(gym.make(ENV))
         assert wrapped._observation_wrappers == ()
@@ -140,7 +149,7 @@ def test_wrapping_twice_is_a_clear_error():
 def test_joint_sensor_needs_the_bare_observation():
     """The vector wrappers rebuild observations from the bare environment's function: an observation wrapper
     beneath their sub-environment's JointSensor is refused (it belongs on the vector env)."""
-    with pytest.raises(TypeError, match="TimeAwareObservation.*put it on top"):
+    with pytest.raises(TypeError, match=r"TimeAwareObservation.*put it on top"):
         JointSensor(gym.wrappers.TimeAwareObservation(gym.make(ENV)), disk_cache=False, calibration_steps=300)
 
 
@@ -178,19 +187,22 @@ def test_flatten_observation_beneath_on_a_dm_control_task():
         assert env.observation_space.contains(obs)
 
 
-@pytest.mark.parametrize("kwargs, error, match", [
-    (dict(calibration_safety=0.0), ValueError, "calibration_safety > 0"),
-    (dict(calibration_safety=True), TypeError, "calibration_safety"),
-    (dict(calibration_quantile=0.0), ValueError, r"calibration_quantile in \(0.0, 1.0\]"),
-    (dict(calibration_quantile=1.5), ValueError, "calibration_quantile"),
-    (dict(calibration_steps=0), ValueError, "calibration_steps"),
-    (dict(calibration_steps=10.5), TypeError, "calibration_steps"),
-    (dict(disk_cache="no"), TypeError, "disk_cache"),
-    (dict(observer_kwargs=[("lipschitz", 1.0)]), TypeError, "observer_kwargs"),
-    (dict(contact_forces="estimated"), ValueError, "no contact forces"),
-    (dict(contact_forces="zero"), ValueError, "no contact forces"),
-    (dict(contact_forces="nonsense"), ValueError, "contact_forces"),
-])
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (dict(calibration_safety=0.0), ValueError, "calibration_safety > 0"),
+        (dict(calibration_safety=True), TypeError, "calibration_safety"),
+        (dict(calibration_quantile=0.0), ValueError, r"calibration_quantile in \(0.0, 1.0\]"),
+        (dict(calibration_quantile=1.5), ValueError, "calibration_quantile"),
+        (dict(calibration_steps=0), ValueError, "calibration_steps"),
+        (dict(calibration_steps=10.5), TypeError, "calibration_steps"),
+        (dict(disk_cache="no"), TypeError, "disk_cache"),
+        (dict(observer_kwargs=[("lipschitz", 1.0)]), TypeError, "observer_kwargs"),
+        (dict(contact_forces="estimated"), ValueError, "no contact forces"),
+        (dict(contact_forces="zero"), ValueError, "no contact forces"),
+        (dict(contact_forces="nonsense"), ValueError, "contact_forces"),
+    ],
+)
 def test_bad_options_are_refused_before_any_work(kwargs, error, match):
     with pytest.raises(error, match=match):
         EstimatedVelocity(gym.make(ENV), disk_cache=kwargs.pop("disk_cache", False), **kwargs)
@@ -209,9 +221,14 @@ def test_single_turn_encoder_through_the_wrapper():
     from smo_gym import sensors
     from smo_gym.observers import FiniteDifference
 
-    env = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), sensor=sensors.Encoder(
-        counts_per_revolution=2**16, wrap=True), observer="finite-difference", rate="physics", disk_cache=False,
-        calibration_steps=300)
+    env = EstimatedVelocity(
+        gym.make("InvertedDoublePendulum-v5"),
+        sensor=sensors.Encoder(counts_per_revolution=2**16, wrap=True),
+        observer="finite-difference",
+        rate="physics",
+        disk_cache=False,
+        calibration_steps=300,
+    )
     assert env.measurement.wraps and env.observer.wrap is not None and env._fused is None
     env.reset(seed=0)
     data = env.unwrapped.data
@@ -224,8 +241,12 @@ def test_single_turn_encoder_through_the_wrapper():
         assert -np.pi <= info["smo"]["qpos_measured"][1] < np.pi
     assert max(errors[1:]) < 100.0  # no 2 pi / h = 6283 rad/s spike
     with pytest.raises(ValueError, match="wrap on the angular channels"):
-        EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), sensor=sensors.Encoder(counts_per_revolution=4096, wrap=True),
-                          observer=FiniteDifference(dt=env.sample_dt), disk_cache=False)
+        EstimatedVelocity(
+            gym.make("InvertedDoublePendulum-v5"),
+            sensor=sensors.Encoder(counts_per_revolution=4096, wrap=True),
+            observer=FiniteDifference(dt=env.sample_dt),
+            disk_cache=False,
+        )
 
 
 def test_misspelled_observer_kwargs_are_unknown_parameters_with_a_suggestion():

@@ -89,8 +89,14 @@ def on_files(files, config):
     from mkdocs.structure.files import File
 
     for path in sorted((ROOT / "results").rglob("*.png")):
-        files.append(File(str(path.relative_to(ROOT)), src_dir=str(ROOT), dest_dir=config["site_dir"],
-                          use_directory_urls=config["use_directory_urls"]))
+        files.append(
+            File(
+                str(path.relative_to(ROOT)),
+                src_dir=str(ROOT),
+                dest_dir=config["site_dir"],
+                use_directory_urls=config["use_directory_urls"],
+            )
+        )
     return files
 
 
@@ -99,14 +105,16 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
         kind, rel = match.groups()
         path = ROOT / rel
         if not path.is_file():
-            raise FileNotFoundError(f"expected the results file {rel} of page {page.file.src_path}, actual value: "
-                                    "missing")
+            raise FileNotFoundError(
+                f"expected the results file {rel} of page {page.file.src_path}, actual value: missing"
+            )
         return _results_text(path) if kind == "results-text" else _results_returns(path)
 
     return _MARKER.sub(replace, markdown)
 
 
 def on_page_content(content: str, page, config, files) -> str:
-    content = _ROLE.sub(lambda m: f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>",
-                        content)
+    content = _ROLE.sub(
+        lambda m: f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>", content
+    )
     return _PAPER.sub(lambda m: PAPER_CITATIONS[m.group(2)], content)

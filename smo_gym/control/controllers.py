@@ -77,8 +77,9 @@ def regular_form(B) -> tuple[np.ndarray, np.ndarray]:
     """
     B = np.asarray(B, float)
     if np.linalg.matrix_rank(B) < B.shape[1]:
-        raise ValueError(f"expected B with full column rank, actual value: rank {np.linalg.matrix_rank(B)} < "
-                         f"{B.shape[1]}")
+        raise ValueError(
+            f"expected B with full column rank, actual value: rank {np.linalg.matrix_rank(B)} < {B.shape[1]}"
+        )
     Tr = np.vstack([left_annihilator(B), np.linalg.pinv(B)])
     return Tr, np.linalg.inv(Tr)
 
@@ -92,8 +93,9 @@ class _Discontinuous:
             self.rho = check_positive("rho", rho)
         else:
             if k1 is None or k2 is None:
-                raise ValueError("expected k1 and k2 for the super-twisting discontinuity, actual value: "
-                                 f"k1={k1!r}, k2={k2!r}")
+                raise ValueError(
+                    f"expected k1 and k2 for the super-twisting discontinuity, actual value: k1={k1!r}, k2={k2!r}"
+                )
             self.k1, self.k2 = check_positive("k1", k1), check_positive("k2", k2)
         self.dt = dt
         self.v = np.zeros(q)
@@ -175,9 +177,11 @@ class CompensationController(StateFeedback):
         P = self.plant
         self.Bw = np.linalg.pinv(P.B) @ P.D
         if np.linalg.norm(P.B @ self.Bw - P.D) > 1e-9 * max(np.linalg.norm(P.D), 1.0):
-            raise ValueError("expected a matched unknown input (span D inside span B) for compensation through u, "
-                             f"actual value: ||B B^+ D - D|| = {np.linalg.norm(P.B @ self.Bw - P.D):.3g}; use "
-                             "UnmatchedCompensationController")
+            raise ValueError(
+                "expected a matched unknown input (span D inside span B) for compensation through u, "
+                f"actual value: ||B B^+ D - D|| = {np.linalg.norm(P.B @ self.Bw - P.D):.3g}; use "
+                "UnmatchedCompensationController"
+            )
         self.t_start = float(t_start)
 
     def law(self, t: float) -> np.ndarray:
@@ -213,8 +217,19 @@ class IntegralSlidingModeController(StateFeedback):
         ``T``: the surface is integrated from there; before it ``u = u_n``.
     """
 
-    def __init__(self, observer, K=None, *, rho: float | None = None, discontinuity: str = "unit", k1=None, k2=None,
-                 Q=None, R=None, t_start: float = 0.0):
+    def __init__(
+        self,
+        observer,
+        K=None,
+        *,
+        rho: float | None = None,
+        discontinuity: str = "unit",
+        k1=None,
+        k2=None,
+        Q=None,
+        R=None,
+        t_start: float = 0.0,
+    ):
         super().__init__(observer, K, Q=Q, R=R)
         self.switch = _Discontinuous(discontinuity, rho, k1, k2, observer.dt, self.plant.n_inputs)
         self.Phi, self.Gamma = self.plant.discretize(observer.dt)
@@ -292,8 +307,21 @@ class UnmatchedCompensationController(StateFeedback):
     :math:`x_2 = -Kx_1 - Gw` gives :math:`(A_{11} - A_{12}K)x_1`, which is what ``K`` is designed for here.
     """
 
-    def __init__(self, observer, K=None, *, rho: float | None = None, regulated=None, feedforward: bool = True,
-                 discontinuity: str = "unit", k1=None, k2=None, Qr=None, Rr=None, t_start: float = 0.0):
+    def __init__(
+        self,
+        observer,
+        K=None,
+        *,
+        rho: float | None = None,
+        regulated=None,
+        feedforward: bool = True,
+        discontinuity: str = "unit",
+        k1=None,
+        k2=None,
+        Qr=None,
+        Rr=None,
+        t_start: float = 0.0,
+    ):
         self.observer = observer
         P = self.plant = observer.plant
         q, n = P.n_inputs, P.n
@@ -309,14 +337,18 @@ class UnmatchedCompensationController(StateFeedback):
         else:
             E = np.atleast_2d(np.asarray(regulated, float))
             if np.linalg.norm(E @ P.B) > 1e-9 * max(np.linalg.norm(E), 1.0):
-                raise ValueError(f"expected a regulated output z = E x not directly actuated (E B = 0), actual "
-                                 f"value: ||E B|| = {np.linalg.norm(E @ P.B):.3g}")
+                raise ValueError(
+                    f"expected a regulated output z = E x not directly actuated (E B = 0), actual "
+                    f"value: ||E B|| = {np.linalg.norm(E @ P.B):.3g}"
+                )
             E1 = E @ self.Tr_inv[:, :r]
         self.Pi, self.Gam = self._solve_surface(E1)
         self.J = len(self.Pi) - 1
         if observer.n_w_derivatives < self.J:
-            raise ValueError(f"expected an observer with n_w_derivatives >= {self.J} (the surface uses w_hat "
-                             f"derivatives up to order {self.J}), actual value: {observer.n_w_derivatives}")
+            raise ValueError(
+                f"expected an observer with n_w_derivatives >= {self.J} (the surface uses w_hat "
+                f"derivatives up to order {self.J}), actual value: {observer.n_w_derivatives}"
+            )
         self.G = -self.Gam[0] if self.J == 0 else None
         self.feedforward = bool(feedforward)
         self.switch = _Discontinuous(discontinuity, rho, k1, k2, observer.dt, q)
@@ -338,27 +370,29 @@ class UnmatchedCompensationController(StateFeedback):
             for j in range(J + 2):  # coefficient of w^(j)
                 row = np.zeros((r, nv))
                 if j <= J:
-                    row[:, j * r:(j + 1) * r] += A11
-                    row[:, (J + 1) * r + j * q:(J + 1) * r + (j + 1) * q] += A12
+                    row[:, j * r : (j + 1) * r] += A11
+                    row[:, (J + 1) * r + j * q : (J + 1) * r + (j + 1) * q] += A12
                 if j >= 1:
-                    row[:, (j - 1) * r:j * r] -= np.eye(r)
+                    row[:, (j - 1) * r : j * r] -= np.eye(r)
                 rows.append(row)
                 rhs.append(-D1 if j == 0 else np.zeros((r, m)))
             for j in range(J + 1):
                 row = np.zeros((E1.shape[0], nv))
-                row[:, j * r:(j + 1) * r] = E1
+                row[:, j * r : (j + 1) * r] = E1
                 rows.append(row)
                 rhs.append(np.zeros((E1.shape[0], m)))
             M, R = np.vstack(rows), np.vstack(rhs)
             X = np.linalg.lstsq(M, R, rcond=None)[0]
             if np.linalg.norm(M @ X - R) <= 1e-9 * max(np.linalg.norm(R), 1.0):
-                Pi = [X[j * r:(j + 1) * r] for j in range(J + 1)]
-                Gam = [X[(J + 1) * r + j * q:(J + 1) * r + (j + 1) * q] for j in range(J + 1)]
+                Pi = [X[j * r : (j + 1) * r] for j in range(J + 1)]
+                Gam = [X[(J + 1) * r + j * q : (J + 1) * r + (j + 1) * q] for j in range(J + 1)]
                 return Pi, Gam
-        raise ValueError("expected a disturbance that can be compensated on the regulated output through the "
-                         "sliding surface (span D1 inside span A12 for the full x1, or a regulated output E that "
-                         "the pseudo-control x2 can keep at zero), actual value: no solution for any J <= n - q; "
-                         "pass a smaller regulated output")
+        raise ValueError(
+            "expected a disturbance that can be compensated on the regulated output through the "
+            "sliding surface (span D1 inside span A12 for the full x1, or a regulated output E that "
+            "the pseudo-control x2 can keep at zero), actual value: no solution for any J <= n - q; "
+            "pass a smaller regulated output"
+        )
 
     def _reset_law(self) -> None:
         self.s = np.zeros(self.plant.n_inputs)

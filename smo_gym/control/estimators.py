@@ -91,8 +91,9 @@ def sampled_observer_gain(A, C, dt: float, poles=None) -> np.ndarray:
     A, C = np.asarray(A, float), np.asarray(C, float)
     poles = _default_poles(A) if poles is None else np.asarray(poles, dtype=complex)
     if poles.shape != (A.shape[0],) or np.any(poles.real >= 0):
-        raise ValueError(f"expected {A.shape[0]} continuous-time observer poles with negative real parts, actual "
-                         f"value: {poles!r}")
+        raise ValueError(
+            f"expected {A.shape[0]} continuous-time observer poles with negative real parts, actual value: {poles!r}"
+        )
     from scipy.signal import place_poles  # lazy: scipy.signal is slow to import
 
     Phi = sla.expm(A * dt)
@@ -160,8 +161,7 @@ class LuenbergerObserver:
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start from ``x_hat0`` (default: the least-squares state matching ``y0``, zero elsewhere)."""
         y0 = np.asarray(y0, dtype=float)
-        self._prior = (np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None
-                       else np.array(x_hat0, dtype=float))
+        self._prior = np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else np.array(x_hat0, dtype=float)
         self.x_hat = self._prior.copy()
         return self.x_hat
 
@@ -236,8 +236,18 @@ class CascadedHOSMObserver:
         Differentiator order ``k``.
     """
 
-    def __init__(self, plant: LinearPlant, dt: float, lipschitz, *, alpha: int = 1, n_w_derivatives: int = 0,
-                 poles=None, discretization: str = "taylor", injection: str = "sampled"):
+    def __init__(
+        self,
+        plant: LinearPlant,
+        dt: float,
+        lipschitz,
+        *,
+        alpha: int = 1,
+        n_w_derivatives: int = 0,
+        poles=None,
+        discretization: str = "taylor",
+        injection: str = "sampled",
+    ):
         self.plant = plant
         self.injection = check_choice("injection", injection, ("sampled", "held"))
         self.report = plant.require_strongly_observable()
@@ -245,8 +255,9 @@ class CascadedHOSMObserver:
         alpha = check_int_in_range("alpha", alpha, 1, MAX_LEVANT_ORDER)
         n_w_derivatives = check_int_in_range("n_w_derivatives", n_w_derivatives, 0, MAX_LEVANT_ORDER)
         if discretization not in ("taylor", "euler"):
-            raise ValueError(f"expected discretization to be one of 'taylor', 'euler', actual value: "
-                             f"{discretization!r}")
+            raise ValueError(
+                f"expected discretization to be one of 'taylor', 'euler', actual value: {discretization!r}"
+            )
         if self.injection == "held":
             # the slides' continuous observer with y held between samples: e' = (A - L C) e + D w + L C (x - x_k)
             poles_c = _default_poles(plant.A) if poles is None else np.asarray(poles, dtype=complex)
@@ -262,8 +273,10 @@ class CascadedHOSMObserver:
         N = mol.n_derivatives
         self.order = N + n_w_derivatives + alpha
         if self.order > MAX_LEVANT_ORDER:
-            raise ValueError(f"expected a differentiator order N + n_w_derivatives + alpha <= {MAX_LEVANT_ORDER} "
-                             f"(N={N} from Molinari's relation), actual value: {self.order}")
+            raise ValueError(
+                f"expected a differentiator order N + n_w_derivatives + alpha <= {MAX_LEVANT_ORDER} "
+                f"(N={N} from Molinari's relation), actual value: {self.order}"
+            )
         self.alpha, self.n_w_derivatives = alpha, n_w_derivatives
         p = plant.n_outputs
         self.lipschitz = np.broadcast_to(np.asarray(lipschitz, dtype=float), (p,)).copy()
@@ -274,7 +287,7 @@ class CascadedHOSMObserver:
         else:  # exact ZOH of x~' = (A - LC) x~ + B u_k + L y_k
             held = LinearPlant(self._Adyn, np.hstack([plant.B, self.L]), plant.C, plant.D)
             Phi_h, Gam_h = held.discretize(self.dt)
-            self._held = (Phi_h, Gam_h[:, :plant.n_inputs], Gam_h[:, plant.n_inputs:])
+            self._held = (Phi_h, Gam_h[:, : plant.n_inputs], Gam_h[:, plant.n_inputs :])
         # state map e = S Y, Y = [y_e; y_e'; ...; y_e^(N)]
         self._S = mol.state_map()
         self._N = N
@@ -284,8 +297,9 @@ class CascadedHOSMObserver:
         S_shift = np.hstack([np.zeros((plant.n, p)), self._S])
         self._W_map = self._Dpinv @ (S_shift - self._Adyn @ S_ext)
         # effect of a unit jump of e on the j-th derivative of y_e at the next sample: C A^j Phi
-        self._jump = np.vstack([plant.C @ np.linalg.matrix_power(plant.A, j) @ self.Phi
-                                for j in range(self.order + 1)])  # ((k+1) p, n), derivative-major
+        self._jump = np.vstack(
+            [plant.C @ np.linalg.matrix_power(plant.A, j) @ self.Phi for j in range(self.order + 1)]
+        )  # ((k+1) p, n), derivative-major
         self._prior = self._posterior = None
         self._dstate = None
         self.x_hat = self.e_hat = None
@@ -304,14 +318,15 @@ class CascadedHOSMObserver:
         section 6. With an output of relative degree 1, ``w`` may be read from ``y_e'`` alone and the
         identification gains one order; the maps below say which.
         """
-        return {"state": self.order + 1 - _highest_block(self._S, self.plant.n_outputs),
-                "identification": self.order + 1 - _highest_block(self._W_map, self.plant.n_outputs)}
+        return {
+            "state": self.order + 1 - _highest_block(self._S, self.plant.n_outputs),
+            "identification": self.order + 1 - _highest_block(self._W_map, self.plant.n_outputs),
+        }
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start the Luenberger stage at ``x_hat0`` (default ``C^+ y0``) and the differentiator at its output error."""
         y0 = np.asarray(y0, dtype=float)
-        self._prior = (np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None
-                       else np.array(x_hat0, dtype=float))
+        self._prior = np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else np.array(x_hat0, dtype=float)
         ye0 = y0 - self.plant.C @ self._prior
         self.differentiator.reset(ye0)
         self._dstate = self.differentiator.state
@@ -328,7 +343,7 @@ class CascadedHOSMObserver:
         self.output_error = ye
         new_state, Z = self.differentiator.step(self._dstate, ye)  # Z: (p, k+1), estimates at t_k (pre-jump)
         # e, e', e'', ...: Molinari's relation on the derivative stack shifted by j
-        E = [self._S @ Z[:, j:j + self._N + 1].T.reshape(-1) for j in range(self.n_w_derivatives + 2)]
+        E = [self._S @ Z[:, j : j + self._N + 1].T.reshape(-1) for j in range(self.n_w_derivatives + 2)]
         self.e_hat = E[0]
         self.x_hat = self._prior + E[0]
         for j in range(self.n_w_derivatives + 1):

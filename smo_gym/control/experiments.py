@@ -100,11 +100,26 @@ def identification_orders(alphas=(1, 2, 3), steps=(5e-4, 1e-3, 2e-3, 4e-3), t_fi
             ew.append(np.abs(res.w_hat - res.w)[sel].max())
             ex.append(np.abs(res.x_hat - res.x)[sel][:, :2].max())
             ev.append(np.abs(res.x_hat - res.x)[sel][:, 2:].max())
-            rows.append({"alpha": alpha, "order k": obs.order, "tau [ms]": dt * 1e3, "|w_hat - w|": ew[-1],
-                         "|pos err|": ex[-1], "|vel err|": ev[-1]})
-        fits.append({"alpha": alpha, "identification order": fit_order(steps, ew), "theory (alpha)": alpha,
-                     "velocity order": fit_order(steps, ev), "theory (alpha+1)": alpha + 1,
-                     "position order": fit_order(steps, ex)})
+            rows.append(
+                {
+                    "alpha": alpha,
+                    "order k": obs.order,
+                    "tau [ms]": dt * 1e3,
+                    "|w_hat - w|": ew[-1],
+                    "|pos err|": ex[-1],
+                    "|vel err|": ev[-1],
+                }
+            )
+        fits.append(
+            {
+                "alpha": alpha,
+                "identification order": fit_order(steps, ew),
+                "theory (alpha)": alpha,
+                "velocity order": fit_order(steps, ev),
+                "theory (alpha+1)": alpha + 1,
+                "position order": fit_order(steps, ex),
+            }
+        )
     return rows, fits
 
 
@@ -122,14 +137,20 @@ def injection_ablation(alphas=(1, 2), steps=(1e-3, 2e-3, 4e-3), t_final: float =
             ew, ev = [], []
             for dt in steps:
                 obs = CascadedHOSMObserver(plant, dt, L, alpha=alpha, injection=injection)
-                res = simulate(plant, StateFeedback(obs, Q=FURUTA_Q), t_final=t_final, w=furuta_disturbance,
-                               x0=X0)
+                res = simulate(plant, StateFeedback(obs, Q=FURUTA_Q), t_final=t_final, w=furuta_disturbance, x0=X0)
                 sel = res.after(2.0)
                 ew.append(np.abs(res.w_hat - res.w)[sel].max())
                 ev.append(np.abs(res.x_hat - res.x)[sel][:, 2:].max())
-            fits.append({"injection": injection, "alpha": alpha, "|w_hat - w| at tau min": ew[0],
-                         "identification order": fit_order(steps, ew), "|vel err| at tau min": ev[0],
-                         "velocity order": fit_order(steps, ev)})
+            fits.append(
+                {
+                    "injection": injection,
+                    "alpha": alpha,
+                    "|w_hat - w| at tau min": ew[0],
+                    "identification order": fit_order(steps, ew),
+                    "|vel err| at tau min": ev[0],
+                    "velocity order": fit_order(steps, ev),
+                }
+            )
     return fits
 
 
@@ -157,17 +178,24 @@ def noise_growth(etas=(1e-5, 1e-4, 1e-3, 1e-2), dt: float = 1e-3, alphas=(1, 2),
         ew, ev = [], []
         for eta in etas:
             obs = CascadedHOSMObserver(plant, dt, L, alpha=alpha)
-            res = simulate(plant, StateFeedback(obs, Q=FURUTA_Q), t_final=t_final, w=furuta_disturbance, x0=X0,
-                           noise_std=eta)
+            res = simulate(
+                plant, StateFeedback(obs, Q=FURUTA_Q), t_final=t_final, w=furuta_disturbance, x0=X0, noise_std=eta
+            )
             sel = res.after(2.0)
             ew.append(np.abs(res.w_hat - res.w)[sel].max())
             ev.append(np.abs(res.x_hat - res.x)[sel][:, 2:].max())
             rows.append({"alpha": alpha, "eta": eta, "|w_hat - w|": ew[-1], "|vel err|": ev[-1]})
         k = obs.order
-        fits.append({"alpha": alpha, "order k": k, "identification exponent (top 3)": fit_order(etas[-3:], ew[-3:]),
-                     "theory alpha/(k+1)": alpha / (k + 1),
-                     "velocity exponent (top 3)": fit_order(etas[-3:], ev[-3:]),
-                     "theory (alpha+1)/(k+1)": (alpha + 1) / (k + 1)})
+        fits.append(
+            {
+                "alpha": alpha,
+                "order k": k,
+                "identification exponent (top 3)": fit_order(etas[-3:], ew[-3:]),
+                "theory alpha/(k+1)": alpha / (k + 1),
+                "velocity exponent (top 3)": fit_order(etas[-3:], ev[-3:]),
+                "theory (alpha+1)/(k+1)": (alpha + 1) / (k + 1),
+            }
+        )
     return rows, fits
 
 
@@ -175,18 +203,28 @@ def _furuta_controllers(plant, dt):
     L = _furuta_lipschitz(plant, 1)
     return {
         "LQR + Luenberger": lambda: StateFeedback(LuenbergerObserver(plant, dt), Q=FURUTA_Q),
-        "compensation": lambda: CompensationController(CascadedHOSMObserver(plant, dt, L), Q=FURUTA_Q,
-                                                       t_start=0.05),
-        "ISM (unit vector)": lambda: IntegralSlidingModeController(CascadedHOSMObserver(plant, dt, L), Q=FURUTA_Q,
-                                                                   rho=1.2, t_start=0.05),
+        "compensation": lambda: CompensationController(CascadedHOSMObserver(plant, dt, L), Q=FURUTA_Q, t_start=0.05),
+        "ISM (unit vector)": lambda: IntegralSlidingModeController(
+            CascadedHOSMObserver(plant, dt, L), Q=FURUTA_Q, rho=1.2, t_start=0.05
+        ),
         "ISM (super-twisting)": lambda: IntegralSlidingModeController(
-            CascadedHOSMObserver(plant, dt, L), Q=FURUTA_Q, discontinuity="super-twisting",
-            k1=1.5 * np.sqrt(5.0), k2=1.1 * 5.0, t_start=0.05),
+            CascadedHOSMObserver(plant, dt, L),
+            Q=FURUTA_Q,
+            discontinuity="super-twisting",
+            k1=1.5 * np.sqrt(5.0),
+            k2=1.1 * 5.0,
+            t_start=0.05,
+        ),
     }
 
 
-def furuta_sweep(steps=(5e-4, 1e-3, 2e-3, 4e-3), resolutions=(0.0, ENCODER_12BIT), t_final: float = 10.0,
-                 t_steady: float = 6.0, keep_runs_at: float | None = 1e-3):
+def furuta_sweep(
+    steps=(5e-4, 1e-3, 2e-3, 4e-3),
+    resolutions=(0.0, ENCODER_12BIT),
+    t_final: float = 10.0,
+    t_steady: float = 6.0,
+    keep_runs_at: float | None = 1e-3,
+):
     """The slides' Furuta experiment over sampling steps and encoder resolutions.
 
     Returns ``(rows, fits, runs)``: rows with the steady-state error ``max |theta|, |alpha|`` over
@@ -204,15 +242,28 @@ def furuta_sweep(steps=(5e-4, 1e-3, 2e-3, 4e-3), resolutions=(0.0, ENCODER_12BIT
                 sel = r.after(t_steady)
                 sse = steady_state_error(r, t_steady, [0, 1])
                 tv = total_variation_rate(r.u[sel], r.t[sel])
-                rows.append({"encoder": "12-bit" if res_ else "exact", "tau [ms]": dt * 1e3, "controller": name,
-                             "max |theta|,|alpha|": sse, "max |alpha| (all t)": np.abs(r.x[:, 1]).max(),
-                             "TV(u) per s": tv, "|w_hat - w|": np.abs(r.w_hat - r.w)[sel].max()})
+                rows.append(
+                    {
+                        "encoder": "12-bit" if res_ else "exact",
+                        "tau [ms]": dt * 1e3,
+                        "controller": name,
+                        "max |theta|,|alpha|": sse,
+                        "max |alpha| (all t)": np.abs(r.x[:, 1]).max(),
+                        "TV(u) per s": tv,
+                        "|w_hat - w|": np.abs(r.w_hat - r.w)[sel].max(),
+                    }
+                )
                 per.setdefault(name, []).append(sse)
                 if keep_runs_at is not None and abs(dt - keep_runs_at) < 1e-12:
                     runs[(res_, name)] = r
         for name, errs in per.items():
-            fits.append({"encoder": "12-bit" if res_ else "exact", "controller": name,
-                         "fitted order of steady-state error in tau": fit_order(steps, errs)})
+            fits.append(
+                {
+                    "encoder": "12-bit" if res_ else "exact",
+                    "controller": name,
+                    "fitted order of steady-state error in tau": fit_order(steps, errs),
+                }
+            )
     return rows, fits, runs
 
 
@@ -246,8 +297,12 @@ def actuator_sweep(mus=(1e-3, 2e-3, 5e-3, 1e-2), dt: float = 1e-3, t_final: floa
                 per.setdefault(name, []).append(sse)
     for name, errs in per.items():
         ok = np.isfinite(errs)
-        fits.append({"controller": name, "fitted order in mu": fit_order(np.array(mus)[ok], np.array(errs)[ok])
-                     if ok.sum() >= 2 else np.nan})
+        fits.append(
+            {
+                "controller": name,
+                "fitted order in mu": fit_order(np.array(mus)[ok], np.array(errs)[ok]) if ok.sum() >= 2 else np.nan,
+            }
+        )
     return rows, fits
 
 
@@ -265,21 +320,32 @@ def helicopter_experiment(dt: float = 1e-3, t_final: float = 20.0, t_steady: flo
     makers = {
         "LQR + Luenberger": lambda: StateFeedback(LuenbergerObserver(plant, dt), Q=Q),
         "surface compensation (unit)": lambda: UnmatchedCompensationController(
-            CascadedHOSMObserver(plant, dt, L, n_w_derivatives=1), rho=0.5, regulated=E, Qr=10 * np.eye(4),
-            t_start=0.05),
+            CascadedHOSMObserver(plant, dt, L, n_w_derivatives=1), rho=0.5, regulated=E, Qr=10 * np.eye(4), t_start=0.05
+        ),
         "surface compensation (STA)": lambda: UnmatchedCompensationController(
-            CascadedHOSMObserver(plant, dt, L, n_w_derivatives=1), discontinuity="super-twisting", k1=1.5, k2=1.1,
-            regulated=E, Qr=10 * np.eye(4), t_start=0.05),
+            CascadedHOSMObserver(plant, dt, L, n_w_derivatives=1),
+            discontinuity="super-twisting",
+            k1=1.5,
+            k2=1.1,
+            regulated=E,
+            Qr=10 * np.eye(4),
+            t_start=0.05,
+        ),
     }
     rows, runs = [], {}
     for name, make in makers.items():
         r = simulate(plant, make(), t_final=t_final, w=helicopter_disturbance)
         sel = r.after(t_steady)
-        rows.append({"controller": name, "band |travel|": np.abs(r.x[sel, 2]).max(),
-                     "band |elevation|": np.abs(r.x[sel, 0]).max(),
-                     "max |0.49 pitch - nu|": np.abs(0.49 * r.x[sel, 1] - r.w[sel, 2]).max(),
-                     "TV(u) per s": total_variation_rate(r.u[sel], r.t[sel]),
-                     "|w_hat - w|": np.abs(r.w_hat - r.w)[sel].max()})
+        rows.append(
+            {
+                "controller": name,
+                "band |travel|": np.abs(r.x[sel, 2]).max(),
+                "band |elevation|": np.abs(r.x[sel, 0]).max(),
+                "max |0.49 pitch - nu|": np.abs(0.49 * r.x[sel, 1] - r.w[sel, 2]).max(),
+                "TV(u) per s": total_variation_rate(r.u[sel], r.t[sel]),
+                "|w_hat - w|": np.abs(r.w_hat - r.w)[sel].max(),
+            }
+        )
         runs[name] = r
     base = rows[0]["band |travel|"]
     for row in rows:
@@ -287,8 +353,14 @@ def helicopter_experiment(dt: float = 1e-3, t_final: float = 20.0, t_steady: flo
     return rows, runs
 
 
-def furuta_mujoco_experiment(frame_skips=(1, 2, 5), t_final: float = 10.0, t_steady: float = 6.0,
-                             sensor: str = "encoder-12bit", scale: float = 0.1, seed: int = 0):
+def furuta_mujoco_experiment(
+    frame_skips=(1, 2, 5),
+    t_final: float = 10.0,
+    t_steady: float = 6.0,
+    sensor: str = "encoder-12bit",
+    scale: float = 0.1,
+    seed: int = 0,
+):
     r"""The Furuta experiment on the MuJoCo environment ``smo_gym/FurutaPendulum-v0`` (nonlinear, RK4).
 
     The plant model is :func:`linearize` of the environment's MJCF around upright (``D = B``: the disturbance
@@ -305,7 +377,6 @@ def furuta_mujoco_experiment(frame_skips=(1, 2, 5), t_final: float = 10.0, t_ste
     """
     import gymnasium as gym
 
-    import smo_gym.envs  # noqa: F401  (registers the environment ids)
     from smo_gym.wrappers import EstimatedVelocity
 
     from .plants import linearize
@@ -326,15 +397,22 @@ def furuta_mujoco_experiment(frame_skips=(1, 2, 5), t_final: float = 10.0, t_ste
             "LQR on wrapper state": None,
             "LQR + Luenberger": lambda: StateFeedback(LuenbergerObserver(plant, dt), K),
             "compensation": lambda: CompensationController(CascadedHOSMObserver(plant, dt, L), K, t_start=0.05),
-            "ISM (unit vector)": lambda: IntegralSlidingModeController(CascadedHOSMObserver(plant, dt, L), K,
-                                                                       rho=1.5 * scale, t_start=0.05),
+            "ISM (unit vector)": lambda: IntegralSlidingModeController(
+                CascadedHOSMObserver(plant, dt, L), K, rho=1.5 * scale, t_start=0.05
+            ),
             "ISM (super-twisting)": lambda: IntegralSlidingModeController(
-                CascadedHOSMObserver(plant, dt, L), K, discontinuity="super-twisting",
-                k1=1.5 * np.sqrt(5.0 * scale), k2=1.1 * 5.0 * scale, t_start=0.05),
+                CascadedHOSMObserver(plant, dt, L),
+                K,
+                discontinuity="super-twisting",
+                k1=1.5 * np.sqrt(5.0 * scale),
+                k2=1.1 * 5.0 * scale,
+                t_start=0.05,
+            ),
         }
         for name, make in makers.items():
-            env = EstimatedVelocity(gym.make("smo_gym/FurutaPendulum-v0", frame_skip=fs, disturbance=w_env),
-                                    sensor=sensor, rate="env")
+            env = EstimatedVelocity(
+                gym.make("smo_gym/FurutaPendulum-v0", frame_skip=fs, disturbance=w_env), sensor=sensor, rate="env"
+            )
             lo, hi = env.action_space.low, env.action_space.high
             obs, _ = env.reset(seed=seed)
             ctl = None if make is None else make()
@@ -352,18 +430,24 @@ def furuta_mujoco_experiment(frame_skips=(1, 2, 5), t_final: float = 10.0, t_ste
                 W.append(w_env(t))
                 WH.append(np.zeros(1) if ctl is None else ctl.observer.w_hat.copy())
                 T.append(t)
-                obs, _, terminated, _, info = env.step(U[-1])
+                obs, _, terminated, _, _info = env.step(U[-1])
                 if terminated:
                     break
             env.close()
             X, U, W, WH, T = map(np.array, (X, U, W, WH, T))
-            sel = T >= t_steady
+            sel = t_steady <= T
             ok = (not terminated) and sel.any()
-            rows.append({"tau [ms]": dt * 1e3, "controller": name,
-                         "max |theta|,|alpha|": np.abs(X[sel][:, :2]).max() if ok else np.inf,
-                         "fell": terminated, "TV(u) per s": total_variation_rate(U[sel], T[sel]) if ok else np.nan,
-                         "saturated %": 100.0 * np.mean(np.abs(U) >= hi - 1e-12),
-                         "|w_hat - w| [N m]": np.abs(WH - W)[sel].max() if ok and ctl is not None else np.nan})
+            rows.append(
+                {
+                    "tau [ms]": dt * 1e3,
+                    "controller": name,
+                    "max |theta|,|alpha|": np.abs(X[sel][:, :2]).max() if ok else np.inf,
+                    "fell": terminated,
+                    "TV(u) per s": total_variation_rate(U[sel], T[sel]) if ok else np.nan,
+                    "saturated %": 100.0 * np.mean(np.abs(U) >= hi - 1e-12),
+                    "|w_hat - w| [N m]": np.abs(WH - W)[sel].max() if ok and ctl is not None else np.nan,
+                }
+            )
             runs[(fs, name)] = {"t": T, "x": X, "u": U, "w": W, "w_hat": WH}
         base_env.close()
     return rows, runs
@@ -383,9 +467,9 @@ def format_table(rows, title: str = "") -> str:
     cells = [[fmt(r.get(c, "")) for c in cols] for r in rows]
     width = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
     lines = [title] if title else []
-    lines.append("  ".join(c.ljust(w) for c, w in zip(cols, width)))
+    lines.append("  ".join(c.ljust(w) for c, w in zip(cols, width, strict=False)))
     lines.append("  ".join("-" * w for w in width))
-    lines += ["  ".join(v.ljust(w) for v, w in zip(row, width)) for row in cells]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, width, strict=False)) for row in cells]
     return "\n".join(lines)
 
 
@@ -473,7 +557,7 @@ def plot_helicopter(runs, path):
         axes[2].plot(r.t, r.x[:, 1], label=name)
     r = next(iter(runs.values()))
     axes[2].plot(r.t, r.w[:, 2] / 0.49, "k:", label="nu / 0.49")
-    for ax, lab in zip(axes, ("travel [rad]", "elevation [rad]", "pitch [rad]")):
+    for ax, lab in zip(axes, ("travel [rad]", "elevation [rad]", "pitch [rad]"), strict=False):
         ax.set_ylabel(lab)
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
@@ -494,7 +578,7 @@ def plot_mujoco(runs, path):
         axes[0].plot(r["t"], r["x"][:, 0], label=name)
         axes[1].plot(r["t"], r["x"][:, 1], label=name)
         axes[2].plot(r["t"], r["u"][:, 0], label=name, lw=0.6)
-    for ax, lab in zip(axes, ("arm [rad]", "pendulum [rad]", "torque [N m]")):
+    for ax, lab in zip(axes, ("arm [rad]", "pendulum [rad]", "torque [N m]"), strict=False):
         ax.set_ylabel(lab)
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
@@ -537,8 +621,9 @@ def run_all(out_dir="outputs/control", quick: bool = False, plots: bool = True, 
         plot_furuta_sweep(rows, out / "furuta_sweep.png")
         plot_furuta_runs(runs, out / "furuta_time.png")
 
-    rows, fits = actuator_sweep(mus=(2e-3, 5e-3, 1e-2) if quick else (1e-3, 2e-3, 5e-3, 1e-2), t_final=tf,
-                                t_steady=tf - 4.0)
+    rows, fits = actuator_sweep(
+        mus=(2e-3, 5e-3, 1e-2) if quick else (1e-3, 2e-3, 5e-3, 1e-2), t_final=tf, t_steady=tf - 4.0
+    )
     echo(format_table(rows, "\nActuator lag mu (unknown to the controller), tau = 1 ms, noise-free"))
     echo(format_table(fits, "\nFitted orders in mu (theory: execution error O(mu))"))
     results["actuator"] = (rows, fits)
@@ -550,13 +635,17 @@ def run_all(out_dir="outputs/control", quick: bool = False, plots: bool = True, 
         plot_helicopter(runs, out / "helicopter.png")
 
     try:
-        rows, runs = furuta_mujoco_experiment(frame_skips=(1, 5) if quick else (1, 2, 5), t_final=tf,
-                                              t_steady=tf - 4.0)
+        rows, runs = furuta_mujoco_experiment(frame_skips=(1, 5) if quick else (1, 2, 5), t_final=tf, t_steady=tf - 4.0)
     except ImportError as exc:  # environments or wrappers not installed
         echo(f"\nMuJoCo Furuta experiment skipped: {exc}")
     else:
-        echo(format_table(rows, "\nFuruta pendulum in MuJoCo (smo_gym/FurutaPendulum-v0, linearized model, "
-                                "12-bit encoders through EstimatedVelocity)"))
+        echo(
+            format_table(
+                rows,
+                "\nFuruta pendulum in MuJoCo (smo_gym/FurutaPendulum-v0, linearized model, "
+                "12-bit encoders through EstimatedVelocity)",
+            )
+        )
         results["mujoco"] = rows
         if plots:
             plot_mujoco(runs, out / "furuta_mujoco.png")
@@ -578,10 +667,11 @@ def add_arguments(parser) -> None:
 def add_subcommand(subparsers):
     """Register ``control`` on an ``argparse`` sub-parser collection (used by ``smo-gym``)."""
     parser = subparsers.add_parser(
-        "control", help="output-feedback control experiments of paper 004, section 6",
+        "control",
+        help="output-feedback control experiments of paper 004, section 6",
         description="Disturbance identification with the cascaded HOSM observer, compensation control, output "
-                    "integral sliding mode and unmatched compensation on the slides' Furuta pendulum and 3-DOF "
-                    "helicopter (and the MuJoCo Furuta environment when available): tables and plots.",
+        "integral sliding mode and unmatched compensation on the slides' Furuta pendulum and 3-DOF "
+        "helicopter (and the MuJoCo Furuta environment when available): tables and plots.",
     )
     add_arguments(parser)
     return parser
@@ -591,4 +681,3 @@ def cli(args) -> int:
     """Run the experiments for parsed ``args`` (see :func:`add_arguments`)."""
     run_all(args.out, quick=args.quick, plots=not args.no_plots)
     return 0
-

@@ -61,7 +61,7 @@ def _matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.ndarra
         raise TypeError(f"expected {name} to be a real matrix, actual value: {value!r}") from None
     if arr.ndim == 1 and shape[1] in (1, None):  # a vector is one column
         arr = arr[:, None]
-    if arr.ndim != 2 or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+    if arr.ndim != 2 or any(s is not None and s != a for s, a in zip(shape, arr.shape, strict=False)):
         want = "x".join("*" if s is None else str(s) for s in shape)
         raise ValueError(f"expected {name} with shape ({want}), actual value: shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -82,12 +82,15 @@ def _triple(plant, C, D, caller: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
     """The checked ``(A, C, D)`` of ``caller(plant)`` or ``caller(A, C, D)``."""
     if isinstance(plant, LinearPlant):
         if C is not None or D is not None:
-            raise TypeError(f"expected {caller}(plant) or {caller}(A, C, D), actual value: a LinearPlant and also "
-                            f"C={C!r}, D={D!r}")
+            raise TypeError(
+                f"expected {caller}(plant) or {caller}(A, C, D), actual value: a LinearPlant and also C={C!r}, D={D!r}"
+            )
         return plant.A, plant.C, plant.D
     if C is None or D is None:
-        raise TypeError(f"expected {caller}(plant) with a LinearPlant or {caller}(A, C, D) with three matrices, "
-                        f"actual value: {type(plant).__name__} {plant!r} with C={C!r}, D={D!r}")
+        raise TypeError(
+            f"expected {caller}(plant) with a LinearPlant or {caller}(A, C, D) with three matrices, "
+            f"actual value: {type(plant).__name__} {plant!r} with C={C!r}, D={D!r}"
+        )
     return _check_triple(plant, C, D)
 
 
@@ -183,7 +186,7 @@ def _balance_system(A, B, C, tol: float):
     significant = np.abs(S) > tol * np.linalg.norm(S)
     Z = np.zeros((n + m + p, n + m + p))
     for T in (S, np.where(significant, S, 0.0)):  # all entries, then the significant ones only
-        Z[:n, :n], Z[:n, n:n + m], Z[n + m:, :n] = T[:n, :n], T[:n, n:], T[n:, :n]
+        Z[:n, :n], Z[:n, n : n + m], Z[n + m :, :n] = T[:n, :n], T[:n, n:], T[n:, :n]
         d = sla.matrix_balance(Z, permute=False, separate=True)[1][0][:n]
         As, Bs, Cs = A / d[:, None] * d[None, :], B / d[:, None], C * d[None, :]
         Ss = _system_matrix(As, Bs, Cs)
@@ -274,7 +277,8 @@ def invariant_zeros(A, C=None, D=None, *, tol: float = RANK_TOL) -> np.ndarray:
     D : array_like, shape (n, m)
         Unknown-input matrix (a vector is one column).
     tol : float
-        In ``(0, 1)``. Rank decisions: singular values at or below ``tol`` times the Frobenius norm of the balanced system
+        In ``(0, 1)``. Rank decisions: singular values at or below ``tol`` times the Frobenius norm of the balanced
+        system
         matrix count as zero. The default :data:`RANK_TOL` is the one of every rank decision in this module
         (models linearized by finite differences carry relative errors near ``1e-10``); a model known to machine
         precision may use a value down to about ``n * 1e-16``.
@@ -422,20 +426,28 @@ def strong_observability(A, C=None, D=None) -> StrongObservabilityReport:
     zeros = np.array([], dtype=complex)
     reason = ""
     if _rank(D) < m:
-        reason = (f"D has rank {_rank(D)} < m={m} columns: some unknown inputs act identically on the state and "
-                  "can never be told apart")
+        reason = (
+            f"D has rank {_rank(D)} < m={m} columns: some unknown inputs act identically on the state and "
+            "can never be told apart"
+        )
     elif p < m:
-        reason = f"fewer measured outputs (p={p}) than unknown inputs (m={m}): the Rosenbrock matrix cannot have " \
-                 "full column rank"
+        reason = (
+            f"fewer measured outputs (p={p}) than unknown inputs (m={m}): the Rosenbrock matrix cannot have "
+            "full column rank"
+        )
     elif normal_rank < n + m:
-        reason = (f"the Rosenbrock matrix [sI - A, -D; C, 0] has normal rank {normal_rank} < n + m = {n + m}: the "
-                  "unknown input is not left-invertible from y (the whole complex plane consists of 'zeros')")
+        reason = (
+            f"the Rosenbrock matrix [sI - A, -D; C, 0] has normal rank {normal_rank} < n + m = {n + m}: the "
+            "unknown input is not left-invertible from y (the whole complex plane consists of 'zeros')"
+        )
     else:
         zeros = all_zeros
         if zeros.size:
             z = ", ".join(f"{complex(z):.4g}" for z in np.sort_complex(zeros))
-            reason = (f"the triple has invariant zeros at s = {z} (rank [sI - A, -D; C, 0] < n + m there): an input "
-                      f"w(t) = w0 exp(s t) hides a nonzero state from y")
+            reason = (
+                f"the triple has invariant zeros at s = {z} (rank [sI - A, -D; C, 0] < n + m there): an input "
+                f"w(t) = w0 exp(s t) hides a nonzero state from y"
+            )
     if not reason and v_dim > 0:
         reason = f"Molinari's algorithm leaves a weakly unobservable subspace of dimension {v_dim}"
     if reason and v_dim > 0 and "weakly" not in reason:
@@ -445,8 +457,13 @@ def strong_observability(A, C=None, D=None) -> StrongObservabilityReport:
         if unreached.size:
             reason += f"; outputs {unreached.tolist()} are not reached by w at all"
     return StrongObservabilityReport(
-        ok=not reason, reason=reason, relative_degrees=rel, invariant_zeros=zeros, normal_rank=normal_rank,
-        weakly_unobservable_dim=v_dim, molinari=mol,
+        ok=not reason,
+        reason=reason,
+        relative_degrees=rel,
+        invariant_zeros=zeros,
+        normal_rank=normal_rank,
+        weakly_unobservable_dim=v_dim,
+        molinari=mol,
     )
 
 
@@ -535,8 +552,10 @@ class LinearPlant:
         return A, B, D
 
     def __repr__(self) -> str:
-        return (f"LinearPlant(n={self.n}, inputs={self.n_inputs}, outputs={self.n_outputs}, "
-                f"unknown inputs={self.n_unknown})")
+        return (
+            f"LinearPlant(n={self.n}, inputs={self.n_inputs}, outputs={self.n_outputs}, "
+            f"unknown inputs={self.n_unknown})"
+        )
 
 
 def furuta_slides(*, as_printed: bool = False) -> LinearPlant:
@@ -601,12 +620,23 @@ def helicopter_slides() -> LinearPlant:
     B[4] = [3.05, -3.05]
     D = np.hstack([B, np.eye(6)[:, [5]]])
     C = np.hstack([np.eye(3), np.zeros((3, 3))])
-    return LinearPlant(A, B, C, D, state_names=("elevation", "pitch", "travel", "elevation_dot", "pitch_dot",
-                                                 "travel_dot"))
+    return LinearPlant(
+        A, B, C, D, state_names=("elevation", "pitch", "travel", "elevation_dot", "pitch_dot", "travel_dot")
+    )
 
 
-def linearize(model, qpos0=None, ctrl0=None, *, data=None, eps: float = 1e-6, centered: bool = True,
-              method: str = "difference", D=None, C=None) -> LinearPlant:
+def linearize(
+    model,
+    qpos0=None,
+    ctrl0=None,
+    *,
+    data=None,
+    eps: float = 1e-6,
+    centered: bool = True,
+    method: str = "difference",
+    D=None,
+    C=None,
+) -> LinearPlant:
     r"""Linearize a MuJoCo model around an equilibrium with ``mujoco.mjd_transitionFD``.
 
     MuJoCo returns the one-step map :math:`\delta x_{k+1} = A_d \delta x_k + B_d \delta u_k` of its integrator
@@ -678,13 +708,15 @@ def linearize(model, qpos0=None, ctrl0=None, *, data=None, eps: float = 1e-6, ce
         # artifact h * dv/dx of the semi-implicit Euler update q+ = q + h v+, and B's position rows h * dv/du,
         # which gives the output a spurious relative degree 1 and an invariant zero near -1/h
         A[:nv] = 0.0
-        A[:nv, nv:2 * nv] = np.eye(nv)
+        A[:nv, nv : 2 * nv] = np.eye(nv)
         B[:nv] = 0.0
     else:
         ev = np.linalg.eigvals(Ad)
         if np.any((np.abs(ev.imag) < 1e-12) & (ev.real <= 0)):
-            raise ValueError(f"expected A_d without eigenvalues on the closed negative real axis for the matrix "
-                             f"logarithm, actual value: eigenvalues {ev}; use method='difference'")
+            raise ValueError(
+                f"expected A_d without eigenvalues on the closed negative real axis for the matrix "
+                f"logarithm, actual value: eigenvalues {ev}; use method='difference'"
+            )
         A = np.real(sla.logm(Ad)) / h
         # integral of e^{As} over [0, h] from the block exponential [[A h, I h], [0, 0]]
         Z = np.zeros((2 * nx, 2 * nx))

@@ -78,9 +78,20 @@ def _w_values(w, t: np.ndarray, m: int) -> np.ndarray:
     return vals
 
 
-def simulate(plant: LinearPlant, controller, *, t_final: float, w=None, x0=None, noise_std: float = 0.0,
-             resolution: float = 0.0, actuator_tau: float = 0.0, w_step: float = 1e-3, x_hat0=None,
-             seed: int | None = 0) -> SimulationResult:
+def simulate(
+    plant: LinearPlant,
+    controller,
+    *,
+    t_final: float,
+    w=None,
+    x0=None,
+    noise_std: float = 0.0,
+    resolution: float = 0.0,
+    actuator_tau: float = 0.0,
+    w_step: float = 1e-3,
+    x_hat0=None,
+    seed: int | None = 0,
+) -> SimulationResult:
     r"""Run ``controller`` on ``plant`` in closed loop, sampled at ``controller.dt``.
 
     Parameters
@@ -120,10 +131,11 @@ def simulate(plant: LinearPlant, controller, *, t_final: float, w=None, x0=None,
     E = sla.expm(M)
     Phi_h, Gam_h = E[:na, :na], E[:na, na:]
     # quadrature weights of the three Gauss nodes side by side: (na, 3 m) acting on [w(s1); w(s2); w(s3)]
-    Ew = np.hstack([c * sla.expm(A * h * (1.0 - s)) @ D * h for s, c in zip(_GAUSS_NODES, _GAUSS_WEIGHTS)])
+    nodes = zip(_GAUSS_NODES, _GAUSS_WEIGHTS, strict=True)
+    Ew = np.hstack([c * sla.expm(A * h * (1.0 - s)) @ D * h for s, c in nodes])
     T = int(round(t_final / dt)) + 1
     t = np.arange(T) * dt
-    node_t = (t[:-1, None, None] + h * (np.arange(n_sub)[None, :, None] + _GAUSS_NODES[None, None, :]))
+    node_t = t[:-1, None, None] + h * (np.arange(n_sub)[None, :, None] + _GAUSS_NODES[None, None, :])
     Wn = _w_values(w, node_t.reshape(-1), m).reshape(T - 1, n_sub, 3 * m) if T > 1 else None
     Wt = _w_values(w, t, m)
     rng = np.random.default_rng(seed)

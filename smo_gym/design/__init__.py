@@ -31,17 +31,18 @@ from .lmi import (
 )
 
 __all__ = [
+    "LEVANT_LAMBDAS",
+    "MAX_LEVANT_ORDER",
     "ApazaGains",
-    "InfeasibleGainsError",
-    "apaza_gains",
-    "apaza_lmi_matrix",
     "BlockDecomposition",
     "ILFCertificate",
     "ILFDesign",
-    "LEVANT_LAMBDAS",
+    "InfeasibleGainsError",
     "LMIInfeasibleError",
-    "MAX_LEVANT_ORDER",
+    "SwitchedGainCertificate",
     "ackermann_observer_gain",
+    "apaza_gains",
+    "apaza_lmi_matrix",
     "binomial_coefficients",
     "block_decomposition",
     "certify_ilf",
@@ -53,5 +54,4 @@ __all__ = [
     "super_twisting_gains",
     "switched_gain_lmi",
     "switched_gain_lmi_matrix",
-    "SwitchedGainCertificate",
 ]

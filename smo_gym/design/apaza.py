@@ -112,16 +112,21 @@ def _constants(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max):
     return A, B, H_E, H_C, c2
 
 
-def apaza_lmi_matrix(P, theta1, theta2, epsilon, *, k1, k2, k3, mu1, mu2, lipschitz, q, s, r,
-                     upsilon_max) -> np.ndarray:
+def apaza_lmi_matrix(
+    P, theta1, theta2, epsilon, *, k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max
+) -> np.ndarray:
     r"""The lemma's ``(4, 4)`` matrix (module docstring) at given multipliers, in NumPy (symmetrised)."""
     A, B, H_E, H_C, c2 = _constants(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max)
     P = np.asarray(P, dtype=float)
     top = A.T @ P + P @ A + theta1 * H_E + theta2 * H_C + epsilon * np.eye(2)
     PB = P @ B
-    Mx = np.block([[top, PB, PB],
-                   [PB.T, np.array([[theta1 * q]]), np.zeros((1, 1))],
-                   [PB.T, np.zeros((1, 1)), np.array([[-theta2 * c2]])]])
+    Mx = np.block(
+        [
+            [top, PB, PB],
+            [PB.T, np.array([[theta1 * q]]), np.zeros((1, 1))],
+            [PB.T, np.zeros((1, 1)), np.array([[-theta2 * c2]])],
+        ]
+    )
     return (Mx + Mx.T) / 2
 
 
@@ -134,9 +139,13 @@ def _solve(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max, epsilon):
     t2 = cp.Variable(nonneg=True)
     top = A.T @ P + P @ A + t1 * H_E + t2 * H_C + epsilon * np.eye(2)
     PB = P @ B
-    Mx = cp.bmat([[top, PB, PB],
-                  [PB.T, cp.reshape(t1 * q, (1, 1), order="C"), np.zeros((1, 1))],
-                  [PB.T, np.zeros((1, 1)), cp.reshape(-t2 * c2, (1, 1), order="C")]])
+    Mx = cp.bmat(
+        [
+            [top, PB, PB],
+            [PB.T, cp.reshape(t1 * q, (1, 1), order="C"), np.zeros((1, 1))],
+            [PB.T, np.zeros((1, 1)), cp.reshape(-t2 * c2, (1, 1), order="C")],
+        ]
+    )
     Ms = (Mx + Mx.T) / 2
     cons = [Ms << -_MARGIN * np.eye(4), P >> np.eye(2), t1 >= epsilon, t2 >= epsilon]
     prob = cp.Problem(cp.Minimize(cp.trace(P)), cons)
@@ -148,8 +157,22 @@ def _solve(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max, epsilon):
         return None
     Pv = (P.value + P.value.T) / 2
     th1, th2 = float(t1.value), float(t2.value)
-    lm = apaza_lmi_matrix(Pv, th1, th2, epsilon, k1=k1, k2=k2, k3=k3, mu1=mu1, mu2=mu2, lipschitz=lipschitz,
-                          q=q, s=s, r=r, upsilon_max=upsilon_max)
+    lm = apaza_lmi_matrix(
+        Pv,
+        th1,
+        th2,
+        epsilon,
+        k1=k1,
+        k2=k2,
+        k3=k3,
+        mu1=mu1,
+        mu2=mu2,
+        lipschitz=lipschitz,
+        q=q,
+        s=s,
+        r=r,
+        upsilon_max=upsilon_max,
+    )
     lmax = float(np.linalg.eigvalsh(lm).max())
     pmin = float(np.linalg.eigvalsh(Pv).min())
     if lmax >= 0.0 or pmin <= 0 or th1 <= 0 or th2 <= 0:
@@ -157,10 +180,23 @@ def _solve(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max, epsilon):
     return Pv, th1, th2, lmax, pmin
 
 
-def apaza_gains(lipschitz: float, q: float, s: float, r: float, *, upsilon_max: float = 1.0, k1: float = 2.0,
-                k2: float = 1.0, k3: float = 0.0, mu1: float | None = None, mu2: float | None = None,
-                mu_ratio: float = 1.0, epsilon: float = 1e-3, max_scale: float = 1e6,
-                iterations: int = 40) -> ApazaGains:
+def apaza_gains(
+    lipschitz: float,
+    q: float,
+    s: float,
+    r: float,
+    *,
+    upsilon_max: float = 1.0,
+    k1: float = 2.0,
+    k2: float = 1.0,
+    k3: float = 0.0,
+    mu1: float | None = None,
+    mu2: float | None = None,
+    mu_ratio: float = 1.0,
+    epsilon: float = 1e-3,
+    max_scale: float = 1e6,
+    iterations: int = 40,
+) -> ApazaGains:
     r"""Gains of the dissipative super-twisting observer from the gain lemma, with a NumPy-verified certificate.
 
     Parameters
@@ -221,7 +257,8 @@ def apaza_gains(lipschitz: float, q: float, s: float, r: float, *, upsilon_max: 
             raise InfeasibleGainsError(
                 f"expected a feasible gain lemma, actual value: no verified solution for k1={k1}, k2={k2}, "
                 f"k3={k3}, mu1={m1}, mu2={m2} with L_w={lipschitz}, (q, s, r)=({q}, {s}, {r}), "
-                f"upsilon_max={upsilon_max}; increase mu1 and mu2 or omit them to search")
+                f"upsilon_max={upsilon_max}; increase mu1 and mu2 or omit them to search"
+            )
         return result(m1, m2, sol)
     ratio = check_positive("mu_ratio", mu_ratio)
     hi = 1.0
@@ -231,7 +268,8 @@ def apaza_gains(lipschitz: float, q: float, s: float, r: float, *, upsilon_max: 
         if hi > max_scale:
             raise InfeasibleGainsError(
                 f"expected a feasible gain lemma, actual value: infeasible up to mu1={max_scale} for "
-                f"L_w={lipschitz}, (q, s, r)=({q}, {s}, {r}), upsilon_max={upsilon_max}, k1={k1}, k2={k2}, k3={k3}")
+                f"L_w={lipschitz}, (q, s, r)=({q}, {s}, {r}), upsilon_max={upsilon_max}, k1={k1}, k2={k2}, k3={k3}"
+            )
         sol_hi = attempt(hi, ratio * hi)
     lo = hi / 10.0 if hi > 1.0 else 0.0
     for _ in range(iterations):

@@ -70,7 +70,7 @@ def levant_lambdas(order: int, form: str = "recursive") -> np.ndarray:
         return recursive
     if form != "nonrecursive":
         raise ValueError(f"expected form to be 'recursive' or 'nonrecursive', actual value: {form!r}")
-    return levant_nonrecursive(LEVANT_LAMBDAS[:k + 1])
+    return levant_nonrecursive(LEVANT_LAMBDAS[: k + 1])
 
 
 def levant_nonrecursive(lambdas) -> np.ndarray:
@@ -179,8 +179,9 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
         )
     obs = np.vstack([c @ np.linalg.matrix_power(A, i) for i in range(n)])
     if np.linalg.matrix_rank(obs) < n:
-        raise ValueError(f"expected an observable pair (A, c), actual value: observability rank "
-                         f"{np.linalg.matrix_rank(obs)} < {n}")
+        raise ValueError(
+            f"expected an observable pair (A, c), actual value: observability rank {np.linalg.matrix_rank(obs)} < {n}"
+        )
     coeffs = np.real_if_close(np.poly(poles))  # p(s) = s^n + a_1 s^{n-1} + ... + a_n
     if np.iscomplexobj(coeffs):
         raise ValueError(f"expected poles closed under conjugation, actual value: {poles!r}")

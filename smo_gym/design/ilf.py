@@ -35,13 +35,12 @@ from .._extras import require
 from .._validation import check_choice, check_int_in_range, check_positive
 from .lmi import LMIInfeasibleError  # shared with the switched-gain design of Efimov et al. 2017
 
-
 __all__ = [
+    "PAPER_001_DELTA",
     "BlockDecomposition",
     "ILFCertificate",
     "ILFDesign",
     "LMIInfeasibleError",
-    "PAPER_001_DELTA",
     "block_decomposition",
     "certify_ilf",
     "dilation",
@@ -105,7 +104,7 @@ class BlockDecomposition:
     def blocks(self) -> list[slice]:
         """Index slices of the blocks."""
         edges = np.concatenate([[0], np.cumsum(self.block_sizes)])
-        return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+        return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=False)]
 
 
 def _as_matrix(name: str, value, shape=None) -> np.ndarray:
@@ -118,7 +117,7 @@ def _as_matrix(name: str, value, shape=None) -> np.ndarray:
     if arr.ndim != 2:
         raise ValueError(f"expected {name} to be a 2-D matrix, actual value: shape {arr.shape}")
     if shape is not None:
-        for got, want in zip(arr.shape, shape):
+        for got, want in zip(arr.shape, shape, strict=False):
             if want is not None and got != want:
                 raise ValueError(f"expected {name} with shape {shape}, actual value: shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -204,17 +203,20 @@ def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposit
         H = Phi @ A @ Pinv
         CP = C @ Pinv
         if np.linalg.norm(CP[:, k:]) > 1e-3 * np.linalg.norm(CP):
-            raise ValueError(f"expected C Phi^-1 = [C0 0], actual value: trailing block norm "
-                             f"{np.linalg.norm(CP[:, k:]):.3g}")
+            raise ValueError(
+                f"expected C Phi^-1 = [C0 0], actual value: trailing block norm {np.linalg.norm(CP[:, k:]):.3g}"
+            )
         sizes = [k]
         while sum(sizes) < n:
             r0 = sum(sizes[:-1])
-            blk = H[r0:r0 + sizes[-1], sum(sizes):]
+            blk = H[r0 : r0 + sizes[-1], sum(sizes) :]
             sv = np.linalg.svd(blk, compute_uv=False)
             nxt = int(np.sum(sv > 1e-3 * max(sv[0], 1e-300) + 1e-6 * scale)) if sv.size else 0
             if nxt == 0:
-                raise ValueError("expected Phi A Phi^-1 with full-rank superdiagonal blocks, actual value: a zero "
-                                 f"block after block sizes {sizes}")
+                raise ValueError(
+                    "expected Phi A Phi^-1 with full-rank superdiagonal blocks, actual value: a zero "
+                    f"block after block sizes {sizes}"
+                )
             sizes.append(nxt)
         F, At, res = _structure(H, sizes, k)
         res /= scale
@@ -243,7 +245,7 @@ def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposit
         Am, Cm = Cperp.T @ Am @ Cperp, Chat.T @ Am @ Cperp
     H = O.T @ A @ O
     edges = np.concatenate([[0], np.cumsum(sizes)])
-    blk = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    blk = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=False)]
     m = len(sizes)
     Phib = np.eye(n)
     # clear rows m..2 (0-based m-1..1), columns i..2 (0-based i..1), with row j-1's superdiagonal block
@@ -494,16 +496,16 @@ def _fixed_constraints(v, dec, mu, alpha, beta, lgrid, ggrid, delta, eps, numeri
         for name, X in (("Z", Z), ("S", S), ("R", R), ("M", M), ("U", U)):
             out[f"{name}{i}>0"] = -X + eps * I
         out[f"(25) i={i}"] = -(S @ Hr + Hr @ S) + eps * I
-        out[f"(26) i={i}"] = -bm([
-            [2 * Z - Z @ Hr - Hr @ Z, 2 * Z + Z @ Hr - Hr @ Z, 2 * Z - Hr @ Z],
-            [2 * Z - Z @ Hr + Hr @ Z, 2 * Z + Z @ Hr + Hr @ Z + S, 2 * Z + Hr @ Z],
-            [2 * Z - Z @ Hr, 2 * Z + Z @ Hr, 2 * Z + R],
-        ])
-        out[f"(27) i={i}"] = -bm([[Z @ Hr + Hr @ Z - beta * Z, Hr @ Z - beta * Z],
-                                  [Z @ Hr - beta * Z, M - beta * Z]])
+        out[f"(26) i={i}"] = -bm(
+            [
+                [2 * Z - Z @ Hr - Hr @ Z, 2 * Z + Z @ Hr - Hr @ Z, 2 * Z - Hr @ Z],
+                [2 * Z - Z @ Hr + Hr @ Z, 2 * Z + Z @ Hr + Hr @ Z + S, 2 * Z + Hr @ Z],
+                [2 * Z - Z @ Hr, 2 * Z + Z @ Hr, 2 * Z + R],
+            ]
+        )
+        out[f"(27) i={i}"] = -bm([[Z @ Hr + Hr @ Z - beta * Z, Hr @ Z - beta * Z], [Z @ Hr - beta * Z, M - beta * Z]])
         sgn = (-1.0) ** i
-        out[f"(28) i={i}"] = -bm([[2 * M + sgn * (Hr @ M + M @ Hr), 2 * M + sgn * Hr @ M],
-                                  [2 * M + sgn * M @ Hr, U]])
+        out[f"(28) i={i}"] = -bm([[2 * M + sgn * (Hr @ M + M @ Hr), 2 * M + sgn * Hr @ M], [2 * M + sgn * M @ Hr, U]])
         for j in range(1, len(lgrid)):
             lam, dl = lgrid[j], lgrid[j] - lgrid[j - 1]
             X0 = np.diag(xi_fixed(i, lam, 0.0, r, sizes))
@@ -541,10 +543,22 @@ def _solve(constraints: dict, variables: dict) -> tuple[str, dict]:
     return "optimal", {name: np.asarray(var.value, dtype=float) for name, var in variables.items()}
 
 
-def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001_DELTA, alpha: float | None = None,
-              beta: float | None = None, eps: float = 1e-6, max_refinements: int = 5, dense_points: int = 401,
-              tol: float = 1e-7, decomposition: BlockDecomposition | None = None,
-              condition: str = "proposition") -> ILFDesign:
+def ilf_gains(
+    A,
+    C,
+    mu: float,
+    kind: str = "finite",
+    *,
+    delta: float = PAPER_001_DELTA,
+    alpha: float | None = None,
+    beta: float | None = None,
+    eps: float = 1e-6,
+    max_refinements: int = 5,
+    dense_points: int = 401,
+    tol: float = 1e-7,
+    decomposition: BlockDecomposition | None = None,
+    condition: str = "proposition",
+) -> ILFDesign:
     r"""Observer gain of Lopez-Ramirez et al. 2016, Algorithm 9 (``kind="finite"``) or 12 (``kind="fixed"``).
 
     Finite time (Theorem 6 with Proposition 8): find :math:`P, Z, M \succ 0` and ``Y`` with
@@ -648,8 +662,10 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
         r1 = float(ilf_degrees(dec.m, mu)[0])
         beta = r1 if beta is None else check_positive("beta", beta)
         if condition == "proposition" and beta >= 2.0 * r1:
-            raise ValueError(f"expected beta < 2 r_1 = {2 * r1:.4g} (LMI (27) needs Z H + H Z >= beta Z, which fails "
-                             f"at x = Z^-1 e_1 otherwise), actual value: {beta!r}")
+            raise ValueError(
+                f"expected beta < 2 r_1 = {2 * r1:.4g} (LMI (27) needs Z H + H Z >= beta Z, which fails "
+                f"at x = Z^-1 e_1 otherwise), actual value: {beta!r}"
+            )
     n, k = dec.n, dec.C0.shape[0]
     proposition = condition == "proposition"
     lgrid = np.array([0.0, delta**-0.5])
@@ -658,7 +674,7 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
         for _ in range(2):
             lgrid, ggrid = _refine(lgrid), _refine(ggrid)
     status, cert, values = "", None, {}
-    for p in range(max_refinements + 1):
+    for p in range(max_refinements + 1):  # noqa: B007 - p, the refinements made, is reported after the loop
         v = {"P": cp.Variable((n, n), symmetric=True), "Y": cp.Variable((n, k))}
         if kind == "finite":
             v["Z"] = cp.Variable((n, n), symmetric=True)
@@ -668,15 +684,29 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
             cons = _finite_constraints(v, dec, Hr, lgrid, delta, eps, proposition=proposition)
         else:
             for i in (1, 2):
-                for name in ("ZSRMU" if proposition else "Z"):
+                for name in "ZSRMU" if proposition else "Z":
                     v[f"{name}{i}"] = cp.Variable((n, n), symmetric=True)
             cons = _fixed_constraints(v, dec, mu, alpha, beta, lgrid, ggrid, delta, eps, proposition=proposition)
         status, values = _solve(cons, v)
         if status == "optimal":
             values = {name: X if name == "Y" else 0.5 * (X + X.T) for name, X in values.items()}
             L = np.linalg.solve(values["P"], values["Y"])
-            cert = certify_ilf(dec, L, values, kind, mu, delta, alpha, beta, lgrid, ggrid, eps, dense_points, tol,
-                               proposition=proposition)
+            cert = certify_ilf(
+                dec,
+                L,
+                values,
+                kind,
+                mu,
+                delta,
+                alpha,
+                beta,
+                lgrid,
+                ggrid,
+                eps,
+                dense_points,
+                tol,
+                proposition=proposition,
+            )
             if cert.ok or proposition:
                 break
         elif not proposition:
@@ -689,9 +719,13 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
             f"expected feasible ILF LMIs ({kind}-time, mu={mu}, delta={delta:.4g}"
             + (f", alpha={alpha}" if kind == "fixed" else "")
             + f", condition={condition!r}), actual value: solver status {status!r} with {len(lgrid)} lambda points "
-            f"after {p} refinements; try a smaller mu" + (" or alpha" if kind == "fixed" else "")
-            + ("" if not proposition or mu < 1 else
-               " (with mu = 1 the weight r_m = 1 makes (16) infeasible: use condition='points')")
+            f"after {p} refinements; try a smaller mu"
+            + (" or alpha" if kind == "fixed" else "")
+            + (
+                ""
+                if not proposition or mu < 1
+                else " (with mu = 1 the weight r_m = 1 makes (16) infeasible: use condition='points')"
+            )
         )
     if not cert.ok:
         raise LMIInfeasibleError(
@@ -707,9 +741,23 @@ def ilf_gains(A, C, mu: float, kind: str = "finite", *, delta: float = PAPER_001
     return ILFDesign(L, values["P"], kind, mu, delta, alpha, dec, grid, p, cert, extra, condition)
 
 
-def certify_ilf(dec: BlockDecomposition, L, values: dict, kind: str, mu: float, delta: float, alpha, beta,
-                lgrid, ggrid, eps: float, dense_points: int = 2001, tol: float = 1e-7, *,
-                proposition: bool = True) -> ILFCertificate:
+def certify_ilf(
+    dec: BlockDecomposition,
+    L,
+    values: dict,
+    kind: str,
+    mu: float,
+    delta: float,
+    alpha,
+    beta,
+    lgrid,
+    ggrid,
+    eps: float,
+    dense_points: int = 2001,
+    tol: float = 1e-7,
+    *,
+    proposition: bool = True,
+) -> ILFCertificate:
     r"""Re-verify an ILF design in NumPy: every LMI at ``values`` and the parametric inequality on a dense grid.
 
     The LMI matrices are rebuilt with NumPy from the same functions the solver used (with margin ``eps``), so a
@@ -722,8 +770,9 @@ def certify_ilf(dec: BlockDecomposition, L, values: dict, kind: str, mu: float, 
         Hr = ilf_homogeneity_matrices(dec.m, mu, dec.block_sizes)["H_r"]
         mats = _finite_constraints(vals, dec, Hr, lgrid, delta, eps, numeric=True, proposition=proposition)
     else:
-        mats = _fixed_constraints(vals, dec, mu, alpha, beta, lgrid, ggrid, delta, eps, numeric=True,
-                                 proposition=proposition)
+        mats = _fixed_constraints(
+            vals, dec, mu, alpha, beta, lgrid, ggrid, delta, eps, numeric=True, proposition=proposition
+        )
     margins = {name: _max_eig(M) for name, M in mats.items()}
     r = ilf_degrees(dec.m, mu)
     P = vals["P"]
@@ -739,8 +788,9 @@ def certify_ilf(dec: BlockDecomposition, L, values: dict, kind: str, mu: float, 
     else:
         lam_f, gam_f = np.meshgrid(lam, np.linspace(0.0, 1.0, dense_points)[1:], indexing="ij")
         points = lam_f.size
-        worst = max(worst_of(xi_fixed(i, lam_f.ravel(), gam_f.ravel(), r, dec.block_sizes), vals[f"Z{i}"])
-                    for i in (1, 2))
+        worst = max(
+            worst_of(xi_fixed(i, lam_f.ravel(), gam_f.ravel(), r, dec.block_sizes), vals[f"Z{i}"]) for i in (1, 2)
+        )
     closed = dec.A_tilde + np.asarray(L) @ dec.C_tilde
     abscissa = float(np.max(np.linalg.eigvals(closed).real))
     ok = all(v_ <= tol for v_ in margins.values()) and worst <= tol and abscissa < 0

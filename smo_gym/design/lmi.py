@@ -108,23 +108,28 @@ def switched_gain_lmi_matrix(P, w, kappa: float, rho_d: float, rho_v: float, gam
     z = np.zeros((1, 1))
     if gamma > 0.0:
         S = S + np.eye(n)
-        M = np.block([
-            [S, P @ b, -w, -P @ b],
-            [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z, z],
-            [-w.T, z, -(rho_v**2) * np.ones((1, 1)), z],
-            [-b.T @ P, z, z, -(gamma**-2) * np.ones((1, 1))],
-        ])
+        M = np.block(
+            [
+                [S, P @ b, -w, -P @ b],
+                [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z, z],
+                [-w.T, z, -(rho_v**2) * np.ones((1, 1)), z],
+                [-b.T @ P, z, z, -(gamma**-2) * np.ones((1, 1))],
+            ]
+        )
     else:
-        M = np.block([
-            [S, P @ b, -w],
-            [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z],
-            [-w.T, z, -(rho_v**2) * np.ones((1, 1))],
-        ])
+        M = np.block(
+            [
+                [S, P @ b, -w],
+                [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z],
+                [-w.T, z, -(rho_v**2) * np.ones((1, 1))],
+            ]
+        )
     return 0.5 * (M + M.T)
 
 
-def switched_gain_lmi(n: int, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0, *,
-                      eps: float = 1e-6, tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, SwitchedGainCertificate]:
+def switched_gain_lmi(
+    n: int, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0, *, eps: float = 1e-6, tol: float = 1e-7
+) -> tuple[np.ndarray, np.ndarray, SwitchedGainCertificate]:
     r"""Gain ``l`` and Lyapunov matrix ``P`` of Assumption 1 / Remark 2 of Efimov et al. 2017.
 
     Solves, over :math:`P = P^T` and :math:`w \in \mathbb R^n`,
@@ -175,8 +180,7 @@ def switched_gain_lmi(n: int, kappa: float, rho_d: float, rho_v: float, gamma: f
     kappa = check_positive("kappa", kappa)
     rho_d = check_positive("rho_d", rho_d)
     rho_v = check_positive("rho_v", rho_v)
-    if isinstance(gamma, bool) or not isinstance(gamma, (int, float, np.number)) or not np.isfinite(gamma) \
-            or gamma < 0:
+    if isinstance(gamma, bool) or not isinstance(gamma, (int, float, np.number)) or not np.isfinite(gamma) or gamma < 0:
         raise ValueError(f"expected gamma >= 0 (a finite real number), actual value: {gamma!r}")
     l, P, status = _solve_cached(n, kappa, rho_d, rho_v, float(gamma), float(eps))
     if status != "optimal":
@@ -190,8 +194,9 @@ def switched_gain_lmi(n: int, kappa: float, rho_d: float, rho_v: float, gamma: f
     return l, P, cert
 
 
-def certify_switched_gain(l, P, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0, *,
-                          tol: float = 1e-7, status: str = "optimal") -> SwitchedGainCertificate:
+def certify_switched_gain(
+    l, P, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0, *, tol: float = 1e-7, status: str = "optimal"
+) -> SwitchedGainCertificate:
     """Re-verify Assumption 1 of Efimov et al. 2017 for given ``(l, P)`` with NumPy eigenvalues; raise if it fails."""
     P = 0.5 * (np.asarray(P, dtype=float) + np.asarray(P, dtype=float).T)
     l = np.asarray(l, dtype=float).ravel()
@@ -207,8 +212,14 @@ def certify_switched_gain(l, P, kappa: float, rho_d: float, rho_v: float, gamma:
             f"min eig(P) = {eig_P[0]:.3e}, max eig(LMI) = {eig_M[-1]:.3e}"
         )
     return SwitchedGainCertificate(
-        min_eig_P=float(eig_P[0]), max_eig_P=float(eig_P[-1]), max_eig_lmi=float(eig_M[-1]),
-        observer_eigenvalues=obs, kappa=float(kappa), rho_d=float(rho_d), rho_v=float(rho_v), gamma=float(gamma),
+        min_eig_P=float(eig_P[0]),
+        max_eig_P=float(eig_P[-1]),
+        max_eig_lmi=float(eig_M[-1]),
+        observer_eigenvalues=obs,
+        kappa=float(kappa),
+        rho_d=float(rho_d),
+        rho_v=float(rho_v),
+        gamma=float(gamma),
         status=status,
     )
 
@@ -225,18 +236,22 @@ def _solve_cached(n: int, kappa: float, rho_d: float, rho_v: float, gamma: float
     z = np.zeros((1, 1))
     if gamma > 0.0:
         S = S + np.eye(n)
-        M = cp.bmat([
-            [S, P @ b, -w, -P @ b],
-            [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z, z],
-            [-w.T, z, -(rho_v**2) * np.ones((1, 1)), z],
-            [-b.T @ P, z, z, -(gamma**-2) * np.ones((1, 1))],
-        ])
+        M = cp.bmat(
+            [
+                [S, P @ b, -w, -P @ b],
+                [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z, z],
+                [-w.T, z, -(rho_v**2) * np.ones((1, 1)), z],
+                [-b.T @ P, z, z, -(gamma**-2) * np.ones((1, 1))],
+            ]
+        )
     else:
-        M = cp.bmat([
-            [S, P @ b, -w],
-            [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z],
-            [-w.T, z, -(rho_v**2) * np.ones((1, 1))],
-        ])
+        M = cp.bmat(
+            [
+                [S, P @ b, -w],
+                [b.T @ P, -(rho_d**2) * np.ones((1, 1)), z],
+                [-w.T, z, -(rho_v**2) * np.ones((1, 1))],
+            ]
+        )
     M = 0.5 * (M + M.T)
     k = M.shape[0]
     problem = cp.Problem(cp.Maximize(nu), [P >> nu * np.eye(n), nu >= eps, M << -eps * np.eye(k)])

@@ -20,8 +20,17 @@ from .._registration import ENV_IDS, register_envs
 from .base import ASSETS, SmoMujocoEnv, asset_path
 from .mechanisms import FurutaPendulumEnv, TwoLinkArmEnv, VariableInertiaEnv
 
-__all__ = ["ASSETS", "ENV_IDS", "FurutaPendulumEnv", "SmoMujocoEnv", "TwoLinkArmEnv", "VariableInertiaEnv",
-           "asset_path", "make", "register_envs"]
+__all__ = [
+    "ASSETS",
+    "ENV_IDS",
+    "FurutaPendulumEnv",
+    "SmoMujocoEnv",
+    "TwoLinkArmEnv",
+    "VariableInertiaEnv",
+    "asset_path",
+    "make",
+    "register_envs",
+]
 
 
 def make(env_id: str, **kwargs) -> gym.Env:

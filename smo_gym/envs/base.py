@@ -41,21 +41,42 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
     xml_file: str = ""
     disturbance_joints: Sequence[str] = ()
 
-    def __init__(self, frame_skip: int, *, disturbance: Callable[[float], np.ndarray] | None = None,
-                 reset_noise_scale: float = 0.01, render_mode: str | None = None, **kwargs):
-        utils.EzPickle.__init__(self, frame_skip=frame_skip, disturbance=disturbance,
-                                reset_noise_scale=reset_noise_scale, render_mode=render_mode, **kwargs)
+    def __init__(
+        self,
+        frame_skip: int,
+        *,
+        disturbance: Callable[[float], np.ndarray] | None = None,
+        reset_noise_scale: float = 0.01,
+        render_mode: str | None = None,
+        **kwargs,
+    ):
+        utils.EzPickle.__init__(
+            self,
+            frame_skip=frame_skip,
+            disturbance=disturbance,
+            reset_noise_scale=reset_noise_scale,
+            render_mode=render_mode,
+            **kwargs,
+        )
         self._reset_noise_scale = float(reset_noise_scale)
         path = asset_path(self.xml_file)
         model = mujoco.MjModel.from_xml_path(path)
         n_obs = model.nq + model.nv
-        MujocoEnv.__init__(self, path, frame_skip,
-                           observation_space=Box(-np.inf, np.inf, shape=(n_obs,), dtype=np.float64),
-                           render_mode=render_mode, **kwargs)
-        self.metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"],
-                         "render_fps": int(np.round(1.0 / self.dt))}
+        MujocoEnv.__init__(
+            self,
+            path,
+            frame_skip,
+            observation_space=Box(-np.inf, np.inf, shape=(n_obs,), dtype=np.float64),
+            render_mode=render_mode,
+            **kwargs,
+        )
+        self.metadata = {
+            "render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"],
+            "render_fps": int(np.round(1.0 / self.dt)),
+        }
         self.disturbance_dofs = np.array(
-            [self.model.jnt_dofadr[self.model.joint(name).id] for name in self.disturbance_joints], dtype=int)
+            [self.model.jnt_dofadr[self.model.joint(name).id] for name in self.disturbance_joints], dtype=int
+        )
         if disturbance is not None and not callable(disturbance):
             raise TypeError(f"expected disturbance to be callable f(t) -> array, actual value: {disturbance!r}")
         self._disturbance_fn = disturbance
@@ -67,8 +88,9 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
         """Apply a constant generalized force on ``disturbance_joints`` from now on (added to ``disturbance=``)."""
         torque = np.asarray(torque, dtype=np.float64)
         if torque.shape not in ((), self._disturbance_const.shape):
-            raise ValueError(f"expected a disturbance of shape {self._disturbance_const.shape}, actual value: "
-                             f"{torque.shape}")
+            raise ValueError(
+                f"expected a disturbance of shape {self._disturbance_const.shape}, actual value: {torque.shape}"
+            )
         if not np.all(np.isfinite(torque)):
             raise ValueError(f"expected a finite disturbance, actual value: {torque!r}")
         self._disturbance_const = np.broadcast_to(torque, self._disturbance_const.shape).copy()

@@ -55,7 +55,7 @@ class VariableInertiaEnv(SmoMujocoEnv):
         return qpos, qvel
 
     def _reward_terminated(self, obs, action):
-        return -obs[0] ** 2 - 0.01 * float(action[0]) ** 2, False
+        return -(obs[0] ** 2) - 0.01 * float(action[0]) ** 2, False
 
 
 class TwoLinkArmEnv(SmoMujocoEnv):

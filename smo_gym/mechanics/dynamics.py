@@ -100,9 +100,18 @@ class MujocoDynamics:
         ``model.opt.timestep``.
     """
 
-    def __init__(self, model: mujoco.MjModel, *, joints: Sequence[str] | None = None, mass_scale=1.0,
-                 inertia_scale=None, damping_scale=1.0, frictionloss_scale=1.0, contact: str = "unknown",
-                 input: str = "ctrl"):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        *,
+        joints: Sequence[str] | None = None,
+        mass_scale=1.0,
+        inertia_scale=None,
+        damping_scale=1.0,
+        frictionloss_scale=1.0,
+        contact: str = "unknown",
+        input: str = "ctrl",
+    ):
         if not isinstance(model, mujoco.MjModel):
             raise TypeError(f"expected a mujoco.MjModel, actual value: {type(model).__name__}")
         if contact not in ("unknown", "measured"):
@@ -148,12 +157,16 @@ class MujocoDynamics:
         missing = [j for j in range(m.njnt) if j not in covered]
         if missing:
             names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in missing]
-            raise ValueError(f"expected every joint measured or coupled by a joint equality, actual value: "
-                             f"joints {names} are neither")
+            raise ValueError(
+                f"expected every joint measured or coupled by a joint equality, actual value: "
+                f"joints {names} are neither"
+            )
         for dep, (ind, _) in self._couplings.items():
             if ind not in jids:
-                raise ValueError(f"expected the independent joint of equality on joint {dep} among the measured "
-                                 f"joints, actual value: joint {ind} is not measured")
+                raise ValueError(
+                    f"expected the independent joint of equality on joint {dep} among the measured "
+                    f"joints, actual value: joint {ind} is not measured"
+                )
         self._jids = np.array(jids, dtype=int)
         self.dof = np.array([m.jnt_dofadr[j] for j in jids], dtype=int)
         self._qadr = np.array([m.jnt_qposadr[j] for j in jids], dtype=int)
@@ -163,8 +176,12 @@ class MujocoDynamics:
         self._fullM = np.zeros((m.nv, m.nv))
         self._chan_of_joint = {int(j): i for i, j in enumerate(jids)}
         self._u_width = m.nu if input == "ctrl" else self.n
-        self._fast = (not self._couplings and m.nq == m.nv == self.n and np.array_equal(self.dof, np.arange(self.n))
-                      and np.array_equal(self._qadr, np.arange(self.n)))
+        self._fast = (
+            not self._couplings
+            and m.nq == m.nv == self.n
+            and np.array_equal(self.dof, np.arange(self.n))
+            and np.array_equal(self._qadr, np.arange(self.n))
+        )
         self._bind_views()
 
     def _bind_views(self) -> None:
@@ -195,7 +212,9 @@ class MujocoDynamics:
             jdv = np.zeros(m.nv)
             for dep, (ind, c) in self._couplings.items():
                 x = q[self._chan_of_joint[ind]] - m.qpos0[m.jnt_qposadr[ind]]
-                d.qpos[m.jnt_qposadr[dep]] = m.qpos0[m.jnt_qposadr[dep]] + c[0] + x * (c[1] + x * (c[2] + x * (c[3] + x * c[4])))
+                d.qpos[m.jnt_qposadr[dep]] = (
+                    m.qpos0[m.jnt_qposadr[dep]] + c[0] + x * (c[1] + x * (c[2] + x * (c[3] + x * c[4])))
+                )
                 if v is not None:
                     xd = min(max(float(v[self._chan_of_joint[ind]]), -1e150), 1e150)
                     d1 = c[1] + x * (2 * c[2] + x * (3 * c[3] + x * 4 * c[4]))
@@ -256,8 +275,13 @@ class MujocoDynamics:
         -------
         ndarray, shape (..., n)
         """
-        if self._fast and type(q) is np.ndarray and type(v) is np.ndarray and q.shape == v.shape == (self.n,) \
-                and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,))):
+        if (
+            self._fast
+            and type(q) is np.ndarray
+            and type(v) is np.ndarray
+            and q.shape == v.shape == (self.n,)
+            and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,)))
+        ):
             # hot path (one environment, all joints measured in model order): no index arithmetic
             self._qpos[:] = q
             self._qvel[:] = v
@@ -312,8 +336,13 @@ class MujocoDynamics:
         acc = self.acceleration(q, v, u)
         d = self.data
         J = self.jacobian(q)
-        return {"inertia": self.inertia(q), "bias": J.T @ d.qfrc_bias, "passive": J.T @ d.qfrc_passive,
-                "actuator": J.T @ d.qfrc_actuator, "acceleration": acc}
+        return {
+            "inertia": self.inertia(q),
+            "bias": J.T @ d.qfrc_bias,
+            "passive": J.T @ d.qfrc_passive,
+            "actuator": J.T @ d.qfrc_actuator,
+            "acceleration": acc,
+        }
 
     def self_quadratic_coefficient(self, q, step: float = 1e-5) -> np.ndarray:
         r"""Coefficient :math:`\alpha_i(q)` of the self-quadratic velocity term :math:`\alpha_i\dot q_i^2` in

@@ -8,12 +8,12 @@ from __future__ import annotations
 from .._validation import DivergenceError, check_keywords, did_you_mean
 from .base import Observer
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
-from .linear import FiniteDifference, HighGain, KalmanCA
-from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
-from .low_power import LowPowerHighGain
-from .switched_gain import SwitchedGain
 from .discrete_hosm import DiscreteTimeHOSM
 from .ilf import ILFDifferentiator, ILFFixedDifferentiator, ILFObserver
+from .linear import FiniteDifference, HighGain, KalmanCA
+from .low_power import LowPowerHighGain
+from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
+from .switched_gain import SwitchedGain
 
 #: name -> class, for the wrapper, the CLI and :func:`smo_gym.differentiate`
 OBSERVERS: dict[str, type[Observer]] = {
@@ -40,15 +40,14 @@ MODEL_BASED_OBSERVERS: dict[str, type[Observer]] = {
 }
 
 __all__ = [
+    "MODEL_BASED_OBSERVERS",
+    "OBSERVERS",
+    "URED",
     "CoordinateTransform",
     "DiscreteTimeHOSM",
     "DissipativeSuperTwisting",
-    "Dynamics",
-    "MODEL_BASED_OBSERVERS",
-    "MechanicalSuperTwisting",
-    "OBSERVERS",
-    "URED",
     "DivergenceError",
+    "Dynamics",
     "FiniteDifference",
     "HighGain",
     "ILFDifferentiator",
@@ -57,6 +56,7 @@ __all__ = [
     "KalmanCA",
     "Levant",
     "LowPowerHighGain",
+    "MechanicalSuperTwisting",
     "Observer",
     "SuperTwisting",
     "SwitchedGain",

@@ -169,8 +169,15 @@ def _store_order2(state, new_state, out, c, dt, n0, n1, n2, innovation):
     out[c, 0] = o0
     out[c, 1] = o1
     out[c, 2] = n2
-    return not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(n2) & math.isfinite(innovation)
-                & math.isfinite(state[c, 3]) & math.isfinite(o0) & math.isfinite(o1))
+    return not (
+        math.isfinite(n0)
+        & math.isfinite(n1)
+        & math.isfinite(n2)
+        & math.isfinite(innovation)
+        & math.isfinite(state[c, 3])
+        & math.isfinite(o0)
+        & math.isfinite(o1)
+    )
 
 
 def _flat(y, out):  # pragma: no cover - compiled only, see the overload below
@@ -299,8 +306,10 @@ def cbrt(a):
     # floor(hx / 3) as a multiply-high (exact for 0 <= hx < 2^31); B1 = 715094163
     t = _from_bits((((hx * 0x55555556) >> 32) + 715094163) << 32)
     r = (t * t) * (t / x)
-    t = t * ((1.87595182427177009643 + r * (-1.88497979543377169875 + r * 1.621429720105354466140))
-             + ((r * r) * r) * (-0.758397934778766047437 + r * 0.145996192886612446982))
+    t = t * (
+        (1.87595182427177009643 + r * (-1.88497979543377169875 + r * 1.621429720105354466140))
+        + ((r * r) * r) * (-0.758397934778766047437 + r * 0.145996192886612446982)
+    )
     t = _from_bits((_bits(t) + 0x80000000) & -0x40000000)  # round away from zero to 22 bits
     s = t * t
     r = x / s
@@ -328,13 +337,19 @@ def exp_nonpositive(x):
     :math:`e^r`, and the scaling by :math:`2^k` in two halves so that subnormal results come out right.
     """
     x = -746.0 if x < -746.0 else x  # exp(-746) underflows to 0 like any smaller argument and -inf; NaN stays
-    kf = np.floor(x * 1.44269504088896338700e+00 + 0.5)  # np.floor stays float (math.floor is an int)
+    kf = np.floor(x * 1.44269504088896338700e00 + 0.5)  # np.floor stays float (math.floor is an int)
     hi = x - kf * 6.93147180369123816490e-01
     lo = kf * 1.90821492927058770002e-10
     r = hi - lo
     t = r * r
-    c = r - t * (1.66666666666666019037e-01 + t * (-2.77777777770155933842e-03 + t * (
-        6.61375632143793436117e-05 + t * (-1.65339022054652515390e-06 + t * 4.13813679705723846039e-08))))
+    c = r - t * (
+        1.66666666666666019037e-01
+        + t
+        * (
+            -2.77777777770155933842e-03
+            + t * (6.61375632143793436117e-05 + t * (-1.65339022054652515390e-06 + t * 4.13813679705723846039e-08))
+        )
+    )
     y = 1.0 - ((lo - (r * c) / (2.0 - c)) - hi)
     k1 = np.floor(kf * 0.5)
     return y * _pow2(k1) * _pow2(kf - k1)
@@ -343,7 +358,7 @@ def exp_nonpositive(x):
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _row_finite(row):
     """Whether every entry of a state row is finite (checked per channel, right after the channel's step)."""
-    for j in range(row.shape[0]):
+    for j in range(row.shape[0]):  # noqa: SIM110 - a loop numba compiles; all() of a generator it does not
         if not math.isfinite(row[j]):
             return False
     return True
@@ -485,8 +500,9 @@ def _hosm2(state, y, params, new_state, out, shared, q):
         o0 = n0 + (-dt) * n1  # exp(-tau N) x^+
         out[c, 0] = o0
         out[c, 1] = n1
-        bad |= not (math.isfinite(n0) & math.isfinite(n1) & math.isfinite(e) & math.isfinite(state[c, 2])
-                    & math.isfinite(o0))
+        bad |= not (
+            math.isfinite(n0) & math.isfinite(n1) & math.isfinite(e) & math.isfinite(state[c, 2]) & math.isfinite(o0)
+        )
     return _check_state(new_state, out) if bad else -1
 
 
@@ -629,7 +645,8 @@ hosm_shared_kernel = _hosm_kernel(True)
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def sta_implicit_channel_step(x, y, params, x_new):
-    r"""Implicit Euler step of :math:`\dot x_1 = x_2 + k_1\lceil y-x_1\rfloor^{1/2},\ \dot x_2 = k_2\,\mathrm{Sign}(y-x_1)`.
+    r"""Implicit Euler step of the super-twisting differentiator,
+    :math:`\dot x_1 = x_2 + k_1\lceil y-x_1\rfloor^{1/2},\ \dot x_2 = k_2\,\mathrm{Sign}(y-x_1)`.
 
     With ``e = y_{k+1} - x_{1,k+1}`` and the predicted error :math:`w = y_{k+1} - x_{1,k} - \tau x_{2,k}`, the
     implicit step requires :math:`w = e + \tau k_1\lceil e\rfloor^{1/2} + \tau^2 k_2 s`,
@@ -795,8 +812,9 @@ def _eigmap3(state, y, params, new_state, out, shared, mode):
     if mode == 1.0:
         for c in range(n):
             pc = 0 if shared else c  # the parameter row of channel c
-            new_state[c, 0] = _eigenvalue_from_root(abs(new_state[c, 3]), new_state[c, 0], params[pc, 0],
-                                                    params[pc, 1], params[pc, 2], mode)
+            new_state[c, 0] = _eigenvalue_from_root(
+                abs(new_state[c, 3]), new_state[c, 0], params[pc, 0], params[pc, 1], params[pc, 2], mode
+            )
     failed = False
     for c in range(n):
         pc = 0 if shared else c  # the parameter row of channel c
@@ -961,8 +979,7 @@ def kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r):
     k0 = m00 * S_inv
     k1 = m01 * S_inv
     k2 = m02 * S_inv
-    return (m00 - k0 * m00, m01 - k0 * m01, m02 - k0 * m02, m11 - k1 * m01, m12 - k1 * m02, m22 - k2 * m02,
-            k0, k1, k2)
+    return (m00 - k0 * m00, m01 - k0 * m01, m02 - k0 * m02, m11 - k1 * m01, m12 - k1 * m02, m22 - k2 * m02, k0, k1, k2)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -1044,15 +1061,23 @@ def _kalman_ca_rows(state, y, params, new_state, out, shared):
     # strided accesses for LLVM's vectorizer; the prior waits in ``new_state``, the gain in ``out``
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
-        M = kalman_ca_prior_covariance(state[c, 3], state[c, 4], state[c, 5], state[c, 6], state[c, 7],
-                                       state[c, 8], params[pc, 0], params[pc, 1])
+        M = kalman_ca_prior_covariance(
+            state[c, 3], state[c, 4], state[c, 5], state[c, 6], state[c, 7], state[c, 8], params[pc, 0], params[pc, 1]
+        )
         for i in range(6):
             new_state[c, 3 + i] = M[i]
     failed = False
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
-        P = kalman_ca_posterior_covariance(new_state[c, 3], new_state[c, 4], new_state[c, 5], new_state[c, 6],
-                                           new_state[c, 7], new_state[c, 8], params[pc, 2])
+        P = kalman_ca_posterior_covariance(
+            new_state[c, 3],
+            new_state[c, 4],
+            new_state[c, 5],
+            new_state[c, 6],
+            new_state[c, 7],
+            new_state[c, 8],
+            params[pc, 2],
+        )
         for i in range(6):
             new_state[c, 3 + i] = P[i]
             failed |= not math.isfinite(P[i])
@@ -1061,8 +1086,9 @@ def _kalman_ca_rows(state, y, params, new_state, out, shared):
         out[c, 2] = P[8]
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
-        x0, x1, x2, nu = kalman_ca_mean(state[c, 0], state[c, 1], state[c, 2], y[c], params[pc, 0],
-                                        out[c, 0], out[c, 1], out[c, 2])
+        x0, x1, x2, nu = kalman_ca_mean(
+            state[c, 0], state[c, 1], state[c, 2], y[c], params[pc, 0], out[c, 0], out[c, 1], out[c, 2]
+        )
         new_state[c, 0] = x0
         new_state[c, 1] = x1
         new_state[c, 2] = x2

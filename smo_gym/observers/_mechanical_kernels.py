@@ -37,8 +37,17 @@ from .. import _numba_cache
 from . import _kernels
 from ._kernels import CACHE, _check_state, _first_nonfinite, sta_implicit_channel_step
 
-__all__ = ["STATE_WIDTH", "X1_PREV", "MODEL", "INJECTION", "FILTERED", "ERROR", "MODEL_POS", "mechanical_kernel",
-           "mechanical_channel_step"]
+__all__ = [
+    "ERROR",
+    "FILTERED",
+    "INJECTION",
+    "MODEL",
+    "MODEL_POS",
+    "STATE_WIDTH",
+    "X1_PREV",
+    "mechanical_channel_step",
+    "mechanical_kernel",
+]
 
 STATE_WIDTH = 9
 INNOVATION = 2

@@ -39,8 +39,13 @@ def _compiled_entry(kernel, args):
     :meth:`Observer.update` guarantees that. Anything that is not a numba dispatcher is returned unchanged.
     Resolved entry points are cached per kernel and argument types (``numba.typeof`` costs ~20 us per array).
     """
-    key = (kernel, tuple((a.dtype.str, a.ndim, a.flags.c_contiguous, a.flags.f_contiguous, a.flags.writeable,
-                          a.flags.aligned) for a in args))
+    key = (
+        kernel,
+        tuple(
+            (a.dtype.str, a.ndim, a.flags.c_contiguous, a.flags.f_contiguous, a.flags.writeable, a.flags.aligned)
+            for a in args
+        ),
+    )
     try:
         return _ENTRY_POINTS[key]
     except KeyError:
@@ -70,8 +75,9 @@ def as_measurement(y, name: str) -> np.ndarray:
     if arr.ndim == 0:
         raise ValueError(f"expected {name} with shape (..., n_channels), actual value: a scalar {float(arr)!r}")
     if arr.size == 0:
-        raise ValueError(f"expected {name} with at least one channel and no empty batch dimension, actual value: "
-                         f"shape {arr.shape}")
+        raise ValueError(
+            f"expected {name} with at least one channel and no empty batch dimension, actual value: shape {arr.shape}"
+        )
     return arr
 
 
@@ -158,14 +164,17 @@ class Observer:
     @check_keywords
     def __init__(self, dt: float, order: int, discretization: str | None, wrap=None):
         if type(self)._channel_params is Observer._channel_params:
-            raise TypeError(f"expected a concrete observer class (SuperTwisting, Levant, ...; see "
-                            f"smo_gym.observers.OBSERVERS), actual value: {type(self).__name__}, which has no "
-                            "recursion of its own")
+            raise TypeError(
+                f"expected a concrete observer class (SuperTwisting, Levant, ...; see "
+                f"smo_gym.observers.OBSERVERS), actual value: {type(self).__name__}, which has no "
+                "recursion of its own"
+            )
         self.dt = check_positive("dt", dt)
         self.wrap = check_wrap(wrap)
         self.order = order
         self.discretization = check_choice(
-            "discretization", self.discretizations[0] if discretization is None else discretization,
+            "discretization",
+            self.discretizations[0] if discretization is None else discretization,
             self.discretizations,
         )
         self._shape: tuple[int, ...] | None = None
@@ -306,7 +315,7 @@ class Observer:
             return None
         x0 = np.zeros(y0.shape + (self.order + 1,))
         x0[..., 0] = y0
-        x0[..., 1:d.shape[-1] + 1] = d
+        x0[..., 1 : d.shape[-1] + 1] = d
         return x0
 
     def _fresh_state(self, y0: np.ndarray, x0: np.ndarray | None) -> np.ndarray:
@@ -476,8 +485,11 @@ class Observer:
         call, params, shape, out_shape = bound
         # the compiled entry point needs exactly: ndarray, native float64, C-contiguous, aligned, shape as at reset
         # (``carray``: C-contiguous, aligned and writeable, one flag for the common case)
-        if (type(y) is not _NDARRAY or y.dtype is not _FLOAT64
-                or not ((f := y.flags).carray or (f.c_contiguous and f.aligned))):
+        if (
+            type(y) is not _NDARRAY
+            or y.dtype is not _FLOAT64
+            or not ((f := y.flags).carray or (f.c_contiguous and f.aligned))
+        ):
             y = np.require(self._as_measurement(y, "y"), _FLOAT64, ("C", "A"))
         if y.shape != shape:
             raise ValueError(f"expected y with shape {shape}, actual value: {y.shape}")
@@ -532,12 +544,12 @@ class Observer:
         expected = self._state.shape
         state = np.ascontiguousarray(as_real_array("state", state))
         if state.shape != expected:
-            raise ValueError(f"expected state with shape {expected} (as observer.state), actual value: "
-                             f"{state.shape}")
+            raise ValueError(f"expected state with shape {expected} (as observer.state), actual value: {state.shape}")
         if not np.isfinite(state).all():
             bad = tuple(int(i) for i in np.argwhere(~np.isfinite(state))[0])
-            raise ValueError(f"expected a finite state, actual value: {state[bad]!r} at row {bad[0]} (channel), "
-                             f"column {bad[1]}")
+            raise ValueError(
+                f"expected a finite state, actual value: {state[bad]!r} at row {bad[0]} (channel), column {bad[1]}"
+            )
         y = np.ascontiguousarray(as_real_array("y", y))
         if y.shape not in ((expected[0],), self._shape):
             raise ValueError(f"expected y with shape ({expected[0]},) or {self._shape}, actual value: {y.shape}")
@@ -564,8 +576,13 @@ class Observer:
         shape = (T,) + self._estimate.shape
         if out is None:
             out = np.empty(shape)
-        elif not (isinstance(out, np.ndarray) and out.shape == shape and out.dtype == np.float64
-                  and out.flags.c_contiguous and out.flags.writeable):
+        elif not (
+            isinstance(out, np.ndarray)
+            and out.shape == shape
+            and out.dtype == np.float64
+            and out.flags.c_contiguous
+            and out.flags.writeable
+        ):
             raise ValueError(
                 f"expected out to be a writeable C-contiguous float64 array of shape {shape}, actual value: "
                 + (f"{out.dtype} array of shape {out.shape}" if isinstance(out, np.ndarray) else repr(type(out)))
@@ -574,8 +591,9 @@ class Observer:
             return out
         # all or nothing, like update(): the kernel loop advances a copy, committed only if every sample passed
         state = self._state.copy()
-        status, t = _kernels.run_offline(self._kernel, state, Y.reshape(T, -1), self._params,
-                                         out.reshape(T, -1, m), self._period)
+        status, t = _kernels.run_offline(
+            self._kernel, state, Y.reshape(T, -1), self._params, out.reshape(T, -1, m), self._period
+        )
         if status != -1:
             self._raise_status(status, Y[t])
         self._state = state
@@ -623,5 +641,4 @@ class Observer:
 
     def __repr__(self) -> str:
         wrap = "" if self.wrap is None else f", wrap={self.wrap!r}"
-        return (f"{type(self).__name__}(dt={self.dt}, order={self.order}, discretization={self.discretization!r}"
-                f"{wrap})")
+        return f"{type(self).__name__}(dt={self.dt}, order={self.order}, discretization={self.discretization!r}{wrap})"

@@ -54,7 +54,7 @@ from ..design.gains import (
 from . import _kernels
 from .base import Observer, taylor_matrix
 
-__all__ = ["Levant", "SuperTwisting", "URED", "UniformLevant", "eigenvalue_mapping_vectors", "taylor_matrix"]
+__all__ = ["URED", "Levant", "SuperTwisting", "UniformLevant", "eigenvalue_mapping_vectors", "taylor_matrix"]
 
 
 def _check_optional_positive(**values) -> None:
@@ -81,7 +81,7 @@ def _pack_hosm(dt: float, taylor: bool, gains: np.ndarray, powers: np.ndarray) -
 def _levant_sequence(gains, order: int) -> np.ndarray:
     """Levant's recursive parameters ``(lambda_0, ..., lambda_k)``: ``gains`` validated, or the paper's choice."""
     if gains is None:
-        return np.array(LEVANT_LAMBDAS[:order + 1])
+        return np.array(LEVANT_LAMBDAS[: order + 1])
     lam = check_positive_array("gains", gains)
     if lam.shape != (order + 1,):
         raise ValueError(
@@ -157,8 +157,7 @@ class SuperTwisting(Observer):
     name = "super-twisting"
 
     @check_keywords
-    def __init__(self, dt: float, lipschitz=None, *, k1=None, k2=None, discretization: str | None = None,
-                 wrap=None):
+    def __init__(self, dt: float, lipschitz=None, *, k1=None, k2=None, discretization: str | None = None, wrap=None):
         super().__init__(dt, 1, discretization, wrap)
         if lipschitz is None and (k1 is None or k2 is None):
             raise ValueError("expected lipschitz > 0 or both k1 and k2, actual value: lipschitz=None")
@@ -235,8 +234,18 @@ class Levant(Observer):
     name = "levant"
 
     @check_keywords
-    def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, discretization: str | None = None,
-                 p1=None, mu: float = 0.0, gains=None, wrap=None):
+    def __init__(
+        self,
+        order: int = 2,
+        dt: float = 1e-3,
+        lipschitz=1.0,
+        *,
+        discretization: str | None = None,
+        p1=None,
+        mu: float = 0.0,
+        gains=None,
+        wrap=None,
+    ):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
         super().__init__(dt, order, discretization, wrap)
         self.lipschitz = lipschitz
@@ -244,8 +253,10 @@ class Levant(Observer):
         eigmap = self.discretization in ("semi-implicit", "matching")
         if p1 is not None:
             if not eigmap:  # the Taylor and Euler steps have no eigenvalue map: a p1 would be silently ignored
-                raise ValueError("expected p1 only with discretization 'semi-implicit' or 'matching', actual "
-                                 f"value: p1={p1!r} with discretization {self.discretization!r}")
+                raise ValueError(
+                    "expected p1 only with discretization 'semi-implicit' or 'matching', actual "
+                    f"value: p1={p1!r} with discretization {self.discretization!r}"
+                )
             check_positive_array("p1", p1)
         self.p1 = p1
         self.mu = check_nonnegative("mu", mu)
@@ -256,12 +267,16 @@ class Levant(Observer):
             except np.linalg.LinAlgError:  # dt^order underflows: a singular observability matrix
                 finite = False
             if not finite:
-                raise ValueError(f"expected dt giving a finite eigenvalue mapping (dt^{order} representable), actual "
-                                 f"value: {self.dt!r}")
+                raise ValueError(
+                    f"expected dt giving a finite eigenvalue mapping (dt^{order} representable), actual "
+                    f"value: {self.dt!r}"
+                )
         if self.mu != 0.0 and not eigmap:
-            raise ValueError("expected mu only with discretization 'semi-implicit' or 'matching' (the uniform part "
-                             f"of Wetzlinger, Reichhartinger and Horn's observer), actual value: mu={mu!r} with "
-                             f"discretization {self.discretization!r}")
+            raise ValueError(
+                "expected mu only with discretization 'semi-implicit' or 'matching' (the uniform part "
+                f"of Wetzlinger, Reichhartinger and Horn's observer), actual value: mu={mu!r} with "
+                f"discretization {self.discretization!r}"
+            )
         if gains is not None and self.discretization in ("semi-implicit", "matching"):
             raise ValueError(
                 "expected gains only with discretization 'taylor' or 'euler' (the eigenvalue mappings are tuned "
@@ -322,8 +337,17 @@ class URED(Observer):
     name = "ured"
 
     @check_keywords
-    def __init__(self, dt: float, lipschitz=1.0, *, k1=None, k2=None, beta: float = 1.0,
-                 discretization: str | None = None, wrap=None):
+    def __init__(
+        self,
+        dt: float,
+        lipschitz=1.0,
+        *,
+        k1=None,
+        k2=None,
+        beta: float = 1.0,
+        discretization: str | None = None,
+        wrap=None,
+    ):
         super().__init__(dt, 1, discretization, wrap)
         _check_optional_positive(lipschitz=lipschitz, k1=k1, k2=k2)  # fail at construction, not at reset
         self.lipschitz, self.k1, self.k2 = lipschitz, k1, k2
@@ -392,8 +416,18 @@ class UniformLevant(Observer):
     name = "uniform-levant"
 
     @check_keywords
-    def __init__(self, order: int = 2, dt: float = 1e-3, lipschitz=1.0, *, alpha: float = 1.0, k=None,
-                 gains=None, discretization: str | None = None, wrap=None):
+    def __init__(
+        self,
+        order: int = 2,
+        dt: float = 1e-3,
+        lipschitz=1.0,
+        *,
+        alpha: float = 1.0,
+        k=None,
+        gains=None,
+        discretization: str | None = None,
+        wrap=None,
+    ):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
         super().__init__(dt, order, discretization, wrap)
         _check_optional_positive(lipschitz=lipschitz)  # fail at construction, not at reset
@@ -405,8 +439,9 @@ class UniformLevant(Observer):
                 raise ValueError(f"expected finite k with shape ({order + 1},), actual value: {k!r}")
             roots = np.roots(np.concatenate([[1.0], k]))
             if np.any(roots.real >= 0):
-                raise ValueError(f"expected k making s^n + k_1 s^(n-1) + ... + k_n Hurwitz, actual value: roots "
-                                 f"{roots}")
+                raise ValueError(
+                    f"expected k making s^n + k_1 s^(n-1) + ... + k_n Hurwitz, actual value: roots {roots}"
+                )
         self.k = k
         self.gains = _levant_sequence(gains, order)
 

@@ -39,6 +39,7 @@ References
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import ClassVar
 
 import numpy as np
 
@@ -52,8 +53,8 @@ from .._validation import (
     check_positive,
     check_positive_array,
 )
-from .differentiators import eigenvalue_mapping_vectors, taylor_matrix
 from .base import as_measurement, expand_mask
+from .differentiators import eigenvalue_mapping_vectors, taylor_matrix
 
 __all__ = [
     "DiscreteTimeHOSM",
@@ -227,11 +228,20 @@ class DiscreteTimeHOSM:
     """
 
     #: :math:`z^*` of (62) and (70): the proven stability bounds on the discrete eigenvalue
-    PROVEN_Z_BOUND = {2: 1.0 / np.sqrt(2.0), 3: 0.498582}
+    PROVEN_Z_BOUND: ClassVar[dict[int, float]] = {2: 1.0 / np.sqrt(2.0), 3: 0.498582}
 
     @check_keywords
-    def __init__(self, n: int, dt: float, p1, mu: float = 1.0, mapping: str = "semi-implicit", *,
-                 gamma: Sequence[Callable | None] | None = None, L_gamma=None):
+    def __init__(
+        self,
+        n: int,
+        dt: float,
+        p1,
+        mu: float = 1.0,
+        mapping: str = "semi-implicit",
+        *,
+        gamma: Sequence[Callable | None] | None = None,
+        L_gamma=None,
+    ):
         self.n = check_int_in_range("n", n, 2, 10)
         self.dt = check_positive("dt", dt)
         self.p1 = p1
@@ -240,12 +250,14 @@ class DiscreteTimeHOSM:
         self.mapping = check_choice("mapping", mapping, MAPPINGS)
         if gamma is not None:
             if isinstance(gamma, (str, bytes)) or not hasattr(gamma, "__iter__"):
-                raise TypeError(f"expected gamma to be a sequence of {self.n} callables or None, actual value: "
-                                f"{gamma!r}")
+                raise TypeError(
+                    f"expected gamma to be a sequence of {self.n} callables or None, actual value: {gamma!r}"
+                )
             gamma = list(gamma)
             if len(gamma) != self.n:
-                raise ValueError(f"expected gamma with {self.n} entries (callables or None), actual value: "
-                                 f"{len(gamma)} entries")
+                raise ValueError(
+                    f"expected gamma with {self.n} entries (callables or None), actual value: {len(gamma)} entries"
+                )
             for i, g in enumerate(gamma):
                 if g is not None and not callable(g):
                     raise TypeError(f"expected gamma[{i}] callable or None, actual value: {g!r}")
@@ -254,8 +266,9 @@ class DiscreteTimeHOSM:
         if L_gamma is not None:
             L_gamma = as_real_array("L_gamma", L_gamma)
             if L_gamma.shape != (self.n,) or np.any(np.isnan(L_gamma)) or np.any(L_gamma[1:] < 0):
-                raise ValueError(f"expected L_gamma of shape ({self.n},) with entries >= 0 (inf allowed), actual "
-                                 f"value: {L_gamma!r}")
+                raise ValueError(
+                    f"expected L_gamma of shape ({self.n},) with entries >= 0 (inf allowed), actual value: {L_gamma!r}"
+                )
         self.gamma, self.L_gamma = gamma, L_gamma
         with np.errstate(all="ignore"):  # an overflow is reported below
             self.A = taylor_matrix(self.n, self.dt)
@@ -265,8 +278,10 @@ class DiscreteTimeHOSM:
             except np.linalg.LinAlgError:  # dt^(n-1) underflows: a singular observability matrix
                 self._V = np.full((self.n + 1, self.n), np.nan)
         if not (np.isfinite(self.A).all() and np.isfinite(self.B).all() and np.isfinite(self._V).all()):
-            raise ValueError(f"expected dt giving finite matrices (31), (32) and (35) (dt^n representable), actual "
-                             f"value: {self.dt!r}")
+            raise ValueError(
+                f"expected dt giving finite matrices (31), (32) and (35) (dt^n representable), actual "
+                f"value: {self.dt!r}"
+            )
         self._shape: tuple[int, ...] | None = None
         self._x: np.ndarray | None = None
         self._p1: np.ndarray | None = None
@@ -319,12 +334,14 @@ class DiscreteTimeHOSM:
             try:
                 val = np.broadcast_to(val, xi.shape[:-1])
             except ValueError:
-                raise ValueError(f"expected gamma[{i}] to return shape {xi.shape[:-1]}, actual value: "
-                                 f"{val.shape}") from None
+                raise ValueError(
+                    f"expected gamma[{i}] to return shape {xi.shape[:-1]}, actual value: {val.shape}"
+                ) from None
             if not np.isfinite(val).all():
                 bad = tuple(int(j) for j in np.argwhere(~np.isfinite(val))[0])
-                raise ValueError(f"expected gamma[{i}] to return finite values, actual value: {val[bad]!r} at "
-                                 f"channel {bad[-1]}")
+                raise ValueError(
+                    f"expected gamma[{i}] to return finite values, actual value: {val[bad]!r} at channel {bad[-1]}"
+                )
             if i > 0:
                 val = np.clip(val, -self.L_gamma[i], self.L_gamma[i])
             out[..., i] = val
@@ -352,15 +369,17 @@ class DiscreteTimeHOSM:
         else:
             fresh = as_real_array("xi0", xi0, copy=True)
             if fresh.shape != y0.shape + (self.n,) or not np.all(np.isfinite(fresh)):
-                raise ValueError(f"expected finite xi0 with shape {y0.shape + (self.n,)}, actual value: "
-                                 f"shape {fresh.shape}")
+                raise ValueError(
+                    f"expected finite xi0 with shape {y0.shape + (self.n,)}, actual value: shape {fresh.shape}"
+                )
         if mask is None:
             p1 = self._check_p1(self.p1)
             try:
                 self._p1 = np.broadcast_to(p1, y0.shape).astype(float)
             except ValueError:
-                raise ValueError(f"expected p1 broadcastable to the measurement shape {y0.shape}, actual value: "
-                                 f"shape {p1.shape}") from None
+                raise ValueError(
+                    f"expected p1 broadcastable to the measurement shape {y0.shape}, actual value: shape {p1.shape}"
+                ) from None
             self._shape = y0.shape
             self._x = fresh
             self.output_error = np.zeros(y0.shape)
@@ -404,8 +423,10 @@ class DiscreteTimeHOSM:
             z = eigenvalue_mapping(sigma, self.dt, self._p1, self.mu, self.n, self.mapping)
             x_new = x @ self.A.T + terms @ self.B.T + self._gain(z) * sigma[..., None]  # (33)
         if not np.all(np.isfinite(x_new)):
-            raise DivergenceError("expected a finite observer state, actual value: non-finite after update "
-                                  f"(dt={self.dt}); the step was rejected and the previous state kept")
+            raise DivergenceError(
+                "expected a finite observer state, actual value: non-finite after update "
+                f"(dt={self.dt}); the step was rejected and the previous state kept"
+            )
         self._x = x_new
         self.output_error = sigma
         self.eigenvalue = z
@@ -426,8 +447,9 @@ class DiscreteTimeHOSM:
         if U is not None:
             U = as_real_array("U", U)
             if U.ndim == 0 or U.shape[0] != Y.shape[0]:
-                raise ValueError(f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape "
-                                 f"{U.shape}")
+                raise ValueError(
+                    f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape {U.shape}"
+                )
         saved = (self._x, self.output_error, self.eigenvalue, self.n_updates)
         out = np.empty(Y.shape + (self.n,))
         try:
@@ -450,5 +472,7 @@ class DiscreteTimeHOSM:
         return self._shape
 
     def __repr__(self) -> str:
-        return (f"DiscreteTimeHOSM(n={self.n}, dt={self.dt}, p1={self.p1!r}, mu={self.mu}, "
-                f"mapping={self.mapping!r}, model={'yes' if self.gamma else 'no'})")
+        return (
+            f"DiscreteTimeHOSM(n={self.n}, dt={self.dt}, p1={self.p1!r}, mu={self.mu}, "
+            f"mapping={self.mapping!r}, model={'yes' if self.gamma else 'no'})"
+        )

@@ -96,8 +96,9 @@ def _output_error_at(rho, s_pred, Q, QF, L, h, r_full, kind):
     return np.linalg.solve(N, s_pred[..., None])[..., 0]
 
 
-def solve_implicit_output_error(s_pred, Q, QF, L, h, r_full, kind: str, *, rho_min: float = 1e-14,
-                                iterations: int = 60) -> tuple[np.ndarray, np.ndarray]:
+def solve_implicit_output_error(
+    s_pred, Q, QF, L, h, r_full, kind: str, *, rho_min: float = 1e-14, iterations: int = 60
+) -> tuple[np.ndarray, np.ndarray]:
     r"""Solve the implicit injection of the ILF observers for :math:`s_{k+1}` and :math:`\rho = \|s_{k+1}\|`.
 
     .. math:: \big(I_k - hQ(\mathcal D(\rho)L - F)\big)s = s^-,\qquad \rho = \|s\|,\qquad Q = \tilde CR_w.
@@ -145,7 +146,7 @@ def solve_implicit_output_error(s_pred, Q, QF, L, h, r_full, kind: str, *, rho_m
         return np.log(np.maximum(np.linalg.norm(s, axis=-1), 1e-300)) - t, s
 
     lo = np.full(idx.size, math.log(rho_min))
-    f_lo, s_lo = phi(lo)
+    f_lo, _s_lo = phi(lo)
     hi_t = np.log(np.maximum(norm0[idx], rho_min)) + 1.0
     f_hi, _ = phi(hi_t)
     for _ in range(80):  # expand the bracket upwards until phi <= 0
@@ -240,8 +241,20 @@ class ILFObserver:
     """
 
     @check_keywords
-    def __init__(self, A, C, L, mu: float, kind: str = "finite", *, dt: float, B=None,
-                 decomposition: BlockDecomposition | None = None, rho_min: float = 1e-14, iterations: int = 60):
+    def __init__(
+        self,
+        A,
+        C,
+        L,
+        mu: float,
+        kind: str = "finite",
+        *,
+        dt: float,
+        B=None,
+        decomposition: BlockDecomposition | None = None,
+        rho_min: float = 1e-14,
+        iterations: int = 60,
+    ):
         self.kind = check_choice("kind", kind, ("finite", "fixed"))
         self.mu = check_positive("mu", mu)
         if self.kind == "finite" and self.mu > 1:
@@ -262,23 +275,27 @@ class ILFObserver:
             try:
                 decomposition = block_decomposition(A, C)
             except np.linalg.LinAlgError as exc:
-                raise ValueError(f"expected A and C with a computable block decomposition, actual value: {exc}") \
-                    from None
+                raise ValueError(
+                    f"expected A and C with a computable block decomposition, actual value: {exc}"
+                ) from None
         elif not isinstance(decomposition, BlockDecomposition):
             raise TypeError(f"expected a BlockDecomposition, actual value: {type(decomposition).__name__}")
         dec = decomposition
         self.decomposition = dec
         n, k = dec.n, dec.C0.shape[0]
         if A.shape != (n, n) or C.shape != (k, n):
-            raise ValueError(f"expected A ({n}, {n}) and C ({k}, {n}) matching the decomposition, actual value: "
-                             f"A {A.shape}, C {C.shape}")
+            raise ValueError(
+                f"expected A ({n}, {n}) and C ({k}, {n}) matching the decomposition, actual value: "
+                f"A {A.shape}, C {C.shape}"
+            )
         L = as_real_array("L", L)
         if L.shape != (n, k) or not np.all(np.isfinite(L)):
             raise ValueError(f"expected a finite L with shape ({n}, {k}), actual value: shape {L.shape}")
         abscissa = float(np.max(np.linalg.eigvals(dec.A_tilde + L @ dec.C_tilde).real))
         if abscissa >= 0:
-            raise ValueError(f"expected L with A_tilde + L C_tilde Hurwitz, actual value: spectral abscissa "
-                             f"{abscissa:.3g}")
+            raise ValueError(
+                f"expected L with A_tilde + L C_tilde Hurwitz, actual value: spectral abscissa {abscissa:.3g}"
+            )
         if B is None:
             B = np.zeros((n, 0))
         else:
@@ -298,8 +315,10 @@ class ILFObserver:
         self._C0inv = np.linalg.inv(dec.C0)
         self._r = np.repeat(ilf_degrees(dec.m, self.mu), dec.block_sizes)
         if not all(np.isfinite(M).all() for M in (self._Ad, self._Bd, self._Q, self._Psi)):
-            raise ValueError(f"expected A and dt with a finite discretization e^(A dt), actual value: dt={self.dt!r}, "
-                             f"spectral radius of A {float(np.max(np.abs(np.linalg.eigvals(A)))):.3g}")
+            raise ValueError(
+                f"expected A and dt with a finite discretization e^(A dt), actual value: dt={self.dt!r}, "
+                f"spectral radius of A {float(np.max(np.abs(np.linalg.eigvals(A)))):.3g}"
+            )
         self._x: np.ndarray | None = None
         self.rho: np.ndarray | None = None
         self.n_updates = 0
@@ -311,8 +330,7 @@ class ILFObserver:
     @classmethod
     def from_design(cls, A, C, design, *, dt: float, B=None, **kwargs) -> ILFObserver:
         """Build from an :class:`smo_gym.design.ILFDesign` (its gain, ``mu``, kind and decomposition)."""
-        return cls(A, C, design.L, design.mu, design.kind, dt=dt, B=B, decomposition=design.decomposition,
-                   **kwargs)
+        return cls(A, C, design.L, design.mu, design.kind, dt=dt, B=B, decomposition=design.decomposition, **kwargs)
 
     @check_keywords
     def reset(self, x0_hat) -> np.ndarray:
@@ -326,12 +344,16 @@ class ILFObserver:
     def _array(self, value, name: str, width: int) -> np.ndarray:
         arr = as_real_array(name, value, copy=True)
         if arr.ndim == 0 or arr.shape[-1] != width or arr.size == 0:
-            raise ValueError(f"expected {name} with shape (..., {width}) and no empty batch dimension, actual value: "
-                             f"shape {arr.shape}")
+            raise ValueError(
+                f"expected {name} with shape (..., {width}) and no empty batch dimension, actual value: "
+                f"shape {arr.shape}"
+            )
         if not np.all(np.isfinite(arr)):
             bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-            raise ValueError(f"expected finite values in {name}, actual value: {arr[bad]!r} at channel {bad[-1]}"
-                             + (f" of batch element {bad[:-1]}" if len(bad) > 1 else ""))
+            raise ValueError(
+                f"expected finite values in {name}, actual value: {arr[bad]!r} at channel {bad[-1]}"
+                + (f" of batch element {bad[:-1]}" if len(bad) > 1 else "")
+            )
         return arr
 
     def update(self, y, u=None) -> np.ndarray:
@@ -361,14 +383,25 @@ class ILFObserver:
                 x_pred = x_pred + u @ self._Bd.T
             s_pred = (y.reshape(-1, y.shape[-1]) - x_pred @ self.C.T) @ self._C0inv.T
             h = np.full(x.shape[0], self.dt)
-            s_new, rho = solve_implicit_output_error(s_pred, self._Q, self._QF, self._L, h, self._r, self.kind,
-                                                     rho_min=self.rho_min, iterations=self.iterations)
+            s_new, rho = solve_implicit_output_error(
+                s_pred,
+                self._Q,
+                self._QF,
+                self._L,
+                h,
+                self._r,
+                self.kind,
+                rho_min=self.rho_min,
+                iterations=self.iterations,
+            )
             d = injection_weights(np.where(rho > 0, rho, 1.0), self._r, self.kind)
             inj = d * (s_new @ self.L.T) - s_new @ self.decomposition.F.T  # (D L - F) s, in block coordinates
             x_new = x_pred - self.dt * inj @ self._Psi.T
         if not np.all(np.isfinite(x_new)):
-            raise DivergenceError("expected a finite observer state, actual value: non-finite after update "
-                                  f"(dt={self.dt}); the previous state was kept")
+            raise DivergenceError(
+                "expected a finite observer state, actual value: non-finite after update "
+                f"(dt={self.dt}); the previous state was kept"
+            )
         self._x = x_new.reshape(batch + (self.n,))
         self.rho = rho.reshape(batch)
         self.n_updates += 1
@@ -390,8 +423,9 @@ class ILFObserver:
         except ValueError:
             raise ValueError(f"expected x with shape {self.estimate.shape}, actual value: {x.shape}") from None
         if not np.isfinite(e).all():
-            raise ValueError(f"expected x close enough to the estimate for finite error coordinates, actual value: "
-                             f"{x!r}")
+            raise ValueError(
+                f"expected x close enough to the estimate for finite error coordinates, actual value: {x!r}"
+            )
         return e
 
     def __repr__(self) -> str:
@@ -442,7 +476,7 @@ def _ilf_chain_step(state, y, params, new_state, out):
     omega = params[:, 1]
     kind = "finite" if params[0, 2] == 0.0 else "fixed"
     mu = params[0, 3]
-    L = params[:, 5:5 + m]
+    L = params[:, 5 : 5 + m]
     x = state[:, :m]
     # exact prediction e^{hN} x (Taylor matrix) and first row of R = (I - hN)^-1: [1, h, h^2, ...]
     j = np.arange(m)
@@ -453,8 +487,9 @@ def _ilf_chain_step(state, y, params, new_state, out):
         x_pred[:, i] = np.sum(x[:, i:] * hp[:, : m - i] / fact[: m - i], axis=1)
     s_pred = (y - x_pred[:, 0])[:, None]
     r = ilf_degrees(m, mu)
-    s_new, rho = solve_implicit_output_error(s_pred, hp[:, None, :], np.zeros((1, 1, 1)), L[:, :, None], h, r,
-                                             kind, rho_min=params[0, 4])
+    s_new, rho = solve_implicit_output_error(
+        s_pred, hp[:, None, :], np.zeros((1, 1, 1)), L[:, :, None], h, r, kind, rho_min=params[0, 4]
+    )
     d = injection_weights(np.where(rho > 0, rho, 1.0), r, kind)
     inj = d * L * s_new  # (N, m): D L s
     # x_new = x_pred - h R inj, R_ij = h^(j-i) for j >= i
@@ -518,16 +553,29 @@ class ILFDifferentiator(Observer):
     kind = "finite"
 
     @check_keywords
-    def __init__(self, dt: float, lipschitz=None, *, order: int = 1, mu: float | None = None,
-                 alpha: float | None = None, rate=None, gain=None, rho_min: float = 1e-14,
-                 discretization: str | None = None, wrap=None):
+    def __init__(
+        self,
+        dt: float,
+        lipschitz=None,
+        *,
+        order: int = 1,
+        mu: float | None = None,
+        alpha: float | None = None,
+        rate=None,
+        gain=None,
+        rho_min: float = 1e-14,
+        discretization: str | None = None,
+        wrap=None,
+    ):
         order = check_int_in_range("order", order, 1, 4)
         super().__init__(dt, order, discretization, wrap)
         n = order + 1
         self.mu = _DEFAULT_MU[self.kind] if mu is None else check_positive("mu", mu)
         if (self.kind == "finite" and self.mu > 1) or (self.kind == "fixed" and self.mu >= 1):
-            raise ValueError(f"expected 0 < mu {'<=' if self.kind == 'finite' else '<'} 1 for the {self.kind}-time "
-                             f"observer, actual value: {mu!r}")
+            raise ValueError(
+                f"expected 0 < mu {'<=' if self.kind == 'finite' else '<'} 1 for the {self.kind}-time "
+                f"observer, actual value: {mu!r}"
+            )
         self.alpha = None if self.kind == "finite" else (2.0 if alpha is None else check_positive("alpha", alpha))
         if lipschitz is None and rate is None:
             raise ValueError("expected lipschitz > 0 or rate > 0, actual value: both None")
@@ -544,8 +592,10 @@ class ILFDifferentiator(Observer):
         # design needs that matrix Hurwitz (a zero last gain, say, would leave the last derivative uncorrected)
         abscissa = float(np.max(np.linalg.eigvals(np.eye(n, k=1) + np.outer(gain, np.eye(n)[0])).real))
         if not abscissa < 0:
-            raise ValueError(f"expected a gain L with N + L e_1^T Hurwitz (L from smo_gym.design.ilf_gains), actual "
-                             f"value: {gain.tolist()}, spectral abscissa {abscissa:.3g}")
+            raise ValueError(
+                f"expected a gain L with N + L e_1^T Hurwitz (L from smo_gym.design.ilf_gains), actual "
+                f"value: {gain.tolist()}, spectral abscissa {abscissa:.3g}"
+            )
         self.gain = gain
         self.rho_min = check_positive("rho_min", rho_min)
 
@@ -565,8 +615,15 @@ class ILFDifferentiator(Observer):
         else:
             omega = (1.1 * self._per_channel("lipschitz", self.lipschitz, shape) / abs(self.gain[-1])) ** (1.0 / n)
         N = omega.size
-        head = np.column_stack([np.full(N, self.dt), omega, np.full(N, 0.0 if self.kind == "finite" else 1.0),
-                                np.full(N, self.mu), np.full(N, self.rho_min)])
+        head = np.column_stack(
+            [
+                np.full(N, self.dt),
+                omega,
+                np.full(N, 0.0 if self.kind == "finite" else 1.0),
+                np.full(N, self.mu),
+                np.full(N, self.rho_min),
+            ]
+        )
         return np.hstack([head, np.broadcast_to(self.gain, (N, n))])
 
     def run(self, Y) -> np.ndarray:

@@ -54,8 +54,9 @@ class HighGain(Observer):
     name = "high-gain"
 
     @check_keywords
-    def __init__(self, dt: float, gain: float, order: int = 1, *, coefficients=None,
-                 discretization: str | None = None, wrap=None):
+    def __init__(
+        self, dt: float, gain: float, order: int = 1, *, coefficients=None, discretization: str | None = None, wrap=None
+    ):
         order = check_int_in_range("order", order, 1, 9)
         super().__init__(dt, order, discretization, wrap)
         self.gain = check_positive("gain", gain)
@@ -114,8 +115,10 @@ class HighGain(Observer):
             except (np.linalg.LinAlgError, ValueError):
                 row = np.array([np.nan])
         if not np.isfinite(row).all():
-            raise ValueError(f"expected gain, coefficients and dt giving finite injection gains k_i gain^i and a "
-                             f"finite discrete step, actual value: gain={self.gain!r}, dt={self.dt!r}")
+            raise ValueError(
+                f"expected gain, coefficients and dt giving finite injection gains k_i gain^i and a "
+                f"finite discrete step, actual value: gain={self.gain!r}, dt={self.dt!r}"
+            )
         return row
 
     def _channel_params(self, shape):
@@ -193,22 +196,33 @@ class KalmanCA(Observer):
     name = "kalman-ca"
 
     @check_keywords
-    def __init__(self, dt: float, process_noise: float, measurement_noise: float, *,
-                 initial_std: tuple[float, float] = (10.0, 100.0), discretization: str | None = None,
-                 wrap=None):
+    def __init__(
+        self,
+        dt: float,
+        process_noise: float,
+        measurement_noise: float,
+        *,
+        initial_std: tuple[float, float] = (10.0, 100.0),
+        discretization: str | None = None,
+        wrap=None,
+    ):
         super().__init__(dt, 2, discretization, wrap)
         self.process_noise = check_positive("process_noise", process_noise)
         self.measurement_noise = check_positive("measurement_noise", measurement_noise)
         if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:
-            raise TypeError("expected initial_std to be a pair (velocity std, acceleration std), actual value: "
-                            f"{initial_std!r}")
-        self.initial_std = (check_positive("initial_std[0]", initial_std[0]),
-                            check_positive("initial_std[1]", initial_std[1]))
+            raise TypeError(
+                f"expected initial_std to be a pair (velocity std, acceleration std), actual value: {initial_std!r}"
+            )
+        self.initial_std = (
+            check_positive("initial_std[0]", initial_std[0]),
+            check_positive("initial_std[1]", initial_std[1]),
+        )
 
     @classmethod
     @check_keywords
-    def from_bounds(cls, dt: float, noise_std: float, accel_bound: float, *, resolution: float = 0.0,
-                    **kwargs) -> KalmanCA:
+    def from_bounds(
+        cls, dt: float, noise_std: float, accel_bound: float, *, resolution: float = 0.0, **kwargs
+    ) -> KalmanCA:
         r"""Set ``q`` and ``r`` from a noise level and an acceleration bound.
 
         ``r = noise_std^2 + resolution^2 / 12`` (Gaussian noise plus uniform quantization error), and
@@ -224,8 +238,10 @@ class KalmanCA(Observer):
         if r <= 0:
             raise ValueError("expected noise_std > 0 or resolution > 0, actual value: both zero")
         if not (np.isfinite(r) and np.isfinite(q)):
-            raise ValueError(f"expected noise_std, resolution and accel_bound whose squares are finite, actual value: "
-                             f"noise_std={noise_std!r}, resolution={resolution!r}, accel_bound={accel_bound!r}")
+            raise ValueError(
+                f"expected noise_std, resolution and accel_bound whose squares are finite, actual value: "
+                f"noise_std={noise_std!r}, resolution={resolution!r}, accel_bound={accel_bound!r}"
+            )
         return cls(dt, q, r, **kwargs)
 
     @property

@@ -291,9 +291,19 @@ class LowPowerHighGain(Observer):
     name = "low-power-high-gain"
 
     @check_keywords
-    def __init__(self, dt: float, gain: float, order: int = 1, *, bounds=None, coefficients=None,
-                 filter_coefficient: float | None = None, readout: str = "peaking-free",
-                 discretization: str | None = None, wrap=None):
+    def __init__(
+        self,
+        dt: float,
+        gain: float,
+        order: int = 1,
+        *,
+        bounds=None,
+        coefficients=None,
+        filter_coefficient: float | None = None,
+        readout: str = "peaking-free",
+        discretization: str | None = None,
+        wrap=None,
+    ):
         order = check_int_in_range("order", order, 1, 9)
         super().__init__(dt, order, discretization, wrap)
         n = order + 1
@@ -321,7 +331,8 @@ class LowPowerHighGain(Observer):
                 b = np.broadcast_to(b, (order,)).astype(float)
             except ValueError:
                 raise ValueError(
-                    f"expected bounds with shape ({order},) or a scalar, actual value: {bounds!r}") from None
+                    f"expected bounds with shape ({order},) or a scalar, actual value: {bounds!r}"
+                ) from None
             if np.any(~(b > 0)) or np.any(np.isnan(b)):
                 raise ValueError(f"expected bounds > 0, actual value: {bounds!r}")
             self.bounds = b
@@ -371,10 +382,10 @@ class LowPowerHighGain(Observer):
         coordinates :math:`\zeta = T^{-1}s` (:meth:`state_scale`)."""
         n = self.order + 1
         s = np.empty((x0.shape[0], 2 * n - 1))
-        s[:, 0:2 * n - 2:2] = x0[:, :n - 1]  # xi_{i,1} = x_i
-        s[:, 1:2 * n - 2:2] = x0[:, 1:]  # xi_{i,2} = x_{i+1}
+        s[:, 0 : 2 * n - 2 : 2] = x0[:, : n - 1]  # xi_{i,1} = x_i
+        s[:, 1 : 2 * n - 2 : 2] = x0[:, 1:]  # xi_{i,2} = x_{i+1}
         s[:, 2 * n - 2] = x0[:, n - 1]  # eta = x_n
-        state[:, :2 * n - 1] = s / self.state_scale()
+        state[:, : 2 * n - 1] = s / self.state_scale()
 
     def state_scale(self) -> np.ndarray:
         r"""Diagonal ``T`` of the internal coordinates: the kernel's state is :math:`\zeta = T^{-1}s` with
@@ -393,8 +404,10 @@ class LowPowerHighGain(Observer):
             try:
                 M = self.system_matrices()
             except OverflowError:  # ell**2 of a Python float
-                M = {k: np.full_like(v, np.nan) for k, v in low_power_matrices(n, 1.0, self.coefficients,
-                                                                              self.filter_coefficient).items()}
+                M = {
+                    k: np.full_like(v, np.nan)
+                    for k, v in low_power_matrices(n, 1.0, self.coefficients, self.filter_coefficient).items()
+                }
             T = self.state_scale()
             cols = 2 * np.arange(n - 1) + 1  # xi_{j,2}, the saturated interconnection signals
             F = M["F"] * T[None, :] / T[:, None]  # T^-1 F T
@@ -408,14 +421,18 @@ class LowPowerHighGain(Observer):
             levels = self.bounds / T[cols]  # r_j in zeta units (inf: no saturation)
             R = (M["R_peaking_free"] if self.readout == "peaking-free" else M["R_low_power"]) * T[None, :]
         if not all(np.isfinite(a).all() for a in (Minv, b, Aimp, fc, R)) or np.isnan(levels).any():
-            raise ValueError(f"expected gain and dt giving a finite implicit step (gain^(2n-2) and gain * dt "
-                             f"representable), actual value: gain={self.gain!r}, dt={self.dt!r}, order={self.order}")
+            raise ValueError(
+                f"expected gain and dt giving a finite implicit step (gain^(2n-2) and gain * dt "
+                f"representable), actual value: gain={self.gain!r}, dt={self.dt!r}, order={self.order}"
+            )
         row = np.concatenate([[h], Minv.ravel(), b, Aimp.ravel(), fc.ravel(), levels, R.ravel()])
         return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
 
     def __repr__(self) -> str:
-        return (f"LowPowerHighGain(dt={self.dt}, gain={self.gain}, order={self.order}, "
-                f"bounds={self.bounds.tolist()}, readout={self.readout!r})")
+        return (
+            f"LowPowerHighGain(dt={self.dt}, gain={self.gain}, order={self.order}, "
+            f"bounds={self.bounds.tolist()}, readout={self.readout!r})"
+        )
 
 
 def polynomial_powers(ells: np.ndarray, values: np.ndarray, max_degree: int, rtol: float = 1e-6) -> list[int]:

@@ -66,7 +66,7 @@ from . import _mechanical_kernels as _mk
 from ._kernels import _first_nonfinite
 from .base import Observer
 
-__all__ = ["CoordinateTransform", "Dynamics", "DissipativeSuperTwisting", "MechanicalSuperTwisting"]
+__all__ = ["CoordinateTransform", "DissipativeSuperTwisting", "Dynamics", "MechanicalSuperTwisting"]
 
 
 @runtime_checkable
@@ -97,8 +97,10 @@ class Dynamics(Protocol):
 
 def _check_dynamics(dynamics) -> int:
     if not isinstance(dynamics, Dynamics):
-        raise TypeError("expected a dynamics object with n, acceleration(q, v, u) and inertia(q), actual value: "
-                        f"{type(dynamics).__name__}")
+        raise TypeError(
+            "expected a dynamics object with n, acceleration(q, v, u) and inertia(q), actual value: "
+            f"{type(dynamics).__name__}"
+        )
     return check_int_in_range("dynamics.n", dynamics.n, 1, 10_000)
 
 
@@ -120,8 +122,10 @@ def _checked_input(u):
 
 
 def _model_term_error(shape, value) -> ValueError:
-    return ValueError(f"expected dynamics.acceleration to return an array of shape {shape}, actual value: "
-                      f"{type(value).__name__} of shape {np.shape(value) if hasattr(value, 'shape') else '?'}")
+    return ValueError(
+        f"expected dynamics.acceleration to return an array of shape {shape}, actual value: "
+        f"{type(value).__name__} of shape {np.shape(value) if hasattr(value, 'shape') else '?'}"
+    )
 
 
 def _signed_root(e: np.ndarray) -> np.ndarray:
@@ -192,11 +196,11 @@ class _ModelBasedSuperTwisting(Observer):
         N = int(np.prod(shape))
         beta = self.dt / (self.disturbance_time_constant + self.dt)
         head = np.array([self.dt, self.position_weight])
-        tail = np.array([1.0 if self.discretization == "semi-implicit" else 0.0, beta,
-                         1.0 if self.model_substeps > 1 else 0.0])
+        tail = np.array(
+            [1.0 if self.discretization == "semi-implicit" else 0.0, beta, 1.0 if self.model_substeps > 1 else 0.0]
+        )
         bound = np.full(self.n, np.inf) if self.accel_bound is None else self.accel_bound
-        rows = np.hstack([np.tile(head, (self.n, 1)), self._gains_row(), np.tile(tail, (self.n, 1)),
-                          bound[:, None]])
+        rows = np.hstack([np.tile(head, (self.n, 1)), self._gains_row(), np.tile(tail, (self.n, 1)), bound[:, None]])
         return np.tile(rows, (N // self.n, 1))
 
     def _initial_state(self, y0, params):
@@ -228,8 +232,9 @@ class _ModelBasedSuperTwisting(Observer):
             try:
                 np.broadcast_to(v0, y0.shape)
             except ValueError:
-                raise ValueError(f"expected v0 broadcastable to the shape of y0 {y0.shape}, actual value: shape "
-                                 f"{v0.shape}") from None
+                raise ValueError(
+                    f"expected v0 broadcastable to the shape of y0 {y0.shape}, actual value: shape {v0.shape}"
+                ) from None
             if not np.isfinite(v0).all():
                 bad = tuple(int(i) for i in np.argwhere(~np.isfinite(v0))[0])
                 raise ValueError(f"expected a finite v0, actual value: {v0[bad]!r} at index {bad}")
@@ -241,16 +246,20 @@ class _ModelBasedSuperTwisting(Observer):
         if mask is None:
             self._y_prev = np.ascontiguousarray(y0, dtype=np.float64).copy()
             self._mb_out_shape = self._shape + (2,)
-            self._direct = (len(self._shape) == 1 and self.model_substeps == 1
-                            and type(self)._model_term is MechanicalSuperTwisting._model_term)
+            self._direct = (
+                len(self._shape) == 1
+                and self.model_substeps == 1
+                and type(self)._model_term is MechanicalSuperTwisting._model_term
+            )
             self._model_call = None
         else:
             mk = check_mask("mask", mask)
             if mk.shape == self._shape[:-1]:
                 mk = np.broadcast_to(mk[..., None], self._shape)
             self._y_prev[mk] = y0[mk]
-        q, v = self._to_estimate(self._state[:, 0].reshape(self._shape), self._state[:, 1].reshape(self._shape),
-                                 self._y_prev)
+        q, v = self._to_estimate(
+            self._state[:, 0].reshape(self._shape), self._state[:, 1].reshape(self._shape), self._y_prev
+        )
         self._estimate = np.stack([q, v], axis=-1)
         return self._estimate.copy()
 
@@ -354,8 +363,9 @@ class _ModelBasedSuperTwisting(Observer):
         if U is not None:
             U = as_real_array("U", U)
             if U.ndim == 0 or U.shape[0] != Y.shape[0]:
-                raise ValueError(f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape "
-                                 f"{U.shape}")
+                raise ValueError(
+                    f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape {U.shape}"
+                )
         saved = (self._state.copy(), self._y_prev.copy(), self._estimate, self.n_updates)
         out = np.empty((Y.shape[0],) + self._shape + (2,))
         try:
@@ -369,8 +379,10 @@ class _ModelBasedSuperTwisting(Observer):
         return out
 
     def step(self, state, y):
-        raise NotImplementedError("expected update(y, u) for a model-based observer (its model term needs the "
-                                  "dynamics and the input), actual value: step(state, y)")
+        raise NotImplementedError(
+            "expected update(y, u) for a model-based observer (its model term needs the "
+            "dynamics and the input), actual value: step(state, y)"
+        )
 
     # ---- disturbance estimate -----------------------------------------------------------------------------
     def _injection_scale(self) -> np.ndarray:
@@ -461,11 +473,28 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
     name = "mechanical-super-twisting"
 
     @check_keywords
-    def __init__(self, dt: float, dynamics: Dynamics, lipschitz=None, *, k1=None, k2=None, accel_bound=None,
-                 discretization: str | None = None, euler_substeps: int | None = None, model_substeps: int = 1,
-                 disturbance_time_constant: float = 0.02):
-        super().__init__(dt, dynamics, accel_bound=accel_bound, discretization=discretization,
-                         euler_substeps=euler_substeps, disturbance_time_constant=disturbance_time_constant)
+    def __init__(
+        self,
+        dt: float,
+        dynamics: Dynamics,
+        lipschitz=None,
+        *,
+        k1=None,
+        k2=None,
+        accel_bound=None,
+        discretization: str | None = None,
+        euler_substeps: int | None = None,
+        model_substeps: int = 1,
+        disturbance_time_constant: float = 0.02,
+    ):
+        super().__init__(
+            dt,
+            dynamics,
+            accel_bound=accel_bound,
+            discretization=discretization,
+            euler_substeps=euler_substeps,
+            disturbance_time_constant=disturbance_time_constant,
+        )
         self.model_substeps = check_int_in_range("model_substeps", model_substeps, 1, 100_000)
         if lipschitz is None and (k1 is None or k2 is None):
             raise ValueError("expected lipschitz > 0 or both k1 and k2, actual value: lipschitz=None")
@@ -542,8 +571,13 @@ class CoordinateTransform:
             raise TypeError(f"expected alpha to be a callable alpha(Y) -> A, actual value: {alpha!r}")
         lower = np.atleast_1d(as_real_array("lower", lower))
         upper = np.atleast_1d(as_real_array("upper", upper))
-        if (lower.shape != upper.shape or lower.ndim != 1 or lower.size == 0 or np.any(~(upper > lower))
-                or not np.isfinite(upper - lower).all()):
+        if (
+            lower.shape != upper.shape
+            or lower.ndim != 1
+            or lower.size == 0
+            or np.any(~(upper > lower))
+            or not np.isfinite(upper - lower).all()
+        ):
             raise ValueError(f"expected finite lower < upper of equal shape (n,), actual value: {lower!r}, {upper!r}")
         n = lower.size
         a = (lower + upper) / 2 if reference is None else as_real_array("reference", reference)
@@ -566,8 +600,10 @@ class CoordinateTransform:
             T = np.vstack([np.zeros(n), np.cumsum((ups[1:] + ups[:-1]) / 2 * dy, axis=0)])
             T_a = np.array([np.interp(a[i], Y[:, i], T[:, i]) for i in range(n)])
         if not (np.isfinite(T - T_a).all() and np.all(ups > 0)):
-            raise ValueError("expected alpha and a range whose transform Upsilon = exp(-int alpha) and T_1 are "
-                             "finite and positive, actual value: it overflows (a smaller range or alpha)")
+            raise ValueError(
+                "expected alpha and a range whose transform Upsilon = exp(-int alpha) and T_1 are "
+                "finite and positive, actual value: it overflows (a smaller range or alpha)"
+            )
         self.n, self.lower, self.upper, self.reference = n, lower, upper, a
         self.grid_y, self.grid_alpha, self.grid_upsilon, self.grid_T = Y, A, ups, T - T_a
         #: :math:`L_\alpha = \max|\int_a^y \alpha|` over the range (assumption A-2)
@@ -595,20 +631,30 @@ class CoordinateTransform:
 
     def position(self, y) -> np.ndarray:
         r""":math:`T_1(y)` per channel (linear continuation outside the range), shape ``(..., n)``."""
+
         def f(i, yi):
             gy, gT, gu = self.grid_y[:, i], self.grid_T[:, i], self.grid_upsilon[:, i]
             base = np.interp(yi, gy, gT)
-            return base + np.where(yi < gy[0], (yi - gy[0]) * gu[0], 0.0) + np.where(yi > gy[-1],
-                                                                                     (yi - gy[-1]) * gu[-1], 0.0)
+            return (
+                base
+                + np.where(yi < gy[0], (yi - gy[0]) * gu[0], 0.0)
+                + np.where(yi > gy[-1], (yi - gy[-1]) * gu[-1], 0.0)
+            )
+
         return self._per_channel(f, y)
 
     def position_inverse(self, x) -> np.ndarray:
         r""":math:`T_1^{-1}(x)` per channel, shape ``(..., n)``."""
+
         def f(i, xi):
             gy, gT, gu = self.grid_y[:, i], self.grid_T[:, i], self.grid_upsilon[:, i]
             base = np.interp(xi, gT, gy)
-            return base + np.where(xi < gT[0], (xi - gT[0]) / gu[0], 0.0) + np.where(xi > gT[-1],
-                                                                                     (xi - gT[-1]) / gu[-1], 0.0)
+            return (
+                base
+                + np.where(xi < gT[0], (xi - gT[0]) / gu[0], 0.0)
+                + np.where(xi > gT[-1], (xi - gT[-1]) / gu[-1], 0.0)
+            )
+
         return self._per_channel(f, x)
 
     def forward(self, q, v) -> tuple[np.ndarray, np.ndarray]:
@@ -691,11 +737,26 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
     name = "dissipative-super-twisting"
 
     @check_keywords
-    def __init__(self, dt: float, dynamics: Dynamics, transform: CoordinateTransform, gains, *,
-                 accel_bound=None, discretization: str | None = None, euler_substeps: int | None = None,
-                 disturbance_time_constant: float = 0.02):
-        super().__init__(dt, dynamics, accel_bound=accel_bound, discretization=discretization,
-                         euler_substeps=euler_substeps, disturbance_time_constant=disturbance_time_constant)
+    def __init__(
+        self,
+        dt: float,
+        dynamics: Dynamics,
+        transform: CoordinateTransform,
+        gains,
+        *,
+        accel_bound=None,
+        discretization: str | None = None,
+        euler_substeps: int | None = None,
+        disturbance_time_constant: float = 0.02,
+    ):
+        super().__init__(
+            dt,
+            dynamics,
+            accel_bound=accel_bound,
+            discretization=discretization,
+            euler_substeps=euler_substeps,
+            disturbance_time_constant=disturbance_time_constant,
+        )
         if not isinstance(transform, CoordinateTransform) or transform.n != self.n:
             raise TypeError(f"expected a CoordinateTransform with n={self.n}, actual value: {transform!r}")
         self.transform = transform
@@ -707,8 +768,10 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
             mu2 = np.broadcast_to(as_real_array("mu2", _gain_value(gains, "mu2")), shape)
             k3 = np.broadcast_to(as_real_array("k3", _gain_value(gains, "k3")), shape)
         except ValueError:
-            raise ValueError(f"expected mu2 and k3 broadcastable to ({self.n},), actual value: "
-                             f"{_gain_value(gains, 'mu2')!r}, {_gain_value(gains, 'k3')!r}") from None
+            raise ValueError(
+                f"expected mu2 and k3 broadcastable to ({self.n},), actual value: "
+                f"{_gain_value(gains, 'mu2')!r}, {_gain_value(gains, 'k3')!r}"
+            ) from None
         if np.any(~(mu2 >= 0)) or not np.all(np.isfinite(mu2)) or not np.all(np.isfinite(k3)):
             raise ValueError(f"expected mu2 >= 0 and finite k3, actual value: mu2={mu2!r}, k3={k3!r}")
         self.mu2, self.k3 = mu2.copy(), k3.copy()

@@ -110,8 +110,9 @@ def convergence_time_bound(n: int, kappa: float, eig_ratio: float, q: float, alp
     return float(-2.0 / kappa * qa / (qa - 1.0) * np.log(eig_ratio * q ** (alpha * (1 - n) / (qa - 1.0) - 1.0)))
 
 
-def noise_optimal_gains(n: int, rho_d: float, rho_v: float, disturbance: float, noise: float,
-                        mu_ref: float = 1.0) -> tuple[float, float]:
+def noise_optimal_gains(
+    n: int, rho_d: float, rho_v: float, disturbance: float, noise: float, mu_ref: float = 1.0
+) -> tuple[float, float]:
     r"""``(mu_min, mu_max)`` of Section 5.2 for the bounds ``D`` (``disturbance``) and ``V`` (``noise``).
 
     .. math::
@@ -152,9 +153,18 @@ def noise_optimal_gains(n: int, rho_d: float, rho_v: float, disturbance: float, 
     return float(mu_min), float(mu_max)
 
 
-def switching_schedule(n: int, kappa: float, eig_ratio: float, q: float = 2.0, alpha: float = 1.0,
-                       mu0: float = 1.0, mu_max: float = np.inf, T_min: float = 0.0,
-                       mu_reset: float | None = None, max_switches: int = 200) -> list[tuple[float, float]]:
+def switching_schedule(
+    n: int,
+    kappa: float,
+    eig_ratio: float,
+    q: float = 2.0,
+    alpha: float = 1.0,
+    mu0: float = 1.0,
+    mu_max: float = np.inf,
+    T_min: float = 0.0,
+    mu_reset: float | None = None,
+    max_switches: int = 200,
+) -> list[tuple[float, float]]:
     r"""Planned continuous-time schedule ``[(t_i, mu_i), ...]`` of (7), (9) with the stop of Section 5.2.
 
     The last entry is the reset :math:`(t_{i^*+1}, \mu_{\mathrm{reset}})` (Remark 9); omitted when
@@ -236,7 +246,7 @@ def switched_gain_channel_step(x, y, params, m, x_new, out_row):
             # re-acceleration: the measured part of the error grew, restart the schedule (end of Section 5.2),
             # unless mu0 itself already violates the stop conditions (as at reset)
             T0 = _dwell(params[_P_MU0], n, kappa, s, q)
-            if params[_P_MU0] < params[_P_MUMAX] and T0 > params[_P_TMIN]:
+            if params[_P_MU0] < params[_P_MUMAX] and params[_P_TMIN] < T0:
                 phase = 0.0
                 mu = params[_P_MU0]
                 T = T0
@@ -344,11 +354,29 @@ class SwitchedGain(Observer):
     name = "switched-gain"
 
     @check_keywords
-    def __init__(self, dt: float, order: int = 1, *, gain=None, P=None, kappa: float = 1.0, rho_d: float = 1.0,
-                 rho_v: float = 1.0, q: float = 2.0, alpha: float | None = None, mu0: float | None = None,
-                 disturbance: float | None = None, noise: float | None = None, mu_max: float | None = None,
-                 mu_min: float | None = None, T_min: float | None = None, supervise: bool = True,
-                 restart_threshold: float | None = None, discretization: str | None = None, wrap=None):
+    def __init__(
+        self,
+        dt: float,
+        order: int = 1,
+        *,
+        gain=None,
+        P=None,
+        kappa: float = 1.0,
+        rho_d: float = 1.0,
+        rho_v: float = 1.0,
+        q: float = 2.0,
+        alpha: float | None = None,
+        mu0: float | None = None,
+        disturbance: float | None = None,
+        noise: float | None = None,
+        mu_max: float | None = None,
+        mu_min: float | None = None,
+        T_min: float | None = None,
+        supervise: bool = True,
+        restart_threshold: float | None = None,
+        discretization: str | None = None,
+        wrap=None,
+    ):
         order = check_int_in_range("order", order, 1, 9)
         super().__init__(dt, order, discretization, wrap)
         n = order + 1
@@ -361,7 +389,8 @@ class SwitchedGain(Observer):
         self.alpha = 1.0 / (n - 1) if alpha is None else check_positive("alpha", alpha)
         if self.alpha > 1.0 / (n - 1) + 1e-12:
             raise ValueError(
-                f"expected 0 < alpha <= 1/(n-1) = {1.0 / (n - 1):.6g} (Theorem 6), actual value: {alpha!r}")
+                f"expected 0 < alpha <= 1/(n-1) = {1.0 / (n - 1):.6g} (Theorem 6), actual value: {alpha!r}"
+            )
         if mu0 is not None:
             check_positive("mu0", mu0)
             if mu0 < 1.0:
@@ -403,21 +432,41 @@ class SwitchedGain(Observer):
         elif (disturbance is None) != (noise is None):
             raise ValueError("expected both disturbance and noise, or neither, actual value: only one given")
         self.mu0 = float(mu0) if mu0 is not None else computed[0] if computed[0] is not None else 1.0
-        self.mu_min = (check_positive("mu_min", mu_min) if mu_min is not None
-                       else computed[0] if computed[0] is not None else self.mu0)
-        self.mu_max = (check_positive("mu_max", mu_max) if mu_max is not None
-                       else computed[1] if computed[1] is not None else np.inf)
+        self.mu_min = (
+            check_positive("mu_min", mu_min)
+            if mu_min is not None
+            else computed[0]
+            if computed[0] is not None
+            else self.mu0
+        )
+        self.mu_max = (
+            check_positive("mu_max", mu_max)
+            if mu_max is not None
+            else computed[1]
+            if computed[1] is not None
+            else np.inf
+        )
         self.T_min = 3.0 * self.dt if T_min is None else check_positive("T_min", T_min)
-        self.restart_threshold = np.inf if restart_threshold is None else check_positive(
-            "restart_threshold", restart_threshold)
+        self.restart_threshold = (
+            np.inf if restart_threshold is None else check_positive("restart_threshold", restart_threshold)
+        )
 
     # ---- schedule helpers -------------------------------------------------------------------------------------
     def schedule(self) -> list[tuple[float, float]]:
         """The planned continuous-time schedule ``[(t_i, mu_i), ...]`` (see :func:`switching_schedule`)."""
         if not self.supervise:
             return [(0.0, self.mu0)]
-        return switching_schedule(self.order + 1, self.kappa, self.eig_ratio, self.q, self.alpha, self.mu0,
-                                  self.mu_max, self.T_min, self.mu_min)
+        return switching_schedule(
+            self.order + 1,
+            self.kappa,
+            self.eig_ratio,
+            self.q,
+            self.alpha,
+            self.mu0,
+            self.mu_max,
+            self.T_min,
+            self.mu_min,
+        )
 
     def convergence_time_bound(self) -> float:
         r""":math:`\bar T_0` of Theorem 6 for these ``kappa, P, q, alpha`` (the bound assumes ``mu0 = 1``)."""
@@ -444,7 +493,7 @@ class SwitchedGain(Observer):
         row[_P_MURESET] = self.mu_min
         row[_P_RESTART] = self.restart_threshold
         row[_P_SUPERVISE] = 1.0 if self.supervise else 0.0
-        row[_P_L:_P_L + m] = self.gain
+        row[_P_L : _P_L + m] = self.gain
         row[_P_L + m] = self.q
         return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
 
@@ -455,7 +504,7 @@ class SwitchedGain(Observer):
         mu = self.mu0
         T = float(dwell_time(mu, m, self.kappa, self.eig_ratio, self.q)) if self.supervise else 0.0
         phase = 0.0 if self.supervise else 1.0
-        if self.supervise and (mu >= self.mu_max or T <= self.T_min):
+        if self.supervise and (mu >= self.mu_max or self.T_min >= T):
             mu, T, phase = self.mu_min, 0.0, 1.0
         state[:, m + 2] = mu
         state[:, m + 3] = T
@@ -483,5 +532,7 @@ class SwitchedGain(Observer):
         return self._column(4) != 0.0
 
     def __repr__(self) -> str:
-        return (f"SwitchedGain(dt={self.dt}, order={self.order}, mu0={self.mu0}, q={self.q}, alpha={self.alpha}, "
-                f"mu_min={self.mu_min:.4g}, mu_max={self.mu_max:.4g}, supervise={self.supervise})")
+        return (
+            f"SwitchedGain(dt={self.dt}, order={self.order}, mu0={self.mu0}, q={self.q}, alpha={self.alpha}, "
+            f"mu_min={self.mu_min:.4g}, mu_max={self.mu_max:.4g}, supervise={self.supervise})"
+        )

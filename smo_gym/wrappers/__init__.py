@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from . import adapters, sensing
 from .adapters import CONTACT_FORCES, GymnasiumMujocoAdapter, MujocoAdapter, make_adapter, register_adapter
-from .estimated_velocity import EstimatedVelocity
 from .dm_control import DmControlAdapter, make_dm_control  # registers the dm_control adapter (lazy imports)
+from .estimated_velocity import EstimatedVelocity
 from .vec import JointSensor, VectorEstimatedVelocity, sensing_config
 
 __all__ = [

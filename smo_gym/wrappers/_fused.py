@@ -40,26 +40,72 @@ from ..observers import _kernels as K
 from ..sensors import _chain_kernel
 from ._tangent import integrate_pos, tangent_advance
 
-__all__ = ["ENTRY_COS", "ENTRY_IDENTITY", "ENTRY_SIN", "FUSED_DRIVERS", "TABLE_SLOTS", "address", "copy_entries",
-           "entry_functions_match_numpy", "gather_entries", "register_fused_driver"]
+__all__ = [
+    "ENTRY_COS",
+    "ENTRY_IDENTITY",
+    "ENTRY_SIN",
+    "FUSED_DRIVERS",
+    "TABLE_SLOTS",
+    "address",
+    "copy_entries",
+    "entry_functions_match_numpy",
+    "gather_entries",
+    "register_fused_driver",
+]
 
 #: the arrays a driver reads through its address table, in row order: (name, dtype, ndim); the row of an array
 #: is ``[address, *shape, 0...]`` (5 columns), the row of the flag ``filtered`` is ``[0 or 1, 0, 0, 0, 0]``. Rows
 #: after these are copies of the controller inputs into the scratch data: ``[to, from, size, 0, 0]`` (float64).
 TABLE_SLOTS = (
-    ("kinds", np.int64, 1), ("sensor_params", np.float64, 3), ("sensor_state", np.float64, 2),
-    ("ring", np.float64, 3), ("ring_pos", np.int64, 1), ("rand", np.float64, 4),
-    ("state", np.float64, 2), ("params", np.float64, 2), ("work", np.float64, 3),
-    ("scratch_qpos", np.float64, 1), ("scratch_qvel", np.float64, 1), ("filtered", bool, 0),
-    ("joints", np.int64, 2), ("prev", np.float64, 1), ("z", np.float64, 1),
-    ("obs_index", np.int64, 1), ("obs_bounds", np.float64, 2),
+    ("kinds", np.int64, 1),
+    ("sensor_params", np.float64, 3),
+    ("sensor_state", np.float64, 2),
+    ("ring", np.float64, 3),
+    ("ring_pos", np.int64, 1),
+    ("rand", np.float64, 4),
+    ("state", np.float64, 2),
+    ("params", np.float64, 2),
+    ("work", np.float64, 3),
+    ("scratch_qpos", np.float64, 1),
+    ("scratch_qvel", np.float64, 1),
+    ("filtered", bool, 0),
+    ("joints", np.int64, 2),
+    ("prev", np.float64, 1),
+    ("z", np.float64, 1),
+    ("obs_index", np.int64, 1),
+    ("obs_bounds", np.float64, 2),
 )
 _N_SLOTS = len(TABLE_SLOTS)
 
 
 @njit(error_model="numpy", inline="always")
-def _sense(kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate, ring, ring_pos, rand, state, params,
-           work, scratch_qpos, scratch_qvel, filtered, joints, prev, z, obs_index, obs_bounds):
+def _sense(
+    kernel,
+    Q,
+    qvel_true,
+    t0,
+    est,
+    info,
+    Zm,
+    obs,
+    kinds,
+    sparams,
+    sstate,
+    ring,
+    ring_pos,
+    rand,
+    state,
+    params,
+    work,
+    scratch_qpos,
+    scratch_qvel,
+    filtered,
+    joints,
+    prev,
+    z,
+    obs_index,
+    obs_bounds,
+):
     """Sensor, observer and outputs for the samples ``Q`` (T, nq) of one control period (see module docstring).
 
     The arguments that change every call come first (the others come from the address table of
@@ -118,7 +164,7 @@ def _sense(kernel, Q, qvel_true, t0, est, info, Zm, obs, kinds, sparams, sstate,
             dz[c] = zm[c] - z[c]
         for i in range(nq):
             info[o_qmeas + i] = last[i]
-        integrate_pos(joints, info[o_qmeas:o_qmeas + nq], dz)
+        integrate_pos(joints, info[o_qmeas : o_qmeas + nq], dz)
         for i in range(nq):
             scratch_qpos[i] = info[o_qmeas + i]
         if filtered:
@@ -174,7 +220,14 @@ def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
     t = table
     copy_entries(t[_N_SLOTS:])  # the input copies into the scratch data: [to, from, size, 0, 0]
     return _sense(
-        kernel, Q, qvel_true, t0, est, info, Zm, obs,
+        kernel,
+        Q,
+        qvel_true,
+        t0,
+        est,
+        info,
+        Zm,
+        obs,
         carray(_pointer(t[0, 0]), (t[0, 1],), np.int64),
         carray(_pointer(t[1, 0]), (t[1, 1], t[1, 2], t[1, 3]), np.float64),
         carray(_pointer(t[2, 0]), (t[2, 1], t[2, 2]), np.float64),
@@ -253,7 +306,7 @@ def entry_functions_match_numpy(n: int = 4096, seed: int = 2468) -> bool:
     for code, numpy_function in ((ENTRY_SIN, np.sin), (ENTRY_COS, np.cos)):
         out = np.empty(n)
         _entry_functions(x, np.full(n, code, dtype=np.int64), out)
-        pairs = np.concatenate([numpy_function(x[i:i + 2]) for i in range(0, n, 2)])
+        pairs = np.concatenate([numpy_function(x[i : i + 2]) for i in range(0, n, 2)])
         if not (np.array_equal(out, numpy_function(x)) and np.array_equal(out, pairs)):
             return False
     return True

@@ -25,16 +25,23 @@ from numba import njit
 
 __all__ = ["differentiate_pos", "integrate_pos", "joint_table", "tangent_advance"]
 
-FREE, BALL, SLIDE, HINGE = (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL),
-                            int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE))
+FREE, BALL, SLIDE, HINGE = (
+    int(mujoco.mjtJoint.mjJNT_FREE),
+    int(mujoco.mjtJoint.mjJNT_BALL),
+    int(mujoco.mjtJoint.mjJNT_SLIDE),
+    int(mujoco.mjtJoint.mjJNT_HINGE),
+)
 #: MuJoCo's mjMINVAL: below this a norm counts as zero
 _MINVAL = 1e-15
 
 
 def joint_table(model: mujoco.MjModel) -> np.ndarray:
     """``(type, qpos address, dof address)`` of every joint, shape ``(njnt, 3)``, int64."""
-    return np.ascontiguousarray(np.stack([np.asarray(model.jnt_type), np.asarray(model.jnt_qposadr),
-                                          np.asarray(model.jnt_dofadr)], axis=1).astype(np.int64).reshape(-1, 3))
+    return np.ascontiguousarray(
+        np.stack([np.asarray(model.jnt_type), np.asarray(model.jnt_qposadr), np.asarray(model.jnt_dofadr)], axis=1)
+        .astype(np.int64)
+        .reshape(-1, 3)
+    )
 
 
 @njit(cache=True, inline="always")

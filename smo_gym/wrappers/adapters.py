@@ -71,7 +71,12 @@ import mujoco
 import numpy as np
 
 __all__ = [
-    "ADAPTERS", "CONTACT_FORCES", "GymnasiumMujocoAdapter", "MujocoAdapter", "SubstepHook", "make_adapter",
+    "ADAPTERS",
+    "CONTACT_FORCES",
+    "GymnasiumMujocoAdapter",
+    "MujocoAdapter",
+    "SubstepHook",
+    "make_adapter",
     "register_adapter",
 ]
 
@@ -80,8 +85,21 @@ CONTACT_FORCES = ("sensor", "estimated", "zero")
 #: the controller's inputs that ``observation`` copies from the live data (those the observation reads, probed)
 _INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")
 #: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
-_INPUTS = ("qpos", "qvel", "act", "ctrl", "qfrc_applied", "xfrc_applied", "mocap_pos", "mocap_quat", "userdata",
-           "plugin_state", "qacc_warmstart", "eq_active", "history")
+_INPUTS = (
+    "qpos",
+    "qvel",
+    "act",
+    "ctrl",
+    "qfrc_applied",
+    "xfrc_applied",
+    "mocap_pos",
+    "mocap_quat",
+    "userdata",
+    "plugin_state",
+    "qacc_warmstart",
+    "eq_active",
+    "history",
+)
 
 
 class MujocoAdapter:
@@ -205,7 +223,8 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             if contact_forces != "sensor" and not self.reads_contacts:
                 raise ValueError(
                     f"expected contact_forces='sensor' for {type(env).__name__}, whose observation has no contact "
-                    f"forces (cfrc_ext), actual value: {contact_forces!r}")
+                    f"forces (cfrc_ext), actual value: {contact_forces!r}"
+                )
             if self.copies_inputs and self.pipeline != "forward":
                 # the constraint forces of a full forward pass depend on every applied input whenever a constraint
                 # is active, which a probe at a few states need not see (InvertedDoublePendulum's rail limit):
@@ -227,23 +246,31 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self._gather = self._entry_addresses = None
         entries = self.observation_entries
         if entries is not None:  # the addresses of the observation's entries in this scratch data
-            from ._fused import gather_entries
             from ..observers.base import _compiled_entry
+            from ._fused import gather_entries
 
             names, flat, bounds, functions = entries
             fields = {name: getattr(self._scratch, name) for name in set(names)}
             self._entry_addresses = _entry_addresses(fields, names, flat)
             # kept alive with the scratch data (the addresses point into its buffers)
             self._entry_fields = fields
-            self._gather = _compiled_entry(gather_entries, (self._entry_addresses, functions, bounds,
-                                                            np.empty(len(names))))
+            self._gather = _compiled_entry(
+                gather_entries, (self._entry_addresses, functions, bounds, np.empty(len(names)))
+            )
         #: :meth:`observe_scratch` raises on a non-finite observation itself (the caller need not check)
         self.checks_observation = self._gather is not None
 
     def __getstate__(self):
         state = dict(self.__dict__)
-        for name in ("_scratch_qpos", "_scratch_qvel", "_input_views", "_views_cache", "_gather", "_entry_addresses",
-                     "_entry_fields"):
+        for name in (
+            "_scratch_qpos",
+            "_scratch_qvel",
+            "_input_views",
+            "_views_cache",
+            "_gather",
+            "_entry_addresses",
+            "_entry_fields",
+        ):
             state.pop(name, None)
         return state
 
@@ -301,10 +328,18 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         random values, then to NaN; if the observation equals the reference both times, the field is not copied
         at every step."""
         model = self.model
-        fields = ["time"] + [name for name, size in (("ctrl", model.nu), ("act", model.na),
-                                                        ("mocap_pos", model.nmocap), ("mocap_quat", model.nmocap),
-                                                        ("qfrc_applied", model.nv), ("xfrc_applied", model.nbody))
-                             if size]
+        fields = ["time"] + [
+            name
+            for name, size in (
+                ("ctrl", model.nu),
+                ("act", model.na),
+                ("mocap_pos", model.nmocap),
+                ("mocap_quat", model.nmocap),
+                ("qfrc_applied", model.nv),
+                ("xfrc_applied", model.nbody),
+            )
+            if size
+        ]
         rng = np.random.default_rng(2468)
         cases = []
         for _ in range(2):
@@ -333,7 +368,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                         getattr(scratch, name)[...] = np.nan
                     try:
                         got = self._evaluate(scratch, self.pipeline)
-                    except Exception:  # noqa: BLE001 - failing without the field: it is needed
+                    except Exception:
                         got = None
                     changed.append(got is None or got.shape != want.shape or not np.array_equal(got, want))
                 if any(changed):
@@ -436,14 +471,16 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         cache = self.__dict__.setdefault("_views_cache", {})
         views = cache.get(id(live))
         if views is None or views[0] is not live:
-            from ._fused import address, copy_entries
             from ..observers.base import _compiled_entry
+            from ._fused import address, copy_entries
 
-            pairs = tuple((getattr(self._scratch, name), getattr(live, name))
-                          for name in self._input_fields if name != "time")
+            pairs = tuple(
+                (getattr(self._scratch, name), getattr(live, name)) for name in self._input_fields if name != "time"
+            )
             # [to, from, size] of each pair (the views in ``pairs`` keep the buffers alive)
-            table = np.array([(address(to), address(source), to.size)
-                              for to, source in pairs], dtype=np.int64).reshape(-1, 3)
+            table = np.array([(address(to), address(source), to.size) for to, source in pairs], dtype=np.int64).reshape(
+                -1, 3
+            )
             views = (live, pairs, "time" in self._input_fields, table, _compiled_entry(copy_entries, (table,)))
             if len(cache) >= 4:
                 cache.clear()
@@ -530,7 +567,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                     x = scale * rng.standard_normal(nq + nv)
                     if not np.array_equal(evaluate(x), select(x, index, bounds)):
                         return None
-        except Exception:  # noqa: BLE001 - an observation that fails on such states is not a selection
+        except Exception:
             return None
         return index, np.ascontiguousarray(bounds)
 
@@ -561,8 +598,13 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             scratch = mujoco.MjData(model)
             qpos = np.array(self.env.data.qpos)
             mujoco.mj_integratePos(model, qpos, scale * rng.standard_normal(model.nv), 1.0)
-            self._fill(scratch, qpos, scale * rng.standard_normal(model.nv), inputs=self.copies_inputs,
-                       source=self._random_inputs(rng))
+            self._fill(
+                scratch,
+                qpos,
+                scale * rng.standard_normal(model.nv),
+                inputs=self.copies_inputs,
+                source=self._random_inputs(rng),
+            )
             self._compute(scratch, self.pipeline)
             return scratch
 
@@ -577,17 +619,21 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                     continue
                 try:
                     value = getattr(scratch, name)
-                except Exception:  # noqa: BLE001 - some attributes are not readable without context
+                except Exception:
                     continue
-                if (isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size
-                        and value.flags.c_contiguous):
+                if (
+                    isinstance(value, np.ndarray)
+                    and value.dtype == np.float64
+                    and value.size
+                    and value.flags.c_contiguous
+                ):
                     fields.append((name, value))
             total = sum(value.size for _, value in fields)
             # distinct magnitudes in (0, 0.5) (inside any plausible clip), random signs, in random order
             values = rng.permutation((np.arange(total) + 1.0) / (2.0 * (total + 1)) * rng.choice([-1.0, 1.0], total))
             position, start = {}, 0
             for name, value in fields:
-                value.reshape(-1)[:] = values[start:start + value.size]
+                value.reshape(-1)[:] = values[start : start + value.size]
                 for k in range(value.size):
                     position[values[start + k]] = (name, k, ENTRY_IDENTITY)
                 start += value.size
@@ -618,7 +664,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                     gather_entries(addresses, functions, bounds, got)  # the run-time gather itself
                     if not np.array_equal(want, got, equal_nan=True):
                         return None
-        except Exception:  # noqa: BLE001 - an observation that fails on such data is not a selection
+        except Exception:
             return None
         return names, flat, bounds, functions
 
@@ -650,14 +696,14 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                         continue
                     try:
                         value = getattr(poisoned, name)
-                    except Exception:  # noqa: BLE001 - some attributes are not readable without context
+                    except Exception:
                         continue
                     if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
                         value[...] = np.nan
                 self._fill(poisoned, qpos, qvel, inputs=inputs, source=source)
                 try:
                     got = self._evaluate(poisoned, pipeline)
-                except Exception:  # noqa: BLE001 - any failure on poisoned data means more is needed
+                except Exception:
                     ok = False
                     break
                 if got.shape != want.shape or not np.all(np.isfinite(got)) or not np.array_equal(got, want):
@@ -682,7 +728,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             scratch.cfrc_ext[:] = np.nan
             obs = self._evaluate(scratch, self.pipeline)
             return not bool(np.all(np.isfinite(obs)))
-        except Exception:  # noqa: BLE001 - an observation that fails on NaN contact forces reads them
+        except Exception:
             return True
         finally:
             self.reads_contacts = True
@@ -736,7 +782,6 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
 
         return SubstepHook(env, "_step_mujoco_simulation", step_with_samples)
 
-
     def intercept_observation(self, function) -> SubstepHook:
         """Within the block, the environment's ``_get_obs()`` is ``function()`` (an instance attribute, removed on
         exit; the adapter's own evaluations keep calling the class's function)."""
@@ -756,8 +801,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
             start = sampler.n
             samples = sampler.samples
             if samples.shape[0] < start + n_frames:
-                samples = sampler.samples = np.concatenate(
-                    [samples, np.zeros((start + n_frames, samples.shape[1]))])
+                samples = sampler.samples = np.concatenate([samples, np.zeros((start + n_frames, samples.shape[1]))])
             qpos = data.qpos
             for i in range(start, start + n_frames):
                 mj_step(model, data)
@@ -774,7 +818,7 @@ class SubstepHook:
     Used to route an environment's physics stepping through a sampling loop for the duration of one ``step``.
     """
 
-    __slots__ = ("owner", "name", "function")
+    __slots__ = ("function", "name", "owner")
 
     def __init__(self, owner, name: str, function):
         self.owner, self.name, self.function = owner, name, function

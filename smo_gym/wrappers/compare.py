@@ -132,9 +132,16 @@ class Recording:
     context: dict = field(default_factory=dict, repr=False)
 
 
-def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-noisy", rate="physics",
-                   steps: int = 1000, seed: int = 0, progress: bool = False, env_kwargs: dict | None = None
-                   ) -> Recording:
+def record_rollout(
+    env_id: str = "Hopper-v5",
+    *,
+    sensor: str = "encoder-12bit-noisy",
+    rate="physics",
+    steps: int = 1000,
+    seed: int = 0,
+    progress: bool = False,
+    env_kwargs: dict | None = None,
+) -> Recording:
     """Run ``env_id`` for ``steps`` environment steps under :func:`smooth_random_policy` and record samples.
 
     The environment is reset (unseeded, continuing its stream) when an episode ends; the sensor keeps one stream
@@ -145,8 +152,10 @@ def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-no
     adapter = make_adapter(env)
     k = resolve_rate(rate, adapter.frame_skip)
     if k < adapter.frame_skip and not adapter.supports_substeps():
-        raise ValueError(f"expected an environment whose substeps can be sampled for rate={rate!r}, "
-                         f"actual value: {env_id}; use rate='env'")
+        raise ValueError(
+            f"expected an environment whose substeps can be sampled for rate={rate!r}, "
+            f"actual value: {env_id}; use rate='env'"
+        )
     model = adapter.model
     dt = float(model.opt.timestep) * k
     measurement = JointMeasurement(model, make_sensor(sensor), dt)
@@ -191,12 +200,19 @@ def record_rollout(env_id: str = "Hopper-v5", *, sensor: str = "encoder-12bit-no
             start()
     # the env stays open: compare_observers calibrates the default gains on it (context["unwrapped"]), and
     # dm_control's close (shimmy) frees the physics
-    return Recording(env_id=env_id, sensor=sensor if isinstance(sensor, str) else repr(sensor), rate=str(rate),
-                     dt=dt, qpos=np.array(qpos), qvel=np.array(qvel), z_measured=np.array(z),
-                     episode_starts=np.array(starts), names=dof_names(model),
-                     noise_std=measurement.noise_std(),
-                     context={"unwrapped": env.unwrapped, "adapter": adapter, "sample_every": k,
-                              "angular": angular_dofs(model)})
+    return Recording(
+        env_id=env_id,
+        sensor=sensor if isinstance(sensor, str) else repr(sensor),
+        rate=str(rate),
+        dt=dt,
+        qpos=np.array(qpos),
+        qvel=np.array(qvel),
+        z_measured=np.array(z),
+        episode_starts=np.array(starts),
+        names=dof_names(model),
+        noise_std=measurement.noise_std(),
+        context={"unwrapped": env.unwrapped, "adapter": adapter, "sample_every": k, "angular": angular_dofs(model)},
+    )
 
 
 @dataclass
@@ -225,12 +241,24 @@ def estimate_errors(rec: Recording, velocity: np.ndarray) -> np.ndarray:
     return (velocity - rec.qvel)[estimated]
 
 
-DEFAULT_OBSERVERS = ("super-twisting", "levant", "levant:discretization=matching", "high-gain", "kalman-ca",
-                     "finite-difference")
+DEFAULT_OBSERVERS = (
+    "super-twisting",
+    "levant",
+    "levant:discretization=matching",
+    "high-gain",
+    "kalman-ca",
+    "finite-difference",
+)
 
 
-def compare_observers(rec: Recording, observers=DEFAULT_OBSERVERS, *, observer_kwargs: dict | None = None,
-                      calibration_safety: float = 2.0, progress: bool = False) -> list[ObserverResult]:
+def compare_observers(
+    rec: Recording,
+    observers=DEFAULT_OBSERVERS,
+    *,
+    observer_kwargs: dict | None = None,
+    calibration_safety: float = 2.0,
+    progress: bool = False,
+) -> list[ObserverResult]:
     """Run every observer on the recorded measurements.
 
     ``observers`` are names or specs ``"name:key=value:..."`` (:func:`smo_gym.specs.parse_observer_spec`);
@@ -250,8 +278,9 @@ def compare_observers(rec: Recording, observers=DEFAULT_OBSERVERS, *, observer_k
         kw = {**kw, **((observer_kwargs or {}).get(spec) or {})}
         order = bound_order(name, kw)
         if order not in bounds_by_order:
-            bounds_by_order[order] = calibrated_bounds(ctx["unwrapped"], ctx["adapter"], ctx["sample_every"], order,
-                                                       safety=calibration_safety)
+            bounds_by_order[order] = calibrated_bounds(
+                ctx["unwrapped"], ctx["adapter"], ctx["sample_every"], order, safety=calibration_safety
+            )
         estimator = VelocityEstimator(default_observer(name, rec.dt, bounds_by_order[order], rec.noise_std, kw))
         V = np.full_like(rec.qvel, np.nan)
         timings = []
@@ -269,16 +298,31 @@ def compare_observers(rec: Recording, observers=DEFAULT_OBSERVERS, *, observer_k
                 break
         cost = 1e6 * float(np.median(timings)) if timings else float("nan")
         if diverged is not None:
-            results.append(ObserverResult(
-                name=spec, velocity=V, rmse=float("nan"), max_error=float("inf"), cost_us=cost,
-                rmse_per_dof=np.full(V.shape[1], np.nan), observer=estimator.observer, diverged_at=diverged,
-            ))
+            results.append(
+                ObserverResult(
+                    name=spec,
+                    velocity=V,
+                    rmse=float("nan"),
+                    max_error=float("inf"),
+                    cost_us=cost,
+                    rmse_per_dof=np.full(V.shape[1], np.nan),
+                    observer=estimator.observer,
+                    diverged_at=diverged,
+                )
+            )
             continue
         err = estimate_errors(rec, V)
-        results.append(ObserverResult(
-            name=spec, velocity=V, rmse=float(np.sqrt(np.mean(err**2))), max_error=float(np.max(np.abs(err))),
-            cost_us=cost, rmse_per_dof=np.sqrt(np.mean(err**2, axis=0)), observer=estimator.observer,
-        ))
+        results.append(
+            ObserverResult(
+                name=spec,
+                velocity=V,
+                rmse=float(np.sqrt(np.mean(err**2))),
+                max_error=float(np.max(np.abs(err))),
+                cost_us=cost,
+                rmse_per_dof=np.sqrt(np.mean(err**2, axis=0)),
+                observer=estimator.observer,
+            )
+        )
     return results
 
 
@@ -295,25 +339,31 @@ def _table(cols, rows) -> list[str]:
     widths = [max(len(c), *(len(row[i]) for row in rows)) for i, c in enumerate(cols)]
 
     def line(cells):
-        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths,
-                                                                                              strict=True)))
+        return "  ".join(
+            c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths, strict=True))
+        )
 
     return [line(cols), line(["-" * w for w in widths])] + [line(row) for row in rows]
 
 
 def format_table(rec: Recording, results: list[ObserverResult], *, per_joint: bool = False) -> str:
     """A plain-text table of the metrics (and, with ``per_joint``, the RMSE of every dof)."""
-    head = (f"{rec.env_id}, sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s), {len(rec.qvel)} samples, "
-            f"{len(rec.episode_starts)} episode(s); velocity RMS {np.sqrt(np.mean(rec.qvel**2)):.3g} "
-            f"(rad/s for hinge dofs, m/s for slide dofs)")
-    rows = [(r.name, f"{r.rmse:.4g}", f"{r.max_error:.4g}", f"{r.cost_us:.1f}") if r.diverged_at is None
-            else (r.name, f"diverged at {r.diverged_at:.3g} s", "-", f"{r.cost_us:.1f}") for r in results]
+    head = (
+        f"{rec.env_id}, sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s), {len(rec.qvel)} samples, "
+        f"{len(rec.episode_starts)} episode(s); velocity RMS {np.sqrt(np.mean(rec.qvel**2)):.3g} "
+        f"(rad/s for hinge dofs, m/s for slide dofs)"
+    )
+    rows = [
+        (r.name, f"{r.rmse:.4g}", f"{r.max_error:.4g}", f"{r.cost_us:.1f}")
+        if r.diverged_at is None
+        else (r.name, f"diverged at {r.diverged_at:.3g} s", "-", f"{r.cost_us:.1f}")
+        for r in results
+    ]
     out = [head] + _table(tuple(TABLE_COLUMNS), rows)
     if per_joint:
         units = velocity_units(rec)
         out += ["", "RMSE per dof"]
-        jrows = [[f"{n} [{units[d]}]"] + [f"{r.rmse_per_dof[d]:.4g}" for r in results]
-                 for d, n in enumerate(rec.names)]
+        jrows = [[f"{n} [{units[d]}]"] + [f"{r.rmse_per_dof[d]:.4g}" for r in results] for d, n in enumerate(rec.names)]
         out += _table(["dof"] + [r.name for r in results], jrows)
     return "\n".join(out)
 
@@ -391,8 +441,9 @@ def velocity_figure(rec: Recording, results: list[ObserverResult], joints, *, se
     units = velocity_units(rec)
     n = min(len(rec.qvel), max(2, round(seconds / rec.dt) + 1))
     t = np.arange(n) * rec.dt
-    fig, axes = plt.subplots(len(dofs), 1, figsize=(11, 2.8 * len(dofs) + 0.8), sharex=True, squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(
+        len(dofs), 1, figsize=(11, 2.8 * len(dofs) + 0.8), sharex=True, squeeze=False, layout="constrained"
+    )
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     handles, labels = [], []
     off_scale: dict[str, list[str]] = {}
@@ -428,8 +479,11 @@ def velocity_figure(rec: Recording, results: list[ObserverResult], joints, *, se
     handles.append(true_line)
     labels.append("true")
     fig.legend(handles, labels, loc="outside right upper", fontsize=7, frameon=False)
-    axes[0, 0].set_title(f"{rec.env_id}: sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s)\n"
-                         "y-axis from the true velocity; estimates beyond it clipped (triangles)", fontsize=9)
+    axes[0, 0].set_title(
+        f"{rec.env_id}: sensor {rec.sensor}, rate {rec.rate} (dt = {rec.dt:g} s)\n"
+        "y-axis from the true velocity; estimates beyond it clipped (triangles)",
+        fontsize=9,
+    )
     axes[-1, 0].set_xlabel("time [s]")
     return fig
 

@@ -170,16 +170,21 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         self.keys = list(self.view.keys or [])
         self.shapes = list(self.view.shapes)
         sizes = [int(np.prod(s)) for s in self.shapes]
-        self._slices = [(k, a, a + n, s) for k, a, n, s in zip(self.keys, np.cumsum([0] + sizes[:-1]), sizes,
-                                                                self.shapes, strict=True)]
+        self._slices = [
+            (k, a, a + n, s)
+            for k, a, n, s in zip(self.keys, np.cumsum([0] + sizes[:-1]), sizes, self.shapes, strict=True)
+        ]
         self.flat_size = int(sum(sizes))
         spec = getattr(env, "spec", None)
         if spec is not None and spec.id:
             self.environment_key = spec.id + (stable_repr(spec.kwargs) if spec.kwargs else "")
         else:
             task = dm.task
-            settings = {k: v for k, v in sorted(vars(task).items())
-                        if isinstance(v, (bool, int, float, str)) and not k.startswith("__")}
+            settings = {
+                k: v
+                for k, v in sorted(vars(task).items())
+                if isinstance(v, (bool, int, float, str)) and not k.startswith("__")
+            }
             self.environment_key = f"{type(task).__module__}.{type(task).__qualname__}{settings}"
 
     def copy_environment(self):
@@ -224,9 +229,17 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
 register_adapter(is_dm_control_env, DmControlAdapter)
 
 
-def make_dm_control(domain: str, task: str, sensor="encoder-12bit-noisy", observer="super-twisting",
-                    rate="physics", observer_kwargs: dict | None = None, *, env_kwargs: dict | None = None,
-                    **wrapper_kwargs):
+def make_dm_control(
+    domain: str,
+    task: str,
+    sensor="encoder-12bit-noisy",
+    observer="super-twisting",
+    rate="physics",
+    observer_kwargs: dict | None = None,
+    *,
+    env_kwargs: dict | None = None,
+    **wrapper_kwargs,
+):
     """A dm_control suite task as a Gymnasium env seen through a joint sensor and a velocity observer.
 
     ``gym.make(f"dm_control/{domain}-{task}-v0", **env_kwargs)`` (shimmy's converter) wrapped by
@@ -258,5 +271,6 @@ def make_dm_control(domain: str, task: str, sensor="encoder-12bit-noisy", observ
             f"actual value: {domain!r}, {task!r}"
         )
     env = gym.make(f"dm_control/{domain}-{task}-v0", **(env_kwargs or {}))
-    return EstimatedVelocity(env, sensor=sensor, observer=observer, rate=rate, observer_kwargs=observer_kwargs,
-                             **wrapper_kwargs)
+    return EstimatedVelocity(
+        env, sensor=sensor, observer=observer, rate=rate, observer_kwargs=observer_kwargs, **wrapper_kwargs
+    )

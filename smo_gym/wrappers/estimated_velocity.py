@@ -28,8 +28,14 @@ from .sensing import (
     stable_repr,
 )
 
-__all__ = ["EstimatedVelocity", "calibrated_bounds", "environment_key", "observation_wrappers", "resolve_rate",
-           "rollout_velocities"]
+__all__ = [
+    "EstimatedVelocity",
+    "calibrated_bounds",
+    "environment_key",
+    "observation_wrappers",
+    "resolve_rate",
+    "rollout_velocities",
+]
 
 #: mixed into the user's seed so the sensor stream differs from the environment's own ``np_random``
 _SEED_SALT = 0x534D4F
@@ -74,7 +80,7 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
         sim = adapter.copy_environment()
         sim.render_mode = None  # never open a window for the calibration
         adapter = make_adapter(sim)
-    except Exception:  # noqa: BLE001 - any failure: the caller falls back to a rollout of the bare model
+    except Exception:
         return None
     space = sim.action_space
     space.seed(seed)
@@ -91,7 +97,7 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
 
     sim.reset(seed=seed)
     samples.append(np.array(adapter.data.qvel))
-    for k in range(max(1, int(steps) // frame_skip)):
+    for _ in range(max(1, int(steps) // frame_skip)):
         if hook:
             with adapter.substeps(record):
                 _, _, terminated, truncated, _ = sim.step(space.sample())
@@ -110,17 +116,29 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
 
 
 #: wrappers that return the observation of the environment beneath them unchanged (exactly these classes)
-_PASS_THROUGH = (gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker,
-                 gym.wrappers.RecordEpisodeStatistics, gym.wrappers.NormalizeReward, gym.wrappers.StickyAction,
-                 gym.wrappers.RecordVideo, gym.wrappers.RenderCollection, gym.wrappers.HumanRendering)
+_PASS_THROUGH = (
+    gym.wrappers.TimeLimit,
+    gym.wrappers.OrderEnforcing,
+    gym.wrappers.PassiveEnvChecker,
+    gym.wrappers.RecordEpisodeStatistics,
+    gym.wrappers.NormalizeReward,
+    gym.wrappers.StickyAction,
+    gym.wrappers.RecordVideo,
+    gym.wrappers.RenderCollection,
+    gym.wrappers.HumanRendering,
+)
 #: the same, named by module and class (not imported here: importing Stable-Baselines3 imports torch); SB3's
 #: ``make_vec_env`` puts its ``Monitor`` between the environment and ``wrapper_class``
 _PASS_THROUGH_BY_NAME = {("stable_baselines3.common.monitor", "Monitor")}
 #: observation wrappers whose observation depends on earlier ones (running statistics, stacks, delays) or on the
 #: true simulation (rendered frames): replaying them on the sensed observation would mix true and sensed data
-_STATEFUL_OBSERVATIONS = (gym.wrappers.NormalizeObservation, gym.wrappers.FrameStackObservation,
-                          gym.wrappers.DelayObservation, gym.wrappers.MaxAndSkipObservation,
-                          gym.wrappers.AddRenderObservation)
+_STATEFUL_OBSERVATIONS = (
+    gym.wrappers.NormalizeObservation,
+    gym.wrappers.FrameStackObservation,
+    gym.wrappers.DelayObservation,
+    gym.wrappers.MaxAndSkipObservation,
+    gym.wrappers.AddRenderObservation,
+)
 
 
 def _passes_observations_through(wrapper: gym.Wrapper) -> bool:
@@ -172,25 +190,39 @@ def observation_wrappers(env: gym.Env, *, replay: bool = True) -> tuple[gym.Obse
         if isinstance(inner, EstimatedVelocity):
             raise TypeError(
                 f"expected an environment without a sensing wrapper, actual value: {name} is already in the stack; "
-                "wrap the environment once")
+                "wrap the environment once"
+            )
         if not _passes_observations_through(inner):
-            if not replay or not isinstance(inner, gym.ObservationWrapper) or isinstance(inner,
-                                                                                         _STATEFUL_OBSERVATIONS):
-                why = ("keeps state across observations or reads the true simulation"
-                       if isinstance(inner, _STATEFUL_OBSERVATIONS) else "changes observations"
-                       if isinstance(inner, gym.ObservationWrapper) else "overrides step() or reset()")
+            if not replay or not isinstance(inner, gym.ObservationWrapper) or isinstance(inner, _STATEFUL_OBSERVATIONS):
+                why = (
+                    "keeps state across observations or reads the true simulation"
+                    if isinstance(inner, _STATEFUL_OBSERVATIONS)
+                    else "changes observations"
+                    if isinstance(inner, gym.ObservationWrapper)
+                    else "overrides step() or reset()"
+                )
                 raise TypeError(
                     f"expected only wrappers that pass observations through "
                     f"{'or are functions of the observation ' if replay else ''}beneath the sensing wrapper, "
                     f"actual value: {name} {why}; put it on top instead, e.g. {name}(EstimatedVelocity(env, ...)), "
-                    "so that it sees the sensed observations")
+                    "so that it sees the sensed observations"
+                )
             chain.append(inner)
         inner = inner.env
     return tuple(reversed(chain))
 
 
-def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *, safety: float = 2.0,
-                      quantile: float = 0.99, steps: int = 2000, disk: bool = True) -> np.ndarray:
+def calibrated_bounds(
+    unwrapped,
+    adapter,
+    sample_every: int,
+    derivative: int,
+    *,
+    safety: float = 2.0,
+    quantile: float = 0.99,
+    steps: int = 2000,
+    disk: bool = True,
+) -> np.ndarray:
     """Per-dof bounds on the ``derivative``-th derivative of the joint coordinates, sampled every ``sample_every``
     physics steps, cached per environment id (:func:`environment_key`) in memory and, with ``disk``, on disk.
 
@@ -200,8 +232,15 @@ def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *,
     :func:`~smo_gym.wrappers.sensing.bounds_from_velocities`.
     """
     model = adapter.model
-    settings = dict(derivative=int(derivative), every=int(sample_every), frame_skip=adapter.frame_skip,
-                    safety=float(safety), quantile=float(quantile), steps=int(steps), v=3)
+    settings = dict(
+        derivative=int(derivative),
+        every=int(sample_every),
+        frame_skip=adapter.frame_skip,
+        safety=float(safety),
+        quantile=float(quantile),
+        steps=int(steps),
+        v=3,
+    )
     key = calibration_key(getattr(adapter, "environment_key", None) or environment_key(unwrapped), model, **settings)
     dt = float(model.opt.timestep) * int(sample_every)
 
@@ -209,15 +248,24 @@ def calibrated_bounds(unwrapped, adapter, sample_every: int, derivative: int, *,
         episodes = rollout_velocities(adapter, int(sample_every), int(steps))
         if episodes:
             try:
-                return bounds_from_velocities(episodes, dt, derivative=int(derivative), quantile=float(quantile),
-                                              safety=float(safety))
+                return bounds_from_velocities(
+                    episodes, dt, derivative=int(derivative), quantile=float(quantile), safety=float(safety)
+                )
             except ValueError:
                 pass
         qpos0 = np.array(getattr(unwrapped, "init_qpos", adapter.data.qpos), dtype=float)
         qvel0 = np.array(getattr(unwrapped, "init_qvel", adapter.data.qvel), dtype=float)
-        return calibrate_bounds(model, qpos0, qvel0, adapter.frame_skip, int(sample_every),
-                                derivative=int(derivative), steps=int(steps), quantile=float(quantile),
-                                safety=float(safety))
+        return calibrate_bounds(
+            model,
+            qpos0,
+            qvel0,
+            adapter.frame_skip,
+            int(sample_every),
+            derivative=int(derivative),
+            steps=int(steps),
+            quantile=float(quantile),
+            safety=float(safety),
+        )
 
     return cached_bounds(key, compute, disk=disk)
 
@@ -226,7 +274,7 @@ class SubstepSampler:
     """Collects the live ``qpos`` inside ``frame_skip`` for the fused hot path (``each`` or ``every_k`` is the
     substep callback: one of them runs after every physics step, so they do as little as possible)."""
 
-    __slots__ = ("samples", "n", "count", "every", "qpos")
+    __slots__ = ("count", "every", "n", "qpos", "samples")
 
     def __init__(self, capacity: int, nq: int, every: int):
         self.samples = np.zeros((max(1, capacity), nq))
@@ -336,15 +384,33 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ``frame_skip``, bad option values; at run time a non-finite measurement or observation.
     """
 
-    def __init__(self, env: gym.Env, sensor: str | Sensor = "encoder-12bit-noisy",
-                 observer: str | Observer = "super-twisting", rate: str | int = "physics",
-                 observer_kwargs: dict | None = None, *, positions: str = "measured", contact_forces: str = "sensor",
-                 calibration_safety: float = 2.0, calibration_quantile: float = 0.99, calibration_steps: int = 2000,
-                 disk_cache: bool = True):
+    def __init__(
+        self,
+        env: gym.Env,
+        sensor: str | Sensor = "encoder-12bit-noisy",
+        observer: str | Observer = "super-twisting",
+        rate: str | int = "physics",
+        observer_kwargs: dict | None = None,
+        *,
+        positions: str = "measured",
+        contact_forces: str = "sensor",
+        calibration_safety: float = 2.0,
+        calibration_quantile: float = 0.99,
+        calibration_steps: int = 2000,
+        disk_cache: bool = True,
+    ):
         gym.utils.RecordConstructorArgs.__init__(
-            self, sensor=sensor, observer=observer, rate=rate, observer_kwargs=observer_kwargs, positions=positions,
-            contact_forces=contact_forces, calibration_safety=calibration_safety,
-            calibration_quantile=calibration_quantile, calibration_steps=calibration_steps, disk_cache=disk_cache,
+            self,
+            sensor=sensor,
+            observer=observer,
+            rate=rate,
+            observer_kwargs=observer_kwargs,
+            positions=positions,
+            contact_forces=contact_forces,
+            calibration_safety=calibration_safety,
+            calibration_quantile=calibration_quantile,
+            calibration_steps=calibration_steps,
+            disk_cache=disk_cache,
         )
         gym.Wrapper.__init__(self, env)
         check_positive("calibration_safety", calibration_safety)
@@ -374,11 +440,13 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.bounds = None
         if isinstance(observer, Observer):
             if self.measurement.wraps and not np.array_equal(
-                    np.broadcast_to(np.asarray(observer.wrap, dtype=bool), self.measurement.angular.shape),
-                    self.measurement.angular):
+                np.broadcast_to(np.asarray(observer.wrap, dtype=bool), self.measurement.angular.shape),
+                self.measurement.angular,
+            ):
                 raise ValueError(
                     "expected an observer with wrap on the angular channels for a sensor that reports single-turn "
-                    f"angles (wrap={self.measurement.angular.tolist()}), actual value: wrap={observer.wrap!r}")
+                    f"angles (wrap={self.measurement.angular.tolist()}), actual value: wrap={observer.wrap!r}"
+                )
             if not np.isclose(observer.dt, self.sample_dt, rtol=1e-9, atol=0.0):
                 raise ValueError(
                     f"expected an observer with dt equal to the sampling step {self.sample_dt}, "
@@ -390,11 +458,19 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 make_observer(observer)  # raises ValueError listing the valid names
             if self.measurement.wraps:  # single-turn angles: the innovation takes the shortest angular difference
                 observer_kwargs = {"wrap": self.measurement.angular, **(observer_kwargs or {})}
-            self.bounds = calibrated_bounds(env.unwrapped, self.adapter, self.sample_every,
-                                            bound_order(observer, observer_kwargs), safety=calibration_safety,
-                                            quantile=calibration_quantile, steps=calibration_steps, disk=disk_cache)
-            obs_object = default_observer(observer, self.sample_dt, self.bounds, self.measurement.noise_std(),
-                                          observer_kwargs)
+            self.bounds = calibrated_bounds(
+                env.unwrapped,
+                self.adapter,
+                self.sample_every,
+                bound_order(observer, observer_kwargs),
+                safety=calibration_safety,
+                quantile=calibration_quantile,
+                steps=calibration_steps,
+                disk=disk_cache,
+            )
+            obs_object = default_observer(
+                observer, self.sample_dt, self.bounds, self.measurement.noise_std(), observer_kwargs
+            )
         self.estimator = VelocityEstimator(obs_object)
         self._rng: np.random.Generator | None = None
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)
@@ -436,8 +512,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """The observation at the sensed state (general path), and ``info["smo"]`` with the ``clean`` one."""
         qvel_hat = self.estimator.velocity
         q_meas = self.measurement.measured_qpos()
-        obs = self.adapter.observation(q_meas if self.positions == "measured" else self._observation_qpos(),
-                                       qvel_hat)
+        obs = self.adapter.observation(q_meas if self.positions == "measured" else self._observation_qpos(), qvel_hat)
         check_finite_observation(obs)
         data = self.adapter.data
         info["smo"] = SensingInfo.of(data.qpos, data.qvel, qvel_hat, q_meas, clean)
@@ -485,8 +560,11 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._live = (data, data.qpos[None], data.qvel, data.qpos)
         fused = self._fused
         if fused is None or fused.observer is not self.estimator.observer or fused.sensor is not self.sensor:
-            self._fused = (FusedSensing(self.measurement, self.estimator, self.adapter, self.positions == "filtered")
-                           if FusedSensing.supports(self.measurement, self.estimator, self.adapter) else None)
+            self._fused = (
+                FusedSensing(self.measurement, self.estimator, self.adapter, self.positions == "filtered")
+                if FusedSensing.supports(self.measurement, self.estimator, self.adapter)
+                else None
+            )
         if self._fused is not None:
             self._fused.prepare()
         return self._observe(info, clean), info
@@ -520,7 +598,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
                     "actual value: no physics step was observed during step(); use rate='env'"
                 )
-            samples = sampler.samples[:sampler.n]
+            samples = sampler.samples[: sampler.n]
         else:
             clean, reward, terminated, truncated, info = self.env.step(action)
             samples = live[1]

@@ -45,8 +45,9 @@ class InputAwareEstimator(VelocityEstimator):
         return self.observer.update(z, self.adapter.data.ctrl.copy())[..., 1]
 
 
-def calibrate_model_miss(model, dynamics: MujocoDynamics, frame_skip: int, *, steps: int = 2000,
-                         quantile: float = 0.99, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def calibrate_model_miss(
+    model, dynamics: MujocoDynamics, frame_skip: int, *, steps: int = 2000, quantile: float = 0.99, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     r"""Quantiles of the model miss :math:`|\Delta v/h - f(q, v, u)|` and of :math:`|\Delta v/h|` per dof.
 
     Rollout of ``steps`` physics steps of ``model`` (its own ``MjData``, from ``qpos0`` plus small noise) with
@@ -109,10 +110,21 @@ class ModelBasedEstimatedVelocity(EstimatedVelocity):
     dissipativity of the joint damping, :math:`(q, s, r) = (-1, -c/2, 0)`, :math:`c = \max d_i / M_{ii}`.
     """
 
-    def __init__(self, env, sensor="encoder-12bit-noisy", observer: str = "mechanical-super-twisting",
-                 rate="physics", observer_kwargs: dict | None = None, *, mass_scale=1.0, contact: str = "unknown",
-                 calibration_steps: int = 2000, calibration_quantile: float = 0.99, calibration_safety: float = 2.0,
-                 **wrapper_kwargs):
+    def __init__(
+        self,
+        env,
+        sensor="encoder-12bit-noisy",
+        observer: str = "mechanical-super-twisting",
+        rate="physics",
+        observer_kwargs: dict | None = None,
+        *,
+        mass_scale=1.0,
+        contact: str = "unknown",
+        calibration_steps: int = 2000,
+        calibration_quantile: float = 0.99,
+        calibration_safety: float = 2.0,
+        **wrapper_kwargs,
+    ):
         if observer not in NAMES:
             raise ValueError(f"expected observer in {', '.join(NAMES)}, actual value: {observer!r}")
         unwrapped = env.unwrapped
@@ -124,12 +136,14 @@ class ModelBasedEstimatedVelocity(EstimatedVelocity):
         if dyn.n != model.nv:
             raise ValueError(
                 f"expected a model without joint-equality couplings (every dof measured), actual value: {dyn.n} "
-                f"independent coordinates for nv={model.nv}; use the observers directly on such models")
+                f"independent coordinates for nv={model.nv}; use the observers directly on such models"
+            )
         kwargs = dict(observer_kwargs or {})
         needs_bounds = "lipschitz" not in kwargs and not ("k1" in kwargs and "k2" in kwargs)
         if needs_bounds or "accel_bound" not in kwargs:
-            miss, acc = calibrate_model_miss(model, dyn, frame_skip, steps=calibration_steps,
-                                             quantile=calibration_quantile)
+            miss, acc = calibrate_model_miss(
+                model, dyn, frame_skip, steps=calibration_steps, quantile=calibration_quantile
+            )
             floor = 1e-3 * max(float(acc.max()), 1.0)
             self.model_miss_bound = calibration_safety * np.maximum(miss, floor)
             kwargs.setdefault("accel_bound", calibration_safety * np.maximum(acc, floor))
@@ -171,7 +185,8 @@ class ModelBasedEstimatedVelocity(EstimatedVelocity):
                 q[i] = y
                 Mii.append(dyn.inertia(q)[i, i])
             c = float(dyn.model.dof_damping[dyn.dof[i]]) / min(Mii)
-            g = design.apaza_gains(float(L[i]), q=-1.0, s=-c / 2.0, r=0.0,
-                                   upsilon_max=max(1.0, float(transform.grid_upsilon[:, i].max())))
+            g = design.apaza_gains(
+                float(L[i]), q=-1.0, s=-c / 2.0, r=0.0, upsilon_max=max(1.0, float(transform.grid_upsilon[:, i].max()))
+            )
             rows.append(g.as_dict())
         return {key: np.array([r[key] for r in rows]) for key in ("k1", "k2", "k3", "mu1", "mu2")}

@@ -44,7 +44,8 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
     ``infos[i]["smo"]`` is the per-environment wrapper's :class:`~smo_gym.wrappers.sensing.SensingInfo` (true
     ``qpos``/``qvel``, ``qvel_estimate``, ``qpos_measured`` and the clean ``observation``); for an environment whose
     episode ended in this step it describes that episode's last sample, like ``terminal_observation``. Sampling
-    is once per environment step (``rate="env"``; see :func:`~smo_gym.wrappers.vec.check_vector_rate`). Pickles without ``venv`` (``__getstate__`` drops it; :meth:`set_venv` attaches one, as SB3's
+    is once per environment step (``rate="env"``; see :func:`~smo_gym.wrappers.vec.check_vector_rate`).
+    Pickles without ``venv`` (``__getstate__`` drops it; :meth:`set_venv` attaches one, as SB3's
     ``VecNormalize``); :meth:`save` / :meth:`load`. Stack ``VecNormalize`` *on top*: it then normalizes the
     sensed observations and the rewritten terminal observations.
     """
@@ -52,9 +53,13 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
     def __init__(self, venv, sensor=None, observer=None, observer_kwargs=None, *, rate="env", **kwargs):
         check_vector_rate(rate)
         VecEnvWrapper.__init__(self, venv)
-        self._requested = None if sensor is None and observer is None and not kwargs and observer_kwargs is None \
-            else sensing_config(sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs,
-                                **kwargs)
+        self._requested = (
+            None
+            if sensor is None and observer is None and not kwargs and observer_kwargs is None
+            else sensing_config(
+                sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs, **kwargs
+            )
+        )
         self._attach(venv)
 
     def _attach(self, venv) -> None:
@@ -94,8 +99,9 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         _, rewards, dones, infos = self.venv.step_wait()
         local = self._local
         # np.array of a list of rows: a quarter of np.stack's cost (~13 us right after four physics steps)
-        Z = np.array([s.z_step for s in local] if local is not None else [info["smo_z"] for info in infos],
-                     dtype=np.float64)
+        Z = np.array(
+            [s.z_step for s in local] if local is not None else [info["smo_z"] for info in infos], dtype=np.float64
+        )
         est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
         done = np.asarray(dones, dtype=bool)
         terminal = None
@@ -112,8 +118,9 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         samples = [s.smo_step for s in local] if local is not None else [info["smo"] for info in infos]
         for i, info in enumerate(infos):
             sample = samples[i]
-            info["smo"] = SensingInfo.of(sample["qpos"], sample["qvel"], vel[i], sample["qpos_measured"],
-                                         sample["observation"])
+            info["smo"] = SensingInfo.of(
+                sample["qpos"], sample["qvel"], vel[i], sample["qpos_measured"], sample["observation"]
+            )
             if terms[i] is not None:
                 info["terminal_observation"] = terms[i]
         return obs, rewards, dones, infos
@@ -134,8 +141,10 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         if self.venv is not None:
             raise ValueError("expected a wrapper without a venv (unpickled or loaded), actual value: it has one")
         if venv.observation_space.shape != self.observation_space.shape:
-            raise ValueError(f"expected a venv with observation shape {self.observation_space.shape}, actual value: "
-                             f"{venv.observation_space.shape}")
+            raise ValueError(
+                f"expected a venv with observation shape {self.observation_space.shape}, actual value: "
+                f"{venv.observation_space.shape}"
+            )
         self.venv = venv
         self.num_envs = venv.num_envs
         self.class_attributes = dict(inspect.getmembers(self.__class__))

@@ -55,8 +55,6 @@ from ._tangent import integrate_pos, joint_table, tangent_advance
 
 __all__ = [
     "FusedSensing",
-    "check_action",
-    "check_seed",
     "JointMeasurement",
     "SensingInfo",
     "TangentCoordinates",
@@ -64,15 +62,21 @@ __all__ = [
     "angular_dofs",
     "bound_order",
     "bounds_from_velocities",
-    "calibrate_bounds",
     "cached_bounds",
+    "calibrate_bounds",
+    "check_action",
     "check_finite_observation",
+    "check_seed",
     "default_observer",
     "stable_repr",
 ]
 
-_FREE, _BALL, _SLIDE, _HINGE = (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL),
-                                int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE))
+_FREE, _BALL, _SLIDE, _HINGE = (
+    int(mujoco.mjtJoint.mjJNT_FREE),
+    int(mujoco.mjtJoint.mjJNT_BALL),
+    int(mujoco.mjtJoint.mjJNT_SLIDE),
+    int(mujoco.mjtJoint.mjJNT_HINGE),
+)
 
 
 def angular_dofs(model: mujoco.MjModel) -> np.ndarray:
@@ -83,7 +87,7 @@ def angular_dofs(model: mujoco.MjModel) -> np.ndarray:
         if model.jnt_type[j] == _SLIDE:
             mask[adr] = False
         elif model.jnt_type[j] == _FREE:
-            mask[adr:adr + 3] = False
+            mask[adr : adr + 3] = False
     return mask
 
 
@@ -117,7 +121,7 @@ class TangentCoordinates:
         self._z[:] = 0.0
         for kind, a, d in self.joints:
             if kind == _FREE:
-                self._z[d:d + 3] = q0[a:a + 3]
+                self._z[d : d + 3] = q0[a : a + 3]
             elif kind != _BALL:
                 self._z[d] = q0[a]
         return self._z.copy()
@@ -170,7 +174,8 @@ class JointMeasurement:
         if self.wraps and self.tangent.manifold:
             raise ValueError(
                 "expected a model without free or ball joints for a single-turn (wrapping) encoder, which measures "
-                "hinge angles, actual value: a model with free or ball joints")
+                "hinge angles, actual value: a model with free or ball joints"
+            )
         self._z_true = self._z_measured = self._qpos_measured = self._last_qpos = None
         self._fused_block = None
 
@@ -179,9 +184,9 @@ class JointMeasurement:
         block, nq, nv = self._fused_block, self.model.nq, self.model.nv
         self._fused_block = None  # [qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]
         self._last_qpos = block[:nq]
-        self._qpos_measured = block[nq + 2 * nv:2 * nq + 2 * nv]
-        self._z_true = block[2 * nq + 2 * nv:2 * nq + 3 * nv]
-        self._z_measured = block[2 * nq + 3 * nv:]
+        self._qpos_measured = block[nq + 2 * nv : 2 * nq + 2 * nv]
+        self._z_true = block[2 * nq + 2 * nv : 2 * nq + 3 * nv]
+        self._z_measured = block[2 * nq + 3 * nv :]
 
     @property
     def z_true(self) -> np.ndarray | None:
@@ -363,8 +368,9 @@ class SensingInfo(dict):
     @classmethod
     def of(cls, qpos, qvel, qvel_estimate, qpos_measured, observation) -> SensingInfo:
         """From the four state arrays (copied) and the clean observation (copied)."""
-        return cls.from_block(np.concatenate((qpos, qvel, qvel_estimate, qpos_measured)),
-                              cls.slices(len(qpos), len(qvel)), observation)
+        return cls.from_block(
+            np.concatenate((qpos, qvel, qvel_estimate, qpos_measured)), cls.slices(len(qpos), len(qvel)), observation
+        )
 
     @staticmethod
     def slices(nq: int, nv: int) -> tuple[slice, slice, slice, slice]:
@@ -379,12 +385,19 @@ class SensingInfo(dict):
         and the clean observation (an array or a dict of arrays, copied)."""
         block.setflags(write=False)
         s0, s1, s2, s3 = slices
-        return cls(qpos=block[s0], qvel=block[s1], qvel_estimate=block[s2], qpos_measured=block[s3],
-                   observation=_read_only_copy(observation))
+        return cls(
+            qpos=block[s0],
+            qvel=block[s1],
+            qvel_estimate=block[s2],
+            qpos_measured=block[s3],
+            observation=_read_only_copy(observation),
+        )
 
     def _readonly(self, *args, **kwargs):
-        raise TypeError("expected no change to info['smo'] (read-only), actual value: an attempt to modify it; "
-                        "dict(info['smo']) is a mutable copy")
+        raise TypeError(
+            "expected no change to info['smo'] (read-only), actual value: an attempt to modify it; "
+            "dict(info['smo']) is a mutable copy"
+        )
 
     __setitem__ = __delitem__ = update = pop = popitem = clear = setdefault = __ior__ = _readonly
 
@@ -518,11 +531,16 @@ class FusedSensing:
         from ._fused import FUSED_DRIVERS
 
         observer = estimator.observer
-        return (type(estimator) is VelocityEstimator
-                and type(observer).update is Observer.update and type(observer).run is Observer.run
-                and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
-                and observer.order >= 1 and type(measurement.sensor).run is Sensor.run
-                and getattr(observer, "_kernel", None) in FUSED_DRIVERS and hasattr(adapter, "scratch_state"))
+        return (
+            type(estimator) is VelocityEstimator
+            and type(observer).update is Observer.update
+            and type(observer).run is Observer.run
+            and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
+            and observer.order >= 1
+            and type(measurement.sensor).run is Sensor.run
+            and getattr(observer, "_kernel", None) in FUSED_DRIVERS
+            and hasattr(adapter, "scratch_state")
+        )
 
     def _bind(self, Q: np.ndarray, qvel_true: np.ndarray) -> None:
         """Resolve the driver's compiled entry point (once: the arguments keep their types across resets).
@@ -539,8 +557,19 @@ class FusedSensing:
                 raise TypeError(f"expected writeable C-contiguous float64 arrays, actual value: {a.dtype} {a.flags}")
         self.prepare()
         n, m = self._shape
-        self._call = _compiled_entry(self._driver, (Q, qvel_true, np.int64(0), np.empty((n, m)),
-                                                    np.empty(self._info_size), self._Zm, self._no_obs, self._table))
+        self._call = _compiled_entry(
+            self._driver,
+            (
+                Q,
+                qvel_true,
+                np.int64(0),
+                np.empty((n, m)),
+                np.empty(self._info_size),
+                self._Zm,
+                self._no_obs,
+                self._table,
+            ),
+        )
 
     def prepare(self) -> None:
         """Collect the sensor's and the observer's current arrays into the driver's address table (call after
@@ -560,10 +589,25 @@ class FusedSensing:
         self._shape = (n, observer.order + 1)
         scratch_qpos, scratch_qvel = self.adapter.scratch_state()
         tangent = self.measurement.tangent
-        static = (sensor._kinds, sensor._params, sensor._state, sensor._ring, sensor._ring_pos, sensor._rand,
-                  observer._state, observer._params, self._work, scratch_qpos, scratch_qvel, self.filtered,
-                  tangent.joints, tangent._prev, tangent._z if tangent.manifold else self._unused_z, self._obs_index,
-                  self._obs_bounds)
+        static = (
+            sensor._kinds,
+            sensor._params,
+            sensor._state,
+            sensor._ring,
+            sensor._ring_pos,
+            sensor._rand,
+            observer._state,
+            observer._params,
+            self._work,
+            scratch_qpos,
+            scratch_qvel,
+            self.filtered,
+            tangent.joints,
+            tangent._prev,
+            tangent._z if tangent.manifold else self._unused_z,
+            self._obs_index,
+            self._obs_bounds,
+        )
         # the controller inputs the observation reads, copied by the compiled call (time, a scalar, is not)
         pairs = self.adapter.input_views()[0] if self.copies_inputs else ()
         static = static + pairs
@@ -581,11 +625,18 @@ class FusedSensing:
             if ndim == 0:
                 table[row] = (int(bool(array)), 0, 0, 0, 0)
                 continue
-            for a in (array if ndim < 0 else (array,)):
-                if not (type(a) is np.ndarray and a.dtype == dtype and (ndim < 0 or a.ndim == ndim)
-                        and a.flags.c_contiguous and a.flags.aligned):
-                    raise TypeError(f"expected {name} as an aligned C-contiguous {np.dtype(dtype)} array"
-                                    f"{f' with {ndim} dimensions' if ndim > 0 else ''}, actual value: {a!r:.80}")
+            for a in array if ndim < 0 else (array,):
+                if not (
+                    type(a) is np.ndarray
+                    and a.dtype == dtype
+                    and (ndim < 0 or a.ndim == ndim)
+                    and a.flags.c_contiguous
+                    and a.flags.aligned
+                ):
+                    raise TypeError(
+                        f"expected {name} as an aligned C-contiguous {np.dtype(dtype)} array"
+                        f"{f' with {ndim} dimensions' if ndim > 0 else ''}, actual value: {a!r:.80}"
+                    )
             if ndim < 0:  # an input copy: [to, from, size]
                 to, source = array
                 if to.size != source.size:
@@ -653,13 +704,23 @@ class FusedSensing:
         self.observer._raise_status(-2 - channel, self._Zm[t])
 
 
-
 # ----------------------------------------------------------------------------------------------------------------
 # calibration of the default gains
 # ----------------------------------------------------------------------------------------------------------------
-def calibrate_bounds(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray, frame_skip: int, sample_every: int,
-                     *, derivative: int = 2, steps: int = 2000, episode: int = 500, quantile: float = 0.99,
-                     safety: float = 2.0, seed: int = 0) -> np.ndarray:
+def calibrate_bounds(
+    model: mujoco.MjModel,
+    qpos0: np.ndarray,
+    qvel0: np.ndarray,
+    frame_skip: int,
+    sample_every: int,
+    *,
+    derivative: int = 2,
+    steps: int = 2000,
+    episode: int = 500,
+    quantile: float = 0.99,
+    safety: float = 2.0,
+    seed: int = 0,
+) -> np.ndarray:
     r"""Bounds on :math:`|z^{(r)}|` per dof from a rollout of ``model`` under a random policy.
 
     From ``(qpos0, qvel0)`` the model is stepped ``steps`` physics steps with actions drawn uniformly from the
@@ -709,8 +770,9 @@ def calibrate_bounds(model: mujoco.MjModel, qpos0: np.ndarray, qvel0: np.ndarray
     return bounds_from_velocities(episodes, dt, derivative=derivative, quantile=quantile, safety=safety)
 
 
-def bounds_from_velocities(episodes: list[np.ndarray], dt: float, *, derivative: int = 2, quantile: float = 0.99,
-                           safety: float = 2.0) -> np.ndarray:
+def bounds_from_velocities(
+    episodes: list[np.ndarray], dt: float, *, derivative: int = 2, quantile: float = 0.99, safety: float = 2.0
+) -> np.ndarray:
     r"""``safety * quantile(|z^(r)|)`` per dof from sampled velocities.
 
     ``episodes`` holds arrays ``(T_i, nv)`` of ``qvel`` sampled every ``dt``; backward differences give
@@ -721,8 +783,10 @@ def bounds_from_velocities(episodes: list[np.ndarray], dt: float, *, derivative:
         raise ValueError(f"expected derivative >= 1, actual value: {derivative}")
     diffs = [np.diff(V, n=derivative - 1, axis=0) / dt ** (derivative - 1) for V in episodes if len(V) >= derivative]
     if not diffs:
-        raise ValueError(f"expected a rollout long enough to calibrate, actual value: {len(episodes)} episode(s) "
-                         f"shorter than {derivative} samples")
+        raise ValueError(
+            f"expected a rollout long enough to calibrate, actual value: {len(episodes)} episode(s) "
+            f"shorter than {derivative} samples"
+        )
     D = np.abs(np.concatenate(diffs, axis=0))
     bound = safety * np.quantile(D, quantile, axis=0)
     # dofs the random policy cannot move (a pushed object, a goal) get the largest bound of the model: they may
@@ -737,7 +801,8 @@ _MEMORY_CACHE: dict[str, list[float]] = {}
 
 def _cache_file() -> Path:
     root = os.environ.get("SMO_GYM_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "smo_gym")
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "smo_gym"
+    )
     return Path(root) / "calibration.json"
 
 
@@ -808,10 +873,18 @@ def stable_repr(value) -> str:
         closure = [cell.cell_contents for cell in (value.__closure__ or ())]
         # module-level numbers, strings and arrays the function reads (modules and functions by name only)
         names = getattr(value, "__globals__", {})
-        data = {name: names[name] for name in code.co_names
-                if isinstance(names.get(name), (bool, int, float, complex, str, np.ndarray, np.number))}
-        parts = [code.co_code.hex(), stable_repr(list(code.co_consts)), stable_repr(list(value.__defaults__ or ())),
-                 stable_repr(closure), stable_repr(data)]
+        data = {
+            name: names[name]
+            for name in code.co_names
+            if isinstance(names.get(name), (bool, int, float, complex, str, np.ndarray, np.number))
+        }
+        parts = [
+            code.co_code.hex(),
+            stable_repr(list(code.co_consts)),
+            stable_repr(list(value.__defaults__ or ())),
+            stable_repr(closure),
+            stable_repr(data),
+        ]
         digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:12]
         return f"{getattr(value, '__module__', '')}.{getattr(value, '__qualname__', '')}:{digest}"
     return _ADDRESS.sub("", repr(value))

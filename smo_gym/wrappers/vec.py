@@ -14,7 +14,7 @@ The work splits in two halves:
     no extra round trip); ``observe(velocity, filtered)`` rebuilds the observation from the measured positions
     and a given velocity estimate. When an episode ends, it keeps a copy of the final ``MjData`` and
     measurement, so the terminal observation can be rebuilt after the environment was already reset.
-:class:`~smo_gym.wrappers.sb3.VecEstimatedVelocity` (SB3 ``VecEnvWrapper``, module :mod:`smo_gym.wrappers.sb3`) and :class:`VectorEstimatedVelocity` (Gymnasium)
+:class:`~smo_gym.wrappers.sb3.VecEstimatedVelocity` (SB3) and :class:`VectorEstimatedVelocity` (Gymnasium)
     the batched observer: stack the ``n`` measurements, one ``update``, masked restarts, then ask the
     sub-environments to rebuild their observations (one call per environment with ``DummyVecEnv`` /
     ``SyncVectorEnv``; one parallel round trip to all workers with ``SubprocVecEnv`` / ``AsyncVectorEnv``).
@@ -59,23 +59,59 @@ from .sensing import check_action, check_finite_observation, check_seed
 __all__ = ["JointSensor", "VectorEstimatedVelocity", "check_vector_rate", "sensing_config", "stack_samples"]
 
 #: keyword arguments of EstimatedVelocity that define the sensing (rate is always "env" here)
-_CONFIG_KEYS = ("sensor", "observer", "observer_kwargs", "positions", "contact_forces", "calibration_safety",
-                "calibration_quantile", "calibration_steps", "disk_cache")
+_CONFIG_KEYS = (
+    "sensor",
+    "observer",
+    "observer_kwargs",
+    "positions",
+    "contact_forces",
+    "calibration_safety",
+    "calibration_quantile",
+    "calibration_steps",
+    "disk_cache",
+)
 
 
 #: MjData fields a terminal observation may read from the live data: the simulation inputs (as the adapter's
 #: ``_fill_inputs``) and the contact forces (``contact_forces="sensor"``)
-_SNAPSHOT = ("qpos", "qvel", "act", "ctrl", "qfrc_applied", "xfrc_applied", "mocap_pos", "mocap_quat", "userdata",
-             "cfrc_ext")
+_SNAPSHOT = (
+    "qpos",
+    "qvel",
+    "act",
+    "ctrl",
+    "qfrc_applied",
+    "xfrc_applied",
+    "mocap_pos",
+    "mocap_quat",
+    "userdata",
+    "cfrc_ext",
+)
 
 
-def sensing_config(sensor="encoder-12bit-noisy", observer="super-twisting", observer_kwargs=None, *,
-                   positions="measured", contact_forces="sensor", calibration_safety=2.0, calibration_quantile=0.99,
-                   calibration_steps=2000, disk_cache=True) -> dict:
+def sensing_config(
+    sensor="encoder-12bit-noisy",
+    observer="super-twisting",
+    observer_kwargs=None,
+    *,
+    positions="measured",
+    contact_forces="sensor",
+    calibration_safety=2.0,
+    calibration_quantile=0.99,
+    calibration_steps=2000,
+    disk_cache=True,
+) -> dict:
     """The sensing options (those of :class:`EstimatedVelocity` except ``rate``) as a dict."""
-    return dict(sensor=sensor, observer=observer, observer_kwargs=observer_kwargs, positions=positions,
-                contact_forces=contact_forces, calibration_safety=calibration_safety,
-                calibration_quantile=calibration_quantile, calibration_steps=calibration_steps, disk_cache=disk_cache)
+    return dict(
+        sensor=sensor,
+        observer=observer,
+        observer_kwargs=observer_kwargs,
+        positions=positions,
+        contact_forces=contact_forces,
+        calibration_safety=calibration_safety,
+        calibration_quantile=calibration_quantile,
+        calibration_steps=calibration_steps,
+        disk_cache=disk_cache,
+    )
 
 
 def check_vector_rate(rate) -> None:
@@ -87,7 +123,8 @@ def check_vector_rate(rate) -> None:
         f"expected rate='env' for a vector wrapper (one batched observer update per vector step), actual value: "
         f"{rate!r}; to sample inside frame_skip, wrap each environment instead: "
         "gymnasium.make_vec(id, wrappers=[functools.partial(EstimatedVelocity, rate='physics')]) or "
-        "make_vec_env(id, wrapper_class=EstimatedVelocity, wrapper_kwargs={'rate': 'physics'})")
+        "make_vec_env(id, wrapper_class=EstimatedVelocity, wrapper_kwargs={'rate': 'physics'})"
+    )
 
 
 class JointSensor(EstimatedVelocity):
@@ -106,8 +143,16 @@ class JointSensor(EstimatedVelocity):
         carry every environment's estimate (``observe_rows``).
     """
 
-    def __init__(self, env: gym.Env, sensor="encoder-12bit-noisy", observer="super-twisting", observer_kwargs=None,
-                 *, rate="env", **kwargs):
+    def __init__(
+        self,
+        env: gym.Env,
+        sensor="encoder-12bit-noisy",
+        observer="super-twisting",
+        observer_kwargs=None,
+        *,
+        rate="env",
+        **kwargs,
+    ):
         check_vector_rate(rate)
         super().__init__(env, sensor, observer, "env", observer_kwargs, **kwargs)
         self.config = sensing_config(sensor, observer, observer_kwargs, **kwargs)
@@ -130,8 +175,12 @@ class JointSensor(EstimatedVelocity):
         """The sample's true state, measured configuration and the environment's own (clean) observation, for the
         owner's ``info["smo"]`` (:class:`~smo_gym.wrappers.sensing.SensingInfo`, which adds the estimate)."""
         data = self.adapter.data
-        smo = {"qpos": data.qpos.copy(), "qvel": data.qvel.copy(),
-               "qpos_measured": np.array(self.measurement.measured_qpos()), "observation": clean}
+        smo = {
+            "qpos": data.qpos.copy(),
+            "qvel": data.qvel.copy(),
+            "qpos_measured": np.array(self.measurement.measured_qpos()),
+            "observation": clean,
+        }
         if self.emit_info:
             info["smo"] = smo
         return smo
@@ -167,8 +216,11 @@ class JointSensor(EstimatedVelocity):
         if terminated or truncated:
             # the environment will be reset before the owner rebuilds the terminal observation: keep what the
             # observation reads from the live data (the controller's inputs and contact forces)
-            self._terminal = (self._snapshot(data), self.measurement.measured_qpos().copy(),
-                              np.array(self.measurement.z_measured, dtype=np.float64))
+            self._terminal = (
+                self._snapshot(data),
+                self.measurement.measured_qpos().copy(),
+                np.array(self.measurement.z_measured, dtype=np.float64),
+            )
         return obs, reward, terminated, truncated, info
 
     def _snapshot(self, data):
@@ -215,7 +267,8 @@ class JointSensor(EstimatedVelocity):
                 unwrapped.data = live
         else:
             obs = self.adapter.observation(
-                self._positions(self.measurement.measured_qpos(), self.measurement.z_measured, filtered), velocity)
+                self._positions(self.measurement.measured_qpos(), self.measurement.z_measured, filtered), velocity
+            )
         if not self.adapter.checks_observation:  # else the adapter's compiled gather has checked it
             check_finite_observation(obs)
         return obs
@@ -230,8 +283,9 @@ class JointSensor(EstimatedVelocity):
         obs = self.observe(velocity[i], f)
         term = None
         if terminal_mask is not None and terminal_mask[i]:
-            term = self.observe(terminal_velocity[i], None if terminal_filtered is None else terminal_filtered[i],
-                                terminal=True)
+            term = self.observe(
+                terminal_velocity[i], None if terminal_filtered is None else terminal_filtered[i], terminal=True
+            )
         return obs, term
 
     def prototype(self):
@@ -304,7 +358,8 @@ class _Sensing:
         if config is not None and config != configs[0]:
             raise ValueError(
                 f"expected the sub-environments' JointSensor to have the wrapper's sensing {config}, actual value: "
-                f"{configs[0]}")
+                f"{configs[0]}"
+            )
         self.config = configs[0]
         self.positions = self.config["positions"]
         self.observer = protos[0][0]
@@ -378,9 +433,16 @@ class _Sensing:
             return plan
         local = self._local
         plan = None
-        if (self.positions == "measured" and len({(s.adapter.model.nq, s.adapter.model.nv) for s in local}) == 1
-                and all(getattr(s.adapter, "_gather", None) is not None and s.adapter.unflatten is None
-                        and not s.measurement.tangent.manifold for s in local)):
+        if (
+            self.positions == "measured"
+            and len({(s.adapter.model.nq, s.adapter.model.nv) for s in local}) == 1
+            and all(
+                getattr(s.adapter, "_gather", None) is not None
+                and s.adapter.unflatten is None
+                and not s.measurement.tangent.manifold
+                for s in local
+            )
+        ):
             plan = _GatheredObservations(local)
         self._plan_cache = plan
         return plan
@@ -396,8 +458,10 @@ class _Sensing:
         """The in-process environments' last samples (:meth:`JointSensor._record`): the reset's where the
         environment was reset last, the step's where it was stepped last or where ``terminal`` (an episode that
         ended in this step, reset since by the vector env) is set."""
-        return [s.smo_step if (terminal is not None and terminal[i]) or not s._reset_last else s.smo_reset
-                for i, s in enumerate(self._local)]
+        return [
+            s.smo_step if (terminal is not None and terminal[i]) or not s._reset_last else s.smo_reset
+            for i, s in enumerate(self._local)
+        ]
 
 
 def stack_samples(samples: list[dict], velocity: np.ndarray, mask: np.ndarray | None = None) -> dict:
@@ -416,15 +480,22 @@ def stack_samples(samples: list[dict], velocity: np.ndarray, mask: np.ndarray | 
         return np.stack([np.asarray(v) for v in values])
 
     merged = [{**sample, "qvel_estimate": v} for sample, v in zip(samples, velocity, strict=True)]
-    return stack([{key: sample[key] for key in ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")}
-                  for sample in merged])
+    return stack(
+        [
+            {key: sample[key] for key in ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")}
+            for sample in merged
+        ]
+    )
 
 
 def _rows(stacked: dict, i: int) -> dict:
     """Row ``i`` of a dict of stacked arrays (nested dicts too, masks dropped): one environment's sample from
     Gymnasium's merged infos."""
-    return {key: _rows(value, i) if isinstance(value, dict) else value[i] for key, value in stacked.items()
-            if not key.startswith("_")}
+    return {
+        key: _rows(value, i) if isinstance(value, dict) else value[i]
+        for key, value in stacked.items()
+        if not key.startswith("_")
+    }
 
 
 class _GatheredObservations:
@@ -450,8 +521,10 @@ class _GatheredObservations:
         self.live = []  # the live data each input row reads (checked at every call: a new MjData needs a new plan)
         for i, adapter in enumerate(adapters):
             qpos, qvel = adapter.scratch_state()
-            rows += [(address(qpos), address(self.positions[i]), qpos.size),
-                     (address(qvel), address(self.velocities[i]), qvel.size)]
+            rows += [
+                (address(qpos), address(self.positions[i]), qpos.size),
+                (address(qvel), address(self.velocities[i]), qvel.size),
+            ]
             live = adapter.data
             if adapter.copies_inputs:
                 views = adapter._views_of(live)
@@ -467,8 +540,9 @@ class _GatheredObservations:
         self.shape = (n, len(entries[0][3]))
         if any(len(e[3]) != self.shape[1] for e in entries):
             raise ValueError(f"expected observations of one size, actual value: {[len(e[3]) for e in entries]}")
-        self.gather = _compiled_entry(gather_entries, (self.addresses, self.functions, self.bounds,
-                                                       np.empty(self.addresses.size)))
+        self.gather = _compiled_entry(
+            gather_entries, (self.addresses, self.functions, self.bounds, np.empty(self.addresses.size))
+        )
         #: the pipeline of every adapter, or None if they differ (then each adapter runs its own)
         forward_only = all(a.pipeline == "forward" and not a.reads_contacts for a in adapters)
         self.forward = [(a.model, a._scratch) for a in adapters] if forward_only else None
@@ -499,8 +573,9 @@ class _GatheredObservations:
         bad = self.gather(self.addresses, self.functions, self.bounds, obs.reshape(-1))
         if bad != -1:
             i, k = divmod(bad, self.shape[1])
-            raise ValueError(f"expected a finite sensed observation, actual value: {obs[i, k]!r} at entry {k} of "
-                             f"environment {i}")
+            raise ValueError(
+                f"expected a finite sensed observation, actual value: {obs[i, k]!r} at entry {k} of environment {i}"
+            )
         return obs
 
 
@@ -541,9 +616,13 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
     def __init__(self, env, sensor=None, observer=None, observer_kwargs=None, *, rate="env", **kwargs):
         gym.vector.VectorWrapper.__init__(self, env)
         check_vector_rate(rate)
-        requested = None if sensor is None and observer is None and not kwargs and observer_kwargs is None \
-            else sensing_config(sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs,
-                                **kwargs)
+        requested = (
+            None
+            if sensor is None and observer is None and not kwargs and observer_kwargs is None
+            else sensing_config(
+                sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs, **kwargs
+            )
+        )
         from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
         self.autoreset_mode = AutoresetMode(env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP))
