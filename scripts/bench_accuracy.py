@@ -6,7 +6,7 @@ For each environment x sensor preset (:data:`smo_gym.sensors.PRESETS`: ``ideal``
 ``encoder-12bit-noisy``, ``low-cost``) x rate (``"physics"``: every MuJoCo step inside ``frame_skip``; ``"env"``:
 once per environment step), one rollout under a seeded smooth random policy is recorded with
 :func:`smo_gym.wrappers.compare.record_rollout` (the wrapper's own substep hook and
-:class:`~smo_gym.wrappers.sensing.JointMeasurement`), and every observer of :data:`smo_gym.observers.OBSERVERS`
+:class:`~smo_gym.engine.measurement.JointMeasurement`), and every observer of :data:`smo_gym.observers.OBSERVERS`
 (all of them differentiate the measured joint coordinates; the model-based observers are not in it) runs on
 those same measurements through :func:`smo_gym.wrappers.compare.compare_observers`, with the wrapper's default
 gains (:func:`~smo_gym.wrappers.sensing.default_observer` from the calibrated bounds). ``FiniteDifference`` (the

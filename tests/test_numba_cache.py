@@ -28,7 +28,7 @@ def test_drop_stale_removes_only_indexes_older_than_a_dependency(tmp_path):
 
 
 def test_the_fused_drivers_are_checked_against_their_dependencies():
-    from smo_gym.wrappers import _fused
+    from smo_gym.engine import fused as _fused
 
     # every fused driver names a cache index numba would use (the attribute path drop_stale relies on)
     for driver in _fused.FUSED_DRIVERS.values():

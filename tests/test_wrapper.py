@@ -23,6 +23,7 @@ import pytest
 from conftest import full_forward_observation, smooth_actions
 
 from smo_gym import observers, sensors
+from smo_gym.engine import measurement
 from smo_gym.wrappers import EstimatedVelocity, sensing
 from smo_gym.wrappers import estimated_velocity as ev_module
 
@@ -286,7 +287,7 @@ def test_rates_set_the_sampling_step():
 def test_free_joint_tangent_coordinates_differentiate_to_qvel():
     """z from consecutive quaternions: (z_k - z_{k-1}) / h equals the body angular velocity that produced them."""
     model = gym.make("Ant-v5").unwrapped.model
-    tc = sensing.TangentCoordinates(model)
+    tc = measurement.TangentCoordinates(model)
     rng = np.random.default_rng(0)
     q = model.qpos0.copy()
     z_prev = tc.reset(q)
@@ -298,7 +299,7 @@ def test_free_joint_tangent_coordinates_differentiate_to_qvel():
         np.testing.assert_allclose((z - z_prev) / h, v, rtol=1e-7, atol=1e-7)
         z_prev = z
     # noise on the manifold keeps unit quaternions
-    m = sensing.JointMeasurement(model, "encoder-12bit-noisy", h)
+    m = measurement.JointMeasurement(model, "encoder-12bit-noisy", h)
     qm = m.reset(q, np.random.default_rng(1))
     assert np.isclose(np.linalg.norm(qm[3:7]), 1.0) and not np.allclose(qm[3:7], q[3:7])
 

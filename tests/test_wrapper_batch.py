@@ -9,8 +9,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from smo_gym.engine import VelocityEstimator
 from smo_gym.wrappers import EstimatedVelocity
-from smo_gym.wrappers.sensing import VelocityEstimator
 
 
 class PerSample(VelocityEstimator):

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from conftest import full_forward_observation
 
+from smo_gym.engine import FusedSensing
 from smo_gym.observers import DivergenceError
 from smo_gym.wrappers import EstimatedVelocity
-from smo_gym.wrappers.sensing import FusedSensing, SensingInfo
+from smo_gym.wrappers.sensing import SensingInfo
 
 KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")
 
@@ -254,7 +255,7 @@ def test_compiled_tangent_arithmetic_is_mujocos(env_id):
     for large rotations (beyond pi: the wrap of the angle) and tiny ones (the zero-norm branch)."""
     import mujoco
 
-    from smo_gym.wrappers._tangent import differentiate_pos, integrate_pos, joint_table
+    from smo_gym.engine.tangent import differentiate_pos, integrate_pos, joint_table
 
     env = gym.make(env_id).unwrapped
     env.reset(seed=0)
@@ -335,8 +336,8 @@ def test_sines_and_cosines_are_gathered_only_where_they_equal_numpys(monkeypatch
     constraint force) is gathered with compiled sin/cos, equal to _get_obs at run-time states; on a platform where
     NumPy's sin/cos differ from the C library's (simulated), the adapter keeps _get_obs for it (and still gathers
     observations without them)."""
-    from smo_gym.wrappers import _fused
-    from smo_gym.wrappers._fused import ENTRY_COS, ENTRY_SIN, entry_functions_match_numpy
+    from smo_gym.engine import fused as _fused
+    from smo_gym.engine.fused import ENTRY_COS, ENTRY_SIN, entry_functions_match_numpy
     from smo_gym.wrappers.adapters import make_adapter
 
     assert entry_functions_match_numpy()

@@ -133,7 +133,7 @@ class MujocoAdapter:
 
 def _entry_addresses(fields: dict, names, flat) -> np.ndarray:
     """Addresses of the float64 entries ``fields[names[i]].flat[flat[i]]`` (C-contiguous arrays), shape ``(n,)``."""
-    from ._fused import address
+    from ..engine.fused import address
 
     base = {name: address(array) for name, array in fields.items()}
     return np.array([base[name] + 8 * int(k) for name, k in zip(names, flat, strict=True)], dtype=np.int64)
@@ -246,8 +246,8 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         self._gather = self._entry_addresses = None
         entries = self.observation_entries
         if entries is not None:  # the addresses of the observation's entries in this scratch data
+            from ..engine.fused import gather_entries
             from ..observers.base import _compiled_entry
-            from ._fused import gather_entries
 
             names, flat, bounds, functions = entries
             fields = {name: getattr(self._scratch, name) for name in set(names)}
@@ -471,8 +471,8 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         cache = self.__dict__.setdefault("_views_cache", {})
         views = cache.get(id(live))
         if views is None or views[0] is not live:
+            from ..engine.fused import address, copy_entries
             from ..observers.base import _compiled_entry
-            from ._fused import address, copy_entries
 
             pairs = tuple(
                 (getattr(self._scratch, name), getattr(live, name)) for name in self._input_fields if name != "time"
@@ -589,7 +589,7 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         sines or cosines, if the compiled ones equal NumPy's (:func:`~._fused.entry_functions_match_numpy`)
         (``float64`` one-dimensional observations only).
         """
-        from ._fused import ENTRY_COS, ENTRY_IDENTITY, ENTRY_SIN, entry_functions_match_numpy, gather_entries
+        from ..engine.fused import ENTRY_COS, ENTRY_IDENTITY, ENTRY_SIN, entry_functions_match_numpy, gather_entries
 
         model = self.model
         rng = np.random.default_rng(8642)

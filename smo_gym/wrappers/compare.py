@@ -3,9 +3,9 @@ r"""Side-by-side comparison of velocity observers on the *same* measurements of 
 The library behind ``smo-gym compare``. One environment is run under a seeded smooth random policy; the true
 configuration is sampled at the chosen rate with the wrapper's own substep hook
 (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.substeps`), measured once by a
-:class:`~smo_gym.wrappers.sensing.JointMeasurement`, and every observer (built with the wrapper's default gains,
+:class:`~smo_gym.engine.measurement.JointMeasurement`, and every observer (built with the wrapper's default gains,
 :func:`~smo_gym.wrappers.sensing.default_observer`) processes those same measurements through
-:class:`~smo_gym.wrappers.sensing.VelocityEstimator`, i.e. exactly what
+:class:`~smo_gym.engine.measurement.VelocityEstimator`, i.e. exactly what
 :class:`~smo_gym.wrappers.EstimatedVelocity` would feed it.
 
 Metrics (per observer) are over every estimate (:func:`estimate_errors`): every sample except the first of each
@@ -37,17 +37,12 @@ import numpy as np
 
 from .. import _extras as extras
 from .._validation import DivergenceError
+from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
 from .adapters import make_adapter
 from .estimated_velocity import calibrated_bounds, resolve_rate
-from .sensing import (
-    JointMeasurement,
-    VelocityEstimator,
-    angular_dofs,
-    bound_order,
-    default_observer,
-)
+from .sensing import bound_order, default_observer
 
 __all__ = [
     "ObserverResult",

@@ -8,21 +8,19 @@ import gymnasium as gym
 import numpy as np
 
 from .._validation import check_int_in_range, check_positive, check_real_in_range
+from ..engine.fused import FusedSensing
+from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import make_adapter
 from .sensing import (
-    FusedSensing,
-    JointMeasurement,
     SensingInfo,
-    VelocityEstimator,
     bound_order,
     bounds_from_velocities,
     cached_bounds,
     calibrate_bounds,
     calibration_key,
     check_action,
-    check_finite_observation,
     check_seed,
     default_observer,
     stable_repr,
@@ -366,7 +364,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ``qpos`` after each (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.record_substeps`); the
     trajectory, rewards and terminations are bit-identical to the unwrapped environment's (tested on every v5
     environment). The samples of one control period then go through sensor, tangent coordinates and observer in
-    one compiled call (:class:`~smo_gym.wrappers.sensing.FusedSensing`, for the observers with a fused driver;
+    one compiled call (:class:`~smo_gym.engine.fused.FusedSensing`, for the observers with a fused driver;
     the others take the general path with the same numbers), which also writes the sensed state into the scratch
     data the observation is evaluated on. Observer parameters are derived at the first reset and kept for later
     episodes (:meth:`~smo_gym.observers.Observer.restart`).

@@ -24,10 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from .. import design
+from ..engine.measurement import VelocityEstimator
 from ..mechanics import MujocoDynamics
 from ..observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting
 from .estimated_velocity import EstimatedVelocity, resolve_rate
-from .sensing import VelocityEstimator
 
 __all__ = ["InputAwareEstimator", "ModelBasedEstimatedVelocity", "calibrate_model_miss"]
 

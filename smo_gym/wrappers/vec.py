@@ -53,8 +53,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from ..engine.measurement import check_finite_observation
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
-from .sensing import check_action, check_finite_observation, check_seed
+from .sensing import check_action, check_seed
 
 __all__ = ["JointSensor", "VectorEstimatedVelocity", "check_vector_rate", "sensing_config", "stack_samples"]
 
@@ -510,8 +511,8 @@ class _GatheredObservations:
     """
 
     def __init__(self, sensors):
+        from ..engine.fused import address, copy_entries, gather_entries
         from ..observers.base import _compiled_entry
-        from ._fused import address, copy_entries, gather_entries
 
         adapters = [s.adapter for s in sensors]
         self.adapters = adapters

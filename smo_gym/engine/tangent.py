@@ -1,6 +1,6 @@
 r"""Compiled configuration-space arithmetic for free and ball joints (MuJoCo's ``mj_differentiatePos`` and
-``mj_integratePos`` with a unit step), shared by :class:`~smo_gym.wrappers.sensing.TangentCoordinates` and the
-wrapper's fused hot path (:mod:`smo_gym.wrappers._fused`), so both compute the same numbers.
+``mj_integratePos`` with a unit step), shared by :class:`~smo_gym.engine.measurement.TangentCoordinates` and the
+wrapper's fused hot path (:mod:`smo_gym.engine.fused`), so both compute the same numbers.
 
 Joints are described by a table ``joints`` (njnt, 3) of ``(type, qpos address, dof address)`` rows
 (:func:`joint_table`). A free joint is a translation (3 ``qpos``, 3 dofs, plain differences) followed by a unit
@@ -135,7 +135,7 @@ def integrate_pos(joints, qpos, v):
 @njit(cache=True, inline="always")
 def tangent_advance(joints, prev, q, z):
     r"""Continuous tangent coordinates: ``z += q \ominus prev`` for free joints and ball joints, ``z = q`` for hinge
-    and slide dofs, then ``prev = q`` (see :class:`~smo_gym.wrappers.sensing.TangentCoordinates`)."""
+    and slide dofs, then ``prev = q`` (see :class:`~smo_gym.engine.measurement.TangentCoordinates`)."""
     for j in range(joints.shape[0]):
         kind, a, d = joints[j, 0], joints[j, 1], joints[j, 2]
         if kind == FREE:

@@ -14,7 +14,7 @@ path is one compiled function per observer kernel that, for the ``T`` samples of
    HalfCheetah, Walker2d, Swimmer, InvertedPendulum), the observation itself.
 
 Free and ball joints go through the same compiled tangent coordinates as the general path
-(:mod:`smo_gym.wrappers._tangent`).
+(:mod:`smo_gym.engine.tangent`).
 
 The numbers are those of the general path (``Sensor.run`` then ``Observer.run``), bit for bit (tested). The
 function is generic in the kernel and inlined into one cached driver per kernel (a compiled function taking the
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
 
 import numpy as np
 from numba import carray, njit, types
@@ -36,9 +37,12 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .._numba_cache import drop_stale
+from ..observers import Observer
 from ..observers import _kernels as K
-from ..sensors import _chain_kernel
-from ._tangent import integrate_pos, tangent_advance
+from ..observers.base import _compiled_entry
+from ..sensors import BLOCK, Sensor, _chain_kernel
+from .measurement import JointMeasurement, VelocityEstimator
+from .tangent import integrate_pos, tangent_advance
 
 __all__ = [
     "ENTRY_COS",
@@ -46,6 +50,7 @@ __all__ = [
     "ENTRY_SIN",
     "FUSED_DRIVERS",
     "TABLE_SLOTS",
+    "FusedSensing",
     "address",
     "copy_entries",
     "entry_functions_match_numpy",
@@ -118,7 +123,7 @@ def _sense(
     observer's state (nv, S) and parameters, ``work`` (2, nv, S) ping-pong buffers of the state, the scratch
     ``qpos``/``qvel`` of the observation, ``filtered`` (put the observer's filtered value instead of the
     measurement into ``scratch_qpos``), and the tangent coordinates of free/ball joints
-    (:mod:`smo_gym.wrappers._tangent`): ``joints`` (njnt, 3), empty for a model without them (then ``z = qpos``),
+    (:mod:`smo_gym.engine.tangent`): ``joints`` (njnt, 3), empty for a model without them (then ``z = qpos``),
     ``prev`` (nq,) the last configuration and ``z`` (nv,) its tangent coordinates, both advanced in place. Last,
     for an observation that is a selection of the sensed state (:attr:`GymnasiumMujocoAdapter.observation_map
     <smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_map>`): ``obs[i] = min(max(x[obs_index[i]],
@@ -215,7 +220,7 @@ def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
     argument. Its rows after :data:`TABLE_SLOTS` copy the controller inputs the observation reads (``ctrl``, ...)
     from the live into the scratch data (a NumPy copy per field costs ~2 us after the physics step). The arrays
     it points to are kept alive and checked (dtype, dimensions, C order) by
-    :class:`~smo_gym.wrappers.sensing.FusedSensing`, which rebuilds the rows of replaced arrays.
+    :class:`~smo_gym.engine.fused.FusedSensing`, which rebuilds the rows of replaced arrays.
     """
     t = table
     copy_entries(t[_N_SLOTS:])  # the input copies into the scratch data: [to, from, size, 0, 0]
@@ -253,8 +258,12 @@ def address(array: np.ndarray) -> int:
     return array.__array_interface__["data"][0]
 
 
-#: functions of a gathered observation entry (:func:`gather_entries`): the entry itself, its sine, its cosine
-ENTRY_IDENTITY, ENTRY_SIN, ENTRY_COS = 0, 1, 2
+ENTRY_IDENTITY = 0
+"""Entry function code: the observation entry is the MjData entry itself."""
+ENTRY_SIN = 1
+"""Entry function code: the observation entry is ``sin`` of the MjData entry."""
+ENTRY_COS = 2
+"""Entry function code: the observation entry is ``cos`` of the MjData entry."""
 
 
 @njit(cache=True, inline="always")
@@ -368,9 +377,239 @@ def register_fused_driver(kernel, driver) -> None:
 # their cached machine code when one of those is newer (numba keys the cache on this file only)
 def _dependencies() -> list[str]:
     from .. import sensors
-    from . import _tangent
+    from . import tangent
 
-    return [K.__file__, sensors.__file__, _tangent.__file__]
+    return [K.__file__, sensors.__file__, tangent.__file__]
 
 
 drop_stale(FUSED_DRIVERS.values(), _dependencies())
+
+
+class FusedSensing:
+    r"""The wrapper's hot path: one compiled call per control period (:mod:`smo_gym.engine.fused`).
+
+    Sensor chain, observer update, the scratch state for the observation and the ``info["smo"]`` block in one
+    call, with the numbers of the general path (``JointMeasurement.measure_block`` then ``Observer.run``). It
+    drives the sensor's and the observer's own arrays and keeps their bookkeeping (the sensor's position in its
+    random block, the observer's estimate and update count), so both objects stay usable as they are.
+
+    Use :meth:`supports` first: a plain :class:`VelocityEstimator` around an observer whose ``update``/``run``
+    are the base class's and whose kernel has a fused driver, a sensor whose ``run`` is the base class's, and an
+    adapter with a scratch state.
+
+    Parameters
+    ----------
+    measurement : JointMeasurement
+    estimator : VelocityEstimator
+    adapter : smo_gym.wrappers.adapters.GymnasiumMujocoAdapter
+    filtered : bool
+        Put the observer's filtered positions (instead of the measurement) into the observation's ``qpos``.
+    """
+
+    def __init__(self, measurement: JointMeasurement, estimator: VelocityEstimator, adapter, filtered: bool):
+        self._slots = TABLE_SLOTS
+        self.measurement, self.adapter = measurement, adapter
+        self.sensor, self.observer = measurement.sensor, estimator.observer
+        self.filtered = bool(filtered)
+        self._driver = FUSED_DRIVERS[self.observer._kernel]
+        selection = getattr(adapter, "observation_map", None)
+        #: the compiled call also builds the observation (a clipped selection of the sensed state, probed by the
+        #: adapter): :meth:`sample` leaves it in :attr:`observation`
+        self.maps_observation = selection is not None
+        if selection is None:
+            selection = (np.zeros(0, dtype=np.int64), np.zeros((2, 0)))
+        self._obs_index, self._obs_bounds = selection
+        self._n_obs = len(self._obs_index)
+        #: the compiled call copies the controller inputs the observation reads into the scratch data (the
+        #: adapter's :meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.input_views`)
+        self.copies_inputs = bool(getattr(adapter, "copies_inputs", False)) and hasattr(adapter, "input_views")
+        self._no_obs = np.empty(0)
+        self.observation = None
+        self._call = None
+        self._work = None
+        self._static = None
+        self._table = None
+        model = measurement.model
+        self._info_size = 2 * model.nq + 4 * model.nv
+        # without free or ball joints the driver never touches z; TangentCoordinates.reset replaces its z at every
+        # episode, which would cost a table row each time
+        self._unused_z = np.zeros(model.nv)
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        # the entry point does not pickle, the scratch views belong to the adapter's (re-made) scratch data, and
+        # the table holds this process's addresses
+        state.update(_call=None, _work=None, _static=None, _table=None)
+        return state
+
+    @staticmethod
+    def supports(measurement: JointMeasurement, estimator: VelocityEstimator, adapter) -> bool:
+        """Whether the fused path computes exactly what the general path would (see the class docstring)."""
+        observer = estimator.observer
+        return (
+            type(estimator) is VelocityEstimator
+            and type(observer).update is Observer.update
+            and type(observer).run is Observer.run
+            and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
+            and observer.order >= 1
+            and type(measurement.sensor).run is Sensor.run
+            and getattr(observer, "_kernel", None) in FUSED_DRIVERS
+            and hasattr(adapter, "scratch_state")
+        )
+
+    def _bind(self, Q: np.ndarray, qvel_true: np.ndarray) -> None:
+        """Resolve the driver's compiled entry point (once: the arguments keep their types across resets).
+
+        The entry point skips numba's type dispatch; it checks nothing, so every later call passes arrays of
+        exactly these types: ``Q`` is a view of the live ``qpos`` or the wrapper's sample buffer, ``qvel_true``
+        the live ``qvel`` (writeable, aligned, C-contiguous float64); ``est``, ``info``, ``Zm`` and ``obs`` are
+        made here; the other arrays go through the address table (:meth:`prepare`).
+        """
+        for a in (Q, qvel_true):
+            if not (a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable and a.flags.aligned):
+                raise TypeError(f"expected writeable C-contiguous float64 arrays, actual value: {a.dtype} {a.flags}")
+        self.prepare()
+        n, m = self._shape
+        self._call = _compiled_entry(
+            self._driver,
+            (
+                Q,
+                qvel_true,
+                np.int64(0),
+                np.empty((n, m)),
+                np.empty(self._info_size),
+                self._Zm,
+                self._no_obs,
+                self._table,
+            ),
+        )
+
+    def prepare(self) -> None:
+        """Collect the sensor's and the observer's current arrays into the driver's address table (call after
+        resetting them: a reset may replace them with new arrays of the same types).
+
+        The table (:data:`smo_gym.engine.fused.TABLE_SLOTS`) holds raw addresses, so the arrays are kept in
+        ``_static`` for as long as the table points to them, and each is checked: dtype, dimensions, C order.
+        Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
+        """
+        sensor, observer = self.sensor, self.observer
+        n, S = observer._state.shape
+        if self._work is None or self._work.shape[1:] != (n, S):
+            self._work = np.empty((2, n, S))
+            self._Zm = np.empty((1, n))
+        self._shape = (n, observer.order + 1)
+        scratch_qpos, scratch_qvel = self.adapter.scratch_state()
+        tangent = self.measurement.tangent
+        static = (
+            sensor._kinds,
+            sensor._params,
+            sensor._state,
+            sensor._ring,
+            sensor._ring_pos,
+            sensor._rand,
+            observer._state,
+            observer._params,
+            self._work,
+            scratch_qpos,
+            scratch_qvel,
+            self.filtered,
+            tangent.joints,
+            tangent._prev,
+            tangent._z if tangent.manifold else self._unused_z,
+            self._obs_index,
+            self._obs_bounds,
+        )
+        # the controller inputs the observation reads, copied by the compiled call (time, a scalar, is not)
+        pairs = self.adapter.input_views()[0] if self.copies_inputs else ()
+        static = static + pairs
+        previous, table = self._static, self._table
+        if table is not None and len(table) == len(static) and all(map(operator.is_, static, previous)):
+            return  # nothing replaced (a reset usually replaces one array or none)
+        slots = self._slots + tuple((f"input {i}", np.float64, -1) for i in range(len(pairs)))
+        if table is None or len(table) != len(slots):
+            table, previous = np.zeros((len(slots), 5), dtype=np.int64), (None,) * len(slots)
+        else:
+            table = table.copy()  # the table in use keeps pointing at the arrays it holds until this one is done
+        for row, (array, old, (name, dtype, ndim)) in enumerate(zip(static, previous, slots, strict=True)):
+            if array is old:
+                continue
+            if ndim == 0:
+                table[row] = (int(bool(array)), 0, 0, 0, 0)
+                continue
+            for a in array if ndim < 0 else (array,):
+                if not (
+                    type(a) is np.ndarray
+                    and a.dtype == dtype
+                    and (ndim < 0 or a.ndim == ndim)
+                    and a.flags.c_contiguous
+                    and a.flags.aligned
+                ):
+                    raise TypeError(
+                        f"expected {name} as an aligned C-contiguous {np.dtype(dtype)} array"
+                        f"{f' with {ndim} dimensions' if ndim > 0 else ''}, actual value: {a!r:.80}"
+                    )
+            if ndim < 0:  # an input copy: [to, from, size]
+                to, source = array
+                if to.size != source.size:
+                    raise TypeError(f"expected {name} of one size, actual value: {to.size} and {source.size}")
+                table[row] = (address(to), address(source), to.size, 0, 0)
+            else:
+                table[row] = (address(array), *array.shape, *(0,) * (4 - ndim))
+        self._static, self._table = static, table
+
+    def sample(self, Q: np.ndarray, qvel_true: np.ndarray) -> np.ndarray | None:
+        """Measure and estimate the samples ``Q`` (T, nq) of one control period.
+
+        Returns the block ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]`` (2 nq + 4 nv,): the
+        first four are ``info["smo"]`` (:meth:`SensingInfo.from_block`), the last two the tangent coordinates of the
+        last sample (:class:`JointMeasurement` reads them lazily). The observation's state is written into the
+        adapter's scratch, and with :attr:`maps_observation` the observation itself into a new array,
+        :attr:`observation`. Returns None (nothing done) when the samples straddle the end of the sensor's random
+        block: the caller then takes the general path, which splits the block and so keeps the random stream
+        independent of batching.
+
+        Raises
+        ------
+        ValueError
+            The sensor produced a non-finite measurement (as ``Sensor.run``).
+        DivergenceError
+            The observer's state would become non-finite (as ``Observer.run``: nothing committed).
+        """
+        sensor = self.sensor
+        T = Q.shape[0]
+        t0 = sensor._t
+        if t0 + T > BLOCK:
+            if t0 < BLOCK:
+                return None
+            sensor._refill()  # refills in place: the prepared arrays stay valid
+            t0 = 0
+        call = self._call
+        if call is None:
+            self._bind(Q, qvel_true)
+            call = self._call
+        static = self._static
+        if static[6] is not self.observer._state or static[2] is not sensor._state:
+            # replaced since prepare(): Observer.run commits a new state array, Sensor.reset new arrays
+            self.prepare()
+        if self._Zm.shape[0] < T:
+            self._Zm = np.empty((T, self._shape[0]))
+        est = np.empty(self._shape)
+        info = np.empty(self._info_size)
+        obs = self.observation = np.empty(self._n_obs) if self.maps_observation else self._no_obs
+        status = call(Q, qvel_true, t0, est, info, self._Zm, obs, self._table)
+        sensor._t = t0 + T
+        if status != -1:
+            self._raise(status, Q)
+        observer = self.observer
+        observer._estimate = est
+        observer.n_updates += T
+        self.measurement._fused_block = info  # unpacked only if read (JointMeasurement.z_measured, ...)
+        return info
+
+    def _raise(self, status: int, Q: np.ndarray):
+        n = self._shape[0]
+        if status >= 0:
+            t, channel = divmod(status, n)
+            self.sensor._raise(channel, Q[t], self._Zm[t])
+        t, channel = divmod(-2 - status, n)
+        self.observer._raise_status(-2 - channel, self._Zm[t])
