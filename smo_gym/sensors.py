@@ -39,6 +39,7 @@ walk), ``"outliers"`` (noisy 12-bit encoder with rare gross errors).
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -232,6 +233,26 @@ def resolution_from_counts(counts_per_revolution: int) -> float:
 # ----------------------------------------------------------------------------------------------------------------
 # the sensor: a chain of stages, run by the compiled kernel
 # ----------------------------------------------------------------------------------------------------------------
+class SensorArrays(NamedTuple):
+    """The arrays of a sensor's stream, as the compiled chain (:func:`_chain_kernel`) reads and writes them.
+
+    ``S`` stages, ``n`` channels, ``K`` the longest delay plus one, :data:`BLOCK` pre-drawn samples.
+    """
+
+    kinds: np.ndarray
+    """Stage kind codes, shape ``(S,)``, int64."""
+    params: np.ndarray
+    """Packed stage parameters, shape ``(S, 2, n)``."""
+    state: np.ndarray
+    """Per-stage state (bias, drift, held value, ...), shape ``(S, n)``."""
+    ring: np.ndarray
+    """Delay lines, shape ``(S, K, n)``."""
+    ring_pos: np.ndarray
+    """Write position of each delay line, shape ``(S,)``, int64."""
+    rand: np.ndarray
+    """Pre-drawn random numbers (normal, uniform), shape ``(BLOCK, 2, S, n)``."""
+
+
 class Sensor:
     """Base of every sensor model: a sequence of :class:`Stage` objects run by one compiled call per sample.
 
@@ -402,6 +423,34 @@ class Sensor:
             self._rand[:, 0] = self._rng.standard_normal((BLOCK, S, n))
             self._rand[:, 1] = self._rng.random((BLOCK, S, n))
         self._t = 0
+
+    # ---- the stream's arrays, for a compiled caller --------------------------------------------------------------
+    @property
+    def arrays(self) -> SensorArrays:
+        """The stream's arrays (not copies), for a compiled caller that runs the chain in place.
+
+        A reset may replace them with new arrays: read them again after each. The caller reserves the random
+        rows it uses with :meth:`reserve_random_rows`.
+        """
+        if self._kinds is None:
+            raise RuntimeError("expected reset(y0) first, actual value: the sensor was never reset")
+        return SensorArrays(self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand)
+
+    def reserve_random_rows(self, n_samples: int) -> int | None:
+        """Reserve the next ``n_samples`` rows of the random block for a compiled caller and return the first.
+
+        Returns None, reserving nothing, when the rows would straddle the end of the block: the caller then
+        measures through :meth:`run`, which splits the samples at the refill (so the random stream does not
+        depend on how samples are batched). A block used up is refilled in place (the :attr:`arrays` stay valid).
+        """
+        t0 = self._t
+        if t0 + n_samples > BLOCK:
+            if t0 < BLOCK:
+                return None
+            self._refill()
+            t0 = 0
+        self._t = t0 + n_samples
+        return t0
 
     @staticmethod
     def _where(channel: int, shape: tuple[int, ...]) -> str:

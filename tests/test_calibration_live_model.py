@@ -12,7 +12,7 @@ import pytest
 
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers.adapters import make_adapter
-from smo_gym.wrappers.estimated_velocity import environment_key, rollout_velocities
+from smo_gym.wrappers.estimated_velocity import rollout_velocities
 from smo_gym.wrappers.sensing import calibration_key, stable_repr
 
 
@@ -59,19 +59,19 @@ def test_calibrated_bounds_scale_with_the_live_timestep():
 
 def test_cache_key_changes_with_the_model():
     env = gym.make("Hopper-v5")
-    key = calibration_key(environment_key(env.unwrapped), env.unwrapped.model, derivative=2)
-    assert key == calibration_key(environment_key(env.unwrapped), env.unwrapped.model, derivative=2)
+    key = calibration_key(make_adapter(env).environment_key, env.unwrapped.model, derivative=2)
+    assert key == calibration_key(make_adapter(env).environment_key, env.unwrapped.model, derivative=2)
     env.unwrapped.model.body_mass[2] *= 2
-    assert key != calibration_key(environment_key(env.unwrapped), env.unwrapped.model, derivative=2)
+    assert key != calibration_key(make_adapter(env).environment_key, env.unwrapped.model, derivative=2)
 
 
 _KEY_SCRIPT = """
 import numpy as np, gymnasium as gym, smo_gym
-from smo_gym.wrappers.estimated_velocity import environment_key
+from smo_gym.wrappers.adapters import make_adapter
 from smo_gym.wrappers.sensing import calibration_key
 scale = {scale}
 env = gym.make("smo_gym/TwoLinkArm-v0", disturbance=lambda t: [scale * np.sin(t), 0.0])
-print(calibration_key(environment_key(env.unwrapped), env.unwrapped.model, derivative=2))
+print(calibration_key(make_adapter(env).environment_key, env.unwrapped.model, derivative=2))
 """
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 import functools
 import math
 import operator
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numba import carray, njit, types
@@ -40,7 +41,7 @@ from .._numba_cache import drop_stale
 from ..observers import Observer
 from ..observers import _kernels as K
 from ..observers.base import _compiled_entry
-from ..sensors import BLOCK, Sensor, _chain_kernel
+from ..sensors import Sensor, _chain_kernel
 from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
 
@@ -51,6 +52,7 @@ __all__ = [
     "FUSED_DRIVERS",
     "TABLE_SLOTS",
     "FusedSensing",
+    "ScratchEvaluation",
     "address",
     "copy_entries",
     "entry_functions_match_numpy",
@@ -385,6 +387,26 @@ def _dependencies() -> list[str]:
 drop_stale(FUSED_DRIVERS.values(), _dependencies())
 
 
+@runtime_checkable
+class ScratchEvaluation(Protocol):
+    """The capability of an adapter whose observation is evaluated on a scratch ``MjData`` that the engine's
+    compiled path can write into (:class:`~smo_gym.engine.fused.FusedSensing`)."""
+
+    copies_inputs: bool
+    """The observation reads controller inputs (``ctrl``, ...) that are copied into the scratch data."""
+    observation_map: tuple[np.ndarray, np.ndarray] | None
+    """``(index, bounds)`` when the observation is a clipped selection of ``[qpos, qvel]``, else None."""
+
+    def scratch_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scratch ``qpos`` and ``qvel`` arrays."""
+
+    def observe_scratch(self, inputs_copied: bool = False) -> np.ndarray:
+        """The observation at the state written into :meth:`scratch_state`."""
+
+    def input_views(self) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], bool]:
+        """The ``(scratch, live)`` input array pairs, and whether ``time`` is read."""
+
+
 class FusedSensing:
     r"""The wrapper's hot path: one compiled call per control period (:mod:`smo_gym.engine.fused`).
 
@@ -412,7 +434,7 @@ class FusedSensing:
         self.sensor, self.observer = measurement.sensor, estimator.observer
         self.filtered = bool(filtered)
         self._driver = FUSED_DRIVERS[self.observer._kernel]
-        selection = getattr(adapter, "observation_map", None)
+        selection = adapter.observation_map
         #: the compiled call also builds the observation (a clipped selection of the sensed state, probed by the
         #: adapter): :meth:`sample` leaves it in :attr:`observation`
         self.maps_observation = selection is not None
@@ -422,7 +444,7 @@ class FusedSensing:
         self._n_obs = len(self._obs_index)
         #: the compiled call copies the controller inputs the observation reads into the scratch data (the
         #: adapter's :meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.input_views`)
-        self.copies_inputs = bool(getattr(adapter, "copies_inputs", False)) and hasattr(adapter, "input_views")
+        self.copies_inputs = bool(adapter.copies_inputs)
         self._no_obs = np.empty(0)
         self.observation = None
         self._call = None
@@ -454,7 +476,7 @@ class FusedSensing:
             and observer.order >= 1
             and type(measurement.sensor).run is Sensor.run
             and getattr(observer, "_kernel", None) in FUSED_DRIVERS
-            and hasattr(adapter, "scratch_state")
+            and isinstance(adapter, ScratchEvaluation)
         )
 
     def _bind(self, Q: np.ndarray, qvel_true: np.ndarray) -> None:
@@ -492,30 +514,24 @@ class FusedSensing:
         ``_static`` for as long as the table points to them, and each is checked: dtype, dimensions, C order.
         Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
         """
-        sensor, observer = self.sensor, self.observer
-        n, S = observer._state.shape
+        sensed, estimated = self.sensor.arrays, self.observer.arrays
+        n, S = estimated.state.shape
         if self._work is None or self._work.shape[1:] != (n, S):
             self._work = np.empty((2, n, S))
             self._Zm = np.empty((1, n))
-        self._shape = (n, observer.order + 1)
+        self._shape = (n, self.observer.order + 1)
         scratch_qpos, scratch_qvel = self.adapter.scratch_state()
         tangent = self.measurement.tangent
         static = (
-            sensor._kinds,
-            sensor._params,
-            sensor._state,
-            sensor._ring,
-            sensor._ring_pos,
-            sensor._rand,
-            observer._state,
-            observer._params,
+            *sensed,
+            *estimated,
             self._work,
             scratch_qpos,
             scratch_qvel,
             self.filtered,
             tangent.joints,
-            tangent._prev,
-            tangent._z if tangent.manifold else self._unused_z,
+            tangent.previous,
+            tangent.z if tangent.manifold else self._unused_z,
             self._obs_index,
             self._obs_bounds,
         )
@@ -575,20 +591,17 @@ class FusedSensing:
         DivergenceError
             The observer's state would become non-finite (as ``Observer.run``: nothing committed).
         """
-        sensor = self.sensor
+        sensor, observer = self.sensor, self.observer
         T = Q.shape[0]
-        t0 = sensor._t
-        if t0 + T > BLOCK:
-            if t0 < BLOCK:
-                return None
-            sensor._refill()  # refills in place: the prepared arrays stay valid
-            t0 = 0
+        t0 = sensor.reserve_random_rows(T)  # a used-up block is refilled in place: the prepared arrays stay valid
+        if t0 is None:
+            return None
         call = self._call
         if call is None:
             self._bind(Q, qvel_true)
             call = self._call
         static = self._static
-        if static[6] is not self.observer._state or static[2] is not sensor._state:
+        if static[6] is not observer.arrays.state or static[2] is not sensor.arrays.state:
             # replaced since prepare(): Observer.run commits a new state array, Sensor.reset new arrays
             self.prepare()
         if self._Zm.shape[0] < T:
@@ -597,13 +610,10 @@ class FusedSensing:
         info = np.empty(self._info_size)
         obs = self.observation = np.empty(self._n_obs) if self.maps_observation else self._no_obs
         status = call(Q, qvel_true, t0, est, info, self._Zm, obs, self._table)
-        sensor._t = t0 + T
         if status != -1:
             self._raise(status, Q)
-        observer = self.observer
-        observer._estimate = est
-        observer.n_updates += T
-        self.measurement._fused_block = info  # unpacked only if read (JointMeasurement.z_measured, ...)
+        observer.advanced(est, T)
+        self.measurement.load_block(info)
         return info
 
     def _raise(self, status: int, Q: np.ndarray):

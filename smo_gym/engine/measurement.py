@@ -78,33 +78,34 @@ class TangentCoordinates:
         self.manifold = bool(np.any((types == _FREE) | (types == _BALL)))
         #: (type, qpos address, dof address) per joint; empty without free/ball joints (then z = qpos)
         self.joints = joint_table(model) if self.manifold else np.zeros((0, 3), dtype=np.int64)
-        # the last configuration and its coordinates, updated in place (the fused hot path holds them)
-        self._prev = np.zeros(self.nq)
-        self._z = np.zeros(self.nv)
+        #: the last configuration ``(nq,)`` and its coordinates ``z`` ``(nv,)``, updated in place (the engine's
+        #: compiled path advances them too)
+        self.previous = np.zeros(self.nq)
+        self.z = np.zeros(self.nv)
 
     def reset(self, q0: np.ndarray) -> np.ndarray:
         """Start at ``q0``: ``z0`` has the hinge/slide values and free-joint translations of ``q0``, and zero
         for free/ball rotations."""
         q0 = np.asarray(q0, dtype=np.float64)
         if not self.manifold:
-            self._z = q0.copy()
-            return self._z.copy()
-        self._prev[:] = q0
-        self._z[:] = 0.0
+            self.z = q0.copy()
+            return self.z.copy()
+        self.previous[:] = q0
+        self.z[:] = 0.0
         for kind, a, d in self.joints:
             if kind == _FREE:
-                self._z[d : d + 3] = q0[a : a + 3]
+                self.z[d : d + 3] = q0[a : a + 3]
             elif kind != _BALL:
-                self._z[d] = q0[a]
-        return self._z.copy()
+                self.z[d] = q0[a]
+        return self.z.copy()
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         """Advance to the configuration ``q`` and return ``z`` (a new array)."""
         if not self.manifold:
-            self._z = np.array(q, dtype=np.float64)
-            return self._z  # a fresh copy already: callers may keep it
-        tangent_advance(self.joints, self._prev, np.ascontiguousarray(q, dtype=np.float64), self._z)
-        return self._z.copy()
+            self.z = np.array(q, dtype=np.float64)
+            return self.z  # a fresh copy already: callers may keep it
+        tangent_advance(self.joints, self.previous, np.ascontiguousarray(q, dtype=np.float64), self.z)
+        return self.z.copy()
 
     def to_qpos(self, q_ref: np.ndarray, z_ref: np.ndarray, z: np.ndarray) -> np.ndarray:
         r"""Configuration at tangent coordinates ``z``: :math:`q_{ref} \oplus (z - z_{ref})` (``mj_integratePos``)."""
@@ -151,7 +152,13 @@ class JointMeasurement:
         self._z_true = self._z_measured = self._qpos_measured = self._last_qpos = None
         self._fused_block = None
 
-    # the last sample, as kept by measure_block or (lazily unpacked) by FusedSensing
+    def load_block(self, block: np.ndarray) -> None:
+        """Take the last sample from a compiled caller's block ``[qpos, qvel, qvel_estimate, qpos_measured, z_true,
+        z_measured]`` (``2 nq + 4 nv``; :meth:`FusedSensing.sample <smo_gym.engine.fused.FusedSensing.sample>`),
+        unpacked only when read."""
+        self._fused_block = block
+
+    # the last sample, as kept by measure_block or (lazily unpacked) from load_block
     def _unpack_fused(self) -> None:
         block, nq, nv = self._fused_block, self.model.nq, self.model.nv
         self._fused_block = None  # [qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]

@@ -6,7 +6,7 @@ kernel it uses, how wide its state is, and how its parameters are packed per cha
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -114,6 +114,15 @@ def expand_mask(mask, shape: tuple[int, ...]) -> np.ndarray:
     if mask.shape != shape:
         raise ValueError(f"expected mask with shape {shape[:-1]} or {shape}, actual value: {mask.shape}")
     return mask
+
+
+class ObserverArrays(NamedTuple):
+    """The arrays of an observer's state, as its kernel reads them (``N`` channels, flat)."""
+
+    state: np.ndarray
+    """The recursion's state, shape ``(N, S)``."""
+    params: np.ndarray
+    """Per-channel parameter rows, shape ``(N, P)``."""
 
 
 class Observer:
@@ -633,6 +642,25 @@ class Observer:
     def shape(self) -> tuple[int, ...] | None:
         """Measurement shape ``(..., n_channels)`` fixed at the last full reset."""
         return self._shape
+
+    # ---- the state's arrays, for a compiled caller --------------------------------------------------------------
+    @property
+    def arrays(self) -> ObserverArrays:
+        """The state and parameter arrays (not copies) the kernel reads, for a compiled caller that advances the
+        observer in place (the wrapper's one-call path); report what it did with :meth:`advanced`.
+
+        ``update`` and ``run`` replace the state array: read the arrays again after either.
+        """
+        self._require_reset()
+        return ObserverArrays(self._state, self._params)
+
+    def advanced(self, estimate: np.ndarray, n_samples: int) -> None:
+        """Record that a compiled caller advanced :attr:`arrays` in place by ``n_samples`` samples, ending at
+        ``estimate`` (shape as :attr:`estimate`; kept, not copied)."""
+        if estimate.shape != self._require_reset().shape:
+            raise ValueError(f"expected an estimate of shape {self._estimate.shape}, actual value: {estimate.shape}")
+        self._estimate = estimate
+        self.n_updates += int(n_samples)
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)

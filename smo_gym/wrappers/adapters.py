@@ -1,6 +1,6 @@
 r"""Small adapters between the sensing core and a simulator's MuJoCo objects.
 
-The wrapper needs five things from an environment, and nothing else:
+The wrapper needs these things from an environment (:class:`MujocoAdapter`), and nothing else:
 
 ``model``, ``data``
     the ``mujoco.MjModel`` and the *live* ``mujoco.MjData`` of the simulation;
@@ -9,8 +9,9 @@ The wrapper needs five things from an environment, and nothing else:
 ``observation(qpos, qvel)``
     the environment's own observation function evaluated at a given configuration and velocity, on a scratch
     ``MjData`` (never the live one);
-``substeps(callback)``
-    a context manager under which ``callback()`` runs after every physics step of the environment's ``step``.
+``record_substeps(recording)``
+    a context manager under which the environment's ``step`` fills a :class:`SubstepRecording` with rows of the
+    live data every few physics steps (the one hook into an environment's step).
 
 :class:`GymnasiumMujocoAdapter` implements them for ``gymnasium.envs.mujoco.MujocoEnv`` (every v5 environment and
 user subclasses). What a dm_control adapter (behind ``shimmy.DmControlCompatibilityV0``) needs, with
@@ -22,8 +23,9 @@ user subclasses). What a dm_control adapter (behind ``shimmy.DmControlCompatibil
   ``qpos``/``qvel`` (the context runs ``mj_forward`` on exit), copy ``ctrl``/``act``; then
   ``shimmy.utils.dm_env.dm_obs2gym_obs(dm.task.get_observation(scratch))`` (tasks read ``physics.named.data``,
   so the scratch physics is the whole swap; no ``_get_obs`` trick needed);
-- ``substeps(callback)``: replace ``physics.step`` on the instance by ``lambda n=1: [orig(1), callback()] * n``
-  inside the context (dm_control's own step keeps its mj_step2/mj_step1 split), then delete the attribute;
+- ``record_substeps(recording)``: replace ``physics.step`` on the instance by ``n`` calls ``step(1)`` that fill
+  the recording, inside the context (dm_control's own step keeps its mj_step2/mj_step1 split), then delete the
+  attribute;
 - ``supports_substeps()`` True, and the calibration key: the domain/task names.
 
 Everything else (tangent coordinates, sensor, observer, default gains, ``info["smo"]``) is the same code.
@@ -66,6 +68,9 @@ from __future__ import annotations
 
 import contextlib
 import copy
+from collections.abc import Callable
+from contextlib import AbstractContextManager
+from typing import Any, Protocol, runtime_checkable
 
 import mujoco
 import numpy as np
@@ -76,6 +81,7 @@ __all__ = [
     "GymnasiumMujocoAdapter",
     "MujocoAdapter",
     "SubstepHook",
+    "SubstepRecording",
     "make_adapter",
     "register_adapter",
 ]
@@ -102,33 +108,40 @@ _INPUTS = (
 )
 
 
-class MujocoAdapter:
-    """Interface the sensing wrapper needs (see the module docstring)."""
+@runtime_checkable
+class MujocoAdapter(Protocol):
+    """What the sensing wrapper needs from a simulator (see the module docstring), as a protocol: an adapter is
+    any object with these members (:class:`GymnasiumMujocoAdapter`; the dm_control one subclasses it)."""
 
     model: mujoco.MjModel
+    """The simulation's model."""
     frame_skip: int
-    #: ``unflatten(flat) -> observation`` for structured (``Dict``) observation spaces (dm_control), else None:
-    #: ``observation`` always returns a flat float array, which the wrapper checks and then unflattens
-    unflatten = None
-    #: ``observation`` raises ``ValueError`` on a non-finite result itself (then the wrapper does not check again)
-    checks_observation = False
+    """Physics steps per environment step."""
+    unflatten: Callable[[np.ndarray], Any] | None
+    """``unflatten(flat) -> observation`` for structured (``Dict``) observation spaces (dm_control), else None:
+    :meth:`observation` always returns a flat float array, which the wrapper checks and then unflattens."""
+    checks_observation: bool
+    """:meth:`observation` raises ``ValueError`` on a non-finite result itself (the wrapper does not check again)."""
 
     @property
-    def data(self) -> mujoco.MjData:  # pragma: no cover - interface
-        raise NotImplementedError
+    def data(self) -> mujoco.MjData:
+        """The live ``MjData`` of the simulation."""
 
-    def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
-        raise NotImplementedError
+    def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """The environment's own observation at ``(qpos, qvel)``, evaluated on scratch data (flat float array)."""
 
-    def substeps(self, callback):  # pragma: no cover - interface
-        raise NotImplementedError
+    def supports_substeps(self) -> bool:
+        """Whether :meth:`record_substeps` can sample inside the environment's step."""
 
-    def supports_substeps(self) -> bool:  # pragma: no cover - interface
-        raise NotImplementedError
+    def record_substeps(self, recording: SubstepRecording) -> AbstractContextManager:
+        """A reusable context manager under which the environment's step fills ``recording``."""
 
-    def copy_environment(self):  # pragma: no cover - interface
+    def copy_environment(self):
         """A separate copy of the (unwrapped) environment on the live model, for calibration rollouts."""
-        raise NotImplementedError
+
+    @property
+    def environment_key(self) -> str:
+        """Identity of the environment for the calibration cache, the same in every process."""
 
 
 def _entry_addresses(fields: dict, names, flat) -> np.ndarray:
@@ -168,7 +181,7 @@ def _missing_mujoco_parts(env) -> list[str]:
     return missing
 
 
-class GymnasiumMujocoAdapter(MujocoAdapter):
+class GymnasiumMujocoAdapter:
     """Adapter for ``gymnasium.envs.mujoco.MujocoEnv`` and its subclasses.
 
     Parameters
@@ -187,6 +200,8 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
     #: construction; these defaults are the safe choice)
     reads_contacts = True
     fresh_observation = False
+    #: Gymnasium observations are flat arrays already
+    unflatten = None
     _bare = False
     #: ``(index, bounds)`` when the observation is a selection of the state (:meth:`_probe_observation_map`)
     observation_map = None
@@ -282,6 +297,24 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
     def data(self) -> mujoco.MjData:
         return self.env.data
 
+    @property
+    def scratch(self) -> mujoco.MjData:
+        """The scratch ``MjData`` the observation is evaluated on (never the live one)."""
+        return self._scratch
+
+    @property
+    def environment_key(self) -> str:
+        """Identity of the environment for the calibration cache: its registered id and constructor arguments (in
+        a form that is the same in every process, :func:`~smo_gym.wrappers.sensing.stable_repr`), or its class."""
+        from .sensing import stable_repr
+
+        env = self.env
+        spec = getattr(env, "spec", None)
+        if spec is not None and spec.id:
+            kwargs = {k: v for k, v in (spec.kwargs or {}).items() if k != "render_mode"}
+            return f"{spec.id}{stable_repr(kwargs)}" if kwargs else spec.id
+        return f"{type(env).__module__}.{type(env).__qualname__}:{getattr(env, 'fullpath', '')}"
+
     # ---- observation at a given state -----------------------------------------------------------------------
     def _fill(self, scratch: mujoco.MjData, qpos, qvel, inputs: bool = True, source: mujoco.MjData | None = None):
         scratch.qpos[:] = qpos
@@ -376,11 +409,6 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
                     break
         self._input_fields = tuple(fields)
         return tuple(needed)
-
-    @property
-    def needs_forward(self) -> bool:
-        """Whether the observation needs computed quantities (a partial or full forward pass)."""
-        return self.pipeline != "none"
 
     def _evaluate(self, scratch: mujoco.MjData, pipeline: str) -> np.ndarray:
         self._compute(scratch, pipeline)
@@ -760,62 +788,108 @@ class GymnasiumMujocoAdapter(MujocoAdapter):
         method = getattr(type(self.env), "_step_mujoco_simulation", None)
         return method is MujocoEnv._step_mujoco_simulation
 
-    def substeps(self, callback) -> SubstepHook:
-        """Within the block, the env's physics steps run one at a time with ``callback()`` after each.
+    def record_substeps(self, recording: SubstepRecording) -> SubstepHook:
+        """Within the block, the environment's physics steps run one at a time and ``recording`` takes its rows
+        every ``recording.every`` of them (:meth:`SubstepRecording.take`).
 
-        Replicates ``MujocoEnv._step_mujoco_simulation`` (set ``ctrl``, ``mj_step`` ``n_frames`` times,
-        ``mj_rnePostConstraint``) as an instance attribute that is removed on exit, so nothing of the env
-        changes outside the block (and it pickles as before). The returned context manager can be entered again
-        and again (the wrapper keeps one per instance: a generator-based one would cost more than a physics step
-        of a small model).
+        The one hook into an environment's step: ``MujocoEnv._step_mujoco_simulation`` (set ``ctrl``, ``mj_step``
+        ``n_frames`` times, ``mj_rnePostConstraint``) is replicated as an *instance* attribute that is removed on
+        exit (also on an exception), so nothing of the environment changes outside the block, the trajectory is
+        bit-identical, and every wrapper around the environment sees its step as before. The returned context
+        manager can be entered again and again (a generator-based one would cost more than a small model's physics
+        step).
         """
-        env, model = self.env, self.model
-        mj_step = mujoco.mj_step
-
-        def step_with_samples(ctrl, n_frames):
-            data = env.data
-            data.ctrl[:] = ctrl
-            for _ in range(n_frames):
-                mj_step(model, data)
-                callback()
-            mujoco.mj_rnePostConstraint(model, data)
-
-        return SubstepHook(env, "_step_mujoco_simulation", step_with_samples)
-
-    def intercept_observation(self, function) -> SubstepHook:
-        """Within the block, the environment's ``_get_obs()`` is ``function()`` (an instance attribute, removed on
-        exit; the adapter's own evaluations keep calling the class's function)."""
-        return SubstepHook(self.env, "_get_obs", function)
-
-    def record_substeps(self, sampler) -> SubstepHook:
-        """:meth:`substeps` specialised to sampling every physics step: the loop itself copies ``qpos`` after
-        each ``mj_step`` into ``sampler.samples`` (rows ``sampler.n`` on, grown if needed) and advances
-        ``sampler.n``, with no Python callback per physics step (a call costs about as much as a small model's
-        physics step)."""
         env, model = self.env, self.model
         mj_step = mujoco.mj_step
 
         def step_recording(ctrl, n_frames):
             data = env.data
             data.ctrl[:] = ctrl
-            start = sampler.n
-            samples = sampler.samples
-            if samples.shape[0] < start + n_frames:
-                samples = sampler.samples = np.concatenate([samples, np.zeros((start + n_frames, samples.shape[1]))])
-            qpos = data.qpos
-            for i in range(start, start + n_frames):
+            # the recording loop written out: a Python call per physics step costs about as much as a small
+            # model's physics step
+            pairs = recording.destinations(data, n_frames)
+            every, count, n = recording.every, recording.count, recording.n
+            for _ in range(n_frames):
                 mj_step(model, data)
-                samples[i] = qpos
-            sampler.n = start + n_frames
+                count += 1
+                if count == every:
+                    count = 0
+                    for buffer, field in pairs:
+                        buffer[n] = field
+                    n += 1
+            recording.count, recording.n = count, n
             mujoco.mj_rnePostConstraint(model, data)
 
         return SubstepHook(env, "_step_mujoco_simulation", step_recording)
 
 
+class SubstepRecording:
+    """Rows of live ``MjData`` fields taken every ``every`` physics steps inside an environment's step.
+
+    Filled by an adapter's :meth:`~GymnasiumMujocoAdapter.record_substeps` hook; :meth:`start` begins a control
+    period, after which ``rows[name][:n]`` hold the samples taken (the arrays grow if an environment steps more
+    frames than expected).
+
+    Parameters
+    ----------
+    every : int
+        Physics steps per sample.
+    sizes : dict of str to int
+        The ``MjData`` fields to record (``"qpos"``, ``"qvel"``, ...) and their sizes.
+    capacity : int
+        Rows allocated up front (samples per control period).
+    """
+
+    __slots__ = ("_pairs", "count", "every", "fields", "n", "rows")
+
+    def __init__(self, every: int, sizes: dict[str, int], capacity: int):
+        self.every = int(every)
+        self.fields = tuple(sizes)
+        self.rows = {name: np.zeros((max(1, int(capacity)), size)) for name, size in sizes.items()}
+        self.n = self.count = 0
+        self._pairs = (None, ())
+
+    def start(self) -> None:
+        """Begin a control period: no rows taken, the step counter at zero."""
+        self.n = self.count = 0
+
+    def destinations(self, data: mujoco.MjData, n_steps: int) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """``(buffer, field)`` pairs, ``field`` the live view of ``data``, with room in every buffer for the rows
+        of ``n_steps`` more physics steps: the hook writes row ``n`` as ``buffer[n] = field``."""
+        need = self.n + (self.count + n_steps) // self.every
+        data_of, pairs = self._pairs
+        if data_of is not data or any(buffer.shape[0] < need for buffer, _ in pairs):
+            for name in self.fields:
+                buffer = self.rows[name]
+                if buffer.shape[0] < need:
+                    grown = np.zeros((max(need, 2 * buffer.shape[0]), buffer.shape[1]))
+                    grown[: self.n] = buffer[: self.n]
+                    self.rows[name] = grown
+            pairs = tuple((self.rows[name], getattr(data, name)) for name in self.fields)
+            self._pairs = (data, pairs)
+        return pairs
+
+    def take(self, data: mujoco.MjData) -> None:
+        """Take a row of each field now (the sample at the end of a step, when substeps are not recorded)."""
+        for buffer, field in self.destinations(data, self.every - self.count):
+            buffer[self.n] = field
+        self.n += 1
+        self.count = 0
+
+    def __getstate__(self):
+        return {"every": self.every, "fields": self.fields, "rows": self.rows}
+
+    def __setstate__(self, state):
+        self.every, self.fields, self.rows = state["every"], state["fields"], state["rows"]
+        self.n = self.count = 0
+        self._pairs = (None, ())
+
+
 class SubstepHook:
     """Reusable context manager: set ``owner.<name> = function`` on entry, delete the instance attribute on exit.
 
-    Used to route an environment's physics stepping through a sampling loop for the duration of one ``step``.
+    Used to route an environment's physics stepping through a recording loop for the duration of one ``step``
+    (:meth:`GymnasiumMujocoAdapter.record_substeps`).
     """
 
     __slots__ = ("function", "name", "owner")

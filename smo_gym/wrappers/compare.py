@@ -2,7 +2,7 @@ r"""Side-by-side comparison of velocity observers on the *same* measurements of 
 
 The library behind ``smo-gym compare``. One environment is run under a seeded smooth random policy; the true
 configuration is sampled at the chosen rate with the wrapper's own substep hook
-(:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.substeps`), measured once by a
+(:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.record_substeps`), measured once by a
 :class:`~smo_gym.engine.measurement.JointMeasurement`, and every observer (built with the wrapper's default gains,
 :func:`~smo_gym.wrappers.sensing.default_observer`) processes those same measurements through
 :class:`~smo_gym.engine.measurement.VelocityEstimator`, i.e. exactly what
@@ -26,6 +26,7 @@ An observer whose state becomes non-finite (``DivergenceError``) is reported as 
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import time
 from dataclasses import dataclass, field
@@ -40,7 +41,7 @@ from .._validation import DivergenceError
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
-from .adapters import make_adapter
+from .adapters import SubstepRecording, make_adapter
 from .estimated_velocity import calibrated_bounds, resolve_rate
 from .sensing import bound_order, default_observer
 
@@ -157,15 +158,9 @@ def record_rollout(
     rng = np.random.default_rng([int(seed), 0x534D4F])
     policy = smooth_random_policy(env.action_space, seed)
     qpos, qvel, z, starts = [], [], [], []
-    counter = [0]
-
-    def sample():
-        counter[0] += 1
-        if counter[0] % k == 0:
-            q = np.array(adapter.data.qpos)
-            qpos.append(q)
-            qvel.append(np.array(adapter.data.qvel))
-            z.append(measurement.measure(q))
+    hook = adapter.supports_substeps()
+    recording = SubstepRecording(k, {"qpos": model.nq, "qvel": model.nv}, adapter.frame_skip // k)
+    recorder = adapter.record_substeps(recording) if hook else contextlib.nullcontext()
 
     def start():
         starts.append(len(qpos))
@@ -180,18 +175,18 @@ def record_rollout(
     iterator = range(steps)
     if progress:
         iterator = extras.progress(iterator, desc=f"{env_id} rollout", unit="step")
-    hook = adapter.supports_substeps()
     for step in iterator:
-        if hook:
-            with adapter.substeps(sample):
-                obs, _, terminated, truncated, _ = env.step(policy(obs))
-        else:  # rate == frame_skip: one sample at the end of the step, as the wrapper takes it
+        recording.start()
+        with recorder:
             obs, _, terminated, truncated, _ = env.step(policy(obs))
-            counter[0] = k - 1
-            sample()
+        if not hook:  # rate == frame_skip: one sample at the end of the step, as the wrapper takes it
+            recording.take(adapter.data)
+        for q, v in zip(recording.rows["qpos"][: recording.n], recording.rows["qvel"][: recording.n], strict=True):
+            qpos.append(q.copy())
+            qvel.append(v.copy())
+            z.append(measurement.measure(qpos[-1]))
         if (terminated or truncated) and step < steps - 1:
             obs, _ = env.reset()
-            counter[0] = 0
             start()
     # the env stays open: compare_observers calibrates the default gains on it (context["unwrapped"]), and
     # dm_control's close (shimmy) frees the physics

@@ -27,9 +27,9 @@ How the five parts of an adapter (:mod:`smo_gym.wrappers.adapters`) map onto dm_
     exactly (shimmy's ``Dict`` of float64 ``Box`` es, including walker's scalar ``height``).
     Entries from other sensors (touch, force/torque in ``sensordata``) are recomputed from the sensed state by
     the forward pass, like everything else the task computes from ``physics.data``.
-``substeps(callback)``
+``record_substeps(recording)``
     ``physics.step`` is replaced on the instance, for the duration of the block, by a loop of
-    ``step(1)`` calls with ``callback()`` after each; dm_control's legacy step (``mj_step2``, then ``mj_step``
+    ``step(1)`` calls that fill the recording; dm_control's legacy step (``mj_step2``, then ``mj_step``
     ``n - 1`` times, then ``mj_step1``) becomes ``(mj_step2, mj_step1)`` ``n`` times: the same sequence of MuJoCo
     calls, so the trajectory is bit-identical (tested), and ``qpos`` is current after each call. So
     ``rate="physics"`` samples inside the control step, as on the Gymnasium environments.
@@ -46,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._extras import require
-from .adapters import GymnasiumMujocoAdapter, SubstepHook, register_adapter
+from .adapters import GymnasiumMujocoAdapter, SubstepHook, SubstepRecording, register_adapter
 from .sensing import stable_repr
 
 __all__ = ["DmControlAdapter", "DmControlTaskView", "is_dm_control_env", "make_dm_control"]
@@ -177,7 +177,7 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         self.flat_size = int(sum(sizes))
         spec = getattr(env, "spec", None)
         if spec is not None and spec.id:
-            self.environment_key = spec.id + (stable_repr(spec.kwargs) if spec.kwargs else "")
+            self._environment_key = spec.id + (stable_repr(spec.kwargs) if spec.kwargs else "")
         else:
             task = dm.task
             settings = {
@@ -185,7 +185,11 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
                 for k, v in sorted(vars(task).items())
                 if isinstance(v, (bool, int, float, str)) and not k.startswith("__")
             }
-            self.environment_key = f"{type(task).__module__}.{type(task).__qualname__}{settings}"
+            self._environment_key = f"{type(task).__module__}.{type(task).__qualname__}{settings}"
+
+    @property
+    def environment_key(self) -> str:
+        return self._environment_key
 
     def copy_environment(self):
         """A deep copy of shimmy's environment: dm_control's ``Physics`` copies by value, so edits of the live
@@ -200,30 +204,29 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         return {key: flat[a:b].reshape(shape).copy() for key, a, b, shape in self._slices}
 
     # ---- sampling inside the control step -------------------------------------------------------------------
-    #: the Gymnasium adapter's recording loop replaces MujocoEnv._step_mujoco_simulation; dm_control steps
-    #: through Physics.step, sampled by the callback hook of substeps()
-    record_substeps = None
-    #: shimmy's step builds the observation from dm_env's timestep, not through _get_obs: nothing to intercept
-    intercept_observation = None
-
     def supports_substeps(self) -> bool:
         """dm_control steps its physics through ``Physics.step``, which can be replaced on the instance."""
         return True
 
-    def substeps(self, callback):
-        """Within the block, ``physics.step(n)`` runs as ``n`` calls ``step(1)`` with ``callback()`` after each.
-
-        The returned context manager (:class:`~smo_gym.wrappers.adapters.SubstepHook`) is reusable.
-        """
+    def record_substeps(self, recording: SubstepRecording) -> SubstepHook:
+        """Within the block, ``physics.step(n)`` runs as ``n`` calls ``step(1)``, filling ``recording`` (the
+        Gymnasium adapter's hook, on dm_control's step); the returned context manager is reusable."""
         physics = self.view.physics
         original = physics.step
 
-        def step_with_samples(nstep: int = 1) -> None:
+        def step_recording(nstep: int = 1) -> None:
+            data = physics.data.ptr
+            pairs = recording.destinations(data, int(nstep))
             for _ in range(int(nstep)):
                 original(1)
-                callback()
+                recording.count += 1
+                if recording.count == recording.every:
+                    recording.count = 0
+                    for buffer, field in pairs:
+                        buffer[recording.n] = field
+                    recording.n += 1
 
-        return SubstepHook(physics, "step", step_with_samples)
+        return SubstepHook(physics, "step", step_recording)
 
 
 register_adapter(is_dm_control_env, DmControlAdapter)

@@ -2,6 +2,7 @@ r"""``EstimatedVelocity``: a Gymnasium MuJoCo environment seen through joint sen
 
 from __future__ import annotations
 
+import contextlib
 import copy
 
 import gymnasium as gym
@@ -12,7 +13,7 @@ from ..engine.fused import FusedSensing
 from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
-from .adapters import make_adapter
+from .adapters import SubstepRecording, make_adapter
 from .sensing import (
     SensingInfo,
     bound_order,
@@ -23,13 +24,11 @@ from .sensing import (
     check_action,
     check_seed,
     default_observer,
-    stable_repr,
 )
 
 __all__ = [
     "EstimatedVelocity",
     "calibrated_bounds",
-    "environment_key",
     "observation_wrappers",
     "resolve_rate",
     "rollout_velocities",
@@ -58,16 +57,6 @@ def resolve_rate(rate, frame_skip: int) -> int:
     return k
 
 
-def environment_key(unwrapped) -> str:
-    """Identity of an environment for the calibration cache: its registered id and constructor arguments (in a
-    form that is the same in every process, :func:`~smo_gym.wrappers.sensing.stable_repr`), or its class."""
-    spec = getattr(unwrapped, "spec", None)
-    if spec is not None and spec.id:
-        kwargs = {k: v for k, v in (spec.kwargs or {}).items() if k != "render_mode"}
-        return f"{spec.id}{stable_repr(kwargs)}" if kwargs else spec.id
-    return f"{type(unwrapped).__module__}.{type(unwrapped).__qualname__}:{getattr(unwrapped, 'fullpath', '')}"
-
-
 def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
     """``qvel`` sampled every ``sample_every`` physics steps on a copy of the environment under uniform random
     actions, with the environment's own (seeded) resets at episode ends: its reset distribution, actions and
@@ -84,28 +73,23 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
     space.seed(seed)
     hook = adapter.supports_substeps()
     frame_skip = adapter.frame_skip
+    nv = adapter.model.nv
+    recording = SubstepRecording(sample_every, {"qvel": nv}, frame_skip // sample_every)
+    recorder = adapter.record_substeps(recording) if hook else contextlib.nullcontext()
     episodes: list[np.ndarray] = []
-    samples: list[np.ndarray] = []
-    counter = [0]
-
-    def record():
-        counter[0] += 1
-        if counter[0] % sample_every == 0:
-            samples.append(np.array(adapter.data.qvel))
-
     sim.reset(seed=seed)
-    samples.append(np.array(adapter.data.qvel))
+    samples: list[np.ndarray] = [np.array(adapter.data.qvel)]
     for _ in range(max(1, int(steps) // frame_skip)):
-        if hook:
-            with adapter.substeps(record):
-                _, _, terminated, truncated, _ = sim.step(space.sample())
-        else:
+        recording.start()
+        with recorder:
             _, _, terminated, truncated, _ = sim.step(space.sample())
-            samples.append(np.array(adapter.data.qvel))
+        if not hook:
+            recording.take(adapter.data)
+        samples.extend(recording.rows["qvel"][: recording.n].copy())
         if terminated or truncated or not np.all(np.isfinite(adapter.data.qvel)):
             episodes.append(np.array(samples))
             sim.reset()
-            samples, counter[0] = [np.array(adapter.data.qvel)], 0
+            samples = [np.array(adapter.data.qvel)]
     episodes.append(np.array(samples))
     sim.close()
     if not hook and sample_every < frame_skip:  # only end-of-step samples: rescale at the caller's step
@@ -222,7 +206,7 @@ def calibrated_bounds(
     disk: bool = True,
 ) -> np.ndarray:
     """Per-dof bounds on the ``derivative``-th derivative of the joint coordinates, sampled every ``sample_every``
-    physics steps, cached per environment id (:func:`environment_key`) in memory and, with ``disk``, on disk.
+    physics steps, cached per environment id (the adapter's ``environment_key``) in memory and, with ``disk``, on disk.
 
     The velocities come from :func:`rollout_velocities` (a copy of the environment itself: its resets, random
     actions, terminations), or, if the environment cannot be copied, from
@@ -239,7 +223,7 @@ def calibrated_bounds(
         steps=int(steps),
         v=3,
     )
-    key = calibration_key(getattr(adapter, "environment_key", None) or environment_key(unwrapped), model, **settings)
+    key = calibration_key(adapter.environment_key, model, **settings)
     dt = float(model.opt.timestep) * int(sample_every)
 
     def compute():
@@ -266,43 +250,6 @@ def calibrated_bounds(
         )
 
     return cached_bounds(key, compute, disk=disk)
-
-
-class SubstepSampler:
-    """Collects the live ``qpos`` inside ``frame_skip`` for the fused hot path (``each`` or ``every_k`` is the
-    substep callback: one of them runs after every physics step, so they do as little as possible)."""
-
-    __slots__ = ("count", "every", "n", "qpos", "samples")
-
-    def __init__(self, capacity: int, nq: int, every: int):
-        self.samples = np.zeros((max(1, capacity), nq))
-        self.n = self.count = 0
-        self.every = int(every)
-        self.qpos = None
-
-    def start(self, qpos: np.ndarray) -> None:
-        """A new control period; ``qpos`` is the live configuration's view."""
-        self.n = self.count = 0
-        self.qpos = qpos
-
-    def each(self) -> None:
-        n = self.n
-        if n == self.samples.shape[0]:  # an env that steps more than frame_skip frames
-            self.samples = np.concatenate([self.samples, np.zeros_like(self.samples)])
-        self.samples[n] = self.qpos
-        self.n = n + 1
-
-    def every_k(self) -> None:
-        self.count += 1
-        if self.count % self.every == 0:
-            self.each()
-
-    def __getstate__(self):
-        return {"samples": self.samples, "n": 0, "count": 0, "every": self.every, "qpos": None}
-
-    def __setstate__(self, state):
-        for key, value in state.items():
-            setattr(self, key, value)
 
 
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -361,7 +308,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     Sampling inside ``frame_skip``: during ``step`` the environment's ``_step_mujoco_simulation`` is replaced
     (on the instance, for the duration of the call) by an identical loop of single ``mj_step`` calls that records
-    ``qpos`` after each (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.record_substeps`); the
+    ``qpos`` after each (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.record_substeps`, the one hook
+    into the environment's step); the
     trajectory, rewards and terminations are bit-identical to the unwrapped environment's (tested on every v5
     environment). The samples of one control period then go through sensor, tangent coordinates and observer in
     one compiled call (:class:`~smo_gym.engine.fused.FusedSensing`, for the observers with a fused driver;
@@ -475,7 +423,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._substep_hook = None
         self._live = None
         self._info_slices = SensingInfo.slices(model.nq, model.nv)
-        self._sampler = SubstepSampler(n_samples, model.nq, self.sample_every)
+        self._recording = SubstepRecording(self.sample_every, {"qpos": model.nq}, n_samples)
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
         #: reset, after a subclass has set its estimator)
         self._fused: FusedSensing | None = None
@@ -529,13 +477,6 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         info["smo"] = SensingInfo.from_block(block, self._info_slices, clean)
         return self._wrap(obs)
 
-    def _substep_hook_for(self, sampler: SubstepSampler):
-        """The adapter's hook that fills ``sampler`` during ``env.step`` (made once per reset)."""
-        recorder = getattr(self.adapter, "record_substeps", None)
-        if self.sample_every == 1 and recorder is not None:
-            return recorder(sampler)  # the recording loop itself: no callback per physics step
-        return self.adapter.substeps(sampler.each if self.sample_every == 1 else sampler.every_k)
-
     def __getstate__(self):
         state = dict(self.__dict__)
         state["_substep_hook"] = None  # holds closures over the live simulation; made again on first use
@@ -584,19 +525,19 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if self._fused is not None:  # its input copies read the live data
                 self._fused.prepare()
         if self.sample_every < self.adapter.frame_skip:
-            sampler = self._sampler
-            sampler.start(live[3])
+            recording = self._recording
+            recording.start()
             hook = self._substep_hook
             if hook is None:
-                hook = self._substep_hook = self._substep_hook_for(sampler)
+                hook = self._substep_hook = self.adapter.record_substeps(recording)
             with hook:
                 clean, reward, terminated, truncated, info = self.env.step(action)
-            if sampler.count == 0 and sampler.n == 0:
+            if recording.count == 0 and recording.n == 0:
                 raise RuntimeError(
                     "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
                     "actual value: no physics step was observed during step(); use rate='env'"
                 )
-            samples = sampler.samples[: sampler.n]
+            samples = recording.rows["qpos"][: recording.n]
         else:
             clean, reward, terminated, truncated, info = self.env.step(action)
             samples = live[1]

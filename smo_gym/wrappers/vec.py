@@ -546,7 +546,7 @@ class _GatheredObservations:
         )
         #: the pipeline of every adapter, or None if they differ (then each adapter runs its own)
         forward_only = all(a.pipeline == "forward" and not a.reads_contacts for a in adapters)
-        self.forward = [(a.model, a._scratch) for a in adapters] if forward_only else None
+        self.forward = [(a.model, a.scratch) for a in adapters] if forward_only else None
 
     def current(self) -> bool:
         """Whether every environment still has the ``MjData`` the input rows of the copy table point into."""
@@ -562,14 +562,14 @@ class _GatheredObservations:
         self.copy(self.table)
         for i in self.times:
             adapter = self.adapters[i]
-            adapter._scratch.time = adapter.data.time
+            adapter.scratch.time = adapter.data.time
         if self.forward is not None:
             forward = mujoco.mj_forward
             for model, scratch in self.forward:
                 forward(model, scratch)
         else:
             for adapter in self.adapters:
-                adapter._compute(adapter._scratch, adapter.pipeline)
+                adapter._compute(adapter.scratch, adapter.pipeline)
         obs = np.empty(self.shape)
         bad = self.gather(self.addresses, self.functions, self.bounds, obs.reshape(-1))
         if bad != -1:
