@@ -147,8 +147,10 @@ def test_fused_wrapper_copies_and_pickles_mid_episode():
             o2 = twin.step(a)[0]
             np.testing.assert_array_equal(o1, o2)
         # the copy's hot path writes into the copy's scratch data, not the original's
-        assert twin.adapter.scratch_state()[0] is twin._fused._static[9]
-        assert not np.shares_memory(twin.adapter.scratch_state()[0], env.adapter.scratch_state()[0])
+        assert twin.adapter.evaluation.scratch_state()[0] is twin._fused._static[9]
+        assert not np.shares_memory(
+            twin.adapter.evaluation.scratch_state()[0], env.adapter.evaluation.scratch_state()[0]
+        )
 
 
 def test_sensing_info_is_read_only_and_copies_as_itself():
@@ -174,11 +176,13 @@ def test_sensing_info_is_read_only_and_copies_as_itself():
 
 
 def test_adapter_probes_what_the_observation_reads():
-    hopper = EstimatedVelocity(gym.make("Hopper-v5"), disk_cache=False).adapter
+    hopper = EstimatedVelocity(gym.make("Hopper-v5"), disk_cache=False).adapter.evaluation
     assert not hopper.reads_contacts and hopper.fresh_observation and hopper._bare
-    ant = EstimatedVelocity(gym.make("Ant-v5"), disk_cache=False).adapter
+    ant = EstimatedVelocity(gym.make("Ant-v5"), disk_cache=False).adapter.evaluation
     assert ant.reads_contacts  # Ant-v5's observation includes cfrc_ext
-    no_contacts = EstimatedVelocity(gym.make("Ant-v5", include_cfrc_ext_in_observation=False), disk_cache=False).adapter
+    no_contacts = EstimatedVelocity(
+        gym.make("Ant-v5", include_cfrc_ext_in_observation=False), disk_cache=False
+    ).adapter.evaluation
     assert not no_contacts.reads_contacts
 
 
@@ -189,9 +193,9 @@ def test_observation_entries_are_gathered_clipped_and_checked():
     are differences of two body positions)."""
     from smo_gym.wrappers.adapters import make_adapter
 
-    humanoid = make_adapter(gym.make("Humanoid-v5").unwrapped)
+    humanoid = make_adapter(gym.make("Humanoid-v5").unwrapped).evaluation
     assert set(humanoid.observation_entries[0]) == {"qpos", "qvel", "cinert", "cvel", "qfrc_actuator", "cfrc_ext"}
-    assert make_adapter(gym.make("Reacher-v5").unwrapped).observation_entries is None
+    assert make_adapter(gym.make("Reacher-v5").unwrapped).evaluation.observation_entries is None
     env = EstimatedVelocity(gym.make("Ant-v5"), disk_cache=False)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -217,13 +221,13 @@ def test_observation_map_is_found_only_for_clipped_selections():
 
     from smo_gym.wrappers.adapters import make_adapter
 
-    index, bounds = make_adapter(gym.make("Hopper-v5").unwrapped).observation_map
+    index, bounds = make_adapter(gym.make("Hopper-v5").unwrapped).evaluation.observation_map
     np.testing.assert_array_equal(index, np.arange(1, 12))
     np.testing.assert_array_equal(bounds[:, :5], [[-np.inf] * 5, [np.inf] * 5])
     np.testing.assert_array_equal(bounds[:, 5:], [[-10.0] * 6, [10.0] * 6])
     index, _ = make_adapter(
         gym.make("Hopper-v5", exclude_current_positions_from_observation=False).unwrapped
-    ).observation_map
+    ).evaluation.observation_map
     np.testing.assert_array_equal(index, np.arange(12))
 
     class Transformed(HopperEnv):
@@ -242,7 +246,7 @@ def test_observation_map_is_found_only_for_clipped_selections():
         lambda q, v: np.concatenate([q, np.clip(v, -10, 10) * (np.abs(v) < 1e5)]),  # only for small
         lambda q, v: np.concatenate([q, v]).astype(np.float32),
     ):
-        adapter = make_adapter(Transformed(transform))
+        adapter = make_adapter(Transformed(transform)).evaluation
         assert adapter._bare and adapter.observation_map is None
     env = EstimatedVelocity(Transformed(lambda q, v: np.concatenate([q, 2.0 * v])), disk_cache=False)
     obs, info = env.reset(seed=0)
@@ -336,13 +340,13 @@ def test_sines_and_cosines_are_gathered_only_where_they_equal_numpys(monkeypatch
     constraint force) is gathered with compiled sin/cos, equal to _get_obs at run-time states; on a platform where
     NumPy's sin/cos differ from the C library's (simulated), the adapter keeps _get_obs for it (and still gathers
     observations without them)."""
-    from smo_gym.engine import fused as _fused
+    from smo_gym.engine import scratch
     from smo_gym.engine.fused import ENTRY_COS, ENTRY_SIN, entry_functions_match_numpy
     from smo_gym.wrappers.adapters import make_adapter
 
     assert entry_functions_match_numpy()
     env = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), disk_cache=False)
-    names, _, _, functions = env.adapter.observation_entries
+    names, _, _, functions = env.adapter.evaluation.observation_entries
     assert list(functions).count(ENTRY_SIN) == 2 and list(functions).count(ENTRY_COS) == 2
     assert "qfrc_constraint" in names
     env.reset(seed=0)
@@ -351,6 +355,6 @@ def test_sines_and_cosines_are_gathered_only_where_they_equal_numpys(monkeypatch
         env.step(rng.uniform(-1, 1, 1))
         qpos, qvel = env.measurement.measured_qpos(), env.observer.velocity
         np.testing.assert_array_equal(env.adapter.observation(qpos, qvel), full_forward_observation(env, qpos, qvel))
-    monkeypatch.setattr(_fused, "entry_functions_match_numpy", lambda: False)
-    assert make_adapter(gym.make("InvertedDoublePendulum-v5").unwrapped).observation_entries is None
-    assert make_adapter(gym.make("Ant-v5").unwrapped).observation_entries is not None
+    monkeypatch.setattr(scratch, "entry_functions_match_numpy", lambda: False)
+    assert make_adapter(gym.make("InvertedDoublePendulum-v5").unwrapped).evaluation.observation_entries is None
+    assert make_adapter(gym.make("Ant-v5").unwrapped).evaluation.observation_entries is not None

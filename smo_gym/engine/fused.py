@@ -30,7 +30,6 @@ from __future__ import annotations
 import functools
 import math
 import operator
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numba import carray, njit, types
@@ -51,8 +50,9 @@ __all__ = [
     "ENTRY_SIN",
     "FUSED_DRIVERS",
     "TABLE_SLOTS",
+    "EntryGather",
     "FusedSensing",
-    "ScratchEvaluation",
+    "InputCopy",
     "address",
     "copy_entries",
     "entry_functions_match_numpy",
@@ -127,8 +127,8 @@ def _sense(
     measurement into ``scratch_qpos``), and the tangent coordinates of free/ball joints
     (:mod:`smo_gym.engine.tangent`): ``joints`` (njnt, 3), empty for a model without them (then ``z = qpos``),
     ``prev`` (nq,) the last configuration and ``z`` (nv,) its tangent coordinates, both advanced in place. Last,
-    for an observation that is a selection of the sensed state (:attr:`GymnasiumMujocoAdapter.observation_map
-    <smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_map>`): ``obs[i] = min(max(x[obs_index[i]],
+    for an observation that is a selection of the sensed state (:attr:`ScratchObservation.observation_map
+    <smo_gym.engine.scratch.ScratchObservation.observation_map>`): ``obs[i] = min(max(x[obs_index[i]],
     obs_bounds[0, i]), obs_bounds[1, i])`` with ``x = [scratch_qpos, scratch_qvel]``.
     """
     T, nq = Q.shape
@@ -283,8 +283,8 @@ def gather_entries(addresses, functions, bounds, obs):
     """``obs[i] = clip(f_i(*addresses[i]), bounds[0, i], bounds[1, i])`` as ``np.clip`` (NaN stays NaN), ``f_i``
     the identity, ``sin`` or ``cos`` (``functions[i]``: :data:`ENTRY_IDENTITY`, :data:`ENTRY_SIN`,
     :data:`ENTRY_COS`): the observation as a function of MjData entries, one entry each
-    (:attr:`GymnasiumMujocoAdapter.observation_entries
-    <smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_entries>`). ``sin`` and ``cos`` are the C
+    (:attr:`ScratchObservation.observation_entries
+    <smo_gym.engine.scratch.ScratchObservation.observation_entries>`). ``sin`` and ``cos`` are the C
     library's, as NumPy's on the platforms the adapter's probe accepts. Returns the first entry that is not
     finite, or -1."""
     for i in range(obs.shape[0]):
@@ -387,26 +387,6 @@ def _dependencies() -> list[str]:
 drop_stale(FUSED_DRIVERS.values(), _dependencies())
 
 
-@runtime_checkable
-class ScratchEvaluation(Protocol):
-    """The capability of an adapter whose observation is evaluated on a scratch ``MjData`` that the engine's
-    compiled path can write into (:class:`~smo_gym.engine.fused.FusedSensing`)."""
-
-    copies_inputs: bool
-    """The observation reads controller inputs (``ctrl``, ...) that are copied into the scratch data."""
-    observation_map: tuple[np.ndarray, np.ndarray] | None
-    """``(index, bounds)`` when the observation is a clipped selection of ``[qpos, qvel]``, else None."""
-
-    def scratch_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The scratch ``qpos`` and ``qvel`` arrays."""
-
-    def observe_scratch(self, inputs_copied: bool = False) -> np.ndarray:
-        """The observation at the state written into :meth:`scratch_state`."""
-
-    def input_views(self) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], bool]:
-        """The ``(scratch, live)`` input array pairs, and whether ``time`` is read."""
-
-
 class FusedSensing:
     r"""The wrapper's hot path: one compiled call per control period (:mod:`smo_gym.engine.fused`).
 
@@ -434,7 +414,8 @@ class FusedSensing:
         self.sensor, self.observer = measurement.sensor, estimator.observer
         self.filtered = bool(filtered)
         self._driver = FUSED_DRIVERS[self.observer._kernel]
-        selection = adapter.observation_map
+        self.evaluation = evaluation = adapter.evaluation
+        selection = evaluation.observation_map
         #: the compiled call also builds the observation (a clipped selection of the sensed state, probed by the
         #: adapter): :meth:`sample` leaves it in :attr:`observation`
         self.maps_observation = selection is not None
@@ -444,7 +425,7 @@ class FusedSensing:
         self._n_obs = len(self._obs_index)
         #: the compiled call copies the controller inputs the observation reads into the scratch data (the
         #: adapter's :meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.input_views`)
-        self.copies_inputs = bool(adapter.copies_inputs)
+        self.copies_inputs = bool(evaluation.copies_inputs)
         self._no_obs = np.empty(0)
         self.observation = None
         self._call = None
@@ -476,7 +457,7 @@ class FusedSensing:
             and observer.order >= 1
             and type(measurement.sensor).run is Sensor.run
             and getattr(observer, "_kernel", None) in FUSED_DRIVERS
-            and isinstance(adapter, ScratchEvaluation)
+            and adapter.evaluation is not None
         )
 
     def _bind(self, Q: np.ndarray, qvel_true: np.ndarray) -> None:
@@ -520,7 +501,7 @@ class FusedSensing:
             self._work = np.empty((2, n, S))
             self._Zm = np.empty((1, n))
         self._shape = (n, self.observer.order + 1)
-        scratch_qpos, scratch_qvel = self.adapter.scratch_state()
+        scratch_qpos, scratch_qvel = self.evaluation.scratch_state()
         tangent = self.measurement.tangent
         static = (
             *sensed,
@@ -536,7 +517,7 @@ class FusedSensing:
             self._obs_bounds,
         )
         # the controller inputs the observation reads, copied by the compiled call (time, a scalar, is not)
-        pairs = self.adapter.input_views()[0] if self.copies_inputs else ()
+        pairs = self.evaluation.input_views()[0] if self.copies_inputs else ()
         static = static + pairs
         previous, table = self._static, self._table
         if table is not None and len(table) == len(static) and all(map(operator.is_, static, previous)):
@@ -623,3 +604,102 @@ class FusedSensing:
             self.sensor._raise(channel, Q[t], self._Zm[t])
         t, channel = divmod(-2 - status, n)
         self.observer._raise_status(-2 - channel, self._Zm[t])
+
+
+class InputCopy:
+    """One compiled copy of float64 arrays, ``to[...] = source`` for each ``(to, source)`` pair of equal size.
+
+    The address table of :func:`copy_entries` is made here and lives as long as this object, which keeps the
+    arrays it points into alive (the pairs are held).
+
+    Parameters
+    ----------
+    pairs : sequence of (ndarray, ndarray)
+        C-contiguous float64 arrays, destination first.
+    source : object, optional
+        What the sources belong to (e.g. the live ``MjData``), for the owner's cache.
+    reads_time : bool
+        Whether the owner also copies the scalar ``time`` (not part of the compiled copy).
+    """
+
+    def __init__(self, pairs, source=None, reads_time: bool = False):
+        for to, origin in pairs:
+            for a in (to, origin):
+                if not (type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous):
+                    raise TypeError(f"expected C-contiguous float64 arrays, actual value: {a!r:.80}")
+            if to.size != origin.size:
+                raise TypeError(f"expected arrays of one size, actual value: {to.size} and {origin.size}")
+        self.pairs = tuple(pairs)
+        self.source, self.reads_time = source, bool(reads_time)
+        self._table = np.array(
+            [(address(to), address(origin), to.size) for to, origin in self.pairs], dtype=np.int64
+        ).reshape(-1, 3)
+        self._call = _compiled_entry(copy_entries, (self._table,))
+
+    def __call__(self) -> None:
+        self._call(self._table)
+
+    def __getstate__(self):
+        raise TypeError("an InputCopy holds this process's addresses and does not pickle; make it again")
+
+
+class EntryGather:
+    """One compiled gather of single float64 entries of several arrays, clipped, or their sines and cosines.
+
+    ``obs[i] = clip(f_i(fields[names[i]].flat[flat[i]]), bounds[0, i], bounds[1, i])`` (:func:`gather_entries`);
+    the address table is made here and lives as long as this object, which keeps the fields alive.
+
+    Parameters
+    ----------
+    fields : dict of str to ndarray
+        C-contiguous float64 arrays by name.
+    names : sequence of str
+        The field of each entry.
+    flat, functions : ndarray of int64, shape (n,)
+        Flat index into the field, and the entry function code (:data:`ENTRY_IDENTITY`, ...).
+    bounds : ndarray, shape (2, n)
+        Clip bounds.
+    """
+
+    def __init__(self, fields: dict, names, flat, functions, bounds):
+        base = {}
+        for name, array in fields.items():
+            if not (type(array) is np.ndarray and array.dtype == np.float64 and array.flags.c_contiguous):
+                raise TypeError(f"expected {name} as a C-contiguous float64 array, actual value: {array!r:.80}")
+            base[name] = address(array)
+        for name, k in zip(names, flat, strict=True):
+            if not 0 <= int(k) < fields[name].size:
+                raise ValueError(f"expected an entry of {name} (size {fields[name].size}), actual value: {int(k)}")
+        self.fields = dict(fields)
+        self.functions = np.ascontiguousarray(functions, dtype=np.int64)
+        self.bounds = np.ascontiguousarray(bounds, dtype=np.float64)
+        self.addresses = np.array(
+            [base[name] + 8 * int(k) for name, k in zip(names, flat, strict=True)], dtype=np.int64
+        )
+        self._parts = (self,)
+        self._call = _compiled_entry(
+            gather_entries, (self.addresses, self.functions, self.bounds, np.empty(len(self.addresses)))
+        )
+
+    @classmethod
+    def concatenate(cls, gathers) -> EntryGather:
+        """One gather of the entries of several (e.g. one per environment of a vector env), in order."""
+        gathers = tuple(gathers)
+        self = cls.__new__(cls)
+        self.fields = {}
+        self._parts = gathers  # keeps every part's fields alive
+        self.functions = np.concatenate([g.functions for g in gathers])
+        self.bounds = np.ascontiguousarray(np.concatenate([g.bounds for g in gathers], axis=1))
+        self.addresses = np.concatenate([g.addresses for g in gathers])
+        self._call = gathers[0]._call
+        return self
+
+    def __len__(self) -> int:
+        return len(self.addresses)
+
+    def __call__(self, obs: np.ndarray) -> int:
+        """Fill ``obs`` (n,); returns the index of the first non-finite entry, or -1."""
+        return self._call(self.addresses, self.functions, self.bounds, obs)
+
+    def __getstate__(self):
+        raise TypeError("an EntryGather holds this process's addresses and does not pickle; make it again")

@@ -470,9 +470,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if fused.maps_observation:  # built by the compiled call from the finite sensed state
             obs = fused.observation
         else:
-            adapter = self.adapter
-            obs = adapter.observe_scratch(fused.copies_inputs)
-            if not adapter.checks_observation:
+            evaluation = fused.evaluation
+            obs = evaluation.observe_scratch(fused.copies_inputs)
+            if not evaluation.checks_observation:
                 check_finite_observation(obs)
         info["smo"] = SensingInfo.from_block(block, self._info_slices, clean)
         return self._wrap(obs)

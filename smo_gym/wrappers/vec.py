@@ -54,6 +54,7 @@ import mujoco
 import numpy as np
 
 from ..engine.measurement import check_finite_observation
+from ..engine.scratch import GatheredObservations
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
 from .sensing import check_action, check_seed
 
@@ -384,7 +385,8 @@ class _Sensing:
                 return obs, self._terminal_observations(tvel, terminal_mask)
             plan = self._entries_plan()
             if plan is not None:  # every observation is gathered from MjData entries: compiled calls, no _get_obs
-                return plan.observe(self._local, vel), self._terminal_observations(tvel, terminal_mask)
+                positions = np.array([s.measurement.measured_qpos() for s in self._local])
+                return plan.observe(positions, vel), self._terminal_observations(tvel, terminal_mask)
             rows = []
             for i, s in enumerate(self._local):
                 obs = s.observe(vel[i], None if filt is None else filt[i])
@@ -408,13 +410,13 @@ class _Sensing:
     def _selection(self):
         """``(index, bounds, nq)`` when the in-process environments' observations are all the same clipped
         selection of the measured positions and estimated velocities (the adapters'
-        :attr:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_map`, ``positions="measured"``),
+        :attr:`~smo_gym.engine.scratch.ScratchObservation.observation_map`, ``positions="measured"``),
         else None; decided once."""
         try:
             return self._selection_cache
         except AttributeError:
             pass
-        maps = [getattr(s.adapter, "observation_map", None) for s in self._local]
+        maps = [s.adapter.evaluation.observation_map if s.adapter.evaluation else None for s in self._local]
         selection = None
         if self.positions == "measured" and maps and all(m is not None for m in maps):
             index, bounds = maps[0]
@@ -424,9 +426,9 @@ class _Sensing:
         self._selection_cache = selection
         return selection
 
-    def _entries_plan(self) -> _GatheredObservations | None:
+    def _entries_plan(self) -> GatheredObservations | None:
         """The batched evaluation of the in-process environments' observations when each is gathered from MjData
-        entries (the adapters' :attr:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.observation_entries`,
+        entries (the adapters' :attr:`~smo_gym.engine.scratch.ScratchObservation.observation_entries`,
         ``positions="measured"``, joint coordinates equal to ``qpos``, one model size), else None; decided once,
         made again if an environment replaced its ``MjData``."""
         plan = self.__dict__.get("_plan_cache", False)
@@ -438,13 +440,14 @@ class _Sensing:
             self.positions == "measured"
             and len({(s.adapter.model.nq, s.adapter.model.nv) for s in local}) == 1
             and all(
-                getattr(s.adapter, "_gather", None) is not None
+                s.adapter.evaluation is not None
+                and s.adapter.evaluation.gather is not None
                 and s.adapter.unflatten is None
                 and not s.measurement.tangent.manifold
                 for s in local
             )
         ):
-            plan = _GatheredObservations(local)
+            plan = GatheredObservations([s.adapter.evaluation for s in local])
         self._plan_cache = plan
         return plan
 
@@ -497,87 +500,6 @@ def _rows(stacked: dict, i: int) -> dict:
         for key, value in stacked.items()
         if not key.startswith("_")
     }
-
-
-class _GatheredObservations:
-    """All in-process environments' observations at their measured positions and given velocities, when each
-    adapter gathers its observation from MjData entries (:meth:`_Sensing._entries_plan`).
-
-    What :meth:`JointSensor.observe` does environment by environment, in three moves: one compiled copy writes
-    every environment's measured ``qpos``, velocity estimate and controller inputs into its scratch data (an
-    address table over persistent buffers), the forward-pass stages run on each scratch data, and one compiled
-    gather fills the ``(n_envs, obs_dim)`` observations and checks them. Same numbers as ``observe`` (the same
-    copies, stages and gather); about a third of its cost for InvertedDoublePendulum with four environments.
-    """
-
-    def __init__(self, sensors):
-        from ..engine.fused import address, copy_entries, gather_entries
-        from ..observers.base import _compiled_entry
-
-        adapters = [s.adapter for s in sensors]
-        self.adapters = adapters
-        n, nq, nv = len(adapters), adapters[0].model.nq, adapters[0].model.nv
-        self.positions, self.velocities = np.zeros((n, nq)), np.zeros((n, nv))
-        rows = []
-        self.live = []  # the live data each input row reads (checked at every call: a new MjData needs a new plan)
-        for i, adapter in enumerate(adapters):
-            qpos, qvel = adapter.scratch_state()
-            rows += [
-                (address(qpos), address(self.positions[i]), qpos.size),
-                (address(qvel), address(self.velocities[i]), qvel.size),
-            ]
-            live = adapter.data
-            if adapter.copies_inputs:
-                views = adapter._views_of(live)
-                rows += [tuple(r) for r in views[3]]
-            self.live.append(live)
-        self.table = np.array(rows, dtype=np.int64).reshape(-1, 3)
-        self.copy = _compiled_entry(copy_entries, (self.table,))
-        self.times = [i for i, a in enumerate(adapters) if a.copies_inputs and a._views_of(a.data)[2]]
-        entries = [a.observation_entries for a in adapters]
-        self.addresses = np.concatenate([a._entry_addresses for a in adapters])
-        self.functions = np.concatenate([e[3] for e in entries])
-        self.bounds = np.ascontiguousarray(np.concatenate([e[2] for e in entries], axis=1))
-        self.shape = (n, len(entries[0][3]))
-        if any(len(e[3]) != self.shape[1] for e in entries):
-            raise ValueError(f"expected observations of one size, actual value: {[len(e[3]) for e in entries]}")
-        self.gather = _compiled_entry(
-            gather_entries, (self.addresses, self.functions, self.bounds, np.empty(self.addresses.size))
-        )
-        #: the pipeline of every adapter, or None if they differ (then each adapter runs its own)
-        forward_only = all(a.pipeline == "forward" and not a.reads_contacts for a in adapters)
-        self.forward = [(a.model, a.scratch) for a in adapters] if forward_only else None
-
-    def current(self) -> bool:
-        """Whether every environment still has the ``MjData`` the input rows of the copy table point into."""
-        return all(adapter.data is live for adapter, live in zip(self.adapters, self.live, strict=True))
-
-    def observe(self, sensors, velocity: np.ndarray) -> np.ndarray:
-        """Observations ``(n_envs, obs_dim)`` at each sensor's measured ``qpos`` and ``velocity[i]`` (the plan
-        must be :meth:`current`)."""
-        positions = self.positions
-        for i, s in enumerate(sensors):
-            positions[i] = s.measurement.measured_qpos()
-        self.velocities[:] = velocity
-        self.copy(self.table)
-        for i in self.times:
-            adapter = self.adapters[i]
-            adapter.scratch.time = adapter.data.time
-        if self.forward is not None:
-            forward = mujoco.mj_forward
-            for model, scratch in self.forward:
-                forward(model, scratch)
-        else:
-            for adapter in self.adapters:
-                adapter._compute(adapter.scratch, adapter.pipeline)
-        obs = np.empty(self.shape)
-        bad = self.gather(self.addresses, self.functions, self.bounds, obs.reshape(-1))
-        if bad != -1:
-            i, k = divmod(bad, self.shape[1])
-            raise ValueError(
-                f"expected a finite sensed observation, actual value: {obs[i, k]!r} at entry {k} of environment {i}"
-            )
-        return obs
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -1,0 +1,697 @@
+r"""An environment's own observation function evaluated on scratch ``MjData`` at a sensed state.
+
+The sensed observation is the environment's observation at the measured ``qpos`` and estimated ``qvel``, with
+everything derived from them (Humanoid's ``cinert``/``cvel``/``qfrc_actuator``, Pusher's body positions,
+InvertedDoublePendulum's constraint force) recomputed: :class:`ScratchObservation` copies into a scratch
+``MjData`` the inputs a real controller knows (``ctrl``, ``act``, ``time``, mocap poses, applied forces) and the
+sensed state, runs the forward-pass stages the observation needs and calls the observation function on it. The
+live simulation is never touched.
+
+What the observation needs is *probed* once at construction, with no per-environment table: the observation is
+evaluated on scratch data whose other fields are all NaN, after no computation, then after the kinematic stages
+only (no collision detection or constraint solver); the first that comes out finite and equal to the
+``mj_forward`` result at random states is used (Hopper, HalfCheetah, Ant: none; Humanoid: kinematics;
+InvertedDoublePendulum, whose observation has a constraint force: the full forward pass). The same NaN probe finds
+whether the observation reads ``cfrc_ext``. Which of the inputs (``ctrl``, applied forces, ``time``, ...) it reads
+is probed at random nonzero inputs, each replaced in turn by other random values and by NaN (MuJoCo zeroes a NaN
+``ctrl``, and the live ``ctrl`` is zero at construction: Humanoid's ``qfrc_actuator`` reads ``ctrl`` only through
+the actuation); with the full forward pass every input is copied (constraint forces depend on the inputs only
+while a constraint is active, which a probe at a few states need not see). Last, whether the function returns a
+fresh array. Only what is read is copied at every step, and fresh arrays are not copied again
+(:meth:`ScratchObservation.observe_scratch`, the per-step path). Observations that are clipped selections of the
+state (:attr:`ScratchObservation.observation_map`) or of ``MjData`` entries and their sines and cosines
+(:attr:`ScratchObservation.observation_entries`) are built by compiled code instead of the Python function, with
+the same numbers; ``tests/test_wrapper.py`` checks the result against a full forward pass at run-time inputs and
+active joint limits on every v5 environment.
+
+Contact forces
+--------------
+``cfrc_ext`` (Ant's and Humanoid's observations) is not a function of the joint sensors: a real robot measures
+contact forces with force/torque sensors or foot switches. ``contact_forces`` decides:
+
+``"sensor"`` (default)
+    take them from the simulation, as from separate force sensors (the only true-state entries; documented);
+``"estimated"``
+    recompute them from the measured/estimated state (``mj_forward`` + ``mj_rnePostConstraint`` on the scratch
+    data): no true state at all, but contacts from a noisy configuration are noisy;
+``"zero"``
+    no contact sensing (the entries are 0).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from .fused import (
+    ENTRY_COS,
+    ENTRY_IDENTITY,
+    ENTRY_SIN,
+    EntryGather,
+    InputCopy,
+    entry_functions_match_numpy,
+)
+
+__all__ = ["CONTACT_FORCES", "GatheredObservations", "ScratchObservation"]
+
+#: sources of the contact forces (``cfrc_ext``) in a sensed observation: see :class:`ScratchObservation`
+CONTACT_FORCES = ("sensor", "estimated", "zero")
+#: the controller's inputs that ``observation`` copies from the live data (those the observation reads, probed)
+_INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")
+#: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
+_INPUTS = (
+    "qpos",
+    "qvel",
+    "act",
+    "ctrl",
+    "qfrc_applied",
+    "xfrc_applied",
+    "mocap_pos",
+    "mocap_quat",
+    "userdata",
+    "plugin_state",
+    "qacc_warmstart",
+    "eq_active",
+    "history",
+)
+
+
+@contextlib.contextmanager
+def _quiet_mujoco():
+    """Within the block, MuJoCo's warnings (``Nan, Inf or huge value in CTRL``, ...) are dropped instead of printed
+    and appended to ``MUJOCO_LOG.TXT`` in the working directory: the probes provoke them on purpose."""
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(_ignore_warning)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+def _ignore_warning(message: str) -> None:
+    pass
+
+
+class ScratchObservation:
+    """An observation function evaluated on a scratch ``MjData`` at a given state (see the module docstring).
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+    live : callable
+        ``live() -> MjData``: the simulation's live data (read for the controller inputs and ``cfrc_ext``).
+    function : callable
+        ``function(data) -> ndarray``: the environment's observation computed from ``data`` as it is.
+    contact_forces : {"sensor", "estimated", "zero"}
+    name : str
+        The environment's name, for error messages.
+
+    Attributes
+    ----------
+    pipeline : {"none", "kinematics", "forward"}
+        The forward-pass stages the observation needs (probed).
+    input_fields : tuple of str
+        The controller inputs it reads (probed).
+    copies_inputs, reads_contacts, fresh_observation : bool
+        Whether it reads controller inputs, ``cfrc_ext``; whether ``function`` returns a fresh array (probed).
+    observation_map : tuple of ndarray or None
+        ``(index, bounds)`` when the observation is a clipped selection of ``[qpos, qvel]``.
+    observation_entries : tuple or None
+        ``(fields, flat_index, bounds, functions)`` when it is a clipped selection of ``MjData`` entries, or of
+        their sines and cosines, after the forward-pass stages.
+    checks_observation : bool
+        :meth:`observe_scratch` raises ``ValueError`` on a non-finite observation itself.
+
+    Raises
+    ------
+    ValueError
+        ``contact_forces`` unknown, or other than ``"sensor"`` for an observation without contact forces.
+    """
+
+    def __init__(self, model: mujoco.MjModel, live: Callable, function: Callable, contact_forces: str, name: str):
+        if contact_forces not in CONTACT_FORCES:
+            raise ValueError(
+                f"expected contact_forces in {', '.join(map(repr, CONTACT_FORCES))}, actual value: {contact_forces!r}"
+            )
+        self.model, self.live, self.function = model, live, function
+        self.contact_forces = contact_forces
+        self.fresh_observation = False
+        self.observation_map = self.observation_entries = None
+        self._scratch = mujoco.MjData(model)
+        self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
+        self.input_fields = _INPUT_FIELDS
+        with _quiet_mujoco():  # the probes feed MuJoCo NaN and huge inputs on purpose
+            self.pipeline, self.copies_inputs = self._probe_pipeline()
+            self.reads_contacts = self._probe_contacts()
+            if contact_forces != "sensor" and not self.reads_contacts:
+                raise ValueError(
+                    f"expected contact_forces='sensor' for {name}, whose observation has no contact "
+                    f"forces (cfrc_ext), actual value: {contact_forces!r}"
+                )
+            if self.copies_inputs and self.pipeline != "forward":
+                # the constraint forces of a full forward pass depend on every applied input whenever a constraint
+                # is active, which a probe at a few states need not see (InvertedDoublePendulum's rail limit):
+                # with the forward pass, every input is copied
+                self.input_fields = self._probe_input_fields()
+                self.copies_inputs = bool(self.input_fields)
+            self.fresh_observation = self._probe_fresh()
+            #: the observation needs nothing but the sensed qpos/qvel on the scratch data (Hopper, HalfCheetah, ...)
+            self._bare = self.pipeline == "none" and not self.copies_inputs and not self.reads_contacts
+            self.observation_map = self._probe_observation_map() if self._bare else None
+            self.observation_entries = None if self._bare else self._probe_observation_entries()
+        self._views()
+
+    def _views(self) -> None:
+        # cached views of the scratch arrays written at every observation (MjData builds a view per access)
+        self._scratch_qpos, self._scratch_qvel = self._scratch.qpos, self._scratch.qvel
+        self._inputs = None
+        self._inputs_cache = {}
+        self._gather = None
+        entries = self.observation_entries
+        if entries is not None:  # the observation's entries in this scratch data, gathered by one compiled call
+            names, flat, bounds, functions = entries
+            fields = {name: getattr(self._scratch, name) for name in set(names)}
+            self._gather = EntryGather(fields, names, flat, functions, bounds)
+        self.checks_observation = self._gather is not None
+
+    def compute(self) -> None:
+        """The forward-pass stages the observation needs, on the scratch data as it is."""
+        self._compute(self._scratch, self.pipeline)
+
+    @property
+    def gather(self) -> EntryGather | None:
+        """The compiled gather of :attr:`observation_entries` from the scratch data, or None."""
+        return self._gather
+
+    @property
+    def scratch(self) -> mujoco.MjData:
+        """The scratch ``MjData`` (never the live one)."""
+        return self._scratch
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        for name in ("_scratch_qpos", "_scratch_qvel", "_inputs", "_inputs_cache", "_gather"):
+            state.pop(name, None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._views()
+
+    def _fill(self, scratch: mujoco.MjData, qpos, qvel, inputs: bool = True, source: mujoco.MjData | None = None):
+        scratch.qpos[:] = qpos
+        scratch.qvel[:] = qvel
+        if inputs:
+            self._fill_inputs(scratch, source)
+
+    def _fill_inputs(self, scratch: mujoco.MjData, source: mujoco.MjData | None = None) -> None:
+        """Copy the controller inputs the observation reads from ``source`` (default: the live data)."""
+        source = self.live() if source is None else source
+        for name in self.input_fields:
+            if name == "time":
+                scratch.time = source.time
+            else:
+                getattr(scratch, name)[:] = getattr(source, name)
+
+    def _random_inputs(self, rng: np.random.Generator) -> mujoco.MjData:
+        """Data whose controller inputs (:data:`_INPUT_FIELDS`) are random, finite and nonzero, for the probes.
+
+        The probes compare evaluations at such inputs, never at the live ones: at construction the live ``ctrl``
+        is zero, and MuJoCo replaces a non-finite ``ctrl`` by zero, so an observation that reads ``ctrl`` only
+        through the actuation (Humanoid's ``qfrc_actuator``) looks the same with zero, NaN or no ``ctrl``.
+        """
+        model = self.model
+        source = mujoco.MjData(model)
+        source.time = rng.uniform(1.0, 10.0)
+        ctrl = rng.uniform(-1.0, 1.0, model.nu)
+        limited = model.actuator_ctrllimited.astype(bool)
+        low, high = model.actuator_ctrlrange[limited].T
+        ctrl[limited] = low + (high - low) * rng.uniform(0.1, 0.9, int(limited.sum()))
+        source.ctrl[:] = ctrl
+        source.act[:] = rng.uniform(0.1, 0.9, model.na)
+        source.mocap_pos[:] = rng.standard_normal((model.nmocap, 3))
+        quat = rng.standard_normal((model.nmocap, 4))
+        source.mocap_quat[:] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        source.qfrc_applied[:] = rng.standard_normal(model.nv)
+        source.xfrc_applied[1:] = rng.standard_normal((model.nbody - 1, 6))
+        return source
+
+    def _probe_input_fields(self) -> tuple[str, ...]:
+        """The controller inputs the observation actually reads (Humanoid's actuator force reads ``ctrl``, nothing
+        reads the applied forces; not used with a full forward pass, which copies every input). At random states
+        with random inputs (:meth:`_random_inputs`), each field copied by ``_fill_inputs`` is in turn set to other
+        random values, then to NaN; if the observation equals the reference both times, the field is not copied
+        at every step."""
+        model = self.model
+        fields = ["time"] + [
+            name
+            for name, size in (
+                ("ctrl", model.nu),
+                ("act", model.na),
+                ("mocap_pos", model.nmocap),
+                ("mocap_quat", model.nmocap),
+                ("qfrc_applied", model.nv),
+                ("xfrc_applied", model.nbody),
+            )
+            if size
+        ]
+        rng = np.random.default_rng(2468)
+        cases = []
+        for _ in range(2):
+            qpos = np.array(self.live().qpos)
+            mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+            cases.append((qpos, rng.standard_normal(model.nv), self._random_inputs(rng), self._random_inputs(rng)))
+        self.input_fields = tuple(fields)
+        expected = []
+        for qpos, qvel, source, _ in cases:
+            reference = mujoco.MjData(model)
+            self._fill(reference, qpos, qvel, source=source)
+            expected.append(self._evaluate(reference, self.pipeline))
+        needed = []
+        for name in fields:
+            for (qpos, qvel, source, other), want in zip(cases, expected, strict=True):
+                changed = []
+                for replace in ("other", "nan"):
+                    scratch = mujoco.MjData(model)
+                    self.input_fields = tuple(fields)
+                    self._fill(scratch, qpos, qvel, source=source)
+                    if name == "time":
+                        scratch.time = other.time if replace == "other" else np.nan
+                    elif replace == "other":
+                        getattr(scratch, name)[...] = getattr(other, name)
+                    else:
+                        getattr(scratch, name)[...] = np.nan
+                    try:
+                        got = self._evaluate(scratch, self.pipeline)
+                    except Exception:
+                        got = None
+                    changed.append(got is None or got.shape != want.shape or not np.array_equal(got, want))
+                if any(changed):
+                    needed.append(name)
+                    break
+        self.input_fields = tuple(fields)
+        return tuple(needed)
+
+    def _evaluate(self, scratch: mujoco.MjData, pipeline: str) -> np.ndarray:
+        self._compute(scratch, pipeline)
+        return self._call_observation(scratch)
+
+    def _call_observation(self, scratch: mujoco.MjData) -> np.ndarray:
+        """The environment's ``_get_obs`` on ``scratch`` as it is (nothing computed)."""
+        obs = self.function(scratch)
+        return obs if self.fresh_observation else np.array(obs, copy=True)
+
+    def _compute(self, scratch: mujoco.MjData, pipeline: str) -> None:
+        """The forward-pass stages of ``pipeline`` on ``scratch``, and its contact forces."""
+        model = self.model
+        if pipeline == "forward":
+            mujoco.mj_forward(model, scratch)
+            if self.contact_forces == "estimated":
+                mujoco.mj_rnePostConstraint(model, scratch)
+        elif pipeline == "kinematics":  # positions, com frames, tendons, transmissions, com velocities, actuation
+            mujoco.mj_kinematics(model, scratch)
+            mujoco.mj_comPos(model, scratch)
+            mujoco.mj_tendon(model, scratch)
+            mujoco.mj_transmission(model, scratch)
+            mujoco.mj_comVel(model, scratch)
+            mujoco.mj_fwdActuation(model, scratch)
+        if self.reads_contacts:
+            if self.contact_forces == "sensor":
+                scratch.cfrc_ext[:] = self.live().cfrc_ext
+            elif self.contact_forces == "zero":
+                scratch.cfrc_ext[:] = 0.0
+
+    def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """The environment's observation at ``(qpos, qvel)``, evaluated on scratch data (see module docstring)."""
+        self._scratch_qpos[:] = qpos
+        self._scratch_qvel[:] = qvel
+        return self.observe_scratch()
+
+    def scratch_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scratch ``qpos`` (nq,) and ``qvel`` (nv,) arrays: write a state there, then :meth:`observe_scratch`."""
+        return self._scratch_qpos, self._scratch_qvel
+
+    def observe_scratch(self, inputs_copied: bool = False) -> np.ndarray:
+        """The environment's observation at the state already written into :meth:`scratch_state`.
+
+        ``inputs_copied``: the caller has already copied the input arrays of :meth:`input_views` (the wrapper's
+        compiled call does); ``time``, a scalar, is still copied here if read.
+        """
+        if self._bare:  # the common case, spelled out: this runs once per environment step
+            obs = self.function(self._scratch)
+            return obs if self.fresh_observation else np.array(obs, copy=True)
+        if self.copies_inputs:
+            if not inputs_copied:
+                self._copy_inputs()
+            elif self._inputs.reads_time:
+                self._scratch.time = self.live().time
+        if self._gather is None:
+            return self._evaluate(self._scratch, self.pipeline)
+        self._compute(self._scratch, self.pipeline)  # then the entries, compiled, instead of _get_obs
+        obs = np.empty(len(self._gather))
+        bad = self._gather(obs)
+        if bad != -1:
+            raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
+        return obs
+
+    def input_views(self) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], bool]:
+        """``(pairs, time)``: the ``(scratch, live)`` array views of the inputs the observation reads (each a
+        C-contiguous float64 array of the same size), and whether it reads ``time``; made once per live data."""
+        inputs = self.inputs_of(self.live())
+        return inputs.pairs, inputs.reads_time
+
+    def inputs_of(self, live: mujoco.MjData) -> InputCopy:
+        """The compiled copy of the inputs the observation reads from ``live`` into the scratch data, cached per
+        data: the live data, and the snapshot a vector env's sensor swaps in for a terminal observation
+        (rebuilding it at every swap would cost more than the copies)."""
+        inputs = self._inputs
+        if inputs is not None and inputs.source is live:
+            return inputs
+        inputs = self._inputs_cache.get(id(live))
+        if inputs is None or inputs.source is not live:
+            pairs = tuple(
+                (getattr(self._scratch, name), getattr(live, name)) for name in self.input_fields if name != "time"
+            )
+            inputs = InputCopy(pairs, source=live, reads_time="time" in self.input_fields)
+            if len(self._inputs_cache) >= 4:
+                self._inputs_cache.clear()
+            self._inputs_cache[id(live)] = inputs
+        self._inputs = inputs
+        return inputs
+
+    def _copy_inputs(self) -> None:
+        """The inputs the observation reads, from the live data into the scratch data: one compiled call (a
+        NumPy copy per field costs ~2 us right after the physics)."""
+        inputs = self.inputs_of(self.live())
+        inputs()
+        if inputs.reads_time:
+            self._scratch.time = inputs.source.time
+
+    def _probe_fresh(self) -> bool:
+        """Whether ``_get_obs`` returns a new array at every call, sharing no memory with the data it reads: two
+        evaluations at different states, the first result must be an ndarray and unchanged by the second. Then
+        the defensive copy of every observation is skipped."""
+        rng = np.random.default_rng(777)
+        first = None
+        for _ in range(2):
+            qpos = np.array(self.live().qpos)
+            mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
+            self._fill(self._scratch, qpos, rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
+            obs = self.function(self._scratch)
+            if first is None:
+                if type(obs) is not np.ndarray:
+                    return False
+                first, kept = obs, np.array(obs, copy=True)
+        return obs is not first and np.array_equal(first, kept, equal_nan=True)
+
+    def _probe_observation_map(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(index, bounds)`` such that the observation is ``obs[i] = min(max(x[index[i]], bounds[0, i]),
+        bounds[1, i])`` with ``x = [qpos, qvel]``, or None if it is not such a selection of the state.
+
+        Only for an observation of ``qpos``/``qvel`` alone (``_bare``): Hopper's ``(qpos[1:], clip(qvel, -10,
+        10))``, HalfCheetah's, InvertedPendulum's... Then the wrapper's compiled call builds it (no Python
+        ``_get_obs``, no finiteness check: a clipped selection of a finite state is finite). Found by
+        perturbing each entry of ``x`` in turn (every observation entry must follow exactly one, with unit slope,
+        and equal it), the bounds from ``x = +-1e300``; accepted only if it reproduces ``_get_obs`` bit for bit
+        at random states of magnitudes 1e-6 to 1e8 (``float64`` one-dimensional observations only).
+        """
+        model = self.model
+        nq, nv = model.nq, model.nv
+        scratch = mujoco.MjData(model)
+
+        def evaluate(x):
+            self._fill(scratch, x[:nq], x[nq:], inputs=False)
+            return self._evaluate(scratch, "none")
+
+        def select(x, index, bounds):
+            return np.minimum(np.maximum(x[index], bounds[0]), bounds[1])
+
+        rng = np.random.default_rng(97531)
+        x0 = 1e-3 * rng.standard_normal(nq + nv)
+        try:
+            obs0 = evaluate(x0)
+            if type(obs0) is not np.ndarray or obs0.dtype != np.float64 or obs0.ndim != 1:
+                return None
+            index = np.full(obs0.size, -1, dtype=np.int64)
+            for j in range(nq + nv):
+                x = x0.copy()
+                x[j] += 1e-3
+                obs = evaluate(x)
+                if obs.shape != obs0.shape:
+                    return None
+                changed = np.flatnonzero(obs != obs0)
+                if np.any(index[changed] >= 0):  # an entry that follows two state entries: not a selection
+                    return None
+                index[changed] = j
+            if np.any(index < 0) or not np.array_equal(obs0, x0[index]):  # constants, or not the entry itself
+                return None
+            huge = 1e300
+            high, low = evaluate(np.full(nq + nv, huge)), evaluate(np.full(nq + nv, -huge))
+            bounds = np.stack([np.where(low == -huge, -np.inf, low), np.where(high == huge, np.inf, high)])
+            for scale in (1e-6, 1e-2, 1.0, 10.0, 1e2, 1e4, 1e8):
+                for _ in range(2):
+                    x = scale * rng.standard_normal(nq + nv)
+                    if not np.array_equal(evaluate(x), select(x, index, bounds)):
+                        return None
+        except Exception:
+            return None
+        return index, np.ascontiguousarray(bounds)
+
+    def _probe_observation_entries(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(fields, flat_index, bounds, functions)`` such that, after the forward-pass stages, the observation is
+        ``obs[i] = min(max(f_i(getattr(data, fields[i]).flat[flat_index[i]]), bounds[0, i]), bounds[1, i])`` with
+        ``f_i`` the identity, ``sin`` or ``cos`` (``functions[i]``, codes of
+        :func:`~smo_gym.engine.fused.gather_entries`), or None.
+
+        Humanoid's ``(qpos[2:], qvel, cinert[1:], cvel[1:], qfrc_actuator[6:], cfrc_ext[1:])``, Ant's clipped
+        contact forces, InvertedDoublePendulum's ``(qpos[:1], sin(qpos[1:]), cos(qpos[1:]), clip(qvel),
+        clip(qfrc_constraint[:1]))``: the scratch evaluation then gathers the entries in one compiled call (with
+        the finiteness check) instead of the environment's ``_get_obs`` (10-20 us of NumPy calls right after the
+        physics). Found by writing distinct values into every float64 field of computed scratch data and calling
+        ``_get_obs`` on it as it is (each observation entry must be one of those values, or the sine or cosine of
+        one: the values are distinct in magnitude and below 1/2, where both are one-to-one), the bounds from all
+        fields at +-1e300 (none for sines and cosines); accepted only if the compiled gather reproduces
+        ``_get_obs`` bit for bit at random states and random inputs through the forward-pass stages, and, with
+        sines or cosines, if the compiled ones equal NumPy's (:func:`~._fused.entry_functions_match_numpy`)
+        (``float64`` one-dimensional observations only).
+        """
+        model = self.model
+        rng = np.random.default_rng(8642)
+
+        def computed(scale):
+            scratch = mujoco.MjData(model)
+            qpos = np.array(self.live().qpos)
+            mujoco.mj_integratePos(model, qpos, scale * rng.standard_normal(model.nv), 1.0)
+            self._fill(
+                scratch,
+                qpos,
+                scale * rng.standard_normal(model.nv),
+                inputs=self.copies_inputs,
+                source=self._random_inputs(rng),
+            )
+            self._compute(scratch, self.pipeline)
+            return scratch
+
+        try:
+            scratch = computed(0.1)
+            obs0 = self._call_observation(scratch)
+            if type(obs0) is not np.ndarray or obs0.dtype != np.float64 or obs0.ndim != 1 or not obs0.size:
+                return None
+            fields = []
+            for name in dir(scratch):
+                if name.startswith("_"):
+                    continue
+                try:
+                    value = getattr(scratch, name)
+                except Exception:
+                    continue
+                if (
+                    isinstance(value, np.ndarray)
+                    and value.dtype == np.float64
+                    and value.size
+                    and value.flags.c_contiguous
+                ):
+                    fields.append((name, value))
+            total = sum(value.size for _, value in fields)
+            # distinct magnitudes in (0, 0.5) (inside any plausible clip), random signs, in random order
+            values = rng.permutation((np.arange(total) + 1.0) / (2.0 * (total + 1)) * rng.choice([-1.0, 1.0], total))
+            position, start = {}, 0
+            for name, value in fields:
+                value.reshape(-1)[:] = values[start : start + value.size]
+                for k in range(value.size):
+                    position[values[start + k]] = (name, k, ENTRY_IDENTITY)
+                start += value.size
+            for code, function in ((ENTRY_SIN, np.sin), (ENTRY_COS, np.cos)):
+                for v, out in zip(values, function(values), strict=True):
+                    position.setdefault(out, position[v][:2] + (code,))
+            marked = self._call_observation(scratch)
+            if marked.shape != obs0.shape or not all(v in position for v in marked):
+                return None
+            names = tuple(position[v][0] for v in marked)
+            flat = np.array([position[v][1] for v in marked], dtype=np.int64)
+            functions = np.array([position[v][2] for v in marked], dtype=np.int64)
+            if np.any(functions != ENTRY_IDENTITY) and not entry_functions_match_numpy():
+                return None
+            extremes = []
+            for huge in (-1e300, 1e300):
+                for _, value in fields:
+                    value[...] = huge
+                out = self._call_observation(scratch)
+                extremes.append(np.where((out == huge) | (functions != ENTRY_IDENTITY), np.copysign(np.inf, huge), out))
+            bounds = np.ascontiguousarray(np.stack(extremes))
+            for scale in (0.01, 0.1, 0.5, 1.0, 3.0):
+                for _ in range(2):
+                    scratch = computed(scale)
+                    want = self._call_observation(scratch)
+                    got = np.empty(len(names))
+                    fields = {name: getattr(scratch, name) for name in set(names)}
+                    EntryGather(fields, names, flat, functions, bounds)(got)  # the run-time gather itself
+                    if not np.array_equal(want, got, equal_nan=True):
+                        return None
+        except Exception:
+            return None
+        return names, flat, bounds, functions
+
+    def _probe_pipeline(self) -> tuple[str, bool]:
+        """``(pipeline, copies_inputs)``: the cheapest evaluation that reproduces the forward-computed observation
+        at random states (see module docstring): ``"none"`` (qpos/qvel only, with or without the inputs),
+        ``"kinematics"`` (kinematics, com frames and velocities, tendons, actuation: no collision or constraint
+        solver) or ``"forward"``. Fields not copied or computed are NaN in the probe, so any read of them shows."""
+        rng = np.random.default_rng(12345)
+        model, live = self.model, self.live()
+        keep = {"qpos", "qvel"} | ({"cfrc_ext"} if self.contact_forces != "estimated" else set())
+        states = []
+        for _ in range(2):
+            qpos = np.array(live.qpos)
+            mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+            states.append((qpos, rng.standard_normal(model.nv), self._random_inputs(rng)))
+        expected = []
+        for qpos, qvel, source in states:
+            reference = mujoco.MjData(model)
+            self._fill(reference, qpos, qvel, source=source)
+            expected.append(self._evaluate(reference, "forward"))
+        for pipeline, inputs in (("none", False), ("none", True), ("kinematics", True)):
+            ok = True
+            for (qpos, qvel, source), want in zip(states, expected, strict=True):
+                poisoned = mujoco.MjData(model)
+                skip = keep | (set(_INPUTS) if inputs else set())
+                for name in dir(poisoned):
+                    if name.startswith("_") or name in skip:
+                        continue
+                    try:
+                        value = getattr(poisoned, name)
+                    except Exception:
+                        continue
+                    if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
+                        value[...] = np.nan
+                self._fill(poisoned, qpos, qvel, inputs=inputs, source=source)
+                try:
+                    got = self._evaluate(poisoned, pipeline)
+                except Exception:
+                    ok = False
+                    break
+                if got.shape != want.shape or not np.all(np.isfinite(got)) or not np.array_equal(got, want):
+                    ok = False
+                    break
+            if ok:
+                return pipeline, inputs
+        return "forward", True
+
+    def _probe_contacts(self) -> bool:
+        """Whether the observation reads ``cfrc_ext`` (Ant, Humanoid): evaluated at a random state with
+        ``cfrc_ext`` NaN (not recomputed), does it come out non-finite? If not, the per-step copy of the contact
+        forces is skipped, and a ``contact_forces`` mode other than ``"sensor"`` is refused."""
+        mode, self.contact_forces = self.contact_forces, "sensor"  # no recomputation during the probe
+        rng = np.random.default_rng(54321)
+        qpos = np.array(self.live().qpos)
+        mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
+        scratch = mujoco.MjData(self.model)
+        self._fill(scratch, qpos, rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
+        self.reads_contacts = False
+        try:
+            scratch.cfrc_ext[:] = np.nan
+            obs = self._evaluate(scratch, self.pipeline)
+            return not bool(np.all(np.isfinite(obs)))
+        except Exception:
+            return True
+        finally:
+            self.reads_contacts = True
+            self.contact_forces = mode
+
+
+class GatheredObservations:
+    """Several environments' observations at given states, when each is gathered from ``MjData`` entries
+    (:attr:`ScratchObservation.observation_entries`): what :meth:`ScratchObservation.observation` does
+    environment by environment, in three moves.
+
+    One compiled copy writes every environment's state and controller inputs into its scratch data, the
+    forward-pass stages run on each scratch data, and one compiled gather fills the ``(n_envs, obs_dim)``
+    observations and checks them. Same numbers as ``observation`` (the same copies, stages and gather); about a
+    third of its cost for InvertedDoublePendulum with four environments (the in-process vector wrappers).
+
+    Parameters
+    ----------
+    evaluations : sequence of ScratchObservation
+        One per environment, all with a :attr:`~ScratchObservation.gather` and models of one size.
+
+    Raises
+    ------
+    ValueError
+        Observations of different sizes.
+    """
+
+    def __init__(self, evaluations):
+        self.evaluations = evaluations = tuple(evaluations)
+        n, nq, nv = len(evaluations), evaluations[0].model.nq, evaluations[0].model.nv
+        self.positions, self.velocities = np.zeros((n, nq)), np.zeros((n, nv))
+        pairs = []
+        #: the live data each input copy reads (checked at every call: a new MjData needs a new plan)
+        self.live = []
+        for i, evaluation in enumerate(evaluations):
+            qpos, qvel = evaluation.scratch_state()
+            pairs += [(qpos, self.positions[i]), (qvel, self.velocities[i])]
+            live = evaluation.live()
+            if evaluation.copies_inputs:
+                pairs += evaluation.inputs_of(live).pairs
+            self.live.append(live)
+        self.copy = InputCopy(pairs)
+        self.times = [e for e in evaluations if e.copies_inputs and e.inputs_of(e.live()).reads_time]
+        sizes = [len(e.gather) for e in evaluations]
+        if len(set(sizes)) != 1:
+            raise ValueError(f"expected observations of one size, actual value: {sizes}")
+        self.gather = EntryGather.concatenate(e.gather for e in evaluations)
+        self.shape = (n, sizes[0])
+        #: one full forward pass on every scratch data, or None when the stages differ (then each runs its own)
+        forward_only = all(e.pipeline == "forward" and not e.reads_contacts for e in evaluations)
+        self.forward = [(e.model, e.scratch) for e in evaluations] if forward_only else None
+
+    def current(self) -> bool:
+        """Whether every environment still has the ``MjData`` the input copies read."""
+        return all(e.live() is live for e, live in zip(self.evaluations, self.live, strict=True))
+
+    def observe(self, positions: np.ndarray, velocities: np.ndarray) -> np.ndarray:
+        """Observations ``(n_envs, obs_dim)`` at ``qpos = positions[i]`` ``(n_envs, nq)`` and ``qvel =
+        velocities[i]`` ``(n_envs, nv)`` (the plan must be :meth:`current`)."""
+        self.positions[:] = positions
+        self.velocities[:] = velocities
+        self.copy()
+        for evaluation in self.times:
+            evaluation.scratch.time = evaluation.live().time
+        if self.forward is not None:
+            forward = mujoco.mj_forward
+            for model, scratch in self.forward:
+                forward(model, scratch)
+        else:
+            for evaluation in self.evaluations:
+                evaluation.compute()
+        obs = np.empty(self.shape)
+        bad = self.gather(obs.reshape(-1))
+        if bad != -1:
+            i, k = divmod(bad, self.shape[1])
+            raise ValueError(
+                f"expected a finite sensed observation, actual value: {obs[i, k]!r} at entry {k} of environment {i}"
+            )
+        return obs
