@@ -146,7 +146,7 @@ def _identification_errors(plant, alpha, dt, lipschitz, noise_std=0.0):
 
 
 # differentiator bounds: ~2.5-3x output_error_lipschitz(furuta, k, w_bounds=0.4 * 2.5**i) (about 100 for k = 2 and
-# 1200 for k = 3 on the theta channel), as in smo_gym.control.experiments
+# 1200 for k = 3 on the theta channel), as in smo_gym.experiments.control
 @pytest.mark.parametrize("alpha, lipschitz", [(1, 300.0), (2, 3000.0)])
 def test_identification_converges_with_the_theoretical_order(furuta, alpha, lipschitz):
     """Paper 004, sec. 6: identification error O(tau^alpha), state error O(tau^(alpha+1)); fitted within 0.3."""
@@ -285,7 +285,7 @@ def test_unmatched_compensation_beats_lqr_tenfold():
 def test_mujoco_furuta_compensation_beats_lqr_tenfold():
     """The MuJoCo environment (nonlinear, RK4) through EstimatedVelocity, linearized model, 12-bit encoders."""
     pytest.importorskip("gymnasium")
-    from smo_gym.control.experiments import furuta_mujoco_experiment
+    from smo_gym.experiments.control import furuta_mujoco_experiment
 
     rows, _ = furuta_mujoco_experiment(frame_skips=(1,), t_final=7.0, t_steady=4.0)
     sse = {r["controller"]: r["max |theta|,|alpha|"] for r in rows}

@@ -40,9 +40,9 @@ from .._validation import DivergenceError
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
-from .adapters import make_adapter
-from .estimated_velocity import calibrated_bounds, resolve_rate
-from .sensing import bound_order, default_observer
+from ..wrappers.adapters import make_adapter
+from ..wrappers.estimated_velocity import calibrated_bounds, resolve_rate
+from ..wrappers.sensing import bound_order, default_observer
 
 __all__ = [
     "ObserverResult",

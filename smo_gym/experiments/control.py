@@ -24,16 +24,24 @@ from pathlib import Path
 
 import numpy as np
 
-from .controllers import (
+from ..control import (
+    CascadedHOSMObserver,
     CompensationController,
     IntegralSlidingModeController,
+    LuenbergerObserver,
     StateFeedback,
     UnmatchedCompensationController,
+    fit_order,
+    furuta_disturbance,
+    furuta_slides,
+    helicopter_slides,
+    linearize,
     lqr,
+    output_error_lipschitz,
+    simulate,
+    steady_state_error,
+    total_variation_rate,
 )
-from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz
-from .plants import furuta_disturbance, furuta_slides, helicopter_slides
-from .simulation import fit_order, simulate, steady_state_error, total_variation_rate
 
 __all__ = [
     "ENCODER_12BIT",
@@ -377,9 +385,7 @@ def furuta_mujoco_experiment(
     """
     import gymnasium as gym
 
-    from smo_gym.wrappers import EstimatedVelocity
-
-    from .plants import linearize
+    from ..wrappers import EstimatedVelocity
 
     def w_env(t):
         return np.array([scale * (0.4 * np.sin(2.5 * t) + 0.5)])
