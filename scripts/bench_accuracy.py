@@ -38,9 +38,9 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
+from smo_gym.experiments.compare import compare_observers, record_rollout
 from smo_gym.observers import OBSERVERS
 from smo_gym.wrappers import EstimatedVelocity
-from smo_gym.experiments.compare import compare_observers, record_rollout
 
 ENVS = ("InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5")
 SENSORS = ("ideal", "encoder-12bit", "encoder-12bit-noisy", "low-cost")

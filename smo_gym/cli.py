@@ -177,8 +177,8 @@ def check_output_file(path: str) -> Path:
 
 
 def compare(args: argparse.Namespace) -> int:
-    from .specs import make_sensor, parse_observer_spec
     from .experiments import compare as lib
+    from .specs import make_sensor, parse_observer_spec
 
     # every argument is checked before the rollout
     if args.steps < 1:
