@@ -22,6 +22,7 @@ __all__ = [
     "check_bool",
     "check_choice",
     "check_finite_array",
+    "check_int_at_least",
     "check_int_in_range",
     "check_keywords",
     "check_mask",
@@ -156,6 +157,15 @@ def check_int_in_range(name: str, value, low: int, high: int) -> int:
         raise TypeError(f"expected {name} to be an integer in [{low}, {high}], actual value: {_short(value)}")
     if not low <= int(value) <= high:
         raise ValueError(f"expected {name} in [{low}, {high}], actual value: {value!r}")
+    return int(value)
+
+
+def check_int_at_least(name: str, value, low: int) -> int:
+    """Return ``value`` as an int after checking ``value >= low``."""
+    if isinstance(value, _NOT_NUMBERS) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"expected {name} to be an integer >= {low}, actual value: {_short(value)}")
+    if int(value) < low:
+        raise ValueError(f"expected {name} >= {low}, actual value: {value!r}")
     return int(value)
 
 

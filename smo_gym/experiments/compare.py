@@ -42,6 +42,7 @@ from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
 from ..wrappers.adapters import make_adapter
 from ..wrappers.estimated_velocity import calibrated_bounds, resolve_rate
+from ..wrappers.rollout import rollout
 from ..wrappers.sensing import bound_order, default_observer
 
 __all__ = [
@@ -153,46 +154,25 @@ def record_rollout(
         )
     model = adapter.model
     dt = float(model.opt.timestep) * k
+    episodes = rollout(
+        env,
+        smooth_random_policy(env.action_space, seed),
+        steps,
+        sample_every=k,
+        seed=seed,
+        adapter=adapter,
+        progress=f"{env_id} rollout" if progress else None,
+    )
+    # the sensor measures the recorded configurations in order, one stream across episodes
     measurement = JointMeasurement(model, make_sensor(sensor), dt)
     rng = np.random.default_rng([int(seed), 0x534D4F])
-    policy = smooth_random_policy(env.action_space, seed)
-    qpos, qvel, z, starts = [], [], [], []
-    counter = [0]
-
-    def sample():
-        counter[0] += 1
-        if counter[0] % k == 0:
-            q = np.array(adapter.data.qpos)
-            qpos.append(q)
-            qvel.append(np.array(adapter.data.qvel))
-            z.append(measurement.measure(q))
-
-    def start():
-        starts.append(len(qpos))
-        q = np.array(adapter.data.qpos)
-        measurement.reset(q, rng)
-        qpos.append(q)
-        qvel.append(np.array(adapter.data.qvel))
+    z, starts = [], []
+    for episode in episodes:
+        starts.append(len(z))
+        measurement.reset(episode.qpos[0], rng)
         z.append(measurement.z_measured.copy())
-
-    obs, _ = env.reset(seed=seed)
-    start()
-    iterator = range(steps)
-    if progress:
-        iterator = extras.progress(iterator, desc=f"{env_id} rollout", unit="step")
-    hook = adapter.supports_substeps()
-    for step in iterator:
-        if hook:
-            with adapter.substeps(sample):
-                obs, _, terminated, truncated, _ = env.step(policy(obs))
-        else:  # rate == frame_skip: one sample at the end of the step, as the wrapper takes it
-            obs, _, terminated, truncated, _ = env.step(policy(obs))
-            counter[0] = k - 1
-            sample()
-        if (terminated or truncated) and step < steps - 1:
-            obs, _ = env.reset()
-            counter[0] = 0
-            start()
+        if len(episode.qpos) > 1:
+            z.extend(measurement.measure_block(episode.qpos[1:]))
     # the env stays open: compare_observers calibrates the default gains on it (context["unwrapped"]), and
     # dm_control's close (shimmy) frees the physics
     return Recording(
@@ -200,8 +180,8 @@ def record_rollout(
         sensor=sensor if isinstance(sensor, str) else repr(sensor),
         rate=str(rate),
         dt=dt,
-        qpos=np.array(qpos),
-        qvel=np.array(qvel),
+        qpos=np.concatenate([episode.qpos for episode in episodes]),
+        qvel=np.concatenate([episode.qvel for episode in episodes]),
         z_measured=np.array(z),
         episode_starts=np.array(starts),
         names=dof_names(model),

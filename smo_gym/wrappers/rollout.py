@@ -1,0 +1,145 @@
+r"""One rollout loop: an environment stepped by a policy, its true joint state sampled at the observer's rate.
+
+Every tool that needs true trajectories of a MuJoCo environment (the observer comparison of
+:mod:`smo_gym.experiments.compare`, the benchmarks, the calibration of default gains) records them here, so that
+they sample exactly where :class:`~smo_gym.wrappers.EstimatedVelocity` samples: every ``sample_every`` physics
+steps inside ``frame_skip``, through the adapter's substep hook
+(:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.substeps`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import _extras as extras
+from .._validation import check_int_at_least, check_int_in_range
+from .adapters import MujocoAdapter, make_adapter
+
+__all__ = ["Episode", "rollout"]
+
+
+@dataclass(frozen=True)
+class Episode:
+    """The sampled true joint state of one episode.
+
+    Attributes
+    ----------
+    qpos : ndarray, shape (T, nq)
+        Configurations; row 0 is the state after the reset, row ``i`` the state ``i * sample_every`` physics steps
+        later.
+    qvel : ndarray, shape (T, nv)
+        Velocities at the same samples.
+    """
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+
+
+def rollout(
+    env,
+    policy: Callable[[object], object],
+    steps: int,
+    *,
+    sample_every: int | None = None,
+    seed: int | None = None,
+    adapter: MujocoAdapter | None = None,
+    progress: str | None = None,
+) -> list[Episode]:
+    r"""Step ``env`` ``steps`` times with ``policy`` and sample ``qpos`` and ``qvel`` every ``sample_every``
+    physics steps.
+
+    The environment is reset with ``seed`` first; an episode ends when the environment reports ``terminated`` or
+    ``truncated`` or its velocity is no longer finite, and the environment is then reset without a seed
+    (continuing its random stream) unless that was the last step. Samples are taken after the reset and then
+    after every ``sample_every``-th physics step of the episode, counted across environment steps, so that with
+    ``frame_skip`` physics steps per environment step and ``sample_every = frame_skip`` the samples are the
+    states after every environment step.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A MuJoCo environment that :func:`~smo_gym.wrappers.adapters.make_adapter` recognises (any wrappers on
+        top), or its unwrapped environment.
+    policy : callable
+        ``policy(observation) -> action``, called once per environment step with the latest observation.
+    steps : int
+        Environment steps, ``>= 1``.
+    sample_every : int, optional
+        Physics steps between samples, in ``[1, frame_skip]`` (default ``frame_skip``: once per environment
+        step). Below ``frame_skip`` the environment must support sampling inside ``frame_skip``
+        (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.supports_substeps`).
+    seed : int, optional
+        Seed of the first reset.
+    adapter : MujocoAdapter, optional
+        The adapter of ``env`` (default: :func:`~smo_gym.wrappers.adapters.make_adapter` of ``env``).
+    progress : str, optional
+        Show a progress bar with this description (``tqdm``, when installed).
+
+    Returns
+    -------
+    list of Episode
+        The episodes in order; the last one ends with the last step.
+
+    Raises
+    ------
+    ValueError
+        ``steps < 1``, ``sample_every`` out of range, or ``sample_every < frame_skip`` on an environment whose
+        physics steps cannot be sampled.
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> env = gym.make("HalfCheetah-v5")  # frame_skip = 5, never terminates
+    >>> (episode,) = rollout(env, lambda obs: env.action_space.sample(), 10, sample_every=1, seed=0)
+    >>> episode.qpos.shape  # the reset state and five physics steps per environment step
+    (51, 9)
+    """
+    steps = check_int_at_least("steps", steps, 1)
+    adapter = make_adapter(env) if adapter is None else adapter
+    frame_skip = adapter.frame_skip
+    every = frame_skip if sample_every is None else check_int_in_range("sample_every", sample_every, 1, frame_skip)
+    hook = adapter.supports_substeps()
+    if every < frame_skip and not hook:
+        raise ValueError(
+            f"expected sample_every = frame_skip ({frame_skip}) on an environment whose physics steps cannot be "
+            f"sampled, actual value: {every}"
+        )
+    episodes: list[Episode] = []
+    qpos: list[np.ndarray] = []
+    qvel: list[np.ndarray] = []
+    counter = 0
+
+    def sample() -> None:
+        qpos.append(np.array(adapter.data.qpos))
+        qvel.append(np.array(adapter.data.qvel))
+
+    def substep() -> None:
+        nonlocal counter
+        counter += 1
+        if counter % every == 0:
+            sample()
+
+    obs, _ = env.reset(seed=seed)
+    sample()
+    iterator = range(steps)
+    if progress:
+        iterator = extras.progress(iterator, desc=progress, unit="step")
+    for step in iterator:
+        if hook:
+            with adapter.substeps(substep):
+                obs, _, terminated, truncated, _ = env.step(policy(obs))
+        else:  # sample_every == frame_skip: one sample at the end of the step
+            obs, _, terminated, truncated, _ = env.step(policy(obs))
+            sample()
+        if terminated or truncated or not np.all(np.isfinite(adapter.data.qvel)):
+            episodes.append(Episode(np.array(qpos), np.array(qvel)))
+            qpos, qvel, counter = [], [], 0
+            if step < steps - 1:
+                obs, _ = env.reset()
+                sample()
+    if qpos:
+        episodes.append(Episode(np.array(qpos), np.array(qvel)))
+    return episodes
