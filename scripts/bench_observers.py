@@ -90,11 +90,6 @@ def method_params(name: str, dt: float, params: dict) -> dict:
 # ================================================================================================================
 # plain-NumPy references: the same recursions, vectorized over channels, written from the equations
 # ================================================================================================================
-def spow(e, p):
-    """Signed power ``|e|^p sign(e)`` (``p = 0`` gives the sign function, 0 at 0)."""
-    return np.sign(e) * np.abs(e) ** p
-
-
 class NumpyHOSM:
     r"""Explicit HOSM differentiator in predictor form: ``z+ = A z - tau * sum_j g_ij [z_0 - y]^p_ij``.
 

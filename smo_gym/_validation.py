@@ -21,7 +21,6 @@ __all__ = [
     "as_real_array",
     "check_bool",
     "check_choice",
-    "check_finite_array",
     "check_int_at_least",
     "check_int_in_range",
     "check_keywords",
@@ -102,7 +101,7 @@ def as_real_array(name: str, value, *, copy: bool = False) -> np.ndarray:
     Accepted: numbers, (nested) sequences of numbers and arrays of integer or floating dtype, and object arrays
     whose entries are all real numbers. Rejected: bools, complex numbers, dates and durations, strings, ``None``
     and other objects, and ragged nested sequences (which NumPy cannot make an array of). Values are not checked
-    for finiteness (see :func:`check_finite_array`).
+    for finiteness.
     """
     try:
         arr = np.array(value, copy=copy or None)
@@ -197,17 +196,6 @@ def check_choice(name: str, value, choices: Iterable[str]) -> str:
             f"{_short(value)}{did_you_mean(value, choices)}"
         )
     return value
-
-
-def check_finite_array(name: str, arr: np.ndarray) -> None:
-    """Raise ``ValueError`` naming the first non-finite entry of ``arr``."""
-    bad = ~np.isfinite(arr)
-    if np.any(bad):
-        index = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(
-            f"expected finite values in {name}, actual value: {arr[index]!r} at index {index} "
-            f"(channel {index[-1] if index else 0})"
-        )
 
 
 def check_keywords(func: Callable) -> Callable:
