@@ -1,6 +1,6 @@
 """Tests of smo_gym.control: plants and strong observability, the cascaded HOSM observer, the controllers.
 
-Every closed-loop number asserted here is a property the slides (paper 004, sections 3 and 6) state: finite-time
+Every closed-loop number asserted here is a property Fridman's slides (sections 3 and 6) state: finite-time
 exact identification with error O(tau^alpha), compensation of matched disturbances by identification or by
 integral sliding mode, compensation of unmatched disturbances through the sliding surface. The sweeps with the
 tables and plots are in ``scripts/control_experiments.py``.
@@ -149,7 +149,7 @@ def _identification_errors(plant, alpha, dt, lipschitz, noise_std=0.0):
 # 1200 for k = 3 on the theta channel), as in smo_gym.experiments.control
 @pytest.mark.parametrize("alpha, lipschitz", [(1, 300.0), (2, 3000.0)])
 def test_identification_converges_with_the_theoretical_order(furuta, alpha, lipschitz):
-    """Paper 004, sec. 6: identification error O(tau^alpha), state error O(tau^(alpha+1)); fitted within 0.3."""
+    """Fridman's slides, sec. 6: identification error O(tau^alpha), state error O(tau^(alpha+1)); fitted within 0.3."""
     steps = [1e-3, 2e-3, 4e-3]
     runs = [_identification_errors(furuta, alpha, dt, lipschitz) for dt in steps]
     errs = np.array([r[:2] for r in runs])
