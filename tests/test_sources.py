@@ -2,7 +2,8 @@
 no comment, name or file refers to a work item by its number.
 
 The documentation site is checked as rendered in ``tests/test_docs.py``; this test reads the files themselves
-(code, tests, scripts, documentation sources, their file names), so that no build step has to translate them.
+(code, tests, scripts, documentation sources, the README and the changelog, their file names), so that no
+build step has to translate them.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ SUFFIXES = {".py", ".md", ".yml", ".yaml", ".toml", ".txt", ".cfg", ".xml", ".cs
 
 
 def _sources() -> list[Path]:
-    files = [ROOT / "README.md", ROOT / "mkdocs.yml"]
+    files = [ROOT / name for name in ("README.md", "CHANGELOG.md", "CITATION.cff", "mkdocs.yml", "Makefile")]
     for folder in ("smo_gym", "tests", "scripts", "docs"):
         files += [
             p
