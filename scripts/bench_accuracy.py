@@ -5,10 +5,10 @@ sensor preset and sampling rate.
 For each environment x sensor preset (:data:`smo_gym.sensors.PRESETS`: ``ideal``, ``encoder-12bit``,
 ``encoder-12bit-noisy``, ``low-cost``) x rate (``"physics"``: every MuJoCo step inside ``frame_skip``; ``"env"``:
 once per environment step), one rollout under a seeded smooth random policy is recorded with
-:func:`smo_gym.wrappers.compare.record_rollout` (the wrapper's own substep hook and
+:func:`smo_gym.experiments.compare.record_rollout` (the wrapper's own substep hook and
 :class:`~smo_gym.engine.measurement.JointMeasurement`), and every observer of :data:`smo_gym.observers.OBSERVERS`
 (all of them differentiate the measured joint coordinates; the model-based observers are not in it) runs on
-those same measurements through :func:`smo_gym.wrappers.compare.compare_observers`, with the wrapper's default
+those same measurements through :func:`smo_gym.experiments.compare.compare_observers`, with the wrapper's default
 gains (:func:`~smo_gym.wrappers.sensing.default_observer` from the calibrated bounds). ``FiniteDifference`` (the
 backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter, ``from_bounds``) are in the registry
 and so appear in every row as the references.
@@ -38,9 +38,9 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
+from smo_gym.experiments.compare import compare_observers, record_rollout
 from smo_gym.observers import OBSERVERS
 from smo_gym.wrappers import EstimatedVelocity
-from smo_gym.wrappers.compare import compare_observers, record_rollout
 
 ENVS = ("InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5")
 SENSORS = ("ideal", "encoder-12bit", "encoder-12bit-noisy", "low-cost")

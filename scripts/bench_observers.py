@@ -90,11 +90,6 @@ def method_params(name: str, dt: float, params: dict) -> dict:
 # ================================================================================================================
 # plain-NumPy references: the same recursions, vectorized over channels, written from the equations
 # ================================================================================================================
-def spow(e, p):
-    """Signed power ``|e|^p sign(e)`` (``p = 0`` gives the sign function, 0 at 0)."""
-    return np.sign(e) * np.abs(e) ** p
-
-
 class NumpyHOSM:
     r"""Explicit HOSM differentiator in predictor form: ``z+ = A z - tau * sum_j g_ij [z_0 - y]^p_ij``.
 
@@ -499,28 +494,26 @@ def record_half_cheetah(seconds: float, seed: int):
     import gymnasium as gym
     import mujoco
 
-    env = gym.make("HalfCheetah-v5")
-    env.reset(seed=seed)
-    u = env.unwrapped
-    model, data = u.model, u.data
+    from smo_gym.wrappers.rollout import rollout
+
+    env = gym.make("HalfCheetah-v5").unwrapped  # no time limit: one episode of ``seconds``
+    model = env.model
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(model.njnt)]
     allowed = {int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)}
     if not all(int(t) in allowed for t in model.jnt_type):  # qpos and qvel must be the same coordinates
         raise RuntimeError(f"expected hinge and slide joints only, actual value: types {model.jnt_type}")
-    h, skip = float(model.opt.timestep), int(u.frame_skip)
+    h, skip = float(model.opt.timestep), int(env.frame_skip)
     rng = np.random.default_rng(seed)
-    n_env = int(round(seconds / (h * skip)))
-    qpos, qvel = [data.qpos.copy()], [data.qvel.copy()]
     a = np.zeros(model.nu)
-    for _ in range(n_env):
+
+    def policy(_obs):
+        nonlocal a
         a = np.clip(0.8 * a + 0.6 * rng.uniform(-1, 1, model.nu), -1, 1)
-        data.ctrl[:] = a
-        for _ in range(skip):
-            mujoco.mj_step(model, data)
-            qpos.append(data.qpos.copy())
-            qvel.append(data.qvel.copy())
+        return a
+
+    (episode,) = rollout(env, policy, int(round(seconds / (h * skip))), sample_every=1, seed=seed)
     env.close()
-    return h, skip, names, np.array(qpos), np.array(qvel)
+    return h, skip, names, episode.qpos, episode.qvel
 
 
 def measure(qpos: np.ndarray, seed: int) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Output-feedback control experiments of section 6 of Fridman's lecture slides, Sliding Mode Observers.
 
-Prints the tables and writes the plots of :func:`smo_gym.control.experiments.run_all`:
+Prints the tables and writes the plots of :func:`smo_gym.experiments.control.run_all`:
 
 - identification accuracy of the cascaded HOSM observer vs the sampling step (fitted orders vs alpha, alpha + 1)
   and vs the noise level;
@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from smo_gym.control.experiments import add_arguments, cli
+from smo_gym.experiments.control import add_arguments, cli
 
 
 def main(argv=None) -> int:

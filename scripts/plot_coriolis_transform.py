@@ -37,23 +37,25 @@ from smo_gym import design
 from smo_gym._validation import DivergenceError
 from smo_gym.mechanics import MujocoDynamics
 from smo_gym.observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting
+from smo_gym.wrappers.rollout import rollout
 
 TOL = 0.05
 
 
 def trajectory(T=6000, seed=0, hold=200, scale=0.5):
+    """Physics-rate samples of the arm under random torques held for ``hold`` steps: ``(env, Q, V, U)``, ``U[k]``
+    the torque that acted before sample ``k``."""
     env = gym.make("smo_gym/VariableInertia-v0", frame_skip=1).unwrapped
-    env.reset(seed=seed)
     rng = np.random.default_rng(seed)
-    Q, V, U = [env.data.qpos[:1].copy()], [env.data.qvel[:1].copy()], [np.zeros(1)]
-    for k in range(T):
-        if k % hold == 0:
-            u = scale * rng.uniform(env.action_space.low, env.action_space.high)
-        env.step(u)
-        Q.append(env.data.qpos[:1].copy())
-        V.append(env.data.qvel[:1].copy())
+    U = [np.zeros(1)]
+
+    def policy(_obs):
+        u = scale * rng.uniform(env.action_space.low, env.action_space.high) if (len(U) - 1) % hold == 0 else U[-1]
         U.append(u.copy())
-    return env, np.array(Q), np.array(V), np.array(U)
+        return u
+
+    (episode,) = rollout(env, policy, T, seed=seed)  # the environment never terminates
+    return env, episode.qpos[:, :1].copy(), episode.qvel[:, :1].copy(), np.array(U)
 
 
 def errors(obs, Q, V, U, v0):

@@ -7,12 +7,13 @@ Usage::
     python scripts/reproduce_papers.py [--out outputs/papers] [--fast]
         [--papers efimov2017 lopez-ramirez2016 wetzlinger]
 
-Efimov et al. 2017 (switched-gain differentiator) is reproduced by ``scripts/repro_000.py`` (``reproduce_000``),
-imported when present. Lopez-Ramirez et al. 2016 (ILF finite-time / fixed-time observers, section V) and Wetzlinger
-et al. (discrete-time HOSM observer, section 6) are reproduced here with :class:`smo_gym.observers.ILFObserver`,
+Efimov et al. 2017 (switched-gain differentiator) is reproduced by ``reproduce_efimov2017`` of
+``scripts/reproduce_efimov2017.py``, imported when present. Lopez-Ramirez et al. 2016 (ILF finite-time /
+fixed-time observers, section V) and Wetzlinger et al. (discrete-time HOSM observer, section 6) are reproduced
+here with :class:`smo_gym.observers.ILFObserver`,
 :func:`smo_gym.design.ilf_gains` and :class:`smo_gym.observers.DiscreteTimeHOSM`. The experiment functions
-(``example_001``, ``run_ilf_errors``, ``simulate_003``, ...) are also what ``tests/test_ilf.py`` and
-``tests/test_discrete_hosm.py`` run, with coarser settings.
+(``lopez_ramirez_example``, ``run_ilf_errors``, ``simulate_wetzlinger_third_order``, ...) are also what
+``tests/test_ilf.py`` and ``tests/test_discrete_hosm.py`` run, with coarser settings.
 
 Lopez-Ramirez et al. 2016, how the errors are simulated
 ---------------------------------------
@@ -48,7 +49,7 @@ from smo_gym.observers import DiscreteTimeHOSM, ILFObserver
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def example_001() -> dict:
+def lopez_ramirez_example() -> dict:
     """The system, transformation and gains printed in section V of Lopez-Ramirez et al. 2016."""
     A = np.array([[1, 1, 2, 4, 5], [1, 3, 2, -1, -3], [2, 1, -3, 7, 3], [4, -2, 9, 1, -1], [1, -1, 0, 2, 1]], float)
     B = np.array([[0.0], [0.0], [0.0], [0.0], [1.0]])
@@ -118,7 +119,7 @@ def convergence_time(t: np.ndarray, norms: np.ndarray, tol: float) -> np.ndarray
     return out
 
 
-def run_real_plant_001(observer: ILFObserver, x0, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def run_real_plant(observer: ILFObserver, x0, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r"""Plant (1) with :math:`u = \sin t` held over each step (exact ZOH), observer from :math:`\hat x = 0`.
 
     Returns ``(t, x, xhat)`` with shapes ``(K + 1,)``, ``(K + 1, n)``, ``(K + 1, n)``.
@@ -139,10 +140,10 @@ def run_real_plant_001(observer: ILFObserver, x0, T: float) -> tuple[np.ndarray,
     return np.arange(K + 1) * h, x, xh
 
 
-def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> list[dict]:
+def reproduce_lopez_ramirez2016(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> list[dict]:
     """Section V of Lopez-Ramirez et al. 2016: both observers, the paper's gains and ours; claims against
     measurements."""
-    ex = example_001()
+    ex = lopez_ramirez_example()
     A, B, C = ex["A"], ex["B"], ex["C"]
     xs = ex["x_star"]
     claims: list[dict] = []
@@ -242,7 +243,7 @@ def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> 
 
     # Fig. 1: real plant, u = sin t, x(0) = 0.1 (1, -1, 1, -1, 1), xhat(0) = 0
     obs_fig1 = ILFObserver(A, C, ex["L_finite"], ex["mu_finite"], "finite", dt=h, B=B, decomposition=dec_paper)
-    t1, x, xh = run_real_plant_001(obs_fig1, 0.1 * xs, 1.5)
+    t1, x, xh = run_real_plant(obs_fig1, 0.1 * xs, 1.5)
     e1 = np.linalg.norm(x - xh, axis=1)
     x_at_1 = np.linalg.norm(x[int(round(1.0 / h))])
     claims.append(
@@ -289,7 +290,7 @@ def reproduce_001(out_dir: Path | None, h: float = 1e-3, fast: bool = False) -> 
         axes[2].set(title="001: finite-time observer, growing settling time", xlabel="t [s]", ylim=(1e-20, 1e10))
         axes[2].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out_dir / "paper_001.png", dpi=120)
+        fig.savefig(out_dir / "lopez_ramirez2016.png", dpi=120)
         plt.close(fig)
     claims.append(dict(claim="(timing) LMI designs", measured=f"{lmi_time:.1f} s", ok=True))
     return claims
@@ -358,7 +359,7 @@ def sigma3_observers(h: float = 0.01, p1: float = 30.0, mu: float = 1.0):
     }, sig2
 
 
-def simulate_003(h: float = 0.01, T: float = 10.0) -> dict:
+def simulate_wetzlinger_third_order(h: float = 0.01, T: float = 10.0) -> dict:
     r"""Section 6, system (73): errors :math:`\sigma_k = \xi_k - \hat\xi_k` of Sigma1, Sigma2, Sigma3, ``(K, 3)``."""
     X = simulate_plant(system_73, [np.pi / 8, 0.0, 0.0], h, T)
     K = X.shape[0] - 1
@@ -383,7 +384,7 @@ def simulate_003(h: float = 0.01, T: float = 10.0) -> dict:
     return errors
 
 
-def simulate_003_fourth(h: float = 0.01, T: float = 10.0, x0=(0.0, 0.0, 0.0, np.pi / 8)) -> dict:
+def simulate_wetzlinger_fourth_order(h: float = 0.01, T: float = 10.0, x0=(0.0, 0.0, 0.0, np.pi / 8)) -> dict:
     """The fourth-order example (p1 = 40, mu = 10): errors ``(K, 4)``; channel 4's ``-sin(x3) u`` unknown."""
     X = simulate_plant(system_4th, list(x0), h, T)
     K = X.shape[0] - 1
@@ -409,8 +410,8 @@ def band(errors: np.ndarray, t: np.ndarray, after: float) -> np.ndarray:
     return np.abs(errors[t >= after]).max(axis=0)
 
 
-def reproduce_003(out_dir: Path | None, T: float = 10.0) -> list[dict]:
-    res = simulate_003(T=T)
+def reproduce_wetzlinger(out_dir: Path | None, T: float = 10.0) -> list[dict]:
+    res = simulate_wetzlinger_third_order(T=T)
     t = res["t"]
     b = {name: band(res[name], t, 1.0) for name in ("Sigma1", "Sigma2", "Sigma3")}
     r1, r3 = b["Sigma1"][2] / b["Sigma2"][2], b["Sigma3"][2] / b["Sigma2"][2]
@@ -433,7 +434,7 @@ def reproduce_003(out_dir: Path | None, T: float = 10.0) -> list[dict]:
             ok=bool(res["stability_margin"] >= 0),
         ),
     ]
-    four = simulate_003_fourth(T=T)
+    four = simulate_wetzlinger_fourth_order(T=T)
     b4 = band(four["errors"], four["t"], 1.0)
     claims.append(
         dict(
@@ -462,38 +463,38 @@ def reproduce_003(out_dir: Path | None, T: float = 10.0) -> list[dict]:
             axes[1, i].semilogy(four["t"], np.abs(four["errors"][:, i]) + 1e-16, lw=0.8)
             axes[1, i].set(title=f"4th order: |sigma_{i + 1}|", xlabel="t [s]")
         fig.tight_layout()
-        fig.savefig(out_dir / "paper_003.png", dpi=120)
+        fig.savefig(out_dir / "wetzlinger.png", dpi=120)
         plt.close(fig)
     return claims
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Efimov et al. 2017 (from scripts/repro_000.py)
+# Efimov et al. 2017 (from scripts/reproduce_efimov2017.py)
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def reproduce_000(out_dir: Path | None) -> list[dict] | None:
-    path = Path(__file__).with_name("repro_000.py")
+def reproduce_efimov2017(out_dir: Path | None) -> list[dict] | None:
+    path = Path(__file__).with_name("reproduce_efimov2017.py")
     if not path.exists():
         return None
-    spec = importlib.util.spec_from_file_location("repro_000", path)
+    spec = importlib.util.spec_from_file_location("reproduce_efimov2017", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.reproduce_000(out_dir)
+    return module.reproduce_efimov2017(out_dir)
 
 
-#: ``--papers`` choice -> (citation, reproducing function's key)
+#: ``--papers`` choice -> citation
 PAPERS = {
-    "efimov2017": ("Efimov, Polyakov, Levant and Perruquetti 2017", "000"),
-    "lopez-ramirez2016": ("Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016", "001"),
-    "wetzlinger": ("Wetzlinger, Reichhartinger and Horn", "003"),
+    "efimov2017": "Efimov, Polyakov, Levant and Perruquetti 2017",
+    "lopez-ramirez2016": "Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016",
+    "wetzlinger": "Wetzlinger, Reichhartinger and Horn",
 }
 
 
 def _print(paper: str, claims: list[dict] | None) -> None:
-    print(f"\n=== {PAPERS[paper][0]} ===")
+    print(f"\n=== {PAPERS[paper]} ===")
     if claims is None:
-        print("pending (scripts/repro_000.py not present yet)")
+        print("pending (scripts/reproduce_efimov2017.py not present yet)")
         return
     for c in claims:
         print(f"[{'ok' if c['ok'] else 'DIFFERS'}] {c['claim']}\n        measured: {c['measured']}")
@@ -509,13 +510,12 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for paper in args.papers:
         t0 = time.perf_counter()
-        key = PAPERS[paper][1]
-        if key == "000":
-            claims = reproduce_000(out)
-        elif key == "001":
-            claims = reproduce_001(out, fast=args.fast)
+        if paper == "efimov2017":
+            claims = reproduce_efimov2017(out)
+        elif paper == "lopez-ramirez2016":
+            claims = reproduce_lopez_ramirez2016(out, fast=args.fast)
         else:
-            claims = reproduce_003(out)
+            claims = reproduce_wetzlinger(out)
         _print(paper, claims)
         print(f"({time.perf_counter() - t0:.1f} s)")
     print(f"\nfigures in {out.resolve()}")

@@ -21,7 +21,7 @@ __all__ = [
     "as_real_array",
     "check_bool",
     "check_choice",
-    "check_finite_array",
+    "check_int_at_least",
     "check_int_in_range",
     "check_keywords",
     "check_mask",
@@ -101,7 +101,7 @@ def as_real_array(name: str, value, *, copy: bool = False) -> np.ndarray:
     Accepted: numbers, (nested) sequences of numbers and arrays of integer or floating dtype, and object arrays
     whose entries are all real numbers. Rejected: bools, complex numbers, dates and durations, strings, ``None``
     and other objects, and ragged nested sequences (which NumPy cannot make an array of). Values are not checked
-    for finiteness (see :func:`check_finite_array`).
+    for finiteness.
     """
     try:
         arr = np.array(value, copy=copy or None)
@@ -159,6 +159,15 @@ def check_int_in_range(name: str, value, low: int, high: int) -> int:
     return int(value)
 
 
+def check_int_at_least(name: str, value, low: int) -> int:
+    """Return ``value`` as an int after checking ``value >= low``."""
+    if isinstance(value, _NOT_NUMBERS) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"expected {name} to be an integer >= {low}, actual value: {_short(value)}")
+    if int(value) < low:
+        raise ValueError(f"expected {name} >= {low}, actual value: {value!r}")
+    return int(value)
+
+
 def check_bool(name: str, value) -> bool:
     """Return ``value`` as a bool after checking it is one (``True``/``False`` or a NumPy bool, not ``"yes"``)."""
     if not isinstance(value, (bool, np.bool_)):
@@ -187,17 +196,6 @@ def check_choice(name: str, value, choices: Iterable[str]) -> str:
             f"{_short(value)}{did_you_mean(value, choices)}"
         )
     return value
-
-
-def check_finite_array(name: str, arr: np.ndarray) -> None:
-    """Raise ``ValueError`` naming the first non-finite entry of ``arr``."""
-    bad = ~np.isfinite(arr)
-    if np.any(bad):
-        index = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(
-            f"expected finite values in {name}, actual value: {arr[index]!r} at index {index} "
-            f"(channel {index[-1] if index else 0})"
-        )
 
 
 def check_keywords(func: Callable) -> Callable:

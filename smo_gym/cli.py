@@ -1,9 +1,9 @@
 """Command line: ``smo-gym compare`` (observers side by side on the same measurements of a MuJoCo rollout).
 
 ``smo-gym train`` / ``evaluate``: reinforcement learning under realistic sensing (:mod:`smo_gym.cli_rl`);
-``smo-gym control``: the output-feedback control experiments of :mod:`smo_gym.control.experiments`.
+``smo-gym control``: the output-feedback control experiments of :mod:`smo_gym.experiments.control`.
 
-Thin by design: parsing, checking and printing only; the work is :mod:`smo_gym.wrappers.compare` and
+Thin by design: parsing, checking and printing only; the work is :mod:`smo_gym.experiments.compare` and
 :mod:`smo_gym.rl`. Every argument is checked before any work starts, and a wrong one ends the command with one line
 on stderr (exit status 2), not a traceback. Observers and sensors are written ``name:key=value:...``
 (:mod:`smo_gym.specs`).
@@ -72,7 +72,7 @@ def spec_help(kind: str) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
-    from .wrappers.compare import TABLE_COLUMNS
+    from .experiments.compare import TABLE_COLUMNS
 
     parser = argparse.ArgumentParser(prog="smo-gym", description=__doc__.splitlines()[0], formatter_class=HelpFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -122,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cmp_.add_argument("--per-joint", action="store_true", help="also print the RMSE of every dof (default: off)")
     cmp_.add_argument("--no-progress", action="store_true", help="no progress bar (default: a bar from 200 steps)")
-    from .control.experiments import add_subcommand as add_control
+    from .experiments.control import add_subcommand as add_control
 
     add_control(sub)
     from .cli_rl import add_subcommands as add_rl
@@ -177,8 +177,8 @@ def check_output_file(path: str) -> Path:
 
 
 def compare(args: argparse.Namespace) -> int:
+    from .experiments import compare as lib
     from .specs import make_sensor, parse_observer_spec
-    from .wrappers import compare as lib
 
     # every argument is checked before the rollout
     if args.steps < 1:
@@ -219,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
 
             return rl(args)
         if args.command == "control":
-            from .control.experiments import cli as control
+            from .experiments.control import cli as control
 
             return control(args)
     except (ValueError, TypeError, MissingExtraError) as exc:

@@ -618,12 +618,6 @@ def _returns(model, venv, episodes: int, deterministic: bool = True) -> np.ndarr
     return np.asarray(rewards, dtype=float)
 
 
-DEFAULT_HYPERPARAMS = {
-    "PPO": {},  # SB3 defaults (n_steps=2048, batch_size=64, n_epochs=10, lr=3e-4), with VecNormalize
-    "SAC": {},
-}
-
-
 def _describe(sensor) -> str:
     return sensor if isinstance(sensor, str) else repr(sensor)
 
@@ -704,8 +698,7 @@ def train(
     make_sensor(sensor)  # check the specs before anything is made
     _observer(sensing, observer, observer_kwargs)
     normalize = (algo == "PPO") if normalize is None else _normalize_option(normalize)
-    raw_params = dict(DEFAULT_HYPERPARAMS[algo])
-    raw_params.update(hyperparams or {})
+    raw_params = dict(hyperparams or {})  # SB3's defaults for everything not given
     params = algo_kwargs(algo, raw_params)
     out = check_run_folder(out, overwrite)
     created = out

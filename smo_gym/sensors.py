@@ -936,15 +936,6 @@ PRESETS: dict[str, Callable[[], Sensor]] = {
     "drifting": lambda: Chain(Bias(std=5e-3), Drift(2e-3), Encoder(counts_per_revolution=4096, noise_std=1e-3)),
     "outliers": lambda: Chain(Encoder(counts_per_revolution=4096, noise_std=1e-3), Outliers(1e-3, 0.1)),
 }
-PRESET_DESCRIPTIONS = {
-    "ideal": "exact positions",
-    "encoder-12bit": "4096 counts/rev (1.5e-3 rad)",
-    "encoder-12bit-noisy": "4096 counts/rev with 1e-3 rad Gaussian noise before the counter",
-    "encoder-16bit": "65536 counts/rev (9.6e-5 rad)",
-    "low-cost": "3e-3 rad noise, 10-bit, 2-sample delay, 2% lost packets (held)",
-    "drifting": "per-episode bias (5e-3), random walk 2e-3/sqrt(s), noisy 12-bit encoder",
-    "outliers": "noisy 12-bit encoder with 0.1 % gross errors of 0.1 rad",
-}
 
 
 @check_keywords

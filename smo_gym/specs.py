@@ -1,7 +1,7 @@
 r"""Observers and sensors written as text: ``name:key=value:key=value`` (the command line's syntax).
 
 One syntax for both, shared by ``smo-gym compare``, ``train`` and ``evaluate`` and by
-:mod:`smo_gym.wrappers.compare`:
+:mod:`smo_gym.experiments.compare`:
 
 ``levant:order=1:discretization=matching``
     an observer of :data:`smo_gym.observers.OBSERVERS` with constructor options (gains not given are calibrated

@@ -621,10 +621,6 @@ def _disc(cls):
     return st.one_of(good, good, good, st.sampled_from(["implict", "rk4", 3]))
 
 
-def _hurwitz(m):
-    return st.one_of(st.none(), st.just(list(np.poly(-np.ones(m))[1:])), st.just([1.0] * (m - 1) + [-1.0]))
-
-
 OBSERVER_FAMILIES = [
     Family(
         "SuperTwisting",

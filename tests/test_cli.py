@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from smo_gym import cli
+from smo_gym.experiments import compare as lib
 from smo_gym.wrappers import EstimatedVelocity
-from smo_gym.wrappers import compare as lib
 
 
 @pytest.fixture(autouse=True)

@@ -1,6 +1,6 @@
 """Tests of smo_gym.control: plants and strong observability, the cascaded HOSM observer, the controllers.
 
-Every closed-loop number asserted here is a property the slides (paper 004, sections 3 and 6) state: finite-time
+Every closed-loop number asserted here is a property Fridman's slides (sections 3 and 6) state: finite-time
 exact identification with error O(tau^alpha), compensation of matched disturbances by identification or by
 integral sliding mode, compensation of unmatched disturbances through the sliding surface. The sweeps with the
 tables and plots are in ``scripts/control_experiments.py``.
@@ -146,10 +146,10 @@ def _identification_errors(plant, alpha, dt, lipschitz, noise_std=0.0):
 
 
 # differentiator bounds: ~2.5-3x output_error_lipschitz(furuta, k, w_bounds=0.4 * 2.5**i) (about 100 for k = 2 and
-# 1200 for k = 3 on the theta channel), as in smo_gym.control.experiments
+# 1200 for k = 3 on the theta channel), as in smo_gym.experiments.control
 @pytest.mark.parametrize("alpha, lipschitz", [(1, 300.0), (2, 3000.0)])
 def test_identification_converges_with_the_theoretical_order(furuta, alpha, lipschitz):
-    """Paper 004, sec. 6: identification error O(tau^alpha), state error O(tau^(alpha+1)); fitted within 0.3."""
+    """Fridman's slides, sec. 6: identification error O(tau^alpha), state error O(tau^(alpha+1)); fitted within 0.3."""
     steps = [1e-3, 2e-3, 4e-3]
     runs = [_identification_errors(furuta, alpha, dt, lipschitz) for dt in steps]
     errs = np.array([r[:2] for r in runs])
@@ -285,7 +285,7 @@ def test_unmatched_compensation_beats_lqr_tenfold():
 def test_mujoco_furuta_compensation_beats_lqr_tenfold():
     """The MuJoCo environment (nonlinear, RK4) through EstimatedVelocity, linearized model, 12-bit encoders."""
     pytest.importorskip("gymnasium")
-    from smo_gym.control.experiments import furuta_mujoco_experiment
+    from smo_gym.experiments.control import furuta_mujoco_experiment
 
     rows, _ = furuta_mujoco_experiment(frame_skips=(1,), t_final=7.0, t_steady=4.0)
     sse = {r["controller"]: r["max |theta|,|alpha|"] for r in rows}

@@ -1,4 +1,4 @@
-"""Gain helpers and linear recursions re-derived independently in the test (issue 2).
+"""Gain helpers and linear recursions re-derived independently in the test.
 
 Each test implements the published formula itself (Levant's recursive form (7), Ackermann's formula, a textbook
 Kalman filter, backward Euler) in plain NumPy and compares it with the library.
@@ -32,7 +32,7 @@ def spow(x, p):
 # Levant's lambdas: recursive (7) and non-recursive forms
 # ----------------------------------------------------------------------------------------------------------------
 def test_levant_lambda_table():
-    """Paper 004 below (7): lambda_0..5 = 1.1, 1.5, 2, 3, 5, 8; ``recursive`` lists them in state order."""
+    """Fridman's slides below (7): lambda_0..5 = 1.1, 1.5, 2, 3, 5, 8; ``recursive`` lists them in state order."""
     assert LEVANT_LAMBDAS == (1.1, 1.5, 2.0, 3.0, 5.0, 8.0)
     for k in range(1, 6):
         np.testing.assert_array_equal(levant_lambdas(k, "recursive"), [LEVANT_LAMBDAS[k - i] for i in range(k + 1)])
@@ -45,7 +45,7 @@ def test_levant_nonrecursive_values(k, expected):
 
 
 def levant_rhs_recursive(z, f, L, k):
-    r"""Right-hand side of eq. (7) of paper 004, written recursively as printed:
+    r"""Right-hand side of eq. (7) of Fridman's slides, written recursively as printed:
 
     .. math:: \nu_0 = -\lambda_k L^{1/(k+1)}\lceil z_0 - f\rfloor^{k/(k+1)} + z_1,\quad
               \nu_i = -\lambda_{k-i} L^{1/(k+1-i)}\lceil z_i - \nu_{i-1}\rfloor^{(k-i)/(k+1-i)} + z_{i+1},\quad
@@ -125,7 +125,7 @@ def test_super_twisting_and_binomial_gains():
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Ackermann's formula and paper 003's eigenvalue-mapping gains
+# Ackermann's formula and Wetzlinger et al.'s eigenvalue-mapping gains
 # ----------------------------------------------------------------------------------------------------------------
 def random_poles(rng, n):
     """``n`` stable poles, with a complex-conjugate pair when ``n >= 2``."""
@@ -170,7 +170,7 @@ def independent_ackermann_repeated(A, z):
 @pytest.mark.parametrize("m", [2, 3, 4, 5, 6])
 @pytest.mark.parametrize("dt", [1e-3, 0.01, 0.1])
 def test_eigenvalue_mapping_vectors_place_all_eigenvalues_at_z(m, dt, rng):
-    r"""Paper 003, (35): :math:`l(z) = \sum_j (-z)^{m-j} v_j` gives :math:`\det(sI - A + l c^T) = (s - z)^m`.
+    r"""Wetzlinger et al., (35): :math:`l(z) = \sum_j (-z)^{m-j} v_j` gives :math:`\det(sI - A + l c^T) = (s - z)^m`.
 
     Compared through the characteristic polynomial, not the eigenvalues: ``A - l c^T`` is a single Jordan block,
     whose eigenvalues move by :math:`O(\delta^{1/m})` under a perturbation :math:`\delta`.
@@ -190,7 +190,7 @@ def test_eigenvalue_mapping_vectors_place_all_eigenvalues_at_z(m, dt, rng):
 @pytest.mark.parametrize("mode", ["semi-implicit", "matching"])
 @pytest.mark.parametrize("k", [1, 2, 4])
 def test_eigenvalue_mapping_step(mode, k, rng):
-    r"""One step of ``Levant(discretization="semi-implicit"/"matching")`` is paper 003's
+    r"""One step of ``Levant(discretization="semi-implicit"/"matching")`` is Wetzlinger et al.'s
     :math:`\hat\xi^+ = A\hat\xi + l(z_n(\sigma))\,\sigma`, with :math:`\sigma = y - \hat\xi_1` and the eigenvalue
     (15) :math:`z = |\sigma|^{1/n}/(h p_1\mu|\sigma| + |\sigma|^{1/n} + h p_1)` or (16)
     :math:`z = \exp(-h p_1 (1 + \mu|\sigma|)/|\sigma|^{1/n})`, all computed here from the paper."""

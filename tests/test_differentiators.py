@@ -1,4 +1,4 @@
-"""Accuracy, noise, uniformity and chattering properties of the model-free differentiators (issue 2).
+"""Accuracy, noise, uniformity and chattering properties of the model-free differentiators.
 
 Every test measures a property the papers prove (or one derived in the docstring) on the reference signal
 ``f(t) = sin t + 0.5 cos 2t`` of ``conftest.py``; slopes are least-squares fits on log-log axes.
@@ -84,7 +84,7 @@ def test_levant_euler_is_first_order(order):
 @pytest.mark.parametrize("mode", ["semi-implicit", "matching"])
 @pytest.mark.parametrize("order", [1, 2, 3])
 def test_eigenvalue_mapping_error_orders(mode, order):
-    r"""Paper 003's observers propagate with the full Taylor matrix (31), so they keep the Taylor-form orders.
+    r"""Wetzlinger et al.'s observers propagate with the full Taylor matrix (31), so they keep the Taylor-form orders.
 
     Measured: slopes :math:`k+1-i` within 0.1 for both mappings (15) and (16) at these steps. (At coarser steps,
     4-16 ms, the semi-implicit mapping with ``k = 3`` drifts to ``(3.5, 2.7, 1.8, 0.9)``: its eigenvalue

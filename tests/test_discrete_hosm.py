@@ -1,4 +1,4 @@
-r"""Paper 003: the discrete-time HOSM observer (33), its Ackermann gains, mappings and the section 6 examples."""
+r"""Wetzlinger et al.: the discrete-time HOSM observer (33), its Ackermann gains, mappings, section 6 examples."""
 
 from __future__ import annotations
 
@@ -249,7 +249,7 @@ def test_typed_errors():
 # ----------------------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def section6():
-    return repro.simulate_003(h=0.01, T=5.0)
+    return repro.simulate_wetzlinger_third_order(h=0.01, T=5.0)
 
 
 def test_section6_band_of_sigma3(section6):
@@ -274,7 +274,7 @@ def test_fourth_order_example_precision():
     r"""Fourth-order example (p1 = 40, mu = 10, channel 4's term unknown): the paper reads precisions from ~1e-7
     (first state) to ~0.4 (last). Measured: 3.5e-9, 2.8e-6, 1.8e-3, 6.7e-3 — increasing along the chain and below
     the printed values (the printed initial state lost an entry; (0, 0, 0, pi/8) is used)."""
-    res = repro.simulate_003_fourth(T=4.0)
+    res = repro.simulate_wetzlinger_fourth_order(T=4.0)
     b = repro.band(res["errors"], res["t"], 1.0)
     assert b[0] <= 1e-7 and b[-1] <= 0.4
     assert np.all(np.diff(np.log10(b)) > 0.3)

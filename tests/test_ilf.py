@@ -1,4 +1,4 @@
-r"""Paper 001: block decomposition, LMI tuning (Algorithms 9 and 12) and the sampled ILF observers.
+r"""Lopez-Ramirez et al. 2016: block decomposition, LMI tuning (Algorithms 9 and 12) and the sampled ILF observers.
 
 The acceptance claims of section V are checked with the paper's printed gains (faithful reproduction) and with
 the gains our LMI design returns, on the error sequence of the sampled observer (autonomous: see
@@ -25,7 +25,7 @@ _spec = importlib.util.spec_from_file_location(
 repro = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(repro)
 
-EX = repro.example_001()
+EX = repro.lopez_ramirez_example()
 A, B, C, XS = EX["A"], EX["B"], EX["C"], EX["x_star"]
 
 
@@ -203,7 +203,7 @@ def test_error_sequence_is_independent_of_the_plant(paper_decomposition):
     """The exact ZOH prediction makes the error autonomous: the real plant (u = sin t, x(0) = 0.1 x*, xhat(0) = 0)
     and the zero plant with xhat(0) = -0.1 x* give the same errors (to float resolution of the plant state)."""
     kw = dict(dt=1e-2, B=B, decomposition=paper_decomposition)
-    _t, x, xh = repro.run_real_plant_001(ILFObserver(A, C, EX["L_finite"], 1.0, "finite", **kw), 0.1 * XS, 0.6)
+    _t, x, xh = repro.run_real_plant(ILFObserver(A, C, EX["L_finite"], 1.0, "finite", **kw), 0.1 * XS, 0.6)
     _, norms = repro.run_ilf_errors(ILFObserver(A, C, EX["L_finite"], 1.0, "finite", **kw), 0.1 * XS, 0.6)
     real = np.linalg.norm(x - xh, axis=1)
     np.testing.assert_allclose(real, norms[:, 0], rtol=1e-6, atol=1e-12 * np.abs(x).max())

@@ -110,7 +110,7 @@ def test_the_core_runs_without_extras(tmp_path):
         ("design", "from smo_gym import design; design.switched_gain_lmi(n=2, kappa=1.0, rho_d=1.0, rho_v=1.0)"),
         ("dm_control", "from smo_gym.wrappers import make_dm_control; make_dm_control('cartpole', 'swingup')"),
         ("dm_control", "import smo_gym.envs; smo_gym.envs.make('dm_control/cartpole-swingup-v0')"),
-        ("plots", "from smo_gym.control.experiments import _plt; _plt()"),
+        ("plots", "from smo_gym.experiments.control import _plt; _plt()"),
     ],
 )
 def test_a_missing_extra_is_named(extra, code):

@@ -1,4 +1,4 @@
-"""Low-power peaking-free high-gain observer (paper 002; Astolfi and Marconi 2015) against HighGain (2)."""
+"""Low-power peaking-free high-gain observer (Astolfi et al. 2018; Astolfi and Marconi 2015) against HighGain (2)."""
 
 from __future__ import annotations
 

@@ -258,7 +258,7 @@ def test_dissipative_converges_where_untransformed_escapes(variable_inertia):
 
 
 def test_saturation_prevents_escape(variable_inertia):
-    """Same large error, model term clipped at L_gamma (paper 003 eq. (33)): no escape. The clipped model then
+    """Same large error, model term clipped at L_gamma (Wetzlinger et al. eq. (33)): no escape. The clipped model then
     errs by at most 2 L_gamma while the estimate is wrong, so the theory guarantees convergence once the
     discontinuous gain covers that (L = 2 L_gamma + the true disturbance bound), and not with the small L alone
     (measured: with L = 5 and L_gamma = 100 the +100x case does not converge in 4 s)."""

@@ -1,4 +1,4 @@
-"""The compiled kernels' fast paths (issue 2, speed): vectorizable roots, specialised steps, status codes.
+"""The compiled kernels' fast paths: vectorizable roots, specialised steps, status codes.
 
 The batch kernels of :mod:`smo_gym.observers._kernels` run specialised, vectorized loops for the common orders;
 these tests hold them to the generic per-channel steps they replace, and the helper maths to long-double

@@ -1,4 +1,4 @@
-"""Switched-gain differentiator of paper 000: step (11), supervisor (7)-(9), Remark 9, Section 6, API."""
+"""Switched-gain differentiator of Efimov et al. 2017: step (11), supervisor (7)-(9), Remark 9, Section 6, API."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _load_repro():
-    spec = importlib.util.spec_from_file_location("repro_000", ROOT / "scripts" / "repro_000.py")
+    spec = importlib.util.spec_from_file_location("reproduce_efimov2017", ROOT / "scripts" / "reproduce_efimov2017.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -23,7 +23,7 @@ def _load_repro():
 
 # ---- Section 6 ---------------------------------------------------------------------------------------------------
 def test_section6_reproduction(tmp_path):
-    """Paper 000, Section 6, both cases (h, omega) = (0.01, 25) and (0.001, 250).
+    """Efimov et al. 2017, Section 6, both cases (h, omega) = (0.01, 25) and (0.001, 250).
 
     Asserted with tolerances on what the paper reports: l, P, mu_min = 10.42, mu_max = 108.69, T0 = 9.11; the
     switching schedule mu = 10, 20, 40, 80 then the reset to mu_min (160 > mu_max stops it), each switch within
@@ -40,13 +40,13 @@ def test_section6_reproduction(tmp_path):
     whatever the initial error (1, 1e3, 1e6), before T0 = 9.11, against 11.3 s for the fixed gain mu = 1.
     """
     repro = _load_repro()
-    results = repro.reproduce_000(tmp_path)
+    results = repro.reproduce_efimov2017(tmp_path)
     failed = [r for r in results if not r["ok"]]
     assert not failed, failed
     assert len(results) == 9
     assert sorted(p.name for p in tmp_path.glob("*.png")) == [
-        "paper000_fig1_h0.01_omega25.png",
-        "paper000_fig2_h0.001_omega250.png",
+        "efimov2017_fig1_h0.01_omega25.png",
+        "efimov2017_fig2_h0.001_omega250.png",
     ]
     obs = SwitchedGain(dt=0.001, order=1, q=2.0, alpha=1.0, mu0=10.0, disturbance=1 + np.pi**2, noise=0.1)
     gains = [mu for _, mu in obs.schedule()]

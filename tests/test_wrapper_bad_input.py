@@ -22,7 +22,7 @@ from smo_gym.wrappers import EstimatedVelocity
 
 ENV = "InvertedPendulum-v5"
 TYPED = (TypeError, ValueError, RuntimeError)
-#: the number of examples each sweep ran, checked at the end (the closing note reports them)
+#: the number of examples each sweep ran, checked at the end
 TRIED = {"construct": 0, "constructed": 0, "methods": 0}
 
 junk = st.one_of(

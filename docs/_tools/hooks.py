@@ -10,9 +10,8 @@ Markers in a page's Markdown, replaced before conversion:
     ``summary.csv`` of ``scripts/rl_benchmark.py``: mean +- standard deviation over seeds of the return, one row
     per sensing (trained on -> evaluated on), one column per environment and budget.
 
-After conversion (every page, the API reference included) two conventions of the docstrings are made readable:
-Sphinx roles (``:class:`~smo_gym.observers.Levant``` -> ``Levant`` as code) and the short labels of the five
-source documents (``paper 003``) -> their authors and year (the References page lists them in full).
+After conversion (every page, the API reference included) the Sphinx roles of the docstrings are made readable:
+``:class:`~smo_gym.observers.Levant``` -> ``Levant`` as code.
 """
 
 from __future__ import annotations
@@ -24,17 +23,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 
-#: short label of a source document in the code's comments -> author-year citation (see docs/references.md)
-PAPER_CITATIONS = {
-    "000": "Efimov et al. 2017",
-    "001": "Lopez-Ramirez et al. 2016",
-    "002": "Astolfi et al. 2018",
-    "003": "Wetzlinger et al.",
-    "004": "Fridman's lecture slides",
-}
-
 _MARKER = re.compile(r"^<!-- (results-text|results-returns): (\S+) -->$", re.MULTILINE)
-_PAPER = re.compile(r"\b([Pp])aper (00[0-4])\b")
 _ROLE = re.compile(r":(?:py:)?(?:class|func|meth|mod|data|attr|exc|obj|const):<code>(~?)([^<]*)</code>")
 
 
@@ -114,7 +103,4 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
 
 
 def on_page_content(content: str, page, config, files) -> str:
-    content = _ROLE.sub(
-        lambda m: f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>", content
-    )
-    return _PAPER.sub(lambda m: PAPER_CITATIONS[m.group(2)], content)
+    return _ROLE.sub(lambda m: f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>", content)

@@ -1,4 +1,4 @@
-"""Output-feedback control of linear plants with unknown inputs (paper 004, sections 3 and 6).
+"""Output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 3 and 6).
 
 Disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
 and compensation of unmatched disturbances through the sliding surface; plants from the slides or linearized

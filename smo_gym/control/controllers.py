@@ -8,9 +8,9 @@ Every controller owns its observer and is stepped once per sample::
     nominal :math:`u = -K\hat x` (with :func:`lqr` for ``K``); with a :class:`LuenbergerObserver` it is the
     baseline "LQR with a Luenberger observer".
 :class:`CompensationController`
-    HOSM identification and compensation, continuous: :math:`u = -K\hat x - \hat w` (paper 004, section 6).
+    HOSM identification and compensation, continuous: :math:`u = -K\hat x - \hat w` (Fridman's slides, section 6).
 :class:`IntegralSlidingModeController`
-    output-based integral sliding mode, discontinuous (paper 004, section 6).
+    output-based integral sliding mode, discontinuous (Fridman's slides, section 6).
 :class:`UnmatchedCompensationController`
     unmatched disturbances compensated through the sliding surface (Ferreira et al. 2013, and its extension to
     disturbances that need derivatives of ``w_hat``, the linear form of Ferreira et al. 2015).
@@ -21,7 +21,7 @@ is continuous and needs a bound on the *derivative* of what it rejects.
 
 References
 ----------
-.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides (paper 004), section 6.
+.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides, section 6.
 .. [FBF11] A. Ferreira de Loza, F. J. Bejarano and L. Fridman, "Unmatched uncertainties compensation based on
    high-order sliding mode observation", Int. J. Robust Nonlinear Control, 2013 (and Ferreira et al., 2011,
    on compensation vs integral sliding mode).
@@ -157,7 +157,7 @@ class StateFeedback:
 
 
 class CompensationController(StateFeedback):
-    r"""HOSM identification and compensation control (continuous; paper 004, section 6).
+    r"""HOSM identification and compensation control (continuous; Fridman's slides, section 6).
 
     .. math:: u = -K\hat x - B^+ D\,\hat w,
 
@@ -192,7 +192,7 @@ class CompensationController(StateFeedback):
 
 
 class IntegralSlidingModeController(StateFeedback):
-    r"""Output-based integral sliding mode control (discontinuous; paper 004, section 6).
+    r"""Output-based integral sliding mode control (discontinuous; Fridman's slides, section 6).
 
     .. math::
         s(t) = B^+\Big[\hat x(t) - \hat x(T) - \int_T^t \big(A\hat x(\tau) + Bu_n(\tau)\big)\,d\tau\Big],\qquad
@@ -255,7 +255,7 @@ class IntegralSlidingModeController(StateFeedback):
 
 
 class UnmatchedCompensationController(StateFeedback):
-    r"""Compensation of unmatched disturbances through the sliding surface ([FBF11]; paper 004, section 6).
+    r"""Compensation of unmatched disturbances through the sliding surface ([FBF11]; Fridman's slides, section 6).
 
     In the regular form :math:`x_1 = B^\perp x,\ x_2 = B^+ x` (:func:`regular_form`),
 

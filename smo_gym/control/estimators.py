@@ -3,7 +3,7 @@ r"""Sampled-data state observers for linear plants with unknown inputs.
 :class:`LuenbergerObserver`
     the classical observer (the baseline, and the first stage of the cascade).
 :class:`CascadedHOSMObserver`
-    Fridman, Levant and Davila's cascade (paper 004, section 3, eq. (10)-(11); the "HOSM algebraic observer" of
+    Fridman, Levant and Davila's cascade (Fridman's slides, section 3, eq. (10)-(11); the "HOSM algebraic observer" of
     section 6): a Luenberger observer bounds the estimation error, a HOSM differentiator
     (:class:`smo_gym.observers.Levant`, the same one the rest of smo_gym uses) differentiates the output error,
     Molinari's algebraic relation turns those derivatives into the state error, and the unknown input is
@@ -33,7 +33,7 @@ its accuracy ``O(L tau^(k+1-j))``. The identification then uses ``A`` (not ``A -
 formula. ``L_d`` puts the eigenvalues of :math:`e^{A\tau}(I - L_d C)` at :math:`e^{\lambda_i\tau}` for the
 continuous-time poles :math:`\lambda_i` requested.
 
-Accuracy (paper 004, section 6, after Angulo et al. 2011)
+Accuracy (Fridman's slides, section 6, after Angulo et al. 2011)
 ---------------------------------------------------------
 With Molinari's relation needing output derivatives up to ``N`` and the differentiator of order
 ``k = N + alpha`` (``alpha >= 1``: the number of bounded derivatives of ``w`` the estimate exploits), the state
@@ -44,7 +44,7 @@ References
 ----------
 .. [FLD07] L. Fridman, A. Levant and J. Davila, "Observation of linear systems with unknown inputs via high-order
    sliding-modes", Int. J. Systems Science 38(10), 2007.
-.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides (paper 004), sections 3 and 6.
+.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides, sections 3 and 6.
 .. [AMF11] M. T. Angulo, L. Fridman and A. Levant, "Robust exact finite-time output based control using high-order
    sliding modes", Int. J. Systems Science 42(11), 2011.
 .. [Mol76] B. P. Molinari, "A strong controllability and observability in linear multivariable control",
@@ -183,7 +183,7 @@ class LuenbergerObserver:
 
 
 class CascadedHOSMObserver:
-    r"""Cascaded HOSM observer with unknown-input identification ([FLD07]; paper 004, sections 3 and 6).
+    r"""Cascaded HOSM observer with unknown-input identification ([FLD07]; Fridman's slides, sections 3 and 6).
 
     .. math::
         \hat x_k = \tilde x_k^- + \hat e_k,\qquad \hat e_k = M^+ Q\,\hat Y_k,\qquad
@@ -314,7 +314,7 @@ class CascadedHOSMObserver:
         The differentiator's ``j``-th derivative has error ``O(L tau^(k+1-j))`` (Livne & Levant 2014), so an
         estimate that is a linear map of the derivative stack has the order of the highest derivative it weights.
         For outputs of relative degree 2 (positions of a mechanical system, the slides' examples) the state uses
-        ``y_e'`` and the identification ``y_e''``: orders ``alpha + 1`` and ``alpha``, the table of paper 004,
+        ``y_e'`` and the identification ``y_e''``: orders ``alpha + 1`` and ``alpha``, the table of Fridman's slides,
         section 6. With an output of relative degree 1, ``w`` may be read from ``y_e'`` alone and the
         identification gains one order; the maps below say which.
         """

@@ -1,6 +1,6 @@
 r"""Linear plants with unknown inputs, their strong-observability checks, and the slides' example models.
 
-A plant is the triple of paper 004, section 3, eq. (9), with a control input:
+A plant is the triple of Fridman's slides, section 3, eq. (9), with a control input:
 
 .. math::
     \dot x = A x + B u + D w,\qquad y = C x,
@@ -11,7 +11,7 @@ MuJoCo lazily.
 
 References
 ----------
-.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides (paper 004), sections 3 and 6.
+.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides, sections 3 and 6.
 .. [FLD07] L. Fridman, A. Levant and J. Davila, "Observation of linear systems with unknown inputs via high-order
    sliding-modes", Int. J. Systems Science 38(10), 2007.
 .. [Mol76] B. P. Molinari, "A strong controllability and observability in linear multivariable control",
@@ -114,7 +114,7 @@ def left_annihilator(M: np.ndarray) -> np.ndarray:
 
 
 def relative_degrees(A, C, D) -> np.ndarray:
-    r"""Relative degree of every output row with respect to the unknown input (paper 004, section 3).
+    r"""Relative degree of every output row with respect to the unknown input (Fridman's slides, section 3).
 
     .. math:: c_i A^j D = 0,\ j = 0..r_i - 2,\qquad c_i A^{r_i - 1} D \neq 0.
 
@@ -305,7 +305,7 @@ class MolinariDecoupling:
 
     .. math:: M x = Q\,\begin{bmatrix} y \\ \dot y \\ \vdots \\ y^{(N)} \end{bmatrix},
 
-    valid for *every* unknown input ``w`` (paper 004, eq. (12); [Mol76]).
+    valid for *every* unknown input ``w`` (Fridman's slides, eq. (12); [Mol76]).
 
     Attributes
     ----------
@@ -334,7 +334,7 @@ class MolinariDecoupling:
 
 
 def molinari_decoupling(A, C, D) -> MolinariDecoupling:
-    r"""Molinari's decoupling algorithm (paper 004, section 3; [Mol76]).
+    r"""Molinari's decoupling algorithm (Fridman's slides, section 3; [Mol76]).
 
     With :math:`M_1 = C` (so :math:`M_1 x = y`), each step removes the unknown input from the derivative of what
     is known:
@@ -400,7 +400,7 @@ class StrongObservabilityReport:
 
 
 def strong_observability(A, C=None, D=None) -> StrongObservabilityReport:
-    r"""Check that ``(A, C, D)`` is strongly observable (paper 004, section 3; [Hau83]).
+    r"""Check that ``(A, C, D)`` is strongly observable (Fridman's slides, section 3; [Hau83]).
 
     Equivalent conditions: the state can be recovered from ``y`` and its derivatives whatever ``w`` is; the
     Rosenbrock matrix has full column rank ``n + m`` for every complex ``s`` (full normal rank and no invariant
@@ -468,7 +468,7 @@ def strong_observability(A, C=None, D=None) -> StrongObservabilityReport:
 
 
 class LinearPlant:
-    r"""A linear plant with a known control and an unknown input (paper 004, eq. (9)).
+    r"""A linear plant with a known control and an unknown input (Fridman's slides, eq. (9)).
 
     .. math:: \dot x = A x + B u + D w(t),\qquad y = C x.
 
@@ -559,7 +559,7 @@ class LinearPlant:
 
 
 def furuta_slides(*, as_printed: bool = False) -> LinearPlant:
-    r"""The Furuta pendulum of paper 004, section 6 ("Experiments"), linearized upright.
+    r"""The Furuta pendulum of Fridman's slides, section 6 ("Experiments"), linearized upright.
 
     ``x = [theta, alpha, theta_dot, alpha_dot]`` (arm angle, pendulum angle from upright), both angles measured,
     ``B = D`` (the disturbance is matched), the slides' disturbance being ``w(t) = 0.4 sin(2.5 t) + 0.5``.
@@ -592,7 +592,7 @@ def furuta_disturbance(t):
 
 
 def helicopter_slides() -> LinearPlant:
-    r"""The three-DOF helicopter of paper 004, section 6 (unmatched compensation), linearized at zero pitch.
+    r"""The three-DOF helicopter of Fridman's slides, section 6 (unmatched compensation), linearized at zero pitch.
 
     .. math::
         \ddot\epsilon_1 = 0.45\,((u_1 + f_1) + (u_2 + f_2)),\quad

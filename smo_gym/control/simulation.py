@@ -6,7 +6,7 @@ Plant integration: the state is propagated exactly for the zero-order-held contr
 :math:`\int_0^h e^{A(h-s)}Dw(t+s)\,ds` is computed by 3-point Gauss-Legendre quadrature (error
 ``O(h^7)`` per step for smooth ``w``), so the simulation error is far below the effects being measured.
 
-Sensing and actuation (paper 004, section 6, "accuracy"):
+Sensing and actuation (Fridman's slides, section 6, "accuracy"):
 
 - sampling step ``dt`` (:math:`\delta`);
 - measurement noise: Gaussian ``noise_std`` and/or uniform quantization ``resolution`` (an encoder);

@@ -79,7 +79,7 @@ def levant_nonrecursive(lambdas) -> np.ndarray:
     Parameters
     ----------
     lambdas : array_like, shape (k + 1,)
-        :math:`(\lambda_0, \lambda_1, \ldots, \lambda_k)` of eq. (7) of paper 004 [1], indexed as there
+        :math:`(\lambda_0, \lambda_1, \ldots, \lambda_k)` of eq. (7) of Fridman's slides (after [1]), indexed as there
         (:math:`\lambda_k` multiplies the first correction), each ``> 0``.
 
     Returns

@@ -36,7 +36,7 @@ from .._validation import check_choice, check_int_in_range, check_positive
 from .lmi import LMIInfeasibleError  # shared with the switched-gain design of Efimov et al. 2017
 
 __all__ = [
-    "PAPER_001_DELTA",
+    "LOPEZ_RAMIREZ_2016_DELTA",
     "BlockDecomposition",
     "ILFCertificate",
     "ILFDesign",
@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 #: the ``delta`` of the finite-time example of Lopez-Ramirez et al. 2016, section V.A: :math:`(1+\sqrt5)/(3+\sqrt5)`
-PAPER_001_DELTA = (1.0 + np.sqrt(5.0)) / (3.0 + np.sqrt(5.0))
+LOPEZ_RAMIREZ_2016_DELTA = (1.0 + np.sqrt(5.0)) / (3.0 + np.sqrt(5.0))
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -549,7 +549,7 @@ def ilf_gains(
     mu: float,
     kind: str = "finite",
     *,
-    delta: float = PAPER_001_DELTA,
+    delta: float = LOPEZ_RAMIREZ_2016_DELTA,
     alpha: float | None = None,
     beta: float | None = None,
     eps: float = 1e-6,

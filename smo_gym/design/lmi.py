@@ -65,11 +65,6 @@ class SwitchedGainCertificate:
     gamma: float
     status: str
 
-    @property
-    def sqrt_eig_ratio(self) -> float:
-        r""":math:`\sqrt{\lambda_{\min}(P)/\lambda_{\max}(P)}`, the constant of the dwell times (7)."""
-        return float(np.sqrt(self.min_eig_P / self.max_eig_P))
-
 
 def _canonical(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``A`` (shift), ``b = e_n`` and ``c = e_1`` of the canonical form (2), as ``(n, n), (n, 1), (n, 1)``."""

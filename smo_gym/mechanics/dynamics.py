@@ -167,7 +167,6 @@ class MujocoDynamics:
                     f"expected the independent joint of equality on joint {dep} among the measured "
                     f"joints, actual value: joint {ind} is not measured"
                 )
-        self._jids = np.array(jids, dtype=int)
         self.dof = np.array([m.jnt_dofadr[j] for j in jids], dtype=int)
         self._qadr = np.array([m.jnt_qposadr[j] for j in jids], dtype=int)
         self.n = len(jids)

@@ -20,7 +20,7 @@ OBSERVERS: dict[str, type[Observer]] = {
     cls.name: cls for cls in (SuperTwisting, Levant, URED, UniformLevant, HighGain, FiniteDifference, KalmanCA)
 }
 OBSERVERS.update({cls.name: cls for cls in (SwitchedGain, LowPowerHighGain)})
-OBSERVERS.update({cls.name: cls for cls in (ILFDifferentiator, ILFFixedDifferentiator)})  # paper 001 on chains
+OBSERVERS.update({cls.name: cls for cls in (ILFDifferentiator, ILFFixedDifferentiator)})  # ILF observers on chains
 
 
 @check_keywords

@@ -40,7 +40,7 @@ first for an observer with wrapped channels, and :func:`run_offline` drives a ke
 
 Prior and posterior
 -------------------
-Explicit schemes in the literature (Livne & Levant 2014; Wetzlinger et al., paper 003) are written as one-step
+Explicit schemes in the literature (Livne & Levant 2014; Wetzlinger et al.) are written as one-step
 predictors, :math:`\hat x_{k+1} = F(\hat x_k, y_k)`: the state after seeing :math:`y_k` estimates the signal at
 :math:`t_{k+1}`. The state stored here is exactly that predictor, so the recursion is the published one. The
 *reported* estimate at :math:`t_k` is that prediction moved back by one step along the Taylor polynomial,
@@ -554,7 +554,7 @@ def _hosm3_injections_first(state, y, params, new_state, out, shared, taylor, q)
     estimate; with up to six gains per channel a single loop has more strided accesses than LLVM's vectorizer
     accepts (it then leaves the loop scalar, about three times slower). With six gains this split is faster than
     :func:`_hosm3`'s at 32 and 256 channels (measured 0.60 against 0.63 us, 2.65 against 2.83 us) and slower at
-    8 (0.48 against 0.41 us); the issue's targets are per call up to 32 channels, where neither meets 0.5 us.
+    8 (0.48 against 0.41 us); the targets were 0.5 us per call up to 32 channels, which neither meets.
     """
     _check_widths(state, new_state, params, out, 4, 2 + 6 * N_TERMS, 3)
     for c in range(y.shape[0]):
@@ -711,7 +711,7 @@ def _sta_implicit_rows(state, y, params, new_state, out, shared):
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Discrete-time eigenvalue-mapping observer of paper 003 (differentiator part)
+# Discrete-time eigenvalue-mapping observer of Wetzlinger et al. (differentiator part)
 # params row: [dt, p1, mu, mode, V ((m + 1) * m)], mode 0 = semi-implicit (15), 1 = matching (16)
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -740,7 +740,7 @@ def _eigenvalue_from_root(a, root, dt, p1, mu, mode):
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def eigenvalue_map(sigma, dt, p1, mu, n, mode):
-    r"""State-dependent discrete eigenvalue :math:`z_n(\sigma)`: (15) semi-implicit or (16) matching of paper 003.
+    r"""State-dependent eigenvalue :math:`z_n(\sigma)`: (15) semi-implicit or (16) matching of Wetzlinger et al.
 
     Both mappings are evaluated and one is selected (also ``z = 0`` at ``sigma = 0``, where both are 0 anyway):
     branches would keep LLVM from vectorizing a loop over channels that calls this.

@@ -8,7 +8,7 @@ state leaves the observer's state exactly as it was.
 
 State row (per channel): ``[x1, x2, innovation, x1_meas_prev, model, injection, injection_filtered, e, model_pos]``
 Params row: ``[dt, c, g11, g12, g20, g21, g22, implicit, filter_coefficient, pos_from_state, model_bound]``
-(``model_bound``: the model term is clipped to ``[-model_bound, model_bound]``, paper 003 eq. (33); ``inf`` for
+(``model_bound``: the model term is clipped to ``[-model_bound, model_bound]``, Wetzlinger et al. eq. (33); ``inf`` for
 none; not applied to a prediction integrated outside, which saturates its own substeps)
 
 The recursion, for a sample interval ``h`` with the model term ``m`` (explicit, evaluated at the previous sample)::

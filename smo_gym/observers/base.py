@@ -82,7 +82,7 @@ def as_measurement(y, name: str) -> np.ndarray:
 
 
 def taylor_matrix(m: int, dt: float) -> np.ndarray:
-    r"""The ``(m, m)`` matrix :math:`e^{\tau N}` with entries :math:`\tau^{j-i}/(j-i)!` (paper 003, eq. (31)).
+    r"""The ``(m, m)`` matrix :math:`e^{\tau N}` with entries :math:`\tau^{j-i}/(j-i)!` (Wetzlinger et al., eq. (31)).
 
     It moves the estimate ``(f, f', ..., f^(m-1))`` of a polynomial of degree ``m - 1`` forward by one step
     ``tau`` exactly.

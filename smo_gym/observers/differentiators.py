@@ -12,7 +12,7 @@ Discretizations (see ``DESIGN.md``)
 ``"implicit"``
     set-valued implicit Euler (closed form for super-twisting): exact and chattering-free on constants.
 ``"semi-implicit"``, ``"matching"``
-    state-dependent eigenvalue mappings (15) and (16) of Wetzlinger, Reichhartinger and Horn (paper 003):
+    state-dependent eigenvalue mappings (15) and (16) of Wetzlinger, Reichhartinger and Horn:
     no discretization chattering and stable at any step for any initial error.
 
 References
@@ -25,7 +25,7 @@ References
 .. [AMF13] M. T. Angulo, J. A. Moreno and L. Fridman, "Robust exact uniformly convergent arbitrary order
    differentiator", Automatica 49(8), 2013.
 .. [WRH] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear
-   discrete-time observer" (paper 003).
+   discrete-time observer".
 .. [BPE] B. Brogliato, A. Polyakov and D. Efimov, "The implicit discretization of the super-twisting sliding-mode
    control algorithm", IEEE TAC 65(8), 2020.
 """
@@ -94,14 +94,14 @@ def _levant_sequence(gains, order: int) -> np.ndarray:
 def eigenvalue_mapping_vectors(m: int, dt: float) -> np.ndarray:
     r"""Vectors :math:`v_j = \binom{m}{j} A^j \mathcal{O}^{-1} e_m`, ``j = 0..m``, shape ``(m + 1, m)``.
 
-    With ``A`` the Taylor matrix (31) and ``c = e_1``, Ackermann's formula (35) of paper 003 for the observer gain
+    With ``A`` the Taylor matrix (31) and ``c = e_1``, Ackermann's formula (35) of [WRH] for the observer gain
     that puts all eigenvalues of ``A - l c^T`` at ``z`` expands to :math:`l(z) = \sum_j (-z)^{m-j} v_j`, a
     polynomial in ``z`` the kernel evaluates per sample by Horner's rule.
 
     Notes
     -----
-    Paper 003 warns (and ``shared/papers/README.md`` repeats) that its printed closed-form gains (79)-(82) are not
-    stable; these vectors come from Ackermann's formula itself, and the tests check the placed eigenvalues.
+    The closed-form gains (79)-(82) printed by Wetzlinger et al. are not stable (their eigenvalues are not the
+    placed ones); these vectors come from Ackermann's formula itself, and the tests check the placed eigenvalues.
     """
     A = taylor_matrix(m, dt)
     obs = np.vstack([np.linalg.matrix_power(A, i)[0] for i in range(m)])
@@ -126,7 +126,7 @@ class SuperTwisting(Observer):
         \dot{\hat x}_1 = \hat x_2 - k_1 \lceil \hat x_1 - y\rfloor^{1/2},\qquad
         \dot{\hat x}_2 = -k_2\,\mathrm{sign}(\hat x_1 - y),
 
-    with defaults :math:`k_1 = 1.5\sqrt L,\ k_2 = 1.1 L` for :math:`|\ddot f| \le L` (paper 004, "STA observer").
+    with defaults :math:`k_1 = 1.5\sqrt L,\ k_2 = 1.1 L` for :math:`|\ddot f| \le L` (Fridman's slides, "STA observer").
     Converges in finite time to :math:`\hat x_1 = f,\ \hat x_2 = \dot f`.
 
     Parameters
@@ -185,7 +185,7 @@ class SuperTwisting(Observer):
 
 
 class Levant(Observer):
-    r"""Levant's arbitrary-order robust exact differentiator (paper 004, eq. (7); [Lev03]).
+    r"""Levant's arbitrary-order robust exact differentiator (Fridman's slides, eq. (7); [Lev03]).
 
     For ``|f^(k+1)| <= L`` the order-``k`` differentiator, in the non-recursive form equivalent to (7)
     (see :func:`smo_gym.design.levant_lambdas`),
@@ -209,13 +209,13 @@ class Levant(Observer):
         ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under noise of amplitude ``eps``. ``"euler"``: the same without the
         Taylor terms, hence first order (``O(tau^2)`` in ``z_0``, ``O(tau)`` in every derivative; measured in
         ``tests/test_differentiators.py``). ``"semi-implicit"`` / ``"matching"``: the discrete-time observer of
-        paper 003 with eigenvalue mapping (15) / (16); its continuous-time counterpart (11) is a Levant-type
+        Wetzlinger et al. with eigenvalue mapping (15) / (16); its continuous-time counterpart (11) is a Levant-type
         differentiator with gains from ``(s + p1)^(k+1)``.
     p1 : float, optional
-        Eigenvalue-mapping rate of paper 003; default ``(1.1 L)^(1/(k+1))`` so that the last gain
+        Eigenvalue-mapping rate of Wetzlinger et al.; default ``(1.1 L)^(1/(k+1))`` so that the last gain
         ``p1^(k+1)`` equals Levant's ``lambda_0 L``.
     mu : float
-        Paper 003's ``mu >= 0`` (0 gives finite-time, ``mu > 0`` adds the uniform, fixed-time part).
+        Wetzlinger et al.'s ``mu >= 0`` (0 gives finite-time, ``mu > 0`` adds the uniform, fixed-time part).
     gains : array_like, shape (order + 1,), optional
         Levant's parameters :math:`(\lambda_0, \ldots, \lambda_k)` of the recursive form (7), indexed as in the
         paper (:math:`\lambda_0` multiplies :math:`L\,\mathrm{sign}` in the last equation, :math:`\lambda_k` the
@@ -306,7 +306,7 @@ class Levant(Observer):
 
 
 class URED(Observer):
-    r"""Uniform robust exact differentiator of Cruz-Zavala, Moreno and Fridman [CMF11] (paper 004).
+    r"""Uniform robust exact differentiator of Cruz-Zavala, Moreno and Fridman [CMF11] (in Fridman's slides).
 
     .. math::
         \dot z_0 = -k_1 \phi_1(z_0 - y) + z_1,\quad \dot z_1 = -k_2 \phi_2(z_0 - y),\\
@@ -327,8 +327,8 @@ class URED(Observer):
     discretization : {"euler"}
         Explicit Euler. The high-degree terms make it stiff: at error ``|e|`` the step must satisfy roughly
         ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as ``DivergenceError``). For large
-        initial errors at a coarse step use ``Levant(discretization="semi-implicit", mu>0)``, paper 003's uniform
-        observer, which is stable at any step.
+        initial errors at a coarse step use ``Levant(discretization="semi-implicit", mu>0)``, the uniform
+        observer of [WRH], which is stable at any step.
     wrap : bool or array_like of bool, optional
         Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
     """
@@ -373,7 +373,9 @@ class URED(Observer):
 
 
 class UniformLevant(Observer):
-    r"""Arbitrary-order uniform robust exact differentiator of Angulo, Moreno and Fridman [AMF13] (paper 004, (8)).
+    r"""Arbitrary-order uniform robust exact differentiator of Angulo, Moreno and Fridman [AMF13].
+
+    Eq. (8) of Fridman's lecture slides.
 
     With ``n = order + 1`` states and :math:`e = y - \hat x_1`,
 

@@ -1,4 +1,4 @@
-r"""Discrete-time HOSM-inspired observer of Wetzlinger, Reichhartinger and Horn (paper 003), arbitrary order.
+r"""Discrete-time HOSM-inspired observer of Wetzlinger, Reichhartinger and Horn, arbitrary order.
 
 For a system in the observability form (27)-(28) with sampled output :math:`y_k = \xi_{1,k}`,
 
@@ -31,7 +31,7 @@ prediction moved back to :math:`t_k`; this class reports the predictor :math:`\h
 References
 ----------
 .. [WRH] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear
-   discrete-time observer" (paper 003), eqs. (15), (16), (24), (31)-(41), (51)-(52), section 6.
+   discrete-time observer", eqs. (15), (16), (24), (31)-(41), (51)-(52), section 6.
 .. [KR19] S. Koch and M. Reichhartinger, "Discrete-time equivalents of the super-twisting algorithm",
    Automatica 107, 2019 (the matching mapping).
 """
@@ -142,13 +142,13 @@ def ackermann_gain(z, n: int, dt: float) -> np.ndarray:
 
 
 def printed_gain_003(z, dt: float) -> np.ndarray:
-    r"""The third-order gain as printed in (79)-(82) of paper 003 (kept only to show that it is wrong).
+    r"""The third-order gain as printed in (79)-(82) of Wetzlinger et al. (kept only to show that it is wrong).
 
     .. math:: \mathbf l = \big(\Phi_1 + 1,\ \Phi_2/h,\ \Phi_3/h^2\big),\quad \Phi_1 = 3z-2,\quad
               \Phi_2 = -\tfrac12z^3 - \tfrac32z^2 + \tfrac92z - \tfrac52,\quad \Phi_3 = z^3 - 3z^2 + 3z - 1.
 
     With it, :math:`\mathbf A - \mathbf l\mathbf c^T` does not have the triple eigenvalue ``z`` and is unstable
-    (see ``shared/papers/README.md``); use :func:`ackermann_gain`.
+    (checked in the tests); use :func:`ackermann_gain`.
     """
     p1 = 3 * z - 2
     p2 = -0.5 * z**3 - 1.5 * z**2 + 4.5 * z - 2.5
@@ -184,7 +184,7 @@ def perturbation_bounds(L_gamma, L_delta, measured_only=None) -> np.ndarray:
 
 
 class DiscreteTimeHOSM:
-    r"""Observer (33) of paper 003 for ``n``-th order input-affine systems in observability form, batched.
+    r"""Observer (33) of Wetzlinger et al. for ``n``-th order input-affine systems in observability form, batched.
 
     Every channel is an independent SISO system of order ``n`` with output :math:`y = \xi_1` (e.g. one joint:
     position, velocity, acceleration, ... for an integrator chain).
@@ -221,7 +221,7 @@ class DiscreteTimeHOSM:
     -----
     Gains: Ackermann's formula (35) evaluated as :math:`\tilde{\mathbf l}(z) = \sum_{j=0}^n (-z)^{n-j}v_j` with
     :math:`v_j = \binom nj\mathbf A^j\mathcal O^{-1}e_n` (the binomial expansion of :math:`(\mathbf A - zI)^n`).
-    The printed closed form (79)-(82) is not stable (erratum in ``shared/papers/README.md``; see
+    The printed closed form (79)-(82) is not stable (see
     :func:`printed_gain_003`). The paper's section 5 proves global asymptotic stability of the unperturbed error
     for ``n = 2, 3`` when :func:`max_eigenvalue` is below :math:`1/\sqrt2` and 0.498582; a ``RuntimeWarning`` is
     not raised for other settings, but ``stability_margin`` reports :math:`z^* - z_{\max}` for ``n <= 3``.

@@ -1,4 +1,4 @@
-r"""Finite-time and fixed-time observers of MIMO LTI systems designed by implicit Lyapunov functions (paper 001).
+r"""Finite-time and fixed-time observers of MIMO LTI systems designed by implicit Lyapunov functions ([LPEP16]).
 
 For :math:`\dot x = Ax + Bu,\ y = Cx` in the block coordinates of :func:`smo_gym.design.block_decomposition`
 (:math:`\Phi A\Phi^{-1} = F\tilde C + \tilde A`, :math:`C\Phi^{-1} = [C_0\ 0]`), the observers (6) and (17) are
@@ -42,7 +42,7 @@ discontinuous and the exact solution can be :math:`s_{k+1} = 0`; the scheme then
 References
 ----------
 .. [LPEP16] F. Lopez-Ramirez, A. Polyakov, D. Efimov and W. Perruquetti, "Finite-time and fixed-time observers
-   design via implicit Lyapunov function", European Control Conference (ECC), 2016 (paper 001).
+   design via implicit Lyapunov function", European Control Conference (ECC), 2016.
 .. [PEB19] A. Polyakov, D. Efimov and B. Brogliato, "Consistent discretization of finite-time and fixed-time
    stable systems", SIAM J. Control Optim. 57(1), 2019.
 """
@@ -198,7 +198,7 @@ def _zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray
 # MIMO observer
 # ----------------------------------------------------------------------------------------------------------------
 class ILFObserver:
-    r"""Finite-time (6)-(9) or fixed-time (17)-(18) observer of paper 001 for :math:`\dot x = Ax + Bu,\ y = Cx`.
+    r"""Finite-time (6)-(9) or fixed-time (17)-(18) observer of [LPEP16] for :math:`\dot x = Ax + Bu,\ y = Cx`.
 
     See the module docstring for the equations and the discretization (exact ZOH prediction + implicit-Euler
     injection solved for the scalar :math:`\rho = \|s_{k+1}\|` by a bracketing root finder): stable at any step
@@ -506,7 +506,7 @@ def _ilf_chain_step(state, y, params, new_state, out):
 
 
 class ILFDifferentiator(Observer):
-    r"""Paper 001's finite-time / fixed-time observer applied to each channel as an integrator chain.
+    r"""Lopez-Ramirez et al.'s finite-time / fixed-time observer applied to each channel as an integrator chain.
 
     Each channel's signal ``f`` is the output of the chain :math:`x_1 = f,\ \dot x_i = x_{i+1}` of ``order + 1``
     states. The observer of :class:`ILFObserver` for that chain (:math:`\Phi = I`, ``F = 0``, gains ``L`` from

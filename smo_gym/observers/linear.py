@@ -3,7 +3,7 @@ r"""Linear estimators: the high-gain observer, and the baselines a user would ot
 References
 ----------
 .. [AMPT18] D. Astolfi, L. Marconi, L. Praly and A. R. Teel, "Low-power peaking-free high-gain observers",
-   Automatica 98, 2018 (paper 002), eq. (2).
+   Automatica 98, 2018, eq. (2).
 .. [BSL01] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, *Estimation with Applications to Tracking and
    Navigation*, Wiley 2001, section 6.2.3 (continuous white-noise jerk model).
 """
@@ -22,7 +22,7 @@ __all__ = ["FiniteDifference", "HighGain", "KalmanCA"]
 
 
 class HighGain(Observer):
-    r"""The standard linear high-gain observer of an integrator chain (paper 002, eq. (2)).
+    r"""The standard linear high-gain observer of an integrator chain (Astolfi et al. 2018, eq. (2)).
 
     With ``n = order + 1`` states, :math:`D(\ell) = \mathrm{diag}(\ell, \ell^2, \ldots, \ell^n)` and
     ``K = (k_1, ..., k_n)`` making :math:`s^n + k_1 s^{n-1} + \dots + k_n` Hurwitz,

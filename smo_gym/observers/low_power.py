@@ -1,4 +1,4 @@
-r"""Low-power, peaking-free high-gain observer (Astolfi, Marconi, Praly and Teel 2018; paper 002).
+r"""Low-power, peaking-free high-gain observer (Astolfi, Marconi, Praly and Teel 2018).
 
 The standard high-gain observer (2) of an ``n``-dimensional integrator chain uses the gains
 :math:`\ell, \ell^2, \ldots, \ell^n` and its estimate :math:`\hat x_i` peaks like :math:`\ell^{i-1}` after a
@@ -54,8 +54,8 @@ estimates are inside their bounds.
 
 Notes
 -----
-The shared text of paper 002 stops after Section 2, and the published equations of Section 3 could not be
-retrieved here; the construction above is the one given in the issue, completed from what both papers state:
+The copy of [AMPT18] used here stops after Section 2, and the published equations of Section 3 could not be
+retrieved; the construction above is completed from what both papers state:
 [AM15]'s chain of ``n - 1`` two-dimensional observers with gains :math:`\ell, \ell^2`, [AMPT18]'s dimension
 ``2n - 1``, its saturated interconnections, and its claim that the ``n`` estimates are peaking-free while the
 ``n - 1`` auxiliary variables reach values of order :math:`\ell`. Both claims are measured in
@@ -68,7 +68,7 @@ References
 .. [AM15] D. Astolfi and L. Marconi, "A high-gain nonlinear observer with limited gain power", IEEE Transactions
    on Automatic Control 60(11), 3059-3064, 2015.
 .. [AMPT18] D. Astolfi, L. Marconi, L. Praly and A. R. Teel, "Low-power peaking-free high-gain observers",
-   Automatica 98, 169-179, 2018 (paper 002; the shared text stops after Section 2).
+   Automatica 98, 169-179, 2018 (the copy used here stops after Section 2).
 """
 
 from __future__ import annotations

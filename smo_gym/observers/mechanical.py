@@ -28,7 +28,7 @@ MuJoCo's semi-implicit Euler with ``n`` physics steps per sample, :math:`c = (n+
 which reproduces that integrator's discrete flow exactly when the model is exact and the acceleration constant
 over the sample.
 
-Saturation (paper 003, eq. (33))
+Saturation (Wetzlinger et al., eq. (33))
 --------------------------------
 With ``accel_bound`` the model term is clipped, :math:`\mathrm{sat}_{L_\gamma}(m)`: a large velocity error then
 cannot drive the model term (quadratic in velocity through the Coriolis terms) to a finite escape time, which is
@@ -37,12 +37,12 @@ what makes an unsaturated model-based observer fail from large initial errors on
 References
 ----------
 .. [DFL05] J. Davila, L. Fridman and A. Levant, "Second-order sliding-mode observer for mechanical systems",
-   IEEE TAC 50(11), 2005 (paper 004, section 4; the slide prints the correction signs flipped, see
-   ``shared/papers/README.md``: the correct injections use ``y - xhat_1`` with positive gains).
+   IEEE TAC 50(11), 2005 (presented in Fridman's slides, section 4, where the correction signs are
+   printed flipped: the correct injections use ``y - xhat_1`` with positive gains).
 .. [AMFA18] J. C. Apaza-Perez, J. A. Moreno and L. Fridman, "Dissipative approach to sliding mode observers
-   design for uncertain mechanical systems", Automatica 87, 2018 (paper 004, "Dissipative approach").
+   design for uncertain mechanical systems", Automatica 87, 2018 (in Fridman's slides, "Dissipative approach").
 .. [WRH] M. Wetzlinger, M. Reichhartinger and M. Horn, "Higher order sliding mode inspired nonlinear
-   discrete-time observer" (paper 003), eq. (33).
+   discrete-time observer", eq. (33).
 .. [BPE20] B. Brogliato, A. Polyakov and D. Efimov, "The implicit discretization of the super-twisting
    sliding-mode control algorithm", IEEE TAC 65(8), 2020.
 """
@@ -416,8 +416,8 @@ def _divergence(obs):
     return DivergenceError(
         "expected a finite observer state, actual value: non-finite model term or state after the update "
         f"(dt={obs.dt}); the step was rejected and the previous state kept. An unsaturated model term can escape "
-        "in finite time from large velocity errors (Coriolis terms): bound it with accel_bound (paper 003, eq. (33)),"
-        " use the dissipative observer, or reduce dt."
+        "in finite time from large velocity errors (Coriolis terms): bound it with accel_bound "
+        "(Wetzlinger et al., eq. (33)), use the dissipative observer, or reduce dt."
     )
 
 
@@ -447,7 +447,7 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
     k1, k2 : float or array_like, optional
         Override the gains.
     accel_bound : float or array_like, optional
-        :math:`L_\gamma`: clip the model term to ``[-accel_bound, accel_bound]`` (paper 003, eq. (33)). Default
+        :math:`L_\gamma`: clip the model term to ``[-accel_bound, accel_bound]`` (Wetzlinger et al., eq. (33)). Default
         ``None``: no saturation (not recommended from large initial errors).
     discretization : {"semi-implicit", "euler"}
         See the module docstring.
@@ -693,7 +693,7 @@ def _gain_value(gains, key):
 
 class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
     r"""Dissipative super-twisting observer with the Coriolis-removing transform (Apaza-Perez, Moreno and
-    Fridman 2018; paper 004, "Dissipative approach").
+    Fridman 2018; Fridman's slides, "Dissipative approach").
 
     In the coordinates :math:`x = T(\xi)` of :class:`CoordinateTransform` (``y_T = y`` the measured position,
     :math:`X = T_1(y)` the transformed measurement, :math:`e = X - \hat x_1`),

@@ -1,4 +1,4 @@
-r"""Switched-gain high-gain differentiator with fixed-time convergence (paper 000).
+r"""Switched-gain high-gain differentiator with fixed-time convergence (Efimov et al. 2017).
 
 The observer (4) of Efimov, Polyakov, Levant and Perruquetti for the canonical form (2), model-free
 (:math:`\varphi = g = 0`, an integrator chain, so it differentiates a measured signal):
@@ -41,7 +41,7 @@ earlier (no delay); the supervisor's clock advances by ``h`` per sample.
 References
 ----------
 .. [EPLP17] D. Efimov, A. Polyakov, A. Levant and W. Perruquetti, "Switched gain differentiator with fixed-time
-   convergence", Proc. 20th IFAC World Congress, Toulouse, 2017 (paper 000).
+   convergence", Proc. 20th IFAC World Congress, Toulouse, 2017.
 .. [AK09] J. H. Ahrens and H. K. Khalil, "High-gain observers in the presence of measurement noise: a
    switched-gain approach", Automatica 45(4), 2009.
 """
@@ -136,7 +136,8 @@ def noise_optimal_gains(
     mu_ref = check_positive("mu_ref", mu_ref)
     if not a > (n - 1) * b:
         raise ValueError(
-            f"expected rho_d*D > (n-1)*rho_v*V (condition (10) of paper 000), actual value: {a} <= {(n - 1) * b}"
+            f"expected rho_d*D > (n-1)*rho_v*V (condition (10) of Efimov et al. 2017), "
+            f"actual value: {a} <= {(n - 1) * b}"
         )
     mu_min = (a / ((n - 1) * b)) ** (1.0 / n)
     if mu_ref >= mu_min:
@@ -288,7 +289,7 @@ drop_stale((switched_gain_channel_step, switched_gain_kernel, _run_switched_gain
 # class
 # ----------------------------------------------------------------------------------------------------------------
 class SwitchedGain(Observer):
-    r"""Switched-gain differentiator of paper 000: observer (4) with the supervisor (7)-(9) and Remark 9.
+    r"""Switched-gain differentiator of Efimov et al. 2017: observer (4) with the supervisor (7)-(9) and Remark 9.
 
     Parameters
     ----------

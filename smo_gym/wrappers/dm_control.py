@@ -5,7 +5,7 @@ after ``import shimmy``), the maintained converter; it works with the pinned ver
 dm_control 1.0.50, mujoco 3.17: checked by ``tests/test_dm_control.py``), so no converter of our own is needed.
 This module adds only what the sensing core needs from it, as an adapter registered with
 :func:`smo_gym.wrappers.adapters.register_adapter`, so that :class:`~smo_gym.wrappers.EstimatedVelocity`,
-:mod:`smo_gym.wrappers.compare` and the calibration use it unchanged.
+:mod:`smo_gym.experiments.compare` and the calibration use it unchanged.
 
 How the five parts of an adapter (:mod:`smo_gym.wrappers.adapters`) map onto dm_control, with
 ``dm = env.unwrapped._env`` (a ``dm_control.rl.control.Environment``) and ``physics = dm.physics``:

@@ -2,7 +2,6 @@ r"""``EstimatedVelocity``: a Gymnasium MuJoCo environment seen through joint sen
 
 from __future__ import annotations
 
-import contextlib
 import copy
 
 import gymnasium as gym
@@ -14,6 +13,7 @@ from ..engine.measurement import JointMeasurement, VelocityEstimator, check_fini
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
+from .rollout import rollout
 from .sensing import (
     SensingInfo,
     bound_order,
@@ -69,32 +69,21 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
         adapter = make_adapter(sim)
     except Exception:
         return None
+    if sample_every < adapter.frame_skip and not adapter.supports_substeps():
+        sim.close()
+        return None  # only end-of-step samples: the caller rescales at its step
     space = sim.action_space
     space.seed(seed)
-    hook = adapter.supports_substeps()
-    frame_skip = adapter.frame_skip
-    nv = adapter.model.nv
-    recording = SubstepRecording(sample_every, {"qvel": nv}, frame_skip // sample_every)
-    recorder = adapter.record_substeps(recording) if hook else contextlib.nullcontext()
-    episodes: list[np.ndarray] = []
-    sim.reset(seed=seed)
-    samples: list[np.ndarray] = [np.array(adapter.data.qvel)]
-    for _ in range(max(1, int(steps) // frame_skip)):
-        recording.start()
-        with recorder:
-            _, _, terminated, truncated, _ = sim.step(space.sample())
-        if not hook:
-            recording.take(adapter.data)
-        samples.extend(recording.rows["qvel"][: recording.n].copy())
-        if terminated or truncated or not np.all(np.isfinite(adapter.data.qvel)):
-            episodes.append(np.array(samples))
-            sim.reset()
-            samples = [np.array(adapter.data.qvel)]
-    episodes.append(np.array(samples))
+    episodes = rollout(
+        sim,
+        lambda _: space.sample(),
+        max(1, int(steps) // adapter.frame_skip),
+        sample_every=sample_every,
+        seed=seed,
+        adapter=adapter,
+    )
     sim.close()
-    if not hook and sample_every < frame_skip:  # only end-of-step samples: rescale at the caller's step
-        return None
-    return [V for V in episodes if np.all(np.isfinite(V))]
+    return [episode.qvel for episode in episodes if np.all(np.isfinite(episode.qvel))]
 
 
 #: wrappers that return the observation of the environment beneath them unchanged (exactly these classes)

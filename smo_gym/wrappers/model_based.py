@@ -10,7 +10,7 @@ to the observer: they are what its disturbance estimate (``wrapper.observer.exte
 
 Default gains: the disturbance bound ``L`` of each joint is ``safety * quantile(|dv/dt - f(q, v, u)|)`` over a
 calibration rollout of the model itself with random actions (what the model misses, contacts included when
-``contact="unknown"``), and the model term is saturated at ``safety * quantile(|dv/dt|)`` (paper 003, eq. (33)).
+``contact="unknown"``), and the model term is saturated at ``safety * quantile(|dv/dt|)`` (Wetzlinger et al., eq. (33)).
 With ``rate="env"`` the model is integrated over the ``frame_skip`` physics steps of a sample
 (``model_substeps``), so the cost per physics step is that of the physics-rate observer.
 

@@ -1,4 +1,4 @@
-r"""The experiments of paper 004, section 6, on the slides' linear models: tables (lists of dicts) and plots.
+r"""The experiments of Fridman's slides, section 6, on the slides' linear models: tables (lists of dicts) and plots.
 
 Called by ``scripts/control_experiments.py`` and ``smo-gym control``; every number comes from
 :func:`smo_gym.control.simulate` with the library's observers and controllers.
@@ -24,16 +24,24 @@ from pathlib import Path
 
 import numpy as np
 
-from .controllers import (
+from ..control import (
+    CascadedHOSMObserver,
     CompensationController,
     IntegralSlidingModeController,
+    LuenbergerObserver,
     StateFeedback,
     UnmatchedCompensationController,
+    fit_order,
+    furuta_disturbance,
+    furuta_slides,
+    helicopter_slides,
+    linearize,
     lqr,
+    output_error_lipschitz,
+    simulate,
+    steady_state_error,
+    total_variation_rate,
 )
-from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz
-from .plants import furuta_disturbance, furuta_slides, helicopter_slides
-from .simulation import fit_order, simulate, steady_state_error, total_variation_rate
 
 __all__ = [
     "ENCODER_12BIT",
@@ -157,7 +165,7 @@ def injection_ablation(alphas=(1, 2), steps=(1e-3, 2e-3, 4e-3), t_final: float =
 def noise_growth(etas=(1e-5, 1e-4, 1e-3, 1e-2), dt: float = 1e-3, alphas=(1, 2), t_final: float = 4.0):
     """Identification and velocity errors against Gaussian measurement noise ``eta`` at a fixed ``tau``.
 
-    Theory (paper 004, section 6, after Angulo et al. 2011): ``O(eta^(alpha/(k+1)))`` for the identification,
+    Theory (Fridman's slides, section 6, after Angulo et al. 2011): ``O(eta^(alpha/(k+1)))`` for the identification,
     ``O(eta^(alpha/(k+1) + 1/(k+1)))`` for the velocities, ``k`` the differentiator order, once the noise
     dominates the sampling error.
 
@@ -377,9 +385,7 @@ def furuta_mujoco_experiment(
     """
     import gymnasium as gym
 
-    from smo_gym.wrappers import EstimatedVelocity
-
-    from .plants import linearize
+    from ..wrappers import EstimatedVelocity
 
     def w_env(t):
         return np.array([scale * (0.4 * np.sin(2.5 * t) + 0.5)])
@@ -668,7 +674,7 @@ def add_subcommand(subparsers):
     """Register ``control`` on an ``argparse`` sub-parser collection (used by ``smo-gym``)."""
     parser = subparsers.add_parser(
         "control",
-        help="output-feedback control experiments of paper 004, section 6",
+        help="output-feedback control experiments of Fridman's slides, section 6",
         description="Disturbance identification with the cascaded HOSM observer, compensation control, output "
         "integral sliding mode and unmatched compensation on the slides' Furuta pendulum and 3-DOF "
         "helicopter (and the MuJoCo Furuta environment when available): tables and plots.",

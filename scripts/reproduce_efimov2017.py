@@ -7,12 +7,12 @@ for ``(h, omega) = (0.01, 25)`` (Fig. 1) and ``(0.001, 250)`` (Fig. 2), by
   ``T_min = 3h``, ``mu_max = 108.69`` and the reset to ``mu_min = 10.42`` (Remark 9), implicit Euler (11);
 * the same observer with the fixed gain ``mu = 30``;
 * the super-twisting differentiator with ``D = 1 + pi^2``, gains ``1.5 D^(1/2)`` (the paper prints ``1.5 D^1.5``,
-  a typo: see the errata in ``shared/papers/README.md``) and ``1.1 D``, explicit Euler.
+  a typo) and ``1.1 D``, explicit Euler.
 
 The paper says "continue switching while T_i <= T_min = 3h and mu_i <= mu_max"; the first inequality is
 reversed (Section 5.2 stops when T_(i*+1) <= T_min), and with these values only mu_max stops the schedule.
-All observers start from zero. :func:`reproduce_000` returns one dict per printed claim with what was measured;
-``python scripts/repro_000.py [out_dir]`` prints them and writes the figures.
+All observers start from zero. :func:`reproduce_efimov2017` returns one dict per printed claim with what was measured;
+``python scripts/reproduce_efimov2017.py [out_dir]`` prints them and writes the figures.
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2)))
 
 
-def reproduce_000(out_dir) -> list[dict]:
+def reproduce_efimov2017(out_dir) -> list[dict]:
     """Rerun Section 6 of Efimov et al. 2017; write the figures into ``out_dir``; return the claims with measurements.
 
     Returns
@@ -275,11 +275,11 @@ def _figures(runs, out_dir: Path) -> None:
         axes[1].legend(fontsize=7, loc="upper right")
         fig.suptitle(f"Efimov et al. 2017, Fig. {i}: h = {h}, omega = {omega}")
         fig.tight_layout()
-        fig.savefig(out_dir / f"paper000_fig{i}_h{h}_omega{omega:g}.png", dpi=100)
+        fig.savefig(out_dir / f"efimov2017_fig{i}_h{h}_omega{omega:g}.png", dpi=100)
         plt.close(fig)
 
 
 if __name__ == "__main__":
-    target = sys.argv[1] if len(sys.argv) > 1 else "figures/paper000"
-    for r in reproduce_000(target):
+    target = sys.argv[1] if len(sys.argv) > 1 else "figures/efimov2017"
+    for r in reproduce_efimov2017(target):
         print(("OK   " if r["ok"] else "DIFF ") + r["claim"] + "\n       " + r["measured"])

@@ -26,7 +26,6 @@ An observer whose state becomes non-finite (``DivergenceError``) is reported as 
 
 from __future__ import annotations
 
-import contextlib
 import difflib
 import time
 from dataclasses import dataclass, field
@@ -41,9 +40,10 @@ from .._validation import DivergenceError
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
-from .adapters import SubstepRecording, make_adapter
-from .estimated_velocity import calibrated_bounds, resolve_rate
-from .sensing import bound_order, default_observer
+from ..wrappers.adapters import make_adapter
+from ..wrappers.estimated_velocity import calibrated_bounds, resolve_rate
+from ..wrappers.rollout import rollout
+from ..wrappers.sensing import bound_order, default_observer
 
 __all__ = [
     "ObserverResult",
@@ -154,40 +154,25 @@ def record_rollout(
         )
     model = adapter.model
     dt = float(model.opt.timestep) * k
+    episodes = rollout(
+        env,
+        smooth_random_policy(env.action_space, seed),
+        steps,
+        sample_every=k,
+        seed=seed,
+        adapter=adapter,
+        progress=f"{env_id} rollout" if progress else None,
+    )
+    # the sensor measures the recorded configurations in order, one stream across episodes
     measurement = JointMeasurement(model, make_sensor(sensor), dt)
     rng = np.random.default_rng([int(seed), 0x534D4F])
-    policy = smooth_random_policy(env.action_space, seed)
-    qpos, qvel, z, starts = [], [], [], []
-    hook = adapter.supports_substeps()
-    recording = SubstepRecording(k, {"qpos": model.nq, "qvel": model.nv}, adapter.frame_skip // k)
-    recorder = adapter.record_substeps(recording) if hook else contextlib.nullcontext()
-
-    def start():
-        starts.append(len(qpos))
-        q = np.array(adapter.data.qpos)
-        measurement.reset(q, rng)
-        qpos.append(q)
-        qvel.append(np.array(adapter.data.qvel))
+    z, starts = [], []
+    for episode in episodes:
+        starts.append(len(z))
+        measurement.reset(episode.qpos[0], rng)
         z.append(measurement.z_measured.copy())
-
-    obs, _ = env.reset(seed=seed)
-    start()
-    iterator = range(steps)
-    if progress:
-        iterator = extras.progress(iterator, desc=f"{env_id} rollout", unit="step")
-    for step in iterator:
-        recording.start()
-        with recorder:
-            obs, _, terminated, truncated, _ = env.step(policy(obs))
-        if not hook:  # rate == frame_skip: one sample at the end of the step, as the wrapper takes it
-            recording.take(adapter.data)
-        for q, v in zip(recording.rows["qpos"][: recording.n], recording.rows["qvel"][: recording.n], strict=True):
-            qpos.append(q.copy())
-            qvel.append(v.copy())
-            z.append(measurement.measure(qpos[-1]))
-        if (terminated or truncated) and step < steps - 1:
-            obs, _ = env.reset()
-            start()
+        if len(episode.qpos) > 1:
+            z.extend(measurement.measure_block(episode.qpos[1:]))
     # the env stays open: compare_observers calibrates the default gains on it (context["unwrapped"]), and
     # dm_control's close (shimmy) frees the physics
     return Recording(
@@ -195,8 +180,8 @@ def record_rollout(
         sensor=sensor if isinstance(sensor, str) else repr(sensor),
         rate=str(rate),
         dt=dt,
-        qpos=np.array(qpos),
-        qvel=np.array(qvel),
+        qpos=np.concatenate([episode.qpos for episode in episodes]),
+        qvel=np.concatenate([episode.qvel for episode in episodes]),
         z_measured=np.array(z),
         episode_starts=np.array(starts),
         names=dof_names(model),

@@ -1,4 +1,4 @@
-"""LMI design of paper 000 (Assumption 1 / Remark 2): solution, NumPy re-verification, infeasibility."""
+"""LMI design of Efimov et al. 2017 (Assumption 1 / Remark 2): solution, NumPy re-verification, infeasibility."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ def _assumption1(P, l, kappa, rho_d, rho_v, gamma):
 
 
 def test_reproduces_the_printed_gain_of_section_6():
-    """Paper 000, Section 6: kappa = rho_d = rho_v = 1 gives l = [2.6 2.1], P = [[0.76 -0.48] [-0.48 0.6]]."""
+    """Efimov et al. 2017, Section 6: kappa = rho_d = rho_v = 1 gives l = [2.6 2.1], P = [[0.76 -0.48] [-0.48 0.6]]."""
     l, P, cert = switched_gain_lmi(2, kappa=1.0, rho_d=1.0, rho_v=1.0)
     assert np.allclose(l, [2.6, 2.1], atol=0.05)
     assert np.allclose(P, [[0.76, -0.48], [-0.48, 0.6]], atol=0.02)
