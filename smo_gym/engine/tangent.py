@@ -25,12 +25,8 @@ from numba import njit
 
 __all__ = ["differentiate_pos", "integrate_pos", "joint_table", "tangent_advance"]
 
-FREE, BALL, SLIDE, HINGE = (
-    int(mujoco.mjtJoint.mjJNT_FREE),
-    int(mujoco.mjtJoint.mjJNT_BALL),
-    int(mujoco.mjtJoint.mjJNT_SLIDE),
-    int(mujoco.mjtJoint.mjJNT_HINGE),
-)
+#: MuJoCo's joint type codes of the joints with a quaternion (hinge and slide joints are copied as they are)
+FREE, BALL = int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL)
 #: MuJoCo's mjMINVAL: below this a norm counts as zero
 _MINVAL = 1e-15
 

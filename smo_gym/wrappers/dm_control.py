@@ -174,7 +174,6 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
             (k, a, a + n, s)
             for k, a, n, s in zip(self.keys, np.cumsum([0] + sizes[:-1]), sizes, self.shapes, strict=True)
         ]
-        self.flat_size = int(sum(sizes))
         spec = getattr(env, "spec", None)
         if spec is not None and spec.id:
             self._environment_key = spec.id + (stable_repr(spec.kwargs) if spec.kwargs else "")
