@@ -270,6 +270,7 @@ class Sensor:
     _config = None
     _kinds = None
     _block_call = None
+    _arrays = None
 
     @property
     def stages(self) -> tuple[Stage, ...]:
@@ -432,9 +433,14 @@ class Sensor:
         A reset may replace them with new arrays: read them again after each. The caller reserves the random
         rows it uses with :meth:`reserve_random_rows`.
         """
-        if self._kinds is None:
-            raise RuntimeError("expected reset(y0) first, actual value: the sensor was never reset")
-        return SensorArrays(self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand)
+        arrays = self._arrays
+        if arrays is None or arrays.state is not self._state or arrays.rand is not self._rand:
+            if self._kinds is None:
+                raise RuntimeError("expected reset(y0) first, actual value: the sensor was never reset")
+            arrays = self._arrays = SensorArrays(
+                self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand
+            )
+        return arrays
 
     def reserve_random_rows(self, n_samples: int) -> int | None:
         """Reserve the next ``n_samples`` rows of the random block for a compiled caller and return the first.

@@ -169,6 +169,7 @@ class Observer:
     _bound = None
     wrap = None
     _period = None
+    _arrays = None
 
     @check_keywords
     def __init__(self, dt: float, order: int, discretization: str | None, wrap=None):
@@ -651,16 +652,22 @@ class Observer:
 
         ``update`` and ``run`` replace the state array: read the arrays again after either.
         """
-        self._require_reset()
-        return ObserverArrays(self._state, self._params)
+        arrays = self._arrays
+        if arrays is None or arrays.state is not self._state or arrays.params is not self._params:
+            self._require_reset()
+            arrays = self._arrays = ObserverArrays(self._state, self._params)  # read once per step: kept
+        return arrays
 
     def advanced(self, estimate: np.ndarray, n_samples: int) -> None:
         """Record that a compiled caller advanced :attr:`arrays` in place by ``n_samples`` samples, ending at
         ``estimate`` (shape as :attr:`estimate`; kept, not copied)."""
-        if estimate.shape != self._require_reset().shape:
-            raise ValueError(f"expected an estimate of shape {self._estimate.shape}, actual value: {estimate.shape}")
+        current = self._estimate
+        if current is None or estimate.shape != current.shape:
+            raise ValueError(
+                f"expected an estimate of shape {self._require_reset().shape}, actual value: {estimate.shape}"
+            )
         self._estimate = estimate
-        self.n_updates += int(n_samples)
+        self.n_updates += n_samples
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
