@@ -53,35 +53,23 @@ A call costs the compiled entry point (about 0.13 us for five array arguments, m
 compiled as the batch kernels are, by ``scripts/bench_observers.py``) plus a few ns per channel. What keeps both
 small:
 
-* Fixed shapes at compile time. The kernels of the common sizes (order 1 and 2, i.e. ``m = 2, 3`` estimates)
-  check the widths of their arrays once per call and then index them with constant strides, so LLVM vectorizes
-  the loop over channels (AVX2: four channels per instruction) and unrolls the loops over the state.
-* No early exit inside the channel loop: the finiteness of the new state is collected in a flag and located by
-  a second pass only when something is not finite (then the status is the same ``-2 - i`` as before).
-* Known exponents. The HOSM kernel recognises the exponent tables of Levant's, URED's and the uniform
-  differentiator (``m = 2, 3``) from the first parameter row and runs a step in which every
-  :math:`|e|^{q/m}` is a product of the root :math:`r = |e|^{1/m}` with ``q`` a compile-time constant; other
-  tables run the generic step (:func:`hosm_channel_step`, one ``r`` and :func:`_abs_power` per term).
+* Fixed shapes at compile time where a step has them (the linear observer and finite differences for ``m = 2,
+  3``, the Kalman filter): the widths are checked once per call and the rows indexed with constant strides.
+* One step per algorithm. The signed-power step (:func:`hosm_channel_step`) and the eigenvalue map
+  (:func:`eigmap_channel_step`) run generic in the order; specialised, vectorized variants for ``m = 2, 3`` and
+  known exponent tables (measured 0.4 against 0.7 us per call at 32 channels) were removed, since inside the
+  wrapper (a few to 23 channels, an environment step of 30-320 us) they did not show.
 * Vectorizable roots: ``sqrt`` for ``m = 2``; for ``m = 3`` the cube root of fdlibm (:func:`cbrt`: a bit-level
   first guess, a polynomial and one refinement step, error below 1 ulp) instead of ``exp(log(a) / 3)``, and
-  fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic
-  so that they vectorize (numba has no vector math library without SVML). The eigenvalue maps use the same
-  ``cbrt`` for ``m = 3`` (see :func:`_eigenvalue_root` for how far that moves them from NumPy's ``a ** (1/3)``)
-  and compute root and map in one vectorized pass.
-* Few strided accesses per loop. LLVM's vectorizer gives up on a loop with too many accesses at non-unit
-  strides (``Too many SCEV assumptions``), so wide steps run in several passes over the channels, the
-  intermediate values waiting in ``new_state`` or ``out``: two for the order-2 HOSM step (the root, then the
-  rest), the order-2 eigenvalue-mapping step (the eigenvalue, then the rest) and the linear observer, three for
-  the Kalman filter. Merging passes further was measured slower (the merged loop stays scalar); what remains
-  per channel is mostly the strided loads and stores of the ``(N, S)``/``(N, P)`` rows themselves.
+  fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic.
 * Shared parameters. When every channel has the same parameter row (scalar gains: the usual case),
-  ``Observer.update`` passes that one row ``(1, P)`` to the kernel's ``*_shared_kernel`` variant
-  (:data:`SHARED_KERNELS`), whose loops are compiled with ``shared`` as a constant (they read parameter row
-  ``pc = 0 if shared else c``): every parameter is then loop invariant instead of a load at a stride of ``P``
-  values per channel (measured 10-15 % faster at 32 channels). The variants are separate functions (one factory
-  per family, ``shared`` a closure constant) so that each compiles only when used; one function with both loops
-  took seven times as long to compile. ``Observer.run`` and the wrapper's compiled drivers use the per-channel
-  kernels.
+  ``Observer.update`` passes that one row ``(1, P)`` to the step's shared variant (:attr:`Step.shared_kernel`),
+  whose loops are compiled with ``shared`` as a constant (they read parameter row ``pc = 0 if shared else c``):
+  every parameter is then loop invariant instead of a load at a stride of ``P`` values per channel.
+  ``Observer.run`` and the wrapper's compiled drivers use the per-channel kernels.
+* Generated, cached code. A family declares its step once, as a ``rows`` function; :func:`register_step`
+  generates the batch kernels and the drivers from one template each (bound to the step as a global, see
+  :func:`smo_gym._numba_cache.cached_instance`), so numba caches every one on disk.
 * No reference counting at the entry. The batch kernels are compiled with numba's ``_nrt=False``: called from
   Python, their arrays are then unboxed without allocating a reference-counted ``MemInfo`` each, which halves
   the cost of the call (an empty five-array kernel: 0.27 against 0.13 us). The kernels allocate nothing, and
@@ -93,10 +81,6 @@ small:
 These change results by rounding only (a few ulp per step, from the roots and ``exp``); through the
 discontinuous sign of a sliding-mode step such a difference can grow along a chattering trajectory, like any
 change of compiler or instruction order would.
-
-Contract of the specialised HOSM steps: the exponent columns, the unused-term gains and the scheme flag must be
-the same in every parameter row (the observer classes pack them so); the kernel reads them from the first row to
-choose the step. Step sizes and gains remain per channel.
 """
 
 from __future__ import annotations
@@ -414,6 +398,7 @@ def hosm_rows(state, y, params, new_state, out, shared):
     2003, any order; the explicit super-twisting step; Cruz-Zavala, Moreno and Fridman 2011; Angulo, Moreno and
     Fridman 2013), ``m = out.shape[1]`` estimates. ``shared``: one parameter row for every channel."""
     m = out.shape[1]
+    _check_widths(state, new_state, params, out, m + 1, 2 + 2 * m * N_TERMS, m)
     failed = False
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
@@ -545,6 +530,7 @@ def eigmap_rows(state, y, params, new_state, out, shared):
     """:func:`eigmap_channel_step` on every channel, ``m = out.shape[1]`` (``shared``: one parameter row for every
     channel)."""
     m = out.shape[1]
+    _check_widths(state, new_state, params, out, m + 1, 4 + (m + 1) * m, m)
     failed = False
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
@@ -891,6 +877,8 @@ class Step:
 
 #: batch kernel -> its :class:`Step`, for every registered step
 STEPS: dict = {}
+#: batch kernel -> its variant for one parameter row ``(1, P)`` shared by every channel (module notes)
+SHARED_KERNELS: dict = {}
 
 
 def register_step(rows, *, allocates: bool = False) -> Step:
@@ -924,6 +912,7 @@ def register_step(rows, *, allocates: bool = False) -> Step:
         run_wrapped=cached_instance(_run_wrapped_template, label, driver, deps, _KERNEL=kernel),
     )
     STEPS[kernel] = step
+    SHARED_KERNELS[kernel] = shared
     return step
 
 
