@@ -56,9 +56,11 @@ small:
 * Fixed shapes at compile time where a step has them (the linear observer and finite differences for ``m = 2,
   3``, the Kalman filter): the widths are checked once per call and the rows indexed with constant strides.
 * One step per algorithm. The signed-power step (:func:`hosm_channel_step`) and the eigenvalue map
-  (:func:`eigmap_channel_step`) run generic in the order; specialised, vectorized variants for ``m = 2, 3`` and
-  known exponent tables (measured 0.4 against 0.7 us per call at 32 channels) were removed, since inside the
-  wrapper (a few to 23 channels, an environment step of 30-320 us) they did not show.
+  (:func:`eigmap_channel_step`) are the only implementations of their recursions; for ``m = 2, 3`` the same step
+  runs with ``m`` a compile-time constant (its loops unrolled). Specialised vectorized variants for known exponent
+  tables were removed: per ``update`` they were faster at 8-32 channels (Levant ``k = 2``, 32 channels: 1.6 us
+  against 4.0 us now, 2 channels: equal), but inside the wrapper (up to 23 channels, an environment step of
+  30-700 us) the difference did not show in ``scripts/bench_wrapper.py``.
 * Vectorizable roots: ``sqrt`` for ``m = 2``; for ``m = 3`` the cube root of fdlibm (:func:`cbrt`: a bit-level
   first guess, a polynomial and one refinement step, error below 1 ulp) instead of ``exp(log(a) / 3)``, and
   fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic.
@@ -393,11 +395,8 @@ def hosm_channel_step(x, y, params, m, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def hosm_rows(state, y, params, new_state, out, shared):
-    """:func:`hosm_channel_step` on every channel: one explicit step of a signed-power differentiator (Levant
-    2003, any order; the explicit super-twisting step; Cruz-Zavala, Moreno and Fridman 2011; Angulo, Moreno and
-    Fridman 2013), ``m = out.shape[1]`` estimates. ``shared``: one parameter row for every channel."""
-    m = out.shape[1]
+def _hosm_loop(state, y, params, new_state, out, shared, m):
+    """The channel loop of :func:`hosm_rows` for ``m`` estimates (a compile-time constant when inlined)."""
     _check_widths(state, new_state, params, out, m + 1, 2 + 2 * m * N_TERMS, m)
     failed = False
     for c in range(y.shape[0]):
@@ -406,6 +405,20 @@ def hosm_rows(state, y, params, new_state, out, shared):
         row[m] = hosm_channel_step(state[c], y[c], params[pc], m, row, out[c])
         failed |= not (_row_finite(row) and _row_finite(out[c]))
     return _check_state(new_state, out) if failed else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def hosm_rows(state, y, params, new_state, out, shared):
+    """:func:`hosm_channel_step` on every channel: one explicit step of a signed-power differentiator (Levant
+    2003, any order; the explicit super-twisting step; Cruz-Zavala, Moreno and Fridman 2011; Angulo, Moreno and
+    Fridman 2013), ``m = out.shape[1]`` estimates. ``shared``: one parameter row for every channel. The common
+    orders run the same step with ``m`` a constant (the compiler unrolls its loops)."""
+    m = out.shape[1]
+    if m == 2:
+        return _hosm_loop(state, y, params, new_state, out, shared, 2)
+    if m == 3:
+        return _hosm_loop(state, y, params, new_state, out, shared, 3)
+    return _hosm_loop(state, y, params, new_state, out, shared, m)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -526,10 +539,8 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def eigmap_rows(state, y, params, new_state, out, shared):
-    """:func:`eigmap_channel_step` on every channel, ``m = out.shape[1]`` (``shared``: one parameter row for every
-    channel)."""
-    m = out.shape[1]
+def _eigmap_loop(state, y, params, new_state, out, shared, m):
+    """The channel loop of :func:`eigmap_rows` for ``m`` estimates (a compile-time constant when inlined)."""
     _check_widths(state, new_state, params, out, m + 1, 4 + (m + 1) * m, m)
     failed = False
     for c in range(y.shape[0]):
@@ -538,6 +549,18 @@ def eigmap_rows(state, y, params, new_state, out, shared):
         row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
         failed |= not (_row_finite(row) and _row_finite(out[c]))
     return _check_state(new_state, out) if failed else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def eigmap_rows(state, y, params, new_state, out, shared):
+    """:func:`eigmap_channel_step` on every channel, ``m = out.shape[1]`` (``shared``: one parameter row for every
+    channel); the common orders with ``m`` a constant, as :func:`hosm_rows`."""
+    m = out.shape[1]
+    if m == 2:
+        return _eigmap_loop(state, y, params, new_state, out, shared, 2)
+    if m == 3:
+        return _eigmap_loop(state, y, params, new_state, out, shared, 3)
+    return _eigmap_loop(state, y, params, new_state, out, shared, m)
 
 
 # ----------------------------------------------------------------------------------------------------------------
