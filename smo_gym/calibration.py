@@ -39,13 +39,12 @@ References
 
 from __future__ import annotations
 
-import inspect
 from math import comb
 
 import numpy as np
 
 from ._validation import check_int_in_range, check_positive, did_you_mean
-from .observers import OBSERVERS, Observer, make_observer
+from .observers import FAMILIES, OBSERVERS, Observer, make_observer
 
 __all__ = [
     "bound_order",
@@ -57,8 +56,6 @@ __all__ = [
 
 #: median absolute deviation -> standard deviation of a Gaussian, 1 / Phi^-1(3/4)
 MAD_TO_STD = 1.482602218505602
-#: observer name -> default differentiation order (their constructors' defaults, where not 1)
-_DEFAULT_ORDER = {"levant": 2, "uniform-levant": 2}
 #: smallest noise level a gain formula divides by (the wrapper's floor)
 NOISE_FLOOR = 1e-6
 #: smallest derivative bound (the wrapper's floor): a constant channel still gets a positive gain
@@ -217,44 +214,25 @@ def derivative_bound(
 # ----------------------------------------------------------------------------------------------------------------
 # default gains
 # ----------------------------------------------------------------------------------------------------------------
-def bound_order(name: str, observer_kwargs: dict | None = None) -> int:
-    """Order of the derivative an observer's gain must bound: ``order + 1`` (2 = acceleration, 3 = jerk).
-
-    Super-twisting, URED and the constant-acceleration Kalman filter bound the acceleration; the others the
-    derivative after the last one they estimate (``order`` from ``observer_kwargs``, else the constructor's
-    default). Finite differences need no bound (2 is returned).
-    """
-    kwargs = observer_kwargs or {}
-    if name in ("finite-difference", "kalman-ca", "super-twisting", "ured"):
-        return 2
-    return int(kwargs.get("order", _DEFAULT_ORDER.get(name, 1))) + 1
-
-
-def _gain_rule(name: str, kw: dict) -> str | None:
-    """Which calibrated quantity fills the gains of observer ``name`` given ``kw`` (None: nothing to fill)."""
+def _family(name: str):
+    """The registered model-free family ``name``, or the ``ValueError`` of :func:`make_observer` listing them."""
     if not isinstance(name, str) or name not in OBSERVERS:
         make_observer(name)  # raises the ValueError that lists the valid names
-    if name == "finite-difference":
-        return None
-    if name == "high-gain":
-        return None if "gain" in kw else "high-gain"
-    if name == "kalman-ca":
-        return None if "process_noise" in kw and "measurement_noise" in kw else "kalman-ca"
-    params = inspect.signature(OBSERVERS[name]).parameters
-    if "lipschitz" in params:
-        given = "lipschitz" in kw or ("k1" in kw and "k2" in kw) or ("rate" in params and "rate" in kw)
-        return None if given else "lipschitz"
-    if "disturbance" in params and "noise" in params:
-        return None if "disturbance" in kw and "noise" in kw else "disturbance"
-    if "gain" in params and params["gain"].default is inspect.Parameter.empty:
-        return None if "gain" in kw else "gain"
-    return None
+    return FAMILIES[name]
+
+
+def bound_order(name: str, observer_kwargs: dict | None = None) -> int:
+    """Order of the derivative an observer's gain must bound (2 = acceleration, 3 = jerk), as its family
+    registers it (:meth:`Family.bound_order <smo_gym.observers.Family.bound_order>`): a fixed order (super-twisting,
+    URED and the constant-acceleration Kalman filter bound the acceleration; finite differences need no bound and
+    say 2), else ``order + 1`` with ``order`` from ``observer_kwargs`` or the constructor's default."""
+    return _family(name).bound_order(observer_kwargs)
 
 
 def needs_calibration(name: str, observer_kwargs: dict | None = None) -> bool:
     """Whether :func:`default_observer` takes any gain of ``name`` from the bounds or the noise, given these
     constructor arguments (False when they already set every gain)."""
-    return _gain_rule(name, dict(observer_kwargs or {})) is not None
+    return _family(name).needs_calibration(dict(observer_kwargs or {}))
 
 
 def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: dict | None = None) -> Observer:
@@ -279,7 +257,8 @@ def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: d
 
     Notes
     -----
-    With ``L`` the bound and :math:`\epsilon` the noise level:
+    Each family registers its gain rule (:attr:`Family.calibrate <smo_gym.observers.Family.calibrate>`). With
+    ``L`` the bound and :math:`\epsilon` the noise level:
 
     * sliding-mode differentiators (a ``lipschitz`` parameter): ``lipschitz = bounds`` per channel [Lev03];
     * ``"high-gain"``: :meth:`HighGain.from_bounds <smo_gym.observers.HighGain.from_bounds>`,
@@ -287,41 +266,26 @@ def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: d
       :math:`L/\ell^{n-1}` and :math:`\ell\epsilon` velocity errors);
     * ``"kalman-ca"``: :meth:`KalmanCA.from_bounds <smo_gym.observers.KalmanCA.from_bounds>`, ``q = L^2/tau``
       with the largest acceleration bound, ``r`` from the noise;
-    * an observer with ``disturbance`` and ``noise`` parameters: the largest ``L`` and :math:`\epsilon`;
-    * an observer with a required ``gain``: the same balance :math:`\ell = (L/\epsilon)^{1/n}`;
+    * ``"switched-gain"`` (``disturbance`` and ``noise`` parameters): the largest ``L`` and :math:`\epsilon`;
+    * ``"low-power-high-gain"`` (a required ``gain``): the same balance :math:`\ell = (L/\epsilon)^{1/n}`;
     * finite differences need nothing.
     """
+    family = _family(name)
     kw = dict(observer_kwargs or {})
-    rule = _gain_rule(name, kw)
-    cls = OBSERVERS[name]
-    valid = [p for p in inspect.signature(cls).parameters if p != "dt"]
-    if hasattr(cls, "from_bounds"):  # its keywords pass through to the constructor or tune the rule itself
-        valid += [p for p in inspect.signature(cls.from_bounds).parameters if p not in valid + ["dt", "kwargs"]]
+    valid = list(family.parameters)
     for key in kw:  # a misspelled gain would otherwise be calibrated over silently, or reported as a missing one
         if key not in valid:
             raise ValueError(
-                f"unknown parameter {key!r} of {cls.__name__}: expected one of {', '.join(valid)}, "
+                f"unknown parameter {key!r} of {family.cls.__name__}: expected one of {', '.join(valid)}, "
                 f"actual value: {key}={kw[key]!r}{did_you_mean(key, valid)}"
             )
-    noise = float(max(np.mean(noise_std), NOISE_FLOOR))
-    largest = float(np.max(bounds)) if rule is not None else 0.0
-    if rule == "high-gain":
-        order = kw.pop("order", 1)
-        return cls.from_bounds(dt, largest, noise, order=order, **kw)
-    if rule == "kalman-ca":
-        return cls.from_bounds(dt, noise, largest, **kw)
-    if rule == "lipschitz":
-        kw["lipschitz"] = np.asarray(bounds, dtype=float)
-    elif rule == "disturbance":
-        kw.setdefault("disturbance", largest)
-        kw.setdefault("noise", noise)
-    elif rule == "gain":
-        n = int(kw.get("order", 1)) + 1
-        kw["gain"] = (largest / noise) ** (1.0 / n)
     try:
-        return cls(dt=dt, **kw)
+        if family.needs_calibration(kw):
+            noise = float(max(np.mean(noise_std), NOISE_FLOOR))
+            return family.calibrate(family.cls, dt, np.asarray(bounds, dtype=float), noise, kw)
+        return family.cls(dt=dt, **kw)
     except TypeError as exc:
         raise ValueError(
-            f"expected observer_kwargs completing the parameters of {cls.__name__} (no default gains are known "
+            f"expected observer_kwargs completing the parameters of {family.cls.__name__} (no default gains are known "
             f"for it), actual value: {observer_kwargs!r} ({exc})"
         ) from None

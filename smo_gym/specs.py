@@ -26,7 +26,7 @@ import re
 
 from . import sensors
 from ._validation import did_you_mean
-from .observers import OBSERVERS
+from .observers import FAMILIES, OBSERVERS
 
 __all__ = ["SENSOR_MODELS", "make_sensor", "parse_observer_spec", "parse_spec", "parse_value", "sensor_names"]
 
@@ -113,11 +113,11 @@ def _check_keys(kind: str, name: str, kwargs: dict, valid: list[str], spec: str)
 
 
 def observer_options(name: str) -> list[str]:
-    """The options an observer spec may set: its constructor's parameters (``dt`` is the sampling step, set by the
-    rate) and the keyword-only ones of its ``from_bounds`` gain design."""
+    """The options an observer spec may set: the parameters its family registers
+    (:attr:`Family.parameters <smo_gym.observers.Family.parameters>`: the constructor's, ``dt`` excepted since the
+    rate sets it, then the keyword-only ones of its ``from_bounds`` gain design)."""
     _check_name("an observer name", name, list(OBSERVERS))
-    cls = OBSERVERS[name]
-    return _options([cls] + ([cls.from_bounds] if hasattr(cls, "from_bounds") else []))
+    return list(FAMILIES[name].parameters)
 
 
 def parse_observer_spec(spec: str) -> tuple[str, dict]:

@@ -33,3 +33,66 @@ def test_the_fused_drivers_are_checked_against_their_dependencies():
     # every fused driver names a cache index numba would use (the attribute path drop_stale relies on)
     for driver in _fused.FUSED_DRIVERS.values():
         assert driver._cache._cache_file._index_path.endswith(".nbi")
+
+
+_TEMPLATE_MODULE = """
+from numba import njit
+from smo_gym._numba_cache import cached_instance
+
+_KERNEL = None
+
+
+@njit(cache=True, inline="always")
+def plus_one(x):
+    return x + 1.0
+
+
+@njit(cache=True, inline="always")
+def twice(x):
+    return 2.0 * x
+
+
+def _template(a):
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += _KERNEL(a[i])
+    return s
+
+
+drivers = [cached_instance(_template, k.py_func.__name__, dict(cache=True), _KERNEL=k) for k in (plus_one, twice)]
+"""
+
+_RUN = """
+import numpy as np, generated
+a = np.arange(3.0)
+print([d(a) for d in generated.drivers], [sum(d.stats.cache_hits.values()) for d in generated.drivers])
+"""
+
+
+def test_cached_instances_are_reused_by_a_new_process(tmp_path):
+    """Each copy of a template, bound to its own kernel, computes with that kernel and is loaded from numba's disk
+    cache by a second process (a closure over the kernel would compile again: its cache key pickles the kernel's
+    per-process id)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "generated.py").write_text(_TEMPLATE_MODULE)
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), root]), "NUMBA_CACHE_DIR": str(tmp_path / "c")}
+    runs = [
+        subprocess.run([sys.executable, "-c", _RUN], env=env, capture_output=True, text=True, check=True).stdout
+        for _ in range(2)
+    ]
+    assert runs[0].strip() == "[6.0, 6.0] [0, 0]"  # 1 + 2 + 3 and 2 * (0 + 1 + 2), compiled
+    assert runs[1].strip() == "[6.0, 6.0] [1, 1]"  # the same, both from the cache
+
+
+def test_every_registered_step_and_fused_driver_is_cached_on_disk():
+    from smo_gym.engine import fused as _fused
+    from smo_gym.observers import _kernels as K
+
+    for step in K.STEPS.values():
+        for f in (step.kernel, step.shared_kernel, step.run, step.run_wrapped, _fused.FUSED_DRIVERS[step.kernel]):
+            assert f._cache._cache_file._index_path.endswith(".nbi")
+            assert step.label in f.py_func.__qualname__

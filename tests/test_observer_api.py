@@ -1,8 +1,8 @@
 """The observer contract: batching, masked resets, offline/online equivalence, pickling, bad input.
 
-Every property is checked for every configuration of ``CONFIGS`` (each core differentiator: the sliding-mode,
-high-gain, finite-difference and Kalman ones, in each of its discretizations), with per-channel Lipschitz arrays
-where the observer takes one.
+Every property is checked for every registered model-free family (:data:`smo_gym.observers.FAMILIES`) on each of
+the parameter sets it registers (together they cover its discretizations), with per-channel Lipschitz arrays
+where the family takes one. A newly registered family is tested here without an edit.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ import pytest
 import smo_gym
 from smo_gym import DivergenceError
 from smo_gym.observers import (
+    FAMILIES,
+    MODEL_BASED_OBSERVERS,
     OBSERVERS,
     URED,
     FiniteDifference,
@@ -38,23 +40,18 @@ def lipschitz_array(shape=BATCH) -> np.ndarray:
     return 2.0 + np.arange(np.prod(shape), dtype=float).reshape(shape) * 0.37
 
 
-#: observer name -> list of (id, kwargs builder taking the per-channel lipschitz array or None)
+def _example_id(family, kwargs: dict) -> str:
+    d = kwargs.get("discretization", family.cls.discretizations[0])
+    return f"k{kwargs['order']}-{d}" if "order" in kwargs else d
+
+
+#: family name -> list of (id, constructor arguments), the examples each family registers
 CONFIGS: dict[str, list[tuple[str, dict]]] = {
-    "super-twisting": [
-        ("implicit", dict(discretization="implicit")),
-        ("euler", dict(discretization="euler")),
-    ],
-    "levant": [
-        (f"k{k}-{d}", dict(order=k, discretization=d))
-        for k, d in [(1, "taylor"), (2, "taylor"), (3, "euler"), (2, "semi-implicit"), (3, "matching"), (5, "taylor")]
-    ],
-    "ured": [("euler", dict())],
-    "uniform-levant": [("k2-euler", dict(order=2)), ("k3-taylor", dict(order=3, discretization="taylor"))],
-    "high-gain": [("implicit", dict(gain=30.0, order=2)), ("euler", dict(gain=30.0, order=1, discretization="euler"))],
-    "finite-difference": [("order1", dict(order=1)), ("order2", dict(order=2))],
-    "kalman-ca": [("default", dict(process_noise=50.0, measurement_noise=1e-6))],
+    name: [(f"{i}-{_example_id(family, kw)}", kw) for i, kw in enumerate(family.examples)]
+    for name, family in FAMILIES.items()
+    if not family.model_based
 }
-TAKES_LIPSCHITZ = {"super-twisting", "levant", "ured", "uniform-levant"}
+TAKES_LIPSCHITZ = {name for name, cfgs in CONFIGS.items() if any("lipschitz" in kw for _, kw in cfgs)}
 CASES = [pytest.param(name, kw, id=f"{name}-{cid}") for name, cfgs in CONFIGS.items() for cid, kw in cfgs]
 
 
@@ -80,14 +77,28 @@ def update_loop(obs, Y) -> np.ndarray:
     return np.stack(out)
 
 
-def test_configs_cover_the_core_differentiators():
-    """The core differentiators are registered, and ``CONFIGS`` holds exactly them, in every discretization."""
-    core = {"super-twisting", "levant", "ured", "uniform-levant", "high-gain", "finite-difference", "kalman-ca"}
-    assert core <= set(OBSERVERS)
-    assert set(CONFIGS) == core
-    for name, cfgs in CONFIGS.items():
-        used = {kw.get("discretization", OBSERVERS[name].discretizations[0]) for _, kw in cfgs}
-        assert used == set(OBSERVERS[name].discretizations), name
+def test_every_registered_family_is_tested_and_gets_the_compiled_path():
+    """Every family's examples cover its discretizations; a family of compiled steps runs one of them (so it has
+    the offline drivers, the shared-parameter variant and the fused driver); model-based ones are not built by
+    name."""
+    from smo_gym.engine.fused import FUSED_DRIVERS, fusable
+    from smo_gym.observers import _kernels
+
+    assert set(CONFIGS) == set(OBSERVERS) and not set(CONFIGS) & set(MODEL_BASED_OBSERVERS)
+    for name, family in FAMILIES.items():
+        assert family.cls.name == name
+        if family.model_based:
+            assert name in MODEL_BASED_OBSERVERS and not family.compiled
+            continue
+        used = {kw.get("discretization", family.cls.discretizations[0]) for kw in family.examples}
+        assert used == set(family.cls.discretizations), name
+        for kw in family.examples:
+            obs = make_observer(name, dt=DT, **kw)
+            if family.compiled:
+                step = _kernels.STEPS[obs._kernel]
+                assert step in family.steps and obs._kernel in FUSED_DRIVERS and fusable(obs), name
+            else:
+                assert obs._kernel not in _kernels.STEPS and not fusable(obs), name
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -303,14 +314,11 @@ def test_nonfinite_in_run_or_reset_raises(name, kwargs, rng):
     assert obs.n_updates == n
 
 
+#: every model-free class with its first registered example (without ``discretization``)
 ALL_CLASSES = [
-    (SuperTwisting, dict(lipschitz=1.0)),
-    (Levant, dict(order=2, lipschitz=1.0)),
-    (URED, dict(lipschitz=1.0)),
-    (UniformLevant, dict(order=2, lipschitz=1.0)),
-    (HighGain, dict(gain=10.0)),
-    (FiniteDifference, dict()),
-    (KalmanCA, dict(process_noise=1.0, measurement_noise=1e-6)),
+    (family.cls, {k: v for k, v in family.examples[0].items() if k != "discretization"})
+    for family in FAMILIES.values()
+    if not family.model_based
 ]
 
 
@@ -580,12 +588,9 @@ def test_an_overflowing_estimate_is_a_divergence():
 # ----------------------------------------------------------------------------------------------------------------
 # initial derivatives: reset(y0, derivatives=...)
 # ----------------------------------------------------------------------------------------------------------------
-#: every registered family (gains of a fast observer: each converges within a few samples from the true state)
-DERIVATIVE_CASES = CASES + [
-    pytest.param("switched-gain", dict(order=1, mu0=20.0, supervise=False, gain=[2.0, 1.0]), id="switched-gain"),
-    pytest.param("low-power-high-gain", dict(gain=50.0, order=2), id="low-power-high-gain"),
-    pytest.param("ilf-finite", dict(order=1, lipschitz=20.0), id="ilf-finite"),
-]
+#: every registered family, on its registered examples (the fixed-time ILF observer is not exact on ramps from
+#: the true state at its example's rate)
+DERIVATIVE_CASES = [c for c in CASES if c.values[0] != "ilf-fixed"]
 
 
 def test_derivative_cases_cover_the_registry():

@@ -1,8 +1,6 @@
-"""The compiled kernels' fast paths: vectorizable roots, specialised steps, status codes.
+"""The compiled kernels: vectorizable roots, status codes, widths, the shared-parameter variants.
 
-The batch kernels of :mod:`smo_gym.observers._kernels` run specialised, vectorized loops for the common orders;
-these tests hold them to the generic per-channel steps they replace, and the helper maths to long-double
-references.
+The helper maths of :mod:`smo_gym.observers._kernels` is held to long-double references.
 """
 
 from __future__ import annotations
@@ -11,7 +9,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from smo_gym.observers import URED, Levant, SuperTwisting, UniformLevant
+from smo_gym.observers import URED, Levant, SuperTwisting
 from smo_gym.observers import _kernels as K
 
 
@@ -29,21 +27,6 @@ def _exp_all(x):
     for i in range(x.shape[0]):
         out[i] = K.exp_nonpositive(x[i])
     return out
-
-
-@njit(error_model="numpy")
-def _generic_hosm(state, y, params, new_state, out):
-    """The generic per-channel HOSM step (what ``hosm_kernel`` ran for every exponent table before)."""
-    m = out.shape[1]
-    for c in range(y.shape[0]):
-        new_state[c, m] = K.hosm_channel_step(state[c], y[c], params[c], m, new_state[c], out[c])
-
-
-@njit(error_model="numpy")
-def _generic_eigmap(state, y, params, new_state, out):
-    m = out.shape[1]
-    for c in range(y.shape[0]):
-        new_state[c, m] = K.eigmap_channel_step(state[c], y[c], params[c], m, new_state[c], out[c])
 
 
 def _ulp_error(got, ref):
@@ -77,60 +60,6 @@ def test_exp_nonpositive_is_within_one_ulp_and_underflows_to_zero():
     assert _ulp_error(got, np.exp(x.astype(np.longdouble))).max() < 1.0
     assert _exp_all(np.array([-746.0, -1e300, -np.inf])).tolist() == [0.0, 0.0, 0.0]
     assert np.isnan(_exp_all(np.array([np.nan]))[0])
-
-
-HOSM_OBSERVERS = [
-    ("super-twisting euler", lambda L: SuperTwisting(1e-3, L, discretization="euler")),
-    ("levant k=1", lambda L: Levant(1, 1e-3, L)),
-    ("levant k=2 taylor", lambda L: Levant(2, 1e-3, L)),
-    ("levant k=2 euler", lambda L: Levant(2, 1e-3, L, discretization="euler")),
-    ("ured", lambda L: URED(1e-3, L)),
-    ("uniform levant k=2 euler", lambda L: UniformLevant(2, 1e-3, L)),
-    ("uniform levant k=2 taylor", lambda L: UniformLevant(2, 1e-3, L, discretization="taylor")),
-    ("levant k=3 (generic)", lambda L: Levant(3, 1e-3, L)),
-    ("uniform levant alpha=0.5 (generic)", lambda L: UniformLevant(2, 1e-3, L, alpha=0.5)),
-]
-
-
-@pytest.mark.parametrize("name, build", HOSM_OBSERVERS, ids=[n for n, _ in HOSM_OBSERVERS])
-@pytest.mark.parametrize("n", [1, 5, 33])
-def test_specialised_hosm_steps_equal_the_generic_step(name, build, n):
-    """The specialised steps (m = 2, 3, known exponents) do the generic step's operations: equal to 1e-15."""
-    rng = np.random.default_rng(n)
-    obs = build(1.0 + rng.uniform(0, 50, n))
-    y0 = rng.standard_normal(n)
-    obs.reset(y0)
-    state = obs.state
-    state[:, 1 : obs.order + 1] = rng.standard_normal((n, obs.order))
-    for y in (y0 + 1e-3 * rng.standard_normal(n), y0 + 10.0 * rng.standard_normal(n)):
-        y[-1] = state[-1, 0]  # a zero error (sign 0) in the batch
-        fast_state, fast_out = np.empty_like(state), np.empty((n, obs.order + 1))
-        ref_state, ref_out = np.empty_like(state), np.empty((n, obs.order + 1))
-        assert K.hosm_kernel(state, y, obs._params, fast_state, fast_out) == -1
-        _generic_hosm(state, y, obs._params, ref_state, ref_out)
-        np.testing.assert_allclose(fast_state, ref_state, rtol=1e-15, atol=1e-300)
-        np.testing.assert_allclose(fast_out, ref_out, rtol=1e-15, atol=1e-300)
-
-
-@pytest.mark.parametrize("mixed", [False, True])
-def test_eigenvalue_mapping_kernel_equals_the_generic_step(mixed):
-    """m = 3 runs five vectorized passes per mapping; rows of mixed mappings fall back to the generic step."""
-    rng = np.random.default_rng(3)
-    n = 19
-    obs = Levant(2, 1e-2, 1.0 + rng.uniform(0, 50, n), discretization="semi-implicit", mu=0.5)
-    obs.reset(rng.standard_normal(n))
-    params = obs._params.copy()
-    if mixed:
-        params[::3, 3] = 1.0  # every third row uses the matching mapping
-    state = obs.state
-    state[:, 1:3] = rng.standard_normal((n, 2))
-    y = rng.standard_normal(n)
-    fast_state, fast_out = np.empty_like(state), np.empty((n, 3))
-    ref_state, ref_out = np.empty_like(state), np.empty((n, 3))
-    assert K.eigmap_kernel(state, y, params, fast_state, fast_out) == -1
-    _generic_eigmap(state, y, params, ref_state, ref_out)
-    np.testing.assert_array_equal(fast_state, ref_state)
-    np.testing.assert_array_equal(fast_out, ref_out)
 
 
 @pytest.mark.parametrize(

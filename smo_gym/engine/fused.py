@@ -17,9 +17,10 @@ Free and ball joints go through the same compiled tangent coordinates as the gen
 (:mod:`smo_gym.engine.tangent`).
 
 The numbers are those of the general path (``Sensor.run`` then ``Observer.run``), bit for bit (tested). The
-function is generic in the kernel and inlined into one cached driver per kernel (a compiled function taking the
-kernel as an argument would be recompiled in every new process, see :mod:`smo_gym.observers._kernels`); kernels
-without a driver here use the general path.
+function is generic in the kernel and inlined into one cached driver per registered kernel (:data:`FUSED_DRIVERS`,
+generated: a compiled function taking the kernel as an argument would be recompiled in every new process, see
+:func:`smo_gym._numba_cache.cached_instance`); observers that are not a registered compiled family use the general
+path.
 
 Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produced a non-finite value at sample
 ``t``, channel ``j``; ``-2 - (t * nv + j)`` the observer's state became non-finite there.
@@ -28,17 +29,19 @@ Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produce
 from __future__ import annotations
 
 import functools
+import inspect
 import math
 import operator
+from collections.abc import Mapping
 
 import numpy as np
 from numba import carray, njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .._numba_cache import drop_stale
-from ..observers import Observer
+from .._numba_cache import cached_instance
 from ..observers import _kernels as K
+from ..observers import family_of
 from ..observers.base import _compiled_entry
 from ..sensors import Sensor, _chain_kernel
 from .measurement import JointMeasurement, VelocityEstimator
@@ -56,8 +59,8 @@ __all__ = [
     "address",
     "copy_entries",
     "entry_functions_match_numpy",
+    "fusable",
     "gather_entries",
-    "register_fused_driver",
 ]
 
 #: the arrays a driver reads through its address table, in row order: (name, dtype, ndim); the row of an array
@@ -323,68 +326,55 @@ def entry_functions_match_numpy(n: int = 4096, seed: int = 2468) -> bool:
     return True
 
 
-# One cached driver per kernel, each naming its kernel: written out rather than generated, because numba caches a
-# compiled function only if it is a module-level function whose body names its callees (see _kernels.py).
-@njit(cache=True, error_model="numpy")
-def _sense_sta_implicit(Q, qvel_true, t0, est, info, Zm, obs, table):
-    return _sense_table(K.sta_implicit_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
+_KERNEL = None  # the global of the template below, bound per observer kernel by cached_instance
 
 
-@njit(cache=True, error_model="numpy")
-def _sense_hosm(Q, qvel_true, t0, est, info, Zm, obs, table):
-    return _sense_table(K.hosm_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
+def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
+    """The fused driver of the observer kernel ``_KERNEL``: :func:`_sense_table` with the kernel inlined."""
+    return _sense_table(_KERNEL, Q, qvel_true, t0, est, info, Zm, obs, table)
 
 
-@njit(cache=True, error_model="numpy")
-def _sense_eigmap(Q, qvel_true, t0, est, info, Zm, obs, table):
-    return _sense_table(K.eigmap_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
+class _FusedDrivers(Mapping):
+    """Observer kernel -> its fused driver, for every step registered with
+    :func:`smo_gym.observers._kernels.register_step` (:data:`~smo_gym.observers._kernels.STEPS`).
 
-
-@njit(cache=True, error_model="numpy")
-def _sense_linear(Q, qvel_true, t0, est, info, Zm, obs, table):
-    return _sense_table(K.linear_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
-
-
-@njit(cache=True, error_model="numpy")
-def _sense_kalman_ca(Q, qvel_true, t0, est, info, Zm, obs, table):
-    return _sense_table(K.kalman_ca_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
-
-
-@njit(cache=True, error_model="numpy")
-def _sense_finite_difference(Q, qvel_true, t0, est, info, Zm, obs, table):
-    return _sense_table(K.finite_difference_kernel, Q, qvel_true, t0, est, info, Zm, obs, table)
-
-
-#: observer kernel -> its fused driver
-FUSED_DRIVERS = {
-    K.sta_implicit_kernel: _sense_sta_implicit,
-    K.hosm_kernel: _sense_hosm,
-    K.eigmap_kernel: _sense_eigmap,
-    K.linear_kernel: _sense_linear,
-    K.kalman_ca_kernel: _sense_kalman_ca,
-    K.finite_difference_kernel: _sense_finite_difference,
-}
-
-
-def register_fused_driver(kernel, driver) -> None:
-    """Register the fused driver of another observer kernel.
-
-    ``driver(Q, qvel_true, t0, est, info, Zm, obs, table)`` must be ``return _sense_table(kernel, Q, qvel_true,
-    t0, est, info, Zm, obs, table)``, compiled with ``@njit(cache=True)`` at module level.
+    Each driver is :func:`_sense_template` with the kernel bound (:func:`smo_gym._numba_cache.cached_instance`:
+    cached on disk, reused by a new process), generated on first use, so that a family registered after this
+    module was imported has its driver too. Its cached code is dropped when the kernel's module, the kernels of
+    :mod:`smo_gym.observers._kernels`, the sensor chain or the tangent arithmetic change (it inlines them).
     """
-    FUSED_DRIVERS[kernel] = driver
+
+    def __init__(self):
+        self._drivers: dict = {}
+
+    def __getitem__(self, kernel):
+        driver = self._drivers.get(kernel)
+        if driver is None:
+            step = K.STEPS[kernel]  # KeyError: not a registered kernel
+            from .. import sensors
+            from . import tangent
+
+            deps = [inspect.getfile(step.rows.py_func), K.__file__, sensors.__file__, tangent.__file__]
+            options = dict(cache=True, error_model="numpy")
+            driver = self._drivers[kernel] = cached_instance(_sense_template, step.label, options, deps, _KERNEL=kernel)
+        return driver
+
+    def __iter__(self):
+        return iter(list(K.STEPS))
+
+    def __len__(self) -> int:
+        return len(K.STEPS)
 
 
-# the drivers inline the observer kernels, the sensor chain and the tangent arithmetic of other modules: drop
-# their cached machine code when one of those is newer (numba keys the cache on this file only)
-def _dependencies() -> list[str]:
-    from .. import sensors
-    from . import tangent
-
-    return [K.__file__, sensors.__file__, tangent.__file__]
+#: observer kernel -> its fused driver (every registered step has one, generated on first use)
+FUSED_DRIVERS = _FusedDrivers()
 
 
-drop_stale(FUSED_DRIVERS.values(), _dependencies())
+def fusable(observer) -> bool:
+    """Whether the fused drivers serve this observer: its family is registered with compiled steps only (not
+    model-based; a subclass of a registered class is not the registered family) and its kernel has a driver."""
+    family = family_of(observer)
+    return family is not None and family.compiled and observer._kernel in FUSED_DRIVERS
 
 
 class FusedSensing:
@@ -395,8 +385,8 @@ class FusedSensing:
     drives the sensor's and the observer's own arrays and keeps their bookkeeping (the sensor's position in its
     random block, the observer's estimate and update count), so both objects stay usable as they are.
 
-    Use :meth:`supports` first: a plain :class:`VelocityEstimator` around an observer whose ``update``/``run``
-    are the base class's and whose kernel has a fused driver, a sensor whose ``run`` is the base class's, and an
+    Use :meth:`supports` first: a plain :class:`VelocityEstimator` around an observer of a registered compiled
+    family (:func:`fusable`), a sensor whose ``run`` is the base class's, and an
     adapter with a scratch state.
 
     Parameters
@@ -451,12 +441,10 @@ class FusedSensing:
         observer = estimator.observer
         return (
             type(estimator) is VelocityEstimator
-            and type(observer).update is Observer.update
-            and type(observer).run is Observer.run
+            and fusable(observer)
             and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
             and observer.order >= 1
             and type(measurement.sensor).run is Sensor.run
-            and getattr(observer, "_kernel", None) in FUSED_DRIVERS
             and adapter.evaluation is not None
         )
 

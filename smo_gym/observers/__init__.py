@@ -1,9 +1,14 @@
 """Observers: stateful estimators of signals and their derivatives, batched over ``(..., n_channels)``.
 
-Pure NumPy and compiled kernels only: nothing here imports Gymnasium or MuJoCo.
+Pure NumPy and compiled kernels only: nothing here imports Gymnasium or MuJoCo. Every family registers itself
+(:func:`register_observer`); importing this package imports each of its modules, so a family defined in a new
+module of the package is registered without an import here.
 """
 
 from __future__ import annotations
+
+import importlib
+import pkgutil
 
 from .._validation import DivergenceError, check_keywords, did_you_mean
 from .base import Observer
@@ -13,14 +18,11 @@ from .ilf import ILFDifferentiator, ILFFixedDifferentiator, ILFObserver
 from .linear import FiniteDifference, HighGain, KalmanCA
 from .low_power import LowPowerHighGain
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
+from .registry import FAMILIES, MODEL_BASED_OBSERVERS, OBSERVERS, Family, family_of, register_observer
 from .switched_gain import SwitchedGain
 
-#: name -> class, for the wrapper, the CLI and :func:`smo_gym.differentiate`
-OBSERVERS: dict[str, type[Observer]] = {
-    cls.name: cls for cls in (SuperTwisting, Levant, URED, UniformLevant, HighGain, FiniteDifference, KalmanCA)
-}
-OBSERVERS.update({cls.name: cls for cls in (SwitchedGain, LowPowerHighGain)})
-OBSERVERS.update({cls.name: cls for cls in (ILFDifferentiator, ILFFixedDifferentiator)})  # ILF observers on chains
+for _module in pkgutil.iter_modules(__path__):
+    importlib.import_module(f"{__name__}.{_module.name}")
 
 
 @check_keywords
@@ -34,12 +36,8 @@ def make_observer(name: str, **params) -> Observer:
     return OBSERVERS[name](**params)
 
 
-#: model-based observers (built with a dynamics object, updated with ``update(y, u)``); not in OBSERVERS
-MODEL_BASED_OBSERVERS: dict[str, type[Observer]] = {
-    cls.name: cls for cls in (MechanicalSuperTwisting, DissipativeSuperTwisting)
-}
-
 __all__ = [
+    "FAMILIES",
     "MODEL_BASED_OBSERVERS",
     "OBSERVERS",
     "URED",
@@ -48,6 +46,7 @@ __all__ = [
     "DissipativeSuperTwisting",
     "DivergenceError",
     "Dynamics",
+    "Family",
     "FiniteDifference",
     "HighGain",
     "ILFDifferentiator",
@@ -61,5 +60,7 @@ __all__ = [
     "SuperTwisting",
     "SwitchedGain",
     "UniformLevant",
+    "family_of",
     "make_observer",
+    "register_observer",
 ]

@@ -53,35 +53,25 @@ A call costs the compiled entry point (about 0.13 us for five array arguments, m
 compiled as the batch kernels are, by ``scripts/bench_observers.py``) plus a few ns per channel. What keeps both
 small:
 
-* Fixed shapes at compile time. The kernels of the common sizes (order 1 and 2, i.e. ``m = 2, 3`` estimates)
-  check the widths of their arrays once per call and then index them with constant strides, so LLVM vectorizes
-  the loop over channels (AVX2: four channels per instruction) and unrolls the loops over the state.
-* No early exit inside the channel loop: the finiteness of the new state is collected in a flag and located by
-  a second pass only when something is not finite (then the status is the same ``-2 - i`` as before).
-* Known exponents. The HOSM kernel recognises the exponent tables of Levant's, URED's and the uniform
-  differentiator (``m = 2, 3``) from the first parameter row and runs a step in which every
-  :math:`|e|^{q/m}` is a product of the root :math:`r = |e|^{1/m}` with ``q`` a compile-time constant; other
-  tables run the generic step (:func:`hosm_channel_step`, one ``r`` and :func:`_abs_power` per term).
+* Fixed shapes at compile time where a step has them (the linear observer and finite differences for ``m = 2,
+  3``, the Kalman filter): the widths are checked once per call and the rows indexed with constant strides.
+* One step per algorithm. The signed-power step (:func:`hosm_channel_step`) and the eigenvalue map
+  (:func:`eigmap_channel_step`) are the only implementations of their recursions; for ``m = 2, 3`` the same step
+  runs with ``m`` a compile-time constant (its loops unrolled). Specialised vectorized variants for known exponent
+  tables were removed: per ``update`` they were faster at 8-32 channels (Levant ``k = 2``, 32 channels: 1.6 us
+  against 4.0 us now, 2 channels: equal), but inside the wrapper (up to 23 channels, an environment step of
+  30-700 us) the difference did not show in ``scripts/bench_wrapper.py``.
 * Vectorizable roots: ``sqrt`` for ``m = 2``; for ``m = 3`` the cube root of fdlibm (:func:`cbrt`: a bit-level
   first guess, a polynomial and one refinement step, error below 1 ulp) instead of ``exp(log(a) / 3)``, and
-  fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic
-  so that they vectorize (numba has no vector math library without SVML). The eigenvalue maps use the same
-  ``cbrt`` for ``m = 3`` (see :func:`_eigenvalue_root` for how far that moves them from NumPy's ``a ** (1/3)``)
-  and compute root and map in one vectorized pass.
-* Few strided accesses per loop. LLVM's vectorizer gives up on a loop with too many accesses at non-unit
-  strides (``Too many SCEV assumptions``), so wide steps run in several passes over the channels, the
-  intermediate values waiting in ``new_state`` or ``out``: two for the order-2 HOSM step (the root, then the
-  rest), the order-2 eigenvalue-mapping step (the eigenvalue, then the rest) and the linear observer, three for
-  the Kalman filter. Merging passes further was measured slower (the merged loop stays scalar); what remains
-  per channel is mostly the strided loads and stores of the ``(N, S)``/``(N, P)`` rows themselves.
+  fdlibm's ``exp`` (:func:`exp_nonpositive`) for the matching eigenvalue map, both written with plain arithmetic.
 * Shared parameters. When every channel has the same parameter row (scalar gains: the usual case),
-  ``Observer.update`` passes that one row ``(1, P)`` to the kernel's ``*_shared_kernel`` variant
-  (:data:`SHARED_KERNELS`), whose loops are compiled with ``shared`` as a constant (they read parameter row
-  ``pc = 0 if shared else c``): every parameter is then loop invariant instead of a load at a stride of ``P``
-  values per channel (measured 10-15 % faster at 32 channels). The variants are separate functions (one factory
-  per family, ``shared`` a closure constant) so that each compiles only when used; one function with both loops
-  took seven times as long to compile. ``Observer.run`` and the wrapper's compiled drivers use the per-channel
-  kernels.
+  ``Observer.update`` passes that one row ``(1, P)`` to the step's shared variant (:attr:`Step.shared_kernel`),
+  whose loops are compiled with ``shared`` as a constant (they read parameter row ``pc = 0 if shared else c``):
+  every parameter is then loop invariant instead of a load at a stride of ``P`` values per channel.
+  ``Observer.run`` and the wrapper's compiled drivers use the per-channel kernels.
+* Generated, cached code. A family declares its step once, as a ``rows`` function; :func:`register_step`
+  generates the batch kernels and the drivers from one template each (bound to the step as a global, see
+  :func:`smo_gym._numba_cache.cached_instance`), so numba caches every one on disk.
 * No reference counting at the entry. The batch kernels are compiled with numba's ``_nrt=False``: called from
   Python, their arrays are then unboxed without allocating a reference-counted ``MemInfo`` each, which halves
   the cost of the call (an empty five-array kernel: 0.27 against 0.13 us). The kernels allocate nothing, and
@@ -93,20 +83,22 @@ small:
 These change results by rounding only (a few ulp per step, from the roots and ``exp``); through the
 discontinuous sign of a sliding-mode step such a difference can grow along a chattering trajectory, like any
 change of compiler or instruction order would.
-
-Contract of the specialised HOSM steps: the exponent columns, the unused-term gains and the scheme flag must be
-the same in every parameter row (the observer classes pack them so); the kernel reads them from the first row to
-choose the step. Step sizes and gains remain per channel.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from llvmlite import ir
 from numba import njit, types
+from numba.core.dispatcher import Dispatcher
 from numba.extending import intrinsic, overload
+
+from .._numba_cache import cached_instance
 
 #: Number of signed-power terms per state in the HOSM family (URED needs three in its second equation).
 N_TERMS = 3
@@ -150,34 +142,6 @@ def _taylor_back(x_new, m, dt, out_row):
             fac *= -dt / l
             acc += fac * x_new[i + l]
         out_row[i] = acc
-
-
-@njit(cache=CACHE, error_model="numpy", inline="always")
-def _store_order2(state, new_state, out, c, dt, n0, n1, n2, innovation):
-    r"""Write row ``c`` of an order-2 step: the new state ``(n0, n1, n2)`` and the estimate
-    :math:`e^{-\tau N}\hat x^+` (the operations of :func:`_taylor_back` for ``m = 3``). Returns whether the row,
-    its estimate, its innovation or the old row's last column is not finite.
-
-    Reading the whole old row (its last column only for this flag) leaves no gap in the load group, so LLVM needs
-    no scalar tail; a flag raised by that column alone ends in :func:`_check_state`, which returns -1.
-    """
-    new_state[c, 0] = n0
-    new_state[c, 1] = n1
-    new_state[c, 2] = n2
-    o0 = n0 + (-dt) * n1 + ((-dt) * (-dt / 2.0)) * n2
-    o1 = n1 + (-dt) * n2
-    out[c, 0] = o0
-    out[c, 1] = o1
-    out[c, 2] = n2
-    return not (
-        math.isfinite(n0)
-        & math.isfinite(n1)
-        & math.isfinite(n2)
-        & math.isfinite(innovation)
-        & math.isfinite(state[c, 3])
-        & math.isfinite(o0)
-        & math.isfinite(o1)
-    )
 
 
 def _flat(y, out):  # pragma: no cover - compiled only, see the overload below
@@ -431,212 +395,30 @@ def hosm_channel_step(x, y, params, m, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _rpow(r, q):
-    """``r**q`` for an integer ``q >= 0`` by repeated multiplication (as :func:`_abs_power`)."""
-    acc = 1.0
-    for _ in range(q):
-        acc *= r
-    return acc
-
-
-@njit(cache=CACHE, error_model="numpy", inline="always")
-def _injection(prow, i, r, qi):
-    r"""``sum_j g_ij r^q_ij`` over the terms of state ``i``; ``qi`` a compile-time tuple, ``q < 0`` = no term."""
-    acc = 0.0
-    for j in range(N_TERMS):
-        if qi[j] >= 0:
-            acc += prow[2 + i * N_TERMS + j] * _rpow(r, qi[j])
-    return acc
-
-
-#: exponent numerators ``q_ij`` (power ``q_ij / m``; -1 = unused term, zero gain) of the specialised HOSM steps
-LEVANT_Q2 = ((1, -1, -1), (0, -1, -1))  # Levant k = 1 and explicit super-twisting: 1/2, 0
-URED_Q = ((1, 3, -1), (0, 2, 4))  # URED: 1/2, 3/2 | 0, 1, 2
-LEVANT_Q3 = ((2, -1, -1), (1, -1, -1), (0, -1, -1))  # Levant k = 2: 2/3, 1/3, 0
-UNIFORM_Q3 = ((2, 4, -1), (1, 5, -1), (0, 6, -1))  # uniform Levant k = 2, alpha = 1: (3 -+ i) / 3
-
-
-@njit(cache=CACHE, error_model="numpy", inline="always")
-def _matches(params, m, q):
-    """Whether the first parameter row has the exponent table ``q`` (the test of :func:`_abs_power`, 1e-12)."""
-    goff = 2
-    poff = 2 + m * N_TERMS
-    ok = True
-    for i in range(m):
-        for j in range(N_TERMS):
-            if q[i][j] >= 0:
-                ok &= abs(params[0, poff + i * N_TERMS + j] * m - q[i][j]) <= 1e-12
-            else:
-                ok &= params[0, goff + i * N_TERMS + j] == 0.0
-    return ok
-
-
-@njit(cache=CACHE, error_model="numpy", inline="always")
-def _hosm2(state, y, params, new_state, out, shared, q):
-    r"""The step of :func:`hosm_channel_step` for ``m = 2`` and the exponent table ``q`` known at compile time.
-
-    .. math::
-        \hat x_0^+ = \hat x_0 + \tau\hat x_1 - \tau\,\mathrm{sign}(e)\sum_j g_{0j} r^{q_{0j}},\quad
-        \hat x_1^+ = \hat x_1 - \tau\,\mathrm{sign}(e)\sum_j g_{1j} r^{q_{1j}},\quad r = |e|^{1/2},
-
-    same operations in the same order as the generic step (the Taylor and Euler schemes coincide for ``m = 2``).
-    """
-    _check_widths(state, new_state, params, out, 3, 2 + 4 * N_TERMS, 2)
-    bad = False
+def _hosm_loop(state, y, params, new_state, out, shared, m):
+    """The channel loop of :func:`hosm_rows` for ``m`` estimates (a compile-time constant when inlined)."""
+    _check_widths(state, new_state, params, out, m + 1, 2 + 2 * m * N_TERMS, m)
+    failed = False
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
-        prow = params[pc]
-        dt = prow[0]
-        x0 = state[c, 0]
-        x1 = state[c, 1]
-        e = x0 - y[c]
-        s = 1.0 if e > 0.0 else (-1.0 if e < 0.0 else 0.0)
-        r = math.sqrt(abs(e))
-        n0 = x0 + dt * x1 - dt * (_injection(prow, 0, r, q[0]) * s)
-        n1 = x1 - dt * (_injection(prow, 1, r, q[1]) * s)
-        new_state[c, 0] = n0
-        new_state[c, 1] = n1
-        new_state[c, 2] = -e
-        o0 = n0 + (-dt) * n1  # exp(-tau N) x^+
-        out[c, 0] = o0
-        out[c, 1] = n1
-        bad |= not (
-            math.isfinite(n0) & math.isfinite(n1) & math.isfinite(e) & math.isfinite(state[c, 2]) & math.isfinite(o0)
-        )
-    return _check_state(new_state, out) if bad else -1
+        row = new_state[c]
+        row[m] = hosm_channel_step(state[c], y[c], params[pc], m, row, out[c])
+        failed |= not (_row_finite(row) and _row_finite(out[c]))
+    return _check_state(new_state, out) if failed else -1
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _hosm3(state, y, params, new_state, out, shared, taylor, q):
-    r"""The step of :func:`hosm_channel_step` for ``m = 3``, the scheme and the exponents known at compile time.
-
-    ``r = cbrt(|e|)``; ``"taylor"`` adds :math:`\tfrac{\tau^2}{2}\hat x_2` to :math:`\hat x_0^+`. Same
-    operations in the same order as the generic step. Two passes over the channels: the error and its root
-    (kept in ``new_state``), then the injections :math:`\mathrm{sign}(e)\sum_j g_{ij} r^{q_{ij}}`, the Taylor
-    update and the estimate. A single loop has more strided accesses than LLVM's vectorizer accepts with the six
-    gains of the uniform differentiator (it then leaves the loop scalar, about three times slower). Splitting
-    after the root rather than after the injections leaves the root pass with few memory accesses: for Levant
-    k = 2 measured 0.38 instead of 0.43-0.47 us at 8 channels, 0.53 instead of 0.56 at 32 and 2.06 instead of
-    2.25 at 256. The uniform differentiator's table runs :func:`_hosm3_injections_first` at 32 channels and more.
-    """
-    _check_widths(state, new_state, params, out, 4, 2 + 6 * N_TERMS, 3)
-    for c in range(y.shape[0]):
-        e = state[c, 0] - y[c]
-        new_state[c, 3] = -e
-        new_state[c, 0] = cbrt(abs(e))
-    bad = False
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        prow = params[pc]
-        dt = prow[0]
-        x0 = state[c, 0]
-        x1 = state[c, 1]
-        x2 = state[c, 2]
-        e = -new_state[c, 3]
-        r = new_state[c, 0]
-        s = 1.0 if e > 0.0 else (-1.0 if e < 0.0 else 0.0)
-        a0 = x0 + dt * x1
-        if taylor:
-            a0 += (dt * (dt / 2.0)) * x2
-        n0 = a0 - dt * (_injection(prow, 0, r, q[0]) * s)
-        n1 = x1 + dt * x2 - dt * (_injection(prow, 1, r, q[1]) * s)
-        n2 = x2 - dt * (_injection(prow, 2, r, q[2]) * s)
-        bad |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, e)
-    return _check_state(new_state, out) if bad else -1
-
-
-@njit(cache=CACHE, error_model="numpy", inline="always")
-def _hosm3_injections_first(state, y, params, new_state, out, shared, taylor, q):
-    r""":func:`_hosm3` split after the injections, for the exponent table of the uniform differentiator.
-
-    Same operations in the same order as the generic step. Two passes over the channels: the injections
-    :math:`\mathrm{sign}(e)\sum_j g_{ij} r^{q_{ij}}` (kept in ``new_state``), then the Taylor update and the
-    estimate; with up to six gains per channel a single loop has more strided accesses than LLVM's vectorizer
-    accepts (it then leaves the loop scalar, about three times slower). With six gains this split is faster than
-    :func:`_hosm3`'s at 32 and 256 channels (measured 0.60 against 0.63 us, 2.65 against 2.83 us) and slower at
-    8 (0.48 against 0.41 us); the targets were 0.5 us per call up to 32 channels, which neither meets.
-    """
-    _check_widths(state, new_state, params, out, 4, 2 + 6 * N_TERMS, 3)
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        prow = params[pc]
-        e = state[c, 0] - y[c]
-        s = 1.0 if e > 0.0 else (-1.0 if e < 0.0 else 0.0)
-        r = cbrt(abs(e))
-        new_state[c, 0] = _injection(prow, 0, r, q[0]) * s
-        new_state[c, 1] = _injection(prow, 1, r, q[1]) * s
-        new_state[c, 2] = _injection(prow, 2, r, q[2]) * s
-        new_state[c, 3] = -e
-    bad = False
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        dt = params[pc, 0]
-        x0 = state[c, 0]
-        x1 = state[c, 1]
-        x2 = state[c, 2]
-        a0 = x0 + dt * x1
-        if taylor:
-            a0 += (dt * (dt / 2.0)) * x2
-        n0 = a0 - dt * new_state[c, 0]
-        n1 = x1 + dt * x2 - dt * new_state[c, 1]
-        n2 = x2 - dt * new_state[c, 2]
-        bad |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, new_state[c, 3])
-    return _check_state(new_state, out) if bad else -1
-
-
-def _hosm_kernel(shared: bool):
-    """The HOSM batch kernel for per-channel parameter rows, or for one row shared by every channel.
-
-    ``shared`` is a closure constant, so each variant compiles (and is cached) as its own function. The body is
-    written here rather than in one more inlined function: behind that layer the kernel took twice as long to
-    compile (numba merges its many returns). Each family has its own factory, with its loops named as globals:
-    one generic factory taking the loop function as a closure variable compiled afresh in every process (numba
-    does not cache a closure over a dispatcher).
-    """
-
-    @njit(**KERNEL)
-    def kernel(state, y, params, new_state, out):
-        y, out = _flat(y, out)
-        bad = _first_nonfinite(y)
-        if bad >= 0:
-            return bad
-        _check_rows(params, y.shape[0], shared)
-        m = out.shape[1]
-        if y.shape[0] > 0:
-            # a specialised step for the exponent tables of the observers of this package (see module notes)
-            if m == 2:
-                if _matches(params, 2, LEVANT_Q2):
-                    return _hosm2(state, y, params, new_state, out, shared, LEVANT_Q2)
-                if _matches(params, 2, URED_Q):
-                    return _hosm2(state, y, params, new_state, out, shared, URED_Q)
-            elif m == 3:
-                taylor = params[0, 1] != 0.0
-                if _matches(params, 3, LEVANT_Q3):
-                    if taylor:
-                        return _hosm3(state, y, params, new_state, out, shared, True, LEVANT_Q3)
-                    return _hosm3(state, y, params, new_state, out, shared, False, LEVANT_Q3)
-                if _matches(params, 3, UNIFORM_Q3):
-                    # same operations either way; which split is faster depends on the number of channels (measured)
-                    if y.shape[0] >= 32:
-                        if taylor:
-                            return _hosm3_injections_first(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
-                        return _hosm3_injections_first(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
-                    if taylor:
-                        return _hosm3(state, y, params, new_state, out, shared, True, UNIFORM_Q3)
-                    return _hosm3(state, y, params, new_state, out, shared, False, UNIFORM_Q3)
-        failed = False
-        for c in range(y.shape[0]):
-            pc = 0 if shared else c  # the parameter row of channel c
-            row = new_state[c]
-            row[m] = hosm_channel_step(state[c], y[c], params[pc], m, row, out[c])
-            failed |= not (_row_finite(row) and _row_finite(out[c]))
-        return _check_state(new_state, out) if failed else -1
-
-    return kernel
-
-
-hosm_kernel = _hosm_kernel(False)
-hosm_shared_kernel = _hosm_kernel(True)
+def hosm_rows(state, y, params, new_state, out, shared):
+    """:func:`hosm_channel_step` on every channel: one explicit step of a signed-power differentiator (Levant
+    2003, any order; the explicit super-twisting step; Cruz-Zavala, Moreno and Fridman 2011; Angulo, Moreno and
+    Fridman 2013), ``m = out.shape[1]`` estimates. ``shared``: one parameter row for every channel. The common
+    orders run the same step with ``m`` a constant (the compiler unrolls its loops)."""
+    m = out.shape[1]
+    if m == 2:
+        return _hosm_loop(state, y, params, new_state, out, shared, 2)
+    if m == 3:
+        return _hosm_loop(state, y, params, new_state, out, shared, 3)
+    return _hosm_loop(state, y, params, new_state, out, shared, m)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -673,29 +455,9 @@ def sta_implicit_channel_step(x, y, params, x_new):
     return w
 
 
-def _sta_implicit_kernel(shared: bool):
-    """The implicit super-twisting batch kernel for per-channel parameter rows, or for one row shared by every channel
-    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
-
-    @njit(**KERNEL)
-    def kernel(state, y, params, new_state, out):
-        y, out = _flat(y, out)
-        bad = _first_nonfinite(y)
-        if bad >= 0:
-            return bad
-        _check_rows(params, y.shape[0], shared)
-        return _sta_implicit_rows(state, y, params, new_state, out, shared)
-
-    return kernel
-
-
-sta_implicit_kernel = _sta_implicit_kernel(False)
-sta_implicit_shared_kernel = _sta_implicit_kernel(True)
-
-
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _sta_implicit_rows(state, y, params, new_state, out, shared):
-    """:func:`sta_implicit_kernel` after the measurement check (``shared``: one parameter row for every channel)."""
+def sta_implicit_rows(state, y, params, new_state, out, shared):
+    """:func:`sta_implicit_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     _check_widths(state, new_state, params, out, 3, 3, 2)
     failed = False
     for c in range(y.shape[0]):
@@ -777,98 +539,28 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _eigmap3(state, y, params, new_state, out, shared, mode):
-    r""":func:`eigmap_channel_step` for ``m = 3`` and the mapping ``mode`` of every row (same operations in the
-    same order), in two passes for (15) and three for (16); ``-3`` if a row has another mode.
-
-    The first pass computes :math:`\sigma`, the root :math:`|\sigma|^{1/3}` (:func:`cbrt`) and for (15) the map
-    :math:`z(\sigma)`; for (16) a second pass computes the map (a division and :func:`exp_nonpositive`), all
-    vectorized, with ``sigma`` and the root or ``z`` waiting in ``new_state``. The last pass computes
-    :math:`\hat x^+ = A\hat x + \tilde l(z)\sigma` and the estimate. Merged into one loop, the root, the map and
-    the twelve strided gain loads are more than LLVM's vectorizer accepts (measured 1.2 us instead of 0.7 at 32
-    channels). Root and map in one pass form one long chain of dependent divisions per channel (three in the root,
-    two in the matching map), and at 32 channels (eight vector iterations) the processor overlaps too little of
-    it: apart they were measured 0.035-0.05 us faster for (16) at 32 channels, but 0.03 us slower for (15), whose
-    map has one division; five passes (one per state component, then the estimate) cost 2-10 % more.
-    """
-    _check_widths(state, new_state, params, out, 4, 16, 3)
-    n = y.shape[0]
-    other_mode = False
-    for c in range(n):
-        pc = 0 if shared else c  # the parameter row of channel c
-        # eigenvalue_map(sigma, ...); the mapping is a compile-time choice (the other one is not computed); rows of
-        # another mode are redone by the generic step
-        sigma = y[c] - state[c, 0]
-        a = abs(sigma)
-        new_state[c, 3] = sigma
-        root = _eigenvalue_root(a, 3)
-        if mode == 1.0:
-            new_state[c, 0] = root  # the matching map in a pass of its own (see above)
-        else:
-            new_state[c, 0] = _eigenvalue_from_root(a, root, params[pc, 0], params[pc, 1], params[pc, 2], mode)
-        other_mode |= params[pc, 3] != mode
-    if other_mode:
-        return -3  # not a status: the caller runs the generic step
-    if mode == 1.0:
-        for c in range(n):
-            pc = 0 if shared else c  # the parameter row of channel c
-            new_state[c, 0] = _eigenvalue_from_root(
-                abs(new_state[c, 3]), new_state[c, 0], params[pc, 0], params[pc, 1], params[pc, 2], mode
-            )
+def _eigmap_loop(state, y, params, new_state, out, shared, m):
+    """The channel loop of :func:`eigmap_rows` for ``m`` estimates (a compile-time constant when inlined)."""
+    _check_widths(state, new_state, params, out, m + 1, 4 + (m + 1) * m, m)
     failed = False
-    for c in range(n):
+    for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
-        dt = params[pc, 0]
-        x0 = state[c, 0]
-        x1 = state[c, 1]
-        x2 = state[c, 2]
-        mz = -new_state[c, 0]
-        sigma = new_state[c, 3]
-        # l_i(z) = sum_j (-z)^(3-j) v_j[i] by Horner's rule (the generic step's first step 0 * (-z) + v_0 is exact)
-        g0 = ((params[pc, 4] * mz + params[pc, 7]) * mz + params[pc, 10]) * mz + params[pc, 13]
-        g1 = ((params[pc, 5] * mz + params[pc, 8]) * mz + params[pc, 11]) * mz + params[pc, 14]
-        g2 = ((params[pc, 6] * mz + params[pc, 9]) * mz + params[pc, 12]) * mz + params[pc, 15]
-        # x^+ = A x + l(z) sigma, A = exp(tau N) (the generic step's Taylor sums: its factors 1 * (dt / 1) = dt)
-        n0 = x0 + dt * x1 + (dt * (dt / 2.0)) * x2 + g0 * sigma
-        n1 = x1 + dt * x2 + g1 * sigma
-        n2 = x2 + g2 * sigma
-        failed |= _store_order2(state, new_state, out, c, dt, n0, n1, n2, sigma)
+        row = new_state[c]
+        row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
+        failed |= not (_row_finite(row) and _row_finite(out[c]))
     return _check_state(new_state, out) if failed else -1
 
 
-def _eigmap_kernel(shared: bool):
-    """The eigenvalue-mapping batch kernel for per-channel parameter rows, or for one row shared by every channel
-    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
-
-    @njit(**KERNEL)
-    def kernel(state, y, params, new_state, out):
-        y, out = _flat(y, out)
-        bad = _first_nonfinite(y)
-        if bad >= 0:
-            return bad
-        _check_rows(params, y.shape[0], shared)
-        m = out.shape[1]
-        if m == 3 and y.shape[0] > 0:
-            status = -3
-            if params[0, 3] == 0.0:
-                status = _eigmap3(state, y, params, new_state, out, shared, 0.0)
-            elif params[0, 3] == 1.0:
-                status = _eigmap3(state, y, params, new_state, out, shared, 1.0)
-            if status != -3:
-                return status
-        failed = False
-        for c in range(y.shape[0]):
-            pc = 0 if shared else c  # the parameter row of channel c
-            row = new_state[c]
-            row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
-            failed |= not (_row_finite(row) and _row_finite(out[c]))
-        return _check_state(new_state, out) if failed else -1
-
-    return kernel
-
-
-eigmap_kernel = _eigmap_kernel(False)
-eigmap_shared_kernel = _eigmap_kernel(True)
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def eigmap_rows(state, y, params, new_state, out, shared):
+    """:func:`eigmap_channel_step` on every channel, ``m = out.shape[1]`` (``shared``: one parameter row for every
+    channel); the common orders with ``m`` a constant, as :func:`hosm_rows`."""
+    m = out.shape[1]
+    if m == 2:
+        return _eigmap_loop(state, y, params, new_state, out, shared, 2)
+    if m == 3:
+        return _eigmap_loop(state, y, params, new_state, out, shared, 3)
+    return _eigmap_loop(state, y, params, new_state, out, shared, m)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -876,8 +568,8 @@ eigmap_shared_kernel = _eigmap_kernel(True)
 # params row: [F (m * m), g (m), R (m * m)]
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _linear_rows(state, y, params, new_state, out, shared, m):
-    """The loops of :func:`linear_kernel` for ``m`` estimates (a compile-time constant when inlined).
+def _linear_loops(state, y, params, new_state, out, shared, m):
+    """The loops of :func:`linear_rows` for ``m`` estimates (a compile-time constant when inlined).
 
     Two passes (``s_new = F s + g y``, then ``out = R s_new``) so that each loop has few enough strided accesses
     for LLVM's vectorizer.
@@ -905,38 +597,19 @@ def _linear_rows(state, y, params, new_state, out, shared, m):
     return _check_state(new_state, out) if failed else -1
 
 
-def _linear_kernel(shared: bool):
-    """The linear batch kernel for per-channel parameter rows, or for one row shared by every channel
-    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
-
-    @njit(**KERNEL)
-    def kernel(state, y, params, new_state, out):
-        y, out = _flat(y, out)
-        bad = _first_nonfinite(y)
-        if bad >= 0:
-            return bad
-        _check_rows(params, y.shape[0], shared)
-        return _linear_steps(state, y, params, new_state, out, shared)
-
-    return kernel
-
-
-linear_kernel = _linear_kernel(False)
-linear_shared_kernel = _linear_kernel(True)
-
-
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _linear_steps(state, y, params, new_state, out, shared):
-    """:func:`linear_kernel` after the measurement check (``shared``: one parameter row for every channel)."""
+def linear_rows(state, y, params, new_state, out, shared):
+    r"""The linear step :math:`s^+ = F s + g y`, :math:`\hat x = R s^+` on every channel (``shared``: one parameter
+    row for every channel)."""
     m = out.shape[1]
     # fixed widths for the common orders (constant strides and unrolled loops, see module notes)
     if m == 2:
         _check_widths(state, new_state, params, out, 3, 10, 2)
-        return _linear_rows(state, y, params, new_state, out, shared, 2)
+        return _linear_loops(state, y, params, new_state, out, shared, 2)
     if m == 3:
         _check_widths(state, new_state, params, out, 4, 21, 3)
-        return _linear_rows(state, y, params, new_state, out, shared, 3)
-    return _linear_rows(state, y, params, new_state, out, shared, m)
+        return _linear_loops(state, y, params, new_state, out, shared, 3)
+    return _linear_loops(state, y, params, new_state, out, shared, m)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -1033,29 +706,9 @@ def kalman_ca_channel_step(s, y, params, s_new):
     return nu
 
 
-def _kalman_ca_kernel(shared: bool):
-    """The Kalman batch kernel for per-channel parameter rows, or for one row shared by every channel
-    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
-
-    @njit(**KERNEL)
-    def kernel(state, y, params, new_state, out):
-        y, out = _flat(y, out)
-        bad = _first_nonfinite(y)
-        if bad >= 0:
-            return bad
-        _check_rows(params, y.shape[0], shared)
-        return _kalman_ca_rows(state, y, params, new_state, out, shared)
-
-    return kernel
-
-
-kalman_ca_kernel = _kalman_ca_kernel(False)
-kalman_ca_shared_kernel = _kalman_ca_kernel(True)
-
-
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _kalman_ca_rows(state, y, params, new_state, out, shared):
-    """:func:`kalman_ca_kernel` after the measurement check (``shared``: one parameter row for every channel)."""
+def kalman_ca_rows(state, y, params, new_state, out, shared):
+    """:func:`kalman_ca_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     _check_widths(state, new_state, params, out, 10, 3, 3)
     # three passes (prior covariance, posterior covariance and gain, mean) so that each loop has few enough
     # strided accesses for LLVM's vectorizer; the prior waits in ``new_state``, the gain in ``out``
@@ -1105,8 +758,8 @@ def _kalman_ca_rows(state, y, params, new_state, out, shared):
 # state row: [y, v, (a), innovation, samples since reset]; params row: [dt]
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _finite_difference_rows(state, y, params, new_state, out, shared, m):
-    """The loop of :func:`finite_difference_kernel` for ``m`` = 2 or 3 estimates (compile-time when inlined)."""
+def _finite_difference_loop(state, y, params, new_state, out, shared, m):
+    """The loop of :func:`finite_difference_rows` for ``m`` = 2 or 3 estimates (compile-time when inlined)."""
     _check_widths(state, new_state, params, out, m + 2, 1, m)
     failed = False
     for c in range(y.shape[0]):
@@ -1132,32 +785,12 @@ def _finite_difference_rows(state, y, params, new_state, out, shared, m):
     return _check_state(new_state, out) if failed else -1
 
 
-def _finite_difference_kernel(shared: bool):
-    """The finite-difference batch kernel for per-channel parameter rows, or for one row shared by every channel
-    (``shared``, a closure constant: see :func:`_hosm_kernel`)."""
-
-    @njit(**KERNEL)
-    def kernel(state, y, params, new_state, out):
-        y, out = _flat(y, out)
-        bad = _first_nonfinite(y)
-        if bad >= 0:
-            return bad
-        _check_rows(params, y.shape[0], shared)
-        return _finite_difference_steps(state, y, params, new_state, out, shared)
-
-    return kernel
-
-
-finite_difference_kernel = _finite_difference_kernel(False)
-finite_difference_shared_kernel = _finite_difference_kernel(True)
-
-
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _finite_difference_steps(state, y, params, new_state, out, shared):
-    """:func:`finite_difference_kernel` after the measurement check (``shared``: one row for every channel)."""
+def finite_difference_rows(state, y, params, new_state, out, shared):
+    """Backward differences of order 1 or 2 on every channel (``shared``: one row for every channel)."""
     if out.shape[1] == 2:
-        return _finite_difference_rows(state, y, params, new_state, out, shared, 2)
-    return _finite_difference_rows(state, y, params, new_state, out, shared, 3)
+        return _finite_difference_loop(state, y, params, new_state, out, shared, 2)
+    return _finite_difference_loop(state, y, params, new_state, out, shared, 3)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -1208,137 +841,153 @@ def _drive_wrapped(kernel, state, Y, params, out, period):
     return status, done
 
 
-# One cached driver per kernel. A compiled function that takes a kernel as an argument is specialised on the
-# dispatcher's type, which numba's on-disk cache cannot reuse across processes (it recompiled for seconds in every
-# new process and could fail while re-saving its index); drivers that name their kernel cache normally.
-@njit(cache=CACHE, error_model="numpy")
-def _run_hosm(state, Y, params, out):
-    return _drive(hosm_kernel, state, Y, params, out)
+# ----------------------------------------------------------------------------------------------------------------
+# registered steps: each gets its batch kernels and offline drivers, generated and cached
+# ----------------------------------------------------------------------------------------------------------------
+_ROWS = _SHARED = _KERNEL = None  # the globals of the templates below, bound per step by cached_instance
 
 
-@njit(cache=CACHE, error_model="numpy")
-def _run_sta_implicit(state, Y, params, out):
-    return _drive(sta_implicit_kernel, state, Y, params, out)
+def _batch_template(state, y, params, new_state, out):
+    """A batch kernel (module notes): the measurement checked, then ``_ROWS`` with ``shared = _SHARED``."""
+    y, out = _flat(y, out)
+    bad = _first_nonfinite(y)
+    if bad >= 0:
+        return bad
+    _check_rows(params, y.shape[0], _SHARED)
+    return _ROWS(state, y, params, new_state, out, _SHARED)
 
 
-@njit(cache=CACHE, error_model="numpy")
-def _run_eigmap(state, Y, params, out):
-    return _drive(eigmap_kernel, state, Y, params, out)
+def _run_template(state, Y, params, out):
+    """The offline driver of ``_KERNEL``: :func:`_drive` with the kernel inlined."""
+    return _drive(_KERNEL, state, Y, params, out)
 
 
-@njit(cache=CACHE, error_model="numpy")
-def _run_linear(state, Y, params, out):
-    return _drive(linear_kernel, state, Y, params, out)
+def _run_wrapped_template(state, Y, params, out, period):
+    """The offline driver of ``_KERNEL`` for wrapped channels: :func:`_drive_wrapped` with the kernel inlined."""
+    return _drive_wrapped(_KERNEL, state, Y, params, out, period)
 
 
-@njit(cache=CACHE, error_model="numpy")
-def _run_kalman_ca(state, Y, params, out):
-    return _drive(kalman_ca_kernel, state, Y, params, out)
+@dataclass(frozen=True)
+class Step:
+    """The compiled functions of one registered step (:func:`register_step`).
 
-
-@njit(cache=CACHE, error_model="numpy")
-def _run_finite_difference(state, Y, params, out):
-    return _drive(finite_difference_kernel, state, Y, params, out)
-
-
-@njit(error_model="numpy")  # not cached: specialised per kernel type (see above)
-def _run_any(kernel, state, Y, params, out):
-    return _drive(kernel, state, Y, params, out)
-
-
-# the same with wrapped channels: separate functions, so that observers without angles run the drivers above
-# unchanged, and each of these compiles only when an observer with wrapped channels first runs offline
-@njit(cache=CACHE, error_model="numpy")
-def _run_hosm_wrapped(state, Y, params, out, period):
-    return _drive_wrapped(hosm_kernel, state, Y, params, out, period)
-
-
-@njit(cache=CACHE, error_model="numpy")
-def _run_sta_implicit_wrapped(state, Y, params, out, period):
-    return _drive_wrapped(sta_implicit_kernel, state, Y, params, out, period)
-
-
-@njit(cache=CACHE, error_model="numpy")
-def _run_eigmap_wrapped(state, Y, params, out, period):
-    return _drive_wrapped(eigmap_kernel, state, Y, params, out, period)
-
-
-@njit(cache=CACHE, error_model="numpy")
-def _run_linear_wrapped(state, Y, params, out, period):
-    return _drive_wrapped(linear_kernel, state, Y, params, out, period)
-
-
-@njit(cache=CACHE, error_model="numpy")
-def _run_kalman_ca_wrapped(state, Y, params, out, period):
-    return _drive_wrapped(kalman_ca_kernel, state, Y, params, out, period)
-
-
-@njit(cache=CACHE, error_model="numpy")
-def _run_finite_difference_wrapped(state, Y, params, out, period):
-    return _drive_wrapped(finite_difference_kernel, state, Y, params, out, period)
-
-
-@njit(error_model="numpy")  # not cached: specialised per kernel type (see above)
-def _run_any_wrapped(kernel, state, Y, params, out, period):
-    return _drive_wrapped(kernel, state, Y, params, out, period)
-
-
-_DRIVERS = {
-    hosm_kernel: _run_hosm,
-    sta_implicit_kernel: _run_sta_implicit,
-    eigmap_kernel: _run_eigmap,
-    linear_kernel: _run_linear,
-    kalman_ca_kernel: _run_kalman_ca,
-    finite_difference_kernel: _run_finite_difference,
-}
-
-
-_WRAPPED_DRIVERS = {
-    hosm_kernel: _run_hosm_wrapped,
-    sta_implicit_kernel: _run_sta_implicit_wrapped,
-    eigmap_kernel: _run_eigmap_wrapped,
-    linear_kernel: _run_linear_wrapped,
-    kalman_ca_kernel: _run_kalman_ca_wrapped,
-    finite_difference_kernel: _run_finite_difference_wrapped,
-}
-
-
-#: the variant of each batch kernel for one parameter row ``(1, P)`` shared by every channel (module notes)
-SHARED_KERNELS = {
-    hosm_kernel: hosm_shared_kernel,
-    sta_implicit_kernel: sta_implicit_shared_kernel,
-    eigmap_kernel: eigmap_shared_kernel,
-    linear_kernel: linear_shared_kernel,
-    kalman_ca_kernel: kalman_ca_shared_kernel,
-    finite_difference_kernel: finite_difference_shared_kernel,
-}
-
-
-def register_driver(kernel, driver) -> None:
-    """Register the cached compiled driver of a kernel defined in another module.
-
-    ``driver(state, Y, params, out) -> (status, t)`` must be ``return _drive(kernel, state, Y, params, out)``
-    compiled with ``@njit(cache=True)`` at module level, so that :meth:`Observer.run` (through
-    :func:`run_offline`) reuses numba's on-disk cache for it.
+    Attributes
+    ----------
+    rows : numba dispatcher
+        ``rows(state, y, params, new_state, out, shared) -> status``: the step on ``N`` channels whose
+        measurements are known to be finite (``params`` one row per channel, or one row if ``shared``).
+    kernel : numba dispatcher
+        The batch kernel ``kernel(state, y, params, new_state, out) -> status`` (module notes), per-channel rows.
+    shared_kernel : numba dispatcher
+        The same for one parameter row ``(1, P)`` shared by every channel (the loops see ``shared`` as a constant).
+    run : numba dispatcher
+        ``run(state, Y, params, out) -> (status, t)``: the offline time loop with the kernel inlined.
+    run_wrapped : numba dispatcher
+        ``run_wrapped(state, Y, params, out, period)``: the same with :func:`unwrap_measurement` per sample.
     """
-    _DRIVERS[kernel] = driver
+
+    rows: Any
+    kernel: Any
+    shared_kernel: Any
+    run: Any
+    run_wrapped: Any
+
+    @property
+    def label(self) -> str:
+        """The qualified name of :attr:`rows`, which names the generated functions in numba's cache."""
+        return f"{self.rows.py_func.__module__}.{self.rows.py_func.__qualname__}"
+
+
+#: batch kernel -> its :class:`Step`, for every registered step
+STEPS: dict = {}
+#: batch kernel -> its variant for one parameter row ``(1, P)`` shared by every channel (module notes)
+SHARED_KERNELS: dict = {}
+
+
+def register_step(rows, *, allocates: bool = False) -> Step:
+    """Generate and register the batch kernels and the offline drivers of a step (idempotent).
+
+    ``rows`` is a module-level ``@njit(cache=True, inline="always")`` function
+    ``rows(state, y, params, new_state, out, shared) -> status`` (the calling convention of the module notes, after
+    the measurements were found finite). Every generated function is cached on disk by numba and reused by a new
+    process (:func:`smo_gym._numba_cache.cached_instance`), and its cache is dropped when ``rows``'s module
+    changes. Observer families name the returned :attr:`Step.kernel` as their ``_kernel``;
+    :func:`smo_gym.observers.registry.register_observer` registers the steps a family declares. ``allocates``:
+    ``rows`` creates arrays, so its batch kernels keep numba's reference counting (module notes). A
+    :class:`Step` is returned as it is.
+    """
+    if isinstance(rows, Step):
+        return rows
+    for step in STEPS.values():
+        if step.rows is rows:
+            return step
+    label = f"{rows.py_func.__module__}.{rows.py_func.__qualname__}"
+    deps = [inspect.getfile(rows.py_func)]
+    options = dict(KERNEL, _nrt=True) if allocates and "_nrt" in KERNEL else KERNEL
+    kernel = cached_instance(_batch_template, label, options, deps, _ROWS=rows, _SHARED=False)
+    shared = cached_instance(_batch_template, label + ".shared", options, deps, _ROWS=rows, _SHARED=True)
+    driver = dict(cache=CACHE, error_model="numpy")
+    step = Step(
+        rows=rows,
+        kernel=kernel,
+        shared_kernel=shared,
+        run=cached_instance(_run_template, label, driver, deps, _KERNEL=kernel),
+        run_wrapped=cached_instance(_run_wrapped_template, label, driver, deps, _KERNEL=kernel),
+    )
+    STEPS[kernel] = step
+    SHARED_KERNELS[kernel] = shared
+    return step
+
+
+hosm = register_step(hosm_rows)
+sta_implicit = register_step(sta_implicit_rows)
+eigmap = register_step(eigmap_rows)
+linear = register_step(linear_rows)
+kalman_ca = register_step(kalman_ca_rows)
+finite_difference = register_step(finite_difference_rows)
+#: the batch kernels of this module's steps, by the names the observer classes use
+hosm_kernel, hosm_shared_kernel = hosm.kernel, hosm.shared_kernel
+sta_implicit_kernel, sta_implicit_shared_kernel = sta_implicit.kernel, sta_implicit.shared_kernel
+eigmap_kernel, eigmap_shared_kernel = eigmap.kernel, eigmap.shared_kernel
+linear_kernel, linear_shared_kernel = linear.kernel, linear.shared_kernel
+kalman_ca_kernel, kalman_ca_shared_kernel = kalman_ca.kernel, kalman_ca.shared_kernel
+finite_difference_kernel, finite_difference_shared_kernel = finite_difference.kernel, finite_difference.shared_kernel
+
+
+def _run_python(kernel, state, Y, params, out, period=None):
+    """The time loop of :func:`_drive` in Python, for a kernel written in NumPy (not compiled)."""
+    cur, nxt = state.copy(), np.empty_like(state)
+    y = np.empty(Y.shape[1])
+    for t in range(Y.shape[0]):
+        if period is None:
+            y = Y[t]
+        else:
+            _unwrap_rows(Y[t], cur, period, y)
+        status = kernel(cur, y, params, nxt, out[t])
+        if status != -1:
+            state[:, :] = cur
+            return status, t
+        cur, nxt = nxt, cur
+    state[:, :] = cur
+    return -1, Y.shape[0]
 
 
 def run_offline(kernel, state, Y, params, out, period=None):
     """Apply ``kernel`` to every row of ``Y`` (T, N); write estimates into ``out`` (T, N, m).
 
     Returns ``(status, t)``: ``status`` as the kernel's, ``t`` the sample at which it failed (or ``T``).
-    ``state`` holds the last accepted state on return (the final state on success). Kernels of this module run
-    through their own cached compiled driver; any other kernel through a generic compiled loop (compiled once per
-    process and kernel). ``period`` (N,), optional: wrap the channels with ``period > 0``
-    (:func:`unwrap_measurement` before every sample).
+    ``state`` holds the last accepted state on return (the final state on success). A registered kernel
+    (:data:`STEPS`) runs through its cached compiled driver; a kernel written in NumPy through a Python loop.
+    ``period`` (N,), optional: wrap the channels with ``period > 0`` (:func:`unwrap_measurement` before every
+    sample).
     """
+    step = STEPS.get(kernel)
+    if step is None:
+        if isinstance(kernel, Dispatcher):
+            raise TypeError(
+                f"expected a kernel registered with register_step (a compiled driver for it), actual value: {kernel!r}"
+            )
+        return _run_python(kernel, state, Y, params, out, period)
     if period is not None:
-        driver = _WRAPPED_DRIVERS.get(kernel)
-        if driver is not None:
-            return driver(state, Y, params, out, period)
-        return _run_any_wrapped(kernel, state, Y, params, out, period)
-    driver = _DRIVERS.get(kernel)
-    if driver is not None:
-        return driver(state, Y, params, out)
-    return _run_any(kernel, state, Y, params, out)
+        return step.run_wrapped(state, Y, params, out, period)
+    return step.run(state, Y, params, out)

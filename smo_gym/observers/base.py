@@ -246,10 +246,12 @@ class Observer:
     # ---- compiled call used by update() ----------------------------------------------------------------------
     def _step_kernel(self) -> tuple:
         """``(kernel, params)`` for one sample: :attr:`_kernel` and the per-channel rows, or, when every channel
-        has the same row and the kernel has a shared variant, that variant and the row ``(1, P)``."""
+        has the same row and the kernel is a registered step (:data:`~smo_gym.observers._kernels.STEPS`), its
+        shared-parameter variant and the row ``(1, P)``."""
         kernel, params = self._kernel, self._params
-        if params.shape[0] > 1 and kernel in _kernels.SHARED_KERNELS and (params == params[0]).all():
-            return _kernels.SHARED_KERNELS[kernel], params[:1].copy()
+        step = _kernels.STEPS.get(kernel)
+        if params.shape[0] > 1 and step is not None and (params == params[0]).all():
+            return step.shared_kernel, params[:1].copy()
         return kernel, params
 
     def _unbind(self) -> None:

@@ -53,6 +53,7 @@ from ..design.gains import (
 )
 from . import _kernels
 from .base import Observer, taylor_matrix
+from .registry import lipschitz_rule, register_observer
 
 __all__ = ["URED", "Levant", "SuperTwisting", "UniformLevant", "eigenvalue_mapping_vectors", "taylor_matrix"]
 
@@ -119,6 +120,14 @@ def _pack_eigmap(dt: float, p1: np.ndarray, mu: float, mode: str, m: int) -> np.
     return np.hstack([head, np.broadcast_to(V, (N, V.size))])
 
 
+@register_observer(
+    "super-twisting",
+    steps=(_kernels.sta_implicit_rows, _kernels.hosm_rows),
+    bound=2,
+    calibrate=lipschitz_rule,
+    given=(("lipschitz",), ("k1", "k2")),
+    examples=(dict(lipschitz=5.0, discretization="implicit"), dict(lipschitz=5.0, discretization="euler")),
+)
 class SuperTwisting(Observer):
     r"""Levant's first-order robust exact differentiator (super-twisting algorithm).
 
@@ -154,7 +163,6 @@ class SuperTwisting(Observer):
     """
 
     discretizations = ("implicit", "euler")
-    name = "super-twisting"
 
     @check_keywords
     def __init__(self, dt: float, lipschitz=None, *, k1=None, k2=None, discretization: str | None = None, wrap=None):
@@ -184,6 +192,16 @@ class SuperTwisting(Observer):
         return _pack_hosm(self.dt, False, np.stack([k1, k2], axis=1)[:, :, None], np.array([[0.5], [0.0]]))
 
 
+@register_observer(
+    "levant",
+    steps=(_kernels.hosm_rows, _kernels.eigmap_rows),
+    calibrate=lipschitz_rule,
+    given=(("lipschitz",),),
+    examples=tuple(
+        dict(order=k, lipschitz=5.0, discretization=d)
+        for k, d in [(1, "taylor"), (2, "taylor"), (3, "euler"), (2, "semi-implicit"), (3, "matching"), (5, "taylor")]
+    ),
+)
 class Levant(Observer):
     r"""Levant's arbitrary-order robust exact differentiator (Fridman's slides, eq. (7); [Lev03]).
 
@@ -231,7 +249,6 @@ class Levant(Observer):
     """
 
     discretizations = ("taylor", "euler", "semi-implicit", "matching")
-    name = "levant"
 
     @check_keywords
     def __init__(
@@ -305,6 +322,14 @@ class Levant(Observer):
         return _pack_hosm(self.dt, self.discretization == "taylor", gains[:, :, None], powers)
 
 
+@register_observer(
+    "ured",
+    steps=(_kernels.hosm_rows,),
+    bound=2,
+    calibrate=lipschitz_rule,
+    given=(("lipschitz",), ("k1", "k2")),
+    examples=(dict(lipschitz=5.0),),
+)
 class URED(Observer):
     r"""Uniform robust exact differentiator of Cruz-Zavala, Moreno and Fridman [CMF11] (in Fridman's slides).
 
@@ -334,7 +359,6 @@ class URED(Observer):
     """
 
     discretizations = ("euler",)
-    name = "ured"
 
     @check_keywords
     def __init__(
@@ -372,6 +396,13 @@ class URED(Observer):
         return _pack_hosm(self.dt, False, gains, powers)
 
 
+@register_observer(
+    "uniform-levant",
+    steps=(_kernels.hosm_rows,),
+    calibrate=lipschitz_rule,
+    given=(("lipschitz",),),
+    examples=(dict(order=2, lipschitz=5.0), dict(order=3, lipschitz=5.0, discretization="taylor")),
+)
 class UniformLevant(Observer):
     r"""Arbitrary-order uniform robust exact differentiator of Angulo, Moreno and Fridman [AMF13].
 
@@ -415,7 +446,6 @@ class UniformLevant(Observer):
     """
 
     discretizations = ("euler", "taylor")
-    name = "uniform-levant"
 
     @check_keywords
     def __init__(

@@ -66,6 +66,7 @@ from .._validation import (
 )
 from ..design.ilf import BlockDecomposition, block_decomposition, ilf_degrees, ilf_gains
 from .base import Observer
+from .registry import lipschitz_rule, register_observer
 
 __all__ = ["ILFDifferentiator", "ILFObserver", "injection_weights", "solve_implicit_output_error"]
 
@@ -505,6 +506,12 @@ def _ilf_chain_step(state, y, params, new_state, out):
     return -1
 
 
+@register_observer(
+    "ilf-finite",
+    calibrate=lipschitz_rule,
+    given=(("lipschitz",), ("rate",)),
+    examples=(dict(order=1, lipschitz=20.0),),
+)
 class ILFDifferentiator(Observer):
     r"""Lopez-Ramirez et al.'s finite-time / fixed-time observer applied to each channel as an integrator chain.
 
@@ -549,7 +556,6 @@ class ILFDifferentiator(Observer):
     """
 
     discretizations = ("implicit",)
-    name = "ilf-finite"
     kind = "finite"
 
     @check_keywords
@@ -626,26 +632,13 @@ class ILFDifferentiator(Observer):
         )
         return np.hstack([head, np.broadcast_to(self.gain, (N, n))])
 
-    def run(self, Y) -> np.ndarray:
-        """Process ``Y`` of shape ``(T, ...)`` sample by sample (a Python loop over :meth:`update`)."""
-        if self._state is None:
-            raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
-        Y = as_real_array("Y", Y)
-        if Y.ndim == 0 or Y.shape[1:] != self._shape:
-            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
-        out = np.empty((Y.shape[0],) + self._estimate.shape)
-        saved = (self._state.copy(), self._estimate, self.n_updates)
-        try:
-            for t in range(Y.shape[0]):
-                out[t] = self.update(np.ascontiguousarray(Y[t]))
-        except BaseException:  # all or nothing, as Observer.run
-            state, self._estimate, self.n_updates = saved
-            self._state[...] = state
-            raise
-        return out
 
-
+@register_observer(
+    "ilf-fixed",
+    calibrate=lipschitz_rule,
+    given=(("lipschitz",), ("rate",)),
+    examples=(dict(order=1, rate=30.0),),
+)
 class ILFFixedDifferentiator(ILFDifferentiator):
     __doc__ = ILFDifferentiator.__doc__
-    name = "ilf-fixed"
     kind = "fixed"

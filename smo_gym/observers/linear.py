@@ -17,10 +17,30 @@ from .._validation import as_real_array, check_int_in_range, check_keywords, che
 from ..design.gains import binomial_coefficients
 from . import _kernels
 from .base import Observer
+from .registry import register_observer
+
+
+def _high_gain_rule(cls, dt, bounds, noise, kwargs):
+    r""":meth:`HighGain.from_bounds` with the largest bound: :math:`\ell = (L/\epsilon)^{1/n}`."""
+    kw = dict(kwargs)
+    return cls.from_bounds(dt, float(np.max(bounds)), noise, order=kw.pop("order", 1), **kw)
+
+
+def _kalman_rule(cls, dt, bounds, noise, kwargs):
+    """:meth:`KalmanCA.from_bounds`: ``q = L^2/tau`` with the largest acceleration bound, ``r`` from the noise."""
+    return cls.from_bounds(dt, noise, float(np.max(bounds)), **kwargs)
+
 
 __all__ = ["FiniteDifference", "HighGain", "KalmanCA"]
 
 
+@register_observer(
+    "high-gain",
+    steps=(_kernels.linear_rows,),
+    calibrate=_high_gain_rule,
+    given=(("gain",),),
+    examples=(dict(gain=30.0, order=2), dict(gain=30.0, order=1, discretization="euler")),
+)
 class HighGain(Observer):
     r"""The standard linear high-gain observer of an integrator chain (Astolfi et al. 2018, eq. (2)).
 
@@ -51,7 +71,6 @@ class HighGain(Observer):
     """
 
     discretizations = ("implicit", "euler")
-    name = "high-gain"
 
     @check_keywords
     def __init__(
@@ -126,6 +145,12 @@ class HighGain(Observer):
         return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
 
 
+@register_observer(
+    "finite-difference",
+    steps=(_kernels.finite_difference_rows,),
+    bound=2,
+    examples=(dict(order=1), dict(order=2)),
+)
 class FiniteDifference(Observer):
     r"""Backward finite differences: :math:`\hat v_k = (y_k - y_{k-1})/\tau`, and (``order=2``)
     :math:`\hat a_k = (\hat v_k - \hat v_{k-1})/\tau`.
@@ -141,7 +166,6 @@ class FiniteDifference(Observer):
     """
 
     discretizations = ("backward",)
-    name = "finite-difference"
 
     @check_keywords
     def __init__(self, dt: float, order: int = 1, *, discretization: str | None = None, wrap=None):
@@ -163,6 +187,14 @@ class FiniteDifference(Observer):
         return np.full((int(np.prod(shape)), 1), self.dt)
 
 
+@register_observer(
+    "kalman-ca",
+    steps=(_kernels.kalman_ca_rows,),
+    bound=2,
+    calibrate=_kalman_rule,
+    given=(("process_noise", "measurement_noise"),),
+    examples=(dict(process_noise=50.0, measurement_noise=1e-6),),
+)
 class KalmanCA(Observer):
     r"""Constant-acceleration Kalman filter per channel (states: value, velocity, acceleration).
 
@@ -193,7 +225,6 @@ class KalmanCA(Observer):
     """
 
     discretizations = ("exact",)
-    name = "kalman-ca"
 
     @check_keywords
     def __init__(

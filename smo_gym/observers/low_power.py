@@ -80,6 +80,14 @@ from .._numba_cache import drop_stale
 from .._validation import as_real_array, check_choice, check_int_in_range, check_keywords, check_positive
 from . import _kernels
 from .base import Observer
+from .registry import register_observer
+
+
+def _balanced_gain_rule(cls, dt, bounds, noise, kwargs):
+    r"""The high gain balancing the bound and the noise, :math:`\ell = (L/\epsilon)^{1/n}` (largest ``L``)."""
+    n = int(kwargs.get("order", 1)) + 1
+    return cls(dt=dt, **kwargs, gain=(float(np.max(bounds)) / noise) ** (1.0 / n))
+
 
 __all__ = ["LowPowerHighGain", "low_power_default_coefficients", "low_power_matrices", "polynomial_powers"]
 
@@ -225,34 +233,34 @@ def low_power_channel_step(x, y, p, n, x_new, out_row):
     return y - x[0]
 
 
-@njit(cache=CACHE)
-def low_power_kernel(state, y, params, new_state, out):
-    """Batch kernel with the calling convention of :mod:`smo_gym.observers._kernels`."""
-    y, out = _kernels._flat(y, out)
-    bad = _kernels._first_nonfinite(y)
-    if bad >= 0:
-        return bad
+@njit(cache=CACHE, inline="always")
+def low_power_rows(state, y, params, new_state, out, shared):
+    """:func:`low_power_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     n = out.shape[1]
     N = 2 * n - 1
     for c in range(y.shape[0]):
-        new_state[c, N] = low_power_channel_step(state[c], y[c], params[c], n, new_state[c], out[c])
+        pc = 0 if shared else c  # the parameter row of channel c
+        new_state[c, N] = low_power_channel_step(state[c], y[c], params[pc], n, new_state[c], out[c])
     return _kernels._check_state(new_state, out)
 
 
-@njit(cache=CACHE, error_model="numpy")
-def _run_low_power(state, Y, params, out):
-    """Cached compiled driver of :func:`low_power_kernel` (see ``_kernels.register_driver``)."""
-    return _kernels._drive(low_power_kernel, state, Y, params, out)
-
-
-_kernels.register_driver(low_power_kernel, _run_low_power)
-# these inline helpers of _kernels.py: drop their cached code when it changes (see smo_gym._numba_cache)
-drop_stale((low_power_channel_step, low_power_kernel, _run_low_power), [_kernels.__file__])
+#: the compiled step (its channel step solves linear systems: it allocates)
+low_power = _kernels.register_step(low_power_rows, allocates=True)
+low_power_kernel = low_power.kernel
+# the channel step inlines helpers of _kernels.py: drop its cached code when that changes (smo_gym._numba_cache)
+drop_stale((low_power_channel_step,), [_kernels.__file__])
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # class
 # ----------------------------------------------------------------------------------------------------------------
+@register_observer(
+    "low-power-high-gain",
+    steps=(low_power,),
+    calibrate=_balanced_gain_rule,
+    given=(("gain",),),
+    examples=(dict(gain=50.0, order=2), dict(gain=20.0, order=1, readout="low-power")),
+)
 class LowPowerHighGain(Observer):
     r"""Low-power (gains :math:`\ell, \ell^2` only), peaking-free high-gain differentiator [AMPT18], [AM15].
 
@@ -288,7 +296,6 @@ class LowPowerHighGain(Observer):
     """
 
     discretizations = ("implicit",)
-    name = "low-power-high-gain"
 
     @check_keywords
     def __init__(

@@ -65,6 +65,7 @@ from ..design.gains import super_twisting_gains
 from . import _mechanical_kernels as _mk
 from ._kernels import _first_nonfinite
 from .base import Observer
+from .registry import register_observer
 
 __all__ = ["CoordinateTransform", "DissipativeSuperTwisting", "Dynamics", "MechanicalSuperTwisting"]
 
@@ -421,6 +422,7 @@ def _divergence(obs):
     )
 
 
+@register_observer("mechanical-super-twisting", bound=2, model_based=True)
 class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
     r"""Super-twisting velocity observer for mechanical systems (Davila, Fridman and Levant 2005).
 
@@ -469,8 +471,6 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
     :math:`(y_{k+1} - \hat q_k)/h + (1 - c) h m_k`: a model-corrected backward difference; outside it, the
     correction is bounded by :math:`k_2 h` per step, which is what filters the measurement noise.
     """
-
-    name = "mechanical-super-twisting"
 
     @check_keywords
     def __init__(
@@ -691,6 +691,7 @@ def _gain_value(gains, key):
     return getattr(gains, key)
 
 
+@register_observer("dissipative-super-twisting", bound=2, model_based=True)
 class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
     r"""Dissipative super-twisting observer with the Coriolis-removing transform (Apaza-Perez, Moreno and
     Fridman 2018; Fridman's slides, "Dissipative approach").
@@ -733,8 +734,6 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
         As :class:`MechanicalSuperTwisting`; ``accel_bound`` clips the transformed model term
         :math:`\Upsilon\psi`.
     """
-
-    name = "dissipative-super-twisting"
 
     @check_keywords
     def __init__(

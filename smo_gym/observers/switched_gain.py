@@ -58,6 +58,16 @@ from .._numba_cache import drop_stale
 from .._validation import as_real_array, check_bool, check_int_in_range, check_keywords, check_positive
 from . import _kernels
 from .base import Observer
+from .registry import register_observer
+
+
+def _disturbance_rule(cls, dt, bounds, noise, kwargs):
+    """``disturbance`` = the largest calibrated bound, ``noise`` = the noise level (unless given)."""
+    kw = dict(kwargs)
+    kw.setdefault("disturbance", float(np.max(bounds)))
+    kw.setdefault("noise", noise)
+    return cls(dt=dt, **kw)
+
 
 __all__ = [
     "SwitchedGain",
@@ -261,33 +271,32 @@ def switched_gain_channel_step(x, y, params, m, x_new, out_row):
     return innovation
 
 
-@njit(cache=CACHE)
-def switched_gain_kernel(state, y, params, new_state, out):
-    """Batch kernel with the calling convention of :mod:`smo_gym.observers._kernels`."""
-    y, out = _kernels._flat(y, out)
-    bad = _kernels._first_nonfinite(y)
-    if bad >= 0:
-        return bad
+@njit(cache=CACHE, inline="always")
+def switched_gain_rows(state, y, params, new_state, out, shared):
+    """:func:`switched_gain_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     m = out.shape[1]
     for c in range(y.shape[0]):
-        new_state[c, m] = switched_gain_channel_step(state[c], y[c], params[c], m, new_state[c], out[c])
+        pc = 0 if shared else c  # the parameter row of channel c
+        new_state[c, m] = switched_gain_channel_step(state[c], y[c], params[pc], m, new_state[c], out[c])
     return _kernels._check_state(new_state, out)
 
 
-@njit(cache=CACHE, error_model="numpy")
-def _run_switched_gain(state, Y, params, out):
-    """Cached compiled driver of :func:`switched_gain_kernel` (see ``_kernels.register_driver``)."""
-    return _kernels._drive(switched_gain_kernel, state, Y, params, out)
-
-
-_kernels.register_driver(switched_gain_kernel, _run_switched_gain)
-# these inline helpers of _kernels.py: drop their cached code when it changes (see smo_gym._numba_cache)
-drop_stale((switched_gain_channel_step, switched_gain_kernel, _run_switched_gain), [_kernels.__file__])
+switched_gain = _kernels.register_step(switched_gain_rows)
+switched_gain_kernel = switched_gain.kernel
+# the channel step inlines helpers of _kernels.py: drop its cached code when that changes (smo_gym._numba_cache)
+drop_stale((switched_gain_channel_step,), [_kernels.__file__])
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # class
 # ----------------------------------------------------------------------------------------------------------------
+@register_observer(
+    "switched-gain",
+    steps=(switched_gain_rows,),
+    calibrate=_disturbance_rule,
+    given=(("disturbance", "noise"),),
+    examples=(dict(order=1, mu0=20.0, supervise=False, gain=[2.0, 1.0]), dict(order=2, disturbance=5.0, noise=1e-4)),
+)
 class SwitchedGain(Observer):
     r"""Switched-gain differentiator of Efimov et al. 2017: observer (4) with the supervisor (7)-(9) and Remark 9.
 
@@ -352,7 +361,6 @@ class SwitchedGain(Observer):
     """
 
     discretizations = ("implicit",)
-    name = "switched-gain"
 
     @check_keywords
     def __init__(

@@ -1,0 +1,150 @@
+r"""The alpha-beta tracker with the gains of Kalata's tracking index (Kalata 1984).
+
+The steady-state Kalman filter of the constant-velocity model with a white (piecewise constant) acceleration of
+standard deviation :math:`\sigma_w`, measured with white noise of standard deviation :math:`\sigma_v` at the step
+:math:`T`, is the fixed-gain filter
+
+.. math::
+    \hat x^- = \hat x_{k-1} + T\hat v_{k-1},\qquad r_k = y_k - \hat x^-,\qquad
+    \hat x_k = \hat x^- + \alpha r_k,\qquad \hat v_k = \hat v_{k-1} + \frac{\beta}{T} r_k,
+
+whose gains depend on the tracking index :math:`\Lambda = \sigma_w T^2/\sigma_v` alone:
+
+.. math::
+    \alpha = -\frac{\Lambda^2 + 8\Lambda - (\Lambda + 4)\sqrt{\Lambda^2 + 8\Lambda}}{8},\qquad
+    \beta = \frac{\Lambda^2 + 4\Lambda - \Lambda\sqrt{\Lambda^2 + 8\Lambda}}{4}.
+
+References
+----------
+.. [Kal84] P. R. Kalata, "The tracking index: a generalized parameter for alpha-beta and alpha-beta-gamma target
+   trackers", IEEE Transactions on Aerospace and Electronic Systems 20(2), 1984.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .._validation import check_keywords, check_positive
+from . import _kernels
+from .base import Observer
+from .registry import register_observer
+
+__all__ = ["AlphaBeta", "alpha_beta_step", "tracking_index_gains"]
+
+
+def tracking_index_gains(tracking_index: float) -> tuple[float, float]:
+    r"""The steady-state gains ``(alpha, beta)`` of Kalata's tracking index :math:`\Lambda > 0` (module notes)."""
+    lam = check_positive("tracking_index", tracking_index)
+    root = math.sqrt(lam * lam + 8.0 * lam)
+    return -(lam * lam + 8.0 * lam - (lam + 4.0) * root) / 8.0, (lam * lam + 4.0 * lam - lam * root) / 4.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def alpha_beta_step(x, v, y, dt, alpha, beta):
+    r"""One step of the alpha-beta tracker [Kal84]: predict with constant velocity, correct by the residual.
+
+    .. math:: r = y - (x + Tv),\quad x^+ = x + Tv + \alpha r,\quad v^+ = v + (\beta/T)\,r.
+
+    Returns ``(x+, v+, r)``.
+    """
+    x_prior = x + dt * v
+    r = y - x_prior
+    return x_prior + alpha * r, v + (beta / dt) * r, r
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def alpha_beta_rows(state, y, params, new_state, out, shared):
+    """:func:`alpha_beta_step` on every channel; state rows ``[x, v, r]``, parameter rows ``[T, alpha, beta]``."""
+    for c in range(y.shape[0]):
+        pc = 0 if shared else c  # the parameter row of channel c
+        x, v, r = alpha_beta_step(state[c, 0], state[c, 1], y[c], params[pc, 0], params[pc, 1], params[pc, 2])
+        new_state[c, 0] = x
+        new_state[c, 1] = v
+        new_state[c, 2] = r
+        out[c, 0] = x
+        out[c, 1] = v
+    return _kernels._check_state(new_state, out)
+
+
+def _tracking_index_rule(cls, dt, bounds, noise, kwargs):
+    r""":math:`\sigma_w` = the largest calibrated acceleration bound, :math:`\sigma_v` = the noise level."""
+    return cls(dt=dt, **{"acceleration_std": float(np.max(bounds)), "noise_std": noise, **kwargs})
+
+
+_STEP = _kernels.register_step(alpha_beta_rows)
+
+
+@register_observer(
+    "alpha-beta",
+    steps=(_STEP,),
+    bound=2,
+    calibrate=_tracking_index_rule,
+    given=(("acceleration_std", "noise_std"), ("alpha", "beta")),
+    examples=(dict(acceleration_std=50.0, noise_std=1e-4), dict(alpha=0.5, beta=0.2)),
+)
+class AlphaBeta(Observer):
+    r"""The alpha-beta tracker (constant-velocity model) with Kalata's steady-state gains (module notes).
+
+    Parameters
+    ----------
+    dt : float
+        Sampling step ``T > 0``.
+    acceleration_std, noise_std : float, optional
+        :math:`\sigma_w` and :math:`\sigma_v`; the gains follow from :math:`\Lambda = \sigma_w T^2/\sigma_v`.
+        Required unless ``alpha`` and ``beta`` are given.
+    alpha, beta : float, optional
+        The gains themselves, inside the stability region :math:`0 < \alpha < 2`, :math:`0 < \beta < 4 - 2\alpha`.
+    discretization : {"exact"}
+        The tracker is a discrete-time filter.
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
+    """
+
+    discretizations = ("exact",)
+
+    @check_keywords
+    def __init__(
+        self,
+        dt: float,
+        acceleration_std: float | None = None,
+        noise_std: float | None = None,
+        *,
+        alpha: float | None = None,
+        beta: float | None = None,
+        discretization: str | None = None,
+        wrap=None,
+    ):
+        super().__init__(dt, 1, discretization, wrap)
+        if alpha is None and beta is None:
+            if acceleration_std is None or noise_std is None:
+                raise ValueError(
+                    "expected acceleration_std and noise_std, or alpha and beta, actual value: "
+                    f"acceleration_std={acceleration_std!r}, noise_std={noise_std!r}"
+                )
+            lam = (
+                check_positive("acceleration_std", acceleration_std)
+                * self.dt**2
+                / check_positive("noise_std", noise_std)
+            )
+            alpha, beta = tracking_index_gains(lam)
+        elif alpha is None or beta is None or acceleration_std is not None or noise_std is not None:
+            raise ValueError(
+                f"expected both alpha and beta without acceleration_std and noise_std, actual value: alpha={alpha!r}, "
+                f"beta={beta!r}, acceleration_std={acceleration_std!r}, noise_std={noise_std!r}"
+            )
+        self.alpha, self.beta = check_positive("alpha", alpha), check_positive("beta", beta)
+        if not (self.alpha < 2.0 and self.beta < 4.0 - 2.0 * self.alpha):
+            raise ValueError(
+                f"expected 0 < alpha < 2 and 0 < beta < 4 - 2 alpha (a stable tracker), actual value: "
+                f"alpha={self.alpha!r}, beta={self.beta!r}"
+            )
+
+    @property
+    def _kernel(self):
+        return _STEP.kernel
+
+    def _channel_params(self, shape):
+        return np.tile([self.dt, self.alpha, self.beta], (int(np.prod(shape)), 1))

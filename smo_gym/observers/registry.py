@@ -1,0 +1,175 @@
+r"""The registry of observer families: each family is declared once, next to its class, and read everywhere.
+
+A family is registered by decorating its class::
+
+    @register_observer("alpha-beta", steps=(alpha_beta_rows,), bound=2, calibrate=..., examples=(dict(...),))
+    class AlphaBeta(Observer): ...
+
+and the registry then provides, with nothing else to edit:
+
+* the name for :func:`smo_gym.observers.make_observer`, the wrapper, the command line and
+  :func:`smo_gym.differentiate` (:data:`OBSERVERS`, or :data:`MODEL_BASED_OBSERVERS`);
+* its parameters (names and defaults, from the constructor) for :mod:`smo_gym.specs`;
+* what its gains need from calibration (:meth:`Family.bound_order`, :meth:`Family.needs_calibration`) and its
+  gain rule (:attr:`Family.calibrate`), read by :func:`smo_gym.calibration.default_observer`;
+* the compiled code of every step it declares (:func:`smo_gym.observers._kernels.register_step`): the batch
+  kernel, its shared-parameter variant, the offline drivers and the wrapper's fused driver, all cached on disk;
+* the parameter sets on which the contract tests run (batching, masked reset, non-finite input, pickling,
+  ``run`` equals a loop of ``update``), one per discretization at least.
+
+Every module of :mod:`smo_gym.observers` is imported with the package, so a family in a new module of the
+package is found without an import elsewhere.
+
+The noise level a gain rule receives is the mean over channels of the calibrated standard deviation, floored at
+``1e-6`` (:data:`smo_gym.calibration.NOISE_FLOOR`); the bounds are per channel, on the derivative of the order
+:meth:`Family.bound_order` returns.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import _kernels
+
+__all__ = [
+    "FAMILIES",
+    "MODEL_BASED_OBSERVERS",
+    "OBSERVERS",
+    "Family",
+    "family_of",
+    "lipschitz_rule",
+    "register_observer",
+]
+
+#: family name -> :class:`Family`, in the order of registration
+FAMILIES: dict[str, Family] = {}
+#: name -> class of the model-free families (built by name alone), for the wrapper, the CLI and ``differentiate``
+OBSERVERS: dict[str, type] = {}
+#: name -> class of the model-based families (built with a dynamics object, updated with ``update(y, u)``)
+MODEL_BASED_OBSERVERS: dict[str, type] = {}
+
+
+def lipschitz_rule(cls, dt: float, bounds: np.ndarray, noise: float, kwargs: dict):
+    """The sliding-mode gain rule: ``lipschitz`` = the calibrated bound, per channel (Levant 2003)."""
+    return cls(dt=dt, **kwargs, lipschitz=np.asarray(bounds, dtype=float))
+
+
+@dataclass(frozen=True)
+class Family:
+    """One observer family as registered (:func:`register_observer`).
+
+    Attributes
+    ----------
+    name : str
+        The short name (``"super-twisting"``, ``"levant"``, ...).
+    cls : type
+        Its :class:`~smo_gym.observers.Observer` subclass.
+    steps : tuple of :class:`smo_gym.observers._kernels.Step`
+        The compiled steps its discretizations run (the class's ``_kernel`` is one of their kernels); empty for a
+        family written in NumPy.
+    bound : int or None
+        The order of the derivative its gains bound (2: acceleration); ``None``: ``order + 1``.
+    calibrate : callable or None
+        The gain rule ``calibrate(cls, dt, bounds, noise, kwargs) -> observer`` with ``bounds`` per channel and
+        ``noise`` a scalar (module notes); ``None``: nothing to calibrate.
+    given : tuple of tuple of str
+        Sets of constructor arguments any of which, given together, set every gain (no calibration then).
+    examples : tuple of dict
+        Constructor arguments (without ``dt``) for the contract tests, covering every discretization.
+    model_based : bool
+        Built with a dynamics object and updated with ``update(y, u)``: not built by name, no offline or fused
+        drivers.
+    """
+
+    name: str
+    cls: type
+    steps: tuple = ()
+    bound: int | None = None
+    calibrate: Callable | None = None
+    given: tuple[tuple[str, ...], ...] = ()
+    examples: tuple[dict, ...] = field(default_factory=tuple)
+    model_based: bool = False
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """Parameter name -> default (``inspect.Parameter.empty`` if required) of the constructor (without ``dt``),
+        then the keyword-only ones of a ``from_bounds`` gain design."""
+        out: dict[str, Any] = {}
+        callables = [self.cls] + ([self.cls.from_bounds] if hasattr(self.cls, "from_bounds") else [])
+        for k, fn in enumerate(callables):
+            for p in inspect.signature(fn).parameters.values():
+                if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) or p.name in ("self", "dt"):
+                    continue
+                if (k == 0 or p.kind is p.KEYWORD_ONLY) and p.name not in out:
+                    out[p.name] = p.default
+        return out
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the family runs compiled steps only (then it has offline and fused drivers)."""
+        return bool(self.steps) and not self.model_based
+
+    def order(self, kwargs: dict | None = None) -> int:
+        """The number of derivatives estimated with these constructor arguments (``order``, else its default)."""
+        default = self.parameters.get("order", 1)
+        return int((kwargs or {}).get("order", 1 if default is inspect.Parameter.empty else default))
+
+    def bound_order(self, kwargs: dict | None = None) -> int:
+        """The order of the derivative the gains bound: :attr:`bound`, or ``order + 1``."""
+        return self.order(kwargs) + 1 if self.bound is None else self.bound
+
+    def needs_calibration(self, kwargs: dict | None = None) -> bool:
+        """Whether :attr:`calibrate` has a gain to fill with these constructor arguments."""
+        kw = kwargs or {}
+        return self.calibrate is not None and not any(all(k in kw for k in keys) for keys in self.given)
+
+
+def register_observer(
+    name: str,
+    *,
+    steps=(),
+    bound: int | None = None,
+    calibrate: Callable | None = None,
+    given=(),
+    examples=(),
+    model_based: bool = False,
+):
+    """Class decorator: register an observer family under ``name`` (module notes; arguments as :class:`Family`,
+    ``steps`` given as the ``rows`` functions of :func:`smo_gym.observers._kernels.register_step`).
+
+    Sets the class's ``name``. Raises ``ValueError`` for a name registered by another class.
+    """
+
+    def decorate(cls):
+        if name in FAMILIES and FAMILIES[name].cls is not cls:
+            raise ValueError(f"expected a new observer name, actual value: {name!r} is {FAMILIES[name].cls.__name__}")
+        cls.name = name
+        family = Family(
+            name=name,
+            cls=cls,
+            steps=tuple(_kernels.register_step(rows) for rows in steps),
+            bound=bound,
+            calibrate=calibrate,
+            given=tuple(tuple(keys) for keys in given),
+            examples=tuple(dict(e) for e in examples),
+            model_based=model_based,
+        )
+        FAMILIES[name] = family
+        (MODEL_BASED_OBSERVERS if model_based else OBSERVERS)[name] = cls
+        return cls
+
+    return decorate
+
+
+def family_of(observer) -> Family | None:
+    """The family an observer object belongs to: the one registered with exactly its class (a subclass of a
+    registered class is a family of its own, unregistered: ``None``)."""
+    for family in FAMILIES.values():
+        if type(observer) is family.cls:
+            return family
+    return None
