@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import inspect
 
 import numpy as np
 
@@ -129,9 +130,9 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
     first = obs.reset(y[0])
     out = np.empty((y.shape[0],) + first.shape)
     out[0] = first
-    if type(obs).run is Observer.run:
+    if "out" in inspect.signature(obs.run).parameters:
         obs.run(y[1:], out=out[1:])  # written in place: no second copy of a possibly large result
-    else:  # a subclass with its own run() allocates its result
+    else:  # an observer whose run() takes other arguments (the model-based ones) allocates its result
         out[1:] = obs.run(y[1:])
     if squeeze:
         out = out[:, 0]

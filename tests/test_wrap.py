@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import smo_gym
+from smo_gym.observers import FAMILIES as REGISTERED
 from smo_gym.observers import OBSERVERS, FiniteDifference, SuperTwisting, make_observer
 
 DT = 1e-3
@@ -36,6 +37,12 @@ FAMILIES = [
     ("switched-gain", dict(order=1, mu0=20.0, supervise=False, gain=[2.0, 1.0])),
     ("low-power-high-gain", dict(gain=50.0, order=2)),
     ("ilf-finite", dict(order=1, lipschitz=2000.0)),
+]
+#: a family registered later is tested on its first registered example
+FAMILIES += [
+    (name, dict(family.examples[0]))
+    for name, family in REGISTERED.items()
+    if not family.model_based and family.examples and name not in {n for n, _ in FAMILIES} | {"ilf-fixed"}
 ]
 IDS = [f"{name}-{kw.get('discretization', 'default')}" for name, kw in FAMILIES]
 

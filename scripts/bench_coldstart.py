@@ -1,0 +1,102 @@
+"""Cold and warm start of the default wrapper path: the first ``reset`` and ``step`` of a new process.
+
+Measures, in fresh Python processes,
+
+    env = EstimatedVelocity(gym.make("Hopper-v5")); env.reset(seed=0); env.step(a)
+
+from ``import smo_gym`` to the end of the first step, twice per repeat: *cold* with empty numba and smo_gym caches
+(fresh ``NUMBA_CACHE_DIR`` and ``SMO_GYM_CACHE_DIR``: everything compiles, the calibration runs), then *warm* in a
+second process on the caches the first one filled. Prints the median over the repeats.
+
+``--compiles`` lists, for one cold process, every numba compilation with its duration (numba's ``numba:compile``
+events; nested compilations are included in their caller's time), longest first: what a cold start pays for.
+
+Usage::
+
+    MUJOCO_GL=disable python scripts/bench_coldstart.py [--repeats 3] [--env Hopper-v5] [--compiles]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+CHILD = r"""
+import json, sys, time
+t0 = time.perf_counter()
+listen = {listen}
+compiles = []
+if listen:
+    from numba.core import event
+
+    class _Compiles(event.Listener):
+        def on_start(self, ev):
+            ev.data["_t0"] = time.perf_counter()
+
+        def on_end(self, ev):
+            d = ev.data["dispatcher"]
+            name = getattr(d, "py_func", d).__qualname__
+            compiles.append((time.perf_counter() - ev.data["_t0"], getattr(d, "py_func", d).__module__, name,
+                             str(ev.data["args"])))
+
+    event.register("numba:compile", _Compiles())
+import gymnasium as gym
+import numpy as np
+import smo_gym  # noqa: F401
+from smo_gym.wrappers import EstimatedVelocity
+t_import = time.perf_counter()
+env = EstimatedVelocity(gym.make({env!r}))
+env.reset(seed=0)
+t_reset = time.perf_counter()
+env.step(np.zeros(env.action_space.shape, dtype=env.action_space.dtype))
+t_step = time.perf_counter()
+compiles.sort(reverse=True)
+print(json.dumps(dict(total=t_step - t0, imports=t_import - t0, reset=t_reset - t_import, step=t_step - t_reset,
+                      compiles=compiles)))
+"""
+
+
+def _one(env_id: str, numba_dir: str, smo_dir: str, listen: bool = False) -> dict:
+    environ = dict(os.environ, NUMBA_CACHE_DIR=numba_dir, SMO_GYM_CACHE_DIR=smo_dir)
+    environ.setdefault("MUJOCO_GL", "disable")
+    code = CHILD.format(env=env_id, listen=listen)
+    proc = subprocess.run([sys.executable, "-c", code], env=environ, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"the child process failed:\n{proc.stderr}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", default="Hopper-v5")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--compiles", action="store_true", help="list the compilations of one cold start")
+    args = parser.parse_args(argv)
+    if args.compiles:
+        with tempfile.TemporaryDirectory() as numba_dir, tempfile.TemporaryDirectory() as smo_dir:
+            result = _one(args.env, numba_dir, smo_dir, listen=True)
+        print(f"cold start {result['total']:.2f} s; numba compilations (s, module, function, argument types):")
+        for seconds, module, name, types in result["compiles"]:
+            print(f"{seconds:8.2f}  {module}.{name}  {types[:100]}")
+        return
+    cold, warm = [], []
+    for _ in range(args.repeats):
+        with tempfile.TemporaryDirectory() as numba_dir, tempfile.TemporaryDirectory() as smo_dir:
+            cold.append(_one(args.env, numba_dir, smo_dir))
+            warm.append(_one(args.env, numba_dir, smo_dir))
+    print(f"{args.env}: EstimatedVelocity, first reset(seed=0) + step, median of {args.repeats} fresh processes")
+    print(f"{'':6s} {'total s':>8s} {'imports':>8s} {'reset':>8s} {'step':>8s}")
+    for name, runs in (("cold", cold), ("warm", warm)):
+        row = [statistics.median(r[k] for r in runs) for k in ("total", "imports", "reset", "step")]
+        print(f"{name:6s} " + " ".join(f"{v:8.2f}" for v in row))
+    print(f"(started {time.strftime('%Y-%m-%d %H:%M')}, python {sys.version.split()[0]})")
+
+
+if __name__ == "__main__":
+    main()

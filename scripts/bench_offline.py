@@ -1,0 +1,111 @@
+"""Offline throughput: ``Observer.run`` and ``smo_gym.differentiate`` against a loop of ``update`` and ``np.diff``.
+
+For each shape of a recorded signal ``Y`` (time first), prints the throughput in millions of channel-samples per
+second (``Y.size / seconds``) of
+
+* ``run``: ``observer.reset(Y[0]); observer.run(Y[1:])`` (the estimates allocated by ``run``),
+* ``update loop``: ``observer.reset(Y[0])`` and one ``observer.update(Y[t])`` per sample (on the first
+  ``--loop-samples`` samples only for long records: the rate per sample does not depend on the length),
+* ``differentiate``: ``smo_gym.differentiate(Y, dt, observer=..., lipschitz=...)`` (given gains: no calibration),
+* ``np.diff``: ``np.diff(Y, axis=0)``, the memory-bound reference of a first difference,
+
+and the ratios ``run / update loop`` and ``differentiate / np.diff``. The default observer is the default family of
+the wrapper, :class:`smo_gym.observers.SuperTwisting` with its default discretization (``"implicit"``).
+
+Timing: the median over ``--repeats`` runs (after one warm-up run, which also compiles), of the process CPU time by
+default (the code is single-threaded; CPU time is what a shared machine disturbs least), or of wall-clock time with
+``--wall``.
+
+Usage::
+
+    MUJOCO_GL=disable python scripts/bench_offline.py [--repeats 5] [--observer super-twisting] [--wall]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+import smo_gym
+from smo_gym.observers import make_observer
+
+SHAPES = ((1_000_000, 8), (1000, 4096, 8))
+
+
+def _seconds(f, repeats: int, clock) -> float:
+    f()  # warm-up (compiles on the first call)
+    times = []
+    for _ in range(repeats):
+        t0 = clock()
+        f()
+        times.append(clock() - t0)
+    return statistics.median(times)
+
+
+def _signal(shape, dt: float) -> np.ndarray:
+    """Smooth signals with small noise, one per channel, time first (a random walk of the acceleration)."""
+    rng = np.random.default_rng(0)
+    t = np.arange(shape[0])[(slice(None),) + (None,) * (len(shape) - 1)] * dt
+    phase = rng.uniform(0, 2 * np.pi, shape[1:])
+    return np.sin(t + phase) + 1e-4 * rng.standard_normal(shape)
+
+
+def bench(shape, observer: str, dt: float, lipschitz: float, repeats: int, loop_samples: int, clock) -> dict:
+    Y = _signal(shape, dt)
+    obs = make_observer(observer, dt=dt, lipschitz=lipschitz)
+    n = Y.size
+
+    def run():
+        obs.reset(Y[0])
+        obs.run(Y[1:])
+
+    Yl = Y[: min(loop_samples, Y.shape[0])]
+
+    def loop():
+        obs.reset(Yl[0])
+        for t in range(1, Yl.shape[0]):
+            obs.update(Yl[t])
+
+    def differentiate():
+        smo_gym.differentiate(Y, dt, observer=observer, lipschitz=lipschitz)
+
+    def diff():
+        np.diff(Y, axis=0)
+
+    rates = {
+        "run": n / _seconds(run, repeats, clock),
+        "update loop": Yl.size / _seconds(loop, max(1, repeats // 2), clock),
+        "differentiate": n / _seconds(differentiate, repeats, clock),
+        "np.diff": n / _seconds(diff, repeats, clock),
+    }
+    return {k: v / 1e6 for k, v in rates.items()}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--observer", default="super-twisting")
+    parser.add_argument("--dt", type=float, default=1e-3)
+    parser.add_argument("--lipschitz", type=float, default=50.0)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--loop-samples", type=int, default=20_000)
+    parser.add_argument("--wall", action="store_true", help="wall-clock time instead of process CPU time")
+    args = parser.parse_args(argv)
+    clock = time.perf_counter if args.wall else time.process_time
+    print(
+        f"{args.observer} (dt={args.dt}, lipschitz={args.lipschitz}), M channel-samples/s, median of "
+        f"{args.repeats} ({'wall' if args.wall else 'CPU'} time)"
+    )
+    header = ("shape", "run", "update loop", "differentiate", "np.diff", "run/loop", "diff./np.diff")
+    print(f"{header[0]:>16s} " + " ".join(f"{h:>13s}" for h in header[1:]))
+    for shape in SHAPES:
+        r = bench(shape, args.observer, args.dt, args.lipschitz, args.repeats, args.loop_samples, clock)
+        row = (r["run"], r["update loop"], r["differentiate"], r["np.diff"])
+        ratios = (r["run"] / r["update loop"], r["differentiate"] / r["np.diff"])
+        print(f"{shape!s:>16s} " + " ".join(f"{v:13.1f}" for v in row) + " ".join(f"{v:13.2f}" for v in ratios))
+
+
+if __name__ == "__main__":
+    main()
