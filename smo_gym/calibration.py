@@ -208,7 +208,14 @@ def derivative_bound(
         lag *= 2
     # channels whose noise never fell below the quantile (no visible signal): the smoothest quotient seen
     result = np.where(np.isnan(result), q, result)
-    return np.maximum(safety * result, floor)
+    with np.errstate(over="ignore"):
+        bound = np.maximum(safety * result, floor)
+    if not np.all(np.isfinite(bound)):
+        raise ValueError(
+            f"expected samples whose derivative of order {r} has a finite bound at dt={dt}, actual value: the "
+            f"bound overflows ({np.max(result):.3g} before the safety factor {safety}); rescale the signal"
+        )
+    return bound
 
 
 # ----------------------------------------------------------------------------------------------------------------

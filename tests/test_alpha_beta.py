@@ -11,6 +11,7 @@ import pytest
 from scipy.linalg import solve_discrete_are
 
 import smo_gym
+import smo_gym.specs
 from smo_gym.observers import FAMILIES, make_observer
 from smo_gym.observers.alpha_beta import AlphaBeta, tracking_index_gains
 

@@ -1005,11 +1005,16 @@ def _argument_free_methods(obj) -> list[str]:
     return names
 
 
+#: properties that are not results: the raw arrays handed to compiled callers (``Observer.arrays``,
+#: ``Sensor.arrays``), whose parameter rows hold inf where a bound is disabled
+_RAW_VIEWS = {"arrays"}
+
+
 def _properties(obj) -> list[str]:
     return [
         name
         for name, value in inspect.getmembers(type(obj))
-        if isinstance(value, property) and not name.startswith("_")
+        if isinstance(value, property) and not name.startswith("_") and name not in _RAW_VIEWS
     ]
 
 

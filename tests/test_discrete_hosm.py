@@ -15,7 +15,7 @@ from smo_gym.observers.discrete_hosm import (
     eigenvalue_mapping,
     max_eigenvalue,
     perturbation_bounds,
-    printed_gain_003,
+    printed_third_order_gain,
 )
 
 _spec = importlib.util.spec_from_file_location(
@@ -49,7 +49,7 @@ def test_printed_gain_79_82_is_unstable():
     obs = DiscreteTimeHOSM(3, 0.01, p1=30.0)
     c = np.eye(1, 3)[0]
     for z in np.linspace(0.0, 0.95, 20):
-        rho_printed = np.abs(np.linalg.eigvals(obs.A - np.outer(printed_gain_003(z, 0.01), c))).max()
+        rho_printed = np.abs(np.linalg.eigvals(obs.A - np.outer(printed_third_order_gain(z, 0.01), c))).max()
         rho_ackermann = np.abs(np.linalg.eigvals(obs.A - np.outer(obs.gain(z), c))).max()
         assert rho_printed > 1.0
         assert rho_ackermann < 1.0

@@ -23,9 +23,8 @@ INTERNAL_LABEL = re.compile(
     r"|shared/papers",
     re.IGNORECASE,
 )
-#: names that still carry a number: the printed third-order gain of Wetzlinger et al. (defined in
-#: ``smo_gym/observers/discrete_hosm.py`` and used by its tests)
-KNOWN = ("printed_gain_003",)
+#: names that carry a number but are no label (none today)
+KNOWN: tuple[str, ...] = ()
 SUFFIXES = {".py", ".md", ".yml", ".yaml", ".toml", ".txt", ".cfg", ".xml", ".csv"}
 
 

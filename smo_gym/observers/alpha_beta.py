@@ -38,8 +38,12 @@ __all__ = ["AlphaBeta", "alpha_beta_step", "tracking_index_gains"]
 def tracking_index_gains(tracking_index: float) -> tuple[float, float]:
     r"""The steady-state gains ``(alpha, beta)`` of Kalata's tracking index :math:`\Lambda > 0` (module notes)."""
     lam = check_positive("tracking_index", tracking_index)
-    root = math.sqrt(lam * lam + 8.0 * lam)
-    return -(lam * lam + 8.0 * lam - (lam + 4.0) * root) / 8.0, (lam * lam + 4.0 * lam - lam * root) / 4.0
+    # Kalata's alpha = -(L^2 + 8L - (L + 4) r) / 8 and beta = (L^2 + 4L - L r) / 4 with r = sqrt(L^2 + 8L), written
+    # with u = r - L = 8L / (r + L): the same values without the cancellation of the printed form (which loses
+    # all digits for large L) and without overflowing L^2
+    root = lam * math.sqrt(1.0 + 8.0 / lam)
+    u = 8.0 * lam / (root + lam)
+    return root * u / (2.0 * (root + lam)), lam * u / (root + lam)
 
 
 @njit(cache=True, error_model="numpy", inline="always")

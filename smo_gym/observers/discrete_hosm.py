@@ -63,7 +63,7 @@ __all__ = [
     "input_matrix",
     "max_eigenvalue",
     "perturbation_bounds",
-    "printed_gain_003",
+    "printed_third_order_gain",
 ]
 
 MAPPINGS = ("semi-implicit", "matching")
@@ -141,7 +141,7 @@ def ackermann_gain(z, n: int, dt: float) -> np.ndarray:
     return np.linalg.matrix_power(A - z * np.eye(n), n) @ np.linalg.solve(O, e_n)
 
 
-def printed_gain_003(z, dt: float) -> np.ndarray:
+def printed_third_order_gain(z, dt: float) -> np.ndarray:
     r"""The third-order gain as printed in (79)-(82) of Wetzlinger et al. (kept only to show that it is wrong).
 
     .. math:: \mathbf l = \big(\Phi_1 + 1,\ \Phi_2/h,\ \Phi_3/h^2\big),\quad \Phi_1 = 3z-2,\quad
@@ -222,7 +222,7 @@ class DiscreteTimeHOSM:
     Gains: Ackermann's formula (35) evaluated as :math:`\tilde{\mathbf l}(z) = \sum_{j=0}^n (-z)^{n-j}v_j` with
     :math:`v_j = \binom nj\mathbf A^j\mathcal O^{-1}e_n` (the binomial expansion of :math:`(\mathbf A - zI)^n`).
     The printed closed form (79)-(82) is not stable (see
-    :func:`printed_gain_003`). The paper's section 5 proves global asymptotic stability of the unperturbed error
+    :func:`printed_third_order_gain`). The paper's section 5 proves global asymptotic stability of the unperturbed error
     for ``n = 2, 3`` when :func:`max_eigenvalue` is below :math:`1/\sqrt2` and 0.498582; a ``RuntimeWarning`` is
     not raised for other settings, but ``stability_margin`` reports :math:`z^* - z_{\max}` for ``n <= 3``.
     """
