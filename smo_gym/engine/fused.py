@@ -5,7 +5,7 @@ only a few microseconds of sensing, and each Python-level operation costs two to
 ``mj_step`` (the simulator has evicted the interpreter's caches) than in a micro-benchmark. So the wrapper's hot
 path is one compiled function per observer kernel that, for the ``T`` samples of a control period,
 
-1. runs the sensor chain (:func:`smo_gym.sensors._chain_kernel`, same random numbers as ``Sensor.run``),
+1. runs the sensor chain (:func:`smo_gym.sensors._chain_block`, the call and random numbers of ``Sensor.run``),
 2. advances the observer (its own compiled kernel, the same one ``Observer.update`` calls), all or nothing:
    the state is committed only if every sample passed,
 3. writes the sensed state into the scratch ``MjData`` (measured or filtered ``qpos``, estimated ``qvel``) and
@@ -47,7 +47,7 @@ from .._numba_cache import cached_instance
 from ..observers import _kernels as K
 from ..observers import family_of
 from ..observers.base import _compiled_entry
-from ..sensors import Sensor, _chain_block
+from ..sensors import _chain_block
 from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
 
@@ -361,8 +361,8 @@ class FusedSensing:
     random block, the observer's estimate and update count), so both objects stay usable as they are.
 
     Use :meth:`supports` first: a plain :class:`VelocityEstimator` around an observer of a registered compiled
-    family (:func:`fusable`), a sensor whose ``run`` is the base class's, and an
-    adapter with a scratch state.
+    family (:func:`fusable`) and an adapter with a scratch state (every sensor qualifies: a sensor is its stages,
+    see :class:`smo_gym.sensors.Sensor`).
 
     Parameters
     ----------
@@ -420,7 +420,6 @@ class FusedSensing:
             and fusable(observer)
             and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
             and observer.order >= 1
-            and type(measurement.sensor).run is Sensor.run
             and adapter.evaluation is not None
         )
 
