@@ -1,8 +1,8 @@
-"""Keep numba's on-disk cache honest for functions that inline code from other modules.
+"""Keep numba's on-disk cache honest for functions whose machine code contains code from other modules.
 
 numba keys the cached machine code of a ``cache=True`` function on the source file that defines it (its
-modification time and size). A compiled driver that inlines a kernel from another module (the wrapper's fused
-hot path inlines the observer kernels, the sensor chain and the tangent arithmetic) would therefore keep running
+modification time and size). A compiled driver that inlines or links a kernel from another module (the wrapper's
+fused hot path contains the observer kernels, the sensor chain and the tangent arithmetic) would therefore keep running
 the *old* kernel after that other module changed, silently, until its own file changes. :func:`drop_stale` removes
 the cache index of such functions when a dependency is newer than it; numba then compiles afresh on the next
 call (and caches again).

@@ -259,11 +259,28 @@ class Sensor:
     Life cycle: ``reset(y0, seed=...)`` returns the first measurement and must come first; ``measure(y)``
     (or calling the sensor) processes one sample; ``run(Y)`` a block of samples ``(T, ...)``.
 
+    A sensor is its stages: the compiled chain runs them from :attr:`arrays`, and so does the wrapper's fused path
+    (:mod:`smo_gym.engine.fused`). A subclass therefore defines stages (a :class:`Stage` with a kind the chain
+    knows, or a :class:`Chain`), never its own ``measure``/``run``/``reset``: that is refused when the class is
+    defined, so that no path can run a sensor differently from another.
+
     Attributes
     ----------
     stages : tuple of Stage
         The models, applied in order.
     """
+
+    #: the methods that run the stream: one implementation, the compiled chain
+    _STREAM_METHODS = ("measure", "run", "reset", "__call__", "_run_flat")
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        overridden = [name for name in Sensor._STREAM_METHODS if name in vars(cls)]
+        if overridden:
+            raise TypeError(
+                f"expected a sensor defined by its stages (smo_gym.sensors.Stage, Chain), actual value: "
+                f"{cls.__name__} overrides {', '.join(overridden)}"
+            )
 
     # state of the stream, set by reset (class defaults: a sensor that was never reset)
     _rng = None

@@ -31,8 +31,9 @@ def test_the_fused_drivers_are_checked_against_their_dependencies():
     from smo_gym.engine import fused as _fused
 
     # every fused driver names a cache index numba would use (the attribute path drop_stale relies on)
-    for driver in _fused.FUSED_DRIVERS.values():
-        assert driver._cache._cache_file._index_path.endswith(".nbi")
+    for drivers in _fused.FUSED_DRIVERS.values():
+        for driver in drivers:
+            assert driver._cache._cache_file._index_path.endswith(".nbi")
 
 
 _TEMPLATE_MODULE = """
@@ -93,6 +94,6 @@ def test_every_registered_step_and_fused_driver_is_cached_on_disk():
     from smo_gym.observers import _kernels as K
 
     for step in K.STEPS.values():
-        for f in (step.kernel, step.shared_kernel, step.run, step.run_wrapped, _fused.FUSED_DRIVERS[step.kernel]):
+        for f in (step.kernel, step.shared_kernel, step.run, step.run_wrapped, *_fused.FUSED_DRIVERS[step.kernel]):
             assert f._cache._cache_file._index_path.endswith(".nbi")
             assert step.label in f.py_func.__qualname__

@@ -398,3 +398,18 @@ def test_encoder_wrap_must_be_a_bool():
     with pytest.raises(TypeError, match="expected wrap") as excinfo:
         Encoder(1e-3, wrap="no")
     assert "actual value" in str(excinfo.value)
+
+
+@pytest.mark.parametrize("method", ["measure", "run", "reset", "__call__"])
+def test_a_sensor_is_its_stages_subclasses_cannot_replace_the_stream(method):
+    # every path (Sensor.run, the wrapper's fused driver) runs the stages through the compiled chain, so a class
+    # with its own stream would be run differently by different paths: refused where it is defined
+    with pytest.raises(TypeError, match=f"overrides {method}"):
+        type("Custom", (sensors.GaussianNoise,), {method: lambda self, *a, **k: None})
+
+
+def test_a_sensor_subclass_with_stages_only_is_accepted():
+    class Quiet(sensors.GaussianNoise):
+        """A preset: only the parameters differ."""
+
+    assert Quiet(0.1).stages[0].std == 0.1

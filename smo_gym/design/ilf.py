@@ -29,7 +29,6 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import null_space
 
 from .._extras import require
 from .._validation import check_choice, check_int_in_range, check_positive
@@ -236,6 +235,8 @@ def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposit
         if r == Am.shape[0]:
             sizes.append(r)
             break
+        from scipy.linalg import null_space  # lazy: importing scipy.linalg costs ~0.4 s of `import smo_gym`
+
         Cperp = null_space(Cm, rcond=tol)
         Chat = null_space(Cperp.T, rcond=tol)
         T = np.hstack([Chat, Cperp])

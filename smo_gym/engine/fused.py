@@ -5,7 +5,7 @@ only a few microseconds of sensing, and each Python-level operation costs two to
 ``mj_step`` (the simulator has evicted the interpreter's caches) than in a micro-benchmark. So the wrapper's hot
 path is one compiled function per observer kernel that, for the ``T`` samples of a control period,
 
-1. runs the sensor chain (:func:`smo_gym.sensors._chain_kernel`, same random numbers as ``Sensor.run``),
+1. runs the sensor chain (:func:`smo_gym.sensors._chain_block`, the call and random numbers of ``Sensor.run``),
 2. advances the observer (its own compiled kernel, the same one ``Observer.update`` calls), all or nothing:
    the state is committed only if every sample passed,
 3. writes the sensed state into the scratch ``MjData`` (measured or filtered ``qpos``, estimated ``qvel``) and
@@ -16,11 +16,14 @@ path is one compiled function per observer kernel that, for the ``T`` samples of
 Free and ball joints go through the same compiled tangent coordinates as the general path
 (:mod:`smo_gym.engine.tangent`).
 
-The numbers are those of the general path (``Sensor.run`` then ``Observer.run``), bit for bit (tested). The
-function is generic in the kernel and inlined into one cached driver per registered kernel (:data:`FUSED_DRIVERS`,
-generated: a compiled function taking the kernel as an argument would be recompiled in every new process, see
-:func:`smo_gym._numba_cache.cached_instance`); observers that are not a registered compiled family use the general
-path.
+The numbers are those of the general path (``Sensor.run`` then ``Observer.run``), bit for bit (tested): the
+driver calls the same compiled sensor chain (:func:`smo_gym.sensors._chain_block`) and the observer's own step.
+It is one template (:func:`_sense_template`) bound to each registered kernel and to the kind of joints, generated
+and cached on disk (:data:`FUSED_DRIVERS`; a compiled function taking the kernel as an argument would be
+recompiled in every new process, see :func:`smo_gym._numba_cache.cached_instance`). The joint kind is a
+compile-time constant because compilation, not the call, is what a new process pays for (the first step from an
+empty cache): a model without free or ball joints never compiles the tangent arithmetic. Observers that are not a
+registered compiled family use the general path.
 
 Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produced a non-finite value at sample
 ``t``, channel ``j``; ``-2 - (t * nv + j)`` the observer's state became non-finite there.
@@ -32,7 +35,8 @@ import functools
 import inspect
 import math
 import operator
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import NamedTuple
 
 import numpy as np
 from numba import carray, njit, types
@@ -43,7 +47,7 @@ from .._numba_cache import cached_instance
 from ..observers import _kernels as K
 from ..observers import family_of
 from ..observers.base import _compiled_entry
-from ..sensors import Sensor, _chain_kernel
+from ..sensors import _chain_block
 from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
 
@@ -88,38 +92,19 @@ TABLE_SLOTS = (
 _N_SLOTS = len(TABLE_SLOTS)
 
 
-@njit(error_model="numpy", inline="always")
-def _sense(
-    kernel,
-    Q,
-    qvel_true,
-    t0,
-    est,
-    info,
-    Zm,
-    obs,
-    kinds,
-    sparams,
-    sstate,
-    ring,
-    ring_pos,
-    rand,
-    state,
-    params,
-    work,
-    scratch_qpos,
-    scratch_qvel,
-    filtered,
-    joints,
-    prev,
-    z,
-    obs_index,
-    obs_bounds,
-):
+# the globals of the template below, bound per observer kernel and joint kind by cached_instance
+_KERNEL = None
+_MANIFOLD = False
+
+
+def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
     """Sensor, observer and outputs for the samples ``Q`` (T, nq) of one control period (see module docstring).
 
-    The arguments that change every call come first (the others come from the address table of
-    :func:`_sense_table`):
+    The arguments that change every call come first; the others are read through the address ``table`` (rows of
+    :data:`TABLE_SLOTS`: numba converts every array argument of a call from Python, ~0.1 us each and two to three
+    times that right after the physics step, so the seventeen prepared arrays would cost more than the rest of the
+    call; its rows after those copy the controller inputs the observation reads from the live into the scratch
+    data, see :func:`copy_entries`; :class:`FusedSensing` keeps the arrays alive and checks them):
     ``qvel_true`` (nv,) the live velocity, ``t0`` the sensor's position in its random block ``rand``, ``est``
     (nv, m) receives the estimate at the last sample, ``info`` (2 nq + 4 nv,) the block
     ``[qpos, qvel, qvel_estimate, qpos_measured, z_true, z_measured]``, ``Zm`` (>= T, nv) the measurements (work
@@ -134,23 +119,47 @@ def _sense(
     <smo_gym.engine.scratch.ScratchObservation.observation_map>`): ``obs[i] = min(max(x[obs_index[i]],
     obs_bounds[0, i]), obs_bounds[1, i])`` with ``x = [scratch_qpos, scratch_qvel]``.
     """
+    copy_entries(table[_N_SLOTS:])  # the input copies into the scratch data: [to, from, size, 0, 0]
+    r = table
+    kinds = carray(_pointer(r[0, 0]), (r[0, 1],), np.int64)
+    sparams = carray(_pointer(r[1, 0]), (r[1, 1], r[1, 2], r[1, 3]), np.float64)
+    sstate = carray(_pointer(r[2, 0]), (r[2, 1], r[2, 2]), np.float64)
+    ring = carray(_pointer(r[3, 0]), (r[3, 1], r[3, 2], r[3, 3]), np.float64)
+    ring_pos = carray(_pointer(r[4, 0]), (r[4, 1],), np.int64)
+    rand = carray(_pointer(r[5, 0]), (r[5, 1], r[5, 2], r[5, 3], r[5, 4]), np.float64)
+    state = carray(_pointer(r[6, 0]), (r[6, 1], r[6, 2]), np.float64)
+    params = carray(_pointer(r[7, 0]), (r[7, 1], r[7, 2]), np.float64)
+    work = carray(_pointer(r[8, 0]), (r[8, 1], r[8, 2], r[8, 3]), np.float64)
+    scratch_qpos = carray(_pointer(r[9, 0]), (r[9, 1],), np.float64)
+    scratch_qvel = carray(_pointer(r[10, 0]), (r[10, 1],), np.float64)
+    filtered = r[11, 0] != 0
+    joints = carray(_pointer(r[12, 0]), (r[12, 1], r[12, 2]), np.int64)
+    prev = carray(_pointer(r[13, 0]), (r[13, 1],), np.float64)
+    z = carray(_pointer(r[14, 0]), (r[14, 1],), np.float64)
+    obs_index = carray(_pointer(r[15, 0]), (r[15, 1],), np.int64)
+    obs_bounds = carray(_pointer(r[16, 0]), (r[16, 1], r[16, 2]), np.float64)
     T, nq = Q.shape
     n, S = state.shape
-    manifold = joints.shape[0] > 0
     for c in range(n):
         for j in range(S):
             work[0, c, j] = state[c, j]
+    # the true tangent coordinates of the samples, measured in place by the sensor chain (as Sensor.run)
+    for t in range(T):
+        if _MANIFOLD:
+            tangent_advance(joints, prev, Q[t], z)
+            for c in range(n):
+                Zm[t, c] = z[c]
+        else:
+            for c in range(n):
+                Zm[t, c] = Q[t, c]
+    block = Zm[:T]
+    # prime is a bool value, not the literal False: then this is the chain Sensor.run compiled (one compilation)
+    status = _chain_block(block, kinds, sparams, sstate, ring, ring_pos, rand, t0, block, np.bool_(False))
+    if status != -1:
+        return status
     cur = 0
     for t in range(T):
-        if manifold:
-            tangent_advance(joints, prev, Q[t], z)
-            y = z
-        else:
-            y = Q[t]
-        status = _chain_kernel(y, kinds, sparams, sstate, ring, ring_pos, rand[t0 + t], False, Zm[t])
-        if status != -1:
-            return t * n + status
-        status = kernel(work[cur], Zm[t], params, work[1 - cur], est)
+        status = _KERNEL(work[cur], Zm[t], params, work[1 - cur], est)
         if status != -1:
             return -2 - (t * n + (-2 - status if status <= -2 else status))
         cur = 1 - cur
@@ -166,9 +175,9 @@ def _sense(
         info[o_qvel + c] = qvel_true[c]
         info[o_vhat + c] = est[c, 1]
         info[o_zm + c] = zm[c]
-        info[o_z + c] = z[c] if manifold else last[c]
+        info[o_z + c] = z[c] if _MANIFOLD else last[c]
         scratch_qvel[c] = est[c, 1]
-    if manifold:  # measured configuration q (+) (z_meas - z), filtered one q_meas (+) (z_filtered - z_meas)
+    if _MANIFOLD:  # measured configuration q (+) (z_meas - z), filtered one q_meas (+) (z_filtered - z_meas)
         dz = np.empty(n)
         for c in range(n):
             dz[c] = zm[c] - z[c]
@@ -214,48 +223,6 @@ def copy_entries(table):
         source = carray(_pointer(table[row, 1]), (table[row, 2],), np.float64)
         for i in range(table[row, 2]):
             to[i] = source[i]
-
-
-@njit(error_model="numpy", inline="always")
-def _sense_table(kernel, Q, qvel_true, t0, est, info, Zm, obs, table):
-    """:func:`_sense` with the prepared arrays passed as one address table (rows of :data:`TABLE_SLOTS`).
-
-    Why: numba converts every array argument of a call from Python (~0.1 us each, two to three times that right
-    after the physics step); the seventeen prepared arrays cost more than the rest of the call. The table is one
-    argument. Its rows after :data:`TABLE_SLOTS` copy the controller inputs the observation reads (``ctrl``, ...)
-    from the live into the scratch data (a NumPy copy per field costs ~2 us after the physics step). The arrays
-    it points to are kept alive and checked (dtype, dimensions, C order) by
-    :class:`~smo_gym.engine.fused.FusedSensing`, which rebuilds the rows of replaced arrays.
-    """
-    t = table
-    copy_entries(t[_N_SLOTS:])  # the input copies into the scratch data: [to, from, size, 0, 0]
-    return _sense(
-        kernel,
-        Q,
-        qvel_true,
-        t0,
-        est,
-        info,
-        Zm,
-        obs,
-        carray(_pointer(t[0, 0]), (t[0, 1],), np.int64),
-        carray(_pointer(t[1, 0]), (t[1, 1], t[1, 2], t[1, 3]), np.float64),
-        carray(_pointer(t[2, 0]), (t[2, 1], t[2, 2]), np.float64),
-        carray(_pointer(t[3, 0]), (t[3, 1], t[3, 2], t[3, 3]), np.float64),
-        carray(_pointer(t[4, 0]), (t[4, 1],), np.int64),
-        carray(_pointer(t[5, 0]), (t[5, 1], t[5, 2], t[5, 3], t[5, 4]), np.float64),
-        carray(_pointer(t[6, 0]), (t[6, 1], t[6, 2]), np.float64),
-        carray(_pointer(t[7, 0]), (t[7, 1], t[7, 2]), np.float64),
-        carray(_pointer(t[8, 0]), (t[8, 1], t[8, 2], t[8, 3]), np.float64),
-        carray(_pointer(t[9, 0]), (t[9, 1],), np.float64),
-        carray(_pointer(t[10, 0]), (t[10, 1],), np.float64),
-        t[11, 0] != 0,
-        carray(_pointer(t[12, 0]), (t[12, 1], t[12, 2]), np.int64),
-        carray(_pointer(t[13, 0]), (t[13, 1],), np.float64),
-        carray(_pointer(t[14, 0]), (t[14, 1],), np.float64),
-        carray(_pointer(t[15, 0]), (t[15, 1],), np.int64),
-        carray(_pointer(t[16, 0]), (t[16, 1], t[16, 2]), np.float64),
-    )
 
 
 def address(array: np.ndarray) -> int:
@@ -326,12 +293,14 @@ def entry_functions_match_numpy(n: int = 4096, seed: int = 2468) -> bool:
     return True
 
 
-_KERNEL = None  # the global of the template below, bound per observer kernel by cached_instance
+class FusedDriver(NamedTuple):
+    """The two compiled drivers of an observer kernel (:func:`_sense_template`), compiled on first call: only the
+    one a model needs is compiled, and a model without free or ball joints never compiles the tangent arithmetic."""
 
-
-def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
-    """The fused driver of the observer kernel ``_KERNEL``: :func:`_sense_table` with the kernel inlined."""
-    return _sense_table(_KERNEL, Q, qvel_true, t0, est, info, Zm, obs, table)
+    flat: Callable
+    """For models whose joints are all hinges and slides (``z = qpos``)."""
+    manifold: Callable
+    """For models with free or ball joints (tangent coordinates, :mod:`smo_gym.engine.tangent`)."""
 
 
 class _FusedDrivers(Mapping):
@@ -341,13 +310,14 @@ class _FusedDrivers(Mapping):
     Each driver is :func:`_sense_template` with the kernel bound (:func:`smo_gym._numba_cache.cached_instance`:
     cached on disk, reused by a new process), generated on first use, so that a family registered after this
     module was imported has its driver too. Its cached code is dropped when the kernel's module, the kernels of
-    :mod:`smo_gym.observers._kernels`, the sensor chain or the tangent arithmetic change (it inlines them).
+    :mod:`smo_gym.observers._kernels`, the sensor chain or the tangent arithmetic change (its cached machine code
+    contains theirs).
     """
 
     def __init__(self):
         self._drivers: dict = {}
 
-    def __getitem__(self, kernel):
+    def __getitem__(self, kernel) -> FusedDriver:
         driver = self._drivers.get(kernel)
         if driver is None:
             step = K.STEPS[kernel]  # KeyError: not a registered kernel
@@ -356,7 +326,12 @@ class _FusedDrivers(Mapping):
 
             deps = [inspect.getfile(step.rows.py_func), K.__file__, sensors.__file__, tangent.__file__]
             options = dict(cache=True, error_model="numpy")
-            driver = self._drivers[kernel] = cached_instance(_sense_template, step.label, options, deps, _KERNEL=kernel)
+            driver = self._drivers[kernel] = FusedDriver(
+                flat=cached_instance(_sense_template, step.label, options, deps, _KERNEL=kernel, _MANIFOLD=False),
+                manifold=cached_instance(
+                    _sense_template, step.label + ".manifold", options, deps, _KERNEL=kernel, _MANIFOLD=True
+                ),
+            )
         return driver
 
     def __iter__(self):
@@ -386,8 +361,8 @@ class FusedSensing:
     random block, the observer's estimate and update count), so both objects stay usable as they are.
 
     Use :meth:`supports` first: a plain :class:`VelocityEstimator` around an observer of a registered compiled
-    family (:func:`fusable`), a sensor whose ``run`` is the base class's, and an
-    adapter with a scratch state.
+    family (:func:`fusable`) and an adapter with a scratch state (every sensor qualifies: a sensor is its stages,
+    see :class:`smo_gym.sensors.Sensor`).
 
     Parameters
     ----------
@@ -403,7 +378,8 @@ class FusedSensing:
         self.measurement, self.adapter = measurement, adapter
         self.sensor, self.observer = measurement.sensor, estimator.observer
         self.filtered = bool(filtered)
-        self._driver = FUSED_DRIVERS[self.observer._kernel]
+        drivers = FUSED_DRIVERS[self.observer._kernel]
+        self._driver = drivers.manifold if measurement.tangent.manifold else drivers.flat
         self.evaluation = evaluation = adapter.evaluation
         selection = evaluation.observation_map
         #: the compiled call also builds the observation (a clipped selection of the sensed state, probed by the
@@ -444,7 +420,6 @@ class FusedSensing:
             and fusable(observer)
             and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
             and observer.order >= 1
-            and type(measurement.sensor).run is Sensor.run
             and adapter.evaluation is not None
         )
 

@@ -128,7 +128,7 @@ def integrate_pos(joints, qpos, v):
             qpos[a] += v[d]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def tangent_advance(joints, prev, q, z):
     r"""Continuous tangent coordinates: ``z += q \ominus prev`` for free joints and ball joints, ``z = q`` for hinge
     and slide dofs, then ``prev = q`` (see :class:`~smo_gym.engine.measurement.TangentCoordinates`)."""

@@ -53,7 +53,6 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from scipy.linalg import expm
 
 from .._validation import (
     DivergenceError,
@@ -191,6 +190,8 @@ def _zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray
     n, s = B.shape
     M = np.zeros((n + s, n + s))
     M[:n, :n], M[:n, n:] = A, B
+    from scipy.linalg import expm  # lazy: importing scipy.linalg costs ~0.4 s of `import smo_gym`
+
     E = expm(M * h)
     return E[:n, :n], E[:n, n:]
 

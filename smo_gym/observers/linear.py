@@ -11,7 +11,6 @@ References
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm
 
 from .._validation import as_real_array, check_int_in_range, check_keywords, check_nonnegative, check_positive
 from ..design.gains import binomial_coefficients
@@ -129,6 +128,8 @@ class HighGain(Observer):
                 else:
                     # predictor x_{k+1} = x_k + dt((N - H c^T) x_k + H y_k); report exp(-dt N) x_{k+1}
                     F, g = np.eye(n) + dt * A, dt * H
+                    from scipy.linalg import expm  # lazy: scipy.linalg costs ~0.4 s of `import smo_gym`
+
                     R = expm(-dt * np.eye(n, k=1))
                 row = np.concatenate([F.ravel(), g, R.ravel()])
             except (np.linalg.LinAlgError, ValueError):

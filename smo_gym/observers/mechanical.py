@@ -50,7 +50,7 @@ References
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -137,6 +137,9 @@ class _ModelBasedSuperTwisting(Observer):
     """Shared shell: model term in Python (dynamics object), injection in the compiled kernel."""
 
     discretizations = ("semi-implicit", "euler")
+    #: the observer runs in transformed coordinates (:meth:`_measure`, :meth:`_to_estimate` and
+    #: :meth:`_from_estimate` are not the identity): a subclass that overrides them sets this
+    transformed: ClassVar[bool] = False
 
     def __init__(self, dt, dynamics, *, accel_bound, discretization, euler_substeps, disturbance_time_constant):
         super().__init__(dt, 1, discretization)
@@ -156,9 +159,7 @@ class _ModelBasedSuperTwisting(Observer):
         self._v0 = None
         self._model_call = None
         self._mb_out_shape = None
-        self._direct = False
         self._neg_bound = None if self.accel_bound is None else -self.accel_bound
-        self._transformed = type(self)._to_estimate is not _ModelBasedSuperTwisting._to_estimate
         self.model_substeps = 1
 
     # ---- hooks -------------------------------------------------------------------------------------------
@@ -247,11 +248,6 @@ class _ModelBasedSuperTwisting(Observer):
         if mask is None:
             self._y_prev = np.ascontiguousarray(y0, dtype=np.float64).copy()
             self._mb_out_shape = self._shape + (2,)
-            self._direct = (
-                len(self._shape) == 1
-                and self.model_substeps == 1
-                and type(self)._model_term is MechanicalSuperTwisting._model_term
-            )
             self._model_call = None
         else:
             mk = check_mask("mask", mask)
@@ -291,13 +287,7 @@ class _ModelBasedSuperTwisting(Observer):
         # model term at the previous sample (explicit), optionally saturated (Wetzlinger et al., eq. (33)): the
         # kernel reads it from the row it writes (the scratch), so a rejected step leaves the state as it was
         scratch = self._scratch
-        if self._direct:  # one environment, plain model term: the hot path of rate="physics"
-            m = self.dynamics.acceleration(self._y_prev, state[:, 1], u)
-            try:
-                scratch[:, _mk.MODEL] = m
-            except (ValueError, TypeError):
-                raise _model_term_error(self._shape, m) from None
-        elif self.model_substeps == 1:
+        if self.model_substeps == 1:
             m = self._model_term(self._y_prev, state, u)  # saturated in the kernel
             try:
                 scratch[:, _mk.MODEL] = np.reshape(m, -1)
@@ -307,7 +297,7 @@ class _ModelBasedSuperTwisting(Observer):
             m, m_pos = self._substep_prediction(self._y_prev, state, u)
             scratch[:, _mk.MODEL] = m.reshape(-1)
             scratch[:, _mk.MODEL_POS] = m_pos.reshape(-1)
-        X = self._measure(y) if self._transformed else y
+        X = self._measure(y) if self.transformed else y
         out = np.empty(self._mb_out_shape)
         call = self._model_call
         if call is None:
@@ -319,7 +309,7 @@ class _ModelBasedSuperTwisting(Observer):
             raise _divergence(self)
         self._state, self._scratch = self._scratch, state
         np.copyto(self._y_prev, y)
-        if self._transformed:
+        if self.transformed:
             q, v = self._to_estimate(out[..., 0], out[..., 1], y)
             out[..., 0] = q
             out[..., 1] = v
@@ -734,6 +724,8 @@ class DissipativeSuperTwisting(_ModelBasedSuperTwisting):
         As :class:`MechanicalSuperTwisting`; ``accel_bound`` clips the transformed model term
         :math:`\Upsilon\psi`.
     """
+
+    transformed = True
 
     @check_keywords
     def __init__(

@@ -52,7 +52,6 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy.optimize import brentq
 
 from .._numba_cache import drop_stale
 from .._validation import as_real_array, check_bool, check_int_in_range, check_keywords, check_positive
@@ -160,6 +159,8 @@ def noise_optimal_gains(
     hi = mu_min * 2.0
     while r(hi) < target:
         hi *= 2.0
+    from scipy.optimize import brentq  # lazy: scipy.optimize costs ~0.4 s of `import smo_gym`
+
     mu_max = brentq(lambda mu: r(mu) - target, mu_min, hi, xtol=1e-12, rtol=1e-14)
     return float(mu_min), float(mu_max)
 
