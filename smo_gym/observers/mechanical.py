@@ -63,8 +63,7 @@ from .._validation import (
 )
 from ..design.gains import super_twisting_gains
 from . import _mechanical_kernels as _mk
-from ._kernels import _first_nonfinite
-from .base import Observer
+from .base import Observer, checked_input
 from .registry import register_observer
 
 __all__ = ["CoordinateTransform", "DissipativeSuperTwisting", "Dynamics", "MechanicalSuperTwisting"]
@@ -103,23 +102,6 @@ def _check_dynamics(dynamics) -> int:
             f"{type(dynamics).__name__}"
         )
     return check_int_in_range("dynamics.n", dynamics.n, 1, 10_000)
-
-
-_FLOAT64 = np.dtype(np.float64)
-
-
-def _checked_input(u):
-    """The input ``u`` of ``update`` (any shape: the dynamics object's convention) after checking it is real and
-    finite, so that a NaN control is reported here rather than silently zeroed by the simulator (MuJoCo does)."""
-    if u is None:
-        return None
-    if type(u) is not np.ndarray or u.dtype is not _FLOAT64:
-        u = as_real_array("u", u)
-    # the compiled scan costs ~0.2 us; a NumPy reduction (np.isfinite(u).all()) ~2 us, on the physics-rate path
-    if _first_nonfinite(u if u.ndim == 1 else u.reshape(-1)) >= 0:
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(u))[0])
-        raise ValueError(f"expected finite inputs u, actual value: {u[bad]!r} at index {bad}")
-    return u
 
 
 def _model_term_error(shape, value) -> ValueError:
@@ -287,7 +269,7 @@ class _ModelBasedSuperTwisting(Observer):
             y = np.ascontiguousarray(self._as_measurement(y, "y"))
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
-        u = _checked_input(u)
+        u = checked_input(u)
         # model term at the previous sample (explicit), optionally saturated (Wetzlinger et al., eq. (33)): the
         # kernel reads it from the row it writes (the scratch), so a rejected step leaves the state as it was
         scratch = self._scratch
