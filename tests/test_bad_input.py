@@ -186,6 +186,17 @@ def test_step_with_wrong_sizes_never_crashes_the_interpreter():
     assert result.stdout.strip().endswith("ok")
 
 
+def test_an_overflowing_coordinate_transform_is_refused_without_a_warning():
+    """A range of width 1e300 makes the transform's integral overflow: the check subtracted ``inf - inf`` outside
+    the guarded block, so the worded ``ValueError`` came with a ``RuntimeWarning`` (an error under the sweep's
+    warnings filter; found by the sweep)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="overflows") as excinfo:
+            CoordinateTransform(lambda Y: 0.1 * np.tanh(Y), -1e300, [1.0], grid=12)
+    assert_worded(excinfo)
+
+
 def test_model_based_step_is_refused():
     obs = MechanicalSuperTwisting(1e-3, Pendulums(2), 5.0)
     obs.reset(np.zeros(2))

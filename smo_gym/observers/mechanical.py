@@ -581,13 +581,15 @@ class CoordinateTransform:
             ups = np.exp(-(cum - cum_a))
             T = np.vstack([np.zeros(n), np.cumsum((ups[1:] + ups[:-1]) / 2 * dy, axis=0)])
             T_a = np.array([np.interp(a[i], Y[:, i], T[:, i]) for i in range(n)])
-        if not (np.isfinite(T - T_a).all() and np.all(ups > 0)):
+            T = T - T_a  # inf - inf where T overflows: reported below, without a warning
+            finite = np.isfinite(T).all() and np.all(ups > 0)
+        if not finite:
             raise ValueError(
                 "expected alpha and a range whose transform Upsilon = exp(-int alpha) and T_1 are "
                 "finite and positive, actual value: it overflows (a smaller range or alpha)"
             )
         self.n, self.lower, self.upper, self.reference = n, lower, upper, a
-        self.grid_y, self.grid_alpha, self.grid_upsilon, self.grid_T = Y, A, ups, T - T_a
+        self.grid_y, self.grid_alpha, self.grid_upsilon, self.grid_T = Y, A, ups, T
         #: :math:`L_\alpha = \max|\int_a^y \alpha|` over the range (assumption A-2)
         self.l_alpha = float(np.max(np.abs(cum - cum_a)))
 
