@@ -372,7 +372,7 @@ def simulate_wetzlinger_third_order(h: float = 0.01, T: float = 10.0) -> dict:
             E[k] = X[k] - xh
             xh = step(xh, X[k, 0])
         errors[name] = E
-    sig2.reset(np.zeros(1), xi0=np.zeros((1, 3)))
+    sig2.reset(np.zeros(1))  # the paper starts every observer at xi_0 = 0
     E = np.empty((K, 3))
     for k in range(K):
         E[k] = X[k] - sig2.estimate[0]
@@ -397,7 +397,7 @@ def simulate_wetzlinger_fourth_order(h: float = 0.01, T: float = 10.0, x0=(0.0, 
         gamma=[None, lambda xi, u: -np.sin(xi[..., 0]) * u, lambda xi, u: -np.sin(xi[..., 1]) * u, None],
         L_gamma=[np.inf, 1.0, 1.0, 0.0],
     )
-    obs.reset(np.zeros(1), xi0=np.zeros((1, 4)))
+    obs.reset(np.zeros(1))  # xi_0 = 0
     E = np.empty((K, 4))
     for k in range(K):
         E[k] = X[k] - obs.estimate[0]

@@ -3,12 +3,17 @@ r"""Wetzlinger et al.: the discrete-time HOSM observer (33), its Ackermann gains
 from __future__ import annotations
 
 import importlib.util
+import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
-from smo_gym.observers import DiscreteTimeHOSM, Levant
+import smo_gym
+from smo_gym import calibration, cli, specs
+from smo_gym.engine.fused import FusedSensing, fusable
+from smo_gym.observers import FAMILIES, OBSERVERS, DiscreteTimeHOSM, Levant, Observer, _kernels, make_observer
 from smo_gym.observers._kernels import eigenvalue_map
 from smo_gym.observers.discrete_hosm import (
     ackermann_gain,
@@ -17,6 +22,7 @@ from smo_gym.observers.discrete_hosm import (
     perturbation_bounds,
     printed_third_order_gain,
 )
+from smo_gym.wrappers import EstimatedVelocity
 
 _spec = importlib.util.spec_from_file_location(
     "reproduce_papers", Path(__file__).resolve().parents[1] / "scripts" / "reproduce_papers.py"
@@ -242,6 +248,246 @@ def test_typed_errors():
         obs.update(np.array([0.0, np.inf]))
     with pytest.raises(ValueError, match="broadcastable"):
         DiscreteTimeHOSM(2, 0.01, np.ones(3)).reset(np.zeros(2))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the paper's equations (31)-(35), evaluated independently, against both reports of the one compiled step
+# ----------------------------------------------------------------------------------------------------------------
+def paper_matrices(n: int, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """(31) and (32) entry by entry: :math:`A_{ij} = h^{j-i}/(j-i)!`, :math:`B_{ij} = h^{j-i+1}/(j-i+1)!`."""
+    A = np.array([[h ** (j - i) / math.factorial(j - i) if j >= i else 0.0 for j in range(n)] for i in range(n)])
+    B = np.array(
+        [[h ** (j - i + 1) / math.factorial(j - i + 1) if j >= i else 0.0 for j in range(n)] for i in range(n)]
+    )
+    return A, B
+
+
+def paper_eigenvalue(sigma: float, h: float, p1: float, mu: float, n: int, mapping: str) -> float:
+    """(15) or (16) for one output error, with ``math``'s power and exponential."""
+    a = abs(sigma)
+    if a == 0.0:
+        return 0.0
+    root = a ** (1.0 / n)
+    if mapping == "semi-implicit":
+        return root / (h * p1 * mu * a + root + h * p1)
+    return math.exp(-h * p1 * (1.0 + mu * a) / root)
+
+
+def paper_gain(z: float, A: np.ndarray) -> np.ndarray:
+    r"""Ackermann's formula (35): :math:`(A - zI)^n \mathcal O^{-1} e_n`, with the observability matrix
+    :math:`\mathcal O` of :math:`c^T = e_1^T` (rows :math:`c^T A^i`) inverted by a linear solve."""
+    n = A.shape[0]
+    c = np.eye(n)[0]
+    O = np.array([c @ np.linalg.matrix_power(A, i) for i in range(n)])
+    return np.linalg.matrix_power(A - z * np.eye(n), n) @ np.linalg.solve(O, np.eye(n)[-1])
+
+
+def paper_step(xi, y, u, h, p1, mu, mapping, gamma=None, L_gamma=None) -> np.ndarray:
+    r"""One step of (33) for one channel: :math:`A\hat\xi_k + B[\gamma_1, \mathrm{sat}\,\hat\gamma_2, \ldots]
+    + \tilde l(z_n(\sigma_{1,k}))\sigma_{1,k}`, the model terms evaluated at the measured first state."""
+    n = xi.shape[0]
+    A, B = paper_matrices(n, h)
+    sigma = y - xi[0]
+    terms = np.zeros(n)
+    if gamma is not None:
+        seen = xi.copy()
+        seen[0] = y
+        for i, g in enumerate(gamma):
+            if g is not None:
+                terms[i] = g(seen, u) if i == 0 else min(max(g(seen, u), -L_gamma[i]), L_gamma[i])
+    return A @ xi + B @ terms + paper_gain(paper_eigenvalue(sigma, h, p1, mu, n, mapping), A) * sigma
+
+
+def assert_close(got: np.ndarray, want: np.ndarray, rtol: float = 1e-10) -> None:
+    """``|got - want| <= rtol (|want| + max |want| of the state's column)``: relative to each state's size (the
+    entries of one state differ by powers of ``1/h``)."""
+    scale = np.abs(want) + np.max(np.abs(want), axis=0)
+    assert np.all(np.abs(got - want) <= rtol * scale), np.max(np.abs(got - want) / scale)
+
+
+def _signals(T: int, h: float, rng) -> np.ndarray:
+    """``(T, 3)`` smooth signals with noise (so that the output error never vanishes)."""
+    t = h * np.arange(T)[:, None]
+    return np.sin(2.0 * t + np.array([0.0, 1.0, 2.0])) + 0.4 * t**2 + 1e-3 * rng.standard_normal((T, 3))
+
+
+@pytest.mark.parametrize("mapping", ["semi-implicit", "matching"])
+@pytest.mark.parametrize("n", [2, 3])
+def test_both_reports_of_the_compiled_step_are_the_papers_observer(n, mapping, rng):
+    r"""The one compiled step, evaluated against (33)-(35) computed here with matrix powers and a solve: its
+    predictor, reported by ``DiscreteTimeHOSM``, is :math:`\hat\xi_{k+1}`; ``Levant``'s report from the same
+    state is :math:`A^{-1}\hat\xi_{k+1}` (the prediction moved back to :math:`t_k`), and its state is
+    :math:`\hat\xi_{k+1}` too. Per-channel ``p1``; the tolerance is relative to the size of each state."""
+    h, mu, T = 0.01, 0.7, 30
+    p1 = np.array([8.0, 25.0, 60.0])
+    Y = _signals(T, h, rng)
+    obs = DiscreteTimeHOSM(n, h, p1, mu, mapping)
+    lev = Levant(n - 1, h, 1.0, discretization=mapping, p1=p1, mu=mu)
+    np.testing.assert_array_equal(obs.reset(Y[0]), lev.reset(Y[0]))
+    xi = np.zeros((3, n))
+    xi[:, 0] = Y[0]
+    A = paper_matrices(n, h)[0]
+    for y in Y[1:]:
+        xi = np.array([paper_step(xi[c], y[c], None, h, p1[c], mu, mapping) for c in range(3)])
+        assert_close(obs.update(y), xi)
+        assert_close(lev.update(y), np.linalg.solve(A, xi.T).T)
+        assert_close(lev.state[:, :n], xi)
+        np.testing.assert_array_equal(obs.state, lev.state)  # one step: the same state, bit for bit
+    assert obs.lead == 1 and lev.lead == 0
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_model_terms_follow_33(n, rng):
+    """With model terms (section 6's, saturation active) ``update(y, u)`` is (33) computed here, and ``run``
+    equals the updates."""
+    h, p1, mu, T = 0.01, np.array([10.0, 30.0, 45.0]), 1.0, 30
+    gamma = [lambda xi, u: 0.5 * u * np.cos(xi[..., 0])] + [lambda xi, u: -np.sin(xi[..., 1]) * u * 4.0] * (n - 1)
+    L_gamma = [np.inf] + [0.3] * (n - 1)
+    Y, U = _signals(T, h, rng), rng.uniform(0.5, 1.5, (T, 3))
+    obs = DiscreteTimeHOSM(n, h, p1, mu, gamma=gamma, L_gamma=L_gamma)
+    obs.reset(Y[0])
+    xi = np.zeros((3, n))
+    xi[:, 0] = Y[0]
+    saturated = False
+    for y, u in zip(Y[1:], U[1:], strict=True):
+        seen = xi.copy()
+        seen[:, 0] = y
+        saturated |= bool(np.any(np.abs(gamma[1](seen, u)) > 0.3))
+        xi = np.array([paper_step(xi[c], y[c], u[c], h, p1[c], mu, "semi-implicit", gamma, L_gamma) for c in range(3)])
+        assert_close(obs.update(y, u), xi)
+    assert saturated
+    again = DiscreteTimeHOSM(n, h, p1, mu, gamma=gamma, L_gamma=L_gamma)
+    again.reset(Y[0])
+    np.testing.assert_array_equal(again.run(Y[1:], U[1:])[-1], obs.estimate)
+
+
+def test_model_terms_run_around_the_compiled_step():
+    """Zero model terms change nothing, bit for bit: the model-term path runs the compiled step and adds B times
+    the terms. Such an observer is not compiled as a whole, so the fused and offline drivers do not run it."""
+    Y = _signals(40, 0.01, np.random.default_rng(1))
+    plain = DiscreteTimeHOSM(3, 0.01, 20.0)
+    model = DiscreteTimeHOSM(3, 0.01, 20.0, gamma=[None, None, lambda xi, u: 0.0 * xi[..., 0]], L_gamma=[0, 1, 1])
+    assert plain._kernel is _kernels.eigmap_kernel and fusable(plain)
+    assert model._kernel not in _kernels.STEPS and not fusable(model)
+    plain.reset(Y[0])
+    model.reset(Y[0])
+    np.testing.assert_array_equal(model.run(Y[1:20]), plain.run(Y[1:20]))
+    state = model.state
+    new_state, est = model.step(state, Y[20])  # the pure step: the terms with u = None
+    np.testing.assert_array_equal(model.state, state)
+    np.testing.assert_array_equal(model.update(Y[20]), plain.update(Y[20]))
+    np.testing.assert_array_equal(est, model.estimate)
+    np.testing.assert_array_equal(new_state, model.state)
+    out = np.empty((19, 3, 3))
+    assert model.run(Y[21:], out=out) is out
+    np.testing.assert_array_equal(out, plain.run(Y[21:]))
+    np.testing.assert_array_equal(model.eigenvalue, plain.eigenvalue)
+    assert np.all((plain.eigenvalue > 0) & (plain.eigenvalue < 1))
+
+
+def test_registered_as_the_eigenvalue_map_family():
+    """Built by name like every family, with the one eigenvalue-map step Levant's mappings run; its gain rule
+    sets ``p1 = (1.1 L)^(1/n)`` per channel from the bound on :math:`f^{(n)}` (the paper's :math:`L`)."""
+    family = FAMILIES["discrete-hosm"]
+    assert family.cls is DiscreteTimeHOSM is OBSERVERS["discrete-hosm"] and family.compiled
+    obs = make_observer("discrete-hosm", dt=1e-2, n=3, p1=5.0)
+    assert isinstance(obs, Observer) and obs.order == 2
+    lev = Levant(2, 1e-2, 1.0, discretization="matching")
+    assert obs._kernel is lev._kernel is _kernels.eigmap_kernel
+    assert family.steps == (_kernels.STEPS[_kernels.eigmap_kernel],)
+    assert family.bound_order() == 3 and family.bound_order({"n": 2}) == 2 and family.order({"n": 5}) == 4
+    assert calibration.bound_order("discrete-hosm", {"n": 4}) == 4
+    assert family.needs_calibration({"n": 2}) and not family.needs_calibration({"p1": 3.0})
+    with pytest.raises(TypeError, match="expected n"):
+        family.bound_order({"n": 2.5})
+    assert specs.parse_observer_spec("discrete-hosm:n=2:discretization=matching") == (
+        "discrete-hosm",
+        {"n": 2, "discretization": "matching"},
+    )
+    bounds = np.array([2.0, 50.0])
+    obs = calibration.default_observer("discrete-hosm", 1e-2, bounds, np.zeros(2), {"n": 2})
+    obs.reset(np.zeros(2))
+    np.testing.assert_allclose(obs._params[:, 1], np.sqrt(1.1 * bounds), rtol=1e-15)
+    assert repr(make_observer("discrete-hosm", dt=1e-2, p1=5.0)).startswith("DiscreteTimeHOSM(n=3, dt=0.01")
+
+
+def test_mapping_and_discretization_name_one_choice():
+    assert DiscreteTimeHOSM(2, 1e-2, 1.0, 1.0, "matching").discretization == "matching"
+    assert DiscreteTimeHOSM(2, 1e-2, 1.0, discretization="matching").mapping == "matching"
+    assert DiscreteTimeHOSM(2, 1e-2, 1.0).mapping == "semi-implicit"
+    with pytest.raises(TypeError, match="not both"):
+        DiscreteTimeHOSM(2, 1e-2, 1.0, 1.0, "matching", discretization="matching")
+    with pytest.raises(ValueError, match="expected discretization"):
+        DiscreteTimeHOSM(2, 1e-2, 1.0, discretization="tustin")
+    with pytest.raises(ValueError, match="expected p1"):
+        DiscreteTimeHOSM(2, 1e-2)
+
+
+def test_differentiate_calibrates_it_and_reports_the_next_sample():
+    """By name, without gains: ``p1`` from the data (default ``n = 3``). The estimates are the predictions for the
+    next sample: on a sine the velocity is nearest the derivative one sample ahead (measured RMS 3.0e-3 there,
+    6.9e-3 at the sample time, 7.3e-3 two samples ahead); on a parabola, an exact trajectory of the chain, it is
+    the value and derivatives one sample ahead, to rounding."""
+    dt = 1e-3
+    t = np.arange(6000) * dt
+    y = np.sin(3.0 * t) + 1e-5 * np.random.default_rng(0).standard_normal(t.size)
+    z = smo_gym.differentiate(y, dt, "discrete-hosm")
+    assert z.shape == (6000, 3)
+    rms = [np.sqrt(np.mean((z[1000:, 1] - 3.0 * np.cos(3.0 * (t[1000:] + k * dt))) ** 2)) for k in (0, 1, 2)]
+    assert rms[1] < 0.005 and rms[1] < 0.6 * min(rms[0], rms[2])
+    t = np.arange(400) * 0.01
+    z = smo_gym.differentiate(1.0 + 2.0 * t + 3.0 * t**2, 0.01, "discrete-hosm", p1=60.0)
+    ahead = t[-1] + 0.01
+    np.testing.assert_allclose(z[-1], [1.0 + 2.0 * ahead + 3.0 * ahead**2, 2.0 + 6.0 * ahead, 6.0], rtol=1e-9)
+
+
+def test_with_model_terms_the_wrapper_runs_the_general_path(tmp_path, monkeypatch, capsys):
+    """``EstimatedVelocity(observer="discrete-hosm")`` with (zero) model terms takes the general path, whose
+    velocities are a plain observer's on the same sensed samples; the command line runs the family by name."""
+    monkeypatch.setenv("SMO_GYM_CACHE_DIR", str(tmp_path / "cache"))
+    env = EstimatedVelocity(
+        gym.make("InvertedPendulum-v5"),
+        observer="discrete-hosm",
+        observer_kwargs=dict(n=2, gamma=[None, None], L_gamma=[0.0, 0.0]),
+        rate="env",  # one sample per step: the last measurement is the whole stream
+    )
+    env.reset(seed=0)
+    assert env._fused is None and env.observer.gamma is not None
+    plain = DiscreteTimeHOSM(2, env.sample_dt, env.observer.p1)
+    plain.reset(env.measurement.z_measured)
+    rng = np.random.default_rng(0)
+    steps = 0
+    while steps < 30:
+        _, _, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        np.testing.assert_array_equal(info["smo"]["qvel_estimate"], plain.update(env.measurement.z_measured)[:, 1])
+        steps += 1
+        if terminated or truncated:
+            break
+    assert steps >= 5
+    compare = ["compare", "--env", "InvertedPendulum-v5", "--steps", "20", "--observers", "discrete-hosm:n=2"]
+    assert cli.main(compare) == 0
+    assert "discrete-hosm:n=2" in capsys.readouterr().out
+
+
+@pytest.mark.slow  # compiling the eigenvalue map's fused driver cold takes most of a minute
+def test_the_wrappers_fused_path_equals_its_general_path(tmp_path, monkeypatch):
+    """The one-call compiled path of the wrapper (shared with ``Levant``'s mappings) gives the general path's
+    numbers, bit for bit, for the predictor the eigenvalue-map step reports here."""
+    monkeypatch.setenv("SMO_GYM_CACHE_DIR", str(tmp_path / "cache"))
+    fused, general = (
+        EstimatedVelocity(gym.make("HalfCheetah-v5"), observer="discrete-hosm", rate="physics") for _ in range(2)
+    )
+    fused.reset(seed=3)
+    general.reset(seed=3)
+    general._fused = None  # never reset again: a reset would choose the fused path anew
+    assert isinstance(fused._fused, FusedSensing)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        action = rng.uniform(-1, 1, fused.action_space.shape)
+        info_f, info_g = fused.step(action)[-1], general.step(action)[-1]
+        np.testing.assert_array_equal(info_f["smo"]["qvel_estimate"], info_g["smo"]["qvel_estimate"])
+    np.testing.assert_array_equal(fused.observer.state, general.observer.state)
+    assert fused.observer.n_updates == general.observer.n_updates
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -110,6 +110,8 @@ _SHARED_CASES = {
     "high-gain k=2": dict(name="high-gain", order=2, gain=30.0),
     "finite-difference k=2": dict(name="finite-difference", order=2),
     "kalman-ca": dict(name="kalman-ca", process_noise=1e2, measurement_noise=1e-6),
+    "discrete-hosm n=3 semi-implicit": dict(name="discrete-hosm", n=3, p1=10.0),
+    "discrete-hosm n=2 matching": dict(name="discrete-hosm", n=2, p1=10.0, discretization="matching"),
 }
 
 

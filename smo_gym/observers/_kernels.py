@@ -46,6 +46,8 @@ predictors, :math:`\hat x_{k+1} = F(\hat x_k, y_k)`: the state after seeing :mat
 *reported* estimate at :math:`t_k` is that prediction moved back by one step along the Taylor polynomial,
 :math:`e^{-\tau N}\hat x_{k+1}` (``N`` the shift matrix), which is unbiased to the same order as the predictor and
 uses the newest sample. Implicit schemes are already written at :math:`t_k` and report their state directly.
+The eigenvalue-map step reports either: how far back it moves its prediction is one of its parameters (0 for
+:class:`~smo_gym.observers.DiscreteTimeHOSM`, which reports the predictor itself, as Wetzlinger et al. do).
 
 Performance
 -----------
@@ -474,7 +476,8 @@ def sta_implicit_rows(state, y, params, new_state, out, shared):
 
 # ----------------------------------------------------------------------------------------------------------------
 # Discrete-time eigenvalue-mapping observer of Wetzlinger et al. (differentiator part)
-# params row: [dt, p1, mu, mode, V ((m + 1) * m)], mode 0 = semi-implicit (15), 1 = matching (16)
+# params row: [dt, p1, mu, mode, back, V ((m + 1) * m)], mode 0 = semi-implicit (15), 1 = matching (16);
+# back: the report is exp(-back N) x_{k+1}, back = dt (the estimate at t_k) or 0 (the predictor x_{k+1} itself)
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _eigenvalue_root(a, n):
@@ -517,12 +520,15 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
 
     ``A`` is the Taylor matrix (31), :math:`\sigma_k = y_k - \hat\xi_{1,k}`, and the Ackermann gain (35) is evaluated
     as :math:`\tilde l(z) = \sum_{j=0}^{m} (-z)^{m-j} v_j` with :math:`v_j = \binom{m}{j} A^j \mathcal O^{-1} e_m`
-    precomputed (the binomial expansion of :math:`(A - zI)^m`).
+    precomputed (the binomial expansion of :math:`(A - zI)^m`). ``x_new`` receives the predictor
+    :math:`\hat\xi_{k+1}`; ``out_row`` the report :math:`e^{-bN}\hat\xi_{k+1}` with ``b = params[4]``: ``dt`` for the
+    estimate at :math:`t_k` (``Levant``), 0 for the predictor itself (``DiscreteTimeHOSM``: zero times each higher
+    entry is added, so the entries come out unchanged, up to the sign of a zero).
     """
     dt = params[0]
     sigma = y - x[0]
     z = eigenvalue_map(sigma, dt, params[1], params[2], m, params[3])
-    voff = 4
+    voff = 5
     for i in range(m):
         acc = x[i]
         fac = 1.0
@@ -534,14 +540,14 @@ def eigmap_channel_step(x, y, params, m, x_new, out_row):
         for j in range(m + 1):
             gain = gain * (-z) + params[voff + j * m + i]
         x_new[i] = acc + gain * sigma
-    _taylor_back(x_new, m, dt, out_row)
+    _taylor_back(x_new, m, params[4], out_row)
     return sigma
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _eigmap_loop(state, y, params, new_state, out, shared, m):
     """The channel loop of :func:`eigmap_rows` for ``m`` estimates (a compile-time constant when inlined)."""
-    _check_widths(state, new_state, params, out, m + 1, 4 + (m + 1) * m, m)
+    _check_widths(state, new_state, params, out, m + 1, 5 + (m + 1) * m, m)
     failed = False
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c

@@ -55,7 +55,15 @@ from . import _kernels
 from .base import Observer, taylor_matrix
 from .registry import lipschitz_rule, register_observer
 
-__all__ = ["URED", "Levant", "SuperTwisting", "UniformLevant", "eigenvalue_mapping_vectors", "taylor_matrix"]
+__all__ = [
+    "URED",
+    "Levant",
+    "SuperTwisting",
+    "UniformLevant",
+    "eigenvalue_map_rate",
+    "eigenvalue_mapping_vectors",
+    "taylor_matrix",
+]
 
 
 def _check_optional_positive(**values) -> None:
@@ -112,11 +120,33 @@ def eigenvalue_mapping_vectors(m: int, dt: float) -> np.ndarray:
     return np.array([comb(m, j) * np.linalg.matrix_power(A, j) @ w for j in range(m + 1)])
 
 
-def _pack_eigmap(dt: float, p1: np.ndarray, mu: float, mode: str, m: int) -> np.ndarray:
-    """Parameter rows of the eigenvalue-mapping kernel: ``[dt, p1, mu, mode, V]`` per channel."""
+def eigenvalue_map_rate(lipschitz, m: int) -> np.ndarray:
+    r"""The default rate :math:`p_1 = (1.1 L)^{1/m}` of the eigenvalue maps of Wetzlinger, Reichhartinger and Horn.
+
+    Their continuous-time counterpart (11) has the gains of :math:`(s + p_1)^m`, whose last, :math:`p_1^m`, then
+    equals Levant's :math:`\lambda_0 L` with :math:`\lambda_0 = 1.1` for a bound :math:`L \ge |f^{(m)}|`.
+    ``lipschitz`` any shape; returns that shape.
+    """
+    return (1.1 * np.asarray(lipschitz, dtype=float)) ** (1.0 / m)
+
+
+def _pack_eigmap(dt: float, p1: np.ndarray, mu: float, mode: str, m: int, *, predictor: bool = False) -> np.ndarray:
+    r"""Parameter rows of the eigenvalue-mapping kernel: ``[dt, p1, mu, mode, back, V]`` per channel.
+
+    ``back`` is how far the step moves its prediction back for the report: ``dt`` (the estimate at the sample
+    time), or 0 with ``predictor`` (the predictor :math:`\hat\xi_{k+1}` itself).
+    """
     V = eigenvalue_mapping_vectors(m, dt).reshape(-1)
     N = p1.shape[0]
-    head = np.column_stack([np.full(N, dt), p1, np.full(N, mu), np.full(N, 0.0 if mode == "semi-implicit" else 1.0)])
+    head = np.column_stack(
+        [
+            np.full(N, dt),
+            p1,
+            np.full(N, mu),
+            np.full(N, 0.0 if mode == "semi-implicit" else 1.0),
+            np.full(N, 0.0 if predictor else dt),
+        ]
+    )
     return np.hstack([head, np.broadcast_to(V, (N, V.size))])
 
 
@@ -314,7 +344,7 @@ class Levant(Observer):
         k, m = self.order, self.order + 1
         L = self._per_channel("lipschitz", self.lipschitz, shape)
         if self.discretization in ("semi-implicit", "matching"):
-            p1 = (1.1 * L) ** (1.0 / m) if self.p1 is None else self._per_channel("p1", self.p1, shape)
+            p1 = eigenvalue_map_rate(L, m) if self.p1 is None else self._per_channel("p1", self.p1, shape)
             return _pack_eigmap(self.dt, p1, self.mu, self.discretization, m)
         lam = levant_nonrecursive(self.gains)
         gains = lam[None, :] * L[:, None] ** (np.arange(1, m + 1) / m)[None, :]

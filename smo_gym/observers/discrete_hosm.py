@@ -24,9 +24,13 @@ the error matrix :math:`\mathbf A - \tilde{\mathbf l}\mathbf c^T` at the state-d
     z_s(e) = \frac{|e|^{1/n}}{hp_1\mu|e| + |e|^{1/n} + hp_1},\qquad
     z_m(e) = \exp\Big(-hp_1\frac{1 + \mu|e|}{|e|^{1/n}}\Big).
 
-Without model terms it is the differentiator of section 3.1 discretised by (15)/(16) — the same recursion as
-:class:`smo_gym.observers.Levant` with ``discretization="semi-implicit"`` / ``"matching"`` (which reports the
-prediction moved back to :math:`t_k`; this class reports the predictor :math:`\hat\xi_{k+1}` itself, as the paper).
+Without model terms it is the differentiator of section 3.1 discretised by (15)/(16), and the recursion is the
+compiled eigenvalue-map step (:func:`smo_gym.observers._kernels.eigmap_channel_step`), the one
+:class:`smo_gym.observers.Levant` runs with ``discretization="semi-implicit"`` / ``"matching"``. The two report
+different things from the same state: ``Levant`` the prediction moved back to the sample time,
+:math:`e^{-hN}\hat\xi_{k+1} = \mathbf A^{-1}\hat\xi_{k+1}`, this class the predictor :math:`\hat\xi_{k+1}` itself,
+as the paper does (a parameter of the step says which). The functions below evaluate the paper's matrices and
+maps in NumPy for analysis and tests; the observer does not call them per sample.
 
 References
 ----------
@@ -44,17 +48,17 @@ from typing import ClassVar
 import numpy as np
 
 from .._validation import (
-    DivergenceError,
     as_real_array,
     check_choice,
     check_int_in_range,
     check_keywords,
     check_nonnegative,
-    check_positive,
     check_positive_array,
 )
-from .base import as_measurement, expand_mask
-from .differentiators import eigenvalue_mapping_vectors, taylor_matrix
+from . import _kernels
+from .base import Observer, checked_input
+from .differentiators import _pack_eigmap, eigenvalue_map_rate, eigenvalue_mapping_vectors, taylor_matrix
+from .registry import register_observer
 
 __all__ = [
     "DiscreteTimeHOSM",
@@ -67,10 +71,18 @@ __all__ = [
 ]
 
 MAPPINGS = ("semi-implicit", "matching")
+#: the system order ``n`` of a :class:`DiscreteTimeHOSM` built without one (value, velocity and acceleration)
+DEFAULT_N = 3
+#: the largest system order ``n`` accepted
+MAX_N = 10
 
 
 def eigenvalue_mapping(sigma, dt: float, p1, mu: float, n: int, mapping: str = "semi-implicit") -> np.ndarray:
     r"""The state-dependent discrete eigenvalue :math:`z_n(\sigma)`, (15) or (16); :math:`z_n(0) = 0`.
+
+    NumPy reference of the maps, for analysis, tests and :attr:`DiscreteTimeHOSM.eigenvalue`; the observer's step
+    evaluates them compiled (:func:`smo_gym.observers._kernels.eigenvalue_map`: the same operations, with its own
+    cube root and ``exp``, equal to a few ulp).
 
     Parameters
     ----------
@@ -183,24 +195,49 @@ def perturbation_bounds(L_gamma, L_delta, measured_only=None) -> np.ndarray:
     return np.where(exact, Ld, 2.0 * Lg + Ld)
 
 
-class DiscreteTimeHOSM:
+def _estimated_derivatives(kwargs: dict) -> int:
+    """The registry's order of a :class:`DiscreteTimeHOSM`: ``n - 1`` derivatives of a system of order ``n``."""
+    return check_int_in_range("n", kwargs["n"], 2, MAX_N) - 1
+
+
+def _rate_rule(cls, dt, bounds, noise, kwargs):
+    r""":math:`p_1 = (1.1 L)^{1/n}` per channel from the calibrated bound :math:`L \ge |f^{(n)}|`, the rate
+    ``Levant(discretization="semi-implicit")`` takes by default
+    (:func:`~smo_gym.observers.differentiators.eigenvalue_map_rate`)."""
+    n = check_int_in_range("n", kwargs.get("n", DEFAULT_N), 2, MAX_N)
+    return cls(dt=dt, **kwargs, p1=eigenvalue_map_rate(bounds, n))
+
+
+@register_observer(
+    "discrete-hosm",
+    steps=(_kernels.eigmap_rows,),
+    calibrate=_rate_rule,
+    given=(("p1",),),
+    examples=(dict(n=3, p1=30.0), dict(n=2, p1=20.0, mu=0.5, discretization="matching")),
+    order_from=_estimated_derivatives,
+)
+class DiscreteTimeHOSM(Observer):
     r"""Observer (33) of Wetzlinger et al. for ``n``-th order input-affine systems in observability form, batched.
 
     Every channel is an independent SISO system of order ``n`` with output :math:`y = \xi_1` (e.g. one joint:
-    position, velocity, acceleration, ... for an integrator chain).
+    position, velocity, acceleration, ... for an integrator chain). Registered as ``"discrete-hosm"``: built by
+    name (:func:`~smo_gym.observers.make_observer`, the wrapper, ``differentiate``, the command line) with ``p1``
+    calibrated from a bound on :math:`|f^{(n)}|` when it is not given.
 
     Parameters
     ----------
     n : int
-        System order (number of states, ``2 <= n <= 10``).
+        System order (number of states, ``2 <= n <= 10``); the estimates are
+        :math:`(\hat\xi_1, \ldots, \hat\xi_n)`, so ``order = n - 1``. Default 3.
     dt : float
         Sampling step ``h``.
     p1 : float or array_like
-        Rate parameter :math:`p_1 > 0` (per channel if an array broadcastable to ``(..., n_channels)``).
+        Rate parameter :math:`p_1 > 0` (per channel if an array broadcastable to ``(..., n_channels)``). Required
+        when the class is built directly.
     mu : float
         :math:`\mu \ge 0` (0: no uniform part).
     mapping : {"semi-implicit", "matching"}
-        Eigenvalue mapping (15) or (16).
+        Eigenvalue mapping (15) or (16): the discretization (default ``"semi-implicit"``).
     gamma : sequence of ``n`` callables or None, optional
         Model terms :math:`\gamma_i`. Each is called as ``gamma[i](xi, u)`` with ``xi`` of shape
         ``(..., n_channels, n)`` (column 0 the *measurement* :math:`y_k`, columns ``1..`` the estimates
@@ -209,45 +246,81 @@ class DiscreteTimeHOSM:
     L_gamma : array_like, shape (n,), optional
         Saturation levels :math:`L_{\gamma_i}` of :math:`\hat\gamma_i`, ``i >= 2`` (``inf``: no saturation);
         ``L_gamma[0]`` is unused (:math:`\gamma_1` is not saturated in (33)). Required with ``gamma``.
+    discretization : {"semi-implicit", "matching"}, optional
+        The name every family gives this choice (``"discrete-hosm:discretization=matching"``): the same as
+        ``mapping``; give one of them.
+    wrap : bool or array_like of bool, optional
+        Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
     Attributes
     ----------
-    output_error : ndarray
-        :math:`\sigma_{1,k} = y_k - \hat\xi_{1,k}` of the last update, shape ``(..., n_channels)``.
-    eigenvalue : ndarray
-        :math:`z_n(\sigma_{1,k})` of the last update.
+    A, B : ndarray, shape (n, n)
+        The matrices (31) and (32).
 
     Notes
     -----
+    **What it reports.** ``update(y_k)`` returns the predictor :math:`\hat\xi_{k+1}` of (33), the estimate for
+    the *next* sample time, as the paper writes the observer (:attr:`lead` is 1); the state is that predictor.
+    ``reset(y0)`` reports at its own sample: :math:`\hat\xi_0 = (y_0, 0, \ldots, 0)`, or with ``derivatives``
+    their values at :math:`t_0`, the state then being their prediction :math:`\mathbf A\hat x_0` for the next
+    sample (every explicit family does the same). ``Levant(order=n - 1, discretization=mapping, p1=p1, mu=mu)``
+    has the same state and reports :math:`\mathbf A^{-1}\hat\xi_{k+1}`, the estimate at :math:`t_k`.
+
+    **Which code runs.** Without model terms (``gamma=None``) every path (``update``, ``run``, ``step``,
+    :func:`~smo_gym.differentiate`, the wrapper's one-call path) runs the compiled eigenvalue-map step of the
+    registry, :func:`smo_gym.observers._kernels.eigmap_channel_step`, the only implementation of the recursion.
+    With model terms (Python callables) the step cannot be compiled: :meth:`update` calls that same compiled step,
+    which gives :math:`\mathbf A\hat\xi_k + \tilde{\mathbf l}(z_n(\sigma_{1,k}))\sigma_{1,k}` (its map, gain and
+    checks), and adds :math:`\mathbf B` times the terms in NumPy ((33) is linear in them); :meth:`run` loops over
+    :meth:`update` in Python and :meth:`step` calls the terms with ``u = None``. Such an observer has no fused
+    path (:func:`smo_gym.engine.fused.fusable` is false), and it pickles only if its callables do.
+
     Gains: Ackermann's formula (35) evaluated as :math:`\tilde{\mathbf l}(z) = \sum_{j=0}^n (-z)^{n-j}v_j` with
     :math:`v_j = \binom nj\mathbf A^j\mathcal O^{-1}e_n` (the binomial expansion of :math:`(\mathbf A - zI)^n`).
-    The printed closed form (79)-(82) is not stable (see
-    :func:`printed_third_order_gain`). The paper's section 5 proves global asymptotic stability of the unperturbed error
-    for ``n = 2, 3`` when :func:`max_eigenvalue` is below :math:`1/\sqrt2` and 0.498582; a ``RuntimeWarning`` is
-    not raised for other settings, but ``stability_margin`` reports :math:`z^* - z_{\max}` for ``n <= 3``.
+    The printed closed form (79)-(82) is not stable (see :func:`printed_third_order_gain`). The paper's section 5
+    proves global asymptotic stability of the unperturbed error for ``n = 2, 3`` when :func:`max_eigenvalue` is
+    below :math:`1/\sqrt2` and 0.498582; a ``RuntimeWarning`` is not raised for other settings, but
+    :meth:`stability_margin` reports :math:`z^* - z_{\max}` for ``n <= 3``.
     """
 
+    discretizations = MAPPINGS
+    lead = 1
     #: :math:`z^*` of (62) and (70): the proven stability bounds on the discrete eigenvalue
     PROVEN_Z_BOUND: ClassVar[dict[int, float]] = {2: 1.0 / np.sqrt(2.0), 3: 0.498582}
 
     @check_keywords
     def __init__(
         self,
-        n: int,
-        dt: float,
-        p1,
+        n: int = DEFAULT_N,
+        dt: float = 1e-3,
+        p1=None,
         mu: float = 1.0,
-        mapping: str = "semi-implicit",
+        mapping: str | None = None,
         *,
         gamma: Sequence[Callable | None] | None = None,
         L_gamma=None,
+        discretization: str | None = None,
+        wrap=None,
     ):
-        self.n = check_int_in_range("n", n, 2, 10)
-        self.dt = check_positive("dt", dt)
+        n = check_int_in_range("n", n, 2, MAX_N)
+        if mapping is not None and discretization is not None:
+            raise TypeError(
+                f"expected mapping or its alias discretization, not both, actual value: mapping={mapping!r}, "
+                f"discretization={discretization!r}"
+            )
+        if mapping is not None:  # checked under its own name (the base class says "discretization")
+            check_choice("mapping", mapping, MAPPINGS)
+        super().__init__(dt, n - 1, discretization if mapping is None else mapping, wrap)
+        self.n = n
+        self.mapping = self.discretization
+        if p1 is None:
+            raise ValueError(
+                "expected p1 > 0, the rate of the eigenvalue mapping (calibrated when the observer is built by "
+                "name), actual value: None"
+            )
+        check_positive_array("p1", p1)  # validate now, not at reset
         self.p1 = p1
-        self._check_p1(p1)
         self.mu = check_nonnegative("mu", mu)
-        self.mapping = check_choice("mapping", mapping, MAPPINGS)
         if gamma is not None:
             if isinstance(gamma, (str, bytes)) or not hasattr(gamma, "__iter__"):
                 raise TypeError(
@@ -282,35 +355,56 @@ class DiscreteTimeHOSM:
                 f"expected dt giving finite matrices (31), (32) and (35) (dt^n representable), actual "
                 f"value: {self.dt!r}"
             )
-        self._shape: tuple[int, ...] | None = None
-        self._x: np.ndarray | None = None
-        self._p1: np.ndarray | None = None
-        self.output_error: np.ndarray | None = None
-        self.eigenvalue: np.ndarray | None = None
-        self.n_updates = 0
 
-    @staticmethod
-    def _check_p1(p1) -> np.ndarray:
-        return check_positive_array("p1", p1)
+    # ---- the step ---------------------------------------------------------------------------------------------
+    @property
+    def _kernel(self):
+        # the registered compiled step; with model terms the Python step around it (no fused or compiled offline
+        # driver runs a Python callable: fusable() is false and Observer.step calls it as it is)
+        return _kernels.eigmap_kernel if self.gamma is None else self._model_step
+
+    def _predicts(self) -> bool:
+        return True
+
+    def _channel_params(self, shape):
+        p1 = self._per_channel("p1", self.p1, shape)
+        return _pack_eigmap(self.dt, p1, self.mu, self.discretization, self.n, predictor=True)
+
+    def _model_step(self, state, y, params, new_state, out, u=None) -> int:
+        r"""(33) with the model terms, in the calling convention of the batch kernels (``y`` flat ``(N,)``,
+        ``out`` ``(N, n)``) plus the input ``u``; returns their status.
+
+        (33) is linear in the model terms: the compiled step writes
+        :math:`\mathbf A\hat\xi_k + \tilde{\mathbf l}(z_n(\sigma_{1,k}))\sigma_{1,k}` (and rejects a non-finite
+        ``y``), then :math:`\mathbf B` times :meth:`model_terms` is added here.
+        """
+        status = _kernels.eigmap_kernel(state, y, params, new_state, out)
+        if status != -1:
+            return status
+        n = self.n
+        xi = state[:, :n].reshape(self._shape + (n,)).copy()
+        xi[..., 0] = y.reshape(self._shape)  # gamma_i sees the measured xi_1 and the estimates of the others
+        terms = self.model_terms(xi, u).reshape(-1, n)
+        with np.errstate(all="ignore"):  # an overflow is reported by the status below, the state kept
+            new_state[:, :n] += terms @ self.B.T
+        out[:, :] = new_state[:, :n]  # the predictor, as the compiled step reports it here
+        return _kernels._check_state(new_state, out)
 
     # ---- pure maths -------------------------------------------------------------------------------------------
     def gain(self, z) -> np.ndarray:
-        r""":math:`\tilde{\mathbf l}(z)` of (35) for an array ``z``; shape ``z.shape + (n,)`` (Horner in ``-z``)."""
+        r""":math:`\tilde{\mathbf l}(z)` of (35) for an array ``z``; shape ``z.shape + (n,)`` (Horner in ``-z``).
+
+        For analysis (the step evaluates the same polynomial compiled, per sample)."""
         z = as_real_array("z", z)
         if not np.isfinite(z).all():
             raise ValueError(f"expected finite eigenvalues z, actual value: {z!r}")
         with np.errstate(over="ignore", invalid="ignore"):
-            out = self._gain(z)
+            z = z[..., None]
+            out = np.zeros(z.shape[:-1] + (self.n,))
+            for j in range(self.n + 1):
+                out = out * (-z) + self._V[j]
         if not np.isfinite(out).all():
             raise ValueError(f"expected eigenvalues z with a finite gain (|z| near 1 or below), actual value: {z!r}")
-        return out
-
-    def _gain(self, z: np.ndarray) -> np.ndarray:
-        """:meth:`gain` without the checks (the update checks the new state as a whole)."""
-        z = z[..., None]
-        out = np.zeros(z.shape[:-1] + (self.n,))
-        for j in range(self.n + 1):
-            out = out * (-z) + self._V[j]
         return out
 
     @check_keywords
@@ -318,7 +412,7 @@ class DiscreteTimeHOSM:
         """:math:`z^* - z_{\\max}` of section 5 (positive: inside the proven region), ``None`` for ``n > 3``."""
         if self.n not in self.PROVEN_Z_BOUND:
             return None
-        p = float(np.min(self._check_p1(self.p1 if p1 is None else p1)))
+        p = float(np.min(check_positive_array("p1", self.p1 if p1 is None else p1)))
         return self.PROVEN_Z_BOUND[self.n] - max_eigenvalue(self.n, self.dt, p, self.mu, self.mapping)
 
     def model_terms(self, xi: np.ndarray, u) -> np.ndarray:
@@ -347,132 +441,83 @@ class DiscreteTimeHOSM:
             out[..., i] = val
         return out
 
-    # ---- state ------------------------------------------------------------------------------------------------
-    def _measurement(self, y, name: str) -> np.ndarray:
-        arr = as_measurement(y, name)
-        if not np.all(np.isfinite(arr)):
-            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-            raise ValueError(f"expected finite measurements in {name}, actual value: {arr[bad]!r} at index {bad}")
-        return arr
-
-    @check_keywords
-    def reset(self, y0, xi0=None, mask=None) -> np.ndarray:
-        r"""Start at :math:`\hat\xi_0` = ``xi0`` (shape ``(..., n_channels, n)``), default ``(y0, 0, ..., 0)``.
-
-        ``mask`` (shape ``(...)`` or ``(..., n_channels)``) restarts only those rows after a full reset.
-        Returns the current estimate (the predictor state), shape ``(..., n_channels, n)``.
-        """
-        y0 = self._measurement(y0, "y0")
-        if xi0 is None:
-            fresh = np.zeros(y0.shape + (self.n,))
-            fresh[..., 0] = y0
-        else:
-            fresh = as_real_array("xi0", xi0, copy=True)
-            if fresh.shape != y0.shape + (self.n,) or not np.all(np.isfinite(fresh)):
-                raise ValueError(
-                    f"expected finite xi0 with shape {y0.shape + (self.n,)}, actual value: shape {fresh.shape}"
-                )
-        if mask is None:
-            p1 = self._check_p1(self.p1)
-            try:
-                self._p1 = np.broadcast_to(p1, y0.shape).astype(float)
-            except ValueError:
-                raise ValueError(
-                    f"expected p1 broadcastable to the measurement shape {y0.shape}, actual value: shape {p1.shape}"
-                ) from None
-            self._shape = y0.shape
-            self._x = fresh
-            self.output_error = np.zeros(y0.shape)
-            self.eigenvalue = np.zeros(y0.shape)
-            self.n_updates = 0
-            return self._x.copy()
-        if self._x is None:
-            raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
-        if y0.shape != self._shape:
-            raise ValueError(f"expected y0 with shape {self._shape} for a masked reset, actual value: {y0.shape}")
-        mask = expand_mask(mask, self._shape)
-        self._x[mask] = fresh[mask]
-        self.output_error[mask] = 0.0
-        self.eigenvalue[mask] = 0.0
-        return self._x.copy()
-
+    # ---- updates ----------------------------------------------------------------------------------------------
     def update(self, y, u=None) -> np.ndarray:
         r"""Process :math:`y_k` (and :math:`u_k`); returns the predictor :math:`\hat\xi_{k+1}`.
 
-        Shape ``(..., n_channels, n)``.
-
-        Raises ``RuntimeError`` before ``reset``, ``ValueError`` on a wrong shape or a non-finite sample (state
-        unchanged), ``DivergenceError`` if the new state is not finite (state unchanged).
+        Shape ``(..., n_channels, n)``. ``u`` is passed to the model terms (checked real and finite; unused
+        without them). Raises ``RuntimeError`` before ``reset``, ``ValueError`` on a wrong shape or a non-finite
+        sample or model term (state unchanged), ``DivergenceError`` if the new state is not finite (state
+        unchanged).
         """
-        if self._x is None:
+        u = checked_input(u)
+        if self.gamma is None:
+            return super().update(y)
+        state = self._state
+        if state is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
-        y = self._measurement(y, "y")
+        y = np.ascontiguousarray(self._as_measurement(y, "y"))
         if y.shape != self._shape:
             raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
-        if u is not None:  # the model terms' input, in their own convention: only required real and finite
-            u = as_real_array("u", u)
-            if not np.isfinite(u).all():
-                bad = tuple(int(i) for i in np.argwhere(~np.isfinite(u))[0])
-                raise ValueError(f"expected finite inputs u, actual value: {u[bad]!r} at index {bad}")
-        x = self._x
-        xi = x.copy()
-        xi[..., 0] = y  # gamma_i sees the measured xi_1 and the estimates of the others
-        terms = self.model_terms(xi, u)
-        with np.errstate(all="ignore"):  # an overflow is reported below as a divergence, the state kept
-            sigma = y - x[..., 0]  # sigma_{1,k}
-            z = eigenvalue_mapping(sigma, self.dt, self._p1, self.mu, self.n, self.mapping)
-            x_new = x @ self.A.T + terms @ self.B.T + self._gain(z) * sigma[..., None]  # (33)
-        if not np.all(np.isfinite(x_new)):
-            raise DivergenceError(
-                "expected a finite observer state, actual value: non-finite after update "
-                f"(dt={self.dt}); the step was rejected and the previous state kept"
-            )
-        self._x = x_new
-        self.output_error = sigma
-        self.eigenvalue = z
+        measured = y.reshape(-1)
+        flat = measured
+        if self._period is not None:
+            flat = np.empty_like(measured)
+            _kernels.unwrap_measurement(measured, state, self._period, flat)
+        new_state = np.empty_like(state)
+        out = np.empty((flat.shape[0], self.n))
+        status = self._model_step(state, flat, self._params, new_state, out, u)
+        if status != -1:
+            self._raise_status(status, y)
+        self._state = new_state
+        self._estimate = out.reshape(self._shape + (self.n,))
         self.n_updates += 1
-        return x_new.copy()
+        return self._estimate.copy()
 
     @check_keywords
-    def run(self, Y, U=None) -> np.ndarray:
-        """Process ``Y`` of shape ``(T, ..., n_channels)`` (and ``U`` with leading ``T``); returns ``(T, ..., n)``.
+    def run(self, Y, U=None, *, out: np.ndarray | None = None) -> np.ndarray:
+        """Process ``Y`` of shape ``(T, ..., n_channels)`` (and the inputs ``U`` with leading ``T``); returns
+        ``(T, ..., n)``, written into ``out`` if given (as :meth:`Observer.run`).
 
-        All or nothing: if a sample is rejected, the observer keeps the state it had before the call.
+        All or nothing: if a sample is rejected, the observer keeps the state it had before the call. Without model
+        terms the compiled offline driver runs (``U`` is checked and unused); with them, :meth:`update` in a loop.
         """
-        if self._x is None:
+        if self._state is None:
             raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
         Y = as_real_array("Y", Y)
-        if Y.ndim == 0 or Y.shape[1:] != self._shape:
-            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
         if U is not None:
             U = as_real_array("U", U)
-            if U.ndim == 0 or U.shape[0] != Y.shape[0]:
+            if U.ndim == 0 or Y.ndim == 0 or U.shape[0] != Y.shape[0]:
                 raise ValueError(
-                    f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape {U.shape}"
+                    f"expected U with one row per sample of Y (shape {Y.shape}), actual value: shape {U.shape}"
                 )
-        saved = (self._x, self.output_error, self.eigenvalue, self.n_updates)
-        out = np.empty(Y.shape + (self.n,))
+            checked_input(U)
+        if self.gamma is None:
+            return super().run(Y, out=out)
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
+            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        result = self._output_array(out, (Y.shape[0],) + self._estimate.shape)
+        saved = (self._state, self._estimate, self.n_updates)
         try:
             for t in range(Y.shape[0]):
-                out[t] = self.update(Y[t], None if U is None else U[t])
+                result[t] = self.update(Y[t], None if U is None else U[t])
         except BaseException:
-            self._x, self.output_error, self.eigenvalue, self.n_updates = saved
+            self._state, self._estimate, self.n_updates = saved
             raise
-        return out
+        return result
 
+    # ---- diagnostics ------------------------------------------------------------------------------------------
     @property
-    def estimate(self) -> np.ndarray:
-        r"""Current predictor :math:`\hat\xi_{k+1}`, shape ``(..., n_channels, n)``."""
-        if self._x is None:
-            raise RuntimeError("expected reset(y0) first, actual value: the observer was never reset")
-        return self._x.copy()
-
-    @property
-    def shape(self) -> tuple[int, ...] | None:
-        return self._shape
+    def eigenvalue(self) -> np.ndarray:
+        r""":math:`z_n(\sigma_{1,k})` of the last update, shape ``(..., n_channels)`` (0 after a reset): (15) or
+        (16) at :attr:`output_error`, evaluated by :func:`eigenvalue_mapping`."""
+        sigma = self.output_error
+        p1 = self._params[:, 1].reshape(self._shape)
+        return eigenvalue_mapping(sigma, self.dt, p1, self.mu, self.n, self.mapping)
 
     def __repr__(self) -> str:
+        wrap = "" if self.wrap is None else f", wrap={self.wrap!r}"
         return (
             f"DiscreteTimeHOSM(n={self.n}, dt={self.dt}, p1={self.p1!r}, mu={self.mu}, "
-            f"mapping={self.mapping!r}, model={'yes' if self.gamma else 'no'})"
+            f"mapping={self.mapping!r}, model={'yes' if self.gamma else 'no'}{wrap})"
         )

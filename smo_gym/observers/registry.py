@@ -84,6 +84,10 @@ class Family:
     model_based : bool
         Built with a dynamics object and updated with ``update(y, u)``: not built by name, no offline or fused
         drivers.
+    order_from : callable or None
+        ``order_from(kwargs) -> int``: the number of derivatives estimated, from the constructor arguments (given
+        ones over the defaults), for a family whose constructor does not call it ``order``; ``None``: the
+        ``order`` argument, else its default.
     """
 
     name: str
@@ -94,6 +98,7 @@ class Family:
     given: tuple[tuple[str, ...], ...] = ()
     examples: tuple[dict, ...] = field(default_factory=tuple)
     model_based: bool = False
+    order_from: Callable | None = None
 
     @property
     def parameters(self) -> dict[str, Any]:
@@ -115,7 +120,11 @@ class Family:
         return bool(self.steps) and not self.model_based
 
     def order(self, kwargs: dict | None = None) -> int:
-        """The number of derivatives estimated with these constructor arguments (``order``, else its default)."""
+        """The number of derivatives estimated with these constructor arguments (``order``, else its default, or
+        what :attr:`order_from` says)."""
+        if self.order_from is not None:
+            defaults = {k: v for k, v in self.parameters.items() if v is not inspect.Parameter.empty}
+            return int(self.order_from({**defaults, **(kwargs or {})}))
         default = self.parameters.get("order", 1)
         return int((kwargs or {}).get("order", 1 if default is inspect.Parameter.empty else default))
 
@@ -138,6 +147,7 @@ def register_observer(
     given=(),
     examples=(),
     model_based: bool = False,
+    order_from: Callable | None = None,
 ):
     """Class decorator: register an observer family under ``name`` (module notes; arguments as :class:`Family`,
     ``steps`` given as the ``rows`` functions of :func:`smo_gym.observers._kernels.register_step`).
@@ -158,6 +168,7 @@ def register_observer(
             given=tuple(tuple(keys) for keys in given),
             examples=tuple(dict(e) for e in examples),
             model_based=model_based,
+            order_from=order_from,
         )
         FAMILIES[name] = family
         (MODEL_BASED_OBSERVERS if model_based else OBSERVERS)[name] = cls
