@@ -19,8 +19,9 @@ install: $(VENV)/.installed
 demo: $(VENV)/.installed
 	MUJOCO_GL=disable $(VENV)/bin/smo-gym compare
 
+# -n auto: one pytest worker per core (pytest-xdist); the workers share numba's on-disk cache
 test: $(VENV)/.installed lint
-	MUJOCO_GL=disable $(PY) -m pytest -q -m "not slow"
+	MUJOCO_GL=disable $(PY) -m pytest -q -m "not slow" -n auto
 
 # ruff (pinned in the test extra, so that a new release cannot reformat the tree under CI)
 lint: $(VENV)/.installed
