@@ -19,9 +19,10 @@ install: $(VENV)/.installed
 demo: $(VENV)/.installed
 	MUJOCO_GL=disable $(VENV)/bin/smo-gym compare
 
-# -n auto: one pytest worker per core (pytest-xdist); the workers share numba's on-disk cache
+# -n auto: one pytest worker per core (pytest-xdist); the workers share numba's on-disk cache. loadfile keeps a
+# file's tests on one worker: they share compiled kernels, and some read what earlier ones recorded (sweep totals)
 test: $(VENV)/.installed lint
-	MUJOCO_GL=disable $(PY) -m pytest -q -m "not slow" -n auto
+	MUJOCO_GL=disable $(PY) -m pytest -q -m "not slow" -n auto --dist loadfile
 
 # ruff (pinned in the test extra, so that a new release cannot reformat the tree under CI)
 lint: $(VENV)/.installed
