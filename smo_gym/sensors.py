@@ -288,6 +288,7 @@ class Sensor:
     _kinds = None
     _block_call = None
     _arrays = None
+    _storage = None
 
     @property
     def stages(self) -> tuple[Stage, ...]:
@@ -404,19 +405,29 @@ class Sensor:
             params = np.zeros((S, 2, n))
             for s, st in enumerate(stages):  # may reject per-channel values of another size: before any change
                 params[s] = st._pack(n, angular, dt)
-            self._params = params
+            K = 1 + max([st.samples for st in stages if isinstance(st, Delay)], default=0)
+            arrays = SensorArrays(
+                np.array([st._kind for st in stages], dtype=np.int64),
+                params,
+                np.zeros((S, n)),
+                np.zeros((S, K, n)),
+                np.zeros(S, dtype=np.int64),
+                np.zeros((BLOCK, 2, S, n)),
+            )
+            storage = self._storage
+            if storage is not None and all(a.shape == b.shape for a, b in zip(storage, arrays, strict=True)):
+                for to, value in zip(storage, arrays, strict=True):  # the caller's arrays (use_arrays) keep the stream
+                    to[...] = value
+                arrays = storage
+            else:
+                self._storage = None  # another number of channels or stages: the caller's arrays do not fit
+            self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand = arrays
             self._rng = rng if rng is not None else fresh
             self._shape, self._config, self._size = y0.shape, config, n
-            self._kinds = np.array([st._kind for st in stages], dtype=np.int64)
-            self._state = np.zeros((S, n))
-            K = 1 + max([st.samples for st in stages if isinstance(st, Delay)], default=0)
-            self._ring = np.zeros((S, K, n))
-            self._ring_pos = np.zeros(S, dtype=np.int64)
             # stages whose state is drawn per episode (Bias); the others start at zero
             self._drawn = [
                 (s, st) for s, st in enumerate(stages) if type(st)._initial_state is not Stage._initial_state
             ]
-            self._rand = np.zeros((BLOCK, 2, S, n))
             self._t = BLOCK  # drawn at the first sample
             self._block_call = None
         for s, st in self._drawn:
@@ -458,6 +469,44 @@ class Sensor:
                 self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand
             )
         return arrays
+
+    def use_arrays(self, arrays: SensorArrays) -> None:
+        """Keep the stream in ``arrays`` from now on: a caller's arrays, e.g. rows of stacked arrays with one row per
+        sensor, so that one compiled call advances several sensors (:class:`smo_gym.engine.batch.MeasurementBatch`).
+
+        Each array must have the dtype and shape of the current one in :attr:`arrays` and be writeable, aligned and
+        C-contiguous. The current stream is copied into them, and later resets write into them, also a reset with a
+        new seed (a reset to another number of channels or stages cannot, and leaves them). The sensor stays usable
+        on its own (``measure``, ``run``, ``reset``): it reads and writes the same arrays. Pickled or copied, a
+        sensor has arrays of its own.
+
+        Raises
+        ------
+        RuntimeError
+            The sensor was never reset (it has no stream yet).
+        TypeError, ValueError
+            An array of another type, layout, dtype or shape.
+        """
+        current = self.arrays
+        arrays = SensorArrays(*arrays)
+        for name, new, old in zip(SensorArrays._fields, arrays, current, strict=True):
+            if not (
+                type(new) is np.ndarray
+                and new.dtype == old.dtype
+                and (f := new.flags).c_contiguous
+                and f.writeable
+                and f.aligned
+            ):
+                raise TypeError(
+                    f"expected {name} as a writeable, aligned, C-contiguous {old.dtype} array, actual value: "
+                    f"{new!r:.80}"
+                )
+            if new.shape != old.shape:
+                raise ValueError(f"expected {name} with shape {old.shape}, actual value: {new.shape}")
+        for new, old in zip(arrays, current, strict=True):
+            new[...] = old
+        self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand = arrays
+        self._storage = arrays
 
     def reserve_random_rows(self, n_samples: int) -> int | None:
         """Reserve the next ``n_samples`` rows of the random block for a compiled caller and return the first.
@@ -536,6 +585,7 @@ class Sensor:
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state.pop("_block_call", None)  # a compiled entry point does not pickle; bound again on first use
+        state.pop("_storage", None)  # a copy has arrays of its own
         return state
 
     def run(self, Y) -> np.ndarray:

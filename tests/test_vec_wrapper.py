@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+from smo_gym import sensors
+from smo_gym.engine.batch import MeasurementBatch
 from smo_gym.wrappers import EstimatedVelocity, JointSensor, VecEstimatedVelocity, VectorEstimatedVelocity
 
 #: the keys of info["smo"], the same from every wrapper
@@ -38,6 +40,7 @@ def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
     finished episode's last sample, like ``terminal_observation``)."""
     ref, vec = _pair(positions=positions, env_id=env_id)
     np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
+    assert isinstance(vec._batch, MeasurementBatch)  # the environments are measured together
     rng = np.random.default_rng(0)
     n_done = 0
     for _ in range(150):
@@ -232,9 +235,11 @@ def test_gymnasium_vector_wrapper_round_trips_plain_pickle():
     )
     vec.reset(seed=5)
     twin = pickle.loads(pickle.dumps(vec))
+    assert twin._batch is None and not any(s.batched for s in twin._local)  # its sensors' streams are its own
     o1, _ = vec.reset(seed=6)
     o2, _ = twin.reset(seed=6)
     np.testing.assert_array_equal(o1, o2)
+    assert isinstance(twin._batch, MeasurementBatch) and twin._batch.sensors.state is not vec._batch.sensors.state
     for a in np.random.default_rng(0).uniform(-1, 1, (10, 2, 1)):
         np.testing.assert_array_equal(vec.step(a)[0], twin.step(a)[0])
 
@@ -279,6 +284,7 @@ def test_gymnasium_vector_wrapper_matches_per_env(mode):
     o1, _ = ref.reset(seed=7)
     o2, _ = vec.reset(seed=7)
     np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+    assert isinstance(vec._batch, MeasurementBatch)
     rng = np.random.default_rng(3)
     n_done = 0
     for _ in range(120):
@@ -334,3 +340,95 @@ def test_gymnasium_async_vector_env_same_step():
         assert n_done >= 3
     finally:
         vec.close()
+
+
+# ---- in-process: the environments measured together ---------------------------------------------------------------
+def test_masked_resets_keep_the_last_samples_of_the_other_environments():
+    """Autoreset mode "disabled": after ``reset(options={"reset_mask": m})`` the rows of ``infos["smo"]`` where ``m``
+    are the reset's samples, as per-environment wrappers give them; the other rows are those environments' last
+    samples (which the batch measured), also after a second masked reset in a row."""
+    from gymnasium.vector import SyncVectorEnv
+
+    ref = SyncVectorEnv(
+        [lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(N)], autoreset_mode="Disabled"
+    )
+    vec = VectorEstimatedVelocity(
+        SyncVectorEnv([lambda: gym.make(ENV) for _ in range(N)], autoreset_mode="Disabled"),
+        "encoder-12bit-noisy",
+        "super-twisting",
+    )
+    ref.reset(seed=2)
+    vec.reset(seed=2)
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        a = rng.uniform(-1, 1, (N, 1))
+        ref.step(a)
+        *_, infos = vec.step(a)
+    expected = {key: infos["smo"][key].copy() for key in SMO_KEYS}  # each environment's last sample
+    for mask in (np.array([True, False, False]), np.array([False, True, False])):
+        o1, i1 = ref.reset(options={"reset_mask": mask})
+        o2, i2 = vec.reset(options={"reset_mask": mask})
+        np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        for key in SMO_KEYS:
+            expected[key][mask] = i1["smo"][key][mask]
+            np.testing.assert_allclose(i2["smo"][key], expected[key], rtol=0, atol=1e-12)
+    a = rng.uniform(-1, 1, (N, 1))
+    o1, *_ = ref.step(a)
+    o2, *_ = vec.step(a)
+    np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+
+
+def test_free_joint_environments_measured_together_equal_per_env_wrappers():
+    """Ant's free joint: the batch advances every environment's tangent coordinates (unit quaternions) in its row."""
+    from gymnasium.vector import SyncVectorEnv
+
+    env_id = "Ant-v5"
+    ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(env_id), rate="env") for _ in range(2)])
+    vec = VectorEstimatedVelocity(
+        SyncVectorEnv([lambda: gym.make(env_id) for _ in range(2)]), "encoder-12bit-noisy", "super-twisting"
+    )
+    o1, _ = ref.reset(seed=3)
+    o2, _ = vec.reset(seed=3)
+    np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+    assert isinstance(vec._batch, MeasurementBatch) and vec._batch.previous.shape == (2, 15)
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        a = rng.uniform(-1, 1, (2, 8))
+        o1, r1, t1, u1, i1 = ref.step(a)
+        o2, r2, t2, u2, i2 = vec.step(a)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(t1 | u1, t2 | u2)
+        np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        _assert_same_smo(i1, i2)
+
+
+class _Halved(sensors.GaussianNoise):
+    """A sensor whose ``run`` is not the chain's (the batch cannot measure it)."""
+
+    def run(self, Y):
+        return 0.5 * super().run(Y)
+
+
+def test_sensors_the_batch_cannot_run_are_measured_one_by_one():
+    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(ENV), _Halved(1e-3), rate="env") for _ in range(2)])
+    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]), _Halved(1e-3), "super-twisting")
+    ref.seed(1)
+    vec.seed(1)
+    np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
+    assert vec._batch is False and not any(s.batched for s in vec._local)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        a = rng.uniform(-1, 1, (2, 1))
+        np.testing.assert_allclose(vec.step(a)[0], ref.step(a)[0], rtol=0, atol=1e-12)
+
+
+def test_a_non_finite_measurement_in_the_batch_names_the_environment():
+    """A sensor model that overflows (gross errors of 1e308 standard deviations) is caught in the batched call."""
+    sensor = sensors.Outliers(probability=1.0, scale=1e308)
+    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]), sensor, "super-twisting")
+    vec.seed(0)
+    vec.reset()
+    assert isinstance(vec._batch, MeasurementBatch)
+    with pytest.raises(ValueError, match=r"finite measurement.*of environment [01]"):
+        for _ in range(10):
+            vec.step(np.zeros((2, 1)))

@@ -3,8 +3,9 @@ r"""The sensing engine: joint measurements, tangent coordinates and observer sta
 Below the wrappers (nothing here knows Gymnasium): :mod:`~smo_gym.engine.measurement` measures a MuJoCo model's
 configuration through a sensor on the configuration manifold and feeds an observer;
 :mod:`~smo_gym.engine.fused` runs a control period of samples through sensor, tangent coordinates and observer in
-one compiled call; :mod:`~smo_gym.engine.tangent` is the compiled tangent-coordinate arithmetic (MuJoCo's, bit for
-bit) both share.
+one compiled call; :mod:`~smo_gym.engine.batch` measures the environments of an in-process vector env in one
+compiled call; :mod:`~smo_gym.engine.tangent` is the compiled tangent-coordinate arithmetic (MuJoCo's, bit for
+bit) they share.
 """
 
 from __future__ import annotations

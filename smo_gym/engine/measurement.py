@@ -83,6 +83,34 @@ class TangentCoordinates:
         self.previous = np.zeros(self.nq)
         self.z = np.zeros(self.nv)
 
+    def use_arrays(self, previous: np.ndarray, z: np.ndarray) -> None:
+        """Keep :attr:`previous` and :attr:`z` in these arrays from now on (rows of a caller's stacked arrays,
+        :class:`~smo_gym.engine.batch.MeasurementBatch`): writeable, C-contiguous float64 of shapes ``(nq,)`` and
+        ``(nv,)``; the current values are copied in and later steps and resets write into them. Models with free or
+        ball joints only (without them ``z`` is ``qpos`` and nothing is kept).
+
+        Raises
+        ------
+        ValueError
+            A model without free or ball joints, or arrays of other shapes.
+        TypeError
+            Arrays that are not writeable C-contiguous float64.
+        """
+        if not self.manifold:
+            raise ValueError(
+                "expected a model with free or ball joints (whose tangent coordinates are kept), actual value: a "
+                "model without them, where z is qpos"
+            )
+        for name, new, old in (("previous", previous, self.previous), ("z", z, self.z)):
+            if not (
+                type(new) is np.ndarray and new.dtype == np.float64 and new.flags.c_contiguous and new.flags.writeable
+            ):
+                raise TypeError(f"expected {name} as a writeable C-contiguous float64 array, actual value: {new!r:.80}")
+            if new.shape != old.shape:
+                raise ValueError(f"expected {name} with shape {old.shape}, actual value: {new.shape}")
+            new[...] = old
+        self.previous, self.z = previous, z
+
     def reset(self, q0: np.ndarray) -> np.ndarray:
         """Start at ``q0``: ``z0`` has the hinge/slide values and free-joint translations of ``q0``, and zero
         for free/ball rotations."""

@@ -109,6 +109,19 @@ class SensingInfo(dict):
             np.concatenate((qpos, qvel, qvel_estimate, qpos_measured)), cls.slices(len(qpos), len(qvel)), observation
         )
 
+    @classmethod
+    def rows(cls, block: np.ndarray, slices: tuple, observations: np.ndarray) -> list[SensingInfo]:
+        """One per row of ``block`` ``(n, ...)``, rows ``[qpos, qvel, qvel_estimate, qpos_measured, ...]``
+        (``slices`` from :meth:`slices`), and of the clean observations ``observations`` ``(n, ...)``: a vector
+        env's samples, each of views of one row. Both arrays are owned from now on (made read-only)."""
+        block.setflags(write=False)
+        observations.setflags(write=False)
+        s0, s1, s2, s3 = slices
+        return [
+            cls(qpos=row[s0], qvel=row[s1], qvel_estimate=row[s2], qpos_measured=row[s3], observation=observation)
+            for row, observation in zip(block, observations, strict=True)
+        ]
+
     @staticmethod
     def slices(nq: int, nv: int) -> tuple[slice, slice, slice, slice]:
         """Where ``qpos``, ``qvel``, ``qvel_estimate`` and ``qpos_measured`` lie in a block (computed once per

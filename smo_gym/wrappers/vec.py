@@ -15,14 +15,21 @@ The work splits in two halves:
     and a given velocity estimate. When an episode ends, it keeps a copy of the final ``MjData`` and
     measurement, so the terminal observation can be rebuilt after the environment was already reset.
 :class:`~smo_gym.wrappers.sb3.VecEstimatedVelocity` (SB3) and :class:`VectorEstimatedVelocity` (Gymnasium)
-    the batched observer: stack the ``n`` measurements, one ``update``, masked restarts, then ask the
-    sub-environments to rebuild their observations (one call per environment with ``DummyVecEnv`` /
-    ``SyncVectorEnv``; one parallel round trip to all workers with ``SubprocVecEnv`` / ``AsyncVectorEnv``).
+    the batched observer: stack the ``n`` measurements, one ``update``, masked restarts, then rebuild the
+    observations (one parallel round trip to all workers with ``SubprocVecEnv`` / ``AsyncVectorEnv``).
 
-Each sub-environment's measurement and observation are computed by exactly the code of
-:class:`EstimatedVelocity` (``JointSensor`` subclasses it), and channels of a batched observer are independent,
-so the vectorized wrappers reproduce per-environment wrappers at ``rate="env"`` with the same seeds
-bit for bit (tested to 1e-12).
+In-process (``DummyVecEnv``, ``SyncVectorEnv``) a step costs a fixed number of Python calls for all environments
+together, not a few per environment: the sensors keep their streams in the rows of one
+:class:`~smo_gym.engine.batch.MeasurementBatch`, which measures every environment that was stepped and goes on
+in one compiled call (the :class:`JointSensor` measures only resets and an episode's last sample, before the
+autoreset); the batched observer update follows, then the observations of all environments are built at once
+when they are a clipped selection of the state (one NumPy expression) or gathered from ``MjData`` entries
+(:class:`~smo_gym.engine.scratch.GatheredObservations`), else one by one.
+
+Each sub-environment's measurement and observation are computed with exactly the arithmetic of
+:class:`EstimatedVelocity` (the batch runs each sensor's chain on its own random stream), and channels of a batched
+observer are independent, so the vectorized wrappers reproduce per-environment wrappers at ``rate="env"`` with the
+same seeds bit for bit (tested to 1e-12).
 
 Autoreset
 ---------
@@ -53,6 +60,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from ..engine.batch import MeasurementBatch
 from ..engine.measurement import check_finite_observation
 from ..engine.scratch import INPUT_FIELDS, GatheredObservations
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
@@ -78,18 +86,6 @@ _CONFIG_KEYS = (
 #: scratch evaluation copies (:data:`~smo_gym.engine.scratch.INPUT_FIELDS`, but ``time``, a scalar), ``userdata``
 #: and the contact forces (``contact_forces="sensor"``)
 _SNAPSHOT = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "time"), "userdata", "cfrc_ext")
-_SNAPSHOT = (
-    "qpos",
-    "qvel",
-    "act",
-    "ctrl",
-    "qfrc_applied",
-    "xfrc_applied",
-    "mocap_pos",
-    "mocap_quat",
-    "userdata",
-    "cfrc_ext",
-)
 
 
 def sensing_config(
@@ -140,11 +136,19 @@ class JointSensor(EstimatedVelocity):
     (:class:`VecEstimatedVelocity`, :class:`VectorEstimatedVelocity`) runs the observer on those measurements
     and calls :meth:`observe`.
 
+    In-process the owner sets :attr:`batched`: then a step that does not end the episode is measured by the owner
+    together with the other environments' (:class:`~smo_gym.engine.batch.MeasurementBatch`, on this sensor's own
+    stream), and only resets and the last step of an episode are measured here.
+
     Attributes
     ----------
     token : str
         A random identifier; the vector wrappers map tokens to environment indices, so one broadcast call can
         carry every environment's estimate (``observe_rows``).
+    batched : bool
+        Whether an in-process owner measures this environment's steps (set by the owner; False after unpickling).
+    step_observation : ndarray or None
+        The environment's own observation of the last step the owner measures.
     """
 
     def __init__(
@@ -164,6 +168,8 @@ class JointSensor(EstimatedVelocity):
         #: put the measurement and the true state in ``info`` (needed across a process boundary; an in-process
         #: owner reads :attr:`z_step`, :attr:`z_reset` and :attr:`smo` instead, and saves SB3's deepcopy of infos)
         self.emit_info = True
+        self.batched = False
+        self.step_observation = None
         self.z_step = self.z_reset = None
         self._reset_last = False
         #: the true state, measured configuration and clean observation of the last step's and of the last
@@ -210,10 +216,13 @@ class JointSensor(EstimatedVelocity):
         check_action(action, self._action_shape)
         self._terminal = None  # kept across the autoreset that follows an episode's end, dropped here
         obs, reward, terminated, truncated, info = self.env.step(action)
+        self._reset_last = False
+        if self.batched and not (terminated or truncated):  # the owner measures this sample with the others'
+            self.step_observation = obs
+            return obs, reward, terminated, truncated, info
         data = self.adapter.data
         z = self.measurement.measure_block(data.qpos[None])[0]
         self.z_step = np.array(z, dtype=np.float64)
-        self._reset_last = False
         self.smo_step = self._record(obs, info)
         if self.emit_info:
             info["smo_z"] = self.z_step
@@ -297,6 +306,11 @@ class JointSensor(EstimatedVelocity):
         the sensing options and :attr:`token`."""
         return copy.deepcopy(self.observer), dict(self.config), self.token
 
+    def __getstate__(self):
+        state = super().__getstate__()
+        state["batched"] = False  # a copy's sensor has a stream of its own: its owner batches it again
+        return state
+
 
 def _find_sensor(env) -> JointSensor | None:
     while isinstance(env, gym.Wrapper):
@@ -324,6 +338,7 @@ class _Sensing:
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state.pop("_plan_cache", None)  # compiled entry points and this process's addresses: made again when used
+        state["_batch"] = None  # shares arrays with the sensors, which pickle their own: made again when used
         return state
 
     def _call_envs(self, name: str, *args) -> list:  # pragma: no cover - provided by the vector wrappers
@@ -338,6 +353,9 @@ class _Sensing:
     def _setup_sensing(self, config: dict, n_envs: int, sensors) -> None:
         # sensors: list of JointSensor objects (in-process) or None (across a process boundary: _call_envs)
         self._local = sensors
+        #: the in-process environments' MeasurementBatch (made at the first reset, :meth:`_local_batch`), False
+        #: where their measurements cannot share one
+        self._batch = None
         self.__dict__.pop("_selection_cache", None)
         self.__dict__.pop("_plan_cache", None)
         if sensors is not None:
@@ -370,7 +388,11 @@ class _Sensing:
         self.n_envs = n_envs
         self._index = {t: i for i, t in enumerate(tokens)}
 
-    def _observe_all(self, estimate, terminal_estimate=None, terminal_mask=None) -> tuple[np.ndarray, list]:
+    def _observe_all(
+        self, estimate, positions=None, terminal_estimate=None, terminal_mask=None
+    ) -> tuple[np.ndarray, list]:
+        """Every environment's observation at its measured positions (``positions`` ``(n_envs, nq)`` in-process,
+        :meth:`_local_positions`) and the estimate, and the terminal observations where ``terminal_mask``."""
         vel = estimate[..., 1]
         filt = estimate[..., 0] if self.positions == "filtered" else None
         tvel = None if terminal_estimate is None else terminal_estimate[..., 1]
@@ -378,16 +400,12 @@ class _Sensing:
         if self._local is not None:
             selection = self._selection()
             if selection is not None:  # every observation is the same clipped selection: one NumPy expression
-                index, bounds, nq = selection
-                state = np.empty((len(self._local), nq + vel.shape[1]))
-                for i, s in enumerate(self._local):
-                    state[i, :nq] = s.measurement.measured_qpos()
-                state[:, nq:] = vel
+                index, bounds, _ = selection
+                state = np.concatenate((positions, vel), axis=1)
                 obs = np.minimum(np.maximum(state[:, index], bounds[0]), bounds[1])
                 return obs, self._terminal_observations(tvel, terminal_mask)
             plan = self._entries_plan()
             if plan is not None:  # every observation is gathered from MjData entries: compiled calls, no _get_obs
-                positions = np.array([s.measurement.measured_qpos() for s in self._local])
                 return plan.observe(positions, vel), self._terminal_observations(tvel, terminal_mask)
             rows = []
             for i, s in enumerate(self._local):
@@ -468,6 +486,64 @@ class _Sensing:
             s.smo_step if (terminal is not None and terminal[i]) or not s._reset_last else s.smo_reset
             for i, s in enumerate(self._local)
         ]
+
+    # ---- in-process: the environments measured together ------------------------------------------------------
+    def _local_batch(self) -> MeasurementBatch | None:
+        """The in-process environments' :class:`~smo_gym.engine.batch.MeasurementBatch`, made once their sensors
+        have a stream (after a reset), or None: across a process boundary, before the first reset, or where the
+        measurements cannot share one (then each :class:`JointSensor` measures its own steps)."""
+        batch = self._batch
+        if batch is None and self._local is not None:
+            local = self._local
+            measurements = [s.measurement for s in local]
+            if all(isinstance(s.observation_space, gym.spaces.Box) for s in local) and MeasurementBatch.supports(
+                measurements
+            ):
+                batch = MeasurementBatch(measurements)
+                for s in local:
+                    s.batched = True
+            else:
+                batch = False
+            self._batch = batch
+        return batch or None
+
+    def _local_block(self, fresh: np.ndarray, terminal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """In-process, after a vector step with a batch: ``(block, clean)``, every environment's sample as a row
+        ``[qpos, qvel, qvel_estimate (zero), qpos_measured, z_true, z_measured]`` of ``block`` ``(n_envs, 2 nq +
+        4 nv)`` (:func:`~smo_gym.engine.batch.block_slices`) and its clean observation, a row of ``clean``.
+
+        Rows where ``fresh`` (stepped, and the episode goes on) are measured now, all in one compiled call. The
+        others were measured by their :class:`JointSensor`: the last sample of the episode that ended in this step
+        where ``terminal``, else its last sample (the reset's for an environment reset in this call).
+        """
+        local = self._local
+        block = self._batch.measure_live([s.adapter.data for s in local], fresh)
+        clean = [s.step_observation for s in local]
+        self._record_rows(block, clean, ~fresh, terminal)
+        return block, np.array(clean)
+
+    def _record_rows(self, block: np.ndarray, clean: list, rows: np.ndarray, terminal: np.ndarray | None) -> None:
+        """Write into the rows ``rows`` (mask) of ``block`` and ``clean`` the in-process environments' samples that
+        their :class:`JointSensor` measured (see :meth:`_local_block`)."""
+        q, v, _, qm, _, zm = self._batch.slices
+        for i in np.flatnonzero(rows):
+            s = self._local[i]
+            step = (terminal is not None and terminal[i]) or not s._reset_last
+            sample, z = (s.smo_step, s.z_step) if step else (s.smo_reset, s.z_reset)
+            row = block[i]
+            row[q], row[v], row[qm], row[zm] = sample["qpos"], sample["qvel"], sample["qpos_measured"], z
+            clean[i] = sample["observation"]
+
+    def _local_positions(self, block: np.ndarray | None = None, fresh: np.ndarray | None = None) -> np.ndarray:
+        """The in-process environments' measured configurations at their last sample, ``(n_envs, nq)``: from
+        ``block`` (:meth:`_local_block`) where ``fresh``, from each measurement elsewhere."""
+        local = self._local
+        if block is None:
+            return np.array([s.measurement.measured_qpos() for s in local])
+        positions = block[:, self._batch.slices[3]].copy()
+        for i in np.flatnonzero(~fresh):
+            positions[i] = local[i].measurement.measured_qpos()
+        return positions
 
 
 def stack_samples(samples: list[dict], velocity: np.ndarray, mask: np.ndarray | None = None) -> dict:
@@ -555,6 +631,8 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         sensors = attach_sensors(base.envs, requested) if isinstance(base, SyncVectorEnv) else None
         self._setup_sensing(requested, env.num_envs, sensors)
         self._autoreset = np.zeros(env.num_envs, dtype=bool)
+        #: in-process with a batch: the last step's samples (:meth:`_local_block`)
+        self._last_sample = None
 
     def _call_envs(self, name: str, *args) -> list:
         return list(self.env.call(name, *args))
@@ -585,8 +663,22 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             self.observer.reset(np.where(mask[:, None], Z, self.observer.estimate[..., 0]), mask=mask)
             est = self.observer.estimate
             self._autoreset[mask] = False
-        obs, _ = self._observe_all(est)
-        infos["smo"], infos["_smo"] = stack_samples(self._samples(infos), est[..., 1]), np.ones(self.num_envs, bool)
+        positions = batch = None
+        if self._local is not None:
+            positions = self._local_positions()
+            batch = self._local_batch()  # the sensors have their streams now
+        obs, _ = self._observe_all(est, positions)
+        if batch is not None and mask is not None and self._last_sample is not None:
+            # the environments not reset keep their last samples, which the batch measured
+            block, clean = self._last_sample
+            block, clean = block.copy(), list(clean)
+            self._record_rows(block, clean, mask, None)
+            self._last_sample = (block, np.array(clean))
+            infos["smo"] = self._stacked_info(*self._last_sample, est[..., 1])
+        else:
+            self._last_sample = None  # every environment's last sample is its reset's (or the workers' infos)
+            infos["smo"] = stack_samples(self._samples(infos), est[..., 1])
+        infos["_smo"] = np.ones(self.num_envs, bool)
         return obs, infos
 
     def _measurements(self, infos, reset: bool) -> np.ndarray:
@@ -603,12 +695,20 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
 
         if self.observer.shape is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        batch = self._local_batch()
         _, rewards, terminated, truncated, infos = self.env.step(actions)
         done = np.logical_or(terminated, truncated)
-        Z = self._measurements(infos, reset=False)
+        next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
+        restart = self._autoreset.copy() if next_step else np.zeros(self.num_envs, dtype=bool)
+        block = clean = fresh = None
+        if batch is not None:  # the environments that were stepped and go on, measured together
+            fresh = ~(done | restart)
+            block, clean = self._local_block(fresh)
+            Z = np.ascontiguousarray(block[:, batch.slices[5]])
+        else:
+            Z = self._measurements(infos, reset=False)
         terminal = terminal_mask = None
-        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
-            restart = self._autoreset.copy()
+        if next_step:
             est = self._update(np.where(restart[:, None], self.observer.estimate[..., 0], Z))
             if restart.any():
                 self.observer.reset(Z, mask=restart)
@@ -627,14 +727,41 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
                 est = self._update(Z)
         else:  # disabled: finished environments wait for reset(options={"reset_mask": ...})
             est = self._update(Z)
-        obs, terms = self._observe_all(est, terminal, terminal_mask)
+        positions = None if self._local is None else self._local_positions(block, fresh)
+        obs, terms = self._observe_all(est, positions, terminal, terminal_mask)
         if terminal_mask is not None:
             final_obs = infos["final_obs"]
             for i in np.flatnonzero(terminal_mask):
                 final_obs[i] = terms[i]
-        infos["smo"], infos["_smo"] = stack_samples(self._samples(infos), est[..., 1]), np.ones(self.num_envs, bool)
+        ones = np.ones(self.num_envs, bool)
+        if block is not None:
+            infos["smo"], infos["_smo"] = self._stacked_info(block, clean, est[..., 1]), ones
+            self._last_sample = (block, clean)  # for a masked reset (autoreset mode "disabled")
+        else:
+            infos["smo"], infos["_smo"] = stack_samples(self._samples(infos), est[..., 1]), ones
         if terminal_mask is not None:  # Gymnasium's same-step convention: the finished episodes' in final_info
             final = infos["final_info"]
-            final["smo"] = stack_samples(self._samples(infos, terminal_mask), terminal[..., 1], terminal_mask)
+            if block is not None:
+                block, clean = block.copy(), list(clean)
+                self._record_rows(block, clean, terminal_mask, terminal_mask)
+                final["smo"] = self._stacked_info(block, np.array(clean), terminal[..., 1], terminal_mask)
+            else:
+                final["smo"] = stack_samples(self._samples(infos, terminal_mask), terminal[..., 1], terminal_mask)
             final["_smo"] = terminal_mask.copy()
         return obs, rewards, terminated, truncated, infos
+
+    def _stacked_info(self, block: np.ndarray, clean: np.ndarray, velocity: np.ndarray, mask=None) -> dict:
+        """:func:`stack_samples` of the samples in ``block`` and ``clean`` (:meth:`_local_block`), with the velocity
+        estimates ``velocity`` ``(n_envs, nv)``: new arrays."""
+        mask = np.ones(self.num_envs, dtype=bool) if mask is None else np.array(mask, dtype=bool)
+        q, v, _, qm = self._batch.slices[:4]
+        out = {}
+        for key, value in (
+            ("qpos", block[:, q]),
+            ("qvel", block[:, v]),
+            ("qvel_estimate", velocity),
+            ("qpos_measured", block[:, qm]),
+            ("observation", clean),
+        ):
+            out[key], out[f"_{key}"] = np.array(value), mask.copy()
+        return out
