@@ -402,26 +402,6 @@ def test_free_joint_environments_measured_together_equal_per_env_wrappers():
         _assert_same_smo(i1, i2)
 
 
-class _Halved(sensors.GaussianNoise):
-    """A sensor whose ``run`` is not the chain's (the batch cannot measure it)."""
-
-    def run(self, Y):
-        return 0.5 * super().run(Y)
-
-
-def test_sensors_the_batch_cannot_run_are_measured_one_by_one():
-    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(ENV), _Halved(1e-3), rate="env") for _ in range(2)])
-    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]), _Halved(1e-3), "super-twisting")
-    ref.seed(1)
-    vec.seed(1)
-    np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
-    assert vec._batch is False and not any(s.batched for s in vec._local)
-    rng = np.random.default_rng(0)
-    for _ in range(30):
-        a = rng.uniform(-1, 1, (2, 1))
-        np.testing.assert_allclose(vec.step(a)[0], ref.step(a)[0], rtol=0, atol=1e-12)
-
-
 def test_a_non_finite_measurement_in_the_batch_names_the_environment():
     """A sensor model that overflows (gross errors of 1e308 standard deviations) is caught in the batched call."""
     sensor = sensors.Outliers(probability=1.0, scale=1e308)

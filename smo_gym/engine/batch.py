@@ -33,7 +33,7 @@ from numba import njit
 from .. import sensors
 from .._numba_cache import drop_stale
 from ..observers.base import _compiled_entry
-from ..sensors import Sensor, SensorArrays, _chain_kernel
+from ..sensors import SensorArrays, _chain_kernel
 from . import tangent
 from .fused import InputCopy
 from .measurement import JointMeasurement
@@ -185,8 +185,7 @@ class MeasurementBatch:
     def supports(measurements: Sequence[JointMeasurement]) -> bool:
         """Whether these measurements can share one batch: at least one, all reset, of models with equal joint
         tables (types and addresses), and with sensors whose streams have equal shapes (the same chain); plain
-        :class:`JointMeasurement` objects whose sensor measures through the base class's ``run`` (what the batch
-        computes; a subclass may measure otherwise)."""
+        :class:`JointMeasurement` objects (a sensor is its stages, so the batch computes what each sensor would)."""
         if not measurements:
             return False
         first = measurements[0]
@@ -196,7 +195,6 @@ class MeasurementBatch:
             return False
         return all(
             type(m) is JointMeasurement
-            and type(m.sensor).run is Sensor.run
             and m.model.nq == first.model.nq
             and m.model.nv == first.model.nv
             and m.tangent.manifold == first.tangent.manifold
