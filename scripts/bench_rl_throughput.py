@@ -1,4 +1,4 @@
-"""Training throughput with and without the sensing wrappers, side by side (interleaved rounds, medians).
+r"""Training throughput with and without the sensing wrappers, side by side (interleaved rounds, medians).
 
 For each environment, PPO models are built once per configuration (same hyperparameters as
 ``scripts/rl_benchmark.py``: 4 environments, 512 steps each per rollout, minibatches of 256, VecNormalize):
@@ -14,12 +14,31 @@ median (acceptance: >= 0.90). A second table times bare vector-env steps (no lea
 per-environment wrappers inside the workers against ``VecEstimatedVelocity`` on top of the workers (which costs
 one extra parallel round trip per step to rebuild the observations where the MuJoCo state is).
 
+A third table (``--tables in-process``) times bare in-process vector-env steps (no learning) for both vector
+APIs, ``gymnasium.vector.SyncVectorEnv`` and SB3's ``DummyVecEnv``, with ``--n-envs`` environments each:
+
+    unwrapped          the vector env of the bare environments
+    per-env env        EstimatedVelocity(rate="env") in every environment
+    vec env            VectorEstimatedVelocity / VecEstimatedVelocity on top (one batched sensing step)
+
+and, with ``--ablate``, ``vec env, one by one``: the vector wrapper with each environment measured by its own
+``JointSensor`` (no ``MeasurementBatch``), to show what measuring the environments together saves.
+
+All of them run the same actions from the same seeds (the wrappers never perturb the simulation, so they do the
+same physics and autoresets), interleaved in chunks of 10 steps, each chunk timed by the thread's CPU time with
+the garbage collector off; the table gives the median time per vector step and the median over chunks of its
+ratio to the unwrapped chunk of the same steps (``--rounds`` rounds of ``--steps`` steps, each round from its own
+seed).
+
     MUJOCO_GL=disable .venv/bin/python scripts/bench_rl_throughput.py --rounds 9
+    MUJOCO_GL=disable .venv/bin/python scripts/bench_rl_throughput.py --tables in-process --envs Hopper-v5 \
+        --rounds 5 --ablate
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 import time
@@ -125,13 +144,159 @@ def subproc_steps(env_id: str, rounds: int, n_envs: int = 2, steps: int = 300) -
     return times
 
 
+#: the configurations of the in-process table (``--ablate`` adds "vec env, one by one")
+IN_PROCESS = ("unwrapped", "per-env env", "vec env")
+
+
+def _in_process_venv(api: str, env_id: str, kind: str, n_envs: int):
+    """An in-process vector env of ``n_envs`` copies of ``env_id``: ``api`` ``"gymnasium"`` (``SyncVectorEnv``)
+    or ``"sb3"`` (``DummyVecEnv``), ``kind`` one of :data:`IN_PROCESS` or ``"vec env, one by one"`` (the vector
+    wrapper with each environment's measurement taken by its own ``JointSensor``, as without a
+    :class:`~smo_gym.engine.batch.MeasurementBatch`)."""
+    import gymnasium as gym
+
+    from smo_gym.wrappers import EstimatedVelocity
+
+    if kind == "per-env env":
+        fns = [lambda: EstimatedVelocity(gym.make(env_id), rate="env")] * n_envs
+    else:
+        fns = [lambda: gym.make(env_id)] * n_envs
+    if api == "gymnasium":
+        from gymnasium.vector import SyncVectorEnv
+
+        from smo_gym.wrappers import VectorEstimatedVelocity as wrapper
+
+        venv = SyncVectorEnv(fns)
+    else:
+        from stable_baselines3.common.vec_env import DummyVecEnv
+
+        from smo_gym.wrappers import VecEstimatedVelocity as wrapper
+
+        venv = DummyVecEnv(fns)
+    if kind == "vec env, one by one":
+
+        class OneByOne(wrapper):
+            def _local_batch(self):
+                return None
+
+        wrapper = OneByOne
+    elif kind != "vec env":
+        return venv
+    return wrapper(venv, "encoder-12bit-noisy", "super-twisting")
+
+
+def in_process_steps(
+    api: str, env_id: str, n_envs: int, rounds: int, steps: int = 200, kinds=IN_PROCESS, chunk: int = 10
+) -> dict[str, list[float]]:
+    """Microseconds per vector step of each configuration ``kinds``, one entry per chunk of ``chunk`` steps.
+
+    Every round resets all vector envs with the round's seed, then steps them with the same actions, ``chunk``
+    steps of each configuration after the other in a shuffled order, each chunk timed (thread CPU time, the
+    garbage collector off): the configurations are interleaved chunk by chunk, so a load change of a shared
+    machine hits them alike, and chunk ``k`` of every configuration did the same physics (the same episodes and
+    autoresets).
+    """
+    venvs = {k: _in_process_venv(api, env_id, k, n_envs) for k in kinds}
+    space = venvs["unwrapped"].action_space  # SyncVectorEnv: the batched space; DummyVecEnv: one environment's
+    shape = space.shape if api == "gymnasium" else (n_envs, *space.shape)
+    n_chunks = steps // chunk
+    actions = np.random.default_rng(0).uniform(-1, 1, (n_chunks, chunk, *shape)).astype(np.float32)
+
+    def reset(v, seed: int) -> None:
+        if api == "gymnasium":
+            v.reset(seed=seed)
+        else:
+            v.seed(seed)
+            v.reset()
+
+    for v in venvs.values():  # warm-up: compilation, first allocations
+        reset(v, 0)
+        for a in actions[0]:
+            v.step(a)
+    order = np.random.default_rng(1)
+    clock = time.thread_time
+    times: dict[str, list[float]] = {k: [] for k in kinds}
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        for r in range(rounds):
+            for v in venvs.values():
+                reset(v, r)
+            for block in actions:
+                for i in order.permutation(len(kinds)):
+                    step = venvs[kinds[i]].step
+                    t0 = clock()
+                    for a in block:
+                        step(a)
+                    times[kinds[i]].append((clock() - t0) / chunk * 1e6)
+            gc.collect()
+    finally:
+        if enabled:
+            gc.enable()
+        for v in venvs.values():
+            v.close()
+    return times
+
+
+def format_in_process(rows: list[tuple[str, str, int, dict[str, list[float]]]]) -> str:
+    """Table of :func:`in_process_steps` results: us per vector step, its ratio to unwrapped and the sensing's cost
+    per environment step (the difference to unwrapped over the number of environments), each the median over
+    chunks of the value paired with the unwrapped chunk of the same steps, and the interquartile range of the
+    ratio."""
+    head = (
+        f"{'env':12s} {'vector env':14s} {'n':>3s} {'configuration':20s} {'us/step':>8s} {'ratio':>6s} "
+        f"{'IQR':>11s} {'+us/env-step':>12s}"
+    )
+    lines = [head]
+    for api, env_id, n_envs, t in rows:
+        base = np.array(t["unwrapped"])
+        vector = "SyncVectorEnv" if api == "gymnasium" else "DummyVecEnv"
+        for k, v in t.items():
+            v = np.array(v)
+            q1, q3 = np.percentile(v / base, [25, 75])
+            lines.append(
+                f"{env_id:12s} {vector:14s} {n_envs:3d} {k:20s} {np.median(v):8.0f} {np.median(v / base):6.3f} "
+                f"{q1:5.3f}-{q3:5.3f} {np.median(v - base) / n_envs:12.1f}"
+            )
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--envs", default="InvertedDoublePendulum-v5,Hopper-v5")
     p.add_argument("--rounds", type=int, default=7)
     p.add_argument("--settings", default=",".join(SETTINGS), help=f"PPO settings among {', '.join(SETTINGS)}")
-    p.add_argument("--no-subproc", action="store_true")
+    p.add_argument("--no-subproc", action="store_true", help="the same as leaving subproc out of --tables")
+    p.add_argument("--tables", default="ppo,subproc", help="among ppo, subproc, in-process")
+    p.add_argument("--n-envs", default="8,32", help="environments per vector env of the in-process table")
+    p.add_argument("--steps", type=int, default=200, help="vector steps per round of the in-process table")
+    p.add_argument(
+        "--ablate",
+        action="store_true",
+        help="in-process table: also the vector wrapper with each environment measured by its own JointSensor",
+    )
     args = p.parse_args(argv)
+    tables = set(args.tables.split(","))
+    if args.no_subproc:
+        tables.discard("subproc")
+    if "in-process" in tables:
+        print(
+            f"In-process vector envs, {args.rounds} rounds of {args.steps} steps interleaved in chunks of 10: CPU time "
+            "per vector step (us), ratio to unwrapped and the sensing's cost per environment step, medians over "
+            "chunks of 10 steps paired with the unwrapped chunk of the same steps, and the IQR of the ratio"
+        )
+        kinds = IN_PROCESS + (("vec env, one by one",) if args.ablate else ())
+        rows = []
+        for env_id in args.envs.split(","):
+            for n_envs in (int(n) for n in args.n_envs.split(",")):
+                for api in ("gymnasium", "sb3"):
+                    times = in_process_steps(api, env_id, n_envs, args.rounds, args.steps, kinds)
+                    rows.append((api, env_id, n_envs, times))
+        print(format_in_process(rows), flush=True)
+    if "ppo" not in tables and "subproc" not in tables:
+        return 0
+    if "ppo" not in tables:
+        return _subproc_table(args)
     print(
         "PPO training throughput: env steps per second of wall clock and of process CPU time (median of "
         "interleaved rounds) and their ratio to unwrapped"
@@ -154,13 +319,18 @@ def main(argv=None) -> int:
                     f"{env_id:26s} {setting:13s} {k:16s} {mw:7.0f} {mw / bw:6.2f} {mc:7.0f} {mc / bc:6.2f}", flush=True
                 )
     print(f"worst ratio: wall {worst['wall']:.2f}, cpu {worst['cpu']:.2f} (target >= 0.90)")
-    if not args.no_subproc:
-        print("\nSubprocVecEnv, 2 workers: time per vector step (us, median), no learning")
-        for env_id in args.envs.split(","):
-            t = subproc_steps(env_id, args.rounds)
-            base = float(np.median(t["unwrapped"]))
-            for k, v in t.items():
-                print(f"{env_id:28s} {k:16s} {np.median(v):9.0f} {np.median(v) / base:6.2f}x", flush=True)
+    if "subproc" in tables:
+        return _subproc_table(args)
+    return 0
+
+
+def _subproc_table(args) -> int:
+    print("\nSubprocVecEnv, 2 workers: time per vector step (us, median), no learning")
+    for env_id in args.envs.split(","):
+        t = subproc_steps(env_id, args.rounds)
+        base = float(np.median(t["unwrapped"]))
+        for k, v in t.items():
+            print(f"{env_id:28s} {k:16s} {np.median(v):9.0f} {np.median(v) / base:6.2f}x", flush=True)
     return 0
 
 
