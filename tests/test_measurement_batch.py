@@ -151,14 +151,21 @@ def test_supports_one_chain_reset_measurements_only_and_does_not_pickle():
     model = mujoco.MjModel.from_xml_string(HINGES)
     q0 = np.array(model.qpos0)
     never_reset = [JointMeasurement(model, "encoder-12bit", DT) for _ in range(2)]
-    assert not MeasurementBatch.supports(never_reset)
+    assert MeasurementBatch.supports(never_reset)  # decided beforehand, made after the resets
+    with pytest.raises(RuntimeError, match="never reset"):
+        MeasurementBatch(never_reset)
     assert not MeasurementBatch.supports([])
     mixed = [JointMeasurement(model, "encoder-12bit", DT), JointMeasurement(model, "low-cost", DT)]
     for m in mixed:
         m.reset(q0, np.random.default_rng(0))
-    assert not MeasurementBatch.supports(mixed)  # another chain: streams of other shapes
+    assert not MeasurementBatch.supports(mixed)  # another chain
     with pytest.raises(ValueError, match="one chain"):
         MeasurementBatch(mixed)
+    sizes = [JointMeasurement(model, "encoder-12bit", DT) for _ in range(2)]
+    sizes[0].reset(q0, np.random.default_rng(0))
+    sizes[1].sensor.reset(np.zeros(5), seed=0)  # a stream of another number of channels
+    with pytest.raises(ValueError, match="one number of channels"):
+        MeasurementBatch(sizes)
     other = mujoco.MjModel.from_xml_string(MANIFOLD)
     models = [JointMeasurement(model, "ideal", DT), JointMeasurement(other, "ideal", DT)]
     models[0].reset(q0, np.random.default_rng(0))

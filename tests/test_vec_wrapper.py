@@ -402,6 +402,28 @@ def test_free_joint_environments_measured_together_equal_per_env_wrappers():
         _assert_same_smo(i1, i2)
 
 
+@pytest.mark.parametrize("api", ["sb3", "gymnasium"])
+def test_measurements_that_cannot_share_a_batch_go_the_way_of_a_worker(api, monkeypatch):
+    """In-process environments whose measurements cannot share a batch (other joint tables, observations that are not
+    a Box; simulated here) are measured by each JointSensor and observed through the vector env's method call, as
+    across a process boundary: the same numbers as per-environment wrappers."""
+    from gymnasium.vector import SyncVectorEnv
+
+    monkeypatch.setattr(MeasurementBatch, "supports", staticmethod(lambda measurements: False))
+    rng = np.random.default_rng(6)
+    if api == "sb3":
+        ref, vec = _pair(n=2, seed=2)
+        np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
+    else:
+        ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env") for _ in range(2)])
+        vec = VectorEstimatedVelocity(SyncVectorEnv([lambda: gym.make(ENV) for _ in range(2)]), "encoder-12bit-noisy")
+        np.testing.assert_allclose(vec.reset(seed=2)[0], ref.reset(seed=2)[0], rtol=0, atol=1e-12)
+    assert vec._local is None and vec._batch is None
+    for _ in range(60):
+        a = rng.uniform(-1, 1, (2, 1))
+        np.testing.assert_allclose(vec.step(a)[0], ref.step(a)[0], rtol=0, atol=1e-12)
+
+
 def test_a_non_finite_measurement_in_the_batch_names_the_environment():
     """A sensor model that overflows (gross errors of 1e308 standard deviations) is caught in the batched call."""
     sensor = sensors.Outliers(probability=1.0, scale=1e308)

@@ -10,7 +10,15 @@ bit) they share.
 
 from __future__ import annotations
 
+from .batch import MeasurementBatch
 from .fused import FusedSensing
 from .measurement import JointMeasurement, TangentCoordinates, VelocityEstimator, angular_dofs
 
-__all__ = ["FusedSensing", "JointMeasurement", "TangentCoordinates", "VelocityEstimator", "angular_dofs"]
+__all__ = [
+    "FusedSensing",
+    "JointMeasurement",
+    "MeasurementBatch",
+    "TangentCoordinates",
+    "VelocityEstimator",
+    "angular_dofs",
+]

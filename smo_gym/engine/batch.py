@@ -33,7 +33,7 @@ from numba import njit
 from .. import sensors
 from .._numba_cache import drop_stale
 from ..observers.base import _compiled_entry
-from ..sensors import SensorArrays, _chain_kernel
+from ..sensors import Sensor, SensorArrays, _chain_kernel
 from . import tangent
 from .fused import InputCopy
 from .measurement import JointMeasurement
@@ -131,7 +131,8 @@ class MeasurementBatch:
     r"""Several environments' :class:`~smo_gym.engine.measurement.JointMeasurement` as rows of stacked arrays,
     measured together by one compiled call (:func:`measure_rows`, see the module docstring).
 
-    Make it once the measurements were reset (their sensors have a stream); check :meth:`supports` first.
+    Make it once the measurements were reset (their sensors have a stream); :meth:`supports` says beforehand
+    whether they can share one.
 
     Parameters
     ----------
@@ -139,6 +140,14 @@ class MeasurementBatch:
         One per environment, of models with equal joint tables, and sensors of the same chain (equal
         :attr:`~smo_gym.sensors.Sensor.arrays` shapes); each keeps its sensor's stream and tangent coordinates
         in its row from now on.
+
+    Raises
+    ------
+    ValueError
+        Measurements that cannot share a batch (:meth:`supports`), or sensors reset to different numbers of
+        channels.
+    RuntimeError
+        A sensor that was never reset.
 
     Attributes
     ----------
@@ -152,13 +161,16 @@ class MeasurementBatch:
     def __init__(self, measurements: Sequence[JointMeasurement]):
         if not self.supports(measurements):
             raise ValueError(
-                "expected reset measurements of models with one joint table and sensors of one chain, actual "
-                f"value: {len(measurements)} measurements that differ"
+                "expected measurements of models with one joint table and sensors of one chain, actual value: "
+                f"{len(measurements)} measurements that differ"
             )
         self.measurements = tuple(measurements)
         n = len(self.measurements)
         first = self.measurements[0]
         self.nq, self.nv = first.model.nq, first.model.nv
+        shapes = [tuple(a.shape for a in m.sensor.arrays) for m in self.measurements]  # RuntimeError: never reset
+        if any(shape != shapes[0] for shape in shapes):
+            raise ValueError(f"expected sensors reset to one number of channels, actual value: streams of {shapes}")
         self.sensors = SensorArrays(*(np.zeros((n, *a.shape), dtype=a.dtype) for a in first.sensor.arrays))
         for i, measurement in enumerate(self.measurements):
             measurement.sensor.use_arrays(SensorArrays(*(a[i] for a in self.sensors)))
@@ -183,24 +195,22 @@ class MeasurementBatch:
 
     @staticmethod
     def supports(measurements: Sequence[JointMeasurement]) -> bool:
-        """Whether these measurements can share one batch: at least one, all reset, of models with equal joint
-        tables (types and addresses), and with sensors whose streams have equal shapes (the same chain); plain
-        :class:`JointMeasurement` objects (a sensor is its stages, so the batch computes what each sensor would)."""
+        """Whether these measurements can share one batch: at least one; plain :class:`JointMeasurement` objects
+        (a subclass may measure otherwise) of models with equal joint tables (types and addresses), and sensors of
+        equal stages (so their streams have equal shapes; a sensor is its stages, so the batch computes what each
+        sensor would). Decided before the resets; the batch is made after them."""
         if not measurements:
             return False
         first = measurements[0]
-        try:
-            shapes = [tuple(a.shape for a in m.sensor.arrays) for m in measurements]
-        except (RuntimeError, AttributeError):  # a sensor that was never reset, or not a Sensor
-            return False
         return all(
             type(m) is JointMeasurement
+            and isinstance(m.sensor, Sensor)
+            and tuple(m.sensor.stages) == tuple(first.sensor.stages)
             and m.model.nq == first.model.nq
             and m.model.nv == first.model.nv
             and m.tangent.manifold == first.tangent.manifold
             and np.array_equal(m.tangent.joints, first.tangent.joints)
-            and shape == shapes[0]
-            for m, shape in zip(measurements, shapes, strict=True)
+            for m in measurements
         )
 
     def __getstate__(self):

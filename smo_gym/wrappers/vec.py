@@ -18,18 +18,14 @@ The work splits in two halves:
     the batched observer: stack the ``n`` measurements, one ``update``, masked restarts, then rebuild the
     observations (one parallel round trip to all workers with ``SubprocVecEnv`` / ``AsyncVectorEnv``).
 
-In-process (``DummyVecEnv``, ``SyncVectorEnv``) a step costs a fixed number of Python calls for all environments
-together, not a few per environment: the sensors keep their streams in the rows of one
-:class:`~smo_gym.engine.batch.MeasurementBatch`, which measures every environment that was stepped and goes on
-in one compiled call (the :class:`JointSensor` measures only resets and an episode's last sample, before the
-autoreset); the batched observer update follows, then the observations of all environments are built at once
-when they are a clipped selection of the state (one NumPy expression) or gathered from ``MjData`` entries
-(:class:`~smo_gym.engine.scratch.GatheredObservations`), else one by one.
+In-process (``DummyVecEnv``, ``SyncVectorEnv``) the sensors keep their streams in the rows of one
+:class:`~smo_gym.engine.batch.MeasurementBatch`, which measures every environment that goes on in one compiled
+call (a :class:`JointSensor` measures only resets and an episode's last sample), and the observations are built
+for all environments at once (a clipped selection of the state, or entries gathered from ``MjData``).
 
-Each sub-environment's measurement and observation are computed with exactly the arithmetic of
-:class:`EstimatedVelocity` (the batch runs each sensor's chain on its own random stream), and channels of a batched
-observer are independent, so the vectorized wrappers reproduce per-environment wrappers at ``rate="env"`` with the
-same seeds bit for bit (tested to 1e-12).
+Measurements and observations are computed with exactly the arithmetic of :class:`EstimatedVelocity` (each sensor
+on its own random stream), and channels of a batched observer are independent, so the vectorized wrappers
+reproduce per-environment wrappers at ``rate="env"`` with the same seeds bit for bit (tested to 1e-12).
 
 Autoreset
 ---------
@@ -67,20 +63,6 @@ from .estimated_velocity import _SEED_SALT, EstimatedVelocity
 from .sensing import check_action, check_seed
 
 __all__ = ["JointSensor", "VectorEstimatedVelocity", "check_vector_rate", "sensing_config", "stack_samples"]
-
-#: keyword arguments of EstimatedVelocity that define the sensing (rate is always "env" here)
-_CONFIG_KEYS = (
-    "sensor",
-    "observer",
-    "observer_kwargs",
-    "positions",
-    "contact_forces",
-    "calibration_safety",
-    "calibration_quantile",
-    "calibration_steps",
-    "disk_cache",
-)
-
 
 #: MjData fields a terminal observation may read from the live data: the state, the controller inputs the
 #: scratch evaluation copies (:data:`~smo_gym.engine.scratch.INPUT_FIELDS`, but ``time``, a scalar), ``userdata``
@@ -136,19 +118,15 @@ class JointSensor(EstimatedVelocity):
     (:class:`VecEstimatedVelocity`, :class:`VectorEstimatedVelocity`) runs the observer on those measurements
     and calls :meth:`observe`.
 
-    In-process the owner sets :attr:`batched`: then a step that does not end the episode is measured by the owner
-    together with the other environments' (:class:`~smo_gym.engine.batch.MeasurementBatch`, on this sensor's own
-    stream), and only resets and the last step of an episode are measured here.
-
     Attributes
     ----------
     token : str
         A random identifier; the vector wrappers map tokens to environment indices, so one broadcast call can
         carry every environment's estimate (``observe_rows``).
     batched : bool
-        Whether an in-process owner measures this environment's steps (set by the owner; False after unpickling).
-    step_observation : ndarray or None
-        The environment's own observation of the last step the owner measures.
+        Set by an in-process owner that measures this environment's steps with the others'
+        (:class:`~smo_gym.engine.batch.MeasurementBatch`): a step that does not end the episode then only keeps
+        the environment's observation, :attr:`step_observation`.
     """
 
     def __init__(
@@ -351,10 +329,16 @@ class _Sensing:
         raise NotImplementedError
 
     def _setup_sensing(self, config: dict, n_envs: int, sensors) -> None:
-        # sensors: list of JointSensor objects (in-process) or None (across a process boundary: _call_envs)
+        # sensors: the in-process JointSensor objects, measured together (MeasurementBatch); or None across a
+        # process boundary, and in-process where the measurements cannot share a batch: then each JointSensor
+        # measures its steps and rebuilds its observation through _call_envs, as in a worker
+        if sensors is not None and not (
+            all(isinstance(s.observation_space, gym.spaces.Box) for s in sensors)
+            and MeasurementBatch.supports([s.measurement for s in sensors])
+        ):
+            sensors = None
         self._local = sensors
-        #: the in-process environments' MeasurementBatch (made at the first reset, :meth:`_local_batch`), False
-        #: where their measurements cannot share one
+        #: the in-process environments' MeasurementBatch, made at the first reset (:meth:`_local_batch`)
         self._batch = None
         self.__dict__.pop("_selection_cache", None)
         self.__dict__.pop("_plan_cache", None)
@@ -478,44 +462,20 @@ class _Sensing:
     def _update(self, Z: np.ndarray) -> np.ndarray:
         return self.observer.update(Z)
 
-    def _local_samples(self, terminal=None) -> list[dict]:
-        """The in-process environments' last samples (:meth:`JointSensor._record`): the reset's where the
-        environment was reset last, the step's where it was stepped last or where ``terminal`` (an episode that
-        ended in this step, reset since by the vector env) is set."""
-        return [
-            s.smo_step if (terminal is not None and terminal[i]) or not s._reset_last else s.smo_reset
-            for i, s in enumerate(self._local)
-        ]
-
     # ---- in-process: the environments measured together ------------------------------------------------------
-    def _local_batch(self) -> MeasurementBatch | None:
-        """The in-process environments' :class:`~smo_gym.engine.batch.MeasurementBatch`, made once their sensors
-        have a stream (after a reset), or None: across a process boundary, before the first reset, or where the
-        measurements cannot share one (then each :class:`JointSensor` measures its own steps)."""
-        batch = self._batch
-        if batch is None and self._local is not None:
-            local = self._local
-            measurements = [s.measurement for s in local]
-            if all(isinstance(s.observation_space, gym.spaces.Box) for s in local) and MeasurementBatch.supports(
-                measurements
-            ):
-                batch = MeasurementBatch(measurements)
-                for s in local:
-                    s.batched = True
-            else:
-                batch = False
-            self._batch = batch
-        return batch or None
+    def _local_batch(self) -> MeasurementBatch:
+        """The in-process environments' MeasurementBatch, made once their sensors have a stream (after a reset)."""
+        if self._batch is None:
+            self._batch = MeasurementBatch([s.measurement for s in self._local])
+            for s in self._local:
+                s.batched = True
+        return self._batch
 
     def _local_block(self, fresh: np.ndarray, terminal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """In-process, after a vector step with a batch: ``(block, clean)``, every environment's sample as a row
-        ``[qpos, qvel, qvel_estimate (zero), qpos_measured, z_true, z_measured]`` of ``block`` ``(n_envs, 2 nq +
-        4 nv)`` (:func:`~smo_gym.engine.batch.block_slices`) and its clean observation, a row of ``clean``.
-
-        Rows where ``fresh`` (stepped, and the episode goes on) are measured now, all in one compiled call. The
-        others were measured by their :class:`JointSensor`: the last sample of the episode that ended in this step
-        where ``terminal``, else its last sample (the reset's for an environment reset in this call).
-        """
+        """``(block, clean)`` after a vector step: each environment's sample, a row of ``block`` (layout of
+        :func:`~smo_gym.engine.batch.block_slices`, ``qvel_estimate`` zero), and its clean observation. Rows where
+        ``fresh`` (stepped, the episode goes on) are measured now, in one call; the others by their
+        :class:`JointSensor`: the ended episode's last sample where ``terminal``, else the last (the reset's)."""
         local = self._local
         block = self._batch.measure_live([s.adapter.data for s in local], fresh)
         clean = [s.step_observation for s in local]
@@ -523,8 +483,7 @@ class _Sensing:
         return block, np.array(clean)
 
     def _record_rows(self, block: np.ndarray, clean: list, rows: np.ndarray, terminal: np.ndarray | None) -> None:
-        """Write into the rows ``rows`` (mask) of ``block`` and ``clean`` the in-process environments' samples that
-        their :class:`JointSensor` measured (see :meth:`_local_block`)."""
+        """Write the samples the JointSensors measured into the rows ``rows`` (a mask) of ``block`` and ``clean``."""
         q, v, _, qm, _, zm = self._batch.slices
         for i in np.flatnonzero(rows):
             s = self._local[i]
@@ -537,12 +496,11 @@ class _Sensing:
     def _local_positions(self, block: np.ndarray | None = None, fresh: np.ndarray | None = None) -> np.ndarray:
         """The in-process environments' measured configurations at their last sample, ``(n_envs, nq)``: from
         ``block`` (:meth:`_local_block`) where ``fresh``, from each measurement elsewhere."""
-        local = self._local
         if block is None:
-            return np.array([s.measurement.measured_qpos() for s in local])
+            return np.array([s.measurement.measured_qpos() for s in self._local])
         positions = block[:, self._batch.slices[3]].copy()
         for i in np.flatnonzero(~fresh):
-            positions[i] = local[i].measurement.measured_qpos()
+            positions[i] = self._local[i].measurement.measured_qpos()
         return positions
 
 
@@ -641,10 +599,8 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         return all(self.env.call("has_wrapper_attr", name))
 
     def _samples(self, infos: dict, terminal=None) -> list[dict]:
-        """Every environment's last sample, or the step's where ``terminal`` (see :meth:`_Sensing._local_samples`),
-        in-process or from ``infos`` (the workers' reset infos, or the step's in ``final_info``)."""
-        if self._local is not None:
-            return self._local_samples(terminal)
+        """Every environment's last sample from the workers' ``infos``, or the step's (in ``final_info``) where
+        ``terminal``."""
         rows = [_rows(infos["smo"], i) for i in range(self.num_envs)]
         if terminal is not None:
             for i in np.flatnonzero(terminal):
@@ -654,7 +610,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
     def reset(self, *, seed=None, options=None):
         mask = None if options is None else options.get("reset_mask")
         _, infos = self.env.reset(seed=seed, options=options)
-        Z = self._measurements(infos, reset=True)
+        Z = self._measurements(infos)
         if mask is None or self.observer.shape is None:
             est = self._full_reset(Z)
             self._autoreset[:] = False
@@ -663,50 +619,49 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             self.observer.reset(np.where(mask[:, None], Z, self.observer.estimate[..., 0]), mask=mask)
             est = self.observer.estimate
             self._autoreset[mask] = False
-        positions = batch = None
-        if self._local is not None:
-            positions = self._local_positions()
-            batch = self._local_batch()  # the sensors have their streams now
-        obs, _ = self._observe_all(est, positions)
-        if batch is not None and mask is not None and self._last_sample is not None:
-            # the environments not reset keep their last samples, which the batch measured
-            block, clean = self._last_sample
-            block, clean = block.copy(), list(clean)
-            self._record_rows(block, clean, mask, None)
+        if self._local is None:
+            obs, _ = self._observe_all(est)
+            infos["smo"] = stack_samples(self._samples(infos), est[..., 1])
+        else:
+            obs, _ = self._observe_all(est, self._local_positions())
+            self._local_batch()  # the sensors have their streams now
+            # the samples of the environments reset here, and the others' last ones (a masked reset)
+            n = self.num_envs
+            if mask is not None and self._last_sample is not None:
+                rows, block, clean = mask, self._last_sample[0].copy(), list(self._last_sample[1])
+            else:
+                rows, block, clean = np.ones(n, bool), np.zeros((n, self._batch.slices[-1].stop)), [None] * n
+            self._record_rows(block, clean, rows, None)
             self._last_sample = (block, np.array(clean))
             infos["smo"] = self._stacked_info(*self._last_sample, est[..., 1])
-        else:
-            self._last_sample = None  # every environment's last sample is its reset's (or the workers' infos)
-            infos["smo"] = stack_samples(self._samples(infos), est[..., 1])
         infos["_smo"] = np.ones(self.num_envs, bool)
         return obs, infos
 
-    def _measurements(self, infos, reset: bool) -> np.ndarray:
-        """This call's measurement of every environment: from ``infos`` or, in-process, from the sensors (the
-        last sample, which is the reset's for an environment reset in this call)."""
+    def _measurements(self, infos) -> np.ndarray:
+        """This call's measurement of every environment: from the workers' ``infos``, or in-process (a reset) from
+        the sensors."""
         if self._local is None:
             return np.array(infos["smo_z"], dtype=np.float64)
-        if reset:
-            return np.array([s.z_reset for s in self._local], dtype=np.float64)
-        return np.array([s.z_reset if s._reset_last else s.z_step for s in self._local], dtype=np.float64)
+        return np.array([s.z_reset for s in self._local], dtype=np.float64)
 
     def step(self, actions):
         from gymnasium.vector import AutoresetMode
 
         if self.observer.shape is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
-        batch = self._local_batch()
+        local = self._local
+        if local is not None:
+            batch = self._local_batch()
         _, rewards, terminated, truncated, infos = self.env.step(actions)
         done = np.logical_or(terminated, truncated)
         next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
         restart = self._autoreset.copy() if next_step else np.zeros(self.num_envs, dtype=bool)
-        block = clean = fresh = None
-        if batch is not None:  # the environments that were stepped and go on, measured together
+        if local is not None:  # the environments that were stepped and go on, measured together
             fresh = ~(done | restart)
             block, clean = self._local_block(fresh)
             Z = np.ascontiguousarray(block[:, batch.slices[5]])
         else:
-            Z = self._measurements(infos, reset=False)
+            Z = self._measurements(infos)
         terminal = terminal_mask = None
         if next_step:
             est = self._update(np.where(restart[:, None], self.observer.estimate[..., 0], Z))
@@ -718,7 +673,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             if done.any():
                 Zt = Z.copy()
                 for i in np.flatnonzero(done):
-                    Zt[i] = self._local[i].z_step if self._local is not None else infos["final_info"]["smo_z"][i]
+                    Zt[i] = local[i].z_step if local is not None else infos["final_info"]["smo_z"][i]
                 terminal = self._update(Zt).copy()
                 terminal_mask = done
                 self.observer.reset(Z, mask=done)
@@ -727,21 +682,21 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
                 est = self._update(Z)
         else:  # disabled: finished environments wait for reset(options={"reset_mask": ...})
             est = self._update(Z)
-        positions = None if self._local is None else self._local_positions(block, fresh)
+        positions = None if local is None else self._local_positions(block, fresh)
         obs, terms = self._observe_all(est, positions, terminal, terminal_mask)
         if terminal_mask is not None:
             final_obs = infos["final_obs"]
             for i in np.flatnonzero(terminal_mask):
                 final_obs[i] = terms[i]
-        ones = np.ones(self.num_envs, bool)
-        if block is not None:
-            infos["smo"], infos["_smo"] = self._stacked_info(block, clean, est[..., 1]), ones
+        if local is not None:
+            infos["smo"] = self._stacked_info(block, clean, est[..., 1])
             self._last_sample = (block, clean)  # for a masked reset (autoreset mode "disabled")
         else:
-            infos["smo"], infos["_smo"] = stack_samples(self._samples(infos), est[..., 1]), ones
+            infos["smo"] = stack_samples(self._samples(infos), est[..., 1])
+        infos["_smo"] = np.ones(self.num_envs, bool)
         if terminal_mask is not None:  # Gymnasium's same-step convention: the finished episodes' in final_info
             final = infos["final_info"]
-            if block is not None:
+            if local is not None:
                 block, clean = block.copy(), list(clean)
                 self._record_rows(block, clean, terminal_mask, terminal_mask)
                 final["smo"] = self._stacked_info(block, np.array(clean), terminal[..., 1], terminal_mask)
@@ -755,13 +710,8 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         estimates ``velocity`` ``(n_envs, nv)``: new arrays."""
         mask = np.ones(self.num_envs, dtype=bool) if mask is None else np.array(mask, dtype=bool)
         q, v, _, qm = self._batch.slices[:4]
+        values = (block[:, q], block[:, v], velocity, block[:, qm], clean)
         out = {}
-        for key, value in (
-            ("qpos", block[:, q]),
-            ("qvel", block[:, v]),
-            ("qvel_estimate", velocity),
-            ("qpos_measured", block[:, qm]),
-            ("observation", clean),
-        ):
+        for key, value in zip(("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation"), values, strict=True):
             out[key], out[f"_{key}"] = np.array(value), mask.copy()
         return out
