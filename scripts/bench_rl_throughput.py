@@ -1,4 +1,4 @@
-r"""Training throughput with and without the sensing wrappers, side by side (interleaved rounds, medians).
+"""Training throughput with and without the sensing wrappers, side by side (interleaved rounds, medians).
 
 For each environment, PPO models are built once per configuration (same hyperparameters as
 ``scripts/rl_benchmark.py``: 4 environments, 512 steps each per rollout, minibatches of 256, VecNormalize):
@@ -21,18 +21,14 @@ APIs, ``gymnasium.vector.SyncVectorEnv`` and SB3's ``DummyVecEnv``, with ``--n-e
     per-env env        EstimatedVelocity(rate="env") in every environment
     vec env            VectorEstimatedVelocity / VecEstimatedVelocity on top (one batched sensing step)
 
-and, with ``--ablate``, ``vec env, one by one``: the vector wrapper with each environment measured by its own
-``JointSensor`` (no ``MeasurementBatch``), to show what measuring the environments together saves.
-
-All of them run the same actions from the same seeds (the wrappers never perturb the simulation, so they do the
+All three run the same actions from the same seeds (the wrappers never perturb the simulation, so they do the
 same physics and autoresets), interleaved in chunks of 10 steps, each chunk timed by the thread's CPU time with
 the garbage collector off; the table gives the median time per vector step and the median over chunks of its
 ratio to the unwrapped chunk of the same steps (``--rounds`` rounds of ``--steps`` steps, each round from its own
 seed).
 
     MUJOCO_GL=disable .venv/bin/python scripts/bench_rl_throughput.py --rounds 9
-    MUJOCO_GL=disable .venv/bin/python scripts/bench_rl_throughput.py --tables in-process --envs Hopper-v5 \
-        --rounds 5 --ablate
+    MUJOCO_GL=disable .venv/bin/python scripts/bench_rl_throughput.py --tables in-process --envs Hopper-v5 --rounds 5
 """
 
 from __future__ import annotations
@@ -144,15 +140,13 @@ def subproc_steps(env_id: str, rounds: int, n_envs: int = 2, steps: int = 300) -
     return times
 
 
-#: the configurations of the in-process table (``--ablate`` adds "vec env, one by one")
+#: the configurations of the in-process table
 IN_PROCESS = ("unwrapped", "per-env env", "vec env")
 
 
 def _in_process_venv(api: str, env_id: str, kind: str, n_envs: int):
     """An in-process vector env of ``n_envs`` copies of ``env_id``: ``api`` ``"gymnasium"`` (``SyncVectorEnv``)
-    or ``"sb3"`` (``DummyVecEnv``), ``kind`` one of :data:`IN_PROCESS` or ``"vec env, one by one"`` (the vector
-    wrapper with each environment's measurement taken by its own ``JointSensor``, as without a
-    :class:`~smo_gym.engine.batch.MeasurementBatch`)."""
+    or ``"sb3"`` (``DummyVecEnv``), ``kind`` one of :data:`IN_PROCESS`."""
     import gymnasium as gym
 
     from smo_gym.wrappers import EstimatedVelocity
@@ -173,16 +167,7 @@ def _in_process_venv(api: str, env_id: str, kind: str, n_envs: int):
         from smo_gym.wrappers import VecEstimatedVelocity as wrapper
 
         venv = DummyVecEnv(fns)
-    if kind == "vec env, one by one":
-
-        class OneByOne(wrapper):
-            def _local_batch(self):
-                return None
-
-        wrapper = OneByOne
-    elif kind != "vec env":
-        return venv
-    return wrapper(venv, "encoder-12bit-noisy", "super-twisting")
+    return wrapper(venv, "encoder-12bit-noisy", "super-twisting") if kind == "vec env" else venv
 
 
 def in_process_steps(
@@ -244,7 +229,7 @@ def format_in_process(rows: list[tuple[str, str, int, dict[str, list[float]]]]) 
     chunks of the value paired with the unwrapped chunk of the same steps, and the interquartile range of the
     ratio."""
     head = (
-        f"{'env':12s} {'vector env':14s} {'n':>3s} {'configuration':20s} {'us/step':>8s} {'ratio':>6s} "
+        f"{'env':12s} {'vector env':14s} {'n':>3s} {'configuration':14s} {'us/step':>8s} {'ratio':>6s} "
         f"{'IQR':>11s} {'+us/env-step':>12s}"
     )
     lines = [head]
@@ -255,7 +240,7 @@ def format_in_process(rows: list[tuple[str, str, int, dict[str, list[float]]]]) 
             v = np.array(v)
             q1, q3 = np.percentile(v / base, [25, 75])
             lines.append(
-                f"{env_id:12s} {vector:14s} {n_envs:3d} {k:20s} {np.median(v):8.0f} {np.median(v / base):6.3f} "
+                f"{env_id:12s} {vector:14s} {n_envs:3d} {k:14s} {np.median(v):8.0f} {np.median(v / base):6.3f} "
                 f"{q1:5.3f}-{q3:5.3f} {np.median(v - base) / n_envs:12.1f}"
             )
     return "\n".join(lines)
@@ -270,11 +255,6 @@ def main(argv=None) -> int:
     p.add_argument("--tables", default="ppo,subproc", help="among ppo, subproc, in-process")
     p.add_argument("--n-envs", default="8,32", help="environments per vector env of the in-process table")
     p.add_argument("--steps", type=int, default=200, help="vector steps per round of the in-process table")
-    p.add_argument(
-        "--ablate",
-        action="store_true",
-        help="in-process table: also the vector wrapper with each environment measured by its own JointSensor",
-    )
     args = p.parse_args(argv)
     tables = set(args.tables.split(","))
     if args.no_subproc:
@@ -285,13 +265,11 @@ def main(argv=None) -> int:
             "per vector step (us), ratio to unwrapped and the sensing's cost per environment step, medians over "
             "chunks of 10 steps paired with the unwrapped chunk of the same steps, and the IQR of the ratio"
         )
-        kinds = IN_PROCESS + (("vec env, one by one",) if args.ablate else ())
         rows = []
         for env_id in args.envs.split(","):
             for n_envs in (int(n) for n in args.n_envs.split(",")):
                 for api in ("gymnasium", "sb3"):
-                    times = in_process_steps(api, env_id, n_envs, args.rounds, args.steps, kinds)
-                    rows.append((api, env_id, n_envs, times))
+                    rows.append((api, env_id, n_envs, in_process_steps(api, env_id, n_envs, args.rounds, args.steps)))
         print(format_in_process(rows), flush=True)
     if "ppo" not in tables and "subproc" not in tables:
         return 0
