@@ -259,14 +259,14 @@ class SubstepRecording:
         Rows allocated up front (samples per control period).
     """
 
-    __slots__ = ("_pairs", "count", "every", "fields", "n", "rows")
+    __slots__ = ("_capacity", "_data", "_pairs", "count", "every", "fields", "n", "rows")
 
     def __init__(self, every: int, sizes: dict[str, int], capacity: int):
         self.every = int(every)
         self.fields = tuple(sizes)
         self.rows = {name: np.zeros((max(1, int(capacity)), size)) for name, size in sizes.items()}
         self.n = self.count = 0
-        self._pairs = (None, ())
+        self._data, self._pairs, self._capacity = None, (), 0  # bound to the live MjData at first use
 
     def start(self) -> None:
         """Begin a control period: no rows taken, the step counter at zero."""
@@ -276,17 +276,17 @@ class SubstepRecording:
         """``(buffer, field)`` pairs, ``field`` the live view of ``data``, with room in every buffer for the rows
         of ``n_steps`` more physics steps: the hook writes row ``n`` as ``buffer[n] = field``."""
         need = self.n + (self.count + n_steps) // self.every
-        data_of, pairs = self._pairs
-        if data_of is not data or any(buffer.shape[0] < need for buffer, _ in pairs):
-            for name in self.fields:
+        if data is not self._data or need > self._capacity:
+            for name in self.fields:  # the buffers grow together: one capacity for all
                 buffer = self.rows[name]
                 if buffer.shape[0] < need:
                     grown = np.zeros((max(need, 2 * buffer.shape[0]), buffer.shape[1]))
                     grown[: self.n] = buffer[: self.n]
                     self.rows[name] = grown
-            pairs = tuple((self.rows[name], getattr(data, name)) for name in self.fields)
-            self._pairs = (data, pairs)
-        return pairs
+            self._pairs = tuple((self.rows[name], getattr(data, name)) for name in self.fields)
+            self._capacity = min(buffer.shape[0] for buffer, _ in self._pairs)
+            self._data = data
+        return self._pairs
 
     def take(self, data: mujoco.MjData) -> None:
         """Take a row of each field now (the sample at the end of a step, when substeps are not recorded)."""
@@ -301,7 +301,7 @@ class SubstepRecording:
     def __setstate__(self, state):
         self.every, self.fields, self.rows = state["every"], state["fields"], state["rows"]
         self.n = self.count = 0
-        self._pairs = (None, ())
+        self._data, self._pairs, self._capacity = None, (), 0
 
 
 class SubstepHook:
