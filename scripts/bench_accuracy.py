@@ -9,8 +9,8 @@ once per environment step), one rollout under a seeded smooth random policy is r
 :class:`~smo_gym.engine.measurement.JointMeasurement`), and every observer of :data:`smo_gym.observers.OBSERVERS`
 (all of them differentiate the measured joint coordinates; the model-based observers are not in it) runs on
 those same measurements through :func:`smo_gym.experiments.compare.compare_observers`, with the wrapper's default
-gains (:func:`~smo_gym.wrappers.sensing.default_observer` from the calibrated bounds). ``FiniteDifference`` (the
-backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter, ``from_bounds``) are in the registry
+gains (:func:`~smo_gym.calibration.default_observer` from the wrapper's calibration). ``FiniteDifference`` (the
+backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter, ``from_levels``) are in the registry
 and so appear in every row as the references.
 
 The number is ``compare_observers``' ``rmse``: the velocity RMSE over all dofs and estimates, i.e. every sample

@@ -22,7 +22,7 @@ Prints six markdown tables:
 
 Parameters are not tuned on the evaluation trajectory: the disturbance bound ``L`` of the model-based observer is
 the largest model miss ``|dv/dt - f(q, v, u)|`` on a *calibration* trajectory (another seed), and the model-free
-observers get the largest acceleration of that same trajectory (their ``L``; the Kalman filter's ``from_bounds``).
+observers get the largest acceleration of that same trajectory (their ``L``; the Kalman filter its RMS jerk).
 All trajectories use a piecewise-constant random policy (held for 40 physics steps) so that every observer rate
 sees a constant input over its sample interval.
 
@@ -140,12 +140,18 @@ def run_model_based(run, dyn, n, L, accel_bound, Y=None, discretization="semi-im
     return est[..., 1], obs
 
 
-def run_model_free(run, n, Y, acc_max):
+def jerk_rms(run, n):
+    """RMS jerk per joint of a (calibration) trajectory sampled every ``n`` physics steps."""
+    h = run["h"] * n
+    return np.sqrt(np.mean((np.diff(run["V"][::n], n=2, axis=0) / h**2) ** 2, axis=0))
+
+
+def run_model_free(run, n, Y, acc_max, jerk):
     h = run["h"] * n
     out = {}
     for name, obs in (
         ("FiniteDifference", FiniteDifference(h)),
-        ("KalmanCA", KalmanCA.from_bounds(h, NOISE, float(acc_max.max()), resolution=RES)),
+        ("KalmanCA", KalmanCA.from_levels(h, jerk, NOISE**2 + RES**2 / 12)),
         ("SuperTwisting", SuperTwisting(h, acc_max)),
     ):
         obs.reset(Y[0])
@@ -187,7 +193,8 @@ def table_noise(T):
     for env_id in ("smo_gym/TwoLinkArm-v0", "InvertedDoublePendulum-v5"):
         run = record(env_id, T, seed=0)
         dyn = MujocoDynamics(run["model"], mass_scale=1.1)
-        L, acc_max, _ = calibrate(record(env_id, T // 2, seed=100), dyn)
+        calibration_run = record(env_id, T // 2, seed=100)
+        L, acc_max, _ = calibrate(calibration_run, dyn)
         Y = encoder(run["Q"], seed=1)
         for label, n in (("physics", 1), ("env", run["frame_skip"])):
             mb = {
@@ -197,7 +204,8 @@ def table_noise(T):
             mb["substeps"] = rmse(
                 run_model_based(run, dyn, n, L, 2 * acc_max, Y=Y, model_substeps=n)[0], run["V"][n::n]
             )
-            mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max).items()}
+            jerk = jerk_rms(calibration_run, n)
+            mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max, jerk).items()}
             print(
                 f"| {env_id} | {label} ({run['h'] * n * 1e3:g} ms) | {mb['semi-implicit']:.4f} | "
                 f"{mb['euler']:.4f} | {mb['substeps']:.4f} (n={n}) | {mf['FiniteDifference']:.4f} | "
@@ -269,7 +277,7 @@ def table_contact(T):
             one = rmse(
                 run_model_based(run, dyns["measured"], n, cals["measured"][0], 2 * acc_max, Y=Y)[0], run["V"][n::n]
             )
-            mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max).items()}
+            mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max, jerk_rms(cal, n)).items()}
             miss = {c: f"{np.sqrt(np.mean(cals[c][2] ** 2)):.3g} / {cals[c][0].max():.3g}" for c in cals}
             print(
                 f"| {env_id} | {label} ({run['h'] * n * 1e3:g} ms) | {res['measured']:.4f} | {one:.4f} "
@@ -335,7 +343,7 @@ def table_variable_inertia(T):
         estimates = np.stack([ds.update(y, u) for y, u in zip(Y[n::n], run["U"][n::n], strict=False)])
         r_ds = rmse(estimates[..., 1], run["V"][n::n])
         r_mb = rmse(run_model_based(run, dyn, n, L, None, Y=Y)[0], run["V"][n::n])
-        mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max).items()}
+        mf = {k: rmse(v, run["V"][n::n]) for k, v in run_model_free(run, n, Y, acc_max, jerk_rms(run, n)).items()}
         print(
             f"| {h * 1e3:g} ms | {r_ds:.4f} | {r_mb:.4f} | {mf['FiniteDifference']:.4f} | {mf['KalmanCA']:.4f} "
             f"| {mf['SuperTwisting']:.4f} |"

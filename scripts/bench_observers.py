@@ -13,8 +13,8 @@ Prints three markdown tables (the ones in the README section "Accuracy and speed
    Target: >= 50 M/s for SuperTwisting on ``(1_000_000, 8)``.
 3. **Accuracy.** Velocity RMSE on a recorded HalfCheetah-v5 trajectory (smooth random policy, every physics step
    recorded, 12-bit encoder quantization plus Gaussian noise), for every observer next to finite differences,
-   the constant-acceleration Kalman filter (``from_bounds`` and an oracle-tuned ``q``) and the offline,
-   non-causal methods of ``pynumdiff``. A second column uses one sample per environment step.
+   the constant-acceleration Kalman filter (``q`` from the acceleration bound, and an oracle-tuned ``q``) and the
+   offline, non-causal methods of ``pynumdiff``. A second column uses one sample per environment step.
 
 Run ``make bench`` or ``MUJOCO_GL=disable .venv/bin/python scripts/bench_observers.py`` (``--quick`` for a
 shorter run; ``--tables speed,throughput,accuracy`` to select tables).
@@ -65,26 +65,17 @@ def variants(L1, L2, dt: float, noise: float = 1e-3):
         ("UniformLevant k=2", "uniform-levant", dict(order=2, lipschitz=L2)),
         ("HighGain k=1 (from_bounds)", "high-gain", dict(gain=math.sqrt(L1s / noise), order=1)),
         ("FiniteDifference", "finite-difference", dict()),
-        ("KalmanCA (from_bounds)", "kalman-ca", dict(_from_bounds=(noise, L1s))),
+        ("KalmanCA (q = max L1^2 / dt)", "kalman-ca", dict(process_noise=L1s**2 / dt, measurement_noise=noise**2)),
     ]
 
 
 def build(name: str, dt: float, params: dict):
-    params = dict(params)
-    if "_from_bounds" in params:
-        noise, acc = params.pop("_from_bounds")
-        res = params.pop("_resolution", 0.0)
-        return observers.KalmanCA.from_bounds(dt, noise, acc, resolution=res, **params)
     return observers.make_observer(name, dt=dt, **params)
 
 
 def method_params(name: str, dt: float, params: dict) -> dict:
     """Parameters for :func:`smo_gym.differentiate` (which builds the observer from the registry)."""
-    params = dict(params)
-    if "_from_bounds" in params:
-        obs = build(name, dt, params)
-        return dict(process_noise=obs.process_noise, measurement_noise=obs.measurement_noise)
-    return params
+    return dict(params)
 
 
 # ================================================================================================================
@@ -543,8 +534,8 @@ def accuracy_rows(Y, V, dt, L1, L2, start, quick):
     """``[(label, kind, v_hat)]`` for one dataset. ``kind``: causal, causal oracle, offline oracle, ..."""
     rows = []
     for label, name, params in variants(L1, L2, dt, noise=NOISE_STD):
-        if name == "kalman-ca":
-            params = dict(params, _resolution=RESOLUTION)
+        if name == "kalman-ca":  # the quantization error's variance too
+            params = dict(params, measurement_noise=params["measurement_noise"] + RESOLUTION**2 / 12)
         rows.append((label, "causal", run_causal(name, dt, params, Y)))
     # KalmanCA with q chosen per joint on a grid against the true velocity (an oracle a user does not have)
     qs = 10.0 ** np.arange(0, 13, 1 if not quick else 2)
@@ -674,7 +665,8 @@ def table_accuracy(quick: bool, seed: int) -> list[str]:
         f"(m/s for rootx/rootz, rad/s otherwise) after a {TRANSIENT:g} s transient; truth = MuJoCo qvel.",
         f"Bounds per joint from the recorded trajectory times {SAFETY:g}: |acceleration| L1 in "
         f"[{L1.min():.3g}, {L1.max():.3g}], |jerk| L2 in [{L2.min():.3g}, {L2.max():.3g}] (order-1 methods use L1, "
-        "order-2 methods L2; HighGain gain sqrt(max L1 / noise), KalmanCA.from_bounds(noise, max L1, resolution)).",
+        "order-2 methods L2; HighGain gain sqrt(max L1 / noise), KalmanCA q = max L1^2 / dt, "
+        "r = noise^2 + resolution^2 / 12).",
         "",
         interpretation(h, rmax_acc, L1, L2, results, fd, euler_gap, half_step),
     ]

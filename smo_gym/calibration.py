@@ -26,11 +26,25 @@ maximum, since impacts produce rare impulsive peaks that a maximum would turn in
 and a safety factor for what the sample did not show. Decimation averages the derivative over ``s r`` samples,
 which lowers narrow peaks: the price of separating them from noise.
 
+Worst cases and typical levels
+------------------------------
+Gains answer two different questions. A sliding-mode differentiator is exact only while its ``lipschitz``
+parameter bounds :math:`|f^{(r)}|` everywhere [Lev03], so it needs the *worst case* above. A Kalman filter's process
+noise is the spectral density of the noise that drives its model [BSL01]: with the jerk of the constant-acceleration
+model white of density ``q``, the acceleration changes by a variance ``q tau`` per sample, so the *typical* (RMS)
+jerk ``J`` at the sampling step gives :math:`q = J^2\tau`. Tuned from the worst case instead, a Kalman filter
+trusts the measurements about as much as a backward difference does. :class:`Calibration` holds both, per
+channel, with the sensor's noise level and quantization step; :func:`derivative_rms` estimates the typical level
+from noisy samples as :func:`derivative_bound` does the worst case (the mean square of the lag-``s`` quotient
+minus its known noise part).
+
 On records longer than :data:`MAX_SAMPLES` (:math:`2^{17}`) differences, medians and quantiles are taken over that
 many differences drawn at random with a fixed seed (deterministic, and a fraction of the cost on long records).
 
 References
 ----------
+.. [BSL01] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, *Estimation with Applications to Tracking and
+   Navigation*, Wiley 2001, section 6.2.3 (continuous white-noise jerk model).
 .. [DJ94] D. L. Donoho and I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage", Biometrika 81(3),
    1994 (the median absolute deviation as the noise scale of high-pass coefficients).
 .. [Lev03] A. Levant, "Higher-order sliding modes, differentiation and output-feedback control",
@@ -39,6 +53,8 @@ References
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from math import comb
 
 import numpy as np
@@ -47,9 +63,13 @@ from ._validation import check_int_in_range, check_positive, did_you_mean
 from .observers import FAMILIES, OBSERVERS, Observer, make_observer
 
 __all__ = [
+    "Calibration",
     "bound_order",
+    "calibration_from_velocities",
+    "calibration_of_signal",
     "default_observer",
     "derivative_bound",
+    "derivative_rms",
     "needs_calibration",
     "noise_std",
 ]
@@ -183,18 +203,7 @@ def derivative_bound(
     T = y.shape[0]
     if r >= T:
         raise ValueError(f"expected more than derivative = {r} samples, actual value: {T}")
-    if noise is None:
-        sigma = noise_std(y) if T > 4 else np.zeros(y.shape[1:])  # four samples cannot show the noise
-    else:
-        sigma = np.asarray(noise, dtype=np.float64)
-        if not np.all(np.isfinite(sigma) & (sigma >= 0.0)):
-            raise ValueError(f"expected noise >= 0 and finite everywhere, actual value: {noise!r}")
-        try:
-            sigma = np.broadcast_to(sigma, y.shape[1:])
-        except ValueError:
-            raise ValueError(
-                f"expected noise broadcastable to the channel shape {y.shape[1:]}, actual value: shape {sigma.shape}"
-            ) from None
+    sigma = _noise_per_channel(noise, y)
     gain = 3.0 * np.sqrt(comb(2 * r, r))  # the noise part of D_s, about three of its standard deviations
     result = np.full(y.shape[1:], np.nan)
     lag = 1
@@ -216,6 +225,217 @@ def derivative_bound(
             f"bound overflows ({np.max(result):.3g} before the safety factor {safety}); rescale the signal"
         )
     return bound
+
+
+def _noise_per_channel(noise, y: np.ndarray) -> np.ndarray:
+    """``noise`` (default :func:`noise_std` of ``y``) checked and broadcast to the channel shape of ``y``."""
+    if noise is None:
+        return noise_std(y) if y.shape[0] > 4 else np.zeros(y.shape[1:])  # four samples cannot show the noise
+    sigma = np.asarray(noise, dtype=np.float64)
+    if not np.all(np.isfinite(sigma) & (sigma >= 0.0)):
+        raise ValueError(f"expected noise >= 0 and finite everywhere, actual value: {noise!r}")
+    try:
+        return np.broadcast_to(sigma, y.shape[1:])
+    except ValueError:
+        raise ValueError(
+            f"expected noise broadcastable to the channel shape {y.shape[1:]}, actual value: shape {sigma.shape}"
+        ) from None
+
+
+def derivative_rms(y, dt: float, derivative: int, *, noise=None, floor: float = BOUND_FLOOR) -> np.ndarray:
+    r"""Typical (root-mean-square) level of :math:`f^{(r)}` per channel from noisy samples of ``f``.
+
+    White noise of standard deviation :math:`\sigma` adds :math:`\sigma^2\binom{2r}{r}/(s\tau)^{2r}` to the mean
+    square of the lag-``s`` difference quotient :math:`\Delta_s^r y/(s\tau)^r`. For ``s = 1, 2, 4, ...`` the first
+    lag at which that part is at most a quarter of the mean square is kept (each channel its own ``s``, as in
+    :func:`derivative_bound`), and the level is :math:`\sqrt{\overline{D_s^2} - \sigma^2\binom{2r}{r}/(s\tau)^{2r}}`,
+    floored at ``floor``.
+
+    Parameters
+    ----------
+    y : array_like, shape (T, ...)
+        Samples along axis 0; every trailing index is a channel.
+    dt : float
+        Sampling step ``tau``.
+    derivative : int
+        ``r >= 1``.
+    noise : float or array_like, optional
+        :math:`\sigma` per channel; default :func:`noise_std` of ``y``.
+    floor : float
+        Smallest level returned.
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    dt = check_positive("dt", dt)
+    r = check_int_in_range("derivative", derivative, 1, 8)
+    floor = check_positive("floor", floor)
+    y = _time_series(y)
+    T = y.shape[0]
+    if r >= T:
+        raise ValueError(f"expected more than derivative = {r} samples, actual value: {T}")
+    sigma = _noise_per_channel(noise, y)
+    result = np.full(y.shape[1:], np.nan)
+    lag = 1
+    with np.errstate(over="ignore", invalid="ignore"):
+        while True:
+            mean_square = np.mean((_lag_difference(y, r, lag) / (lag * dt) ** r) ** 2, axis=0)
+            noise_part = sigma**2 * comb(2 * r, r) / (lag * dt) ** (2 * r)
+            settled = np.isnan(result) & (noise_part <= 0.25 * mean_square)
+            result[settled] = (mean_square - noise_part)[settled]
+            if 2 * lag * r > T // 8 or not np.isnan(result).any():
+                break
+            lag *= 2
+        result = np.where(np.isnan(result), mean_square - noise_part, result)
+        level = np.maximum(np.sqrt(np.maximum(result, 0.0)), floor)
+    if not np.all(np.isfinite(level)):
+        raise ValueError(
+            f"expected samples whose derivative of order {r} has a finite mean square at dt={dt}, actual value: "
+            "it overflows; rescale the signal"
+        )
+    return level
+
+
+def _frozen(name: str, value, shape: tuple[int, ...] | None, infinite: bool = False) -> np.ndarray:
+    """``value`` as a read-only float64 array of ``shape`` (or its own shape), >= 0 and finite (or ``inf`` too)."""
+    arr = np.array(value, dtype=np.float64)
+    if shape is not None:
+        try:
+            arr = np.array(np.broadcast_to(arr, shape))
+        except ValueError:
+            raise ValueError(f"expected {name} of the channel shape {shape}, actual value: shape {arr.shape}") from None
+    if not np.all((np.isfinite(arr) | (infinite & (arr == np.inf))) & (arr >= 0.0)):
+        raise ValueError(f"expected {name} finite and >= 0 everywhere, actual value: {value!r}")
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True)
+class Calibration:
+    r"""What observer gains need to know about the signals they differentiate, per channel (module notes).
+
+    Made by :func:`calibration_of_signal` (a recorded signal, :func:`smo_gym.differentiate`) or
+    :func:`calibration_from_velocities` (the wrapper's rollouts of its environment); read by every family's gain rule
+    through :func:`default_observer`.
+
+    Attributes
+    ----------
+    dt : float
+        The sampling step ``tau``.
+    bounds : mapping of int to ndarray, shape (...)
+        Worst case: ``bounds[r]`` bounds :math:`|f^{(r)}|` (a high quantile times a safety factor), what
+        sliding-mode gains need.
+    typical : mapping of int to ndarray, shape (...)
+        Typical level: ``typical[r]`` is the RMS of :math:`f^{(r)}` at the sampling step, what linear and Kalman
+        gains need.
+    noise : ndarray, shape (...)
+        Standard deviation of the measurement's random error (noise and quantization together; ``inf`` is kept
+        for a sensor model whose variance overflows).
+    resolution : ndarray, shape (...)
+        The quantization step (0 where there is none).
+    """
+
+    dt: float
+    bounds: Mapping[int, np.ndarray]
+    typical: Mapping[int, np.ndarray]
+    noise: np.ndarray
+    resolution: np.ndarray = field(default=0.0)
+
+    def __post_init__(self):
+        object.__setattr__(self, "dt", check_positive("dt", self.dt))
+        for name in ("bounds", "typical"):
+            levels = getattr(self, name)
+            if not isinstance(levels, Mapping):
+                raise TypeError(f"expected {name} as a mapping of derivative order to array, actual value: {levels!r}")
+        # the channel shape: the noise's, or the levels' where the noise is one number for all channels
+        # (a sensor model whose variance overflows says inf; its first measurement is refused, not its calibration)
+        noise = _frozen("noise", self.noise, None, infinite=True)
+        levels = [np.shape(v) for v in (*self.bounds.values(), *self.typical.values())]
+        shape = noise.shape if noise.ndim or not levels else levels[0]
+        object.__setattr__(self, "noise", _frozen("noise", noise, shape, infinite=True))
+        object.__setattr__(self, "resolution", _frozen("resolution", self.resolution, shape))
+        for name in ("bounds", "typical"):
+            levels = getattr(self, name)
+            frozen = {
+                check_int_in_range(f"{name} order", r, 1, 8): _frozen(f"{name}[{r}]", v, shape)
+                for r, v in levels.items()
+            }
+            object.__setattr__(self, name, frozen)
+
+    def bound(self, order: int) -> np.ndarray:
+        """Worst-case bound on :math:`|f^{(r)}|` per channel, ``r = order``."""
+        return self._level(self.bounds, "bounds", order)
+
+    def rms(self, order: int) -> np.ndarray:
+        """Typical (RMS) level of :math:`f^{(r)}` per channel, ``r = order``."""
+        return self._level(self.typical, "typical", order)
+
+    @staticmethod
+    def _level(levels: Mapping[int, np.ndarray], name: str, order: int) -> np.ndarray:
+        if order not in levels:
+            raise ValueError(
+                f"expected a calibration with {name} of derivative order {order}, actual value: orders {sorted(levels)}"
+            )
+        return levels[order]
+
+    @property
+    def noise_level(self) -> float:
+        """The mean noise level over channels, floored at :data:`NOISE_FLOOR` (for formulas that divide by it)."""
+        return float(max(np.mean(self.noise), NOISE_FLOOR))
+
+    @property
+    def measurement_variance(self) -> np.ndarray:
+        """Variance of the measurement error per channel, floored at ``NOISE_FLOOR**2``."""
+        return np.maximum(self.noise**2, NOISE_FLOOR**2)
+
+
+def calibration_of_signal(
+    y, dt: float, orders, *, noise=None, resolution=0.0, quantile: float = 0.99, safety: float = 2.0
+) -> Calibration:
+    """The :class:`Calibration` of a recorded signal ``y`` (T, ...): :func:`derivative_bound` and
+    :func:`derivative_rms` of each derivative order in ``orders``, with the noise level ``noise`` (default
+    :func:`noise_std` of ``y``). Records of ``r`` samples or fewer get the floors for order ``r``."""
+    y = _time_series(y)
+    sigma = _noise_per_channel(noise, y)
+    bounds, typical = {}, {}
+    for r in sorted(set(orders)):
+        if y.shape[0] > r:
+            bounds[r] = derivative_bound(y, dt, r, noise=sigma, quantile=quantile, safety=safety)
+            typical[r] = derivative_rms(y, dt, r, noise=sigma)
+        else:
+            bounds[r] = typical[r] = np.full(y.shape[1:], BOUND_FLOOR)
+    return Calibration(dt, bounds, typical, sigma, resolution)
+
+
+def calibration_from_velocities(
+    episodes, dt: float, orders, *, noise, resolution=0.0, quantile: float = 0.99, safety: float = 2.0
+) -> Calibration:
+    r"""The :class:`Calibration` of joints whose velocities were sampled without noise (a simulator's rollouts).
+
+    ``episodes`` holds arrays ``(T_i, nv)`` of the velocity sampled every ``dt``; backward differences give
+    :math:`f^{(r)}` for each ``r`` in ``orders``. ``bounds[r] = safety * quantile(|f^(r)|)`` and ``typical[r]`` its
+    RMS, per dof. Dofs that never moved (a pushed object, a goal) get the largest value of the model: they may be
+    hit later, and a tiny gain would never catch up. Every value is floored at :data:`BOUND_FLOOR`. ``noise`` and
+    ``resolution`` (per dof) are the sensor's.
+    """
+    dt = check_positive("dt", dt)
+    bounds, typical = {}, {}
+    for r in sorted(set(orders)):
+        r = check_int_in_range("order", r, 1, 8)
+        diffs = [np.diff(V, n=r - 1, axis=0) / dt ** (r - 1) for V in episodes if len(V) >= r]
+        if not diffs:
+            raise ValueError(
+                f"expected a rollout long enough to calibrate, actual value: {len(episodes)} episode(s) "
+                f"shorter than {r} samples"
+            )
+        D = np.abs(np.concatenate(diffs, axis=0))
+        levels = (safety * np.quantile(D, quantile, axis=0), np.sqrt(np.mean(D**2, axis=0)))
+        for store, level in zip((bounds, typical), levels, strict=True):
+            untouched = level <= 1e-6 * max(float(np.max(level)), 1e-300)
+            level[untouched] = np.max(level)
+            store[r] = np.maximum(level, BOUND_FLOOR)
+    return Calibration(dt, bounds, typical, noise, resolution)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -242,19 +462,14 @@ def needs_calibration(name: str, observer_kwargs: dict | None = None) -> bool:
     return _family(name).needs_calibration(dict(observer_kwargs or {}))
 
 
-def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: dict | None = None) -> Observer:
-    r"""An observer of :data:`smo_gym.observers.OBSERVERS` with gains from calibrated bounds and noise.
+def default_observer(name: str, calibration: Calibration, observer_kwargs: dict | None = None) -> Observer:
+    r"""An observer of :data:`smo_gym.observers.OBSERVERS` with gains from a :class:`Calibration`.
 
     Parameters
     ----------
     name : str
-    dt : float
-        Sampling step.
-    bounds : array_like, shape (...)
-        Per-channel bound on the derivative :func:`bound_order` names (acceleration or jerk).
-    noise_std : array_like, shape (...)
-        Per-channel standard deviation of the measurement noise (its mean, floored at ``1e-6``, enters the
-        formulas that divide by it).
+    calibration : Calibration
+        Of the signals it will differentiate, with the derivative order :func:`bound_order` names.
     observer_kwargs : dict, optional
         Constructor arguments; they override anything calibrated.
 
@@ -264,19 +479,22 @@ def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: d
 
     Notes
     -----
-    Each family registers its gain rule (:attr:`Family.calibrate <smo_gym.observers.Family.calibrate>`). With
-    ``L`` the bound and :math:`\epsilon` the noise level:
+    Each family registers its gain rule (:attr:`Family.calibrate <smo_gym.observers.Family.calibrate>`), called
+    with the calibration and the family's derivative order ``r``. With ``L`` the worst-case bound of order ``r``,
+    ``J`` the typical level and :math:`\epsilon` the noise level:
 
-    * sliding-mode differentiators (a ``lipschitz`` parameter): ``lipschitz = bounds`` per channel [Lev03];
+    * sliding-mode differentiators (a ``lipschitz`` parameter): ``lipschitz = L`` per channel [Lev03];
     * ``"high-gain"``: :meth:`HighGain.from_bounds <smo_gym.observers.HighGain.from_bounds>`,
       :math:`\ell = (L/\epsilon)^{1/n}` with the largest ``L`` (``n = order + 1``, the balance of the
       :math:`L/\ell^{n-1}` and :math:`\ell\epsilon` velocity errors);
-    * ``"kalman-ca"``: :meth:`KalmanCA.from_bounds <smo_gym.observers.KalmanCA.from_bounds>`, ``q = L^2/tau``
-      with the largest acceleration bound, ``r`` from the noise;
+    * ``"kalman-ca"``: :meth:`KalmanCA.from_levels <smo_gym.observers.KalmanCA.from_levels>`, ``q = J^2 tau``
+      per channel from the typical jerk (``r = 3``), ``r`` the measurement variance [BSL01];
     * ``"switched-gain"`` (``disturbance`` and ``noise`` parameters): the largest ``L`` and :math:`\epsilon`;
     * ``"low-power-high-gain"`` (a required ``gain``): the same balance :math:`\ell = (L/\epsilon)^{1/n}`;
     * finite differences need nothing.
     """
+    if not isinstance(calibration, Calibration):
+        raise TypeError(f"expected a Calibration, actual value: {calibration!r:.80}")
     family = _family(name)
     kw = dict(observer_kwargs or {})
     valid = list(family.parameters)
@@ -288,9 +506,8 @@ def default_observer(name: str, dt: float, bounds, noise_std, observer_kwargs: d
             )
     try:
         if family.needs_calibration(kw):
-            noise = float(max(np.mean(noise_std), NOISE_FLOOR))
-            return family.calibrate(family.cls, dt, np.asarray(bounds, dtype=float), noise, kw)
-        return family.cls(dt=dt, **kw)
+            return family.calibrate(family.cls, calibration, family.bound_order(kw), kw)
+        return family.cls(dt=calibration.dt, **kw)
     except TypeError as exc:
         raise ValueError(
             f"expected observer_kwargs completing the parameters of {family.cls.__name__} (no default gains are known "

@@ -68,11 +68,13 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
     (:func:`smo_gym.calibration.noise_std`), and the bound ``L`` of the derivative the observer needs
     (:func:`smo_gym.calibration.bound_order`: acceleration for super-twisting, ``order + 1`` for Levant's
     differentiator) is twice the 99th percentile of a difference quotient taken at the smallest decimation at
-    which it rises well above the noise (:func:`smo_gym.calibration.derivative_bound`). The gains then follow
-    :func:`smo_gym.calibration.default_observer`: ``lipschitz = L`` per channel for the sliding-mode
-    differentiators, :math:`\ell = (L/\hat\sigma)^{1/(order+1)}` for ``"high-gain"``, ``q = L^2/dt`` and
-    :math:`r = \hat\sigma^2` for ``"kalman-ca"``. Wrapped channels are unwrapped (``numpy.unwrap``) for the
-    calibration only. Given gains cost nothing: the calibration then does not run.
+    which it rises well above the noise (:func:`smo_gym.calibration.derivative_bound`); its typical (RMS) level
+    is the mean square of that quotient less its noise part (:func:`smo_gym.calibration.derivative_rms`). The gains
+    then follow :func:`smo_gym.calibration.default_observer`: ``lipschitz = L`` per channel for the sliding-mode
+    differentiators, :math:`\ell = (L/\hat\sigma)^{1/(order+1)}` for ``"high-gain"``, ``q = J^2 dt`` from the
+    typical jerk ``J`` and :math:`r = \hat\sigma^2` per channel for ``"kalman-ca"``. Wrapped channels are
+    unwrapped (``numpy.unwrap``) for the calibration only. Given gains cost nothing: the calibration then does not
+    run.
 
     The result of the sliding-mode observers depends on the gains: a calibration from the data cannot know
     bounds the record does not show, and the Lipschitz bounds of the theory (Levant 2003) assume the worst case.
@@ -158,14 +160,8 @@ def _build(observer, dt: float, y: np.ndarray, params: dict) -> Observer:
             f"{index[0]}, channel {index[1:]}"
         )
     sample = _unwrapped(y, params.get("wrap"))
-    noise = calibration.noise_std(sample) if sample.shape[0] > 4 else np.zeros(sample.shape[1:])
-    r = calibration.bound_order(observer, params)
-    bounds = (
-        calibration.derivative_bound(sample, dt, r, noise=noise)
-        if sample.shape[0] > r
-        else np.full(sample.shape[1:], calibration.BOUND_FLOOR)
-    )
-    return calibration.default_observer(observer, dt, bounds, noise, params)
+    orders = (calibration.bound_order(observer, params),)
+    return calibration.default_observer(observer, calibration.calibration_of_signal(sample, dt, orders), params)
 
 
 def _unwrapped(y: np.ndarray, wrap) -> np.ndarray:

@@ -317,6 +317,15 @@ class Sensor:
                 var += stage._variance(n_channels, angular)
         return np.sqrt(var)
 
+    def quantization_step(self, n_channels: int, angular=None) -> np.ndarray:
+        """The coarsest quantization step of the sensor per channel, shape ``(n_channels,)`` (0: no quantization)."""
+        n_channels = check_int_in_range("n_channels", n_channels, 1, 2**31)
+        angular = self._angular(n_channels, angular)
+        step = np.zeros(n_channels)
+        for stage in self.stages:
+            step = np.maximum(step, stage._step(n_channels, angular))
+        return step
+
     @staticmethod
     def _angular(n: int, angular) -> np.ndarray:
         if angular is None:
@@ -651,6 +660,10 @@ class Stage(Sensor):
     def _variance(self, n: int, angular: np.ndarray) -> np.ndarray:
         return np.zeros(n)
 
+    def _step(self, n: int, angular: np.ndarray) -> np.ndarray:
+        """The quantization step per channel (0: this stage does not quantize)."""
+        return np.zeros(n)
+
     def _fields(self) -> dict:
         return {}
 
@@ -762,6 +775,9 @@ class Quantization(Stage):
 
     def _variance(self, n, angular):
         return self._resolutions(n, angular) ** 2 / 12.0
+
+    def _step(self, n, angular):
+        return self._resolutions(n, angular)
 
     def _fields(self):
         return {"resolution": self.resolution, "linear_resolution": self.linear_resolution}

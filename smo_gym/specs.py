@@ -5,7 +5,7 @@ One syntax for both, shared by ``smo-gym compare``, ``train`` and ``evaluate`` a
 
 ``levant:order=1:discretization=matching``
     an observer of :data:`smo_gym.observers.OBSERVERS` with constructor options (gains not given are calibrated
-    by the wrapper, :func:`smo_gym.wrappers.sensing.default_observer`);
+    by the wrapper, :func:`smo_gym.calibration.default_observer`);
 ``encoder-12bit-noisy``
     a sensor preset of :data:`smo_gym.sensors.PRESETS` (presets take no options);
 ``encoder:counts_per_revolution=4096:noise_std=1e-3``
@@ -115,7 +115,7 @@ def _check_keys(kind: str, name: str, kwargs: dict, valid: list[str], spec: str)
 def observer_options(name: str) -> list[str]:
     """The options an observer spec may set: the parameters its family registers
     (:attr:`Family.parameters <smo_gym.observers.Family.parameters>`: the constructor's, ``dt`` excepted since the
-    rate sets it, then the keyword-only ones of its ``from_bounds`` gain design)."""
+    rate sets it)."""
     _check_name("an observer name", name, list(OBSERVERS))
     return list(FAMILIES[name].parameters)
 

@@ -111,7 +111,7 @@ def test_bound_order_and_needs_calibration():
     assert calibration.bound_order("levant") == 3
     assert calibration.bound_order("levant", {"order": 4}) == 5
     assert calibration.bound_order("high-gain", {"order": 2}) == 3  # HighGain.from_bounds bounds f^(order+1)
-    assert calibration.bound_order("kalman-ca") == 2
+    assert calibration.bound_order("kalman-ca") == 3  # its process noise comes from the typical jerk
     assert not calibration.needs_calibration("finite-difference")
     assert calibration.needs_calibration("levant", {"order": 2})
     assert not calibration.needs_calibration("levant", {"lipschitz": 1.0})
@@ -124,38 +124,83 @@ def test_bound_order_and_needs_calibration():
         calibration.needs_calibration("no-such-observer")
 
 
+def _calibration(order, bounds, typical, noise, resolution=0.0):
+    return calibration.Calibration(DT, {order: np.asarray(bounds)}, {order: np.asarray(typical)}, noise, resolution)
+
+
 def test_default_observer_gain_formulas():
-    bounds, noise = np.array([4.0, 9.0]), np.array([1e-4, 3e-4])
-    obs = calibration.default_observer("high-gain", DT, bounds, noise)
+    noise = np.array([1e-4, 3e-4])
+    acc = _calibration(2, [4.0, 9.0], [1.0, 2.0], noise)
+    obs = calibration.default_observer("high-gain", acc, None)
     assert isinstance(obs, HighGain) and obs.gain == pytest.approx(np.sqrt(9.0 / 2e-4))
-    obs = calibration.default_observer("high-gain", DT, bounds, noise, {"order": 2})
+    jerk = _calibration(3, [4.0, 9.0], [1.5, 0.5], noise)
+    obs = calibration.default_observer("high-gain", jerk, {"order": 2})
     assert obs.gain == pytest.approx((9.0 / 2e-4) ** (1 / 3))
-    obs = calibration.default_observer("kalman-ca", DT, bounds, noise)
+    # the Kalman filter reads the typical jerk J, q = J^2 dt, and the noise variance, per channel
+    obs = calibration.default_observer("kalman-ca", jerk)
     assert isinstance(obs, KalmanCA)
-    assert obs.process_noise == pytest.approx(81.0 / DT) and obs.measurement_noise == pytest.approx(4e-8)
-    obs = calibration.default_observer("super-twisting", DT, bounds, noise, {"discretization": "euler"})
-    assert isinstance(obs, SuperTwisting) and np.array_equal(obs.lipschitz, bounds)
+    np.testing.assert_allclose(obs.process_noise, [1.5**2 * DT, 0.5**2 * DT])
+    np.testing.assert_allclose(obs.measurement_noise, noise**2)
+    # the sliding-mode differentiators the worst case, per channel
+    obs = calibration.default_observer("super-twisting", acc, {"discretization": "euler"})
+    assert isinstance(obs, SuperTwisting) and np.array_equal(obs.lipschitz, [4.0, 9.0])
     assert obs.discretization == "euler"
-    obs = calibration.default_observer("levant", DT, bounds, noise, {"lipschitz": 2.0})  # given gains win
+    obs = calibration.default_observer("levant", acc, {"lipschitz": 2.0})  # given gains win
     assert obs.lipschitz == 2.0
 
 
-@pytest.mark.parametrize("name", sorted(OBSERVERS))
-def test_default_observer_matches_the_wrappers_rules(name):
-    """The wrapper's ``default_observer`` (``smo_gym.wrappers.sensing``) and this one build the same observer
-    from the same bounds and noise, for the constructors' default orders (the wrapper uses an acceleration bound
-    and a square root for ``high-gain`` and a required ``gain`` whatever the order; see ``bound_order``)."""
-    from smo_gym.wrappers.sensing import bound_order, default_observer
+def test_a_calibration_without_the_order_a_family_needs_is_refused():
+    acc = _calibration(2, [4.0], [1.0], [1e-3])
+    with pytest.raises(ValueError, match=r"expected a calibration with typical of derivative order 3, actual value: "):
+        calibration.default_observer("kalman-ca", acc)
+    with pytest.raises(TypeError, match="expected a Calibration"):
+        calibration.default_observer("kalman-ca", DT)
 
-    assert calibration.bound_order(name) == bound_order(name)
-    bounds, noise = np.array([3.0, 5.0, 7.0]), np.array([1e-3, 2e-3, 3e-3])
-    ours = calibration.default_observer(name, DT, bounds, noise)
-    theirs = default_observer(name, DT, bounds, noise)
-    assert type(ours) is type(theirs)
-    y0 = np.zeros(3)
-    ours.reset(y0)
-    theirs.reset(y0)
-    np.testing.assert_array_equal(ours._params, theirs._params)
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        (dict(dt=0.0), ValueError, "expected dt > 0"),
+        (dict(noise=[-1.0]), ValueError, "expected noise finite and >= 0"),
+        (dict(bounds={2: [np.nan]}), ValueError, r"expected bounds\[2\] finite and >= 0"),
+        (dict(typical={2: [1.0, 2.0]}), ValueError, r"expected typical\[2\] of the channel shape \(1,\)"),
+        (dict(bounds=[1.0]), TypeError, "expected bounds as a mapping of derivative order to array"),
+        (dict(resolution=[1.0, 2.0]), ValueError, r"expected resolution of the channel shape \(1,\)"),
+    ],
+)
+def test_calibration_bad_input(kwargs, error, match):
+    fields = dict(dt=DT, bounds={2: [1.0]}, typical={2: [1.0]}, noise=[1e-3], resolution=0.0)
+    with pytest.raises(error, match=match):
+        calibration.Calibration(**{**fields, **kwargs})
+
+
+def test_calibration_arrays_are_read_only():
+    c = _calibration(2, [4.0], [1.0], [1e-3])
+    with pytest.raises(ValueError, match="read-only"):
+        c.bound(2)[0] = 1.0
+
+
+def test_derivative_rms_matches_the_closed_form():
+    """The RMS of :math:`f'' = -A\\omega^2\\sin\\omega t` over whole periods is :math:`A\\omega^2/\\sqrt2`: from clean
+    samples to 1 %, and from noisy ones (the noise part of the difference quotient subtracted) to 5 %."""
+    _, clean, noisy = noisy_sine(T=20944, sigma=1e-3, amplitude=2.0, omega=3.0)  # 10 periods
+    expected = 2.0 * 9.0 / np.sqrt(2.0)
+    np.testing.assert_allclose(calibration.derivative_rms(clean, DT, 2), expected, rtol=0.01)
+    np.testing.assert_allclose(calibration.derivative_rms(noisy, DT, 2), expected, rtol=0.05)
+    # without the subtraction the noise would dominate at the sampling step: sigma sqrt(6) / dt^2 ~ 2e3
+    assert np.sqrt(np.mean((np.diff(noisy[:, 0], 2) / DT**2) ** 2)) > 100 * expected
+
+
+def test_calibration_from_velocities_levels():
+    """Worst case = safety x quantile and typical = RMS of the backward differences, per dof; a dof that never
+    moved gets the model's largest value."""
+    rng = np.random.default_rng(0)
+    V = np.column_stack([np.cumsum(rng.normal(size=4000)) * DT, np.zeros(4000)])
+    c = calibration.calibration_from_velocities([V[:2500], V[2500:]], DT, (2,), noise=[1e-3, 1e-3])
+    A = np.abs(np.concatenate([np.diff(V[:2500, 0]), np.diff(V[2500:, 0])])) / DT
+    assert c.bound(2)[0] == pytest.approx(2.0 * np.quantile(A, 0.99))
+    assert c.rms(2)[0] == pytest.approx(np.sqrt(np.mean(A**2)))
+    assert c.bound(2)[1] == c.bound(2)[0] and c.rms(2)[1] == c.rms(2)[0]
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -201,13 +246,13 @@ def _minimal(name):
 
 @pytest.mark.parametrize("name", ["super-twisting", "kalman-ca"])
 def test_differentiate_calibrated_equals_the_calibration_functions(name):
-    """The calibrated observer is exactly ``default_observer`` with ``derivative_bound`` and ``noise_std`` of the
-    data (passing that object gives the same numbers), per channel for ``(T, 2, 3)`` data."""
+    """The calibrated observer is exactly ``default_observer`` with the ``calibration_of_signal`` of the data
+    (passing that object gives the same numbers), per channel for ``(T, 2, 3)`` data."""
     _, _, noisy = noisy_sine(T=3000, sigma=1e-4, channels=6)
     Y = noisy.reshape(3000, 2, 3)
-    noise = calibration.noise_std(Y)
-    bounds = calibration.derivative_bound(Y, DT, calibration.bound_order(name), noise=noise)
-    obs = calibration.default_observer(name, DT, bounds, noise)
+    c = calibration.calibration_of_signal(Y, DT, (calibration.bound_order(name),))
+    np.testing.assert_array_equal(c.noise, calibration.noise_std(Y))
+    obs = calibration.default_observer(name, c)
     np.testing.assert_array_equal(
         smo_gym.differentiate(Y, DT, observer=name), smo_gym.differentiate(Y, DT, observer=obs)
     )
@@ -253,3 +298,22 @@ def test_differentiate_calibrates_wrapped_angles_on_the_unwrapped_signal():
     assert np.sqrt(np.mean((z[5000:, 1] - rate[5000:]) ** 2)) < 0.1
     bound = calibration.derivative_bound(np.unwrap(wrapped), DT, 2)
     assert bound < 100.0 < calibration.derivative_bound(wrapped, DT, 2)
+
+
+def test_the_sensor_declares_its_quantization_step():
+    """An encoder's step is 2 pi / counts on angular channels and its linear resolution on linear ones; noise alone
+    has none; the calibration of a wrapped environment carries the sensor's."""
+    from smo_gym import sensors
+
+    encoder = sensors.Encoder(counts_per_revolution=4096, linear_resolution=1e-4) | sensors.GaussianNoise(1e-3)
+    np.testing.assert_allclose(
+        encoder.quantization_step(3, angular=[True, False, True]), [2 * np.pi / 4096, 1e-4, 2 * np.pi / 4096]
+    )
+    np.testing.assert_array_equal(sensors.GaussianNoise(1e-3).quantization_step(2), [0.0, 0.0])
+    import gymnasium as gym
+
+    from smo_gym.wrappers import EstimatedVelocity
+
+    env = EstimatedVelocity(gym.make("InvertedPendulum-v5"), sensor="encoder-12bit", observer="kalman-ca")
+    np.testing.assert_array_equal(env.calibration.resolution, env.measurement.quantization_step())
+    assert env.calibration.resolution[1] == pytest.approx(2 * np.pi / 4096)  # the hinge

@@ -256,10 +256,22 @@ def test_kalman_ca_equals_textbook_filter(rng):
     np.testing.assert_allclose(np.array(covs) / scale, Ps / scale, rtol=1e-10, atol=1e-10)
 
 
-def test_kalman_ca_from_bounds():
-    kf = KalmanCA.from_bounds(0.01, noise_std=1e-3, accel_bound=50.0, resolution=2 * np.pi / 4096)
-    assert kf.measurement_noise == pytest.approx(1e-6 + (2 * np.pi / 4096) ** 2 / 12)
-    assert kf.process_noise == pytest.approx(50.0**2 / 0.01)
+def test_kalman_ca_from_levels():
+    """``q = J^2 dt`` per channel: the variance ``q dt`` of the acceleration's change per sample is ``(J dt)^2``."""
+    kf = KalmanCA.from_levels(0.01, jerk_rms=[50.0, 2.0], measurement_variance=1e-6)
+    np.testing.assert_allclose(kf.process_noise, [50.0**2 * 0.01, 2.0**2 * 0.01])
+    assert kf.measurement_noise == 1e-6
+
+
+def test_kalman_ca_per_channel_parameters_equal_one_filter_per_channel(rng):
+    Y = np.cumsum(rng.normal(size=(300, 2)), axis=0) * 1e-3
+    both = KalmanCA(0.01, [2.0, 300.0], [1e-6, 4e-6])
+    both.reset(Y[0])
+    joint = both.run(Y[1:])
+    for c, (q, r) in enumerate(((2.0, 1e-6), (300.0, 4e-6))):
+        alone = KalmanCA(0.01, q, r)
+        alone.reset(Y[0, c : c + 1])
+        np.testing.assert_array_equal(alone.run(Y[1:, c : c + 1]), joint[:, c : c + 1])
 
 
 @pytest.mark.parametrize("order", [1, 2, 4])

@@ -405,7 +405,8 @@ def test_registered_as_the_eigenvalue_map_family():
         {"n": 2, "discretization": "matching"},
     )
     bounds = np.array([2.0, 50.0])
-    obs = calibration.default_observer("discrete-hosm", 1e-2, bounds, np.zeros(2), {"n": 2})
+    acc = calibration.Calibration(1e-2, {2: bounds}, {2: bounds}, np.zeros(2))
+    obs = calibration.default_observer("discrete-hosm", acc, {"n": 2})
     obs.reset(np.zeros(2))
     np.testing.assert_allclose(obs._params[:, 1], np.sqrt(1.1 * bounds), rtol=1e-15)
     assert repr(make_observer("discrete-hosm", dt=1e-2, p1=5.0)).startswith("DiscreteTimeHOSM(n=3, dt=0.01")

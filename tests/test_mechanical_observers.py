@@ -144,7 +144,7 @@ def test_mismatch_and_noise_beat_model_free(arm_run):
     h = env.dt
     dyn = MujocoDynamics(env.model, mass_scale=1.1)
     # bounds from a calibration run (another seed): L bounds what the model misses, the model-free observers get
-    # the largest acceleration
+    # the largest acceleration (the Kalman filter the RMS jerk)
     _, Qc, Vc, Uc = random_torques(T=1200, seed=100)
     acc = np.diff(Vc, axis=0) / h
     miss = acc - dyn.acceleration(Qc[:-1], Vc[:-1], Uc[1:])
@@ -153,7 +153,8 @@ def test_mismatch_and_noise_beat_model_free(arm_run):
     r_mb = rmse_after(mb.run(Y[1:], U[1:])[..., 1], V[1:])
     fd = FiniteDifference(h)
     fd.reset(Y[0])
-    kf = KalmanCA.from_bounds(h, 1e-3, np.abs(acc).max(), resolution=RES)
+    jerk_rms = np.sqrt(np.mean((np.diff(acc, axis=0) / h) ** 2, axis=0))  # the Kalman filter's typical jerk
+    kf = KalmanCA.from_levels(h, jerk_rms, 1e-3**2 + RES**2 / 12)
     kf.reset(Y[0])
     st = SuperTwisting(h, np.abs(acc).max())
     st.reset(Y[0])

@@ -415,7 +415,7 @@ def test_lipschitz_not_broadcastable(name):
         lambda: Levant(order=2, dt=1e-3, mu=-1.0),
         lambda: URED(dt=1e-3, beta=0.0),
         lambda: KalmanCA(dt=1e-3, process_noise=0.0, measurement_noise=1.0),
-        lambda: KalmanCA.from_bounds(1e-3, noise_std=0.0, accel_bound=1.0),
+        lambda: KalmanCA.from_levels(1e-3, jerk_rms=0.0, measurement_variance=1.0),
     ],
 )
 def test_other_bad_parameters(factory):

@@ -316,15 +316,18 @@ def test_filtered_positions_and_gain_override():
 
 
 def test_calibration_is_cached_in_memory_and_on_disk(monkeypatch):
-    first = EstimatedVelocity(gym.make("Swimmer-v5"), calibration_steps=1500).bounds
+    first = EstimatedVelocity(gym.make("Swimmer-v5"), calibration_steps=1500).calibration
 
     def fail(*args, **kwargs):
         raise AssertionError("calibrated again instead of using the cache")
 
-    monkeypatch.setattr(ev_module, "calibrate_bounds", fail)
-    np.testing.assert_array_equal(EstimatedVelocity(gym.make("Swimmer-v5"), calibration_steps=1500).bounds, first)
-    monkeypatch.setattr(sensing, "_MEMORY_CACHE", {})
-    np.testing.assert_array_equal(EstimatedVelocity(gym.make("Swimmer-v5"), calibration_steps=1500).bounds, first)
+    monkeypatch.setattr(ev_module, "rollout_velocities", fail)
+    monkeypatch.setattr(ev_module, "model_rollout_velocities", fail)
+    for memory in (sensing._MEMORY_CACHE, {}):  # from memory, then from disk
+        monkeypatch.setattr(sensing, "_MEMORY_CACHE", memory)
+        again = EstimatedVelocity(gym.make("Swimmer-v5"), calibration_steps=1500).calibration
+        np.testing.assert_array_equal(again.bound(2), first.bound(2))
+        np.testing.assert_array_equal(again.rms(2), first.rms(2))
 
 
 def test_bad_inputs():

@@ -215,6 +215,10 @@ class JointMeasurement:
         """Per-dof standard deviation of the sensor's random error, shape ``(nv,)``."""
         return self.sensor.error_std(self.model.nv, self.angular)
 
+    def quantization_step(self) -> np.ndarray:
+        """Per-dof quantization step of the sensor (0 where it does not quantize), shape ``(nv,)``."""
+        return self.sensor.quantization_step(self.model.nv, self.angular)
+
     def reset(self, qpos: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """First measurement of the configuration ``qpos`` (the sensor's stream comes from ``rng``)."""
         qpos = np.asarray(qpos, dtype=np.float64)

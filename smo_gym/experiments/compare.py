@@ -4,7 +4,7 @@ The library behind ``smo-gym compare``. One environment is run under a seeded sm
 configuration is sampled at the chosen rate with the wrapper's own substep hook
 (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.record_substeps`), measured once by a
 :class:`~smo_gym.engine.measurement.JointMeasurement`, and every observer (built with the wrapper's default gains,
-:func:`~smo_gym.wrappers.sensing.default_observer`) processes those same measurements through
+:func:`~smo_gym.calibration.default_observer`) processes those same measurements through
 :class:`~smo_gym.engine.measurement.VelocityEstimator`, i.e. exactly what
 :class:`~smo_gym.wrappers.EstimatedVelocity` would feed it.
 
@@ -37,13 +37,13 @@ import numpy as np
 
 from .. import _extras as extras
 from .._validation import DivergenceError
+from ..calibration import Calibration, bound_order, default_observer
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
 from ..wrappers.adapters import make_adapter
-from ..wrappers.estimated_velocity import calibrated_bounds, resolve_rate
+from ..wrappers.estimated_velocity import calibrate_environment, resolve_rate
 from ..wrappers.rollout import rollout
-from ..wrappers.sensing import bound_order, default_observer
 
 __all__ = [
     "ObserverResult",
@@ -113,6 +113,8 @@ class Recording:
         Dof names.
     noise_std : ndarray, shape (nv,)
         The sensor's random error per dof.
+    resolution : ndarray, shape (nv,)
+        The sensor's quantization step per dof (0: none).
     """
 
     env_id: str
@@ -125,6 +127,7 @@ class Recording:
     episode_starts: np.ndarray
     names: list[str]
     noise_std: np.ndarray
+    resolution: np.ndarray
     context: dict = field(default_factory=dict, repr=False)
 
 
@@ -186,6 +189,7 @@ def record_rollout(
         episode_starts=np.array(starts),
         names=dof_names(model),
         noise_std=measurement.noise_std(),
+        resolution=measurement.quantization_step(),
         context={"unwrapped": env.unwrapped, "adapter": adapter, "sample_every": k, "angular": angular_dofs(model)},
     )
 
@@ -242,7 +246,7 @@ def compare_observers(
     names = list(observers)
     specs = {spec: parse_observer_spec(spec) for spec in names}
     ctx = rec.context
-    bounds_by_order: dict[int, np.ndarray] = {}
+    calibrations: dict[int, Calibration] = {}
     starts = list(rec.episode_starts) + [len(rec.z_measured)]
     results = []
     iterator = names
@@ -252,11 +256,17 @@ def compare_observers(
         name, kw = specs[spec]
         kw = {**kw, **((observer_kwargs or {}).get(spec) or {})}
         order = bound_order(name, kw)
-        if order not in bounds_by_order:
-            bounds_by_order[order] = calibrated_bounds(
-                ctx["unwrapped"], ctx["adapter"], ctx["sample_every"], order, safety=calibration_safety
+        if order not in calibrations:
+            calibrations[order] = calibrate_environment(
+                ctx["unwrapped"],
+                ctx["adapter"],
+                ctx["sample_every"],
+                order,
+                noise=rec.noise_std,
+                resolution=rec.resolution,
+                safety=calibration_safety,
             )
-        estimator = VelocityEstimator(default_observer(name, rec.dt, bounds_by_order[order], rec.noise_std, kw))
+        estimator = VelocityEstimator(default_observer(name, calibrations[order], kw))
         V = np.full_like(rec.qvel, np.nan)
         timings = []
         clock = time.perf_counter

@@ -73,9 +73,10 @@ def alpha_beta_rows(state, y, params, new_state, out, shared):
     return _kernels._check_state(new_state, out)
 
 
-def _tracking_index_rule(cls, dt, bounds, noise, kwargs):
+def _tracking_index_rule(cls, calibration, order, kwargs):
     r""":math:`\sigma_w` = the largest calibrated acceleration bound, :math:`\sigma_v` = the noise level."""
-    return cls(dt=dt, **{"acceleration_std": float(np.max(bounds)), "noise_std": noise, **kwargs})
+    accel = float(np.max(calibration.bound(order)))
+    return cls(dt=calibration.dt, **{"acceleration_std": accel, "noise_std": calibration.noise_level, **kwargs})
 
 
 _STEP = _kernels.register_step(alpha_beta_rows)

@@ -200,12 +200,12 @@ def _estimated_derivatives(kwargs: dict) -> int:
     return check_int_in_range("n", kwargs["n"], 2, MAX_N) - 1
 
 
-def _rate_rule(cls, dt, bounds, noise, kwargs):
+def _rate_rule(cls, calibration, order, kwargs):
     r""":math:`p_1 = (1.1 L)^{1/n}` per channel from the calibrated bound :math:`L \ge |f^{(n)}|`, the rate
     ``Levant(discretization="semi-implicit")`` takes by default
     (:func:`~smo_gym.observers.differentiators.eigenvalue_map_rate`)."""
     n = check_int_in_range("n", kwargs.get("n", DEFAULT_N), 2, MAX_N)
-    return cls(dt=dt, **kwargs, p1=eigenvalue_map_rate(bounds, n))
+    return cls(dt=calibration.dt, **kwargs, p1=eigenvalue_map_rate(calibration.bound(order), n))
 
 
 @register_observer(

@@ -12,22 +12,34 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_real_array, check_int_in_range, check_keywords, check_nonnegative, check_positive
+from .._validation import (
+    as_real_array,
+    check_int_in_range,
+    check_keywords,
+    check_positive,
+    check_positive_array,
+)
 from ..design.gains import binomial_coefficients
 from . import _kernels
 from .base import Observer
 from .registry import register_observer
 
 
-def _high_gain_rule(cls, dt, bounds, noise, kwargs):
+def _scalar_or_array(arr: np.ndarray):
+    """A checked parameter kept as a float when it is one number (as given), else as its array."""
+    return float(arr) if arr.ndim == 0 else arr
+
+
+def _high_gain_rule(cls, calibration, order, kwargs):
     r""":meth:`HighGain.from_bounds` with the largest bound: :math:`\ell = (L/\epsilon)^{1/n}`."""
     kw = dict(kwargs)
-    return cls.from_bounds(dt, float(np.max(bounds)), noise, order=kw.pop("order", 1), **kw)
+    bound = float(np.max(calibration.bound(order)))
+    return cls.from_bounds(calibration.dt, bound, calibration.noise_level, order=kw.pop("order", 1), **kw)
 
 
-def _kalman_rule(cls, dt, bounds, noise, kwargs):
-    """:meth:`KalmanCA.from_bounds`: ``q = L^2/tau`` with the largest acceleration bound, ``r`` from the noise."""
-    return cls.from_bounds(dt, noise, float(np.max(bounds)), **kwargs)
+def _kalman_rule(cls, calibration, order, kwargs):
+    """:meth:`KalmanCA.from_levels` per channel: the typical jerk (``order`` 3) and the measurement variance."""
+    return cls.from_levels(calibration.dt, calibration.rms(order), calibration.measurement_variance, **kwargs)
 
 
 __all__ = ["FiniteDifference", "HighGain", "KalmanCA"]
@@ -191,7 +203,7 @@ class FiniteDifference(Observer):
 @register_observer(
     "kalman-ca",
     steps=(_kernels.kalman_ca_rows,),
-    bound=2,
+    bound=3,
     calibrate=_kalman_rule,
     given=(("process_noise", "measurement_noise"),),
     examples=(dict(process_noise=50.0, measurement_noise=1e-6),),
@@ -210,10 +222,10 @@ class KalmanCA(Observer):
     Parameters
     ----------
     dt : float
-    process_noise : float
-        ``q`` [units^2 / s^5].
-    measurement_noise : float
-        ``r``, the variance of the measurement noise [units^2].
+    process_noise : float or array_like
+        ``q`` [units^2 / s^5], per channel or one for all.
+    measurement_noise : float or array_like
+        ``r``, the variance of the measurement noise [units^2], per channel or one for all.
     initial_std : tuple of 2 floats
         Prior standard deviations of velocity and acceleration at reset (the value's is ``sqrt(r)``), also when
         ``reset`` is given initial derivatives (the prior mean).
@@ -239,8 +251,8 @@ class KalmanCA(Observer):
         wrap=None,
     ):
         super().__init__(dt, 2, discretization, wrap)
-        self.process_noise = check_positive("process_noise", process_noise)
-        self.measurement_noise = check_positive("measurement_noise", measurement_noise)
+        self.process_noise = _scalar_or_array(check_positive_array("process_noise", process_noise))
+        self.measurement_noise = _scalar_or_array(check_positive_array("measurement_noise", measurement_noise))
         if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:
             raise TypeError(
                 f"expected initial_std to be a pair (velocity std, acceleration std), actual value: {initial_std!r}"
@@ -252,29 +264,23 @@ class KalmanCA(Observer):
 
     @classmethod
     @check_keywords
-    def from_bounds(
-        cls, dt: float, noise_std: float, accel_bound: float, *, resolution: float = 0.0, **kwargs
-    ) -> KalmanCA:
-        r"""Set ``q`` and ``r`` from a noise level and an acceleration bound.
+    def from_levels(cls, dt: float, jerk_rms, measurement_variance, **kwargs) -> KalmanCA:
+        r"""Set ``q`` per channel from the typical (RMS) jerk ``J`` at the sampling step: :math:`q = J^2\tau`.
 
-        ``r = noise_std^2 + resolution^2 / 12`` (Gaussian noise plus uniform quantization error), and
-        ``q = accel_bound^2 / dt``: the acceleration may change by about its whole bound within one sample, the
-        regime of contacts and bang-bang actions in MuJoCo. Smoother signals want a smaller ``q``.
+        With the jerk white of density ``q``, the acceleration changes by a variance :math:`q\tau` per sample;
+        ``J`` is the RMS of the acceleration's change per sample divided by :math:`\tau` [BSL01]. A worst-case bound
+        in its place makes the filter trust the measurements about as much as a backward difference does.
+        ``measurement_variance`` is ``r`` (noise variance plus :math:`\Delta^2/12` for quantization).
         """
-        noise_std = np.float64(check_nonnegative("noise_std", noise_std))
-        resolution = np.float64(check_nonnegative("resolution", resolution))
-        accel_bound, dt = np.float64(check_positive("accel_bound", accel_bound)), check_positive("dt", dt)
-        with np.errstate(over="ignore"):  # NumPy floats: an overflow is inf (reported below), not OverflowError
-            r = float(noise_std**2 + resolution**2 / 12.0)
-            q = float(accel_bound**2 / dt)
-        if r <= 0:
-            raise ValueError("expected noise_std > 0 or resolution > 0, actual value: both zero")
-        if not (np.isfinite(r) and np.isfinite(q)):
+        dt = check_positive("dt", dt)
+        jerk = check_positive_array("jerk_rms", jerk_rms)
+        with np.errstate(over="ignore"):
+            q = jerk**2 * dt
+        if not (np.all(np.isfinite(q)) and np.all(q > 0)):
             raise ValueError(
-                f"expected noise_std, resolution and accel_bound whose squares are finite, actual value: "
-                f"noise_std={noise_std!r}, resolution={resolution!r}, accel_bound={accel_bound!r}"
+                f"expected jerk_rms whose square times dt is finite and positive, actual value: {jerk_rms!r}"
             )
-        return cls(dt, q, r, **kwargs)
+        return cls(dt, q, measurement_variance, **kwargs)
 
     @property
     def _kernel(self):
@@ -287,12 +293,14 @@ class KalmanCA(Observer):
         return 9
 
     def _channel_params(self, shape):
-        return np.tile([self.dt, self.process_noise, self.measurement_noise], (int(np.prod(shape)), 1))
+        q = self._per_channel("process_noise", self.process_noise, shape)
+        r = self._per_channel("measurement_noise", self.measurement_noise, shape)
+        return np.column_stack([np.full(q.shape, self.dt), q, r])
 
     def _initial_state(self, y0, params):
         state = np.zeros((y0.shape[0], 10))
         state[:, 0] = y0
-        state[:, 3] = self.measurement_noise  # P00
+        state[:, 3] = params[:, 2]  # P00 = r
         state[:, 6] = self.initial_std[0] ** 2  # P11
         state[:, 8] = self.initial_std[1] ** 2  # P22
         return state

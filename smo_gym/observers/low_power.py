@@ -83,10 +83,11 @@ from .base import Observer
 from .registry import register_observer
 
 
-def _balanced_gain_rule(cls, dt, bounds, noise, kwargs):
+def _balanced_gain_rule(cls, calibration, order, kwargs):
     r"""The high gain balancing the bound and the noise, :math:`\ell = (L/\epsilon)^{1/n}` (largest ``L``)."""
     n = int(kwargs.get("order", 1)) + 1
-    return cls(dt=dt, **kwargs, gain=(float(np.max(bounds)) / noise) ** (1.0 / n))
+    bound = float(np.max(calibration.bound(order)))
+    return cls(dt=calibration.dt, **kwargs, gain=(bound / calibration.noise_level) ** (1.0 / n))
 
 
 __all__ = ["LowPowerHighGain", "low_power_default_coefficients", "low_power_matrices", "polynomial_powers"]

@@ -20,9 +20,10 @@ and the registry then provides, with nothing else to edit:
 Every module of :mod:`smo_gym.observers` is imported with the package, so a family in a new module of the
 package is found without an import elsewhere.
 
-The noise level a gain rule receives is the mean over channels of the calibrated standard deviation, floored at
-``1e-6`` (:data:`smo_gym.calibration.NOISE_FLOOR`); the bounds are per channel, on the derivative of the order
-:meth:`Family.bound_order` returns.
+A gain rule receives a :class:`smo_gym.calibration.Calibration` (per channel: worst-case bounds and typical levels
+of the derivatives, the noise level and the quantization step) and the derivative order :meth:`Family.bound_order`
+returns; sliding-mode gains read the worst case (:meth:`~smo_gym.calibration.Calibration.bound`), linear and
+Kalman gains the typical level (:meth:`~smo_gym.calibration.Calibration.rms`).
 """
 
 from __future__ import annotations
@@ -31,8 +32,6 @@ import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
-
-import numpy as np
 
 from . import _kernels
 
@@ -54,9 +53,9 @@ OBSERVERS: dict[str, type] = {}
 MODEL_BASED_OBSERVERS: dict[str, type] = {}
 
 
-def lipschitz_rule(cls, dt: float, bounds: np.ndarray, noise: float, kwargs: dict):
-    """The sliding-mode gain rule: ``lipschitz`` = the calibrated bound, per channel (Levant 2003)."""
-    return cls(dt=dt, **kwargs, lipschitz=np.asarray(bounds, dtype=float))
+def lipschitz_rule(cls, calibration, order: int, kwargs: dict):
+    """The sliding-mode gain rule: ``lipschitz`` = the worst-case bound of ``order``, per channel (Levant 2003)."""
+    return cls(dt=calibration.dt, **kwargs, lipschitz=calibration.bound(order))
 
 
 @dataclass(frozen=True)
@@ -75,8 +74,9 @@ class Family:
     bound : int or None
         The order of the derivative its gains bound (2: acceleration); ``None``: ``order + 1``.
     calibrate : callable or None
-        The gain rule ``calibrate(cls, dt, bounds, noise, kwargs) -> observer`` with ``bounds`` per channel and
-        ``noise`` a scalar (module notes); ``None``: nothing to calibrate.
+        The gain rule ``calibrate(cls, calibration, order, kwargs) -> observer``: a
+        :class:`smo_gym.calibration.Calibration` and the order :meth:`bound_order` returns (module notes);
+        ``None``: nothing to calibrate.
     given : tuple of tuple of str
         Sets of constructor arguments any of which, given together, set every gain (no calibration then).
     examples : tuple of dict
@@ -102,17 +102,12 @@ class Family:
 
     @property
     def parameters(self) -> dict[str, Any]:
-        """Parameter name -> default (``inspect.Parameter.empty`` if required) of the constructor (without ``dt``),
-        then the keyword-only ones of a ``from_bounds`` gain design."""
-        out: dict[str, Any] = {}
-        callables = [self.cls] + ([self.cls.from_bounds] if hasattr(self.cls, "from_bounds") else [])
-        for k, fn in enumerate(callables):
-            for p in inspect.signature(fn).parameters.values():
-                if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) or p.name in ("self", "dt"):
-                    continue
-                if (k == 0 or p.kind is p.KEYWORD_ONLY) and p.name not in out:
-                    out[p.name] = p.default
-        return out
+        """Parameter name -> default (``inspect.Parameter.empty`` if required) of the constructor (without ``dt``)."""
+        return {
+            p.name: p.default
+            for p in inspect.signature(self.cls).parameters.values()
+            if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD) and p.name not in ("self", "dt")
+        }
 
     @property
     def compiled(self) -> bool:

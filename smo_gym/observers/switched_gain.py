@@ -60,12 +60,12 @@ from .base import Observer
 from .registry import register_observer
 
 
-def _disturbance_rule(cls, dt, bounds, noise, kwargs):
+def _disturbance_rule(cls, calibration, order, kwargs):
     """``disturbance`` = the largest calibrated bound, ``noise`` = the noise level (unless given)."""
     kw = dict(kwargs)
-    kw.setdefault("disturbance", float(np.max(bounds)))
-    kw.setdefault("noise", noise)
-    return cls(dt=dt, **kw)
+    kw.setdefault("disturbance", float(np.max(calibration.bound(order))))
+    kw.setdefault("noise", calibration.noise_level)
+    return cls(dt=calibration.dt, **kw)
 
 
 __all__ = [

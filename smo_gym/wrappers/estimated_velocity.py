@@ -8,27 +8,18 @@ import gymnasium as gym
 import numpy as np
 
 from .._validation import check_int_in_range, check_positive, check_real_in_range
+from ..calibration import Calibration, bound_order, calibration_from_velocities, default_observer
 from ..engine.fused import FusedSensing
 from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation
 from ..observers import OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
 from .rollout import rollout
-from .sensing import (
-    SensingInfo,
-    bound_order,
-    bounds_from_velocities,
-    cached_bounds,
-    calibrate_bounds,
-    calibration_key,
-    check_action,
-    check_seed,
-    default_observer,
-)
+from .sensing import SensingInfo, cached_bounds, calibration_key, check_action, check_seed, model_rollout_velocities
 
 __all__ = [
     "EstimatedVelocity",
-    "calibrated_bounds",
+    "calibrate_environment",
     "observation_wrappers",
     "resolve_rate",
     "rollout_velocities",
@@ -183,62 +174,51 @@ def observation_wrappers(env: gym.Env, *, replay: bool = True) -> tuple[gym.Obse
     return tuple(reversed(chain))
 
 
-def calibrated_bounds(
+def calibrate_environment(
     unwrapped,
     adapter,
     sample_every: int,
     derivative: int,
     *,
+    noise,
+    resolution=0.0,
     safety: float = 2.0,
     quantile: float = 0.99,
     steps: int = 2000,
     disk: bool = True,
-) -> np.ndarray:
-    """Per-dof bounds on the ``derivative``-th derivative of the joint coordinates, sampled every ``sample_every``
-    physics steps, cached per environment id (the adapter's ``environment_key``) in memory and, with ``disk``, on disk.
-
-    The velocities come from :func:`rollout_velocities` (a copy of the environment itself: its resets, random
-    actions, terminations), or, if the environment cannot be copied, from
-    :func:`~smo_gym.wrappers.sensing.calibrate_bounds` on the bare model from its initial state; the bound is
-    :func:`~smo_gym.wrappers.sensing.bounds_from_velocities`.
+) -> Calibration:
+    """The :class:`~smo_gym.calibration.Calibration` of the joints for the ``derivative``-th derivative, sampled
+    every ``sample_every`` physics steps: :func:`~smo_gym.calibration.calibration_from_velocities` of the
+    velocities of :func:`rollout_velocities` (a copy of the environment itself: its resets, random actions,
+    terminations), or, if the environment cannot be copied, of
+    :func:`~smo_gym.wrappers.sensing.model_rollout_velocities` on the bare model from its initial state. The
+    levels are cached per environment id (the adapter's ``environment_key``) in memory and, with ``disk``, on disk;
+    ``noise`` and ``resolution`` are the sensor's, per dof.
     """
     model = adapter.model
-    settings = dict(
-        derivative=int(derivative),
-        every=int(sample_every),
-        frame_skip=adapter.frame_skip,
-        safety=float(safety),
-        quantile=float(quantile),
-        steps=int(steps),
-        v=3,
-    )
+    r, every = int(derivative), int(sample_every)
+    settings = dict(derivative=r, every=every, frame_skip=adapter.frame_skip, safety=float(safety))
+    settings.update(quantile=float(quantile), steps=int(steps), v=4)
     key = calibration_key(adapter.environment_key, model, **settings)
-    dt = float(model.opt.timestep) * int(sample_every)
+    dt = float(model.opt.timestep) * every
+
+    def levels(episodes):
+        c = calibration_from_velocities(episodes, dt, (r,), noise=0.0, quantile=quantile, safety=safety)
+        return np.stack([c.bound(r), c.rms(r)])
 
     def compute():
-        episodes = rollout_velocities(adapter, int(sample_every), int(steps))
+        episodes = rollout_velocities(adapter, every, int(steps))
         if episodes:
             try:
-                return bounds_from_velocities(
-                    episodes, dt, derivative=int(derivative), quantile=float(quantile), safety=float(safety)
-                )
+                return levels(episodes)
             except ValueError:
                 pass
         qpos0 = np.array(getattr(unwrapped, "init_qpos", adapter.data.qpos), dtype=float)
         qvel0 = np.array(getattr(unwrapped, "init_qvel", adapter.data.qvel), dtype=float)
-        return calibrate_bounds(
-            model,
-            qpos0,
-            qvel0,
-            adapter.frame_skip,
-            int(sample_every),
-            derivative=int(derivative),
-            steps=int(steps),
-            quantile=float(quantile),
-            safety=float(safety),
-        )
+        return levels(model_rollout_velocities(model, qpos0, qvel0, adapter.frame_skip, every, steps=int(steps)))
 
-    return cached_bounds(key, compute, disk=disk)
+    bound, typical = cached_bounds(key, compute, disk=disk)
+    return Calibration(dt, {r: bound}, {r: typical}, noise, resolution)
 
 
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -273,9 +253,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Where ``cfrc_ext`` entries come from (see :mod:`smo_gym.wrappers.adapters`; default: separate force
         sensors, i.e. the simulator's values).
     calibration_safety, calibration_quantile, calibration_steps : float, float, int
-        Default gains: ``safety * quantile(|z^(r)|)`` per dof over about ``calibration_steps`` physics steps of a
-        copy of the environment under random actions, with its own resets (:func:`calibrated_bounds`), cached
-        per environment id.
+        Default gains: worst case ``safety * quantile(|z^(r)|)`` and typical (RMS) level per dof over about
+        ``calibration_steps`` physics steps of a copy of the environment under random actions, with its own
+        resets (:func:`calibrate_environment`), cached per environment id.
     disk_cache : bool
         Also cache calibrations on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
 
@@ -372,7 +352,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.sample_dt = float(model.opt.timestep) * self.sample_every
         self.positions = positions
         self.measurement = JointMeasurement(model, copy.deepcopy(make_sensor(sensor)), self.sample_dt)
-        self.bounds = None
+        #: the :class:`~smo_gym.calibration.Calibration` the default gains came from (None for a given observer)
+        self.calibration: Calibration | None = None
         if isinstance(observer, Observer):
             if self.measurement.wraps and not np.array_equal(
                 np.broadcast_to(np.asarray(observer.wrap, dtype=bool), self.measurement.angular.shape),
@@ -393,19 +374,19 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 make_observer(observer)  # raises ValueError listing the valid names
             if self.measurement.wraps:  # single-turn angles: the innovation takes the shortest angular difference
                 observer_kwargs = {"wrap": self.measurement.angular, **(observer_kwargs or {})}
-            self.bounds = calibrated_bounds(
+            self.calibration = calibrate_environment(
                 env.unwrapped,
                 self.adapter,
                 self.sample_every,
                 bound_order(observer, observer_kwargs),
+                noise=self.measurement.noise_std(),
+                resolution=self.measurement.quantization_step(),
                 safety=calibration_safety,
                 quantile=calibration_quantile,
                 steps=calibration_steps,
                 disk=disk_cache,
             )
-            obs_object = default_observer(
-                observer, self.sample_dt, self.bounds, self.measurement.noise_std(), observer_kwargs
-            )
+            obs_object = default_observer(observer, self.calibration, observer_kwargs)
         self.estimator = VelocityEstimator(obs_object)
         self._rng: np.random.Generator | None = None
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)

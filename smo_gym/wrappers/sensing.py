@@ -1,14 +1,13 @@
-r"""The Gymnasium side of sensing: ``info["smo"]``, checks of actions and seeds, and the calibrated bounds.
+r"""The Gymnasium side of sensing: ``info["smo"]``, checks of actions and seeds, and the calibration's rollouts.
 
 Default gains
 -------------
-An order-``r`` differentiator needs a bound on :math:`|z^{(r+1)}|` (acceleration for super-twisting, jerk for
-the second-order Levant differentiator). :func:`calibrate_bounds` measures it on a short rollout of the model
-itself (the environment's own resets and random actions, as a random policy explores; see
-``EstimatedVelocity``) at the observer's sampling step,
-takes a high quantile per dof (contacts produce rare impulsive peaks that a global maximum would turn into a
-huge, noise-amplifying gain) and multiplies by a safety factor. Results are cached per environment in memory and
-on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
+Gains come from a :class:`smo_gym.calibration.Calibration` of the joints at the observer's sampling step: worst-case
+bounds (a high quantile per dof times a safety factor: contacts produce rare impulsive peaks that a global maximum
+would turn into a huge, noise-amplifying gain) and typical (RMS) levels of a derivative, measured on a short rollout
+of the environment itself (its own resets and random actions, as a random policy explores; see
+``EstimatedVelocity``), or of the bare model (:func:`model_rollout_velocities`) when the environment cannot be
+copied. Results are cached per environment in memory and on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
 """
 
 from __future__ import annotations
@@ -23,18 +22,14 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ..calibration import bound_order, default_observer
 from ..engine.measurement import first_nonfinite_entry
 
 __all__ = [
     "SensingInfo",
-    "bound_order",
-    "bounds_from_velocities",
     "cached_bounds",
-    "calibrate_bounds",
     "check_action",
     "check_seed",
-    "default_observer",
+    "model_rollout_velocities",
     "stable_repr",
 ]
 
@@ -178,42 +173,33 @@ def _read_only_copy(value):
 # ----------------------------------------------------------------------------------------------------------------
 # calibration of the default gains
 # ----------------------------------------------------------------------------------------------------------------
-def calibrate_bounds(
+def model_rollout_velocities(
     model: mujoco.MjModel,
     qpos0: np.ndarray,
     qvel0: np.ndarray,
     frame_skip: int,
     sample_every: int,
     *,
-    derivative: int = 2,
     steps: int = 2000,
     episode: int = 500,
-    quantile: float = 0.99,
-    safety: float = 2.0,
     seed: int = 0,
-) -> np.ndarray:
-    r"""Bounds on :math:`|z^{(r)}|` per dof from a rollout of ``model`` under a random policy.
+) -> list[np.ndarray]:
+    r"""``qvel`` sampled every ``sample_every`` physics steps of ``model`` under a random policy, per episode.
 
     From ``(qpos0, qvel0)`` the model is stepped ``steps`` physics steps with actions drawn uniformly from the
     actuators' control ranges and held for ``frame_skip`` steps, restarting every ``episode`` steps (and on a
-    non-finite state). The velocity ``qvel`` is sampled every ``sample_every`` steps (the observer's step
-    :math:`\tau`); its backward differences give the acceleration (``derivative=2``) and jerk (``3``) at that
-    step. The bound is ``safety * quantile(|z^(r)|)`` per dof; dofs that did not move in the rollout (objects,
-    goals) get the largest bound of the model, and every bound is floored at ``1e-3``.
+    non-finite state). The fallback of the wrapper's calibration when the environment itself cannot be copied.
 
     Returns
     -------
-    ndarray, shape (nv,)
+    list of ndarray, shape (T_i, nv)
     """
-    if derivative < 1:
-        raise ValueError(f"expected derivative >= 1, actual value: {derivative}")
     rng = np.random.default_rng(seed)
     data = mujoco.MjData(model)
     lo, hi = np.array(model.actuator_ctrlrange, dtype=float).T if model.nu else (np.zeros(0), np.zeros(0))
     limited = np.asarray(model.actuator_ctrllimited, dtype=bool) if model.nu else np.zeros(0, dtype=bool)
     lo = np.where(limited, lo, -1.0)
     hi = np.where(limited, hi, 1.0)
-    dt = model.opt.timestep * sample_every
     samples: list[np.ndarray] = []
     episodes: list[np.ndarray] = []
 
@@ -238,33 +224,7 @@ def calibrate_bounds(
             samples.append(data.qvel.copy())
     if samples:
         episodes.append(np.array(samples))
-    return bounds_from_velocities(episodes, dt, derivative=derivative, quantile=quantile, safety=safety)
-
-
-def bounds_from_velocities(
-    episodes: list[np.ndarray], dt: float, *, derivative: int = 2, quantile: float = 0.99, safety: float = 2.0
-) -> np.ndarray:
-    r"""``safety * quantile(|z^(r)|)`` per dof from sampled velocities.
-
-    ``episodes`` holds arrays ``(T_i, nv)`` of ``qvel`` sampled every ``dt``; backward differences give
-    :math:`z^{(r)}` (``r = derivative``). Dofs that never moved get the largest bound of the model, and every
-    bound is floored at ``1e-3``.
-    """
-    if derivative < 1:
-        raise ValueError(f"expected derivative >= 1, actual value: {derivative}")
-    diffs = [np.diff(V, n=derivative - 1, axis=0) / dt ** (derivative - 1) for V in episodes if len(V) >= derivative]
-    if not diffs:
-        raise ValueError(
-            f"expected a rollout long enough to calibrate, actual value: {len(episodes)} episode(s) "
-            f"shorter than {derivative} samples"
-        )
-    D = np.abs(np.concatenate(diffs, axis=0))
-    bound = safety * np.quantile(D, quantile, axis=0)
-    # dofs the random policy cannot move (a pushed object, a goal) get the largest bound of the model: they may
-    # be hit later, and a tiny gain would never catch up
-    untouched = bound <= 1e-6 * max(float(np.max(bound)), 1e-300)
-    bound[untouched] = np.max(bound)
-    return np.maximum(bound, 1e-3)
+    return episodes
 
 
 _MEMORY_CACHE: dict[str, list[float]] = {}
