@@ -38,6 +38,7 @@ from smo_gym.observers import (
     CoordinateTransform,
     DiscreteTimeHOSM,
     DissipativeSuperTwisting,
+    FilteringDifferentiator,
     FiniteDifference,
     HighGain,
     ILFDifferentiator,
@@ -626,6 +627,7 @@ NAME_KWARGS = {
     "ilf-finite": dict(lipschitz=5.0, gain=ILF_GAIN),
     "ilf-fixed": dict(lipschitz=5.0, gain=ILF_GAIN),
     "discrete-hosm": dict(p1=5.0),
+    "filtering": dict(lipschitz=5.0),
 }
 
 
@@ -656,6 +658,19 @@ OBSERVER_FAMILIES = [
             discretization=_disc(Levant),
             p1=st.one_of(st.none(), st.none(), st.none(), positive(1.0, 50.0)),
             mu=st.one_of(st.just(0.0), st.just(0.0), st.just(0.0), positive(0.0, 2.0)),
+        ),
+    ),
+    Family(
+        "FilteringDifferentiator",
+        FilteringDifferentiator,
+        lambda n: dict(
+            order=st.sampled_from([1, 2, 3] * 3 + [0, 6]),
+            filtering_order=st.sampled_from([0, 1, 2] * 3 + [-1, 5]),
+            dt=positive(1e-4, 2e-2),
+            lipschitz=positive_or_per_channel(n),
+            degree=st.sampled_from([-1.0, -0.5, 0.0] * 3 + [0.5, -1.5]),
+            discretization=_disc(FilteringDifferentiator),
+            p1=st.one_of(st.none(), st.none(), positive(1.0, 50.0)),
         ),
     ),
     Family(
@@ -1262,6 +1277,7 @@ def run_sweep(family: Family) -> int:
 GOOD = {
     "SuperTwisting": dict(dt=1e-3, lipschitz=5.0, k1=3.0, k2=6.0, discretization="euler"),
     "Levant": dict(order=2, dt=1e-3, lipschitz=5.0, discretization="matching", p1=3.0, mu=0.5),
+    "FilteringDifferentiator": dict(order=2, filtering_order=1, dt=1e-3, lipschitz=5.0, degree=-0.5, p1=3.0),
     "URED": dict(dt=1e-3, lipschitz=5.0, k1=3.0, k2=6.0, beta=1.0, discretization="euler"),
     "UniformLevant": dict(order=2, dt=1e-3, lipschitz=5.0, alpha=1.0, discretization="taylor"),
     "HighGain": dict(dt=1e-3, gain=20.0, order=2, discretization="euler"),

@@ -14,6 +14,7 @@ from .._validation import DivergenceError, check_keywords, did_you_mean
 from .base import Observer
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .discrete_hosm import DiscreteTimeHOSM
+from .filtering import FilteringDifferentiator
 from .ilf import ILFDifferentiator, ILFFixedDifferentiator, ILFObserver
 from .linear import FiniteDifference, HighGain, KalmanCA
 from .low_power import LowPowerHighGain
@@ -47,6 +48,7 @@ __all__ = [
     "DivergenceError",
     "Dynamics",
     "Family",
+    "FilteringDifferentiator",
     "FiniteDifference",
     "HighGain",
     "ILFDifferentiator",

@@ -475,9 +475,11 @@ def sta_implicit_rows(state, y, params, new_state, out, shared):
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Discrete-time eigenvalue-mapping observer of Wetzlinger et al. (differentiator part)
-# params row: [dt, p1, mu, mode, back, V ((m + 1) * m)], mode 0 = semi-implicit (15), 1 = matching (16);
-# back: the report is exp(-back N) x_{k+1}, back = dt (the estimate at t_k) or 0 (the predictor x_{k+1} itself)
+# Discrete-time eigenvalue-mapping observer of Wetzlinger et al. (differentiator part), with the filtering chain of
+# Levant & Livne in front and a homogeneity degree d in [-1, 0] (Andritsch et al.)
+# params row: [dt, p1, mu, mode, back, degree, V ((n + 1) * n)], mode 0 = semi-implicit (15), 1 = matching (16);
+# back: the report is exp(-back N) z_{k+1}, back = dt (the estimate at t_k) or 0 (the predictor z_{k+1} itself);
+# state row: [z_0, ..., z_{m-1}, w_1, ..., w_nf, innovation], n = m + nf states (nf = 0: no filter)
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def _eigenvalue_root(a, n):
@@ -495,12 +497,26 @@ def _eigenvalue_root(a, n):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
+def _homogeneous_root(a, n, degree):
+    r"""The root :math:`|\sigma|^{-q}`, :math:`q = d/(1 - d(n - 1))`, of the eigenvalue :math:`s = -p_1|\sigma|^q`
+    of a differentiator of homogeneity degree ``d`` with ``n`` states (Andritsch et al.).
+
+    ``d = -1`` gives :math:`|\sigma|^{1/n}` (:func:`_eigenvalue_root`, Levant's and Wetzlinger et al.'s case),
+    ``d = 0`` gives 1 (a constant eigenvalue: a linear observer), also at :math:`\sigma = 0`.
+    """
+    if degree == -1.0:
+        return _eigenvalue_root(a, n)
+    return a ** (-degree / (1.0 - degree * (n - 1)))
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
 def _eigenvalue_from_root(a, root, dt, p1, mu, mode):
-    """(15) or (16) given ``a = |sigma|`` and its root (see :func:`eigenvalue_map`)."""
+    r"""(15) or (16) given ``a = |sigma|`` and its root (see :func:`eigenvalue_map`); 0 where the root is 0 (the
+    eigenvalue :math:`s \to -\infty` of a discontinuous differentiator at :math:`\sigma = 0`)."""
     semi = root / (dt * p1 * mu * a + root + dt * p1)
-    matching = exp_nonpositive(-dt * p1 * (1.0 + mu * a) / root)  # -inf at a = 0 gives 0
+    matching = exp_nonpositive(-dt * p1 * (1.0 + mu * a) / root)  # -inf at root = 0 gives 0
     z = semi if mode == 0 else matching
-    return z if a != 0.0 else 0.0
+    return z if root != 0.0 else 0.0
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -515,58 +531,200 @@ def eigenvalue_map(sigma, dt, p1, mu, n, mode):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def eigmap_channel_step(x, y, params, m, x_new, out_row):
-    r"""One step of (33) with zero model terms: :math:`\hat\xi_{k+1} = A\hat\xi_k + \tilde l(z_n(\sigma_k))\sigma_k`.
+def eigmap_channel_step(x, y, params, m, n, x_new, out_row):
+    r"""One step of (33) with zero model terms, :math:`\hat\xi_{k+1} = \Phi\hat\xi_k + b(y_k)
+    + \tilde l(z(\sigma_k))\sigma_k`, on a chain of ``n`` states whose last ``m`` estimate ``(f, ..., f^(m-1))``.
 
-    ``A`` is the Taylor matrix (31), :math:`\sigma_k = y_k - \hat\xi_{1,k}`, and the Ackermann gain (35) is evaluated
-    as :math:`\tilde l(z) = \sum_{j=0}^{m} (-z)^{m-j} v_j` with :math:`v_j = \binom{m}{j} A^j \mathcal O^{-1} e_m`
-    precomputed (the binomial expansion of :math:`(A - zI)^m`). ``x_new`` receives the predictor
-    :math:`\hat\xi_{k+1}`; ``out_row`` the report :math:`e^{-bN}\hat\xi_{k+1}` with ``b = params[4]``: ``dt`` for the
+    Without filter (``n = m``), :math:`\Phi = A` is the Taylor matrix (31), :math:`b = 0` and
+    :math:`\sigma_k = y_k - \hat\xi_{1,k}`: Wetzlinger et al.'s observer. With ``nf = n - m`` filter states
+    :math:`w_1, \ldots, w_{nf}` in front (Levant & Livne's filtering differentiator, :math:`\dot w_{nf} = z_0 - f`),
+    the chain is driven by :math:`u = z_0 - y` held over the step: :math:`w_i` moves by the Taylor terms of
+    :math:`w_i, \ldots, w_{nf}` plus :math:`\tau^{nf-i+1}/(nf-i+1)!\,u_k`, the ``z`` block by the Taylor matrix,
+    and :math:`\sigma_k = -w_{1,k}` (module :mod:`smo_gym.observers.filtering`). The Ackermann gain (35) is
+    evaluated as :math:`\tilde l(z) = \sum_{j=0}^{n} (-z)^{n-j} v_j` with :math:`v_j = \binom{n}{j}\Phi^j
+    \mathcal O^{-1} e_n` precomputed in the state's column order (the binomial expansion of
+    :math:`(\Phi - zI)^n`), and the eigenvalue :math:`z` is (15) or (16) of :math:`s = -p_1|\sigma|^{q}`,
+    :math:`q = d/(1 - d(n - 1))` for the degree ``d = params[5]`` (:func:`_homogeneous_root`; ``d = -1``:
+    :math:`q = -1/n`, Wetzlinger et al.'s maps). ``x_new`` receives the predictor :math:`\hat\xi_{k+1}`;
+    ``out_row`` the report :math:`e^{-bN}\hat z_{k+1}` of the ``z`` block with ``b = params[4]``: ``dt`` for the
     estimate at :math:`t_k` (``Levant``), 0 for the predictor itself (``DiscreteTimeHOSM``: zero times each higher
-    entry is added, so the entries come out unchanged, up to the sign of a zero).
+    entry is added, so the entries come out unchanged, up to the sign of a zero). Returns the innovation
+    :math:`y_k - \hat z_{0,k}`.
     """
     dt = params[0]
-    sigma = y - x[0]
-    z = eigenvalue_map(sigma, dt, params[1], params[2], m, params[3])
-    voff = 5
-    for i in range(m):
+    nf = n - m
+    innovation = y - x[0]
+    sigma = innovation if nf == 0 else -x[m]
+    a = abs(sigma)
+    z = _eigenvalue_from_root(a, _homogeneous_root(a, n, params[5]), dt, params[1], params[2], params[3])
+    voff = 6
+    for i in range(n):
+        # the prediction: Taylor terms within the block of column i, and for a filter state the held input
+        last = m if i < m else n  # one past the block of column i
         acc = x[i]
         fac = 1.0
-        for l in range(1, m - i):
+        for l in range(1, last - i):
             fac *= dt / l
             acc += fac * x[i + l]
-        # l_i(z) = sum_j (-z)^(m-j) v_j[i], Horner in (-z)
+        if i >= m:
+            acc -= fac * (dt / (n - i)) * innovation  # tau^(n-i)/(n-i)! (z_0 - y)
+        # l_i(z) = sum_j (-z)^(n-j) v_j[i], Horner in (-z)
         gain = 0.0
-        for j in range(m + 1):
-            gain = gain * (-z) + params[voff + j * m + i]
+        for j in range(n + 1):
+            gain = gain * (-z) + params[voff + j * n + i]
         x_new[i] = acc + gain * sigma
     _taylor_back(x_new, m, params[4], out_row)
-    return sigma
+    return innovation
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _eigmap_loop(state, y, params, new_state, out, shared, m):
-    """The channel loop of :func:`eigmap_rows` for ``m`` estimates (a compile-time constant when inlined)."""
-    _check_widths(state, new_state, params, out, m + 1, 5 + (m + 1) * m, m)
+def _eigmap_loop(state, y, params, new_state, out, shared, m, n):
+    """The channel loop of :func:`eigmap_rows` for ``m`` estimates of ``n`` states (compile-time constants when
+    inlined)."""
+    _check_widths(state, new_state, params, out, n + 1, 6 + (n + 1) * n, m)
     failed = False
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
         row = new_state[c]
-        row[m] = eigmap_channel_step(state[c], y[c], params[pc], m, row, out[c])
+        row[n] = eigmap_channel_step(state[c], y[c], params[pc], m, n, row, out[c])
         failed |= not (_row_finite(row) and _row_finite(out[c]))
     return _check_state(new_state, out) if failed else -1
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
 def eigmap_rows(state, y, params, new_state, out, shared):
-    """:func:`eigmap_channel_step` on every channel, ``m = out.shape[1]`` (``shared``: one parameter row for every
-    channel); the common orders with ``m`` a constant, as :func:`hosm_rows`."""
+    """:func:`eigmap_channel_step` on every channel, ``m = out.shape[1]`` estimates of ``n = state.shape[1] - 1``
+    states (``shared``: one parameter row for every channel); the common orders without filter with ``m`` a
+    constant, as :func:`hosm_rows`."""
     m = out.shape[1]
-    if m == 2:
-        return _eigmap_loop(state, y, params, new_state, out, shared, 2)
-    if m == 3:
-        return _eigmap_loop(state, y, params, new_state, out, shared, 3)
-    return _eigmap_loop(state, y, params, new_state, out, shared, m)
+    n = state.shape[1] - 1
+    if m == 2 and n == 2:
+        return _eigmap_loop(state, y, params, new_state, out, shared, 2, 2)
+    if m == 3 and n == 3:
+        return _eigmap_loop(state, y, params, new_state, out, shared, 3, 3)
+    return _eigmap_loop(state, y, params, new_state, out, shared, m, n)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Filtering differentiator of homogeneity degree d in [-1, 0], implicit (backward) Euler
+# params row: [dt, degree, k (n)]; state row as the eigenvalue-map step's, [z_0, ..., z_{m-1}, w_1, ..., w_nf,
+# innovation] with n = m + nf states
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _chain_column(c, m, nf):
+    """The state column of chain state ``c`` of ``w_1, ..., w_nf, z_0, ..., z_{m-1}``: the state stores the ``z``
+    block first (column 0 is the value estimate, as in every family)."""
+    return c - nf if c >= nf else m + c
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _injection_sum(s, params, dt, q, n):
+    r""":math:`g(s) = s + \sum_c \beta_c s^{p_c}` and :math:`g'(s)` at ``s > 0``, with :math:`\beta_c = \tau^{c+1}k_c`
+    and :math:`p_c = 1 + q(c + 1)` (:func:`filtering_implicit_channel_step`)."""
+    g = s
+    dg = 1.0
+    beta = 1.0
+    for c in range(n):
+        beta *= dt
+        p = 1.0 + q * (c + 1)
+        term = beta * params[2 + c] * s**p
+        g += term
+        dg += p * term / s
+    return g, dg
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _injection_root(target, params, dt, q, n):
+    r"""The root ``s`` in :math:`(0, \mathrm{target}]` of :math:`g(s) = \mathrm{target}` (:func:`_injection_sum`:
+    ``g`` increases, from below ``target`` at :math:`0^+` to at least ``target`` at ``target``): Newton's method
+    inside a shrinking bracket, bisecting where a Newton step would leave it, to a relative step of ``4e-16``."""
+    lo = 0.0
+    hi = target
+    s = target
+    for _ in range(200):
+        g, dg = _injection_sum(s, params, dt, q, n)
+        if g > target:
+            hi = s
+        else:
+            lo = s
+        new = s - (g - target) / dg
+        if not (new > lo and new < hi):
+            new = 0.5 * (lo + hi)
+        if abs(new - s) <= 4e-16 * new:
+            return new
+        s = new
+    return s
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
+    r"""One implicit (backward) Euler step of the filtering differentiator of degree ``d``
+    (:class:`smo_gym.observers.FilteringDifferentiator`), in chain coordinates
+    :math:`\xi = (w_1, \ldots, w_{nf}, z_0, \ldots, z_{m-1})`:
+
+    .. math::
+        \xi^+ = \xi + \tau\big(A\xi^+ + b\,y^+ + \psi(\sigma^+)\big),\qquad
+        \psi_c(\sigma) = k_c\lceil\sigma\rfloor^{p_c},\quad p_c = 1 + q(c + 1),\quad q = \frac{d}{1 - d(n-1)},
+
+    with ``A`` the shift, :math:`b = -e_{nf}` (:math:`\dot w_{nf} = z_0 - f`; ``b = 0`` without filter) and
+    :math:`\sigma^+ = -w_1^+` (:math:`y^+ - z_0^+` without filter). With :math:`T = (I - \tau A)^{-1}`
+    (:math:`T_{cd} = \tau^{d-c}`, ``d >= c``) it reads :math:`\xi^+ = T(\xi + \tau b y^+) + \tau T\psi(\sigma^+)`,
+    whose first row is the scalar equation
+
+    .. math:: \sigma^+ + \sum_c \beta_c\lceil\sigma^+\rfloor^{p_c} = \rho,\qquad \beta_c = \tau^{c+1}k_c,
+
+    :math:`\rho` the error of :math:`T(\xi + \tau b y^+)`. Its left side increases strictly in :math:`\sigma^+`,
+    so the solution is unique: for ``d = -1`` (:math:`p_{n-1} = 0`, a set-valued sign) it is :math:`\sigma^+ = 0`
+    with :math:`\psi_{n-1} = k_{n-1}\rho/\beta_{n-1}` when :math:`|\rho| \le \beta_{n-1}`; otherwise
+    :math:`\sigma^+ = \mathrm{sign}(\rho)s` with ``s`` the root of a monotone scalar equation
+    (:func:`_injection_root`; for ``d = 0`` it is linear and the first Newton step solves it). Returns the
+    innovation :math:`y^+ - \hat z_0`; ``out_row`` receives the ``z`` block of :math:`\xi^+`.
+    """
+    dt = params[0]
+    degree = params[1]
+    nf = n - m
+    q = degree / (1.0 - degree * (n - 1))
+    # a_c = [T (xi + tau b y)]_c, by the recursion a_c = v_c + tau a_{c+1} from the last chain state up
+    acc = 0.0
+    for c in range(n - 1, -1, -1):
+        v = x[_chain_column(c, m, nf)]
+        if c == nf - 1:
+            v -= dt * y
+        acc = v + dt * acc
+        x_new[_chain_column(c, m, nf)] = acc
+    rho = (y if nf == 0 else 0.0) - x_new[_chain_column(0, m, nf)]
+    # the injection psi(sigma+) solving the scalar equation, then xi+ = a + tau T psi (the same recursion)
+    beta_last = dt**n * params[1 + n]
+    sign = 1.0 if rho > 0.0 else -1.0
+    stick = degree == -1.0 and abs(rho) <= beta_last
+    s = 0.0 if (stick or rho == 0.0) else _injection_root(abs(rho), params, dt, q, n)
+    acc = 0.0
+    for c in range(n - 1, -1, -1):
+        if stick:
+            psi = params[2 + c] * rho / beta_last if c == n - 1 else 0.0
+        else:
+            psi = sign * params[2 + c] * s ** (1.0 + q * (c + 1)) if s > 0.0 else 0.0
+        acc = dt * (psi + acc)
+        x_new[_chain_column(c, m, nf)] += acc
+    for j in range(m):
+        out_row[j] = x_new[j]
+    return y - x[0]
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def filtering_implicit_rows(state, y, params, new_state, out, shared):
+    """:func:`filtering_implicit_channel_step` on every channel, ``m = out.shape[1]`` estimates of
+    ``n = state.shape[1] - 1`` states (``shared``: one parameter row for every channel)."""
+    m = out.shape[1]
+    n = state.shape[1] - 1
+    _check_widths(state, new_state, params, out, n + 1, 2 + n, m)
+    failed = False
+    for c in range(y.shape[0]):
+        pc = 0 if shared else c  # the parameter row of channel c
+        row = new_state[c]
+        row[n] = filtering_implicit_channel_step(state[c], y[c], params[pc], m, n, row, out[c])
+        failed |= not (_row_finite(row) and _row_finite(out[c]))
+    return _check_state(new_state, out) if failed else -1
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -993,6 +1151,7 @@ def register_step(rows, *, allocates: bool = False, compact: bool = False) -> St
 hosm = register_step(hosm_rows, compact=True)
 sta_implicit = register_step(sta_implicit_rows)
 eigmap = register_step(eigmap_rows)
+filtering_implicit = register_step(filtering_implicit_rows)
 linear = register_step(linear_rows)
 kalman_ca = register_step(kalman_ca_rows)
 finite_difference = register_step(finite_difference_rows)
@@ -1000,6 +1159,7 @@ finite_difference = register_step(finite_difference_rows)
 hosm_kernel, hosm_shared_kernel = hosm.kernel, hosm.shared_kernel
 sta_implicit_kernel, sta_implicit_shared_kernel = sta_implicit.kernel, sta_implicit.shared_kernel
 eigmap_kernel, eigmap_shared_kernel = eigmap.kernel, eigmap.shared_kernel
+filtering_implicit_kernel = filtering_implicit.kernel
 linear_kernel, linear_shared_kernel = linear.kernel, linear.shared_kernel
 kalman_ca_kernel, kalman_ca_shared_kernel = kalman_ca.kernel, kalman_ca.shared_kernel
 finite_difference_kernel, finite_difference_shared_kernel = finite_difference.kernel, finite_difference.shared_kernel

@@ -62,6 +62,7 @@ __all__ = [
     "UniformLevant",
     "eigenvalue_map_rate",
     "eigenvalue_mapping_vectors",
+    "filtering_chain_matrix",
     "taylor_matrix",
 ]
 
@@ -100,24 +101,55 @@ def _levant_sequence(gains, order: int) -> np.ndarray:
     return lam.copy()
 
 
-def eigenvalue_mapping_vectors(m: int, dt: float) -> np.ndarray:
-    r"""Vectors :math:`v_j = \binom{m}{j} A^j \mathcal{O}^{-1} e_m`, ``j = 0..m``, shape ``(m + 1, m)``.
+def filtering_chain_matrix(m: int, dt: float, filtering_order: int = 0) -> np.ndarray:
+    r"""The transition matrix :math:`\Phi` of the eigenvalue-map step over one step ``dt``, shape ``(n, n)`` with
+    ``n = m + filtering_order``, in the state's column order :math:`(z_0, \ldots, z_{m-1}, w_1, \ldots, w_{nf})`.
 
-    With ``A`` the Taylor matrix (31) and ``c = e_1``, Ackermann's formula (35) of [WRH] for the observer gain
-    that puts all eigenvalues of ``A - l c^T`` at ``z`` expands to :math:`l(z) = \sum_j (-z)^{m-j} v_j`, a
-    polynomial in ``z`` the kernel evaluates per sample by Horner's rule.
+    The ``z`` block is the Taylor matrix (31) (:func:`taylor_matrix`); each filter state :math:`w_i` moves by the
+    Taylor terms of :math:`w_i, \ldots, w_{nf}` and by :math:`\tau^{nf-i+1}/(nf-i+1)!\,z_0`, the zero-order
+    hold of the input :math:`u = z_0 - f` of the filter chain (the measurement's part,
+    :math:`-\tau^{nf-i+1}/(nf-i+1)!\,y`, enters the step as an input; module :mod:`smo_gym.observers.filtering`).
+    Without filter it is the Taylor matrix itself.
+    """
+    nf = filtering_order
+    n = m + nf
+    Phi = np.zeros((n, n))
+    Phi[:m, :m] = taylor_matrix(m, dt)
+    if nf:
+        chain = taylor_matrix(nf + 1, dt)  # w_1, ..., w_nf and the held input in the last column
+        Phi[m:, m:] = chain[:nf, :nf]
+        Phi[m:, 0] = chain[:nf, nf]
+    return Phi
+
+
+def eigenvalue_mapping_vectors(m: int, dt: float, filtering_order: int = 0) -> np.ndarray:
+    r"""Vectors :math:`v_j = \binom{n}{j} \Phi^j \mathcal{O}^{-1} e_n`, ``j = 0..n``, shape ``(n + 1, n)``,
+    ``n = m + filtering_order``, in the state's column order.
+
+    With :math:`\Phi` the transition matrix (:func:`filtering_chain_matrix`: the Taylor matrix (31) without filter)
+    and ``c`` the error's row (``e_1``; the first filter state :math:`w_1` with a filter), Ackermann's formula (35)
+    of [WRH] for the observer gain that puts all eigenvalues of :math:`\Phi - l c^T` at ``z`` expands to
+    :math:`l(z) = \sum_j (-z)^{n-j} v_j`, a polynomial in ``z`` the kernel evaluates per sample by Horner's rule.
 
     Notes
     -----
     The closed-form gains (79)-(82) printed by Wetzlinger et al. are not stable (their eigenvalues are not the
     placed ones); these vectors come from Ackermann's formula itself, and the tests check the placed eigenvalues.
     """
-    A = taylor_matrix(m, dt)
-    obs = np.vstack([np.linalg.matrix_power(A, i)[0] for i in range(m)])
-    e_m = np.zeros(m)
-    e_m[-1] = 1.0
-    w = np.linalg.solve(obs, e_m)
-    return np.array([comb(m, j) * np.linalg.matrix_power(A, j) @ w for j in range(m + 1)])
+    nf = filtering_order
+    n = m + nf
+    Phi = filtering_chain_matrix(m, dt, nf)
+    if nf:  # Ackermann's formula in chain order (w_1 first: the measured error), then back to the columns
+        order = np.r_[m:n, 0:m]
+        Phi = Phi[np.ix_(order, order)]
+    obs = np.vstack([np.linalg.matrix_power(Phi, i)[0] for i in range(n)])
+    e_n = np.zeros(n)
+    e_n[-1] = 1.0
+    w = np.linalg.solve(obs, e_n)
+    V = np.array([comb(n, j) * np.linalg.matrix_power(Phi, j) @ w for j in range(n + 1)])
+    if nf:
+        V = V[:, np.argsort(order)]
+    return V
 
 
 def eigenvalue_map_rate(lipschitz, m: int) -> np.ndarray:
@@ -130,13 +162,26 @@ def eigenvalue_map_rate(lipschitz, m: int) -> np.ndarray:
     return (1.1 * np.asarray(lipschitz, dtype=float)) ** (1.0 / m)
 
 
-def _pack_eigmap(dt: float, p1: np.ndarray, mu: float, mode: str, m: int, *, predictor: bool = False) -> np.ndarray:
-    r"""Parameter rows of the eigenvalue-mapping kernel: ``[dt, p1, mu, mode, back, V]`` per channel.
+def _pack_eigmap(
+    dt: float,
+    p1: np.ndarray,
+    mu: float,
+    mode: str,
+    m: int,
+    *,
+    predictor: bool = False,
+    filtering_order: int = 0,
+    degree: float = -1.0,
+) -> np.ndarray:
+    r"""Parameter rows of the eigenvalue-mapping kernel: ``[dt, p1, mu, mode, back, degree, V]`` per channel.
 
     ``back`` is how far the step moves its prediction back for the report: ``dt`` (the estimate at the sample
-    time), or 0 with ``predictor`` (the predictor :math:`\hat\xi_{k+1}` itself).
+    time), or 0 with ``predictor`` (the predictor :math:`\hat\xi_{k+1}` itself). ``m`` estimates, after
+    ``filtering_order`` filter states; ``degree`` the homogeneity degree of the eigenvalue (-1: Wetzlinger et al.'s
+    maps). The one parameter construction of :class:`Levant`'s eigenvalue maps, :class:`DiscreteTimeHOSM` and
+    :class:`~smo_gym.observers.FilteringDifferentiator`.
     """
-    V = eigenvalue_mapping_vectors(m, dt).reshape(-1)
+    V = eigenvalue_mapping_vectors(m, dt, filtering_order).reshape(-1)
     N = p1.shape[0]
     head = np.column_stack(
         [
@@ -145,6 +190,7 @@ def _pack_eigmap(dt: float, p1: np.ndarray, mu: float, mode: str, m: int, *, pre
             np.full(N, mu),
             np.full(N, 0.0 if mode == "semi-implicit" else 1.0),
             np.full(N, 0.0 if predictor else dt),
+            np.full(N, float(degree)),
         ]
     )
     return np.hstack([head, np.broadcast_to(V, (N, V.size))])
