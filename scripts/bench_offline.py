@@ -5,12 +5,16 @@ second (``Y.size / seconds``) of
 
 * ``run``: ``observer.reset(Y[0]); observer.run(Y[1:])`` (the estimates allocated by ``run``),
 * ``update loop``: ``observer.reset(Y[0])`` and one ``observer.update(Y[t])`` per sample (on the first
-  ``--loop-samples`` samples only for long records: the rate per sample does not depend on the length),
+  ``--loop-samples`` samples only for long records: the rate per sample does not depend on the length), the
+  estimates dropped,
+* ``loop, kept``: the same loop keeping every estimate in an array allocated for them, as ``run`` returns them
+  (``out[t] = observer.update(Y[t])``): the work ``run`` does, written in Python,
 * ``differentiate``: ``smo_gym.differentiate(Y, dt, observer=..., lipschitz=...)`` (given gains: no calibration),
 * ``np.diff``: ``np.diff(Y, axis=0)``, the memory-bound reference of a first difference,
 
-and the ratios ``run / update loop`` and ``differentiate / np.diff``. The default observer is the default family of
-the wrapper, :class:`smo_gym.observers.SuperTwisting` with its default discretization (``"implicit"``).
+and the ratios ``run / update loop``, ``run / loop, kept`` and ``differentiate / np.diff``. The default observer is
+the default family of the wrapper, :class:`smo_gym.observers.SuperTwisting` with its default discretization
+(``"implicit"``).
 
 Timing: the median over ``--repeats`` runs (after one warm-up run, which also compiles), of the process CPU time by
 default (the code is single-threaded; CPU time is what a shared machine disturbs least), or of wall-clock time with
@@ -69,6 +73,12 @@ def bench(shape, observer: str, dt: float, lipschitz: float, repeats: int, loop_
         for t in range(1, Yl.shape[0]):
             obs.update(Yl[t])
 
+    def kept():
+        obs.reset(Yl[0])
+        out = np.empty((Yl.shape[0] - 1,) + obs.estimate.shape)
+        for t in range(1, Yl.shape[0]):
+            out[t - 1] = obs.update(Yl[t])
+
     def differentiate():
         smo_gym.differentiate(Y, dt, observer=observer, lipschitz=lipschitz)
 
@@ -78,6 +88,7 @@ def bench(shape, observer: str, dt: float, lipschitz: float, repeats: int, loop_
     rates = {
         "run": n / _seconds(run, repeats, clock),
         "update loop": Yl.size / _seconds(loop, max(1, repeats // 2), clock),
+        "loop, kept": Yl.size / _seconds(kept, max(1, repeats // 2), clock),
         "differentiate": n / _seconds(differentiate, repeats, clock),
         "np.diff": n / _seconds(diff, repeats, clock),
     }
@@ -98,13 +109,14 @@ def main(argv=None) -> None:
         f"{args.observer} (dt={args.dt}, lipschitz={args.lipschitz}), M channel-samples/s, median of "
         f"{args.repeats} ({'wall' if args.wall else 'CPU'} time)"
     )
-    header = ("shape", "run", "update loop", "differentiate", "np.diff", "run/loop", "diff./np.diff")
+    rates = ("run", "update loop", "loop, kept", "differentiate", "np.diff")
+    header = ("shape", *rates, "run/loop", "run/kept", "diff./np.diff")
     print(f"{header[0]:>16s} " + " ".join(f"{h:>13s}" for h in header[1:]))
     for shape in SHAPES:
         r = bench(shape, args.observer, args.dt, args.lipschitz, args.repeats, args.loop_samples, clock)
-        row = (r["run"], r["update loop"], r["differentiate"], r["np.diff"])
-        ratios = (r["run"] / r["update loop"], r["differentiate"] / r["np.diff"])
-        print(f"{shape!s:>16s} " + " ".join(f"{v:13.1f}" for v in row) + " ".join(f"{v:13.2f}" for v in ratios))
+        ratios = (r["run"] / r["update loop"], r["run"] / r["loop, kept"], r["differentiate"] / r["np.diff"])
+        cells = [f"{r[k]:13.1f}" for k in rates] + [f"{v:13.2f}" for v in ratios]
+        print(f"{shape!s:>16s} " + " ".join(cells))
 
 
 if __name__ == "__main__":
