@@ -138,6 +138,9 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
         "low-power-high-gain": "LowPowerHG",
         "ilf-finite": "ILF-fin",
         "ilf-fixed": "ILF-fix",
+        "filtering": "Filtering",
+        "alpha-beta": "AlphaBeta",
+        "discrete-hosm": "DT-HOSM",
     }
     cols = [short.get(n, n) for n in names]
     out = [
