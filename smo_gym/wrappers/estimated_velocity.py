@@ -21,6 +21,7 @@ __all__ = [
     "EstimatedVelocity",
     "calibrate_environment",
     "observation_wrappers",
+    "random_episodes",
     "resolve_rate",
     "rollout_velocities",
 ]
@@ -49,11 +50,17 @@ def resolve_rate(rate, frame_skip: int) -> int:
 
 
 def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
-    """``qvel`` sampled every ``sample_every`` physics steps on a copy of the environment under uniform random
-    actions, with the environment's own (seeded) resets at episode ends: its reset distribution, actions and
-    terminations, on the live model (:meth:`~smo_gym.wrappers.adapters.MujocoAdapter.copy_environment`: masses
-    or a timestep edited in place count), for about ``steps`` physics steps. Returns one array ``(T_i, nv)`` per
-    episode, or None if the environment cannot be copied."""
+    """``qvel`` of :func:`random_episodes`, one array ``(T_i, nv)`` per finite episode, or None."""
+    episodes = random_episodes(adapter, sample_every, steps, seed)
+    return None if episodes is None else [episode.qvel for episode in episodes if np.all(np.isfinite(episode.qvel))]
+
+
+def random_episodes(adapter, sample_every: int, steps: int, seed: int = 0) -> list | None:
+    """The :class:`~smo_gym.wrappers.rollout.Episode` list of a copy of the environment under uniform random
+    actions, sampled every ``sample_every`` physics steps, with the environment's own (seeded) resets at episode
+    ends: its reset distribution, actions and terminations, on the live model
+    (:meth:`~smo_gym.wrappers.adapters.MujocoAdapter.copy_environment`: masses or a timestep edited in place
+    count), for about ``steps`` physics steps; None if the environment cannot be copied or sampled so often."""
     try:
         sim = adapter.copy_environment()
         sim.render_mode = None  # never open a window for the calibration
@@ -74,7 +81,7 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
         adapter=adapter,
     )
     sim.close()
-    return [episode.qvel for episode in episodes if np.all(np.isfinite(episode.qvel))]
+    return episodes
 
 
 #: wrappers that return the observation of the environment beneath them unchanged (exactly these classes)
@@ -362,7 +369,6 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.measurement = JointMeasurement(model, copy.deepcopy(make_sensor(sensor)), self.sample_dt)
         #: the :class:`~smo_gym.calibration.Calibration` the default gains came from (None for a given observer)
         self.calibration: Calibration | None = None
-        #: the calibrated bound of a model-based observer's model miss; the range of its per-episode mass scale
         self.model_miss_bound = self.mass_scale_range = None
         model_based = isinstance(observer, str) and observer in MODEL_BASED_OBSERVERS
         if model_based:
@@ -370,13 +376,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
             observer, self.model_miss_bound, self.mass_scale_range = model_based_observer(
                 observer,
-                model,
-                self.adapter.frame_skip,
+                self.adapter,
                 self.sample_every,
                 observer_kwargs,
-                calibration_steps=calibration_steps,
-                calibration_quantile=calibration_quantile,
-                calibration_safety=calibration_safety,
+                calibration_steps,
+                calibration_quantile,
+                calibration_safety,
             )
         if isinstance(observer, Observer):
             if self.measurement.wraps and not np.array_equal(

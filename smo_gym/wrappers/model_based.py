@@ -9,17 +9,16 @@ dynamics object is a :class:`smo_gym.mechanics.MujocoDynamics` on a private copy
 (``qfrc_applied``, ``xfrc_applied``) are not given to the observer: they are what its disturbance estimate
 (``wrapper.observer.external_torque``) recovers.
 
-Default gains: the disturbance bound ``L`` of each joint is ``safety * quantile(|dv/dt - f(q, v, u)|)`` over a
-calibration rollout of the model itself with random actions (what the model misses, contacts included when
-``contact="unknown"``; with a range of mass scales, the larger of the misses at its two ends), and the model term is
-saturated at ``safety * quantile(|dv/dt|)`` (Wetzlinger et al., eq. (33)).
-With ``rate="env"`` the model is integrated over the ``frame_skip`` physics steps of a sample
-(``model_substeps``), so the cost per physics step is that of the physics-rate observer.
+Default gains: the disturbance bound ``L`` of each joint is ``safety * quantile(|dv/dt - f(q, v, u)|)`` per physics
+step over random-action episodes of a copy of the environment, with its resets and terminations (what the model
+misses where the environment goes; contacts too with ``contact="unknown"``; for a range of mass scales, the larger
+miss of its two ends; else on :func:`~smo_gym.mechanics.calibrate_model_miss`), and the model term is saturated at
+``safety * quantile(|dv/dt|)`` (Wetzlinger et al., eq. (33)). With ``rate="env"`` the model is integrated over
+the ``frame_skip`` physics steps of a sample (``model_substeps``): the cost per physics step of ``rate="physics"``.
 
-Limitations: hinge and slide joints only (free/ball joints raise ``ValueError`` from ``MujocoDynamics``), no
-joint-equality couplings (the wrapper measures every joint; use the observers directly on such models, as
-``scripts/plot_coriolis_transform.py`` does on ``VariableInertia-v0``), one environment per wrapper (the vector
-wrappers refuse these names), and sensors that report single-turn angles are refused.
+Limitations: hinge and slide joints only (``MujocoDynamics`` refuses free and ball joints), no joint-equality
+couplings (use the observers directly on such models, as ``scripts/plot_coriolis_transform.py`` does), no vector
+wrappers (they refuse these names), no sensors that report single-turn angles.
 """
 
 from __future__ import annotations
@@ -29,18 +28,17 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import design
-from .._validation import check_positive
+from .._validation import check_positive_range
 from ..engine.measurement import VelocityEstimator
 from ..mechanics import MujocoDynamics, calibrate_model_miss
 from ..observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
-from .estimated_velocity import EstimatedVelocity
+from .estimated_velocity import EstimatedVelocity, random_episodes
 
 __all__ = [
     "InputAwareEstimator",
     "ModelBasedEstimatedVelocity",
     "ModelBasedObserver",
     "calibrate_model_miss",
-    "mass_scale_range",
     "model_based_observer",
 ]
 
@@ -58,38 +56,20 @@ class InputAwareEstimator(VelocityEstimator):
         return self.observer.update(z, self.adapter.data.ctrl.copy())[..., 1]
 
 
-def mass_scale_range(value) -> tuple[float, float]:
-    """The model mismatch ``mass_scale`` of ``observer_kwargs`` as ``(low, high)``: a number ``s > 0`` is
-    ``(s, s)``, a pair ``(low, high)`` with ``0 < low <= high`` a range to draw from at each reset."""
-    if isinstance(value, (tuple, list)):
-        if len(value) != 2:
-            raise ValueError(f"expected mass_scale a number or a pair (low, high), actual value: {value!r}")
-        low, high = (check_positive("mass_scale", v) for v in value)
-        if low > high:
-            raise ValueError(f"expected mass_scale (low, high) with low <= high, actual value: {value!r}")
-        return low, high
-    scale = check_positive("mass_scale", value)
-    return scale, scale
-
-
 class ModelBasedObserver(NamedTuple):
-    """What :func:`model_based_observer` builds."""
+    """What :func:`model_based_observer` builds: the observer, the calibrated bound of its model miss per dof (None
+    for given gains) and the range each reset draws its mass scale from (None for a fixed one)."""
 
-    #: the observer, on a :class:`~smo_gym.mechanics.MujocoDynamics` of the environment's model
     observer: Observer
-    #: the calibrated bound of the model miss per dof (None when the gains were given)
     model_miss_bound: np.ndarray | None
-    #: the range each reset draws the mass scale from, or None for a fixed one
     mass_scale_range: tuple[float, float] | None
 
 
 def model_based_observer(
     name: str,
-    model,
-    frame_skip: int,
+    adapter,
     sample_every: int,
     observer_kwargs: dict | None = None,
-    *,
     calibration_steps: int = 2000,
     calibration_quantile: float = 0.99,
     calibration_safety: float = 2.0,
@@ -99,10 +79,10 @@ def model_based_observer(
     Parameters
     ----------
     name : {"mechanical-super-twisting", "dissipative-super-twisting"}
-    model : mujoco.MjModel
-        The environment's model (copied, never modified).
-    frame_skip, sample_every : int
-        Physics steps per environment step and per sample.
+    adapter : smo_gym.wrappers.adapters.MujocoAdapter
+        The environment's adapter (its model is copied, never modified).
+    sample_every : int
+        Physics steps per sample.
     observer_kwargs : dict, optional
         The observer's model settings, ``mass_scale`` (a number: every mass and inertia scaled; a pair
         ``(low, high)``: a scale drawn per episode by the wrapper, the model starting at the midpoint) and
@@ -122,8 +102,8 @@ def model_based_observer(
     """
     if name not in NAMES:
         raise ValueError(f"expected observer in {', '.join(NAMES)}, actual value: {name!r}")
-    kwargs = dict(observer_kwargs or {})
-    low, high = mass_scale_range(kwargs.pop("mass_scale", 1.0))
+    model, kwargs = adapter.model, dict(observer_kwargs or {})
+    low, high = check_positive_range("mass_scale", kwargs.pop("mass_scale", 1.0))
     dyn = MujocoDynamics(model, mass_scale=0.5 * (low + high), contact=kwargs.pop("contact", "unknown"))
     if dyn.n != model.nv:
         raise ValueError(
@@ -134,16 +114,10 @@ def model_based_observer(
     needs_bounds = "lipschitz" not in kwargs and not ("k1" in kwargs and "k2" in kwargs)
     miss_bound = None
     if needs_bounds or "accel_bound" not in kwargs:
-        misses = []
-        for scale in sorted({low, high}):  # the miss grows with the mismatch: the envelope of the range's ends
-            dyn.set_mass_scale(scale)
-            miss, acc = calibrate_model_miss(
-                model, dyn, frame_skip, steps=calibration_steps, quantile=calibration_quantile
-            )
-            misses.append(miss)
+        miss, acc = _model_miss(adapter, dyn, sorted({low, high}), calibration_steps, calibration_quantile)
         dyn.set_mass_scale(0.5 * (low + high))
         floor = 1e-3 * max(float(acc.max()), 1.0)
-        miss_bound = calibration_safety * np.maximum(np.max(misses, axis=0), floor)
+        miss_bound = calibration_safety * np.maximum(miss, floor)
         kwargs.setdefault("accel_bound", calibration_safety * np.maximum(acc, floor))
     if name == "mechanical-super-twisting":
         if needs_bounds:
@@ -159,6 +133,24 @@ def model_based_observer(
         kwargs.pop("lipschitz", None)
         obs = DissipativeSuperTwisting(dt, dyn, transform, gains, **kwargs)
     return ModelBasedObserver(obs, miss_bound, None if low == high else (low, high))
+
+
+def _model_miss(adapter, dyn: MujocoDynamics, scales, steps: int, quantile: float) -> tuple[np.ndarray, np.ndarray]:
+    """``quantile`` of the model miss per dof, the largest over the mass ``scales`` (the miss grows with the
+    mismatch: the envelope of a range's ends), and of the acceleration; module notes."""
+    h, dof = adapter.model.opt.timestep, dyn.dof
+    episodes = [e for e in random_episodes(adapter, 1, steps) or () if len(e.qvel) > 1 and np.isfinite(e.qvel).all()]
+    misses = []
+    for scale in scales:
+        dyn.set_mass_scale(scale)
+        if not episodes:
+            miss, acc = calibrate_model_miss(adapter.model, dyn, adapter.frame_skip, steps=steps, quantile=quantile)
+        else:  # the ctrl of each physics step is on the row of the sample it ends at
+            A = np.concatenate([np.diff(e.qvel[:, dof], axis=0) / h for e in episodes])
+            f = np.concatenate([dyn.acceleration(e.qpos[:-1, dof], e.qvel[:-1, dof], e.ctrl[1:]) for e in episodes])
+            miss, acc = np.quantile(np.abs(A - f), quantile, axis=0), np.quantile(np.abs(A), quantile, axis=0)
+        misses.append(miss)
+    return np.max(misses, axis=0), acc
 
 
 def _default_transform(model, dyn: MujocoDynamics) -> CoordinateTransform:
