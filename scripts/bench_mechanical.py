@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 r"""Benchmark of the model-based velocity observers.
 
-Prints six markdown tables:
+Prints seven markdown tables:
 
 1. **Sampling order.** Exact model, no noise: velocity RMSE of :class:`MechanicalSuperTwisting` (semi-implicit and
    euler) on the two-link arm and InvertedDoublePendulum-v5 (physics step reduced to 2 ms for a fine reference),
@@ -19,6 +19,10 @@ Prints six markdown tables:
    ``mj_step``, measured interleaved in one loop.
 6. **Variable inertia** (``VariableInertia-v0``, exact model, noisy encoder): the dissipative observer against
    the untransformed one and the model-free observers in normal operation (no large initial error).
+7. **Through the wrapper** (InvertedDoublePendulum-v5, physics rate, 10 % heavier model, ``encoder-12bit-noisy``):
+   :class:`~smo_gym.wrappers.EstimatedVelocity` with ``observer="mechanical-super-twisting"`` and its default
+   gains against the model-free observers, every wrapper on the same seeds and actions (hence the same
+   trajectories and encoder noise), episodes ending as the environment says.
 
 Parameters are not tuned on the evaluation trajectory: the disturbance bound ``L`` of the model-based observer is
 the largest model miss ``|dv/dt - f(q, v, u)|`` on a *calibration* trajectory (another seed), and the model-free
@@ -27,7 +31,7 @@ All trajectories use a piecewise-constant random policy (held for 40 physics ste
 sees a constant input over its sample interval.
 
 Run ``MUJOCO_GL=disable .venv/bin/python scripts/bench_mechanical.py`` (``--quick`` for shorter trajectories,
-``--tables order,noise,disturbance,contact,cost,variable_inertia`` to select).
+``--tables order,noise,disturbance,contact,cost,variable_inertia,wrapper`` to select).
 """
 
 from __future__ import annotations
