@@ -210,3 +210,11 @@ def test_the_default_bound_is_the_model_miss_where_the_environment_goes():
     misses = np.array(misses)
     assert np.all(env.model_miss_bound >= 2.0 * 0.5 * np.quantile(misses, 0.99, axis=0))
     assert np.all(env.model_miss_bound <= 2.0 * 2.0 * misses.max(axis=0))
+
+
+def test_the_sb3_vector_wrapper_refuses_a_model_based_name():
+    env_util = pytest.importorskip("stable_baselines3.common.env_util")
+    venv = env_util.make_vec_env("smo_gym/TwoLinkArm-v0", n_envs=2)
+    with pytest.raises(ValueError, match="expected a model-free observer"):
+        wrappers.VecEstimatedVelocity(venv, observer="mechanical-super-twisting")
+    venv.close()
