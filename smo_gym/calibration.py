@@ -144,7 +144,8 @@ def noise_std(y, *, order: int = 4) -> np.ndarray:
     MAD to standard deviation against the Gaussian's: uniform noise (bounded, the sliding-mode setting) and
     dithered quantization come out about 6 % high (measured with ``n = 3`` and ``4``). A quantized signal that
     moves by less than one count in most samples is a staircase whose differences are mostly zero: the median
-    then misses the quantization error, and the estimate is low.
+    then misses the quantization error, so the estimate is floored at the rounding error of one count,
+    :math:`\Delta/\sqrt{12}`, with :math:`\Delta` the typical nonzero step of such a channel.
     """
     n = check_int_in_range("order", order, 1, 16)
     y = _time_series(y)
@@ -152,7 +153,24 @@ def noise_std(y, *, order: int = 4) -> np.ndarray:
         raise ValueError(f"expected more than order = {n} samples, actual value: {y.shape[0]}")
     d = _lag_difference(y, n, 1)
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return MAD_TO_STD * mad / np.sqrt(comb(2 * n, n))
+    return np.maximum(MAD_TO_STD * mad / np.sqrt(comb(2 * n, n)), _staircase_std(y))
+
+
+def _staircase_std(y: np.ndarray) -> np.ndarray:
+    r"""Floor of the noise level of quantized channels that move by less than one count in most samples.
+
+    Such a record is a staircase: most first differences are exactly zero, so the median of every difference misses
+    the quantization error. Where more than half of them are zero, the step :math:`\Delta` is the median of the
+    nonzero ones (one count), and the error of rounding to it has the standard deviation :math:`\Delta/\sqrt{12}`;
+    other channels get 0.
+    """
+    d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, -1)
+    floor = np.zeros(d.shape[1])
+    for c in np.flatnonzero(np.mean(d == 0.0, axis=0) > 0.5):
+        steps = d[d[:, c] > 0.0, c]
+        if steps.size:
+            floor[c] = np.median(steps) / np.sqrt(12.0)
+    return floor.reshape(y.shape[1:])
 
 
 def derivative_bound(

@@ -317,3 +317,21 @@ def test_the_sensor_declares_its_quantization_step():
     env = EstimatedVelocity(gym.make("InvertedPendulum-v5"), sensor="encoder-12bit", observer="kalman-ca")
     np.testing.assert_array_equal(env.calibration.resolution, env.measurement.quantization_step())
     assert env.calibration.resolution[1] == pytest.approx(2 * np.pi / 4096)  # the hinge
+
+
+def test_a_slow_quantized_staircase_gets_the_rounding_error_as_its_noise_level():
+    """A ramp of 1e-4 per sample read by a 12-bit encoder (one count per ~15 samples) is a staircase whose
+    differences are mostly zero: without a floor the noise estimate was 0 and the jerk bound 6e6 (the true jerk is
+    0), which made ``differentiate`` without gains chatter by rad/s."""
+    dt, step = 1e-3, 2 * np.pi / 4096
+    y = 0.3 + 0.1 * np.arange(20000) * dt
+    Y = (step * np.floor(y / step + 0.5))[:, None]
+    np.testing.assert_allclose(calibration.noise_std(Y), step / np.sqrt(12.0), rtol=1e-12)
+    c = calibration.calibration_of_signal(Y, dt, (3,))
+    assert c.bound(3)[0] < 10.0 and c.rms(3)[0] < 10.0, (c.bound(3), c.rms(3))
+    z = smo_gym.differentiate(Y[:, 0], dt, observer="levant")
+    assert np.sqrt(np.mean((z[5000:, 1] - 0.1) ** 2)) < 0.05
+    # a channel that moves by many counts per sample is not a staircase: no floor
+    _, _, noisy = noisy_sine(T=5000, sigma=0.0)
+    fine = step * np.floor(noisy / step + 0.5)
+    assert calibration._staircase_std(fine)[0] == 0.0

@@ -22,7 +22,7 @@ class PerSample(VelocityEstimator):
 def test_batched_run_equals_per_sample_updates(env_id, observer):
     batched = EstimatedVelocity(gym.make(env_id), observer=observer, rate="physics")
     single = EstimatedVelocity(gym.make(env_id), observer=observer, rate="physics")
-    single.estimator = PerSample(single.estimator.observer)
+    single.estimator = PerSample(single.estimator.observer, mean_over=single.estimator.mean_over)
     a, _ = batched.reset(seed=1)
     b, _ = single.reset(seed=1)
     rng = np.random.default_rng(0)

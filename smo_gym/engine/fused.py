@@ -417,6 +417,7 @@ class FusedSensing:
         observer = estimator.observer
         return (
             type(estimator) is VelocityEstimator
+            and estimator.coefficients is None  # the compiled drivers report the estimate's velocity column
             and fusable(observer)
             and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
             and observer.order >= 1

@@ -30,6 +30,7 @@ import mujoco
 import numpy as np
 from numba import njit
 
+from .._validation import check_positive
 from ..observers import Observer
 from ..sensors import Sensor, Wrap, make_sensor
 from .tangent import integrate_pos, joint_table, tangent_advance
@@ -41,6 +42,8 @@ __all__ = [
     "angular_dofs",
     "check_finite_observation",
     "first_nonfinite_entry",
+    "mean_velocity_span",
+    "step_mean_coefficients",
 ]
 
 _FREE, _BALL, _SLIDE, _HINGE = (
@@ -312,19 +315,60 @@ def check_finite_observation(obs: np.ndarray) -> None:
     raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
 
 
+def mean_velocity_span(model: mujoco.MjModel) -> float | None:
+    r"""The span over which MuJoCo's ``qvel`` is a mean velocity, or None where it is the instantaneous one.
+
+    Every integrator but RK4 (semi-implicit Euler, implicit, implicitfast) advances the positions with the new
+    velocity, :math:`q_k = q_{k-1} + h\,v_k`, so :math:`v_k = (q_k - q_{k-1})/h` exactly: the mean velocity over
+    the last physics step ``h = opt.timestep``, whatever the sampling step. RK4's is the velocity at the time.
+    """
+    return None if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else float(model.opt.timestep)
+
+
+def step_mean_coefficients(order: int, span: float) -> np.ndarray:
+    r"""Coefficients :math:`c_j = (-h)^{j-1}/j!`, ``j = 1..order``, of the mean velocity over the last ``h``:
+
+    .. math:: \frac{f(t) - f(t - h)}{h} = \sum_{j \ge 1} \frac{(-h)^{j-1}}{j!} f^{(j)}(t),
+
+    exact for polynomials of degree ``<= order`` (Taylor's formula), so :math:`\sum_j c_j \hat z_j` turns the
+    derivatives estimated at the sample time into the velocity an Euler-integrating simulator reports.
+    """
+    j = np.arange(1, int(order) + 1)
+    factorial = np.cumprod(j).astype(float)
+    return (-float(span)) ** (j - 1) / factorial
+
+
 class VelocityEstimator:
-    """An observer on the measured tangent coordinates; its velocity estimates ``qvel``.
+    r"""An observer on the measured tangent coordinates; its velocity estimates ``qvel``.
 
     Parameters
     ----------
     observer : smo_gym.observers.Observer
         Any observer; its ``dt`` must be the sampling step.
+    mean_over : float, optional
+        Report the mean velocity over the last ``mean_over`` seconds (:func:`mean_velocity_span`: what MuJoCo's
+        ``qvel`` is unless it integrates with RK4): an observer of order >= 2 whose derivatives are those at the
+        sample time (:attr:`~smo_gym.observers.Observer.reports_instant`) reports
+        :math:`\sum_j c_j \hat z_j` (:func:`step_mean_coefficients`) instead of :math:`\hat z_1`. Without it, or
+        for other observers, the velocity is :math:`\hat z_1`.
     """
 
-    def __init__(self, observer: Observer):
+    def __init__(self, observer: Observer, *, mean_over: float | None = None):
         if not isinstance(observer, Observer):
             raise TypeError(f"expected a smo_gym.observers.Observer, actual value: {observer!r}")
         self.observer = observer
+        self.mean_over = None if mean_over is None else check_positive("mean_over", mean_over)
+        #: the coefficients of the step-mean velocity, or None: the reported velocity is the estimate's column 1
+        self.coefficients = (
+            step_mean_coefficients(observer.order, self.mean_over)
+            if self.mean_over is not None and observer.order >= 2 and observer.reports_instant
+            else None
+        )
+
+    def velocity_of(self, estimate: np.ndarray) -> np.ndarray:
+        """The reported velocity of an estimate ``(..., n, order + 1)`` of this observer: shape ``(..., n)``."""
+        c = self.coefficients
+        return estimate[..., 1] if c is None else estimate[..., 1:] @ c
 
     def reset(self, z0: np.ndarray) -> np.ndarray:
         """Start at the first measurement (velocity zero); returns the velocity estimate ``(nv,)``.
@@ -336,16 +380,16 @@ class VelocityEstimator:
         observer = self.observer
         z0 = np.asarray(z0, dtype=np.float64)
         if observer.shape == z0.shape:
-            return observer.restart(z0)[..., 1]
-        return observer.reset(z0)[..., 1]
+            return self.velocity_of(observer.restart(z0))
+        return self.velocity_of(observer.reset(z0))
 
     def update(self, z: np.ndarray) -> np.ndarray:
         """One sample; returns the velocity estimate ``(nv,)``."""
-        return self.observer.update(z)[..., 1]
+        return self.velocity_of(self.observer.update(z))
 
     @property
     def velocity(self) -> np.ndarray:
-        return self.observer.velocity
+        return self.velocity_of(self.observer.estimate)
 
     @property
     def filtered(self) -> np.ndarray:

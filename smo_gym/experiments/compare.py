@@ -38,7 +38,7 @@ import numpy as np
 from .. import _extras as extras
 from .._validation import DivergenceError
 from ..calibration import Calibration, bound_order, default_observer
-from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs
+from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs, mean_velocity_span
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
 from ..wrappers.adapters import make_adapter
@@ -266,7 +266,8 @@ def compare_observers(
                 resolution=rec.resolution,
                 safety=calibration_safety,
             )
-        estimator = VelocityEstimator(default_observer(name, calibrations[order], kw))
+        observer = default_observer(name, calibrations[order], kw)
+        estimator = VelocityEstimator(observer, mean_over=mean_velocity_span(ctx["adapter"].model))
         V = np.full_like(rec.qvel, np.nan)
         timings = []
         clock = time.perf_counter

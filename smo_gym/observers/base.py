@@ -238,6 +238,14 @@ class Observer:
         state[:, 0] = y0
         return state
 
+    @property
+    def reports_instant(self) -> bool:
+        """Whether the reported derivatives are those at the sample time (exact, Taylor and eigenvalue-mapping
+        discretizations), rather than what a backward-Euler step or a difference reports, a mean over the last
+        step. A consumer that wants the mean velocity over a step (the velocity of a simulator that integrates with
+        Euler, :class:`smo_gym.engine.measurement.VelocityEstimator`) converts only instant reports."""
+        return False
+
     def _predicts(self) -> bool:
         """Whether the state is the one-step prediction for the next sample (the explicit schemes; see "Prior and
         posterior" in :mod:`smo_gym.observers._kernels`) rather than the estimate at the last sample."""

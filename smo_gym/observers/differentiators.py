@@ -383,6 +383,10 @@ class Levant(Observer):
             return _kernels.eigmap_kernel
         return _kernels.hosm_kernel
 
+    @property
+    def reports_instant(self) -> bool:
+        return self.discretization in ("taylor", "matching")
+
     def _predicts(self):
         return True
 

@@ -184,6 +184,10 @@ class FilteringDifferentiator(Observer):
     def _predicts(self):
         return self.discretization == "matching"
 
+    @property
+    def reports_instant(self) -> bool:
+        return self.discretization == "matching"
+
     def _state_width(self) -> int:
         return self.n_states + 1
 

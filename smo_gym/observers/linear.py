@@ -238,6 +238,7 @@ class KalmanCA(Observer):
     """
 
     discretizations = ("exact",)
+    reports_instant = True  # the exact discretization of the constant-acceleration model
 
     @check_keywords
     def __init__(

@@ -10,7 +10,7 @@ import numpy as np
 from .._validation import check_int_in_range, check_positive, check_real_in_range
 from ..calibration import Calibration, bound_order, calibration_from_velocities, default_observer
 from ..engine.fused import FusedSensing
-from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation
+from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation, mean_velocity_span
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
@@ -416,8 +416,10 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 disk=disk_cache,
             )
             obs_object = default_observer(observer, self.calibration, observer_kwargs)
-        # a model-based observer is given the action (the ctrl that acted over the sample interval) at each sample
-        self.estimator = InputAwareEstimator(obs_object, self.adapter) if model_based else VelocityEstimator(obs_object)
+        if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
+            self.estimator = InputAwareEstimator(obs_object, self.adapter)
+        else:  # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4
+            self.estimator = VelocityEstimator(obs_object, mean_over=mean_velocity_span(model))
         self._rng: np.random.Generator | None = None
         self._model_rng: np.random.Generator | None = None
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)

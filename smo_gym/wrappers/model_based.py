@@ -38,7 +38,6 @@ __all__ = [
     "InputAwareEstimator",
     "ModelBasedEstimatedVelocity",
     "ModelBasedObserver",
-    "calibrate_model_miss",
     "model_based_observer",
 ]
 
@@ -136,8 +135,7 @@ def model_based_observer(
 
 
 def _model_miss(adapter, dyn: MujocoDynamics, scales, steps: int, quantile: float) -> tuple[np.ndarray, np.ndarray]:
-    """``quantile`` of the model miss per dof, the largest over the mass ``scales`` (the miss grows with the
-    mismatch: the envelope of a range's ends), and of the acceleration; module notes."""
+    """``quantile`` of the model miss per dof, the largest over the mass ``scales``, and of the acceleration."""
     h, dof = adapter.model.opt.timestep, dyn.dof
     episodes = [e for e in random_episodes(adapter, 1, steps) or () if len(e.qvel) > 1 and np.isfinite(e.qvel).all()]
     misses = []

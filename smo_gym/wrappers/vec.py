@@ -287,9 +287,9 @@ class JointSensor(EstimatedVelocity):
         return obs, term
 
     def prototype(self):
-        """``(observer, config, token)``: an un-reset copy of the observer this environment's sensing calibrated,
-        the sensing options and :attr:`token`."""
-        return copy.deepcopy(self.observer), dict(self.config), self.token
+        """``(estimator, config, token)``: an un-reset copy of the velocity estimator (the observer this
+        environment's sensing calibrated, and how its velocity is reported), the sensing options and :attr:`token`."""
+        return copy.deepcopy(self.estimator), dict(self.config), self.token
 
     def __getstate__(self):
         state = super().__getstate__()
@@ -375,7 +375,8 @@ class _Sensing:
             )
         self.config = configs[0]
         self.positions = self.config["positions"]
-        self.observer = protos[0][0]
+        self.estimator = protos[0][0]
+        self.observer = self.estimator.observer
         self.n_envs = n_envs
         self._index = {t: i for i, t in enumerate(tokens)}
 
@@ -384,9 +385,9 @@ class _Sensing:
     ) -> tuple[np.ndarray, list]:
         """Every environment's observation at its measured positions (``positions`` ``(n_envs, nq)`` in-process,
         :meth:`_local_positions`) and the estimate, and the terminal observations where ``terminal_mask``."""
-        vel = estimate[..., 1]
+        vel = self.estimator.velocity_of(estimate)
         filt = estimate[..., 0] if self.positions == "filtered" else None
-        tvel = None if terminal_estimate is None else terminal_estimate[..., 1]
+        tvel = None if terminal_estimate is None else self.estimator.velocity_of(terminal_estimate)
         tfilt = None if terminal_estimate is None or self.positions != "filtered" else terminal_estimate[..., 0]
         if self._local is not None:
             selection = self._selection()

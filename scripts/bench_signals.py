@@ -1,0 +1,354 @@
+#!/usr/bin/env python
+r"""Velocity estimators on smooth synthetic signals whose derivative is known exactly.
+
+**Accuracy table.** Three families of signals, 8 channels each (phases, offsets and coefficients drawn with a fixed
+seed; every channel has a random offset, so that quantization is not aligned with the signal):
+
+* ``sines``: :math:`a + \sin(t + \phi_1) + 0.5\sin(2t + \phi_2) + 0.2\sin(5t + \phi_3)`,
+  :math:`|f'''| \le 1 + 0.5\cdot 2^3 + 0.2\cdot 5^3 = 30`;
+* ``chirp``: :math:`a + \sin\theta(t)`, the frequency :math:`\theta'/2\pi` sweeping linearly from 0.2 to 3 Hz over
+  the record;
+* ``cubic``: :math:`a + c_1u + c_2u^2 + c_3u^3`, :math:`u = 2t/T - 1` over the record of length ``T``,
+  :math:`c_i \sim \mathcal U(-2, 2)`,
+
+sampled every 1 ms and 10 ms for ``T`` = 20 s, and measured through the sensor models of :mod:`smo_gym.sensors`
+(Gaussian noise of standard deviation 1e-4, 1e-3 and 1e-2; uniform noise bounded by 1e-3; 12-bit and 16-bit
+quantization, steps :math:`2\pi/4096` and :math:`2\pi/65536`). Each estimator is
+``smo_gym.differentiate(Y, dt, observer=NAME)`` with no gain given, so that every method gets the same information:
+the :class:`~smo_gym.calibration.Calibration` of the measured signal itself (noise level, worst-case bound and
+typical level of the derivative its gain rule needs, :func:`~smo_gym.calibration.default_observer`). Columns: the
+backward difference (FD), the constant-acceleration Kalman filter (its process noise from the typical jerk,
+:meth:`KalmanCA.from_levels <smo_gym.observers.KalmanCA.from_levels>`), super-twisting (implicit), Levant's
+differentiator of order 2 (``taylor``), the filtering differentiator (order 2, filtering order 1, ``d = -1``;
+``matching`` and ``implicit``) and the high-gain observer. The last column, in italics and never bold, is an
+*oracle* no user has: the Kalman filter with its process noise scaled by the factor of
+``10**arange(-3, 3.5, 0.5)`` that gives the row's smallest RMSE.
+
+Each cell is ``RMSE / max``: the root-mean-square and the largest absolute error of the velocity estimate over
+every channel and sample after the first 2 s (the start transient); the smallest of each in the row is bold.
+
+**Noise-exponent table.** Levant & Livne (2020): at *fixed* gains, with noise of magnitude :math:`\varepsilon` and a
+sampling step small enough, the error of the ``i``-th derivative of a differentiator of order ``n`` with ``n_f``
+filter states (``d = -1``) is :math:`O(\varepsilon^{(n + n_f + 1 - i)/(n + n_f + 1)})`; for the velocity
+(``i = 1``) the exponent is :math:`(n + n_f)/(n + n_f + 1)`. On the ``sines`` signal with ``lipschitz = 30`` (its
+exact bound of :math:`|f'''|`), uniform noise of bound :math:`\varepsilon = 10^{-5}, 10^{-4.5}, \ldots, 10^{-2}`
+is added; the slope of :math:`\log(\text{error})` against :math:`\log\varepsilon` (least squares) of the largest
+velocity error after 2 s (the quantity the theory bounds; the RMSE's slope beside it) is printed next to the
+theory, at 1 ms and at 0.1 ms, with the largest error on the noise-free signal (the discretization's floor).
+
+The script ends with a verdict on the targets it was written to check (met or not, with the numbers).
+
+Run: ``MUJOCO_GL=disable .venv/bin/python scripts/bench_signals.py`` (about 2 minutes on one core; ``--quick``:
+6 s records, two noise levels, a shorter sweep). ``--markdown FILE`` also writes the tables to ``FILE``.
+
+References
+----------
+A. Levant and M. Livne, "Robust exact filtering differentiators", European Journal of Control 55, 2020.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+import smo_gym
+from smo_gym import sensors
+from smo_gym.calibration import calibration_of_signal
+from smo_gym.observers import KalmanCA
+
+N_CHANNELS = 8
+#: the start transient left out of every error [s]
+TRANSIENT = 2.0
+STEPS = (1e-3, 1e-2)
+#: (label, sensor model) of the accuracy table
+SENSORS = (
+    ("Gaussian 1e-4", lambda: sensors.GaussianNoise(1e-4)),
+    ("Gaussian 1e-3", lambda: sensors.GaussianNoise(1e-3)),
+    ("Gaussian 1e-2", lambda: sensors.GaussianNoise(1e-2)),
+    ("uniform 1e-3", lambda: sensors.UniformNoise(1e-3)),
+    ("12-bit", lambda: sensors.Quantization(2 * np.pi / 4096)),
+    ("16-bit", lambda: sensors.Quantization(2 * np.pi / 65536)),
+)
+#: (column, observer name, parameters) of the accuracy table; every gain is calibrated from the measured signal
+ESTIMATORS = (
+    ("FD", "finite-difference", {}),
+    ("KalmanCA", "kalman-ca", {}),
+    ("ST", "super-twisting", {}),
+    ("Levant", "levant", {"order": 2}),
+    ("Filtering", "filtering", {}),
+    ("Filtering impl.", "filtering", {"discretization": "implicit"}),
+    ("HG", "high-gain", {}),
+)
+#: factors on the calibrated Kalman process noise searched by the oracle
+ORACLE_FACTORS = 10.0 ** np.arange(-3.0, 3.5, 0.5)
+#: bound of |f'''| of the sines signal: sum of amplitude * frequency**3
+SINES_JERK_BOUND = 1.0 + 0.5 * 2**3 + 0.2 * 5**3
+#: (label, observer name, parameters, n, n_f) of the noise-exponent table
+EXPONENT_ESTIMATORS = (
+    ("Levant (taylor)", "levant", {"order": 2}, 2, 0),
+    ("Levant (matching)", "levant", {"order": 2, "discretization": "matching"}, 2, 0),
+    ("Filtering, n_f = 1 (matching)", "filtering", {}, 2, 1),
+    ("Filtering, n_f = 1 (implicit)", "filtering", {"discretization": "implicit"}, 2, 1),
+    ("Filtering, n_f = 2 (matching)", "filtering", {"filtering_order": 2}, 2, 2),
+)
+#: the targets checked at the end
+RMSE_RATIO_TARGET = 0.6
+EXPONENT_TOLERANCE = 0.1
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# signals: value and exact first derivative, shape (T, N_CHANNELS)
+# ---------------------------------------------------------------------------------------------------------------
+def sines(t: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of three sines (1, 2, 5 rad/s) with random phases and offsets."""
+    phase = rng.uniform(0.0, 2 * np.pi, (3, N_CHANNELS))
+    offset = rng.uniform(-1.0, 1.0, N_CHANNELS)
+    t = t[:, None]
+    value = offset + np.sin(t + phase[0]) + 0.5 * np.sin(2 * t + phase[1]) + 0.2 * np.sin(5 * t + phase[2])
+    rate = np.cos(t + phase[0]) + np.cos(2 * t + phase[1]) + np.cos(5 * t + phase[2])
+    return value, rate
+
+
+def chirp(t: np.ndarray, rng: np.random.Generator, f0: float = 0.2, f1: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    r"""Linear chirp :math:`\sin\theta`, :math:`\theta'(t) = 2\pi(f_0 + (f_1 - f_0)t/T)`, random phases and offsets."""
+    phase = rng.uniform(0.0, 2 * np.pi, N_CHANNELS)
+    offset = rng.uniform(-1.0, 1.0, N_CHANNELS)
+    sweep = (f1 - f0) / t[-1]
+    t = t[:, None]
+    theta = phase + 2 * np.pi * (f0 * t + 0.5 * sweep * t**2)
+    return offset + np.sin(theta), 2 * np.pi * (f0 + sweep * t) * np.cos(theta)
+
+
+def cubic(t: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Cubic polynomial in ``u = 2t/T - 1`` with random coefficients and offsets."""
+    c = rng.uniform(-2.0, 2.0, (3, N_CHANNELS))
+    offset = rng.uniform(-1.0, 1.0, N_CHANNELS)
+    scale = 2.0 / t[-1]
+    u = (scale * t - 1.0)[:, None]
+    value = offset + c[0] * u + c[1] * u**2 + c[2] * u**3
+    return value, scale * (c[0] + 2 * c[1] * u + 3 * c[2] * u**2)
+
+
+SIGNALS = (("sines", sines), ("chirp", chirp), ("cubic", cubic))
+
+
+def measure(sensor: sensors.Sensor, y: np.ndarray, seed: int) -> np.ndarray:
+    """The sensor's measurements of the true signal ``y`` (T, channels), seeded."""
+    out = np.empty_like(y)
+    out[0] = sensor.reset(y[0], seed=seed)
+    out[1:] = sensor.run(y[1:])
+    return out
+
+
+def errors(estimate: np.ndarray, truth: np.ndarray, skip: int) -> tuple[float, float]:
+    """RMSE and largest absolute error of ``estimate`` after the first ``skip`` samples (NaN if non-finite)."""
+    e = estimate[skip:] - truth[skip:]
+    if not np.all(np.isfinite(e)):
+        return math.nan, math.nan
+    return float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e)))
+
+
+def velocity(Y: np.ndarray, dt: float, name: str, params: dict) -> np.ndarray:
+    """The velocity estimate of ``differentiate`` with gains calibrated from ``Y`` (NaN if it diverged)."""
+    try:
+        return smo_gym.differentiate(Y, dt, observer=name, **params)[..., 1]
+    except smo_gym.DivergenceError:
+        return np.full(Y.shape, np.nan)
+
+
+def oracle(Y: np.ndarray, v: np.ndarray, dt: float, skip: int) -> tuple[float, float, float]:
+    """The Kalman filter with its calibrated process noise times the factor of smallest RMSE: (RMSE, max, factor)."""
+    cal = calibration_of_signal(Y, dt, (3,))
+    best = (math.inf, math.nan, math.nan)
+    for factor in ORACLE_FACTORS:
+        obs = KalmanCA.from_levels(dt, cal.rms(3) * np.sqrt(factor), cal.measurement_variance)
+        z = smo_gym.differentiate(Y, dt, observer=obs)[..., 1]
+        rmse, worst = errors(z, v, skip)
+        if rmse < best[0]:
+            best = (rmse, worst, float(factor))
+    return best
+
+
+def accuracy_rows(duration: float, sensor_labels, with_oracle: bool, seed: int) -> list[dict]:
+    rows = []
+    for s_index, (signal, make) in enumerate(SIGNALS):
+        for dt in STEPS:
+            t = np.arange(round(duration / dt)) * dt
+            y, v = make(t, np.random.default_rng([seed, s_index]))
+            skip = round(TRANSIENT / dt)
+            for m_index, (label, sensor) in enumerate(SENSORS):
+                if label not in sensor_labels:
+                    continue
+                t0 = time.perf_counter()
+                Y = measure(sensor(), y, seed=np.random.SeedSequence([seed, s_index, m_index]))
+                cells = {col: errors(velocity(Y, dt, name, params), v, skip) for col, name, params in ESTIMATORS}
+                row = dict(signal=signal, dt=dt, sensor=label, scale=float(np.sqrt(np.mean(v[skip:] ** 2))), **cells)
+                if with_oracle:
+                    row["oracle"] = oracle(Y, v, dt, skip)
+                rows.append(row)
+                print(f"  {signal} dt={dt:g} {label}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    return rows
+
+
+def exponent_rows(duration: float, steps, levels: np.ndarray, seed: int) -> list[dict]:
+    rows = []
+    for dt in steps:
+        t = np.arange(round(duration / dt)) * dt
+        y, v = sines(t, np.random.default_rng([seed, 0]))
+        skip = round(TRANSIENT / dt)
+        measured = [measure(sensors.UniformNoise(eps), y, seed=seed + i) for i, eps in enumerate(levels)]
+        for label, name, params, n, n_f in EXPONENT_ESTIMATORS:
+            errs = np.array(
+                [errors(velocity(Y, dt, name, dict(params, lipschitz=SINES_JERK_BOUND)), v, skip) for Y in measured]
+            )
+            slopes = [float(np.polyfit(np.log(levels), np.log(errs[:, j]), 1)[0]) for j in (1, 0)]
+            exact = errors(velocity(y, dt, name, dict(params, lipschitz=SINES_JERK_BOUND)), v, skip)[1]
+            rows.append(
+                dict(
+                    label=label, dt=dt, theory=(n + n_f) / (n + n_f + 1), max_slope=slopes[0], rmse_slope=slopes[1],
+                    max_errors=errs[:, 1], noise_free=exact,
+                )
+            )  # fmt: skip
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# tables and verdict
+# ---------------------------------------------------------------------------------------------------------------
+def _bold_if(text: str, best: bool) -> str:
+    return f"**{text}**" if best else text
+
+
+def accuracy_table(rows: list[dict]) -> str:
+    cols = [c for c, _, _ in ESTIMATORS]
+    oracle_col = "oracle" in rows[0]
+    head = (
+        "| signal | dt | sensor | vel. RMS | "
+        + " | ".join(cols)
+        + (" | *KalmanCA oracle (factor)* |" if oracle_col else " |")
+    )
+    out = [head, "|---|---:|---|---:|" + "---:|" * (len(cols) + oracle_col)]
+    for row in rows:
+        rmse = [row[c][0] for c in cols]
+        worst = [row[c][1] for c in cols]
+        best_rmse, best_max = np.nanmin(rmse), np.nanmin(worst)
+        cells = [
+            "div"
+            if math.isnan(r)
+            else f"{_bold_if(f'{r:.3g}', r == best_rmse)} / {_bold_if(f'{m:.3g}', m == best_max)}"
+            for r, m in zip(rmse, worst, strict=True)
+        ]
+        if oracle_col:
+            r, m, factor = row["oracle"]
+            cells.append(f"*{r:.3g} / {m:.3g} ({factor:.3g})*")
+        out.append(
+            f"| {row['signal']} | {row['dt'] * 1e3:g} ms | {row['sensor']} | {row['scale']:.3g} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    return "\n".join(out)
+
+
+def exponent_table(rows: list[dict], levels: np.ndarray) -> str:
+    out = [
+        "| differentiator | dt | theory | slope of max | slope of RMSE | max, no noise | "
+        + " | ".join(f"max at {e:.0e}" for e in levels)
+        + " |",
+        "|---|---:|---:|---:|---:|---:|" + "---:|" * len(levels),
+    ]
+    for row in rows:
+        out.append(
+            f"| {row['label']} | {row['dt'] * 1e3:g} ms | {row['theory']:.3f} | {row['max_slope']:.3f} | "
+            f"{row['rmse_slope']:.3f} | {row['noise_free']:.2g} | "
+            + " | ".join(f"{e:.2g}" for e in row["max_errors"])
+            + " |"
+        )
+    return "\n".join(out)
+
+
+def verdict(rows: list[dict], exp_rows: list[dict]) -> str:
+    """Met or not met, with the numbers, for each target on the 1 ms rows (all of them are noisy or quantized)."""
+    fast = [r for r in rows if r["dt"] == STEPS[0]]
+    ratio = {f"{r['signal']} {r['sensor']}": r["Filtering"][0] / r["KalmanCA"][0] for r in fast}
+    rmse_met = [k for k, x in ratio.items() if x <= RMSE_RATIO_TARGET]
+    worst_key = max(ratio, key=ratio.get)
+    max_met = [r for r in fast if r["Filtering"][1] < min(r["FD"][1], r["KalmanCA"][1])]
+    missed = [
+        f"{r['signal']} {r['sensor']} ({r['Filtering'][1]:.3g} against FD {r['FD'][1]:.3g}, "
+        f"KalmanCA {r['KalmanCA'][1]:.3g})"
+        for r in fast
+        if r not in max_met
+    ]
+    lines = [
+        f"- Filtering RMSE <= {RMSE_RATIO_TARGET} x calibrated KalmanCA's on the 1 ms rows: "
+        f"{'met' if len(rmse_met) == len(fast) else 'not met'}: {len(rmse_met)} of {len(fast)} rows meet it "
+        f"(ratio: median {np.median(list(ratio.values())):.2f}, best {min(ratio.values()):.2f}, "
+        f"worst {ratio[worst_key]:.2f} on {worst_key}).",
+        f"- Filtering max error below both FD's and KalmanCA's on the 1 ms rows: "
+        f"{'met' if len(max_met) == len(fast) else 'not met'}: {len(max_met)} of {len(fast)} rows meet it"
+        + (f"; missed on {'; '.join(missed)}." if missed else "."),
+    ]
+    for r in exp_rows:
+        off = abs(r["max_slope"] - r["theory"])
+        lines.append(
+            f"- Noise exponent of {r['label']} at {r['dt'] * 1e3:g} ms within {EXPONENT_TOLERANCE} of theory: "
+            f"{'met' if off <= EXPONENT_TOLERANCE else 'not met'} ({r['max_slope']:.3f} against {r['theory']:.3f})."
+        )
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--duration", type=float, default=20.0, help="record length of the accuracy table [s]")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-oracle", action="store_true", help="leave out the Kalman oracle column")
+    parser.add_argument(
+        "--quick", action="store_true", help="6 s records, Gaussian 1e-3 and 12-bit only, the sweep at 1 ms"
+    )
+    parser.add_argument("--markdown", metavar="FILE", help="also write the tables to FILE")
+    args = parser.parse_args(argv)
+    sensor_labels = [label for label, _ in SENSORS]
+    exp_duration, exp_steps, levels = 10.0, (1e-3, 1e-4), 10.0 ** np.arange(-5.0, -1.75, 0.5)
+    if args.quick:
+        args.duration, sensor_labels = 6.0, ["Gaussian 1e-3", "12-bit"]
+        exp_duration, exp_steps, levels = 4.0, (1e-3,), 10.0 ** np.arange(-5.0, -1.5, 1.0)
+    if args.duration <= TRANSIENT:
+        parser.error(f"expected --duration > {TRANSIENT} (the transient left out), actual value: {args.duration}")
+    t0 = time.perf_counter()
+    rows = accuracy_rows(args.duration, sensor_labels, not args.no_oracle, args.seed)
+    exp_rows = exponent_rows(exp_duration, exp_steps, levels, args.seed)
+    text = "\n".join(
+        [
+            f"Velocity error after the first {TRANSIENT:g} s, `RMSE / max` over {N_CHANNELS} channels, "
+            f"{args.duration:g} s records, seed {args.seed}; every gain calibrated from the measured signal; "
+            "bold = smallest of the row",
+            "",
+            accuracy_table(rows),
+            "",
+            f"Noise exponent: sines, `lipschitz = {SINES_JERK_BOUND:g}` (the exact bound of |f'''|), uniform noise of "
+            f"bound eps, {exp_duration:g} s records, errors after {TRANSIENT:g} s; slopes of log(error) against "
+            "log(eps), least squares over the eps of the columns",
+            "",
+            exponent_table(exp_rows, levels),
+            "",
+            "Targets:",
+            "",
+            verdict(rows, exp_rows),
+        ]
+    )
+    print(text)
+    print(f"\n({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    if args.markdown:
+        with open(args.markdown, "w") as fh:
+            fh.write(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
