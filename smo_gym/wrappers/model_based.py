@@ -73,7 +73,7 @@ def model_based_observer(
     calibration_quantile: float = 0.99,
     calibration_safety: float = 2.0,
 ) -> ModelBasedObserver:
-    r"""A model-based observer on a private copy of ``model``, with calibrated default gains (module notes).
+    r"""A model-based observer on a private copy of the environment's model, with calibrated default gains.
 
     Parameters
     ----------
