@@ -28,6 +28,7 @@ __all__ = [
     "check_nonnegative",
     "check_positive",
     "check_positive_array",
+    "check_positive_range",
     "check_real",
     "check_real_in_range",
     "did_you_mean",
@@ -133,6 +134,19 @@ def check_positive_array(name: str, value) -> np.ndarray:
     if np.any(bad):
         raise ValueError(f"expected {name} > 0 everywhere, actual value: {_short(value)}")
     return arr
+
+
+def check_positive_range(name: str, value) -> tuple[float, float]:
+    """A number ``s > 0`` as ``(s, s)``, or a pair ``(low, high)`` with ``0 < low <= high`` (a range to draw from)."""
+    if not isinstance(value, (tuple, list)):
+        scale = check_positive(name, value)
+        return scale, scale
+    if len(value) != 2:
+        raise ValueError(f"expected {name} a number or a pair (low, high), actual value: {_short(value)}")
+    low, high = (check_positive(name, v) for v in value)
+    if low > high:
+        raise ValueError(f"expected {name} (low, high) with low <= high, actual value: {value!r}")
+    return low, high
 
 
 def check_real_in_range(

@@ -81,6 +81,22 @@ def test_mass_mismatch_scales_inertia_not_gravity_acceleration(arm):
     np.testing.assert_allclose(du, du0 / 1.1, rtol=1e-10)
 
 
+def test_set_mass_scale_is_the_constructor_s_mismatch_from_the_nominal_model(arm):
+    """A new scale replaces the old one (it does not compound) and equals building with it, bit for bit."""
+    dyn, built = MujocoDynamics(arm.model, mass_scale=0.8), MujocoDynamics(arm.model, mass_scale=1.3)
+    dyn.set_mass_scale(1.3)
+    assert dyn.mass_scale == built.mass_scale == 1.3
+    np.testing.assert_array_equal(dyn.model.body_mass, 1.3 * arm.model.body_mass)
+    np.testing.assert_array_equal(dyn.model.body_inertia, 1.3 * arm.model.body_inertia)
+    q, v, u = np.array([0.4, -0.9]), np.array([1.5, -2.0]), np.array([0.3, -0.1])
+    np.testing.assert_array_equal(dyn.acceleration(q, v, u), built.acceleration(q, v, u))
+    dyn.set_mass_scale(1.0, inertia_scale=2.0)
+    np.testing.assert_array_equal(dyn.model.body_mass, arm.model.body_mass)
+    np.testing.assert_array_equal(dyn.model.body_inertia, 2.0 * arm.model.body_inertia)
+    with pytest.raises(ValueError, match="mass_scale >= 0"):
+        dyn.set_mass_scale(-1.0)
+
+
 def test_coupling_elimination_inertia_and_alpha_analytic(pendulum):
     """r = 0.2 + 0.3 th^2 (bead of mass 1): M(th) - M(0) = (r^2 + r'^2) - r0^2, alpha = -M'/(2M)."""
     dyn = MujocoDynamics(pendulum.model)

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 
 from smo_gym import wrappers
 from smo_gym.observers import DissipativeSuperTwisting, MechanicalSuperTwisting
-from smo_gym.wrappers.model_based import ModelBasedEstimatedVelocity
+from smo_gym.wrappers.model_based import InputAwareEstimator, ModelBasedEstimatedVelocity
 
 
 def velocity_rmse(env, T=300, seed=0):
@@ -60,3 +61,160 @@ def test_dissipative_in_the_wrapper_and_limits():
         ModelBasedEstimatedVelocity(gym.make("smo_gym/VariableInertia-v0"), disk_cache=False)
     with pytest.raises(ValueError, match="observer in"):
         ModelBasedEstimatedVelocity(gym.make("smo_gym/TwoLinkArm-v0"), observer="levant", disk_cache=False)
+
+
+# ---- the model-based names through EstimatedVelocity -----------------------------------------------------------
+def estimates(env, T=60, seed=0):
+    """Velocity estimates and measured positions over ``T`` steps of a seeded piecewise-constant policy."""
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    vel, meas = [], []
+    for k in range(T):
+        if k % 4 == 0:
+            a = 0.3 * rng.uniform(env.action_space.low, env.action_space.high)
+        *_, info = env.step(a)
+        vel.append(info["smo"]["qvel_estimate"])
+        meas.append(info["smo"]["qpos_measured"])
+    return np.array(vel), np.array(meas)
+
+
+def test_a_model_based_name_in_estimated_velocity_is_the_model_based_wrapper():
+    """Same observer, same model mismatch, the action as input, the general path: bit-identical estimates."""
+    kw = {"mass_scale": 1.1, "contact": "measured"}
+    ev = wrappers.EstimatedVelocity(
+        gym.make("smo_gym/TwoLinkArm-v0"), observer="mechanical-super-twisting", observer_kwargs=kw, disk_cache=False
+    )
+    mb = ModelBasedEstimatedVelocity(gym.make("smo_gym/TwoLinkArm-v0"), disk_cache=False, **kw)
+    assert isinstance(ev.observer, MechanicalSuperTwisting)
+    assert isinstance(ev.estimator, InputAwareEstimator)
+    dyn = ev.observer.dynamics
+    assert dyn.mass_scale == 1.1 and dyn.contact == "measured" and ev.mass_scale_range is None
+    np.testing.assert_array_equal(dyn.model.body_mass, 1.1 * ev.unwrapped.model.body_mass)
+    np.testing.assert_array_equal(ev.model_miss_bound, mb.model_miss_bound)
+    np.testing.assert_array_equal(estimates(ev)[0], estimates(mb)[0])
+    assert ev._fused is None  # not fusable: the general path, which feeds the action
+    gains = {"k1": 2.0, "k2": 1.0, "k3": 0.0, "mu1": 12.0, "mu2": 12.0}
+    ds = wrappers.EstimatedVelocity(
+        gym.make("smo_gym/TwoLinkArm-v0"),
+        observer="dissipative-super-twisting",
+        observer_kwargs={"gains": gains},
+        disk_cache=False,
+    )
+    assert isinstance(ds.observer, DissipativeSuperTwisting) and ds.observer.dynamics.mass_scale == 1.0
+    assert np.all(np.isfinite(estimates(ds, T=20)[0]))
+
+
+def test_a_mass_scale_range_draws_a_scale_per_episode_from_the_seed():
+    low, high = 0.8, 1.25
+    kw = {"mass_scale": (low, high), "lipschitz": 20.0, "accel_bound": 1000.0}
+
+    def wrapper():
+        return wrappers.EstimatedVelocity(
+            gym.make("smo_gym/TwoLinkArm-v0"),
+            observer="mechanical-super-twisting",
+            observer_kwargs=kw,
+            disk_cache=False,
+        )
+
+    a, b = wrapper(), wrapper()
+    assert a.mass_scale_range == (low, high)
+    assert a.observer.dynamics.mass_scale == 0.5 * (low + high)  # before the first reset: the midpoint
+    va, za = estimates(a, seed=3)
+    scale = a.observer.dynamics.mass_scale
+    vb, zb = estimates(b, seed=3)
+    assert b.observer.dynamics.mass_scale == scale
+    np.testing.assert_array_equal(va, vb)
+    np.testing.assert_array_equal(za, zb)
+    np.testing.assert_array_equal(a.observer.dynamics.model.body_mass, scale * a.unwrapped.model.body_mass)
+    scales = []
+    for seed in range(8):
+        a.reset(seed=seed)
+        scales.append(a.observer.dynamics.mass_scale)
+    a.reset()  # no seed: the stream goes on
+    scales.append(a.observer.dynamics.mass_scale)
+    assert len(set(scales)) == len(scales)
+    assert all(low <= s <= high for s in scales)
+    # the draw has a stream of its own: the sensor's noise is that of any wrapper reset with the same seed
+    fd = wrappers.EstimatedVelocity(gym.make("smo_gym/TwoLinkArm-v0"), observer="finite-difference", disk_cache=False)
+    np.testing.assert_array_equal(estimates(fd, seed=3)[1], za)
+
+
+def test_the_calibrated_bound_of_a_range_covers_both_ends():
+    def bound(scale):
+        env = wrappers.EstimatedVelocity(
+            gym.make("smo_gym/TwoLinkArm-v0"),
+            observer="mechanical-super-twisting",
+            observer_kwargs={"mass_scale": scale},
+            calibration_steps=400,
+            disk_cache=False,
+        )
+        return env.model_miss_bound
+
+    np.testing.assert_array_equal(bound((0.7, 1.4)), np.maximum(bound(0.7), bound(1.4)))
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kwargs", "error", "match"),
+    [
+        ("smo_gym/TwoLinkArm-v0", {"observer_kwargs": {"mass_scale": (1.2, 1.1)}}, ValueError, "low <= high"),
+        ("smo_gym/TwoLinkArm-v0", {"observer_kwargs": {"mass_scale": -1.0}}, ValueError, "mass_scale > 0"),
+        ("smo_gym/TwoLinkArm-v0", {"observer_kwargs": {"mass_scale": (0.0, 1.1)}}, ValueError, "mass_scale > 0"),
+        ("smo_gym/TwoLinkArm-v0", {"observer_kwargs": {"mass_scale": (1, 2, 3)}}, ValueError, "pair"),
+        ("smo_gym/TwoLinkArm-v0", {"observer_kwargs": {"mass_scale": "1.1"}}, TypeError, "real number"),
+        ("smo_gym/TwoLinkArm-v0", {"observer_kwargs": {"contact": "soft"}}, ValueError, "contact"),
+        ("smo_gym/TwoLinkArm-v0", {"rate": 3}, ValueError, "divisor of frame_skip"),
+        ("smo_gym/VariableInertia-v0", {}, ValueError, "couplings"),
+        ("Ant-v5", {}, ValueError, "hinge and slide"),
+    ],
+)
+def test_bad_model_based_settings_are_refused(env_id, kwargs, error, match):
+    with pytest.raises(error, match=match) as excinfo:
+        wrappers.EstimatedVelocity(gym.make(env_id), observer="mechanical-super-twisting", disk_cache=False, **kwargs)
+    assert "expected" in str(excinfo.value) and "actual value" in str(excinfo.value)
+
+
+def test_the_vector_wrappers_refuse_a_model_based_name():
+    """One batched observer update per vector step has no per-environment action: refused, pointing elsewhere."""
+    with pytest.raises(ValueError, match="make_vec") as excinfo:
+        wrappers.JointSensor(gym.make("smo_gym/TwoLinkArm-v0"), observer="dissipative-super-twisting")
+    assert "expected a model-free observer" in str(excinfo.value)
+    envs = gym.make_vec("smo_gym/TwoLinkArm-v0", num_envs=2, vectorization_mode="sync")
+    with pytest.raises(ValueError, match="expected a model-free observer"):
+        wrappers.VectorEstimatedVelocity(envs, observer="mechanical-super-twisting")
+    envs.close()
+
+
+def test_the_default_bound_is_the_model_miss_where_the_environment_goes():
+    """InvertedDoublePendulum-v5 ends an episode when the pole falls; the model's own rollout from ``qpos0`` does
+    not, and its pole spins and its cart hits the rails (constraints the model does not know): calibrated there, the
+    bound was 20-75x the miss of the environment's episodes and the observer a backward difference. The bound is
+    ``safety`` (2) times a quantile of the miss per physics step, measured here on other random episodes."""
+    env = wrappers.EstimatedVelocity(
+        gym.make("InvertedDoublePendulum-v5"),
+        observer="mechanical-super-twisting",
+        observer_kwargs={"mass_scale": 1.1},
+        disk_cache=False,
+    )
+    sim, dyn = gym.make("InvertedDoublePendulum-v5").unwrapped, env.observer.dynamics
+    rng, misses = np.random.default_rng(5), []
+    sim.reset(seed=5)
+    for _ in range(300):
+        u = rng.uniform(-1.0, 1.0, 1)
+        for _ in range(sim.frame_skip):
+            q, v = sim.data.qpos.copy(), sim.data.qvel.copy()
+            sim.data.ctrl[:] = u
+            mujoco.mj_step(sim.model, sim.data)
+            misses.append(np.abs((sim.data.qvel - v) / sim.model.opt.timestep - dyn.acceleration(q, v, u)))
+        if sim.data.site_xpos[0, 2] <= 1.0:  # the environment's termination: the pole's tip below 1 m
+            sim.reset()
+    misses = np.array(misses)
+    assert np.all(env.model_miss_bound >= 2.0 * 0.5 * np.quantile(misses, 0.99, axis=0))
+    assert np.all(env.model_miss_bound <= 2.0 * 2.0 * misses.max(axis=0))
+
+
+def test_the_sb3_vector_wrapper_refuses_a_model_based_name():
+    env_util = pytest.importorskip("stable_baselines3.common.env_util")
+    venv = env_util.make_vec_env("smo_gym/TwoLinkArm-v0", n_envs=2)
+    with pytest.raises(ValueError, match="expected a model-free observer"):
+        wrappers.VecEstimatedVelocity(venv, observer="mechanical-super-twisting")
+    venv.close()

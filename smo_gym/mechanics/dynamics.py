@@ -48,7 +48,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-__all__ = ["MujocoDynamics"]
+__all__ = ["MujocoDynamics", "calibrate_model_miss"]
 
 _HINGE_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
@@ -98,6 +98,8 @@ class MujocoDynamics:
         ``qvel`` address of each measured coordinate (equal to its ``qpos`` address for hinge/slide joints).
     timestep : float
         ``model.opt.timestep``.
+    mass_scale, inertia_scale : float or ndarray, shape (nbody,)
+        The model mismatch in force (:meth:`set_mass_scale` changes it).
     """
 
     def __init__(
@@ -127,10 +129,11 @@ class MujocoDynamics:
                     f"{name or j!r} of type {mujoco.mjtJoint(int(m.jnt_type[j])).name}; free and ball joints are "
                     "not supported by the model-based observers"
                 )
-        ms = _scale("mass_scale", mass_scale, m.nbody)
-        isc = ms if inertia_scale is None else _scale("inertia_scale", inertia_scale, m.nbody)
-        m.body_mass[:] = m.body_mass * ms
-        m.body_inertia[:] = m.body_inertia * isc[:, None]
+        self.model = m
+        #: the nominal masses and inertias (of ``model``), which :meth:`set_mass_scale` scales
+        self._nominal_mass = m.body_mass.copy()
+        self._nominal_inertia = m.body_inertia.copy()
+        self.set_mass_scale(mass_scale, inertia_scale)
         m.dof_damping[:] = m.dof_damping * float(_scale("damping_scale", damping_scale, 1)[0])
         m.dof_frictionloss[:] = m.dof_frictionloss * float(_scale("frictionloss_scale", frictionloss_scale, 1)[0])
         self.contact = contact
@@ -142,7 +145,6 @@ class MujocoDynamics:
                 self._couplings[int(m.eq_obj1id[e])] = (int(m.eq_obj2id[e]), np.array(m.eq_data[e, :5]))
         if contact == "unknown":
             m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-        self.model = m
         self.data = mujoco.MjData(m)
         if joints is None:
             jids = [j for j in range(m.njnt) if j not in self._couplings]
@@ -182,6 +184,18 @@ class MujocoDynamics:
             and np.array_equal(self._qadr, np.arange(self.n))
         )
         self._bind_views()
+
+    def set_mass_scale(self, mass_scale, inertia_scale=None) -> None:
+        """Scale the nominal masses (and inertias) of the private copy anew: the model mismatch of the constructor's
+        ``mass_scale`` and ``inertia_scale`` (same meaning; ``inertia_scale`` defaults to ``mass_scale``), e.g. a
+        new one per episode. Sets :attr:`mass_scale` and :attr:`inertia_scale`."""
+        m = self.model
+        ms = _scale("mass_scale", mass_scale, m.nbody)
+        isc = ms if inertia_scale is None else _scale("inertia_scale", inertia_scale, m.nbody)
+        m.body_mass[:] = self._nominal_mass * ms
+        m.body_inertia[:] = self._nominal_inertia * isc[:, None]
+        self.mass_scale = float(ms[0]) if np.ndim(mass_scale) == 0 else ms.copy()
+        self.inertia_scale = self.mass_scale if inertia_scale is None else isc.copy()
 
     def _bind_views(self) -> None:
         """Cached views into the scratch data (hot path); rebuilt after copy/unpickling."""
@@ -398,3 +412,38 @@ class MujocoDynamics:
 
     def __repr__(self) -> str:
         return f"MujocoDynamics(n={self.n}, contact={self.contact!r}, input={self.input!r})"
+
+
+def calibrate_model_miss(
+    model, dynamics: MujocoDynamics, frame_skip: int, *, steps: int = 2000, quantile: float = 0.99, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Quantiles of the model miss :math:`|\Delta v/h - f(q, v, u)|` and of :math:`|\Delta v/h|` per dof.
+
+    Rollout of ``steps`` physics steps of ``model`` (its own ``MjData``, from ``qpos0`` plus small noise) with
+    uniform random controls held for ``frame_skip`` steps; restarts when the state becomes non-finite. The default
+    gains of the wrapper's model-based observers come from them (:mod:`smo_gym.wrappers.model_based`).
+    """
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
+    limited = model.actuator_ctrllimited.astype(bool)
+    lo = np.where(limited, lo, -1.0)
+    hi = np.where(limited, hi, 1.0)
+    h = model.opt.timestep
+    miss, acc = [], []
+    data.qpos[:] = model.qpos0 + rng.uniform(-0.01, 0.01, model.nq)
+    u = np.zeros(model.nu)
+    for k in range(steps):
+        if k % frame_skip == 0:
+            u = rng.uniform(lo, hi)
+        q, v = data.qpos.copy(), data.qvel.copy()
+        f = dynamics.acceleration(q[dynamics.dof], v[dynamics.dof], u)
+        data.ctrl[:] = u
+        mujoco.mj_step(model, data)
+        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+            mujoco.mj_resetData(model, data)
+            continue
+        a = (data.qvel[dynamics.dof] - v[dynamics.dof]) / h
+        miss.append(np.abs(a - f))
+        acc.append(np.abs(a))
+    return np.quantile(np.array(miss), quantile, axis=0), np.quantile(np.array(acc), quantile, axis=0)

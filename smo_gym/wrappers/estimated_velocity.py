@@ -11,7 +11,7 @@ from .._validation import check_int_in_range, check_positive, check_real_in_rang
 from ..calibration import Calibration, bound_order, calibration_from_velocities, default_observer
 from ..engine.fused import FusedSensing
 from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation, mean_velocity_span
-from ..observers import OBSERVERS, Observer, make_observer
+from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
 from .rollout import rollout
@@ -21,6 +21,7 @@ __all__ = [
     "EstimatedVelocity",
     "calibrate_environment",
     "observation_wrappers",
+    "random_episodes",
     "resolve_rate",
     "rollout_velocities",
 ]
@@ -49,11 +50,17 @@ def resolve_rate(rate, frame_skip: int) -> int:
 
 
 def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) -> list[np.ndarray] | None:
-    """``qvel`` sampled every ``sample_every`` physics steps on a copy of the environment under uniform random
-    actions, with the environment's own (seeded) resets at episode ends: its reset distribution, actions and
-    terminations, on the live model (:meth:`~smo_gym.wrappers.adapters.MujocoAdapter.copy_environment`: masses
-    or a timestep edited in place count), for about ``steps`` physics steps. Returns one array ``(T_i, nv)`` per
-    episode, or None if the environment cannot be copied."""
+    """``qvel`` of :func:`random_episodes`, one array ``(T_i, nv)`` per finite episode, or None."""
+    episodes = random_episodes(adapter, sample_every, steps, seed)
+    return None if episodes is None else [episode.qvel for episode in episodes if np.all(np.isfinite(episode.qvel))]
+
+
+def random_episodes(adapter, sample_every: int, steps: int, seed: int = 0) -> list | None:
+    """The :class:`~smo_gym.wrappers.rollout.Episode` list of a copy of the environment under uniform random
+    actions, sampled every ``sample_every`` physics steps, with the environment's own (seeded) resets at episode
+    ends: its reset distribution, actions and terminations, on the live model
+    (:meth:`~smo_gym.wrappers.adapters.MujocoAdapter.copy_environment`: masses or a timestep edited in place
+    count), for about ``steps`` physics steps; None if the environment cannot be copied or sampled so often."""
     try:
         sim = adapter.copy_environment()
         sim.render_mode = None  # never open a window for the calibration
@@ -74,7 +81,7 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
         adapter=adapter,
     )
     sim.close()
-    return [episode.qvel for episode in episodes if np.all(np.isfinite(episode.qvel))]
+    return episodes
 
 
 #: wrappers that return the observation of the environment beneath them unchanged (exactly these classes)
@@ -241,12 +248,18 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Preset name (:data:`smo_gym.sensors.PRESETS`) or a sensor (copied: each wrapper has its own).
     observer : str or smo_gym.observers.Observer
         Observer name (:data:`smo_gym.observers.OBSERVERS`), with gains from a calibration rollout unless
-        ``observer_kwargs`` sets them, or an observer object whose ``dt`` is the sampling step (copied).
+        ``observer_kwargs`` sets them, or an observer object whose ``dt`` is the sampling step (copied). A
+        model-based name (:data:`smo_gym.observers.MODEL_BASED_OBSERVERS`) gets a model of the environment's own
+        ``MjModel`` and the action as its input (:func:`smo_gym.wrappers.model_based.model_based_observer`).
     rate : "physics", "env" or int
         Sample every physics step, once per environment step, or every ``k`` physics steps (``k`` divides
         ``frame_skip``).
     observer_kwargs : dict, optional
-        Constructor arguments overriding the calibrated defaults (e.g. ``{"lipschitz": 200.0}``).
+        Constructor arguments overriding the calibrated defaults (e.g. ``{"lipschitz": 200.0}``). For a
+        model-based observer also its model's settings: ``mass_scale``, a number (every mass and inertia of the
+        observer's model scaled: a model mismatch) or a pair ``(low, high)`` (a scale drawn uniformly at each
+        reset, from a stream seeded by ``reset(seed=...)``; the current one is ``observer.dynamics.mass_scale``),
+        and ``contact``, ``"unknown"`` or ``"measured"`` (:mod:`smo_gym.mechanics.dynamics`).
     positions : {"measured", "filtered"}
         Positions in the observation: the raw measurement or the observer's filtered value.
     contact_forces : {"sensor", "estimated", "zero"}
@@ -265,8 +278,10 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Physics steps per sample.
     sample_dt : float
         Sampling step of sensor and observer [s].
-    bounds : ndarray, shape (nv,) or None
-        Calibrated derivative bounds (None when an observer object was given).
+    calibration : smo_gym.calibration.Calibration or None
+        What the default gains came from (None for an observer object or a model-based observer).
+    model_miss_bound, mass_scale_range : ndarray of shape (nv,), tuple or None
+        A model-based observer's calibrated bound of its model miss, and the range its mass scale is drawn from.
 
     Notes
     -----
@@ -354,6 +369,20 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.measurement = JointMeasurement(model, copy.deepcopy(make_sensor(sensor)), self.sample_dt)
         #: the :class:`~smo_gym.calibration.Calibration` the default gains came from (None for a given observer)
         self.calibration: Calibration | None = None
+        self.model_miss_bound = self.mass_scale_range = None
+        model_based = isinstance(observer, str) and observer in MODEL_BASED_OBSERVERS
+        if model_based:
+            from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
+
+            observer, self.model_miss_bound, self.mass_scale_range = model_based_observer(
+                observer,
+                self.adapter,
+                self.sample_every,
+                observer_kwargs,
+                calibration_steps,
+                calibration_quantile,
+                calibration_safety,
+            )
         if isinstance(observer, Observer):
             if self.measurement.wraps and not np.array_equal(
                 np.broadcast_to(np.asarray(observer.wrap, dtype=bool), self.measurement.angular.shape),
@@ -368,7 +397,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     f"expected an observer with dt equal to the sampling step {self.sample_dt}, "
                     f"actual value: {observer.dt}"
                 )
-            obs_object = copy.deepcopy(observer)
+            obs_object = observer if model_based else copy.deepcopy(observer)
         else:
             if observer not in OBSERVERS:
                 make_observer(observer)  # raises ValueError listing the valid names
@@ -387,9 +416,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 disk=disk_cache,
             )
             obs_object = default_observer(observer, self.calibration, observer_kwargs)
-        # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4
-        self.estimator = VelocityEstimator(obs_object, mean_over=mean_velocity_span(model))
+        if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
+            self.estimator = InputAwareEstimator(obs_object, self.adapter)
+        else:  # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4
+            self.estimator = VelocityEstimator(obs_object, mean_over=mean_velocity_span(model))
         self._rng: np.random.Generator | None = None
+        self._model_rng: np.random.Generator | None = None
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)
         self._substep_hook = None
         self._live = None
@@ -463,6 +495,12 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
         elif self._rng is None:
             self._rng = np.random.default_rng()
+        if self.mass_scale_range is not None:  # a new model mismatch per episode, on a stream of its own
+            if seed is not None:
+                self._model_rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT, 1])
+            elif self._model_rng is None:
+                self._model_rng = np.random.default_rng()
+            self.observer.dynamics.set_mass_scale(self._model_rng.uniform(*self.mass_scale_range))
         self.measurement.reset(self.adapter.data.qpos, self._rng)
         self.estimator.reset(self.measurement.z_measured)
         self._substep_hook = None  # a reset may rebuild the simulation's objects (dm_control's physics)

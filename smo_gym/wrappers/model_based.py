@@ -1,35 +1,45 @@
 r"""Wrapper integration of the model-based observers: the dynamics are built from the environment's own model.
 
-:class:`ModelBasedEstimatedVelocity` is :class:`smo_gym.wrappers.EstimatedVelocity` with a
-:class:`smo_gym.observers.MechanicalSuperTwisting` (``observer="mechanical-super-twisting"``) or
-:class:`smo_gym.observers.DissipativeSuperTwisting` (``observer="dissipative-super-twisting"``) whose dynamics
-object is a :class:`smo_gym.mechanics.MujocoDynamics` on a private copy of ``env.unwrapped.model`` (optionally with
-a deliberate mass mismatch), and whose input at each sample is the ``ctrl`` that acted over the sample interval
-(read from the simulation, i.e. the action). External forces (``qfrc_applied``, ``xfrc_applied``) are not given
-to the observer: they are what its disturbance estimate (``wrapper.observer.external_torque``) recovers.
+:class:`smo_gym.wrappers.EstimatedVelocity` with ``observer="mechanical-super-twisting"``
+(:class:`smo_gym.observers.MechanicalSuperTwisting`) or ``"dissipative-super-twisting"``
+(:class:`smo_gym.observers.DissipativeSuperTwisting`) builds the observer here (:func:`model_based_observer`): its
+dynamics object is a :class:`smo_gym.mechanics.MujocoDynamics` on a private copy of the environment's model
+(optionally with a deliberate mass mismatch, fixed or drawn per episode), and its input at each sample is the
+``ctrl`` that acted over the sample interval (read from the simulation, i.e. the action). External forces
+(``qfrc_applied``, ``xfrc_applied``) are not given to the observer: they are what its disturbance estimate
+(``wrapper.observer.external_torque``) recovers.
 
-Default gains: the disturbance bound ``L`` of each joint is ``safety * quantile(|dv/dt - f(q, v, u)|)`` over a
-calibration rollout of the model itself with random actions (what the model misses, contacts included when
-``contact="unknown"``), and the model term is saturated at ``safety * quantile(|dv/dt|)`` (Wetzlinger et al., eq. (33)).
-With ``rate="env"`` the model is integrated over the ``frame_skip`` physics steps of a sample
-(``model_substeps``), so the cost per physics step is that of the physics-rate observer.
+Default gains: the disturbance bound ``L`` of each joint is ``safety * quantile(|dv/dt - f(q, v, u)|)`` per physics
+step over random-action episodes of a copy of the environment, with its resets and terminations (what the model
+misses where the environment goes; contacts too with ``contact="unknown"``; for a range of mass scales, the larger
+miss of its two ends; else on :func:`~smo_gym.mechanics.calibrate_model_miss`), and the model term is saturated at
+``safety * quantile(|dv/dt|)`` (Wetzlinger et al., eq. (33)). With ``rate="env"`` the model is integrated over
+the ``frame_skip`` physics steps of a sample (``model_substeps``): the cost per physics step of ``rate="physics"``.
 
-Limitations: hinge and slide joints only (free/ball joints raise ``ValueError`` from ``MujocoDynamics``), and no
-joint-equality couplings (the wrapper measures every joint; use the observers directly on such models, as
-``scripts/plot_coriolis_transform.py`` does on ``VariableInertia-v0``).
+Limitations: hinge and slide joints only (``MujocoDynamics`` refuses free and ball joints), no joint-equality
+couplings (use the observers directly on such models, as ``scripts/plot_coriolis_transform.py`` does), no vector
+wrappers (they refuse these names), no sensors that report single-turn angles.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .. import design
+from .._validation import check_positive_range
 from ..engine.measurement import VelocityEstimator
-from ..mechanics import MujocoDynamics
-from ..observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting
-from .estimated_velocity import EstimatedVelocity, resolve_rate
+from ..mechanics import MujocoDynamics, calibrate_model_miss
+from ..observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
+from .estimated_velocity import EstimatedVelocity, random_episodes
 
-__all__ = ["InputAwareEstimator", "ModelBasedEstimatedVelocity", "calibrate_model_miss"]
+__all__ = [
+    "InputAwareEstimator",
+    "ModelBasedEstimatedVelocity",
+    "ModelBasedObserver",
+    "model_based_observer",
+]
 
 NAMES = ("mechanical-super-twisting", "dissipative-super-twisting")
 
@@ -45,62 +55,42 @@ class InputAwareEstimator(VelocityEstimator):
         return self.observer.update(z, self.adapter.data.ctrl.copy())[..., 1]
 
 
-def calibrate_model_miss(
-    model, dynamics: MujocoDynamics, frame_skip: int, *, steps: int = 2000, quantile: float = 0.99, seed: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
-    r"""Quantiles of the model miss :math:`|\Delta v/h - f(q, v, u)|` and of :math:`|\Delta v/h|` per dof.
+class ModelBasedObserver(NamedTuple):
+    """What :func:`model_based_observer` builds: the observer, the calibrated bound of its model miss per dof (None
+    for given gains) and the range each reset draws its mass scale from (None for a fixed one)."""
 
-    Rollout of ``steps`` physics steps of ``model`` (its own ``MjData``, from ``qpos0`` plus small noise) with
-    uniform random controls held for ``frame_skip`` steps; restarts when the state becomes non-finite.
-    """
-    import mujoco
-
-    data = mujoco.MjData(model)
-    rng = np.random.default_rng(seed)
-    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-    limited = model.actuator_ctrllimited.astype(bool)
-    lo = np.where(limited, lo, -1.0)
-    hi = np.where(limited, hi, 1.0)
-    h = model.opt.timestep
-    miss, acc = [], []
-    data.qpos[:] = model.qpos0 + rng.uniform(-0.01, 0.01, model.nq)
-    u = np.zeros(model.nu)
-    for k in range(steps):
-        if k % frame_skip == 0:
-            u = rng.uniform(lo, hi)
-        q, v = data.qpos.copy(), data.qvel.copy()
-        f = dynamics.acceleration(q[dynamics.dof], v[dynamics.dof], u)
-        data.ctrl[:] = u
-        mujoco.mj_step(model, data)
-        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
-            mujoco.mj_resetData(model, data)
-            continue
-        a = (data.qvel[dynamics.dof] - v[dynamics.dof]) / h
-        miss.append(np.abs(a - f))
-        acc.append(np.abs(a))
-    return np.quantile(np.array(miss), quantile, axis=0), np.quantile(np.array(acc), quantile, axis=0)
+    observer: Observer
+    model_miss_bound: np.ndarray | None
+    mass_scale_range: tuple[float, float] | None
 
 
-class ModelBasedEstimatedVelocity(EstimatedVelocity):
-    r"""``EstimatedVelocity`` with a model-based observer built from the environment's own MuJoCo model.
+def model_based_observer(
+    name: str,
+    adapter,
+    sample_every: int,
+    observer_kwargs: dict | None = None,
+    calibration_steps: int = 2000,
+    calibration_quantile: float = 0.99,
+    calibration_safety: float = 2.0,
+) -> ModelBasedObserver:
+    r"""A model-based observer on a private copy of the environment's model, with calibrated default gains.
 
     Parameters
     ----------
-    env, sensor, rate :
-        As :class:`smo_gym.wrappers.EstimatedVelocity`.
-    observer : {"mechanical-super-twisting", "dissipative-super-twisting"}
+    name : {"mechanical-super-twisting", "dissipative-super-twisting"}
+    adapter : smo_gym.wrappers.adapters.MujocoAdapter
+        The environment's adapter (its model is copied, never modified).
+    sample_every : int
+        Physics steps per sample.
     observer_kwargs : dict, optional
-        Constructor arguments of the observer overriding the calibrated defaults (``lipschitz``,
-        ``accel_bound``, ``model_substeps``, ``disturbance_time_constant``, ...; for the dissipative observer
-        ``transform`` and ``gains`` may be given).
-    mass_scale : float
-        Model mismatch of the observer's private model (all masses and inertias scaled).
-    contact : {"unknown", "measured"}
-        How the observer's model treats contacts (see :mod:`smo_gym.mechanics.dynamics`).
+        The observer's model settings, ``mass_scale`` (a number: every mass and inertia scaled; a pair
+        ``(low, high)``: a scale drawn per episode by the wrapper, the model starting at the midpoint) and
+        ``contact`` (``"unknown"`` or ``"measured"``, see :mod:`smo_gym.mechanics.dynamics`); and constructor
+        arguments of the observer overriding the calibrated defaults (``lipschitz``, ``accel_bound``,
+        ``model_substeps``, ``disturbance_time_constant``, ...; for the dissipative observer ``transform`` and
+        ``gains``).
     calibration_steps, calibration_quantile, calibration_safety :
-        Default gains (module docstring).
-    **wrapper_kwargs :
-        Passed to :class:`EstimatedVelocity` (``positions``, ``contact_forces``, ``disk_cache``).
+        Default gains (module notes).
 
     Notes
     -----
@@ -109,6 +99,88 @@ class ModelBasedEstimatedVelocity(EstimatedVelocity):
     ``+-pi``), and gains from :func:`smo_gym.design.apaza_gains` with :math:`L_w` the calibrated bound and the
     dissipativity of the joint damping, :math:`(q, s, r) = (-1, -c/2, 0)`, :math:`c = \max d_i / M_{ii}`.
     """
+    if name not in NAMES:
+        raise ValueError(f"expected observer in {', '.join(NAMES)}, actual value: {name!r}")
+    model, kwargs = adapter.model, dict(observer_kwargs or {})
+    low, high = check_positive_range("mass_scale", kwargs.pop("mass_scale", 1.0))
+    dyn = MujocoDynamics(model, mass_scale=0.5 * (low + high), contact=kwargs.pop("contact", "unknown"))
+    if dyn.n != model.nv:
+        raise ValueError(
+            f"expected a model without joint-equality couplings (every dof measured), actual value: {dyn.n} "
+            f"independent coordinates for nv={model.nv}; use the observers directly on such models"
+        )
+    dt = float(model.opt.timestep) * sample_every
+    needs_bounds = "lipschitz" not in kwargs and not ("k1" in kwargs and "k2" in kwargs)
+    miss_bound = None
+    if needs_bounds or "accel_bound" not in kwargs:
+        miss, acc = _model_miss(adapter, dyn, sorted({low, high}), calibration_steps, calibration_quantile)
+        dyn.set_mass_scale(0.5 * (low + high))
+        floor = 1e-3 * max(float(acc.max()), 1.0)
+        miss_bound = calibration_safety * np.maximum(miss, floor)
+        kwargs.setdefault("accel_bound", calibration_safety * np.maximum(acc, floor))
+    if name == "mechanical-super-twisting":
+        if needs_bounds:
+            kwargs["lipschitz"] = miss_bound
+        kwargs.setdefault("model_substeps", sample_every)
+        obs = MechanicalSuperTwisting(dt, dyn, **kwargs)
+    else:
+        transform = kwargs.pop("transform", None) or _default_transform(model, dyn)
+        gains = kwargs.pop("gains", None)
+        if gains is None:
+            L = miss_bound if needs_bounds else np.broadcast_to(kwargs.pop("lipschitz"), (dyn.n,))
+            gains = _default_gains(model, dyn, transform, L)
+        kwargs.pop("lipschitz", None)
+        obs = DissipativeSuperTwisting(dt, dyn, transform, gains, **kwargs)
+    return ModelBasedObserver(obs, miss_bound, None if low == high else (low, high))
+
+
+def _model_miss(adapter, dyn: MujocoDynamics, scales, steps: int, quantile: float) -> tuple[np.ndarray, np.ndarray]:
+    """``quantile`` of the model miss per dof, the largest over the mass ``scales``, and of the acceleration."""
+    h, dof = adapter.model.opt.timestep, dyn.dof
+    episodes = [e for e in random_episodes(adapter, 1, steps) or () if len(e.qvel) > 1 and np.isfinite(e.qvel).all()]
+    misses = []
+    for scale in scales:
+        dyn.set_mass_scale(scale)
+        if not episodes:
+            miss, acc = calibrate_model_miss(adapter.model, dyn, adapter.frame_skip, steps=steps, quantile=quantile)
+        else:  # the ctrl of each physics step is on the row of the sample it ends at
+            A = np.concatenate([np.diff(e.qvel[:, dof], axis=0) / h for e in episodes])
+            f = np.concatenate([dyn.acceleration(e.qpos[:-1, dof], e.qvel[:-1, dof], e.ctrl[1:]) for e in episodes])
+            miss, acc = np.quantile(np.abs(A - f), quantile, axis=0), np.quantile(np.abs(A), quantile, axis=0)
+        misses.append(miss)
+    return np.max(misses, axis=0), acc
+
+
+def _default_transform(model, dyn: MujocoDynamics) -> CoordinateTransform:
+    jid = [model.dof_jntid[d] for d in dyn.dof]
+    lower = np.array([model.jnt_range[j, 0] if model.jnt_limited[j] else -np.pi for j in jid])
+    upper = np.array([model.jnt_range[j, 1] if model.jnt_limited[j] else np.pi for j in jid])
+    ref = np.clip(model.qpos0[dyn.dof], lower, upper)
+    return CoordinateTransform(dyn.alpha_function(), lower, upper, reference=ref, grid=201)
+
+
+def _default_gains(model, dyn: MujocoDynamics, transform: CoordinateTransform, L: np.ndarray) -> dict:
+    ref = model.qpos0[dyn.dof].copy()
+    rows = []
+    for i in range(dyn.n):
+        ys = transform.grid_y[:, i]
+        Mii = []
+        for y in ys[:: max(1, len(ys) // 20)]:
+            q = ref.copy()
+            q[i] = y
+            Mii.append(dyn.inertia(q)[i, i])
+        c = float(dyn.model.dof_damping[dyn.dof[i]]) / min(Mii)
+        g = design.apaza_gains(
+            float(L[i]), q=-1.0, s=-c / 2.0, r=0.0, upsilon_max=max(1.0, float(transform.grid_upsilon[:, i].max()))
+        )
+        rows.append(g.as_dict())
+    return {key: np.array([r[key] for r in rows]) for key in ("k1", "k2", "k3", "mu1", "mu2")}
+
+
+class ModelBasedEstimatedVelocity(EstimatedVelocity):
+    """The earlier spelling of ``EstimatedVelocity(env, sensor, observer, rate, {"mass_scale": mass_scale,
+    "contact": contact, **observer_kwargs}, **wrapper_kwargs)`` with a model-based ``observer`` (same behaviour;
+    ``wrapper_kwargs`` are the other keyword arguments of :class:`EstimatedVelocity`)."""
 
     def __init__(
         self,
@@ -120,73 +192,9 @@ class ModelBasedEstimatedVelocity(EstimatedVelocity):
         *,
         mass_scale=1.0,
         contact: str = "unknown",
-        calibration_steps: int = 2000,
-        calibration_quantile: float = 0.99,
-        calibration_safety: float = 2.0,
         **wrapper_kwargs,
     ):
         if observer not in NAMES:
             raise ValueError(f"expected observer in {', '.join(NAMES)}, actual value: {observer!r}")
-        unwrapped = env.unwrapped
-        model = unwrapped.model
-        frame_skip = int(unwrapped.frame_skip)
-        sample_every = resolve_rate(rate, frame_skip)
-        dt = float(model.opt.timestep) * sample_every
-        dyn = MujocoDynamics(model, mass_scale=mass_scale, contact=contact)
-        if dyn.n != model.nv:
-            raise ValueError(
-                f"expected a model without joint-equality couplings (every dof measured), actual value: {dyn.n} "
-                f"independent coordinates for nv={model.nv}; use the observers directly on such models"
-            )
-        kwargs = dict(observer_kwargs or {})
-        needs_bounds = "lipschitz" not in kwargs and not ("k1" in kwargs and "k2" in kwargs)
-        if needs_bounds or "accel_bound" not in kwargs:
-            miss, acc = calibrate_model_miss(
-                model, dyn, frame_skip, steps=calibration_steps, quantile=calibration_quantile
-            )
-            floor = 1e-3 * max(float(acc.max()), 1.0)
-            self.model_miss_bound = calibration_safety * np.maximum(miss, floor)
-            kwargs.setdefault("accel_bound", calibration_safety * np.maximum(acc, floor))
-        else:
-            self.model_miss_bound = None
-        if observer == "mechanical-super-twisting":
-            if needs_bounds:
-                kwargs["lipschitz"] = self.model_miss_bound
-            kwargs.setdefault("model_substeps", sample_every)
-            obs = MechanicalSuperTwisting(dt, dyn, **kwargs)
-        else:
-            transform = kwargs.pop("transform", None) or self._default_transform(model, dyn)
-            gains = kwargs.pop("gains", None)
-            if gains is None:
-                L = self.model_miss_bound if needs_bounds else np.broadcast_to(kwargs.pop("lipschitz"), (dyn.n,))
-                gains = self._default_gains(model, dyn, transform, L)
-            kwargs.pop("lipschitz", None)
-            obs = DissipativeSuperTwisting(dt, dyn, transform, gains, **kwargs)
-        super().__init__(env, sensor, obs, rate, None, **wrapper_kwargs)
-        self.estimator = InputAwareEstimator(self.observer, self.adapter)
-
-    @staticmethod
-    def _default_transform(model, dyn: MujocoDynamics) -> CoordinateTransform:
-        jid = [model.dof_jntid[d] for d in dyn.dof]
-        lower = np.array([model.jnt_range[j, 0] if model.jnt_limited[j] else -np.pi for j in jid])
-        upper = np.array([model.jnt_range[j, 1] if model.jnt_limited[j] else np.pi for j in jid])
-        ref = np.clip(model.qpos0[dyn.dof], lower, upper)
-        return CoordinateTransform(dyn.alpha_function(), lower, upper, reference=ref, grid=201)
-
-    @staticmethod
-    def _default_gains(model, dyn: MujocoDynamics, transform: CoordinateTransform, L: np.ndarray) -> dict:
-        ref = model.qpos0[dyn.dof].copy()
-        rows = []
-        for i in range(dyn.n):
-            ys = transform.grid_y[:, i]
-            Mii = []
-            for y in ys[:: max(1, len(ys) // 20)]:
-                q = ref.copy()
-                q[i] = y
-                Mii.append(dyn.inertia(q)[i, i])
-            c = float(dyn.model.dof_damping[dyn.dof[i]]) / min(Mii)
-            g = design.apaza_gains(
-                float(L[i]), q=-1.0, s=-c / 2.0, r=0.0, upsilon_max=max(1.0, float(transform.grid_upsilon[:, i].max()))
-            )
-            rows.append(g.as_dict())
-        return {key: np.array([r[key] for r in rows]) for key in ("k1", "k2", "k3", "mu1", "mu2")}
+        kwargs = {"mass_scale": mass_scale, "contact": contact, **(observer_kwargs or {})}
+        super().__init__(env, sensor, observer, rate, kwargs, **wrapper_kwargs)

@@ -33,10 +33,13 @@ class Episode:
         later.
     qvel : ndarray, shape (T, nv)
         Velocities at the same samples.
+    ctrl : ndarray, shape (T, nu)
+        The ``ctrl`` of the physics step that ended at each sample (row 0: after the reset).
     """
 
     qpos: np.ndarray
     qvel: np.ndarray
+    ctrl: np.ndarray
 
 
 def rollout(
@@ -110,10 +113,11 @@ def rollout(
         )
     episodes: list[Episode] = []
     model = adapter.model
-    recording = SubstepRecording(every, {"qpos": model.nq, "qvel": model.nv}, frame_skip // every)
+    sizes = {"qpos": model.nq, "qvel": model.nv, "ctrl": model.nu}  # the fields of an Episode, in order
+    recording = SubstepRecording(every, sizes, frame_skip // every)
     recorder = adapter.record_substeps(recording) if hook else contextlib.nullcontext()
     obs, _ = env.reset(seed=seed)
-    qpos, qvel = [np.array(adapter.data.qpos)], [np.array(adapter.data.qvel)]
+    rows = {name: [np.array(getattr(adapter.data, name))] for name in sizes}
     recording.start()  # samples are counted in physics steps across environment steps, from the reset
     iterator = range(steps)
     if progress:
@@ -124,15 +128,15 @@ def rollout(
             obs, _, terminated, truncated, _ = env.step(policy(obs))
         if not hook:  # sample_every == frame_skip: one sample at the end of the step
             recording.take(adapter.data)
-        qpos.extend(recording.rows["qpos"][: recording.n].copy())
-        qvel.extend(recording.rows["qvel"][: recording.n].copy())
+        for name, taken in rows.items():
+            taken.extend(recording.rows[name][: recording.n].copy())
         if terminated or truncated or not np.all(np.isfinite(adapter.data.qvel)):
-            episodes.append(Episode(np.array(qpos), np.array(qvel)))
-            qpos, qvel = [], []
+            episodes.append(Episode(*map(np.array, rows.values())))
+            rows = {name: [] for name in sizes}
             recording.start()
             if step < steps - 1:
                 obs, _ = env.reset()
-                qpos, qvel = [np.array(adapter.data.qpos)], [np.array(adapter.data.qvel)]
-    if qpos:
-        episodes.append(Episode(np.array(qpos), np.array(qvel)))
+                rows = {name: [np.array(getattr(adapter.data, name))] for name in sizes}
+    if rows["qpos"]:
+        episodes.append(Episode(*map(np.array, rows.values())))
     return episodes

@@ -59,6 +59,7 @@ import numpy as np
 from ..engine.batch import MeasurementBatch
 from ..engine.measurement import check_finite_observation
 from ..engine.scratch import INPUT_FIELDS, GatheredObservations
+from ..observers import MODEL_BASED_OBSERVERS
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
 from .sensing import check_action, check_seed
 
@@ -140,6 +141,12 @@ class JointSensor(EstimatedVelocity):
         **kwargs,
     ):
         check_vector_rate(rate)
+        if isinstance(observer, str) and observer in MODEL_BASED_OBSERVERS:  # one batched update has no actions
+            raise ValueError(
+                f"expected a model-free observer for a vector wrapper, actual value: {observer!r}; wrap each "
+                f"environment instead: gymnasium.make_vec(id, wrappers=[functools.partial(EstimatedVelocity, "
+                f"observer={observer!r})])"
+            )
         super().__init__(env, sensor, observer, "env", observer_kwargs, **kwargs)
         self.config = sensing_config(sensor, observer, observer_kwargs, **kwargs)
         self.token = uuid.uuid4().hex
