@@ -812,6 +812,8 @@ def hosm_implicit_channel_step(x, y, params, m, x_new, out_row):
                     psi += sign * gain * s**p
         acc = dt * (psi + acc)
         x_new[c] += acc
+    if stick:
+        x_new[0] = y  # what the recursion gives up to rounding: sigma+ = 0 exactly
     for i in range(m):
         z = 0.0
         for j in range(i, m):
