@@ -179,6 +179,8 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
             f"{g:.3g} | {worst:.3g} | {sum(n in r['diverged'] for r in rows)} |"
         )
     counts = {n: sum(n in r["winners"] for r in rows) for n in names}
+    if default not in counts:  # a subset without the default (--observers): no verdict on it
+        return "\n".join(out)
     top = max(counts.values())
     leaders = [n for n, c in counts.items() if c == top]
     verdict = (
