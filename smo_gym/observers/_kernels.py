@@ -634,15 +634,18 @@ def _injection_sum(s, params, dt, q, n):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _injection_root(target, params, dt, q, n):
-    r"""The root ``s`` in :math:`(0, \mathrm{target}]` of :math:`g(s) = \mathrm{target}` (:func:`_injection_sum`:
-    ``g`` increases, from below ``target`` at :math:`0^+` to at least ``target`` at ``target``): Newton's method
-    inside a shrinking bracket, bisecting where a Newton step would leave it, to a relative step of ``4e-16``."""
+def monotone_root(fun, target, params, dt, a, b):
+    r"""The root ``s`` in :math:`(0, \mathrm{target}]` of :math:`g(s) = \mathrm{target}`, where
+    ``fun(s, params, dt, a, b)`` returns :math:`g(s)` and :math:`g'(s)` and ``g`` increases, from below ``target``
+    at :math:`0^+` to at least ``target`` at ``target``: Newton's method inside a shrinking bracket, bisecting
+    where a Newton step would leave it, to a relative step of ``4e-16``. The scalar equation of every implicit
+    (backward) Euler step of a signed-power differentiator has this form (:func:`_injection_sum`,
+    :func:`_signed_power_sum`)."""
     lo = 0.0
     hi = target
     s = target
     for _ in range(200):
-        g, dg = _injection_sum(s, params, dt, q, n)
+        g, dg = fun(s, params, dt, a, b)
         if g > target:
             hi = s
         else:
@@ -677,7 +680,7 @@ def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
     so the solution is unique: for ``d = -1`` (:math:`p_{n-1} = 0`, a set-valued sign) it is :math:`\sigma^+ = 0`
     with :math:`\psi_{n-1} = k_{n-1}\rho/\beta_{n-1}` when :math:`|\rho| \le \beta_{n-1}`; otherwise
     :math:`\sigma^+ = \mathrm{sign}(\rho)s` with ``s`` the root of a monotone scalar equation
-    (:func:`_injection_root`; for ``d = 0`` it is linear and the first Newton step solves it). Returns the
+    (:func:`monotone_root`; for ``d = 0`` it is linear and the first Newton step solves it). Returns the
     innovation :math:`y^+ - \hat z_0`; ``out_row`` receives the ``z`` block of :math:`\xi^+`.
     """
     dt = params[0]
@@ -697,7 +700,7 @@ def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
     beta_last = dt**n * params[1 + n]
     sign = 1.0 if rho > 0.0 else -1.0
     stick = degree == -1.0 and abs(rho) <= beta_last
-    s = 0.0 if (stick or rho == 0.0) else _injection_root(abs(rho), params, dt, q, n)
+    s = 0.0 if (stick or rho == 0.0) else monotone_root(_injection_sum, abs(rho), params, dt, q, n)
     acc = 0.0
     for c in range(n - 1, -1, -1):
         if stick:
@@ -723,6 +726,113 @@ def filtering_implicit_rows(state, y, params, new_state, out, shared):
         pc = 0 if shared else c  # the parameter row of channel c
         row = new_state[c]
         row[n] = filtering_implicit_channel_step(state[c], y[c], params[pc], m, n, row, out[c])
+        failed |= not (_row_finite(row) and _row_finite(out[c]))
+    return _check_state(new_state, out) if failed else -1
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Signed-power differentiators (Levant, URED, uniform Levant), implicit (backward) Euler with the outputs of Seeber
+# params row: [dt, gains (m * N_TERMS), powers (m * N_TERMS), M (m * m)]; state row [xi_0, ..., xi_{m-1},
+# innovation]
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _signed_power_sum(s, params, dt, m, unused):
+    r""":math:`g(s) = s + \sum_{c,j} \tau^{c+1} g_{cj} s^{p_{cj}}` and :math:`g'(s)` at ``s > 0``
+    (:func:`hosm_implicit_channel_step`; ``unused`` keeps the signature of :func:`monotone_root`'s ``fun``)."""
+    poff = 1 + m * N_TERMS
+    g = s
+    dg = 1.0
+    beta = 1.0
+    for c in range(m):
+        beta *= dt
+        for j in range(N_TERMS):
+            gain = params[1 + c * N_TERMS + j]
+            if gain != 0.0:
+                p = params[poff + c * N_TERMS + j]
+                term = beta * gain * s**p
+                g += term
+                dg += p * term / s
+    return g, dg
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def hosm_implicit_channel_step(x, y, params, m, x_new, out_row):
+    r"""One implicit (backward) Euler step of a signed-power differentiator (Levant 2003; Cruz-Zavala, Moreno and
+    Fridman 2011; Angulo, Moreno and Fridman 2013), :math:`\dot\xi = A\xi + \psi(y - \xi_0)`:
+
+    .. math::
+        \xi^+ = \xi + \tau\big(A\xi^+ + \psi(\sigma^+)\big),\qquad \sigma^+ = y^+ - \xi_0^+,\qquad
+        \psi_c(\sigma) = \sum_j g_{cj}\lceil\sigma\rfloor^{p_{cj}},
+
+    ``A`` the shift and :math:`\lceil\sigma\rfloor^0 = \mathrm{Sign}(\sigma)` set-valued. With
+    :math:`T = (I - \tau A)^{-1}` (:math:`T_{cd} = \tau^{d-c}`, ``d >= c``), :math:`\xi^+ = T\xi + \tau T\psi`,
+    whose first row is the scalar equation in :math:`\sigma^+` alone
+
+    .. math:: \sigma^+ + \sum_{c,j} \tau^{c+1} g_{cj}\lceil\sigma^+\rfloor^{p_{cj}} = \rho = y^+ - (T\xi)_0.
+
+    Its left side increases strictly, so the solution is unique. With :math:`\theta` the sum of the
+    :math:`\tau^{c+1}g_{cj}` of the sign terms (:math:`p_{cj} = 0`), :math:`|\rho| \le \theta` gives
+    :math:`\sigma^+ = 0` (the estimate sticks to the measurement) with each sign term at :math:`\rho/\theta`;
+    otherwise :math:`\sigma^+ = \mathrm{sign}(\rho)s`, ``s`` the root of :func:`_signed_power_sum` at
+    :math:`|\rho|` (:func:`monotone_root`). Every other state is then explicit. ``out_row`` receives the
+    estimates :math:`M\xi^+` (:func:`smo_gym.observers.differentiators.backward_difference_outputs`). Returns
+    the innovation :math:`\rho`.
+    """
+    dt = params[0]
+    poff = 1 + m * N_TERMS
+    moff = 1 + 2 * m * N_TERMS
+    # a = T xi by the recursion a_c = xi_c + tau a_{c+1} from the last state up
+    acc = 0.0
+    for c in range(m - 1, -1, -1):
+        acc = x[c] + dt * acc
+        x_new[c] = acc
+    rho = y - x_new[0]
+    theta = 0.0
+    beta = 1.0
+    for c in range(m):
+        beta *= dt
+        for j in range(N_TERMS):
+            if params[poff + c * N_TERMS + j] == 0.0:
+                theta += beta * params[1 + c * N_TERMS + j]
+    stick = abs(rho) <= theta
+    ratio = rho / theta if (stick and theta > 0.0) else 0.0  # the value of every sign term in the dead zone
+    sign = 1.0 if rho > 0.0 else -1.0
+    s = 0.0 if (stick or rho == 0.0) else monotone_root(_signed_power_sum, abs(rho), params, dt, m, 0)
+    # xi+ = a + tau T psi (the same recursion)
+    acc = 0.0
+    for c in range(m - 1, -1, -1):
+        psi = 0.0
+        for j in range(N_TERMS):
+            gain = params[1 + c * N_TERMS + j]
+            p = params[poff + c * N_TERMS + j]
+            if gain != 0.0:
+                if stick:
+                    psi += gain * ratio if p == 0.0 else 0.0
+                elif s > 0.0:
+                    psi += sign * gain * s**p
+        acc = dt * (psi + acc)
+        x_new[c] += acc
+    if stick:
+        x_new[0] = y  # what the recursion gives up to rounding: sigma+ = 0 exactly
+    for i in range(m):
+        z = 0.0
+        for j in range(i, m):
+            z += params[moff + i * m + j] * x_new[j]
+        out_row[i] = z
+    return rho
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def hosm_implicit_rows(state, y, params, new_state, out, shared):
+    """:func:`hosm_implicit_channel_step` on every channel, ``m = out.shape[1]`` estimates (``shared``: one
+    parameter row for every channel)."""
+    m = out.shape[1]
+    _check_widths(state, new_state, params, out, m + 1, 1 + 2 * m * N_TERMS + m * m, m)
+    failed = False
+    for c in range(y.shape[0]):
+        pc = 0 if shared else c  # the parameter row of channel c
+        row = new_state[c]
+        row[m] = hosm_implicit_channel_step(state[c], y[c], params[pc], m, row, out[c])
         failed |= not (_row_finite(row) and _row_finite(out[c]))
     return _check_state(new_state, out) if failed else -1
 
@@ -1152,6 +1262,7 @@ hosm = register_step(hosm_rows, compact=True)
 sta_implicit = register_step(sta_implicit_rows)
 eigmap = register_step(eigmap_rows)
 filtering_implicit = register_step(filtering_implicit_rows)
+hosm_implicit = register_step(hosm_implicit_rows, compact=True)
 linear = register_step(linear_rows)
 kalman_ca = register_step(kalman_ca_rows)
 finite_difference = register_step(finite_difference_rows)
@@ -1160,6 +1271,7 @@ hosm_kernel, hosm_shared_kernel = hosm.kernel, hosm.shared_kernel
 sta_implicit_kernel, sta_implicit_shared_kernel = sta_implicit.kernel, sta_implicit.shared_kernel
 eigmap_kernel, eigmap_shared_kernel = eigmap.kernel, eigmap.shared_kernel
 filtering_implicit_kernel = filtering_implicit.kernel
+hosm_implicit_kernel, hosm_implicit_shared_kernel = hosm_implicit.kernel, hosm_implicit.shared_kernel
 linear_kernel, linear_shared_kernel = linear.kernel, linear.shared_kernel
 kalman_ca_kernel, kalman_ca_shared_kernel = kalman_ca.kernel, kalman_ca.shared_kernel
 finite_difference_kernel, finite_difference_shared_kernel = finite_difference.kernel, finite_difference.shared_kernel

@@ -10,7 +10,8 @@ Discretizations (see ``DESIGN.md``)
 ``"taylor"``
     explicit, with the Taylor terms of Livne & Levant (2014): accuracy ``|z_i - f^(i)| = O(L tau^(k+1-i))``.
 ``"implicit"``
-    set-valued implicit Euler (closed form for super-twisting): exact and chattering-free on constants.
+    set-valued implicit Euler (closed form for super-twisting; one monotone scalar equation for Levant, URED and
+    uniform Levant, whose estimates are then Seeber's (2024) combinations of the states): chattering-free.
 ``"semi-implicit"``, ``"matching"``
     state-dependent eigenvalue mappings (15) and (16) of Wetzlinger, Reichhartinger and Horn:
     no discretization chattering and stable at any step for any initial error.
@@ -60,6 +61,7 @@ __all__ = [
     "Levant",
     "SuperTwisting",
     "UniformLevant",
+    "backward_difference_outputs",
     "eigenvalue_map_rate",
     "eigenvalue_mapping_vectors",
     "filtering_chain_matrix",
@@ -86,6 +88,52 @@ def _pack_hosm(dt: float, taylor: bool, gains: np.ndarray, powers: np.ndarray) -
     p[:, :J] = powers
     head = np.tile([dt, 1.0 if taylor else 0.0], (N, 1))
     return np.hstack([head, g.reshape(N, -1), np.broadcast_to(p.reshape(1, -1), (N, m * _kernels.N_TERMS))])
+
+
+def backward_difference_outputs(m: int, dt: float) -> np.ndarray:
+    r"""The output matrix ``M``, shape ``(m, m)``, of the implicit (backward) Euler step of a signed-power
+    differentiator: estimates :math:`\hat z = M\xi` from its states :math:`\xi` (Seeber 2024).
+
+    In the dead zone of the implicit step (:func:`smo_gym.observers._kernels.hosm_implicit_channel_step`) the
+    states are the backward differences of the samples, :math:`\xi_{j,k} = \nabla^j y_k / \tau^j` (the
+    recursion :math:`\xi_j^+ = \xi_j + \tau\xi_{j+1}^+` with :math:`\xi_0 = y`), which are biased estimates
+    of the derivatives (:math:`\xi_1 = f' - \tau f''/2 + \ldots`). Newton's backward formula
+    :math:`\tau D = -\ln(1 - \nabla)` maps them to the derivatives, exactly for polynomials of degree ``m - 1``:
+
+    .. math:: M_{ij} = \tau^{j-i}\,[x^j]\big(-\ln(1 - x)\big)^i,\qquad i \le j < m,
+
+    unit upper triangular (:math:`M = I` for ``m = 2``; for ``m = 3`` :math:`\hat z_1 = \xi_1 + \tau\xi_2/2`).
+    """
+    series = np.r_[0.0, 1.0 / np.arange(1, m)]  # -ln(1 - x) up to x^(m-1)
+    power = np.zeros(m)
+    power[0] = 1.0
+    M = np.zeros((m, m))
+    j = np.arange(m)
+    for i in range(m):
+        M[i] = power * dt ** (j - i).clip(min=0)
+        power = np.convolve(power, series)[:m]
+    return M
+
+
+def _pack_hosm_implicit(dt: float, gains: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """Parameter rows of the implicit HOSM kernel: ``[dt, gains (m*J), powers (m*J), M (m*m)]`` per channel, the
+    injections as for :func:`_pack_hosm` and ``M`` of :func:`backward_difference_outputs`."""
+    rows = _pack_hosm(dt, False, gains, powers)
+    m = powers.shape[0]
+    M = np.broadcast_to(backward_difference_outputs(m, dt).reshape(1, -1), (rows.shape[0], m * m))
+    return np.hstack([rows[:, :1], rows[:, 2:], M])
+
+
+class _ImplicitOutputs:
+    r"""Mixin of the signed-power differentiators with an ``"implicit"`` discretization: their state then holds
+    the backward-Euler coordinates :math:`\xi = M^{-1}\hat z` (:func:`backward_difference_outputs`)."""
+
+    def _load_estimate(self, state, x0, params):
+        if self.discretization != "implicit":
+            return super()._load_estimate(state, x0, params)
+        m = x0.shape[1]
+        state[:, :m] = np.linalg.solve(backward_difference_outputs(m, self.dt), x0.T).T
+        return None
 
 
 def _levant_sequence(gains, order: int) -> np.ndarray:
@@ -270,15 +318,24 @@ class SuperTwisting(Observer):
 
 @register_observer(
     "levant",
-    steps=(_kernels.hosm_rows, _kernels.eigmap_rows),
+    steps=(_kernels.hosm_rows, _kernels.eigmap_rows, _kernels.hosm_implicit_rows),
     calibrate=lipschitz_rule,
     given=(("lipschitz",),),
     examples=tuple(
         dict(order=k, lipschitz=5.0, discretization=d)
-        for k, d in [(1, "taylor"), (2, "taylor"), (3, "euler"), (2, "semi-implicit"), (3, "matching"), (5, "taylor")]
+        for k, d in [
+            (1, "taylor"),
+            (2, "taylor"),
+            (3, "euler"),
+            (2, "semi-implicit"),
+            (3, "matching"),
+            (5, "taylor"),
+            (2, "implicit"),
+            (4, "implicit"),
+        ]
     ),
 )
-class Levant(Observer):
+class Levant(_ImplicitOutputs, Observer):
     r"""Levant's arbitrary-order robust exact differentiator (Fridman's slides, eq. (7); [Lev03]).
 
     For ``|f^(k+1)| <= L`` the order-``k`` differentiator, in the non-recursive form equivalent to (7)
@@ -298,13 +355,14 @@ class Levant(Observer):
         Sampling step.
     lipschitz : float or array_like
         ``L``, per channel if an array.
-    discretization : {"taylor", "euler", "semi-implicit", "matching"}
+    discretization : {"taylor", "euler", "semi-implicit", "matching", "implicit"}
         ``"taylor"`` (default, [LL14]): accuracy ``O(L tau^(k+1-i))`` for ``z_i`` on noise-free signals, and
         ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under noise of amplitude ``eps``. ``"euler"``: the same without the
         Taylor terms, hence first order (``O(tau^2)`` in ``z_0``, ``O(tau)`` in every derivative; measured in
         ``tests/test_differentiators.py``). ``"semi-implicit"`` / ``"matching"``: the discrete-time observer of
         Wetzlinger et al. with eigenvalue mapping (15) / (16); its continuous-time counterpart (11) is a Levant-type
-        differentiator with gains from ``(s + p1)^(k+1)``.
+        differentiator with gains from ``(s + p1)^(k+1)``. ``"implicit"``: set-valued implicit (backward) Euler
+        ([MBA21], [CSLD]) with the outputs of [See24] (Notes).
     p1 : float, optional
         Eigenvalue-mapping rate of Wetzlinger et al.; default ``(1.1 L)^(1/(k+1))`` so that the last gain
         ``p1^(k+1)`` equals Levant's ``lambda_0 L``.
@@ -318,13 +376,38 @@ class Levant(Observer):
         004, :math:`\lambda_0, \ldots, \lambda_5 = 1.1, 1.5, 2, 3, 5, 8`. [Lev03] shows convergence for
         parameters chosen large enough one after the other, starting from :math:`\lambda_0 > 1`; the printed
         sequence is one such choice for ``k <= 5``, not a law, so other sequences are accepted as given (only
-        their shape and positivity are checked: convergence with them is the caller's choice). For ``"taylor"``
-        and ``"euler"`` only: the eigenvalue mappings are tuned by ``p1``.
+        their shape and positivity are checked: convergence with them is the caller's choice). For ``"taylor"``,
+        ``"euler"`` and ``"implicit"`` only: the eigenvalue mappings are tuned by ``p1``.
     wrap : bool or array_like of bool, optional
         Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
+
+    Notes
+    -----
+    ``"implicit"`` (:func:`smo_gym.observers._kernels.hosm_implicit_channel_step`): the backward Euler step
+    :math:`\xi^+ = \xi + \tau(A\xi^+ + \psi(y^+ - \xi_0^+))` of the differentiator, with
+    :math:`\psi_i(\sigma) = \Lambda_{i+1}L^{(i+1)/(k+1)}\lceil\sigma\rfloor^{(k-i)/(k+1)}` and the
+    set-valued sign in the last state. Solving the shift for :math:`\xi^+` leaves one scalar equation in the new
+    output error :math:`\sigma^+`, :math:`\sigma^+ + \sum_i \tau^{i+1}\psi_i(\sigma^+) = \rho` with
+    :math:`\rho` the error of the prediction :math:`(I - \tau A)^{-1}\xi`; its left side increases strictly, so
+    it has one solution, :math:`\sigma^+ = 0` (the estimate sticks to the measurement) when
+    :math:`|\rho| \le \tau^{k+1}\lambda_0 L`, and every other state is then explicit. In that dead zone the
+    states are the backward differences :math:`\nabla^i y/\tau^i`, biased by :math:`O(\tau)`; the estimates
+    are their combinations by Newton's backward formula (:func:`backward_difference_outputs`), which, as
+    [See24] shows for his outputs, removes the bias: on a noise-free signal with :math:`|f^{(k+1)}| \le L`
+    (:math:`\lambda_0 > 1`), the estimate sticks after convergence and :math:`|\hat z_i - f^{(i)}| =
+    O(L\tau^{k+1-i})` (measured in ``tests/test_implicit_differentiators.py``), with no chattering.
+
+    References
+    ----------
+    .. [MBA21] M. R. Mojallizadeh, B. Brogliato and V. Acary, "Time-discretizations of differentiators: design
+       of implicit algorithms and comparative analysis", Int. J. Robust Nonlinear Control 31(16), 2021.
+    .. [CSLD] J. E. Carvajal-Rubio, J. D. Sanchez-Torres, A. G. Loukianov and M. Defoort, implicit and exact
+       discretizations of the arbitrary-order differentiator.
+    .. [See24] R. Seeber, "Proper implicit discretization of arbitrary-order robust exact differentiators",
+       arXiv:2404.02770, 2024.
     """
 
-    discretizations = ("taylor", "euler", "semi-implicit", "matching")
+    discretizations = ("taylor", "euler", "semi-implicit", "matching", "implicit")
 
     @check_keywords
     def __init__(
@@ -372,8 +455,9 @@ class Levant(Observer):
             )
         if gains is not None and self.discretization in ("semi-implicit", "matching"):
             raise ValueError(
-                "expected gains only with discretization 'taylor' or 'euler' (the eigenvalue mappings are tuned "
-                f"by p1), actual value: gains={gains!r} with discretization={self.discretization!r}"
+                "expected gains only with discretization 'taylor', 'euler' or 'implicit' (the eigenvalue mappings "
+                "are tuned by p1), "
+                f"actual value: gains={gains!r} with discretization={self.discretization!r}"
             )
         self.gains = _levant_sequence(gains, order)
 
@@ -381,14 +465,14 @@ class Levant(Observer):
     def _kernel(self):
         if self.discretization in ("semi-implicit", "matching"):
             return _kernels.eigmap_kernel
-        return _kernels.hosm_kernel
+        return _kernels.hosm_implicit_kernel if self.discretization == "implicit" else _kernels.hosm_kernel
 
     @property
     def reports_instant(self) -> bool:
         return self.discretization in ("taylor", "matching")
 
     def _predicts(self):
-        return True
+        return self.discretization != "implicit"
 
     def _channel_params(self, shape):
         k, m = self.order, self.order + 1
@@ -399,18 +483,20 @@ class Levant(Observer):
         lam = levant_nonrecursive(self.gains)
         gains = lam[None, :] * L[:, None] ** (np.arange(1, m + 1) / m)[None, :]
         powers = ((k - np.arange(m)) / m)[:, None]
+        if self.discretization == "implicit":
+            return _pack_hosm_implicit(self.dt, gains[:, :, None], powers)
         return _pack_hosm(self.dt, self.discretization == "taylor", gains[:, :, None], powers)
 
 
 @register_observer(
     "ured",
-    steps=(_kernels.hosm_rows,),
+    steps=(_kernels.hosm_rows, _kernels.hosm_implicit_rows),
     bound=2,
     calibrate=lipschitz_rule,
     given=(("lipschitz",), ("k1", "k2")),
-    examples=(dict(lipschitz=5.0),),
+    examples=(dict(lipschitz=5.0), dict(lipschitz=5.0, discretization="implicit")),
 )
-class URED(Observer):
+class URED(_ImplicitOutputs, Observer):
     r"""Uniform robust exact differentiator of Cruz-Zavala, Moreno and Fridman [CMF11] (in Fridman's slides).
 
     .. math::
@@ -429,16 +515,17 @@ class URED(Observer):
     k1, k2 : optional overrides.
     beta : float
         Weight of the high-degree terms (units 1/[y]); larger means faster from large errors.
-    discretization : {"euler"}
-        Explicit Euler. The high-degree terms make it stiff: at error ``|e|`` the step must satisfy roughly
-        ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as ``DivergenceError``). For large
-        initial errors at a coarse step use ``Levant(discretization="semi-implicit", mu>0)``, the uniform
-        observer of [WRH], which is stable at any step.
+    discretization : {"euler", "implicit"}
+        ``"euler"``: explicit Euler. The high-degree terms make it stiff: at error ``|e|`` the step must satisfy
+        roughly ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as ``DivergenceError``).
+        ``"implicit"``: set-valued implicit (backward) Euler, stable at any step and from any initial error, with
+        the outputs of [See24] (as for :class:`Levant`, Notes there: the scalar equation in the new output error
+        gains the high-degree terms and stays strictly increasing).
     wrap : bool or array_like of bool, optional
         Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
     """
 
-    discretizations = ("euler",)
+    discretizations = ("euler", "implicit")
 
     @check_keywords
     def __init__(
@@ -459,10 +546,10 @@ class URED(Observer):
 
     @property
     def _kernel(self):
-        return _kernels.hosm_kernel
+        return _kernels.hosm_implicit_kernel if self.discretization == "implicit" else _kernels.hosm_kernel
 
     def _predicts(self):
-        return True
+        return self.discretization != "implicit"
 
     def _channel_params(self, shape):
         L = self._per_channel("lipschitz", self.lipschitz, shape)
@@ -473,17 +560,23 @@ class URED(Observer):
         gains[:, 0, 0], gains[:, 0, 1] = k1, k1 * b
         gains[:, 1, 0], gains[:, 1, 1], gains[:, 1, 2] = 0.5 * k2, 2.0 * b * k2, 1.5 * b * b * k2
         powers = np.array([[0.5, 1.5, 0.0], [0.0, 1.0, 2.0]])
+        if self.discretization == "implicit":
+            return _pack_hosm_implicit(self.dt, gains, powers)
         return _pack_hosm(self.dt, False, gains, powers)
 
 
 @register_observer(
     "uniform-levant",
-    steps=(_kernels.hosm_rows,),
+    steps=(_kernels.hosm_rows, _kernels.hosm_implicit_rows),
     calibrate=lipschitz_rule,
     given=(("lipschitz",),),
-    examples=(dict(order=2, lipschitz=5.0), dict(order=3, lipschitz=5.0, discretization="taylor")),
+    examples=(
+        dict(order=2, lipschitz=5.0),
+        dict(order=3, lipschitz=5.0, discretization="taylor"),
+        dict(order=2, lipschitz=5.0, discretization="implicit"),
+    ),
 )
-class UniformLevant(Observer):
+class UniformLevant(_ImplicitOutputs, Observer):
     r"""Arbitrary-order uniform robust exact differentiator of Angulo, Moreno and Fridman [AMF13].
 
     Eq. (8) of Fridman's lecture slides.
@@ -511,8 +604,10 @@ class UniformLevant(Observer):
     gains : array_like, shape (order + 1,), optional
         Levant's parameters :math:`(\lambda_0, \ldots, \lambda_k)` of the low-degree terms, as for
         :class:`Levant` (default the sequence of [Lev03]).
-    discretization : {"euler", "taylor"}
-        Explicit; stiff for large errors like :class:`URED` (errors raise ``DivergenceError``).
+    discretization : {"euler", "taylor", "implicit"}
+        ``"euler"``, ``"taylor"``: explicit; stiff for large errors like :class:`URED` (errors raise
+        ``DivergenceError``). ``"implicit"``: set-valued implicit (backward) Euler with the outputs of [See24], as
+        for :class:`Levant` (Notes there), stable at any step and from any initial error.
     wrap : bool or array_like of bool, optional
         Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
@@ -525,7 +620,7 @@ class UniformLevant(Observer):
     ``alpha -> 0``, ``s^n + k_1 s^(n-1) + ... + k_n``.
     """
 
-    discretizations = ("euler", "taylor")
+    discretizations = ("euler", "taylor", "implicit")
 
     @check_keywords
     def __init__(
@@ -559,10 +654,10 @@ class UniformLevant(Observer):
 
     @property
     def _kernel(self):
-        return _kernels.hosm_kernel
+        return _kernels.hosm_implicit_kernel if self.discretization == "implicit" else _kernels.hosm_kernel
 
     def _predicts(self):
-        return True
+        return self.discretization != "implicit"
 
     def _channel_params(self, shape):
         n = self.order + 1
@@ -575,4 +670,6 @@ class UniformLevant(Observer):
             kk = np.broadcast_to(self.k, (L.size, n))
         gains = np.stack([lam, kk], axis=2)
         powers = np.stack([(n - i) / n, (n + self.alpha * i) / n], axis=1)
+        if self.discretization == "implicit":
+            return _pack_hosm_implicit(self.dt, gains, powers)
         return _pack_hosm(self.dt, self.discretization == "taylor", gains, powers)
