@@ -48,6 +48,9 @@ def test_only_instant_reports_of_order_two_or_more_are_converted():
     h = 0.01
     assert VelocityEstimator(KalmanCA(h, 10.0, 1e-6), mean_over=h).coefficients is not None
     assert VelocityEstimator(Levant(2, h, 5.0, discretization="matching"), mean_over=h).coefficients is not None
+    # Newton's backward formula makes the implicit step's outputs the derivatives at the sample time
+    assert VelocityEstimator(Levant(2, h, 5.0, discretization="implicit"), mean_over=h).coefficients is not None
+    assert VelocityEstimator(Levant(2, h, 5.0, discretization="euler"), mean_over=h).coefficients is None
     assert VelocityEstimator(KalmanCA(h, 10.0, 1e-6)).coefficients is None  # no span: RK4
     assert VelocityEstimator(SuperTwisting(h, 5.0), mean_over=h).coefficients is None  # order 1
     # a backward-Euler step reports a mean over its step already

@@ -135,6 +135,11 @@ class _ImplicitOutputs:
         state[:, :m] = np.linalg.solve(backward_difference_outputs(m, self.dt), x0.T).T
         return None
 
+    @property
+    def reports_instant(self) -> bool:
+        # Newton's backward formula: the outputs are the derivatives at the sample time, exact on polynomials
+        return self.discretization == "implicit" or super().reports_instant
+
 
 def _levant_sequence(gains, order: int) -> np.ndarray:
     """Levant's recursive parameters ``(lambda_0, ..., lambda_k)``: ``gains`` validated, or the paper's choice."""
@@ -469,7 +474,7 @@ class Levant(_ImplicitOutputs, Observer):
 
     @property
     def reports_instant(self) -> bool:
-        return self.discretization in ("taylor", "matching")
+        return self.discretization in ("taylor", "matching", "implicit")
 
     def _predicts(self):
         return self.discretization != "implicit"
