@@ -118,6 +118,28 @@ def _lag_difference(y: np.ndarray, order: int, lag: int) -> np.ndarray:
     return parts[0]
 
 
+def _first_clear_lag(y: np.ndarray, r: int, dt: float, statistic) -> np.ndarray:
+    r"""A statistic of the lag-``s`` difference quotient at the first lag ``s = 1, 2, 4, ...`` where the noise no
+    longer hides it, per channel (:func:`derivative_bound`, :func:`derivative_rms`).
+
+    ``statistic(diff, step) -> (value, clear)`` receives :math:`\Delta_s^r y` and :math:`s\tau` and returns
+    the value per channel and whether the noise part is small enough there. Lags double until every channel is
+    clear or the next lag would average over more than an eighth of the record; a channel never clear gets the
+    value at the last lag.
+    """
+    T = y.shape[0]
+    result = np.full(y.shape[1:], np.nan)
+    lag = 1
+    while True:
+        value, clear = statistic(_lag_difference(y, r, lag), lag * dt)
+        settled = np.isnan(result) & clear
+        result[settled] = value[settled]
+        if 2 * lag * r > T // 8 or not np.isnan(result).any():
+            break
+        lag *= 2
+    return np.where(np.isnan(result), value, result)
+
+
 def noise_std(y, *, order: int = 4) -> np.ndarray:
     r"""Robust estimate of the standard deviation of white measurement noise, per channel.
 
@@ -223,18 +245,13 @@ def derivative_bound(
         raise ValueError(f"expected more than derivative = {r} samples, actual value: {T}")
     sigma = _noise_per_channel(noise, y)
     gain = 3.0 * np.sqrt(comb(2 * r, r))  # the noise part of D_s, about three of its standard deviations
-    result = np.full(y.shape[1:], np.nan)
-    lag = 1
-    while True:
-        q = np.quantile(np.abs(_lag_difference(y, r, lag)), quantile, axis=0) / (lag * dt) ** r
-        settled = np.isnan(result) & (gain * sigma / (lag * dt) ** r <= 0.25 * q)
-        result[settled] = q[settled]
-        last = 2 * lag * r > T // 8  # the next lag would average over more than an eighth of the record
-        if last or not np.isnan(result).any():
-            break
-        lag *= 2
+
+    def quantile_of(diff, step):
+        q = np.quantile(np.abs(diff), quantile, axis=0) / step**r
+        return q, gain * sigma / step**r <= 0.25 * q
+
     # channels whose noise never fell below the quantile (no visible signal): the smoothest quotient seen
-    result = np.where(np.isnan(result), q, result)
+    result = _first_clear_lag(y, r, dt, quantile_of)
     with np.errstate(over="ignore"):
         bound = np.maximum(safety * result, floor)
     if not np.all(np.isfinite(bound)):
@@ -294,18 +311,14 @@ def derivative_rms(y, dt: float, derivative: int, *, noise=None, floor: float = 
     if r >= T:
         raise ValueError(f"expected more than derivative = {r} samples, actual value: {T}")
     sigma = _noise_per_channel(noise, y)
-    result = np.full(y.shape[1:], np.nan)
-    lag = 1
+    noise_factor = sigma**2 * comb(2 * r, r)
+
+    def mean_square_of(diff, step):
+        mean_square, noise_part = np.mean((diff / step**r) ** 2, axis=0), noise_factor / step ** (2 * r)
+        return mean_square - noise_part, noise_part <= 0.25 * mean_square
+
     with np.errstate(over="ignore", invalid="ignore"):
-        while True:
-            mean_square = np.mean((_lag_difference(y, r, lag) / (lag * dt) ** r) ** 2, axis=0)
-            noise_part = sigma**2 * comb(2 * r, r) / (lag * dt) ** (2 * r)
-            settled = np.isnan(result) & (noise_part <= 0.25 * mean_square)
-            result[settled] = (mean_square - noise_part)[settled]
-            if 2 * lag * r > T // 8 or not np.isnan(result).any():
-                break
-            lag *= 2
-        result = np.where(np.isnan(result), mean_square - noise_part, result)
+        result = _first_clear_lag(y, r, dt, mean_square_of)
         level = np.maximum(np.sqrt(np.maximum(result, 0.0)), floor)
     if not np.all(np.isfinite(level)):
         raise ValueError(

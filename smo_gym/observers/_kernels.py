@@ -578,17 +578,25 @@ def eigmap_channel_step(x, y, params, m, n, x_new, out_row):
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
-def _eigmap_loop(state, y, params, new_state, out, shared, m, n):
-    """The channel loop of :func:`eigmap_rows` for ``m`` estimates of ``n`` states (compile-time constants when
-    inlined)."""
-    _check_widths(state, new_state, params, out, n + 1, 6 + (n + 1) * n, m)
+def _chain_loop(channel_step, state, y, params, new_state, out, shared, m, n):
+    """``channel_step(x, y, params, m, n, x_new, out_row) -> innovation`` on every channel of a chain of ``n``
+    states with ``m`` estimates, the innovation stored in column ``n`` (the eigenvalue-map and the filtering
+    steps; ``shared``: one parameter row for every channel)."""
     failed = False
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
         row = new_state[c]
-        row[n] = eigmap_channel_step(state[c], y[c], params[pc], m, n, row, out[c])
+        row[n] = channel_step(state[c], y[c], params[pc], m, n, row, out[c])
         failed |= not (_row_finite(row) and _row_finite(out[c]))
     return _check_state(new_state, out) if failed else -1
+
+
+@njit(cache=CACHE, error_model="numpy", inline="always")
+def _eigmap_loop(state, y, params, new_state, out, shared, m, n):
+    """The channel loop of :func:`eigmap_rows` for ``m`` estimates of ``n`` states (compile-time constants when
+    inlined)."""
+    _check_widths(state, new_state, params, out, n + 1, 6 + (n + 1) * n, m)
+    return _chain_loop(eigmap_channel_step, state, y, params, new_state, out, shared, m, n)
 
 
 @njit(cache=CACHE, error_model="numpy", inline="always")
@@ -721,13 +729,7 @@ def filtering_implicit_rows(state, y, params, new_state, out, shared):
     m = out.shape[1]
     n = state.shape[1] - 1
     _check_widths(state, new_state, params, out, n + 1, 2 + n, m)
-    failed = False
-    for c in range(y.shape[0]):
-        pc = 0 if shared else c  # the parameter row of channel c
-        row = new_state[c]
-        row[n] = filtering_implicit_channel_step(state[c], y[c], params[pc], m, n, row, out[c])
-        failed |= not (_row_finite(row) and _row_finite(out[c]))
-    return _check_state(new_state, out) if failed else -1
+    return _chain_loop(filtering_implicit_channel_step, state, y, params, new_state, out, shared, m, n)
 
 
 # ----------------------------------------------------------------------------------------------------------------
