@@ -59,7 +59,7 @@ from math import comb
 
 import numpy as np
 
-from ._validation import check_int_in_range, check_positive, did_you_mean
+from ._validation import as_real_array, check_int_in_range, check_positive, did_you_mean
 from .observers import FAMILIES, OBSERVERS, Observer, make_observer
 
 __all__ = [
@@ -330,7 +330,7 @@ def derivative_rms(y, dt: float, derivative: int, *, noise=None, floor: float = 
 
 def _frozen(name: str, value, shape: tuple[int, ...] | None, infinite: bool = False) -> np.ndarray:
     """``value`` as a read-only float64 array of ``shape`` (or its own shape), >= 0 and finite (or ``inf`` too)."""
-    arr = np.array(value, dtype=np.float64)
+    arr = as_real_array(name, value, copy=True)  # a typed error for strings, complex numbers, ragged nestings
     if shape is not None:
         try:
             arr = np.array(np.broadcast_to(arr, shape))

@@ -335,3 +335,10 @@ def test_a_slow_quantized_staircase_gets_the_rounding_error_as_its_noise_level()
     _, _, noisy = noisy_sine(T=5000, sigma=0.0)
     fine = step * np.floor(noisy / step + 0.5)
     assert calibration._staircase_std(fine)[0] == 0.0
+
+
+def test_calibration_refuses_values_that_are_not_real_numbers():
+    with pytest.raises(TypeError, match="expected noise to be an array of real numbers"):
+        calibration.Calibration(DT, {2: [1.0]}, {2: [1.0]}, ["a"])
+    with pytest.raises(TypeError, match=r"expected bounds\[2\] to be an array of real numbers"):
+        calibration.Calibration(DT, {2: [1.0 + 1j]}, {2: [1.0]}, [1e-3])
