@@ -49,6 +49,7 @@ from smo_gym.observers import (
     LowPowerHighGain,
     MechanicalSuperTwisting,
     Observer,
+    PerChannel,
     SuperTwisting,
     SwitchedGain,
     UniformLevant,
@@ -875,6 +876,21 @@ OBSERVER_FAMILIES = [
         kind="transform",
     ),
     Family(
+        "PerChannel",
+        PerChannel,
+        lambda n: dict(
+            parts=st.sampled_from(
+                [
+                    [(FiniteDifference(1e-3), list(range(n)))],
+                    [(KalmanCA(1e-3, 10.0, 1e-6), [0])]
+                    + ([(FiniteDifference(1e-3), list(range(1, n)))] if n > 1 else []),
+                    [(Levant(2, 1e-3, 5.0), list(range(n))[::-1])],
+                ]
+            ),
+            mean_over=st.one_of(st.none(), positive(1e-4, 2e-2)),
+        ),
+    ),
+    Family(
         "Observer",
         Observer,
         lambda n: dict(dt=positive(1e-4, 2e-2), order=st.integers(1, 3), discretization=st.none()),
@@ -995,6 +1011,11 @@ def constructor_arguments(draw, family: Family, n: int):
 
 def _observer_snapshot(obs):
     def snap():
+        if isinstance(obs, PerChannel):  # the parts' states and the assembled estimate
+            if obs.shape is None:
+                return (np.zeros(0),)
+            parts = [a for part, _ in obs.parts for a in _observer_snapshot(part)()]
+            return (obs.estimate.copy(), np.array(obs.n_updates), *parts)
         if getattr(obs, "_state", None) is None:
             return (np.zeros(0),)
         return (obs._state.copy(), obs._estimate.copy(), np.array(obs.n_updates))
@@ -1092,6 +1113,8 @@ def exercise_observer(data, family: Family, obj, shape):
                 attempt(name, obj.run, Y, U, snapshot=snap)
             else:
                 attempt(name, obj.run, Y, snapshot=snap)
+        elif op == "step" and isinstance(obj, PerChannel):  # no flat state: step() is refused, in words
+            attempt(name, obj.step, None, data.draw(measurement(shape, scale=0.5)), snapshot=snap)
         elif op == "step":
             state = obj.state if obj.shape is not None else np.zeros((1, 1))
             state = data.draw(
@@ -1275,6 +1298,7 @@ def run_sweep(family: Family) -> int:
 
 #: a good value of every swept parameter, for ``n = 2`` channels
 GOOD = {
+    "PerChannel": dict(parts=[(KalmanCA(1e-3, 10.0, 1e-6), [1]), (FiniteDifference(1e-3), [0])], mean_over=1e-3),
     "SuperTwisting": dict(dt=1e-3, lipschitz=5.0, k1=3.0, k2=6.0, discretization="euler"),
     "Levant": dict(order=2, dt=1e-3, lipschitz=5.0, discretization="matching", p1=3.0, mu=0.5),
     "FilteringDifferentiator": dict(order=2, filtering_order=1, dt=1e-3, lipschitz=5.0, degree=-0.5, p1=3.0),

@@ -12,6 +12,7 @@ import pkgutil
 
 from .._validation import DivergenceError, check_keywords, did_you_mean
 from .base import Observer
+from .composite import PerChannel
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .discrete_hosm import DiscreteTimeHOSM
 from .filtering import FilteringDifferentiator
@@ -59,6 +60,7 @@ __all__ = [
     "LowPowerHighGain",
     "MechanicalSuperTwisting",
     "Observer",
+    "PerChannel",
     "SuperTwisting",
     "SwitchedGain",
     "UniformLevant",
