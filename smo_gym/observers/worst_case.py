@@ -19,24 +19,28 @@ The differentiator intersects these intervals over the window of ``m`` lags and 
 
 so that :math:`B_k` (:attr:`WorstCaseOptimal.certified_bound`) is an error bound that holds at every sample for
 every signal and noise within the assumptions, and is never larger than the best single lag's bound
-:math:`E_m = \min_{j \le m} r_j`. Haimovich, Seeber, Aldana-López and Gómez-Gutiérrez (2021) obtain their
-estimate from a linear program over the window's samples; the intervals above are the constraints of that
-program that pair the newest sample with each earlier one, whose solution is the closed form above. Each step costs
-``O(m)`` per channel.
+:math:`E_m = \min_{j \le m} r_j`; the adversarial data :math:`f = -Lt^2/2`, :math:`\eta = -\epsilon` before
+:math:`t_k` and :math:`+\epsilon` at :math:`t_k` make every lag interval :math:`[f',\ f' + 2r_j]`, so the error
+meets :math:`E_m` there: it is this estimator's worst case. Haimovich, Seeber, Aldana-López and Gómez-Gutiérrez
+(2021) pose the estimate as an optimization over all the window's samples; here only the constraints that pair the
+newest sample with an earlier one are used, which have the closed form above and cost ``O(m)`` per channel and
+sample. Asking one signal to fit all the samples at once can only narrow the interval further.
 
 Best worst-case accuracy. :math:`r_j` is smallest at the lag :math:`jh \approx 2\sqrt{\epsilon/L}`, so the
 default window :math:`m = \lceil 2\sqrt{\epsilon/L}/h\rceil` holds it, and
 
 .. math:: E_m = \min_{j \ge 1}\Bigl(\frac{2\epsilon}{jh} + \frac{Ljh}{2}\Bigr) \ge 2\sqrt{\epsilon L},
-    \qquad E_m \to 2\sqrt{\epsilon L}\quad (h \to 0).
+    \qquad E_m \to 2\sqrt{\epsilon L}\quad (h \to 0)
 
-No causal differentiator does better for small ``h``: two signals :math:`f_1, f_2` with :math:`|f_i''| \le L` whose
-difference :math:`g = f_1 - f_2` stays within :math:`\pm 2\epsilon` on the past (both are then consistent with the
-same measurements) can reach :math:`g'(t_k) = 4\sqrt{\epsilon L}`: :math:`g(t) = -2\epsilon + L(t - t_k + T)^2` on
-:math:`[t_k - T, t_k]`, :math:`T = 2\sqrt{\epsilon/L}`, constant before. Whatever a differentiator reports, it is
-off by :math:`2\sqrt{\epsilon L}` on one of them (Seeber and Haimovich 2023, who also show the sampled bound
-:math:`E_m` is attained and tends to the continuous one). Without noise the error is :math:`Lh/2`, the smallest
-any sampled differentiator can guarantee (Seeber and Haimovich's quasi-exactness); for
+(with :math:`x = 2\sqrt{\epsilon/L}/h`, :math:`E_m = \sqrt{\epsilon L}\min_j(x/j + j/x)`: the excess is
+:math:`O(1/x^2)`, 0.14 % at :math:`x = 6.3`). No differentiator, sampled or not, does better: two signals
+:math:`f_1, f_2` with :math:`|f_i''| \le L` whose difference :math:`g = f_1 - f_2` stays within
+:math:`\pm 2\epsilon` on the past (both then fit the same measurements) can reach :math:`g'(t_k) = 4\sqrt{\epsilon L}`:
+:math:`g(t) = -2\epsilon + L(t - t_k + T)^2` on :math:`[t_k - T, t_k]`, :math:`T = 2\sqrt{\epsilon/L}`, constant
+before. Whatever a differentiator reports, it is off by :math:`2\sqrt{\epsilon L}` on one of them (the fundamental
+limitation of Seeber and Haimovich 2023, whose sampled optimum also tends to it as :math:`h \to 0`). Without noise
+the error is :math:`Lh/2`, the smallest any sampled differentiator can guarantee (Seeber and Haimovich's
+quasi-exactness: parabolas of curvature :math:`\pm L` through the same samples differ by :math:`Lh` in slope); for
 :math:`h \ge \sqrt{2\epsilon/L}` the best lag is one sample: the backward difference is then worst-case optimal.
 
 Unknown noise bound (``noise=None``). As Aldana-López, Seeber, Haimovich and Gómez-Gutiérrez (2025) do, the noise
@@ -60,11 +64,12 @@ within a factor 2. The estimate forgets: an outlier or an impact raises it for `
 References
 ----------
 .. [HSAG21] H. Haimovich, R. Seeber, R. Aldana-López and D. Gómez-Gutiérrez, "Differentiator for noisy sampled
-   signals with best worst-case accuracy", IEEE Control Systems Letters 6, 2021.
+   signals with best worst-case accuracy", IEEE Control Systems Letters, 2021, doi:10.1109/LCSYS.2021.3087542.
 .. [SH23] R. Seeber and H. Haimovich, "Optimal robust exact differentiation via linear adaptive techniques",
-   Automatica 148, 2023.
+   Automatica, 2023 (arXiv:2111.12638).
 .. [ASHG25] R. Aldana-López, R. Seeber, H. Haimovich and D. Gómez-Gutiérrez, "Optimal robust exact first-order
-   differentiators with Lipschitz continuous output", IEEE Transactions on Automatic Control, 2025.
+   differentiators with Lipschitz-continuous output", IEEE Transactions on Automatic Control, 2025,
+   doi:10.1109/TAC.2025.3555481.
 """
 
 from __future__ import annotations
@@ -262,7 +267,8 @@ class WorstCaseOptimal(Observer):
     Until ``m`` samples have come after a reset, the lags available are used (after one sample, the backward
     difference). A reset with ``derivatives`` reports them at the reset sample only: the estimate depends on the
     window's samples alone. The step is compiled (numba) but not a registered kernel, so ``run`` and the wrapper
-    call it sample by sample (a few microseconds for eight channels).
+    call it sample by sample (measured for eight channels: about 5 us per update with a noise bound, 11 us with
+    ``noise=None`` and ``W = 32``).
     """
 
     discretizations = ("exact",)
