@@ -22,6 +22,7 @@ from .low_power import LowPowerHighGain
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
 from .registry import FAMILIES, MODEL_BASED_OBSERVERS, OBSERVERS, Family, family_of, register_observer
 from .switched_gain import SwitchedGain
+from .worst_case import WorstCaseOptimal
 
 for _module in pkgutil.iter_modules(__path__):
     importlib.import_module(f"{__name__}.{_module.name}")
@@ -64,6 +65,7 @@ __all__ = [
     "SuperTwisting",
     "SwitchedGain",
     "UniformLevant",
+    "WorstCaseOptimal",
     "family_of",
     "make_observer",
     "register_observer",
