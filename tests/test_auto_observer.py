@@ -81,6 +81,9 @@ def test_per_channel_is_all_or_nothing():
                 raise DivergenceError("expected a finite state, actual value: test")
             return super().update(y)
 
+        def run(self, Y, *, out=None):
+            raise DivergenceError("expected a finite state, actual value: test")
+
     Y = _signal()
     composite = PerChannel([(FiniteDifference(dt=DT), [0, 1, 2]), (Exploding(dt=DT), [3])])
     composite.reset(Y[0])
@@ -94,11 +97,17 @@ def test_per_channel_is_all_or_nothing():
     assert first.n_updates == kept[0]
     np.testing.assert_array_equal(first.estimate, kept[1])
     np.testing.assert_array_equal(composite.estimate, before)
+    with pytest.raises(DivergenceError):
+        composite.run(Y[4:9])
+    assert first.n_updates == kept[0]
+    np.testing.assert_array_equal(first.estimate, kept[1])
     with pytest.raises(ValueError, match=r"finite measurements.*channel 2"):
         composite.update(np.array([0.0, 0.0, np.nan, 0.0]))
     with pytest.raises(ValueError, match=r"finite measurements"):
         composite.run(np.vstack([Y[4:6], [[0.0, 0.0, np.inf, 0.0]]]))
     assert first.n_updates == kept[0]
+    # and from there it goes on as if nothing had been tried: the difference of the samples 3 and 4
+    np.testing.assert_allclose(first.update(Y[4, :3])[:, 1], (Y[4, :3] - Y[3, :3]) / DT, rtol=1e-12)
 
 
 @pytest.mark.parametrize(

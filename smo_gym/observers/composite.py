@@ -207,24 +207,25 @@ class PerChannel(Observer):
     def run(self, Y, *, out: np.ndarray | None = None) -> np.ndarray:
         """A recorded block ``Y`` ``(T, ..., n_channels)`` through every part (each in one compiled call); returns
         ``(T, ..., n_channels, 2)``; see :meth:`Observer.run`."""
-        import copy
-
         if self._shape is None:
             raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
         Y = as_real_array("Y", Y)
         if Y.ndim == 0 or Y.shape[1:] != self._shape:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        if not np.isfinite(Y).all():
+            self._raise_nonfinite(Y, "Y")
         T = Y.shape[0]
         out = self._output_array(out, (T,) + self._shape + (2,))
         if T == 0:
             return out
-        saved = [copy.deepcopy(observer) for observer, _ in self.parts]
+        checkpoints = [observer._checkpoint() for observer, _ in self.parts]
         estimates = []
         try:
             for observer, idx in self.parts:
                 estimates.append(observer.run(np.ascontiguousarray(Y[..., idx])))
-        except (ValueError, DivergenceError):
-            self.parts = tuple((s, idx) for s, (_, idx) in zip(saved, self.parts, strict=True))
+        except DivergenceError:  # all or nothing: the parts already advanced go back
+            for (observer, _), checkpoint in zip(self.parts, checkpoints, strict=True):
+                observer._rollback(checkpoint)
             raise
         out[...] = self._assemble(estimates, Y.shape[:-1])
         self._estimate_parts = [observer.estimate for observer, _ in self.parts]
