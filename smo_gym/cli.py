@@ -202,6 +202,14 @@ def compare(args: argparse.Namespace) -> int:
     )
     results = lib.compare_observers(rec, observers, progress=progress)
     print(lib.format_table(rec, results, per_joint=args.per_joint))
+    for result in results:  # what "auto" chose, per joint
+        found = getattr(result.observer, "selection", None)
+        if found is not None:
+            names = lib.dof_names(rec.context["adapter"].model)
+            groups = {}
+            for joint, spec in zip(names, found.names, strict=True):
+                groups.setdefault(spec, []).append(joint)
+            print(f"{result.name}: " + "; ".join(f"{spec} on {', '.join(j)}" for spec, j in groups.items()))
     path = lib.plot_velocities(rec, results, joints, args.out, seconds=args.plot_seconds)
     print(f"plot: {path}")
     return 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -30,7 +32,7 @@ def test_compare_prints_table_and_writes_png(tmp_path, capsys):
             "--out",
             str(out),
             "--observers",
-            "super-twisting,finite-difference,levant:order=1:discretization=matching",
+            "auto,super-twisting,finite-difference,levant:order=1:discretization=matching",
             "--per-joint",
             "--joints",
             "hinge,0",
@@ -54,6 +56,7 @@ def test_compare_prints_table_and_writes_png(tmp_path, capsys):
         "hinge [rad/s]",
     ):
         assert word in text
+    assert re.search(r"^auto: .* on (slider|hinge)", text, re.MULTILINE)  # what auto chose, by joint name
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

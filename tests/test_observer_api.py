@@ -461,7 +461,7 @@ def test_diverging_explicit_ured_raises_and_keeps_state():
     r"""Explicit URED at a huge step diverges (its high-degree terms are stiff, ``tau k_1 \beta |e|^{1/2} \gg 1``):
     the update raises :class:`DivergenceError` (a ``RuntimeError``) naming the channel, and the previous state is
     kept, for ``update`` and for ``run``."""
-    obs = URED(dt=0.1, lipschitz=1.0)
+    obs = URED(dt=0.1, lipschitz=1.0, discretization="euler")
     y = np.zeros((2, 3))
     obs.reset(y)
     y[1, 2] = 1e8
@@ -479,7 +479,7 @@ def test_diverging_explicit_ured_raises_and_keeps_state():
     assert np.all(np.isfinite(obs.state))
 
     # the same through run(): nothing committed
-    obs2 = URED(dt=0.1, lipschitz=1.0)
+    obs2 = URED(dt=0.1, lipschitz=1.0, discretization="euler")
     obs2.reset(np.zeros((2, 3)))
     state2 = obs2.state
     with pytest.raises(DivergenceError):

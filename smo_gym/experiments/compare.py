@@ -122,8 +122,10 @@ def record_rollout(
     seed: int = 0,
     progress: bool = False,
     env_kwargs: dict | None = None,
+    smoothing: float = 0.9,
 ) -> Recording:
-    """Run ``env_id`` for ``steps`` environment steps under :func:`smooth_random_policy` and record samples.
+    """Run ``env_id`` for ``steps`` environment steps under :func:`smooth_random_policy` (with ``smoothing``; 0:
+    uniform random actions) and record samples.
 
     The environment is reset (unseeded, continuing its stream) when an episode ends; the sensor keeps one stream
     seeded from ``seed``. Samples are taken every ``rate`` physics steps inside ``frame_skip`` exactly as the
@@ -141,7 +143,7 @@ def record_rollout(
     dt = float(model.opt.timestep) * k
     episodes = rollout(
         env,
-        smooth_random_policy(env.action_space, seed),
+        smooth_random_policy(env.action_space, seed, smoothing),
         steps,
         sample_every=k,
         seed=seed,

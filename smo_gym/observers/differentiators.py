@@ -499,7 +499,7 @@ class Levant(_ImplicitOutputs, Observer):
     bound=2,
     calibrate=lipschitz_rule,
     given=(("lipschitz",), ("k1", "k2")),
-    examples=(dict(lipschitz=5.0), dict(lipschitz=5.0, discretization="implicit")),
+    examples=(dict(lipschitz=5.0), dict(lipschitz=5.0, discretization="euler")),
 )
 class URED(_ImplicitOutputs, Observer):
     r"""Uniform robust exact differentiator of Cruz-Zavala, Moreno and Fridman [CMF11] (in Fridman's slides).
@@ -520,9 +520,10 @@ class URED(_ImplicitOutputs, Observer):
     k1, k2 : optional overrides.
     beta : float
         Weight of the high-degree terms (units 1/[y]); larger means faster from large errors.
-    discretization : {"euler", "implicit"}
-        ``"euler"``: explicit Euler. The high-degree terms make it stiff: at error ``|e|`` the step must satisfy
-        roughly ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as ``DivergenceError``).
+    discretization : {"implicit", "euler"}
+        Default ``"implicit"``. ``"euler"``: explicit Euler. The high-degree terms make it stiff: at error ``|e|``
+        the step must satisfy roughly ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as
+        ``DivergenceError``).
         ``"implicit"``: set-valued implicit (backward) Euler, stable at any step and from any initial error, with
         the outputs of [See24] (as for :class:`Levant`, Notes there: the scalar equation in the new output error
         gains the high-degree terms and stays strictly increasing).
@@ -530,7 +531,7 @@ class URED(_ImplicitOutputs, Observer):
         Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
     """
 
-    discretizations = ("euler", "implicit")
+    discretizations = ("implicit", "euler")
 
     @check_keywords
     def __init__(
@@ -578,7 +579,7 @@ class URED(_ImplicitOutputs, Observer):
     examples=(
         dict(order=2, lipschitz=5.0),
         dict(order=3, lipschitz=5.0, discretization="taylor"),
-        dict(order=2, lipschitz=5.0, discretization="implicit"),
+        dict(order=2, lipschitz=5.0, discretization="euler"),
     ),
 )
 class UniformLevant(_ImplicitOutputs, Observer):
@@ -609,10 +610,10 @@ class UniformLevant(_ImplicitOutputs, Observer):
     gains : array_like, shape (order + 1,), optional
         Levant's parameters :math:`(\lambda_0, \ldots, \lambda_k)` of the low-degree terms, as for
         :class:`Levant` (default the sequence of [Lev03]).
-    discretization : {"euler", "taylor", "implicit"}
-        ``"euler"``, ``"taylor"``: explicit; stiff for large errors like :class:`URED` (errors raise
-        ``DivergenceError``). ``"implicit"``: set-valued implicit (backward) Euler with the outputs of [See24], as
-        for :class:`Levant` (Notes there), stable at any step and from any initial error.
+    discretization : {"implicit", "euler", "taylor"}
+        Default ``"implicit"``. ``"euler"``, ``"taylor"``: explicit; stiff for large errors like :class:`URED`
+        (errors raise ``DivergenceError``). ``"implicit"``: set-valued implicit (backward) Euler with the outputs
+        of [See24], as for :class:`Levant` (Notes there), stable at any step and from any initial error.
     wrap : bool or array_like of bool, optional
         Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
@@ -625,7 +626,7 @@ class UniformLevant(_ImplicitOutputs, Observer):
     ``alpha -> 0``, ``s^n + k_1 s^(n-1) + ... + k_n``.
     """
 
-    discretizations = ("euler", "taylor", "implicit")
+    discretizations = ("implicit", "euler", "taylor")
 
     @check_keywords
     def __init__(
