@@ -33,6 +33,7 @@ import numpy as np
 from ._validation import DivergenceError, as_real_array, check_positive
 from .calibration import Calibration, bound_order, default_observer
 from .observers import Observer
+from .observers.base import reported_velocity, step_mean_coefficients
 from .observers.composite import PerChannel
 from .specs import parse_observer_spec
 
@@ -143,13 +144,12 @@ class Selection:
 
 
 def _mean_coefficients(order: int, span: float | None, reports_instant: bool) -> np.ndarray:
-    """The combination of derivative estimates ``1..order`` that is reported as the velocity (a unit vector, or the
-    step-mean coefficients of :func:`smo_gym.engine.measurement.step_mean_coefficients`)."""
+    """The combination of derivative estimates ``1..order`` reported as the velocity: the step mean
+    (:func:`~smo_gym.observers.base.step_mean_coefficients`) where it applies, else the first derivative."""
+    if span is not None and order >= 2 and reports_instant:
+        return step_mean_coefficients(order, span)
     c = np.zeros(order)
     c[0] = 1.0
-    if span is not None and order >= 2 and reports_instant:
-        j = np.arange(1, order + 1)
-        c = (-span) ** (j - 1) / np.cumprod(j).astype(float)
     return c
 
 
@@ -208,7 +208,7 @@ def _trial_errors(calibration: Calibration, trials: Trials, candidates, mean_ove
             for Z, V in zip(trials.measured, trials.velocity, strict=True):
                 observer.reset(Z[0])
                 estimate = observer.run(Z[1:])
-                total += np.sum((estimate[..., 1:] @ c - V[1:]) ** 2, axis=0)
+                total += np.sum((reported_velocity(estimate, c) - V[1:]) ** 2, axis=0)
                 count += len(Z) - 1
         except DivergenceError:
             continue

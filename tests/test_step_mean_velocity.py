@@ -77,10 +77,10 @@ def test_the_converted_velocity_is_the_step_mean_on_a_noise_free_signal():
 def test_halfcheetah_reports_the_euler_velocity_in_the_wrapper_and_the_vector_wrapper():
     """HalfCheetah integrates with Euler: with the ideal sensor the Kalman filter's wrapper velocity error drops
     by more than 5x against its raw velocity column (measured 0.076 -> 0.0023 on a 400-step rollout), through the
-    general path; the batched vector wrapper reports the same numbers."""
+    one-call compiled path; the batched vector wrapper reports the same numbers."""
     env = EstimatedVelocity(gym.make("HalfCheetah-v5"), sensor="ideal", observer="kalman-ca")
     env.reset(seed=0)
-    assert env.estimator.coefficients is not None and env._fused is None
+    assert env.estimator.coefficients is not None and env._fused is not None
     rng = np.random.default_rng(0)
     converted, raw = [], []
     for _ in range(150):

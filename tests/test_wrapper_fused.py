@@ -33,9 +33,11 @@ def _pair(env_id: str, seed: int, **kwargs):
     [
         ("HalfCheetah-v5", "super-twisting", "physics", "low-cost", "measured"),
         ("HalfCheetah-v5", "super-twisting", "env", "encoder-12bit-noisy", "filtered"),
-        # observers of order 2 that report at the sample time: on an RK4 model (on HalfCheetah's Euler they report
-        # the step-mean velocity and take the general path)
+        # observers of order 2 that report at the sample time: on an RK4 model, and on HalfCheetah's and Hopper's
+        # Euler, where the compiled call reports the step-mean velocity (the observation reads it: Hopper's clip)
         ("Walker2d-v5", "levant", "physics", "encoder-12bit-noisy", "measured"),
+        ("HalfCheetah-v5", "kalman-ca", "physics", "ideal", "measured"),
+        ("Hopper-v5", "levant", "env", "encoder-12bit-noisy", "filtered"),
         ("HalfCheetah-v5", "high-gain", 5, "drifting", "measured"),
         ("Walker2d-v5", "kalman-ca", "physics", "outliers", "filtered"),
         ("HalfCheetah-v5", "finite-difference", "env", "ideal", "measured"),
@@ -320,7 +322,7 @@ def test_info_dicts_are_never_reused_across_steps():
         for key in KEYS:
             assert not smo[key].flags.writeable
             np.testing.assert_array_equal(smo[key], copied[key])
-    np.testing.assert_array_equal(kept[-1]["qvel_estimate"], env.observer.velocity)
+    np.testing.assert_array_equal(kept[-1]["qvel_estimate"], env.estimator.velocity)
     np.testing.assert_array_equal(kept[-1]["qpos_measured"], env.measurement.measured_qpos())
 
 

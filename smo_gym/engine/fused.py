@@ -88,6 +88,7 @@ TABLE_SLOTS = (
     ("z", np.float64, 1),
     ("obs_index", np.int64, 1),
     ("obs_bounds", np.float64, 2),
+    ("velocity", np.float64, 1),
 )
 _N_SLOTS = len(TABLE_SLOTS)
 
@@ -138,6 +139,7 @@ def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
     z = carray(_pointer(r[14, 0]), (r[14, 1],), np.float64)
     obs_index = carray(_pointer(r[15, 0]), (r[15, 1],), np.int64)
     obs_bounds = carray(_pointer(r[16, 0]), (r[16, 1], r[16, 2]), np.float64)
+    velocity = carray(_pointer(r[17, 0]), (r[17, 1],), np.float64)
     T, nq = Q.shape
     n, S = state.shape
     for c in range(n):
@@ -172,11 +174,14 @@ def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
     for i in range(nq):
         info[i] = last[i]
     for c in range(n):
+        v = velocity[0] * est[c, 1]  # the reported velocity, VelocityEstimator.velocity_of in the same order
+        for j in range(1, velocity.shape[0]):
+            v = v + velocity[j] * est[c, 1 + j]
         info[o_qvel + c] = qvel_true[c]
-        info[o_vhat + c] = est[c, 1]
+        info[o_vhat + c] = v
         info[o_zm + c] = zm[c]
         info[o_z + c] = z[c] if _MANIFOLD else last[c]
-        scratch_qvel[c] = est[c, 1]
+        scratch_qvel[c] = v
     if _MANIFOLD:  # measured configuration q (+) (z_meas - z), filtered one q_meas (+) (z_filtered - z_meas)
         dz = np.empty(n)
         for c in range(n):
@@ -378,6 +383,8 @@ class FusedSensing:
         self.measurement, self.adapter = measurement, adapter
         self.sensor, self.observer = measurement.sensor, estimator.observer
         self.filtered = bool(filtered)
+        # the combination of the estimate's derivatives reported as the velocity (the step mean, or column 1)
+        self._velocity = np.array([1.0] if estimator.coefficients is None else estimator.coefficients, dtype=float)
         drivers = FUSED_DRIVERS[self.observer._kernel]
         self._driver = drivers.manifold if measurement.tangent.manifold else drivers.flat
         self.evaluation = evaluation = adapter.evaluation
@@ -417,7 +424,6 @@ class FusedSensing:
         observer = estimator.observer
         return (
             type(estimator) is VelocityEstimator
-            and estimator.coefficients is None  # the compiled drivers report the estimate's velocity column
             and fusable(observer)
             and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
             and observer.order >= 1
@@ -479,6 +485,7 @@ class FusedSensing:
             tangent.z if tangent.manifold else self._unused_z,
             self._obs_index,
             self._obs_bounds,
+            self._velocity,
         )
         # the controller inputs the observation reads, copied by the compiled call (time, a scalar, is not)
         pairs = self.evaluation.input_views()[0] if self.copies_inputs else ()

@@ -32,6 +32,7 @@ from numba import njit
 
 from .._validation import check_positive
 from ..observers import Observer
+from ..observers.base import reported_velocity, step_mean_coefficients
 from ..sensors import Sensor, Wrap, make_sensor
 from .tangent import integrate_pos, joint_table, tangent_advance
 
@@ -325,19 +326,6 @@ def mean_velocity_span(model: mujoco.MjModel) -> float | None:
     return None if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else float(model.opt.timestep)
 
 
-def step_mean_coefficients(order: int, span: float) -> np.ndarray:
-    r"""Coefficients :math:`c_j = (-h)^{j-1}/j!`, ``j = 1..order``, of the mean velocity over the last ``h``:
-
-    .. math:: \frac{f(t) - f(t - h)}{h} = \sum_{j \ge 1} \frac{(-h)^{j-1}}{j!} f^{(j)}(t),
-
-    exact for polynomials of degree ``<= order`` (Taylor's formula), so :math:`\sum_j c_j \hat z_j` turns the
-    derivatives estimated at the sample time into the velocity an Euler-integrating simulator reports.
-    """
-    j = np.arange(1, int(order) + 1)
-    factorial = np.cumprod(j).astype(float)
-    return (-float(span)) ** (j - 1) / factorial
-
-
 class VelocityEstimator:
     r"""An observer on the measured tangent coordinates; its velocity estimates ``qvel``.
 
@@ -367,8 +355,7 @@ class VelocityEstimator:
 
     def velocity_of(self, estimate: np.ndarray) -> np.ndarray:
         """The reported velocity of an estimate ``(..., n, order + 1)`` of this observer: shape ``(..., n)``."""
-        c = self.coefficients
-        return estimate[..., 1] if c is None else estimate[..., 1:] @ c
+        return reported_velocity(estimate, self.coefficients)
 
     def reset(self, z0: np.ndarray) -> np.ndarray:
         """Start at the first measurement (velocity zero); returns the velocity estimate ``(nv,)``.

@@ -21,7 +21,7 @@ from .._validation import (
 )
 from . import _kernels
 
-__all__ = ["Observer", "taylor_matrix"]
+__all__ = ["Observer", "reported_velocity", "step_mean_coefficients", "taylor_matrix"]
 
 _FLOAT64 = np.dtype(np.float64)
 _NDARRAY = np.ndarray
@@ -129,6 +129,32 @@ def expand_mask(mask, shape: tuple[int, ...]) -> np.ndarray:
     if mask.shape != shape:
         raise ValueError(f"expected mask with shape {shape[:-1]} or {shape}, actual value: {mask.shape}")
     return mask
+
+
+def step_mean_coefficients(order: int, span: float) -> np.ndarray:
+    r"""Coefficients :math:`c_j = (-h)^{j-1}/j!`, ``j = 1..order``, of the mean velocity over the last ``h``:
+
+    .. math:: \frac{f(t) - f(t - h)}{h} = \sum_{j \ge 1} \frac{(-h)^{j-1}}{j!} f^{(j)}(t),
+
+    exact for polynomials of degree ``<= order`` (Taylor's formula), so :math:`\sum_j c_j \hat z_j` turns the
+    derivatives estimated at the sample time into the velocity an Euler-integrating simulator reports.
+    """
+    j = np.arange(1, int(order) + 1)
+    factorial = np.cumprod(j).astype(float)
+    return (-float(span)) ** (j - 1) / factorial
+
+
+def reported_velocity(estimate: np.ndarray, coefficients: np.ndarray | None) -> np.ndarray:
+    r"""The velocity reported from an estimate ``(..., n, order + 1)``: :math:`\sum_j c_j \hat z_j` with the
+    ``coefficients`` :math:`c` (:func:`step_mean_coefficients`), or the first derivative where they are None.
+    Summed term by term, in the order of the wrapper's compiled driver (:mod:`smo_gym.engine.fused`): the same
+    numbers bit for bit."""
+    if coefficients is None:
+        return estimate[..., 1]
+    v = coefficients[0] * estimate[..., 1]
+    for j in range(1, len(coefficients)):
+        v = v + coefficients[j] * estimate[..., 1 + j]
+    return v
 
 
 class ObserverArrays(NamedTuple):

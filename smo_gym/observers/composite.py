@@ -16,19 +16,17 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._validation import DivergenceError, as_real_array, check_keywords, check_mask, check_positive
-from .base import Observer, as_measurement
+from .base import Observer, as_measurement, reported_velocity, step_mean_coefficients
 
 __all__ = ["PerChannel"]
 
 
 def _step_mean(observer: Observer, span: float | None) -> np.ndarray | None:
-    r"""Coefficients :math:`c_j = (-h)^{j-1}/j!` that turn ``observer``'s derivatives at the sample time into the mean
-    velocity over the last ``span`` (None: its first derivative as it is; see
-    :func:`smo_gym.engine.measurement.step_mean_coefficients`)."""
+    """The coefficients that turn ``observer``'s derivatives at the sample time into the mean velocity over the last
+    ``span`` (:func:`~smo_gym.observers.base.step_mean_coefficients`), or None: its first derivative as it is."""
     if span is None or observer.order < 2 or not observer.reports_instant:
         return None
-    j = np.arange(1, observer.order + 1)
-    return (-span) ** (j - 1) / np.cumprod(j).astype(float)
+    return step_mean_coefficients(observer.order, span)
 
 
 class PerChannel(Observer):
@@ -114,15 +112,11 @@ class PerChannel(Observer):
         self.n_updates = 0
 
     # ---- assembling the parts' estimates --------------------------------------------------------------------
-    def _velocity(self, i: int, estimate: np.ndarray) -> np.ndarray:
-        c = self._coefficients[i]
-        return estimate[..., 1] if c is None else estimate[..., 1:] @ c
-
     def _assemble(self, estimates: Sequence[np.ndarray], lead: tuple[int, ...]) -> np.ndarray:
         out = np.empty(lead + (self.n_channels, 2))
         for i, ((_, idx), est) in enumerate(zip(self.parts, estimates, strict=True)):
             out[..., idx, 0] = est[..., 0]
-            out[..., idx, 1] = self._velocity(i, est)
+            out[..., idx, 1] = reported_velocity(est, self._coefficients[i])
         return out
 
     def _checked(self, y, name: str) -> np.ndarray:
