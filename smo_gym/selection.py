@@ -4,11 +4,12 @@ No single observer wins everywhere (the accuracy tables of the documentation): a
 an ideal encoder when the simulator integrates with Euler and every physics step is sampled, a Kalman filter tuned
 from the typical jerk wins where noise dominates a smooth motion, a high-gain filter where impacts make the jerk
 anything but white. :func:`auto_observer` chooses per channel among :data:`CANDIDATES`, each with its own calibrated
-gains (:func:`smo_gym.calibration.default_observer`), by the smallest velocity RMSE:
+gains (:func:`smo_gym.calibration.default_observer`), from their velocity RMSE in one or more scenarios:
 
 * **measured on trials** when the caller has them (:class:`Trials`): the wrapper simulates its own sensor on the
-  positions of the calibration rollouts of its environment (random actions, the environment's own resets: the
-  episodes the gains are calibrated from, never the ones it is evaluated on) and runs every candidate on them;
+  positions of the calibration rollouts of its environment (the environment's own resets, under uniform random
+  actions and under low-passed ones: the motion of an untrained and of a trained policy; never the episodes it is
+  evaluated on) and runs every candidate on them;
 * **predicted** otherwise (:func:`smo_gym.differentiate` of a recorded signal, where no truth is known), for the
   two candidates whose error has a closed form: the backward difference,
 
@@ -18,6 +19,12 @@ gains (:func:`smo_gym.calibration.default_observer`), by the smallest velocity R
   over, 0 for the instantaneous one), and the constant-acceleration Kalman filter, whose steady-state posterior
   covariance :math:`P` (the discrete algebraic Riccati equation of its own model, Bar-Shalom, Li and Kirubarajan
   2001) gives :math:`e_{KF}^2 = c^\top P c` for the reported combination ``c`` of its derivative estimates.
+
+The rule (:attr:`Selection.choice`): a candidate is *safe* on a channel if in every scenario it is within
+:data:`TOLERANCE` (2 %) of the better of the :data:`REFERENCES`, the backward difference and the Kalman filter,
+what a user would otherwise pick; among the safe candidates the one with the smallest worst regret (its error over
+the best candidate's, worst over the scenarios) wins. The references are never both unsafe unless each loses to the
+other in some scenario; then the smallest worst regret decides among all.
 
 The result is a single observer when one candidate wins every channel (the wrapper's one-call path then applies),
 else a :class:`smo_gym.observers.composite.PerChannel`; :class:`Selection` says what was chosen and why.
@@ -37,8 +44,23 @@ from .observers.base import reported_velocity, step_mean_coefficients
 from .observers.composite import PerChannel
 from .specs import parse_observer_spec
 
-__all__ = ["CANDIDATES", "Selection", "Trials", "auto_observer", "candidate_orders", "predicted_errors", "select"]
+__all__ = [
+    "CANDIDATES",
+    "REFERENCES",
+    "TOLERANCE",
+    "Selection",
+    "Trials",
+    "auto_observer",
+    "candidate_orders",
+    "predicted_errors",
+    "select",
+]
 
+#: what a user would otherwise pick: a choice must not lose to the better of these by more than :data:`TOLERANCE`
+#: in any scenario (:attr:`Selection.safe`)
+REFERENCES: tuple[str, ...] = ("finite-difference", "kalman-ca")
+#: how much worse than the better reference a candidate may be and still count as safe
+TOLERANCE = 0.02
 #: the observers ``"auto"`` chooses among, as specs (:func:`smo_gym.specs.parse_observer_spec`); on a tie the first
 #: wins, so the simplest come first
 CANDIDATES: tuple[str, ...] = (
@@ -126,10 +148,25 @@ class Selection:
         return np.max(ratio, axis=0)
 
     @property
+    def safe(self) -> np.ndarray:
+        """Whether each candidate is, in every scenario, within :data:`TOLERANCE` of the better of the
+        :data:`REFERENCES` present among the candidates (what a user would otherwise pick), shape
+        ``(n_candidates, n_channels)``; all True without references."""
+        errors = np.asarray(self.errors, dtype=float)
+        refs = [k for k, spec in enumerate(self.candidates) if spec in REFERENCES]
+        if not refs:
+            return np.ones(errors.shape[1:], dtype=bool)
+        best = np.min(errors[:, refs], axis=1, keepdims=True)
+        return np.all(errors <= (1.0 + TOLERANCE) * best, axis=0)
+
+    @property
     def choice(self) -> np.ndarray:
-        """Index into :attr:`candidates` of every channel's choice, the smallest :attr:`regret` (the first on a tie),
-        shape ``(n_channels,)``."""
-        return np.argmin(self.regret, axis=0)
+        """Index into :attr:`candidates` of every channel's choice, shape ``(n_channels,)``: the smallest
+        :attr:`regret` among the :attr:`safe` candidates (among all where none is), the first on a tie."""
+        regret = np.where(self.safe, self.regret, np.inf)
+        none_safe = ~np.isfinite(regret).any(axis=0)
+        regret[:, none_safe] = self.regret[:, none_safe]
+        return np.argmin(regret, axis=0)
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -196,6 +196,19 @@ def test_several_scenarios_choose_the_smallest_worst_regret():
     assert tie.names == ("a",)
 
 
+def test_a_candidate_that_loses_to_the_references_somewhere_is_not_chosen():
+    """Channel 0: regret alone would pick the hedge "hg" (worst regret 1.3 against the Kalman filter's 1.5), but it
+    loses to the Kalman filter by 30 % in the first scenario, and the Kalman filter is the better reference in both:
+    the Kalman filter is chosen. Channel 1: each reference loses to the other somewhere, so no candidate is safe and
+    the smallest worst regret decides among all (the hedge)."""
+    candidates = ("finite-difference", "kalman-ca", "hg")
+    errors = np.array([[[2.0, 1.0], [1.0, 2.0], [1.3, 1.3]], [[1.5, 2.0], [1.2, 1.0], [0.8, 1.3]]])
+    found = Selection(candidates, errors, "trials")
+    np.testing.assert_allclose(found.regret, [[2.0, 2.0], [1.5, 2.0], [1.3, 1.3]])
+    assert found.safe[:, 0].tolist() == [False, True, False] and not found.safe[:, 1].any()
+    assert found.names == ("kalman-ca", "hg")
+
+
 def _trials(seed: int, T: int = 3000) -> tuple[Trials, np.ndarray]:
     """Two channels: an Euler-integrated joint seen by an ideal sensor (the backward difference is exact), and a
     smooth motion seen through noise (a filter wins)."""

@@ -135,7 +135,11 @@ def test_benchmark_pages_are_built_from_the_results_files(site):
             "results/observers/speed.md",
             "results/observers/throughput.md",
         ],
-        "benchmarks/wrapper-accuracy": ["results/accuracy/gymnasium.md", "results/accuracy/dm_control.md"],
+        "benchmarks/wrapper-accuracy": [
+            "results/accuracy/gymnasium.md",
+            "results/accuracy/uniform.md",
+            "results/accuracy/dm_control.md",
+        ],
         "benchmarks/wrapper-cost": ["results/wrapper/bench_wrapper.txt"],
     }
     for page, files in pages.items():
