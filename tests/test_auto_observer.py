@@ -244,6 +244,18 @@ def test_trials_choose_per_channel_and_the_choice_holds_on_new_data():
     )  # one winner everywhere: that observer itself (the wrapper's one-call path)
 
 
+def test_auto_observer_gives_each_part_its_wrapped_channels():
+    calibration = Calibration(DT, {2: [20.0, 8.0, 8.0], 3: [400.0, 16.0, 16.0]}, {2: 5.0, 3: 100.0}, [0.0, 1e-3, 0.0])
+    errors = np.array([[[1.0, 2.0, 1.0], [2.0, 1.0, 2.0]]])  # the backward difference on 0 and 2, Kalman on 1
+    mixed = Selection(("finite-difference", "kalman-ca"), errors, "trials")
+    observer = auto_observer(calibration, selection=mixed, observer_kwargs={"wrap": np.array([True, False, True])})
+    assert isinstance(observer, PerChannel) and observer.wrap.tolist() == [True, False, True]
+    assert [part.wrap.tolist() for part, _ in observer.parts] == [[True, True], [False]]
+    observer.reset(np.array([np.pi - 0.01, 0.0, 0.0]))
+    est = observer.update(np.array([-np.pi + 0.01, 0.0, 0.0]))  # across the cut: a small step, not -2 pi
+    assert est[0, 1] == pytest.approx(0.02 / DT)
+
+
 def test_bad_selection_input():
     with pytest.raises(TypeError, match="Calibration"):
         select("calibration")

@@ -11,6 +11,7 @@ one from a calibration.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
@@ -61,8 +62,6 @@ class PerChannel(Observer):
 
     @check_keywords
     def __init__(self, parts: Sequence, *, mean_over: float | None = None):
-        import copy
-
         if isinstance(parts, (str, bytes)) or not isinstance(parts, Sequence) or len(parts) == 0:
             raise TypeError(f"expected a non-empty sequence of (observer, channels) pairs, actual value: {parts!r:.80}")
         owned, channels, dts = [], [], []
@@ -102,10 +101,9 @@ class PerChannel(Observer):
         for observer, idx in self.parts:
             names[idx] = observer.name or type(observer).__name__
         self.names = tuple(names)
-        wraps = [np.broadcast_to(np.asarray(o.wrap or False, dtype=bool), idx.shape) for o, idx in self.parts]
         wrap = np.zeros(n, dtype=bool)
-        for w, (_, idx) in zip(wraps, self.parts, strict=True):
-            wrap[idx] = w
+        for observer, idx in self.parts:  # a part's wrap: None, a bool, or one per channel of the part
+            wrap[idx] = np.broadcast_to(np.asarray(False if observer.wrap is None else observer.wrap), idx.shape)
         self.wrap = wrap if wrap.any() else None
         self._shape = None
         self._estimate = None

@@ -307,7 +307,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     sensor : str or smo_gym.sensors.Sensor
         Preset name (:data:`smo_gym.sensors.PRESETS`) or a sensor (copied: each wrapper has its own).
     observer : str or smo_gym.observers.Observer
-        Observer name (:data:`smo_gym.observers.OBSERVERS`), with gains from a calibration rollout unless
+        ``"auto"`` (the default: per joint the candidate of :mod:`smo_gym.selection` that does best on this
+        wrapper's own trials, :func:`calibrated_observer`; the choice is ``observer.selection``), an observer name
+        (:data:`smo_gym.observers.OBSERVERS`), with gains from a calibration rollout unless
         ``observer_kwargs`` sets them, or an observer object whose ``dt`` is the sampling step (copied). A
         model-based name (:data:`smo_gym.observers.MODEL_BASED_OBSERVERS`) gets a model of the environment's own
         ``MjModel`` and the action as its input (:func:`smo_gym.wrappers.model_based.model_based_observer`).
