@@ -72,7 +72,7 @@ def test_every_v5_env(env_id):
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
     raw = gym.make(env_id)
-    wrapped = EstimatedVelocity(gym.make(env_id))  # default: noisy 12-bit encoder, super-twisting, physics
+    wrapped = EstimatedVelocity(gym.make(env_id))  # default: noisy 12-bit encoder, auto, physics
     assert wrapped.observation_space == raw.observation_space
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -102,7 +102,7 @@ def test_every_v5_env(env_id):
     e_sta = np.array([s["qvel_estimate"] for s in sta["smo"]])[keep] - true
     e_fd = np.array([s["qvel_estimate"] for s in fd["smo"]])[keep] - true
     scale = np.sqrt(np.mean(true**2))
-    # typical sample: the sliding super-twisting is as accurate as the backward difference (round-off on Euler envs)
+    # typical sample: the default (auto) is as accurate as the backward difference (round-off on Euler envs)
     med_sta, med_fd = np.median(np.abs(e_sta).max(axis=1)), np.median(np.abs(e_fd).max(axis=1))
     assert med_sta <= 1.5 * med_fd + 1e-9 * scale, (med_sta, med_fd, scale)
     # RMS: the same, plus the re-entry after impacts (joint limits, contacts) where |q''| exceeds the calibrated
@@ -115,12 +115,14 @@ def test_every_v5_env(env_id):
 
 
 def test_euler_envs_estimate_exactly():
-    """HalfCheetah integrates with Euler: the backward difference is exact, so is the sliding super-twisting."""
-    env = EstimatedVelocity(gym.make("HalfCheetah-v5"), sensor="ideal", rate="physics")
-    assert env.adapter.model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
-    res = rollout(env, smooth_actions(env.action_space, 50, 0), seed=0)
-    s = res["smo"][-1]
-    np.testing.assert_allclose(s["qvel_estimate"], s["qvel"], atol=1e-9 * (1 + np.abs(s["qvel"]).max()))
+    """HalfCheetah integrates with Euler: the backward difference is exact, so are the default (auto, which
+    chooses it) and the sliding super-twisting."""
+    for observer in ("auto", "super-twisting"):
+        env = EstimatedVelocity(gym.make("HalfCheetah-v5"), sensor="ideal", observer=observer, rate="physics")
+        assert env.adapter.model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+        res = rollout(env, smooth_actions(env.action_space, 50, 0), seed=0)
+        s = res["smo"][-1]
+        np.testing.assert_allclose(s["qvel_estimate"], s["qvel"], atol=1e-9 * (1 + np.abs(s["qvel"]).max()))
 
 
 def test_observation_is_built_from_measurements_and_estimates():

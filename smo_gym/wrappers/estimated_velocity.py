@@ -262,6 +262,7 @@ def calibrated_observer(name: str, unwrapped, adapter, measurement: JointMeasure
     if name != "auto":
         return default_observer(name, calibration, kwargs), calibration
     span = mean_velocity_span(adapter.model)
+    settings = {k: v for k, v in how.items() if k != "disk"}  # where the result is kept is not what it depends on
     key = calibration_key(
         adapter.environment_key,
         adapter.model,
@@ -270,7 +271,7 @@ def calibrated_observer(name: str, unwrapped, adapter, measurement: JointMeasure
         every=sample_every,
         kwargs=stable_repr(kwargs),
         trial_steps=TRIAL_STEPS,
-        **how,
+        **settings,
         v=2,
     )
 
