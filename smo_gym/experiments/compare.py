@@ -210,12 +210,12 @@ def estimate_errors(rec: Recording, velocity: np.ndarray) -> np.ndarray:
     return (velocity - rec.qvel)[estimated]
 
 
+#: the default choice and what it chooses among (compiled once for both), with super-twisting for comparison
 DEFAULT_OBSERVERS = (
     "auto",
     "super-twisting",
-    "levant",
-    "levant:discretization=matching",
-    "high-gain",
+    "levant:discretization=implicit",
+    "low-power-high-gain",
     "kalman-ca",
     "finite-difference",
 )
