@@ -173,3 +173,9 @@ def test_the_returns_table_reads_summary_csv(tmp_path):
     lines = hooks._results_returns(csv).splitlines()
     assert lines[0] == "| trained on -> evaluated on | A 50k |"
     assert lines[2:] == ["| true | 10 +- 2 (3) |", "| est | 8 +- 2 (2) |", "| true -> est | 8 +- 0 (3) |"]
+    csv.write_text(
+        "# scripts/rl_benchmark.py --seeds 2 (2026-01-01 00:00 UTC)\n"
+        "env,algo,train_sensing,eval_sensing,steps,seeds,mean,std,min,max\n"
+        "A-v5,PPO,true,true,50000,2,10.4,1.6,9.2,11.5\n"
+    )
+    assert hooks._results_returns(csv).splitlines()[2] == "| true | 10 +- 2 [9, 12] (2) |"
