@@ -26,6 +26,7 @@ __all__ = [
     "check_keywords",
     "check_mask",
     "check_nonnegative",
+    "check_nonnegative_array",
     "check_positive",
     "check_positive_array",
     "check_positive_range",
@@ -133,6 +134,17 @@ def check_positive_array(name: str, value) -> np.ndarray:
     bad = ~np.isfinite(arr) | (arr <= 0.0)
     if np.any(bad):
         raise ValueError(f"expected {name} > 0 everywhere, actual value: {_short(value)}")
+    return arr
+
+
+def check_nonnegative_array(name: str, value) -> np.ndarray:
+    """Return ``value`` as a float64 array after checking that every entry is finite and ``>= 0``."""
+    arr = as_real_array(name, value)
+    if arr.size == 0:
+        raise ValueError(f"expected {name} with at least one entry, actual value: shape {arr.shape}")
+    bad = ~np.isfinite(arr) | (arr < 0.0)
+    if np.any(bad):
+        raise ValueError(f"expected {name} >= 0 everywhere, actual value: {_short(value)}")
     return arr
 
 

@@ -72,6 +72,7 @@ __all__ = [
     "derivative_rms",
     "needs_calibration",
     "noise_std",
+    "quantization_step",
 ]
 
 #: median absolute deviation -> standard deviation of a Gaussian, 1 / Phi^-1(3/4)
@@ -193,6 +194,39 @@ def _staircase_std(y: np.ndarray) -> np.ndarray:
         if steps.size:
             floor[c] = np.median(steps) / np.sqrt(12.0)
     return floor.reshape(y.shape[1:])
+
+
+def quantization_step(y, *, tolerance: float = 1e-6, share: float = 0.99, minimum: int = 20) -> np.ndarray:
+    r"""The quantization step of a recorded signal, per channel, or 0 where the samples are not on a lattice.
+
+    A quantized channel takes values :math:`y_k = c + n_k\Delta` with integers :math:`n_k`, so every difference
+    :math:`y_k - y_{k-1}` is a multiple of :math:`\Delta` and the smallest nonzero one is :math:`\Delta` itself as
+    soon as the signal ever moves by one count. The estimate is that smallest difference where at least
+    ``share`` of the nonzero differences (and ``minimum`` of them) are multiples of it within ``tolerance``
+    (relative: the rounding error of the stored values); noise on top of the quantization, or none at all, gives
+    differences that are not, and the estimate 0.
+
+    Parameters
+    ----------
+    y : array_like, shape (T, ...)
+        Samples along axis 0; every trailing index is a channel.
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    y = _time_series(y)
+    d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, -1)
+    step = np.zeros(d.shape[1])
+    for c in range(d.shape[1]):
+        moves = d[d[:, c] > 0.0, c]
+        if moves.size < minimum:
+            continue
+        q = moves.min()
+        ratio = moves / q
+        if np.mean(np.abs(ratio - np.round(ratio)) <= tolerance * np.maximum(ratio, 1.0)) >= share:
+            step[c] = q
+    return step.reshape(y.shape[1:])
 
 
 def derivative_bound(
@@ -422,13 +456,16 @@ class Calibration:
 
 
 def calibration_of_signal(
-    y, dt: float, orders, *, noise=None, resolution=0.0, quantile: float = 0.99, safety: float = 2.0
+    y, dt: float, orders, *, noise=None, resolution=None, quantile: float = 0.99, safety: float = 2.0
 ) -> Calibration:
     """The :class:`Calibration` of a recorded signal ``y`` (T, ...): :func:`derivative_bound` and
     :func:`derivative_rms` of each derivative order in ``orders``, with the noise level ``noise`` (default
-    :func:`noise_std` of ``y``). Records of ``r`` samples or fewer get the floors for order ``r``."""
+    :func:`noise_std` of ``y``) and the quantization step ``resolution`` (default :func:`quantization_step` of
+    ``y``: the sensor is unknown). Records of ``r`` samples or fewer get the floors for order ``r``."""
     y = _time_series(y)
     sigma = _noise_per_channel(noise, y)
+    if resolution is None:
+        resolution = quantization_step(y) if y.shape[0] > 1 else 0.0
     bounds, typical = {}, {}
     for r in sorted(set(orders)):
         if y.shape[0] > r:

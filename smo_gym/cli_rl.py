@@ -47,7 +47,7 @@ def add_subcommands(sub) -> None:
             "--sensing", choices=SENSINGS, default=d("estimated"), help=f"what the policy observes {shown('estimated')}"
         )
         p.add_argument("--sensor", default=d("encoder-12bit-noisy"), help=f"sensor spec {shown('encoder-12bit-noisy')}")
-        p.add_argument("--observer", default=d("super-twisting"), help=f"observer spec {shown('super-twisting')}")
+        p.add_argument("--observer", default=d("auto"), help=f"observer spec {shown('auto')}")
         p.add_argument(
             "--rate",
             type=parse_rate,

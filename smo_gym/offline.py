@@ -28,7 +28,9 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
     observer : str or Observer, optional
         An observer name of :data:`smo_gym.observers.OBSERVERS` (``"levant"``, ``"super-twisting"``,
         ``"high-gain"``, ``"kalman-ca"``, ...; the names of the Gymnasium wrapper), or an observer object whose
-        ``dt`` equals ``dt`` (a copy is run; ``params`` must then be empty). Default ``"levant"``.
+        ``dt`` equals ``dt`` (a copy is run; ``params`` must then be empty). Default ``"auto"``: per channel
+        the backward difference or the constant-acceleration Kalman filter, whichever the calibration predicts
+        more accurate (:func:`smo_gym.selection.auto_observer`; it takes no parameter but ``wrap``).
     method : str, optional
         Alias of ``observer`` (the former name of this argument); give one of them.
     axis : int, optional
@@ -39,7 +41,7 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
 
     Returns
     -------
-    ndarray, shape ``y.shape + (order + 1,)``
+    ndarray, shape ``y.shape + (order + 1,)`` (``y.shape + (2,)`` for ``"auto"``)
         ``out[..., i]`` is the estimate of the ``i``-th derivative, with time along ``axis`` as in ``y``: the
         estimate at a sample uses that sample and the earlier ones only, the same numbers ``update`` returns
         online. With ``wrap``, the value estimate ``out[..., 0]`` of a wrapped channel is the continuous
@@ -109,7 +111,7 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
                 f"method={method!r}"
             )
         observer = method
-    observer = "levant" if observer is None else observer
+    observer = "auto" if observer is None else observer
     dt = check_positive("dt", dt)
     y = as_real_array("y", y)
     if y.ndim == 0:
@@ -136,6 +138,8 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
         obs.run(y[1:], out=out[1:])  # written in place: no second copy of a possibly large result
     else:  # an observer whose run() takes other arguments (the model-based ones) allocates its result
         out[1:] = obs.run(y[1:])
+    if isinstance(observer, str) and observer == "auto":  # value and velocity: what every choice estimates
+        out = out[..., :2]
     if squeeze:
         out = out[:, 0]
     return np.moveaxis(out, 0, axis) if axis else out
@@ -151,17 +155,28 @@ def _build(observer, dt: float, y: np.ndarray, params: dict) -> Observer:
                 f"expected an observer with dt equal to the sampling step {dt}, actual value: {observer.dt}"
             )
         return copy.deepcopy(observer)
+    if isinstance(observer, str) and observer == "auto":
+        from .selection import auto_observer, candidate_orders
+
+        y = _finite_for_calibration(y)
+        found = calibration.calibration_of_signal(_unwrapped(y, params.get("wrap")), dt, candidate_orders())
+        return auto_observer(found, observer_kwargs=params)
     if not calibration.needs_calibration(observer, params):  # also rejects unknown names, listing the known
         return make_observer(observer, dt=dt, **params)
+    sample = _unwrapped(_finite_for_calibration(y), params.get("wrap"))
+    orders = (calibration.bound_order(observer, params),)
+    return calibration.default_observer(observer, calibration.calibration_of_signal(sample, dt, orders), params)
+
+
+def _finite_for_calibration(y: np.ndarray) -> np.ndarray:
+    """``y`` after checking it is finite (a calibration of non-finite samples would be meaningless)."""
     if not np.isfinite(y).all():
         index = tuple(int(i) for i in np.argwhere(~np.isfinite(y))[0])
         raise ValueError(
             f"expected finite samples to calibrate from, actual value: {y[index]!r} at sample "
             f"{index[0]}, channel {index[1:]}"
         )
-    sample = _unwrapped(y, params.get("wrap"))
-    orders = (calibration.bound_order(observer, params),)
-    return calibration.default_observer(observer, calibration.calibration_of_signal(sample, dt, orders), params)
+    return y
 
 
 def _unwrapped(y: np.ndarray, wrap) -> np.ndarray:

@@ -156,7 +156,7 @@ def make_env(
     sensing: str = "estimated",
     *,
     sensor: str = "encoder-12bit-noisy",
-    observer: str = "super-twisting",
+    observer: str = "auto",
     rate="physics",
     observer_kwargs: dict | None = None,
     env_kwargs: dict | None = None,
@@ -195,7 +195,7 @@ def make_vec(
     n_envs: int = 1,
     seed: int | None = 0,
     sensor: str = "encoder-12bit-noisy",
-    observer: str = "super-twisting",
+    observer: str = "auto",
     rate="physics",
     observer_kwargs: dict | None = None,
     env_kwargs: dict | None = None,
@@ -505,7 +505,7 @@ def default_run_folder(
     seed: int,
     *,
     sensor="encoder-12bit-noisy",
-    observer="super-twisting",
+    observer="auto",
     rate="physics",
     root="outputs/runs",
 ) -> Path:
@@ -627,7 +627,7 @@ def train(
     *,
     sensing: str = "estimated",
     sensor: str = "encoder-12bit-noisy",
-    observer: str = "super-twisting",
+    observer: str = "auto",
     rate="physics",
     algo: str = "PPO",
     steps: int = 100_000,
@@ -905,7 +905,7 @@ def evaluate(
         )
     sense = dict(
         sensor=sensor or run.get("sensor") or "encoder-12bit-noisy",
-        observer=observer or run.get("observer") or "super-twisting",
+        observer=observer or run.get("observer") or "auto",
         rate=rate if rate is not None else run.get("rate") or "physics",
     )
     venv = make_vec(

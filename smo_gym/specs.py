@@ -115,9 +115,9 @@ def _check_keys(kind: str, name: str, kwargs: dict, valid: list[str], spec: str)
 def observer_options(name: str) -> list[str]:
     """The options an observer spec may set: the parameters its family registers
     (:attr:`Family.parameters <smo_gym.observers.Family.parameters>`: the constructor's, ``dt`` excepted since the
-    rate sets it)."""
-    _check_name("an observer name", name, list(OBSERVERS))
-    return list(FAMILIES[name].parameters)
+    rate sets it); ``"auto"`` (:mod:`smo_gym.selection`) takes none."""
+    _check_name("an observer name", name, ["auto", *OBSERVERS])
+    return [] if name == "auto" else list(FAMILIES[name].parameters)
 
 
 def parse_observer_spec(spec: str) -> tuple[str, dict]:

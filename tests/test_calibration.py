@@ -342,3 +342,32 @@ def test_calibration_refuses_values_that_are_not_real_numbers():
         calibration.Calibration(DT, {2: [1.0]}, {2: [1.0]}, ["a"])
     with pytest.raises(TypeError, match=r"expected bounds\[2\] to be an array of real numbers"):
         calibration.Calibration(DT, {2: [1.0 + 1j]}, {2: [1.0]}, [1e-3])
+
+
+@pytest.mark.parametrize("preset", ["ideal", "encoder-12bit", "encoder-12bit-noisy", "low-cost"])
+def test_quantization_step_is_recovered_from_the_data(preset):
+    """An unknown sensor's quantization step is the lattice its samples lie on: each preset's declared step (12 and
+    10 bits, noise before or after the rounding), and 0 without quantization."""
+    from smo_gym.calibration import quantization_step
+    from smo_gym.sensors import make_sensor
+
+    t = np.arange(0.0, 5.0, 1e-3)
+    f = np.column_stack([np.sin(t), 0.3 * np.cos(2 * t) + 1.7])
+    sensor = make_sensor(preset)
+    y = np.vstack([sensor.reset(f[0], seed=0), sensor.run(f[1:])])
+    np.testing.assert_allclose(quantization_step(y), sensor.quantization_step(2), rtol=1e-9)
+    found = calibration.calibration_of_signal(y, 1e-3, (2,)).resolution
+    np.testing.assert_allclose(found, sensor.quantization_step(2), rtol=1e-9)
+    given = calibration.calibration_of_signal(y, 1e-3, (2,), resolution=0.0)  # a given step wins
+    assert np.all(given.resolution == 0.0)
+
+
+def test_quantization_step_refuses_what_is_not_a_lattice():
+    from smo_gym.calibration import quantization_step
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 2.0, 1e-3)
+    noisy = np.round(np.sin(t) / 0.01) * 0.01 + 1e-4 * rng.standard_normal(t.size)  # noise after the rounding
+    still = np.zeros(t.size)  # never moves: no step to see
+    few = np.where(t < 0.01, 0.0, 0.01)  # one move: too little evidence
+    np.testing.assert_array_equal(quantization_step(np.column_stack([noisy, still, few])), 0.0)

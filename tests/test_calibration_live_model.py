@@ -10,10 +10,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from smo_gym._cache import calibration_key, stable_repr
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers.adapters import make_adapter
 from smo_gym.wrappers.estimated_velocity import rollout_velocities
-from smo_gym.wrappers.sensing import calibration_key, stable_repr
 
 
 def _edited_hopper():
@@ -69,7 +69,7 @@ def test_cache_key_changes_with_the_model():
 _KEY_SCRIPT = """
 import numpy as np, gymnasium as gym, smo_gym
 from smo_gym.wrappers.adapters import make_adapter
-from smo_gym.wrappers.sensing import calibration_key
+from smo_gym._cache import calibration_key
 scale = {scale}
 env = gym.make("smo_gym/TwoLinkArm-v0", disturbance=lambda t: [scale * np.sin(t), 0.0])
 print(calibration_key(make_adapter(env).environment_key, env.unwrapped.model, derivative=2))

@@ -78,8 +78,8 @@ def test_compare_uses_the_wrappers_code_path(env_id):
     """Same seed, policy and sensor: the comparison's estimates equal the wrapper's at every control period."""
     seed, steps = 3, 30
     rec = lib.record_rollout(env_id, sensor="encoder-12bit-noisy", steps=steps, seed=seed)
-    (sta,) = lib.compare_observers(rec, ["super-twisting"])
-    env = EstimatedVelocity(gym.make(env_id), sensor="encoder-12bit-noisy")
+    (auto,) = lib.compare_observers(rec, ["auto"])
+    env = EstimatedVelocity(gym.make(env_id), sensor="encoder-12bit-noisy")  # the default observer: "auto"
     policy = lib.smooth_random_policy(env.action_space, seed)
     obs, info = env.reset(seed=seed)
     fs = env.adapter.frame_skip
@@ -87,7 +87,7 @@ def test_compare_uses_the_wrappers_code_path(env_id):
         obs, _, term, trunc, info = env.step(policy(obs))
         if term or trunc:
             break
-        np.testing.assert_array_equal(info["smo"]["qvel_estimate"], sta.velocity[(k + 1) * fs])
+        np.testing.assert_array_equal(info["smo"]["qvel_estimate"], auto.velocity[(k + 1) * fs])
         np.testing.assert_array_equal(info["smo"]["qvel"], rec.qvel[(k + 1) * fs])
 
 

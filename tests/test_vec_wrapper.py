@@ -24,7 +24,7 @@ def _pair(n=N, seed=3, positions="measured", env_id=ENV):
     vec = VecEstimatedVelocity(
         DummyVecEnv([lambda: gym.make(env_id) for _ in range(n)]),
         "encoder-12bit-noisy",
-        "super-twisting",
+        "auto",
         positions=positions,
     )
     ref.seed(seed)
@@ -230,9 +230,7 @@ def test_gymnasium_vector_wrapper_round_trips_plain_pickle():
 
     from gymnasium.vector import SyncVectorEnv
 
-    vec = VectorEstimatedVelocity(
-        SyncVectorEnv([functools.partial(gym.make, ENV)] * 2), "encoder-12bit-noisy", "super-twisting"
-    )
+    vec = VectorEstimatedVelocity(SyncVectorEnv([functools.partial(gym.make, ENV)] * 2), "encoder-12bit-noisy", "auto")
     vec.reset(seed=5)
     twin = pickle.loads(pickle.dumps(vec))
     assert twin._batch is None and not any(s.batched for s in twin._local)  # its sensors' streams are its own
@@ -279,7 +277,7 @@ def test_gymnasium_vector_wrapper_matches_per_env(mode):
     vec = VectorEstimatedVelocity(
         SyncVectorEnv([lambda: gym.make(ENV) for _ in range(N)], autoreset_mode=mode),
         "encoder-12bit-noisy",
-        "super-twisting",
+        "auto",
     )
     o1, _ = ref.reset(seed=7)
     o2, _ = vec.reset(seed=7)
@@ -355,7 +353,7 @@ def test_masked_resets_keep_the_last_samples_of_the_other_environments():
     vec = VectorEstimatedVelocity(
         SyncVectorEnv([lambda: gym.make(ENV) for _ in range(N)], autoreset_mode="Disabled"),
         "encoder-12bit-noisy",
-        "super-twisting",
+        "auto",
     )
     ref.reset(seed=2)
     vec.reset(seed=2)
@@ -385,7 +383,7 @@ def test_free_joint_environments_measured_together_equal_per_env_wrappers():
     env_id = "Ant-v5"
     ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make(env_id), rate="env") for _ in range(2)])
     vec = VectorEstimatedVelocity(
-        SyncVectorEnv([lambda: gym.make(env_id) for _ in range(2)]), "encoder-12bit-noisy", "super-twisting"
+        SyncVectorEnv([lambda: gym.make(env_id) for _ in range(2)]), "encoder-12bit-noisy", "auto"
     )
     o1, _ = ref.reset(seed=3)
     o2, _ = vec.reset(seed=3)

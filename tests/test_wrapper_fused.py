@@ -82,7 +82,7 @@ def test_fused_input_copies_give_the_full_forward_observation(env_id, rate):
     """The compiled call copies the inputs the observation reads (Humanoid: ctrl; InvertedDoublePendulum, with its
     full forward pass: all of them) into the scratch data: every step's observation equals a full forward pass
     at the sensed state with the live inputs."""
-    env = EstimatedVelocity(gym.make(env_id), rate=rate, disk_cache=False)
+    env = EstimatedVelocity(gym.make(env_id), observer="super-twisting", rate=rate, disk_cache=False)
     env.reset(seed=1)
     assert env._fused.copies_inputs
     rng = np.random.default_rng(1)
@@ -96,10 +96,11 @@ def test_fused_input_copies_give_the_full_forward_observation(env_id, rate):
 
 
 def test_fused_path_is_taken_only_where_it_is_exact():
-    hopper = EstimatedVelocity(gym.make("Hopper-v5"), disk_cache=False)
+    hopper = EstimatedVelocity(gym.make("Hopper-v5"), observer="super-twisting", disk_cache=False)
     hopper.reset(seed=0)
     assert hopper._fused is not None
-    humanoid = EstimatedVelocity(gym.make("Humanoid-v5"), disk_cache=False)  # free joints go through it too
+    # free joints go through it too
+    humanoid = EstimatedVelocity(gym.make("Humanoid-v5"), observer="super-twisting", disk_cache=False)
     humanoid.reset(seed=0)
     assert humanoid._fused is not None
     ilf = EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer="ilf-finite", disk_cache=False)
@@ -134,7 +135,7 @@ def test_fused_errors_name_the_channel_and_keep_the_state():
 
 
 def test_fused_wrapper_copies_and_pickles_mid_episode():
-    env = EstimatedVelocity(gym.make("HalfCheetah-v5"), disk_cache=False)
+    env = EstimatedVelocity(gym.make("HalfCheetah-v5"), observer="super-twisting", disk_cache=False)
     env.reset(seed=1)
     actions = np.random.default_rng(1).uniform(-1, 1, (20, 6))
     for a in actions[:5]:
@@ -288,8 +289,8 @@ def test_fused_path_on_dm_control_equals_general_path():
     pytest.importorskip("shimmy")
     from smo_gym.wrappers.dm_control import make_dm_control
 
-    fused = make_dm_control("cartpole", "swingup", rate="physics", disk_cache=False)
-    general = make_dm_control("cartpole", "swingup", rate="physics", disk_cache=False)
+    fused = make_dm_control("cartpole", "swingup", observer="super-twisting", rate="physics", disk_cache=False)
+    general = make_dm_control("cartpole", "swingup", observer="super-twisting", rate="physics", disk_cache=False)
     fused.reset(seed=1)
     general.reset(seed=1)
     general._fused = None

@@ -251,7 +251,9 @@ def test_single_turn_encoder_through_the_wrapper():
 
 def test_misspelled_observer_kwargs_are_unknown_parameters_with_a_suggestion():
     with pytest.raises(ValueError, match=r"unknown parameter 'lipschtz' of SuperTwisting.*did you mean 'lipschitz'"):
-        _sensed(gym.make(ENV), observer_kwargs={"lipschtz": 5.0})
+        _sensed(gym.make(ENV), observer="super-twisting", observer_kwargs={"lipschtz": 5.0})
+    with pytest.raises(ValueError, match=r"no observer parameters but wrap for observer='auto'"):
+        _sensed(gym.make(ENV), observer_kwargs={"lipschitz": 5.0})
     with pytest.raises(ValueError, match=r"unknown parameter 'ordr' of KalmanCA|unknown parameter 'ordr'"):
         _sensed(gym.make(ENV), observer="kalman-ca", observer_kwargs={"ordr": 2})
     with pytest.raises(ValueError, match=r"did you mean 'super-twisting'"):

@@ -3,9 +3,9 @@ r"""Side-by-side comparison of velocity observers on the *same* measurements of 
 The library behind ``smo-gym compare``. One environment is run under a seeded smooth random policy; the true
 configuration is sampled at the chosen rate with the wrapper's own substep hook
 (:meth:`~smo_gym.wrappers.adapters.GymnasiumMujocoAdapter.record_substeps`), measured once by a
-:class:`~smo_gym.engine.measurement.JointMeasurement`, and every observer (built with the wrapper's default gains,
-:func:`~smo_gym.calibration.default_observer`) processes those same measurements through
-:class:`~smo_gym.engine.measurement.VelocityEstimator`, i.e. exactly what
+:class:`~smo_gym.engine.measurement.JointMeasurement`, and every observer (built as the wrapper builds it,
+:func:`~smo_gym.wrappers.estimated_velocity.calibrated_observer`, ``"auto"`` included) processes those same
+measurements through :class:`~smo_gym.engine.measurement.VelocityEstimator`, i.e. exactly what
 :class:`~smo_gym.wrappers.EstimatedVelocity` would feed it.
 
 Metrics (per observer) are over every estimate (:func:`estimate_errors`): every sample except the first of each
@@ -31,19 +31,17 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
 from .. import _extras as extras
 from .._validation import DivergenceError
-from ..calibration import Calibration, bound_order, default_observer
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs, mean_velocity_span
 from ..envs import make as make_by_id
 from ..specs import make_sensor, parse_observer_spec
 from ..wrappers.adapters import make_adapter
-from ..wrappers.estimated_velocity import calibrate_environment, resolve_rate
-from ..wrappers.rollout import rollout
+from ..wrappers.estimated_velocity import calibrated_observer, resolve_rate
+from ..wrappers.rollout import rollout, smooth_random_policy
 
 __all__ = [
     "ObserverResult",
@@ -74,22 +72,6 @@ def dof_names(model: mujoco.MjModel) -> list[str]:
             name += ":" + ("rx", "ry", "rz")[offset]
         names.append(name)
     return names
-
-
-def smooth_random_policy(action_space: gym.spaces.Box, seed: int, smoothing: float = 0.9):
-    r"""A seeded low-pass random policy :math:`a_{k+1} = s a_k + (1 - s) u_k`, :math:`u_k` uniform in the box.
-
-    Returns a function ``policy(obs) -> action`` (the observation is ignored).
-    """
-    rng = np.random.default_rng(seed)
-    low, high = action_space.low, action_space.high
-    state = {"a": np.zeros(action_space.shape)}
-
-    def policy(_obs):
-        state["a"] = smoothing * state["a"] + (1.0 - smoothing) * rng.uniform(low, high)
-        return state["a"].astype(action_space.dtype)
-
-    return policy
 
 
 @dataclass
@@ -190,7 +172,13 @@ def record_rollout(
         names=dof_names(model),
         noise_std=measurement.noise_std(),
         resolution=measurement.quantization_step(),
-        context={"unwrapped": env.unwrapped, "adapter": adapter, "sample_every": k, "angular": angular_dofs(model)},
+        context={
+            "unwrapped": env.unwrapped,
+            "adapter": adapter,
+            "sample_every": k,
+            "angular": angular_dofs(model),
+            "measurement": measurement,
+        },
     )
 
 
@@ -221,6 +209,7 @@ def estimate_errors(rec: Recording, velocity: np.ndarray) -> np.ndarray:
 
 
 DEFAULT_OBSERVERS = (
+    "auto",
     "super-twisting",
     "levant",
     "levant:discretization=matching",
@@ -246,7 +235,6 @@ def compare_observers(
     names = list(observers)
     specs = {spec: parse_observer_spec(spec) for spec in names}
     ctx = rec.context
-    calibrations: dict[int, Calibration] = {}
     starts = list(rec.episode_starts) + [len(rec.z_measured)]
     results = []
     iterator = names
@@ -255,18 +243,8 @@ def compare_observers(
     for spec in iterator:
         name, kw = specs[spec]
         kw = {**kw, **((observer_kwargs or {}).get(spec) or {})}
-        order = bound_order(name, kw)
-        if order not in calibrations:
-            calibrations[order] = calibrate_environment(
-                ctx["unwrapped"],
-                ctx["adapter"],
-                ctx["sample_every"],
-                order,
-                noise=rec.noise_std,
-                resolution=rec.resolution,
-                safety=calibration_safety,
-            )
-        observer = default_observer(name, calibrations[order], kw)
+        args = (ctx["unwrapped"], ctx["adapter"], ctx["measurement"], ctx["sample_every"], kw)
+        observer, _ = calibrated_observer(name, *args, safety=calibration_safety)
         estimator = VelocityEstimator(observer, mean_over=mean_velocity_span(ctx["adapter"].model))
         V = np.full_like(rec.qvel, np.nan)
         timings = []

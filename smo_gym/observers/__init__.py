@@ -12,6 +12,7 @@ import pkgutil
 
 from .._validation import DivergenceError, check_keywords, did_you_mean
 from .base import Observer
+from .composite import PerChannel
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .discrete_hosm import DiscreteTimeHOSM
 from .filtering import FilteringDifferentiator
@@ -21,6 +22,7 @@ from .low_power import LowPowerHighGain
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
 from .registry import FAMILIES, MODEL_BASED_OBSERVERS, OBSERVERS, Family, family_of, register_observer
 from .switched_gain import SwitchedGain
+from .worst_case import WorstCaseOptimal
 
 for _module in pkgutil.iter_modules(__path__):
     importlib.import_module(f"{__name__}.{_module.name}")
@@ -59,9 +61,11 @@ __all__ = [
     "LowPowerHighGain",
     "MechanicalSuperTwisting",
     "Observer",
+    "PerChannel",
     "SuperTwisting",
     "SwitchedGain",
     "UniformLevant",
+    "WorstCaseOptimal",
     "family_of",
     "make_observer",
     "register_observer",

@@ -171,8 +171,8 @@ class GymnasiumMujocoAdapter:
     @property
     def environment_key(self) -> str:
         """Identity of the environment for the calibration cache: its registered id and constructor arguments (in
-        a form that is the same in every process, :func:`~smo_gym.wrappers.sensing.stable_repr`), or its class."""
-        from .sensing import stable_repr
+        a form that is the same in every process, :func:`~smo_gym._cache.stable_repr`), or its class."""
+        from .._cache import stable_repr
 
         env = self.env
         spec = getattr(env, "spec", None)

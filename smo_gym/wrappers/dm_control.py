@@ -45,9 +45,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._cache import stable_repr
 from .._extras import require
 from .adapters import GymnasiumMujocoAdapter, SubstepHook, SubstepRecording, register_adapter
-from .sensing import stable_repr
 
 __all__ = ["DmControlAdapter", "DmControlTaskView", "is_dm_control_env", "make_dm_control"]
 
@@ -235,7 +235,7 @@ def make_dm_control(
     domain: str,
     task: str,
     sensor="encoder-12bit-noisy",
-    observer="super-twisting",
+    observer="auto",
     rate="physics",
     observer_kwargs: dict | None = None,
     *,

@@ -7,23 +7,27 @@ import copy
 import gymnasium as gym
 import numpy as np
 
+from .._cache import cached_bounds, calibration_key, stable_repr
 from .._validation import check_int_in_range, check_positive, check_real_in_range
 from ..calibration import Calibration, bound_order, calibration_from_velocities, default_observer
 from ..engine.fused import FusedSensing
 from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation, mean_velocity_span
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
+from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
-from .rollout import rollout
-from .sensing import SensingInfo, cached_bounds, calibration_key, check_action, check_seed, model_rollout_velocities
+from .rollout import rollout, smooth_random_policy
+from .sensing import SensingInfo, check_action, check_seed, model_rollout_velocities
 
 __all__ = [
     "EstimatedVelocity",
     "calibrate_environment",
+    "calibrated_observer",
     "observation_wrappers",
     "random_episodes",
     "resolve_rate",
     "rollout_velocities",
+    "sensed_trials",
 ]
 
 #: mixed into the user's seed so the sensor stream differs from the environment's own ``np_random``
@@ -55,10 +59,11 @@ def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = 0) ->
     return None if episodes is None else [episode.qvel for episode in episodes if np.all(np.isfinite(episode.qvel))]
 
 
-def random_episodes(adapter, sample_every: int, steps: int, seed: int = 0) -> list | None:
+def random_episodes(adapter, sample_every: int, steps: int, seed: int = 0, smoothing: float = 0.0) -> list | None:
     """The :class:`~smo_gym.wrappers.rollout.Episode` list of a copy of the environment under uniform random
-    actions, sampled every ``sample_every`` physics steps, with the environment's own (seeded) resets at episode
-    ends: its reset distribution, actions and terminations, on the live model
+    actions (low-passed with ``smoothing``, :func:`~smo_gym.wrappers.rollout.smooth_random_policy`), sampled every
+    ``sample_every`` physics steps, with the environment's own (seeded) resets at episode ends: its reset
+    distribution, actions and terminations, on the live model
     (:meth:`~smo_gym.wrappers.adapters.MujocoAdapter.copy_environment`: masses or a timestep edited in place
     count), for about ``steps`` physics steps; None if the environment cannot be copied or sampled so often."""
     try:
@@ -74,7 +79,7 @@ def random_episodes(adapter, sample_every: int, steps: int, seed: int = 0) -> li
     space.seed(seed)
     episodes = rollout(
         sim,
-        lambda _: space.sample(),
+        (lambda _: space.sample()) if smoothing == 0.0 else smooth_random_policy(space, seed, smoothing),
         max(1, int(steps) // adapter.frame_skip),
         sample_every=sample_every,
         seed=seed,
@@ -185,7 +190,7 @@ def calibrate_environment(
     unwrapped,
     adapter,
     sample_every: int,
-    derivative: int,
+    derivative,
     *,
     noise,
     resolution=0.0,
@@ -194,24 +199,24 @@ def calibrate_environment(
     steps: int = 2000,
     disk: bool = True,
 ) -> Calibration:
-    """The :class:`~smo_gym.calibration.Calibration` of the joints for the ``derivative``-th derivative, sampled
-    every ``sample_every`` physics steps: :func:`~smo_gym.calibration.calibration_from_velocities` of the
-    velocities of :func:`rollout_velocities` (a copy of the environment itself: its resets, random actions,
+    """The :class:`~smo_gym.calibration.Calibration` of the joints for the ``derivative``-th derivative (an int or
+    a tuple), sampled every ``sample_every`` physics steps: :func:`~smo_gym.calibration.calibration_from_velocities`
+    of the velocities of :func:`rollout_velocities` (a copy of the environment itself: its resets, random actions,
     terminations), or, if the environment cannot be copied, of
     :func:`~smo_gym.wrappers.sensing.model_rollout_velocities` on the bare model from its initial state. The
     levels are cached per environment id (the adapter's ``environment_key``) in memory and, with ``disk``, on disk;
     ``noise`` and ``resolution`` are the sensor's, per dof.
     """
     model = adapter.model
-    r, every = int(derivative), int(sample_every)
-    settings = dict(derivative=r, every=every, frame_skip=adapter.frame_skip, safety=float(safety))
-    settings.update(quantile=float(quantile), steps=int(steps), v=4)
+    orders, every = tuple(sorted({int(r) for r in np.atleast_1d(derivative)})), int(sample_every)
+    settings = dict(derivative=orders, every=every, frame_skip=adapter.frame_skip, safety=float(safety))
+    settings.update(quantile=float(quantile), steps=int(steps), v=5)
     key = calibration_key(adapter.environment_key, model, **settings)
     dt = float(model.opt.timestep) * every
 
     def levels(episodes):
-        c = calibration_from_velocities(episodes, dt, (r,), noise=0.0, quantile=quantile, safety=safety)
-        return np.stack([c.bound(r), c.rms(r)])
+        c = calibration_from_velocities(episodes, dt, orders, noise=0.0, quantile=quantile, safety=safety)
+        return np.stack([level for r in orders for level in (c.bound(r), c.rms(r))])
 
     def compute():
         episodes = rollout_velocities(adapter, every, int(steps))
@@ -224,8 +229,58 @@ def calibrate_environment(
         qvel0 = np.array(getattr(unwrapped, "init_qvel", adapter.data.qvel), dtype=float)
         return levels(model_rollout_velocities(model, qpos0, qvel0, adapter.frame_skip, every, steps=int(steps)))
 
-    bound, typical = cached_bounds(key, compute, disk=disk)
-    return Calibration(dt, {r: bound}, {r: typical}, noise, resolution)
+    found = cached_bounds(key, compute, disk=disk)
+    bounds, typical = dict(zip(orders, found[::2], strict=True)), dict(zip(orders, found[1::2], strict=True))
+    return Calibration(dt, bounds, typical, noise, resolution)
+
+
+def sensed_trials(adapter, measurement: JointMeasurement, sample_every: int, steps: int, smoothing: float = 0.0):
+    """The episodes of :func:`random_episodes` (with ``smoothing`` 0: those the calibration reads) measured by a copy
+    of the sensor of ``measurement``: :class:`~smo_gym.selection.Trials` for ``observer="auto"``, or None."""
+    sensed = JointMeasurement(adapter.model, copy.deepcopy(measurement.sensor), measurement.dt)
+    rng, measured, velocity = np.random.default_rng([0, _SEED_SALT]), [], []
+    for episode in random_episodes(adapter, sample_every, steps, 0, smoothing) or ():
+        if len(episode.qpos) > 1 and np.isfinite(episode.qvel).all():
+            sensed.reset(episode.qpos[0], rng)
+            measured.append(np.vstack([sensed.z_measured, sensed.measure_block(episode.qpos[1:])]))
+            velocity.append(episode.qvel)
+    return Trials(tuple(measured), tuple(velocity)) if measured else None
+
+
+def calibrated_observer(name: str, unwrapped, adapter, measurement: JointMeasurement, sample_every: int, kwargs, **how):
+    """The observer ``name`` (or ``"auto"``, :func:`~smo_gym.selection.auto_observer` on :func:`sensed_trials`) with
+    gains from :func:`calibrate_environment` (``how``: its ``safety``, ``quantile``, ``steps``, ``disk``), and that
+    calibration. The errors ``"auto"`` compares are cached like the calibration."""
+    orders = candidate_orders() if name == "auto" else bound_order(name, kwargs)
+    noise, resolution = measurement.noise_std(), measurement.quantization_step()
+    calibration = calibrate_environment(
+        unwrapped, adapter, sample_every, orders, noise=noise, resolution=resolution, **how
+    )
+    if name != "auto":
+        return default_observer(name, calibration, kwargs), calibration
+    span = mean_velocity_span(adapter.model)
+    key = calibration_key(
+        adapter.environment_key,
+        adapter.model,
+        auto=CANDIDATES,
+        sensor=stable_repr(measurement.sensor),
+        every=sample_every,
+        kwargs=stable_repr(kwargs),
+        **how,
+        v=2,
+    )
+
+    def compute():  # the policies of an untrained agent (uniform random actions) and of a trained one (smooth)
+        scenes = [sensed_trials(adapter, measurement, sample_every, how.get("steps", 2000), s) for s in (0.0, 0.9)]
+        scenes = [trials for trials in scenes if trials is not None]
+        found = select(calibration, scenes or None, mean_over=span, observer_kwargs=kwargs)
+        errors = found.errors.reshape(-1, found.errors.shape[-1])
+        return np.vstack([errors, np.full(errors.shape[1], len(scenes))])
+
+    stored = cached_bounds(key, compute, disk=how.get("disk", True))
+    errors = stored[:-1].reshape(-1, len(CANDIDATES), stored.shape[1])
+    found = Selection(CANDIDATES, errors, "trials" if stored[-1, 0] else "prediction")
+    return auto_observer(calibration, mean_over=span, observer_kwargs=kwargs, selection=found), calibration
 
 
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -318,7 +373,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self,
         env: gym.Env,
         sensor: str | Sensor = "encoder-12bit-noisy",
-        observer: str | Observer = "super-twisting",
+        observer: str | Observer = "auto",
         rate: str | int = "physics",
         observer_kwargs: dict | None = None,
         *,
@@ -399,23 +454,22 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 )
             obs_object = observer if model_based else copy.deepcopy(observer)
         else:
-            if observer not in OBSERVERS:
+            if not (isinstance(observer, str) and observer == "auto") and observer not in OBSERVERS:
                 make_observer(observer)  # raises ValueError listing the valid names
             if self.measurement.wraps:  # single-turn angles: the innovation takes the shortest angular difference
                 observer_kwargs = {"wrap": self.measurement.angular, **(observer_kwargs or {})}
-            self.calibration = calibrate_environment(
+            obs_object, self.calibration = calibrated_observer(
+                observer,
                 env.unwrapped,
                 self.adapter,
+                self.measurement,
                 self.sample_every,
-                bound_order(observer, observer_kwargs),
-                noise=self.measurement.noise_std(),
-                resolution=self.measurement.quantization_step(),
+                observer_kwargs,
                 safety=calibration_safety,
                 quantile=calibration_quantile,
                 steps=calibration_steps,
                 disk=disk_cache,
             )
-            obs_object = default_observer(observer, self.calibration, observer_kwargs)
         if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
             self.estimator = InputAwareEstimator(obs_object, self.adapter)
         else:  # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4

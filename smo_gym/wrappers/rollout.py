@@ -19,7 +19,7 @@ from .. import _extras as extras
 from .._validation import check_int_at_least, check_int_in_range
 from .adapters import MujocoAdapter, SubstepRecording, make_adapter
 
-__all__ = ["Episode", "rollout"]
+__all__ = ["Episode", "rollout", "smooth_random_policy"]
 
 
 @dataclass(frozen=True)
@@ -140,3 +140,19 @@ def rollout(
     if rows["qpos"]:
         episodes.append(Episode(*map(np.array, rows.values())))
     return episodes
+
+
+def smooth_random_policy(action_space, seed: int, smoothing: float = 0.9):
+    r"""A seeded low-pass random policy :math:`a_{k+1} = s a_k + (1 - s) u_k`, :math:`u_k` uniform in the box.
+
+    Returns a function ``policy(obs) -> action`` (the observation is ignored).
+    """
+    rng = np.random.default_rng(seed)
+    low, high = action_space.low, action_space.high
+    state = {"a": np.zeros(action_space.shape)}
+
+    def policy(_obs):
+        state["a"] = smoothing * state["a"] + (1.0 - smoothing) * rng.uniform(low, high)
+        return state["a"].astype(action_space.dtype)
+
+    return policy

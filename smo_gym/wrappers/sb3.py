@@ -56,9 +56,7 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         self._requested = (
             None
             if sensor is None and observer is None and not kwargs and observer_kwargs is None
-            else sensing_config(
-                sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs, **kwargs
-            )
+            else sensing_config(sensor or "encoder-12bit-noisy", observer or "auto", observer_kwargs, **kwargs)
         )
         self._attach(venv)
 

@@ -7,31 +7,17 @@ bounds (a high quantile per dof times a safety factor: contacts produce rare imp
 would turn into a huge, noise-amplifying gain) and typical (RMS) levels of a derivative, measured on a short rollout
 of the environment itself (its own resets and random actions, as a random policy explores; see
 ``EstimatedVelocity``), or of the bare model (:func:`model_rollout_velocities`) when the environment cannot be
-copied. Results are cached per environment in memory and on disk (``$SMO_GYM_CACHE_DIR`` or ``~/.cache/smo_gym``).
+copied. Results are cached per environment in memory and on disk (:mod:`smo_gym._cache`).
 """
 
 from __future__ import annotations
-
-import hashlib
-import json
-import os
-import re
-import tempfile
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from ..engine.measurement import first_nonfinite_entry
 
-__all__ = [
-    "SensingInfo",
-    "cached_bounds",
-    "check_action",
-    "check_seed",
-    "model_rollout_velocities",
-    "stable_repr",
-]
+__all__ = ["SensingInfo", "check_action", "check_seed", "model_rollout_velocities"]
 
 _FAST_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
@@ -225,97 +211,3 @@ def model_rollout_velocities(
     if samples:
         episodes.append(np.array(samples))
     return episodes
-
-
-_MEMORY_CACHE: dict[str, list[float]] = {}
-
-
-def _cache_file() -> Path:
-    root = os.environ.get("SMO_GYM_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "smo_gym"
-    )
-    return Path(root) / "calibration.json"
-
-
-def cached_bounds(key: str, compute, *, disk: bool = True) -> np.ndarray:
-    """``compute()`` memoized under ``key`` in memory and (``disk=True``) in the user cache file."""
-    if key in _MEMORY_CACHE:
-        return np.array(_MEMORY_CACHE[key])
-    path = _cache_file()
-    if disk:
-        try:
-            stored = json.loads(path.read_text())
-            if key in stored:
-                _MEMORY_CACHE[key] = stored[key]
-                return np.array(stored[key])
-        except (OSError, ValueError):
-            pass
-    value = np.asarray(compute(), dtype=float)
-    _MEMORY_CACHE[key] = value.tolist()
-    if disk:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            try:
-                stored = json.loads(path.read_text())
-            except (OSError, ValueError):
-                stored = {}
-            stored[key] = value.tolist()
-            fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-            with os.fdopen(fd, "w") as fh:
-                json.dump(stored, fh)
-            os.replace(tmp, path)
-        except OSError:  # a read-only home is not an error: the memory cache still works
-            pass
-    return value
-
-
-def calibration_key(env_key: str, model: mujoco.MjModel, **settings) -> str:
-    """Cache key: the environment's identity, the model itself and the calibration settings.
-
-    The model enters by a hash of its binary form (``mj_saveModel``): a model edited in place (masses, the
-    timestep) gets a calibration of its own, and the key is the same in every process.
-    """
-    buffer = np.empty(mujoco.mj_sizeModel(model), dtype=np.uint8)
-    mujoco.mj_saveModel(model, None, buffer)
-    text = json.dumps([env_key, hashlib.sha1(buffer.tobytes()).hexdigest(), sorted(settings.items())], default=str)
-    return hashlib.sha1(text.encode()).hexdigest()[:16] + ":" + env_key
-
-
-#: `` at 0x7f...``: the address in a default ``repr``, different in every process
-_ADDRESS = re.compile(r" at 0x[0-9a-fA-F]+")
-
-
-def stable_repr(value) -> str:
-    """A text for ``value`` that is the same in every process (for cache keys).
-
-    Functions are named by module and qualified name plus a hash of their code, constants, defaults, closure
-    values and the module-level numbers, strings and arrays they read, so two different lambdas differ and the
-    same one agrees across processes; arrays by a hash of their bytes; containers element by element; anything
-    else by its ``repr`` without memory addresses.
-    """
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{stable_repr(k)}: {stable_repr(v)}" for k, v in sorted(value.items(), key=str)) + "}"
-    if isinstance(value, (list, tuple)):
-        return type(value).__name__ + "(" + ", ".join(stable_repr(v) for v in value) + ")"
-    if isinstance(value, np.ndarray):
-        return f"array{value.shape}:{hashlib.sha1(np.ascontiguousarray(value).tobytes()).hexdigest()[:12]}"
-    code = getattr(value, "__code__", None)
-    if code is not None:
-        closure = [cell.cell_contents for cell in (value.__closure__ or ())]
-        # module-level numbers, strings and arrays the function reads (modules and functions by name only)
-        names = getattr(value, "__globals__", {})
-        data = {
-            name: names[name]
-            for name in code.co_names
-            if isinstance(names.get(name), (bool, int, float, complex, str, np.ndarray, np.number))
-        }
-        parts = [
-            code.co_code.hex(),
-            stable_repr(list(code.co_consts)),
-            stable_repr(list(value.__defaults__ or ())),
-            stable_repr(closure),
-            stable_repr(data),
-        ]
-        digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:12]
-        return f"{getattr(value, '__module__', '')}.{getattr(value, '__qualname__', '')}:{digest}"
-    return _ADDRESS.sub("", repr(value))

@@ -73,7 +73,7 @@ _SNAPSHOT = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "time"),
 
 def sensing_config(
     sensor="encoder-12bit-noisy",
-    observer="super-twisting",
+    observer="auto",
     observer_kwargs=None,
     *,
     positions="measured",
@@ -134,7 +134,7 @@ class JointSensor(EstimatedVelocity):
         self,
         env: gym.Env,
         sensor="encoder-12bit-noisy",
-        observer="super-twisting",
+        observer="auto",
         observer_kwargs=None,
         *,
         rate="env",
@@ -586,9 +586,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         requested = (
             None
             if sensor is None and observer is None and not kwargs and observer_kwargs is None
-            else sensing_config(
-                sensor or "encoder-12bit-noisy", observer or "super-twisting", observer_kwargs, **kwargs
-            )
+            else sensing_config(sensor or "encoder-12bit-noisy", observer or "auto", observer_kwargs, **kwargs)
         )
         from gymnasium.vector import AutoresetMode, SyncVectorEnv
 

@@ -1,0 +1,337 @@
+r"""``observer="auto"``: the velocity observer of every joint chosen from the evidence the calibration has.
+
+No single observer wins everywhere (the accuracy tables of the documentation): a backward difference is exact on
+an ideal encoder when the simulator integrates with Euler and every physics step is sampled, a Kalman filter tuned
+from the typical jerk wins where noise dominates a smooth motion, a high-gain filter where impacts make the jerk
+anything but white. :func:`auto_observer` chooses per channel among :data:`CANDIDATES`, each with its own calibrated
+gains (:func:`smo_gym.calibration.default_observer`), by the smallest velocity RMSE:
+
+* **measured on trials** when the caller has them (:class:`Trials`): the wrapper simulates its own sensor on the
+  positions of the calibration rollouts of its environment (random actions, the environment's own resets: the
+  episodes the gains are calibrated from, never the ones it is evaluated on) and runs every candidate on them;
+* **predicted** otherwise (:func:`smo_gym.differentiate` of a recorded signal, where no truth is known), for the
+  two candidates whose error has a closed form: the backward difference,
+
+  .. math:: e_{FD}^2 = \frac{2 r}{\tau^2} + \Big(\frac{\tau - s}{2}\Big)^2 A^2,
+
+  (noise variance ``r``, step ``tau``, typical acceleration ``A``, ``s`` the span the reported velocity is a mean
+  over, 0 for the instantaneous one), and the constant-acceleration Kalman filter, whose steady-state posterior
+  covariance :math:`P` (the discrete algebraic Riccati equation of its own model, Bar-Shalom, Li and Kirubarajan
+  2001) gives :math:`e_{KF}^2 = c^\top P c` for the reported combination ``c`` of its derivative estimates.
+
+The result is a single observer when one candidate wins every channel (the wrapper's one-call path then applies),
+else a :class:`smo_gym.observers.composite.PerChannel`; :class:`Selection` says what was chosen and why.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validation import DivergenceError, as_real_array, check_positive
+from .calibration import Calibration, bound_order, default_observer
+from .observers import Observer
+from .observers.composite import PerChannel
+from .specs import parse_observer_spec
+
+__all__ = ["CANDIDATES", "Selection", "Trials", "auto_observer", "candidate_orders", "predicted_errors", "select"]
+
+#: the observers ``"auto"`` chooses among, as specs (:func:`smo_gym.specs.parse_observer_spec`); on a tie the first
+#: wins, so the simplest come first
+CANDIDATES: tuple[str, ...] = (
+    "finite-difference",
+    "kalman-ca",
+    "low-power-high-gain",
+    "levant:discretization=implicit",
+)
+
+
+def candidate_orders(candidates: Sequence[str] = CANDIDATES) -> tuple[int, ...]:
+    """The derivative orders a calibration needs for the gains of ``candidates``
+    (:func:`smo_gym.calibration.bound_order` of each, and 2, the acceleration, for the predictions)."""
+    orders = {2}
+    for spec in candidates:
+        name, kw = parse_observer_spec(spec)
+        orders.add(bound_order(name, kw))
+    return tuple(sorted(orders))
+
+
+@dataclass(frozen=True)
+class Trials:
+    """Measured positions with the true velocities they came from, per episode.
+
+    Attributes
+    ----------
+    measured : tuple of ndarray, shape (T_i, n)
+        What the sensor reported (tangent coordinates of the joints), one array per episode.
+    velocity : tuple of ndarray, shape (T_i, n)
+        The velocity to estimate at the same samples.
+    """
+
+    measured: tuple
+    velocity: tuple
+
+    def __post_init__(self):
+        measured = tuple(as_real_array("measured", m) for m in self.measured)
+        velocity = tuple(as_real_array("velocity", v) for v in self.velocity)
+        if not measured or len(measured) != len(velocity):
+            raise ValueError(
+                f"expected as many velocity as measured episodes (at least one), actual value: {len(measured)} "
+                f"measured, {len(velocity)} velocity"
+            )
+        for i, (m, v) in enumerate(zip(measured, velocity, strict=True)):
+            if m.ndim != 2 or m.shape != v.shape or m.shape[0] < 2:
+                raise ValueError(
+                    f"expected episode {i} as two arrays (T, n) of the same shape, T >= 2, actual value: shapes "
+                    f"{m.shape} and {v.shape}"
+                )
+            if not (np.isfinite(m).all() and np.isfinite(v).all()):
+                raise ValueError(f"expected finite trials, actual value: a non-finite entry in episode {i}")
+        if len({m.shape[1] for m in measured}) != 1:
+            raise ValueError(f"expected one channel count, actual value: {[m.shape[1] for m in measured]}")
+        object.__setattr__(self, "measured", measured)
+        object.__setattr__(self, "velocity", velocity)
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What ``"auto"`` chose, and the evidence.
+
+    Attributes
+    ----------
+    candidates : tuple of str
+        The observer specs compared.
+    errors : ndarray, shape (n_scenarios, n_candidates, n_channels)
+        Velocity RMSE of every candidate on every channel in every scenario (one set of :class:`Trials`, or the
+        prediction); ``inf``: no prediction, or it diverged.
+    source : {"trials", "prediction"}
+        Whether the errors were measured on :class:`Trials` or predicted from the calibration.
+    """
+
+    candidates: tuple
+    errors: np.ndarray
+    source: str
+
+    @property
+    def regret(self) -> np.ndarray:
+        """The worst over scenarios of each candidate's error relative to the best of its scenario and channel,
+        shape ``(n_candidates, n_channels)`` (1: the best everywhere)."""
+        errors = np.asarray(self.errors, dtype=float)
+        best = np.min(errors, axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.where(errors == best, 1.0, errors / best)  # exact (0 / 0) ties count as ties
+        return np.max(ratio, axis=0)
+
+    @property
+    def choice(self) -> np.ndarray:
+        """Index into :attr:`candidates` of every channel's choice, the smallest :attr:`regret` (the first on a tie),
+        shape ``(n_channels,)``."""
+        return np.argmin(self.regret, axis=0)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The winning spec of every channel."""
+        return tuple(self.candidates[i] for i in self.choice)
+
+    def __str__(self) -> str:
+        groups = {}
+        for channel, name in enumerate(self.names):
+            groups.setdefault(name, []).append(channel)
+        return f"auto ({self.source}): " + ", ".join(f"{name} on {channels}" for name, channels in groups.items())
+
+
+def _mean_coefficients(order: int, span: float | None, reports_instant: bool) -> np.ndarray:
+    """The combination of derivative estimates ``1..order`` that is reported as the velocity (a unit vector, or the
+    step-mean coefficients of :func:`smo_gym.engine.measurement.step_mean_coefficients`)."""
+    c = np.zeros(order)
+    c[0] = 1.0
+    if span is not None and order >= 2 and reports_instant:
+        j = np.arange(1, order + 1)
+        c = (-span) ** (j - 1) / np.cumprod(j).astype(float)
+    return c
+
+
+def _kalman_ca_error(dt: float, q: float, r: float, c: np.ndarray) -> float:
+    """RMS of the reported velocity ``c . x`` of the steady-state constant-acceleration Kalman filter."""
+    from scipy.linalg import solve_discrete_are
+
+    F = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    Q = q * np.array(
+        [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]]
+    )
+    H = np.array([[1.0, 0.0, 0.0]])
+    try:
+        prior = solve_discrete_are(F.T, H.T, Q, np.array([[r]]))  # the prediction's covariance
+    except (ValueError, np.linalg.LinAlgError):
+        return np.inf
+    gain = prior @ H.T / (H @ prior @ H.T + r)
+    posterior = (np.eye(3) - gain @ H) @ prior
+    v = np.concatenate([[0.0], c])
+    return float(np.sqrt(max(v @ posterior @ v, 0.0)))
+
+
+def predicted_errors(calibration: Calibration, candidates: Sequence[str], mean_over: float | None = None) -> np.ndarray:
+    r"""Predicted velocity RMSE of every candidate on every channel, shape ``(n_candidates, n_channels)`` (module
+    notes): closed forms for ``"finite-difference"`` and ``"kalman-ca"`` (given gains in the spec are used), ``inf``
+    for the others. ``mean_over``: the span the reported velocity is a mean over (None: instantaneous)."""
+    dt = calibration.dt
+    r = calibration.noise.reshape(-1) ** 2  # unfloored: an ideal sensor makes the difference exact
+    n = r.size
+    span = 0.0 if mean_over is None else float(mean_over)
+    errors = np.full((len(candidates), n), np.inf)
+    for k, spec in enumerate(candidates):
+        name, kw = parse_observer_spec(spec)
+        if name == "finite-difference" and not kw:
+            accel = calibration.rms(2).reshape(-1)
+            errors[k] = np.sqrt(2.0 * r / dt**2 + ((dt - span) / 2.0 * accel) ** 2)
+        elif name == "kalman-ca":
+            observer = default_observer(name, calibration, kw)
+            q = np.broadcast_to(observer.process_noise, calibration.noise.shape).reshape(-1)
+            rr = np.broadcast_to(observer.measurement_noise, calibration.noise.shape).reshape(-1)
+            c = _mean_coefficients(2, mean_over, observer.reports_instant)
+            errors[k] = [_kalman_ca_error(dt, float(q[i]), float(rr[i]), c) for i in range(n)]
+    return errors
+
+
+def _trial_errors(calibration: Calibration, trials: Trials, candidates, mean_over, kwargs) -> np.ndarray:  # (C, n)
+    """Velocity RMSE of every candidate on every channel of the trials (every sample but each episode's first)."""
+    n = trials.measured[0].shape[1]
+    errors = np.full((len(candidates), n), np.inf)
+    for k, spec in enumerate(candidates):
+        name, kw = parse_observer_spec(spec)
+        observer = default_observer(name, calibration, {**kwargs, **kw})
+        c = _mean_coefficients(observer.order, mean_over, observer.reports_instant)
+        total, count = np.zeros(n), 0
+        try:
+            for Z, V in zip(trials.measured, trials.velocity, strict=True):
+                observer.reset(Z[0])
+                estimate = observer.run(Z[1:])
+                total += np.sum((estimate[..., 1:] @ c - V[1:]) ** 2, axis=0)
+                count += len(Z) - 1
+        except DivergenceError:
+            continue
+        errors[k] = np.sqrt(total / count)
+    return errors
+
+
+def select(
+    calibration: Calibration,
+    trials: Trials | Sequence[Trials] | None = None,
+    *,
+    candidates: Sequence[str] = CANDIDATES,
+    mean_over: float | None = None,
+    observer_kwargs: dict | None = None,
+) -> Selection:
+    """Compare ``candidates`` on every channel: measured on ``trials`` if given, else predicted (module notes).
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Of the channels, with the orders :func:`candidate_orders` names.
+    trials : Trials or sequence of Trials, optional
+        Measured positions and true velocities of the same channels; several sets are scenarios (motions of
+        different character): a channel's choice is then the candidate whose worst error relative to the best of
+        each scenario is smallest (:attr:`Selection.regret`), robust to which one the observer will meet.
+    candidates : sequence of str
+        Observer specs (default :data:`CANDIDATES`).
+    mean_over : float, optional
+        The reported velocity is the mean over the last ``mean_over`` seconds (MuJoCo's ``qvel``,
+        :func:`smo_gym.engine.measurement.mean_velocity_span`); None: the instantaneous one.
+    observer_kwargs : dict, optional
+        Constructor arguments every candidate gets (``wrap``, say).
+    """
+    if not isinstance(calibration, Calibration):
+        raise TypeError(f"expected a Calibration, actual value: {calibration!r:.80}")
+    observer_kwargs = _check_kwargs(observer_kwargs)
+    candidates = tuple(candidates)
+    if not candidates:
+        raise ValueError("expected at least one candidate observer, actual value: none")
+    if mean_over is not None:
+        mean_over = check_positive("mean_over", mean_over)
+    if trials is None:
+        errors = predicted_errors(calibration, candidates, mean_over)[None]
+        source = "prediction"
+    else:
+        scenes = [trials] if isinstance(trials, Trials) else list(trials)
+        if not scenes or not all(isinstance(t, Trials) for t in scenes):
+            raise TypeError(f"expected Trials, a non-empty sequence of them, or None, actual value: {trials!r:.80}")
+        for t in scenes:
+            if t.measured[0].shape[1] != calibration.noise.size:
+                raise ValueError(
+                    f"expected trials of the calibration's {calibration.noise.size} channels, actual value: "
+                    f"{t.measured[0].shape[1]}"
+                )
+        errors = np.stack([_trial_errors(calibration, t, candidates, mean_over, observer_kwargs) for t in scenes])
+        source = "trials"
+    if not np.isfinite(errors.min(axis=1)).all():
+        raise ValueError(f"expected a candidate with a finite error on every channel, actual value: {errors!r}")
+    return Selection(candidates, errors, source)
+
+
+def _check_kwargs(observer_kwargs) -> dict:
+    """The constructor arguments every candidate gets: ``wrap`` only (each candidate's gains are its own)."""
+    kwargs = dict(observer_kwargs or {})
+    unknown = sorted(set(kwargs) - {"wrap"})
+    if unknown:
+        raise ValueError(
+            "expected no observer parameters but wrap for observer='auto', which calibrates the gains of each "
+            f"candidate (name an observer to set its gains), actual value: {unknown}"
+        )
+    return kwargs
+
+
+def _take(calibration: Calibration, channels: np.ndarray) -> Calibration:
+    """The calibration of some channels only."""
+
+    def part(a):
+        return np.asarray(a).reshape(-1)[channels]
+
+    return Calibration(
+        calibration.dt,
+        {r: part(v) for r, v in calibration.bounds.items()},
+        {r: part(v) for r, v in calibration.typical.items()},
+        part(calibration.noise),
+        part(calibration.resolution),
+    )
+
+
+def auto_observer(
+    calibration: Calibration,
+    trials: Trials | None = None,
+    *,
+    candidates: Sequence[str] = CANDIDATES,
+    mean_over: float | None = None,
+    observer_kwargs: dict | None = None,
+    selection: Selection | None = None,
+) -> Observer:
+    """The observer ``"auto"`` builds: per channel the winner of :func:`select`, with its calibrated gains.
+
+    Parameters are those of :func:`select` (``selection``: an earlier one, reused as it is, e.g. from a cache).
+    ``observer_kwargs`` may hold a per-channel ``wrap`` (an array over the channels). Returns the winning
+    observer itself when one candidate wins every channel, else a
+    :class:`~smo_gym.observers.composite.PerChannel` (with ``mean_over``); either way the :class:`Selection` is
+    its ``selection`` attribute.
+    """
+    if selection is None:
+        selection = select(
+            calibration, trials, candidates=candidates, mean_over=mean_over, observer_kwargs=observer_kwargs
+        )
+    kwargs = _check_kwargs(observer_kwargs)
+    wrap = kwargs.pop("wrap", None)
+    choice = selection.choice
+    parts = []
+    for k in np.unique(choice):
+        channels = np.flatnonzero(choice == k)
+        name, kw = parse_observer_spec(selection.candidates[k])
+        kw = {**kwargs, **kw}
+        if wrap is not None and not isinstance(wrap, (bool, np.bool_)):
+            kw["wrap"] = np.asarray(wrap).reshape(-1)[channels]
+        elif wrap is not None:
+            kw["wrap"] = wrap
+        whole = len(channels) == choice.size
+        parts.append((default_observer(name, calibration if whole else _take(calibration, channels), kw), channels))
+    observer = parts[0][0] if len(parts) == 1 else PerChannel(parts, mean_over=mean_over)
+    observer.selection = selection
+    return observer

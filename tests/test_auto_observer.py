@@ -1,0 +1,288 @@
+"""``observer="auto"``: per-channel observers (:class:`PerChannel`), the choice among candidates
+(:mod:`smo_gym.selection`), and the default of the wrapper and of ``differentiate``."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import smo_gym
+from smo_gym import selection
+from smo_gym.calibration import Calibration
+from smo_gym.engine.measurement import VelocityEstimator
+from smo_gym.observers import DivergenceError, FiniteDifference, KalmanCA, Levant, PerChannel
+from smo_gym.selection import Selection, Trials, auto_observer, predicted_errors, select
+from smo_gym.wrappers import EstimatedVelocity
+from smo_gym.wrappers import estimated_velocity as ev_module
+
+DT = 1e-3
+
+
+def _parts():
+    return [
+        (KalmanCA(dt=DT, process_noise=[1e3, 2e3], measurement_noise=1e-6), [2, 0]),
+        (FiniteDifference(dt=DT), [1]),
+        (Levant(dt=DT, order=2, lipschitz=5.0, discretization="implicit"), [3]),
+    ]
+
+
+def _signal(T: int = 400, batch: tuple[int, ...] = ()) -> np.ndarray:
+    t = np.arange(T) * DT
+    rng = np.random.default_rng(0)
+    phases = rng.uniform(0, 2 * np.pi, batch + (4,))
+    return np.sin(3 * t[:, *([None] * (len(batch) + 1))] + phases) + 1e-4 * rng.standard_normal((T, *batch, 4))
+
+
+# ---- PerChannel ---------------------------------------------------------------------------------------------------
+def test_per_channel_equals_each_part_on_its_channels():
+    Y = _signal()
+    composite = PerChannel(_parts(), mean_over=DT)
+    composite.reset(Y[0])
+    got = np.array([composite.update(y) for y in Y[1:]])
+    for observer, channels in _parts():
+        estimator = VelocityEstimator(observer, mean_over=DT)  # the wrapper's conversion of each part's velocity
+        estimator.reset(Y[0, channels])
+        want = np.array([(estimator.update(y[channels]), estimator.filtered) for y in Y[1:]])
+        np.testing.assert_array_equal(got[:, channels, 1], want[:, 0])
+        np.testing.assert_array_equal(got[:, channels, 0], want[:, 1])
+    assert composite.names == ("kalman-ca", "finite-difference", "kalman-ca", "levant")
+    assert "finite-difference: [1]" in repr(composite) and not composite.reports_instant
+
+
+def test_per_channel_batch_run_and_masked_reset():
+    Y = _signal(batch=(3,))
+    composite = PerChannel(_parts())
+    composite.reset(Y[0])
+    looped = np.array([composite.update(y) for y in Y[1:]])
+    for b in range(3):  # batch = one environment at a time
+        single = PerChannel(_parts())
+        single.reset(Y[0, b])
+        np.testing.assert_allclose(single.run(Y[1:, b]), looped[:, b], rtol=0, atol=1e-12)
+    again = PerChannel(_parts())
+    again.reset(Y[0])
+    np.testing.assert_allclose(again.run(Y[1:]), looped, rtol=0, atol=1e-12)  # run == loop of update
+    mask = np.array([False, True, False])
+    est = composite.reset(Y[0], mask=mask)
+    np.testing.assert_array_equal(est[1, :, 1], 0.0)  # restarted at rest
+    np.testing.assert_array_equal(est[1, :, 0], Y[0, 1])
+    np.testing.assert_array_equal(est[0], looped[-1, 0])  # the others keep their estimates
+    twin = pickle.loads(pickle.dumps(composite))
+    np.testing.assert_array_equal(twin.update(Y[5]), composite.update(Y[5]))
+
+
+def test_per_channel_is_all_or_nothing():
+    class Exploding(FiniteDifference):
+        def update(self, y):
+            if self.n_updates >= 3:
+                raise DivergenceError("expected a finite state, actual value: test")
+            return super().update(y)
+
+        def run(self, Y, *, out=None):
+            raise DivergenceError("expected a finite state, actual value: test")
+
+    Y = _signal()
+    composite = PerChannel([(FiniteDifference(dt=DT), [0, 1, 2]), (Exploding(dt=DT), [3])])
+    composite.reset(Y[0])
+    for y in Y[1:4]:
+        composite.update(y)
+    before = composite.estimate.copy()
+    first = composite.parts[0][0]
+    kept = (first.n_updates, first.estimate.copy())
+    with pytest.raises(DivergenceError):
+        composite.update(Y[4])
+    assert first.n_updates == kept[0]
+    np.testing.assert_array_equal(first.estimate, kept[1])
+    np.testing.assert_array_equal(composite.estimate, before)
+    with pytest.raises(DivergenceError):
+        composite.run(Y[4:9])
+    assert first.n_updates == kept[0]
+    np.testing.assert_array_equal(first.estimate, kept[1])
+    with pytest.raises(ValueError, match=r"finite measurements.*channel 2"):
+        composite.update(np.array([0.0, 0.0, np.nan, 0.0]))
+    with pytest.raises(ValueError, match=r"finite measurements"):
+        composite.run(np.vstack([Y[4:6], [[0.0, 0.0, np.inf, 0.0]]]))
+    assert first.n_updates == kept[0]
+    # and from there it goes on as if nothing had been tried: the difference of the samples 3 and 4
+    np.testing.assert_allclose(first.update(Y[4, :3])[:, 1], (Y[4, :3] - Y[3, :3]) / DT, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("parts", "error", "message"),
+    [
+        ([], TypeError, "non-empty sequence"),
+        ([(FiniteDifference(dt=DT), [0]), (FiniteDifference(dt=DT), [0])], ValueError, "exactly one part"),
+        ([(FiniteDifference(dt=DT), [0]), (FiniteDifference(dt=2 * DT), [1])], ValueError, "sharing one dt"),
+        ([(FiniteDifference(dt=DT), [0.5])], TypeError, "sequence of ints"),
+        ([("finite-difference", [0])], TypeError, r"pair \(Observer, channels\)"),
+    ],
+)
+def test_per_channel_rejects_bad_parts(parts, error, message):
+    with pytest.raises(error, match=message):
+        PerChannel(parts)
+
+
+def test_per_channel_bad_calls():
+    composite = PerChannel(_parts())
+    with pytest.raises(RuntimeError, match="reset"):
+        composite.update(np.zeros(4))
+    with pytest.raises(ValueError, match="4 channels"):
+        composite.reset(np.zeros(3))
+    composite.reset(np.zeros(4))
+    with pytest.raises(ValueError, match=r"shape \(4,\)"):
+        composite.update(np.zeros((2, 4)))
+    with pytest.raises(TypeError, match="one flat state"):
+        composite.step(None, np.zeros(4))
+
+
+# ---- the choice ---------------------------------------------------------------------------------------------------
+def _calibration(noise, accel=1.0, jerk=10.0, n=1) -> Calibration:
+    return Calibration(DT, {2: np.full(n, 2 * accel), 3: np.full(n, 2 * jerk)}, {2: accel, 3: jerk}, noise)
+
+
+def test_predicted_backward_difference_error_matches_a_measurement():
+    """White noise of std s on a line: the backward difference errs by sqrt(2) s / tau exactly (the line adds
+    nothing); the prediction's lag term vanishes for the mean over the step."""
+    s, T = 1e-4, 200_000
+    y = 0.3 * np.arange(T) * DT + s * np.random.default_rng(1).standard_normal(T)
+    measured = np.sqrt(np.mean((np.diff(y) / DT - 0.3) ** 2))
+    (fd,) = predicted_errors(_calibration(s), ["finite-difference"], mean_over=DT)
+    assert fd[0] == pytest.approx(measured, rel=0.01)
+
+
+def test_predicted_kalman_error_matches_a_signal_of_its_own_model():
+    """On a signal that is the Kalman filter's own model (white jerk of density q, white measurement noise r), its
+    velocity RMSE is the steady-state Riccati prediction."""
+    rng = np.random.default_rng(2)
+    jerk, s, T = 50.0, 1e-4, 100_000
+    q = jerk**2 * DT
+    F = np.array([[1, DT, DT**2 / 2], [0, 1, DT], [0, 0, 1]])
+    Q = q * np.array(
+        [[DT**5 / 20, DT**4 / 8, DT**3 / 6], [DT**4 / 8, DT**3 / 3, DT**2 / 2], [DT**3 / 6, DT**2 / 2, DT]]
+    )
+    w = rng.multivariate_normal(np.zeros(3), Q, size=T)
+    x = np.zeros((T, 3))
+    for k in range(1, T):
+        x[k] = F @ x[k - 1] + w[k]
+    y = x[:, 0] + s * rng.standard_normal(T)
+    kf = KalmanCA(DT, process_noise=q, measurement_noise=s**2)
+    kf.reset(y[:1])
+    est = kf.run(y[1:, None])[:, 0]
+    measured = np.sqrt(np.mean((est[T // 10 :, 1] - x[1 + T // 10 :, 1]) ** 2))
+    predicted = selection._kalman_ca_error(DT, q, s**2, np.array([1.0, 0.0]))
+    assert predicted == pytest.approx(measured, rel=0.05)
+
+
+def test_prediction_prefers_the_difference_without_noise_and_the_filter_with_it():
+    exact = select(_calibration(0.0), candidates=["finite-difference", "kalman-ca"], mean_over=DT)
+    assert exact.names == ("finite-difference",) and exact.source == "prediction"
+    noisy = select(_calibration(1e-3), candidates=["finite-difference", "kalman-ca"], mean_over=DT)
+    assert noisy.names == ("kalman-ca",)
+    assert np.isinf(predicted_errors(_calibration(1e-3), ["super-twisting"])).all()  # no closed form: never chosen
+    assert "finite-difference on [0]" in str(exact)
+
+
+def test_several_scenarios_choose_the_smallest_worst_regret():
+    """A candidate 5 % better in one scenario but 50 % worse in the other loses to the steady one; exact ties
+    (both errors 0) count as ties, and the first candidate wins them."""
+    errors = np.array([[[0.95, 0.0], [1.0, 0.0]], [[1.5, 2.0], [1.0, 1.0]]])  # (scenario, candidate, channel)
+    found = Selection(("a", "b"), errors, "trials")
+    np.testing.assert_allclose(found.regret, [[1.5, 2.0], [1.0 / 0.95, 1.0]])
+    assert found.names == ("b", "b")
+    tie = Selection(("a", "b"), np.zeros((1, 2, 1)), "trials")
+    assert tie.names == ("a",)
+
+
+def _trials(seed: int, T: int = 3000) -> tuple[Trials, np.ndarray]:
+    """Two channels: an Euler-integrated joint seen by an ideal sensor (the backward difference is exact), and a
+    smooth motion seen through noise (a filter wins)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T) * DT
+    v0 = np.cumsum(rng.standard_normal(T)) * 0.05
+    q0 = np.cumsum(v0) * DT  # q_k = q_{k-1} + tau v_k: v_k is the mean velocity over the step
+    q1 = np.sin(2 * t + seed)
+    v1 = 2 * np.cos(2 * t + seed)
+    measured = np.column_stack([q0, q1 + 1e-3 * rng.standard_normal(T)])
+    return Trials((measured,), (np.column_stack([v0, v1]),)), measured
+
+
+def test_trials_choose_per_channel_and_the_choice_holds_on_new_data():
+    calibration = Calibration(DT, {2: [20.0, 8.0], 3: [400.0, 16.0]}, {2: [5.0, 2.8], 3: [100.0, 5.7]}, [0.0, 1e-3])
+    trials, _ = _trials(0)
+    candidates = ["finite-difference", "kalman-ca"]
+    found = select(calibration, trials, candidates=candidates)
+    assert found.names == ("finite-difference", "kalman-ca") and found.source == "trials"
+    observer = auto_observer(calibration, trials, candidates=candidates)
+    assert isinstance(observer, PerChannel) and observer.selection.names == found.names
+    fresh, measured = _trials(1)
+    observer.reset(measured[0])
+    auto = observer.run(measured[1:])[..., 1]
+    for spec in candidates:  # on new data: per channel no worse than either candidate alone
+        single = selection.default_observer(spec, calibration)
+        single.reset(measured[0])
+        err = np.sqrt(np.mean((single.run(measured[1:])[..., 1] - fresh.velocity[0][1:]) ** 2, axis=0))
+        auto_err = np.sqrt(np.mean((auto - fresh.velocity[0][1:]) ** 2, axis=0))
+        assert np.all(auto_err <= 1.02 * err), (spec, auto_err, err)
+    assert not isinstance(
+        auto_observer(calibration, selection=Selection(("kalman-ca",), np.ones((1, 1, 2)), "x")), PerChannel
+    )  # one winner everywhere: that observer itself (the wrapper's one-call path)
+
+
+def test_bad_selection_input():
+    with pytest.raises(TypeError, match="Calibration"):
+        select("calibration")
+    with pytest.raises(ValueError, match="no observer parameters but wrap"):
+        select(_calibration(1e-3), observer_kwargs={"lipschitz": 3.0})
+    with pytest.raises(ValueError, match="same shape"):
+        Trials((np.zeros((5, 2)),), (np.zeros((5, 3)),))
+    with pytest.raises(ValueError, match="finite trials"):
+        Trials((np.full((5, 1), np.nan),), (np.zeros((5, 1)),))
+    trials, _ = _trials(0)
+    with pytest.raises(ValueError, match="calibration's 1 channels, actual value: 2"):
+        select(_calibration(1e-3), trials)
+
+
+# ---- the default everywhere -----------------------------------------------------------------------------------------
+def test_differentiate_defaults_to_auto():
+    t = np.arange(0, 5, DT)
+    exact = smo_gym.differentiate(0.5 * t**2, DT)
+    assert exact.shape == (t.size, 2)
+    # noise-free: the Kalman filter, whose constant-acceleration model is exact here, rather than the backward
+    # difference, late by half a step (an error of tau / 2 = 5e-4)
+    np.testing.assert_allclose(exact[100:, 1], t[100:], rtol=0, atol=1e-6)
+    noisy = smo_gym.differentiate(np.sin(t) + 1e-3 * np.random.default_rng(0).standard_normal(t.size), DT)
+    fd = np.diff(np.sin(t) + 1e-3 * np.random.default_rng(0).standard_normal(t.size)) / DT
+    assert np.sqrt(np.mean((noisy[1000:, 1] - np.cos(t[1000:])) ** 2)) < 0.1 * np.sqrt(
+        np.mean((fd[999:] - np.cos(t[1000:])) ** 2)
+    )
+    with pytest.raises(ValueError, match="no observer parameters but wrap"):
+        smo_gym.differentiate(t, DT, lipschitz=2.0)
+
+
+def test_the_wrapper_defaults_to_auto_chosen_on_its_own_trials(monkeypatch):
+    env = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), sensor="encoder-12bit-noisy", rate="env")
+    found = env.observer.selection
+    assert found.source == "trials" and len(found.names) == env.adapter.model.nv
+    # two scenarios: uniform random actions and smooth (low-passed) ones
+    assert found.errors.shape == (2, len(selection.CANDIDATES), env.adapter.model.nv)
+
+    def fail(*args, **kwargs):
+        raise AssertionError("ran the trials again instead of using the cache")
+
+    monkeypatch.setattr(ev_module, "sensed_trials", fail)
+    again = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), sensor="encoder-12bit-noisy", rate="env")
+    np.testing.assert_array_equal(again.observer.selection.errors, found.errors)
+    # copies and pickles run the same observers on the same measurements
+    env.reset(seed=3)
+    actions = np.random.default_rng(3).uniform(-1, 1, (15, 1))
+    for a in actions[:5]:
+        env.step(a)
+    for twin in (copy.deepcopy(env), pickle.loads(pickle.dumps(env))):
+        o1, _ = env.reset(seed=4)
+        o2, _ = twin.reset(seed=4)
+        np.testing.assert_array_equal(o1, o2)
+        for a in actions:
+            np.testing.assert_array_equal(env.step(a)[0], twin.step(a)[0])
