@@ -282,10 +282,7 @@ def plot(summary: list[dict], rows: list[dict], path: Path) -> None:
                 seeds = [
                     float(r["mean_return"])
                     for r in rows
-                    if r["env"] == env
-                    and int(r["steps"]) == b
-                    and r["train_sensing"] == tr
-                    and r["eval_sensing"] == ev
+                    if r["env"] == env and int(r["steps"]) == b and r["train_sensing"] == tr and r["eval_sensing"] == ev
                 ]
                 ax.plot([x[k]] * len(seeds), seeds, "k.", ms=3)
             ax.bar(x, means, width, yerr=stds, capsize=3, label=f"{b // 1000}k steps")
@@ -334,13 +331,11 @@ def main(argv=None) -> int:
     p.add_argument("--envs", default=",".join(ENVS))
     p.add_argument("--sensings", default=",".join(DEFAULT_SENSINGS), help=f"of {', '.join(SENSINGS)}")
     p.add_argument("--algo", default="PPO", help="PPO (both environments) or SAC (Hopper-v5 only)")
-    p.add_argument("--steps", default="", help="budget per run: N or ENV=N,... (default %s)" % BUDGETS)
+    p.add_argument("--steps", default="", help=f"budget per run: N or ENV=N,... (default {BUDGETS})")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--jobs", type=int, default=1, help="parallel training processes")
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per checkpoint")
-    p.add_argument(
-        "--cross", default="", help="sensings the true-state policies are also evaluated under (e.g. auto,finite-difference)"
-    )
+    p.add_argument("--cross", default="", help="sensings the true-state policies are also evaluated under (auto,...)")
     p.add_argument("--out", default="results/rl_benchmark", help="CSV files and plot (default %(default)s)")
     p.add_argument("--models", default="outputs/rl_benchmark/runs", help="run folders (models, logs)")
     p.add_argument("--resume", action="store_true", help="skip runs already in runs.csv")
@@ -365,7 +360,7 @@ def main(argv=None) -> int:
     budgets = parse_steps(args.steps, envs)
     if not args.resume and runs_csv.exists():
         runs_csv.unlink()
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     command = "scripts/rl_benchmark.py " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
     with open(runs_csv, "a", newline="") as fh:
         fh.write(f"# {command} ({stamp})\n")
