@@ -156,7 +156,8 @@ def test_benchmark_pages_are_built_from_the_results_files(site):
             first_cell = row.split("|")[1].strip().strip("*`")
             assert first_cell in html, (page, rel, first_cell)
     rl = (site / "benchmarks" / "rl" / "index.html").read_text()
-    assert "791 +- 163 (3)" in rl and "true -&gt; estimated" in rl  # summary.csv: 791.0, 163.2 at 100k steps
+    # summary.csv: 751.0, 166.4, 590.3, 922.5 at 120k steps
+    assert "751 +- 166 [590, 922] (3)" in rl and "true -&gt; auto" in rl
     assert "InvertedDoublePendulum-v5  rl_benchmark  unwrapped" in rl  # throughput.txt, verbatim
     assert (site / "results" / "rl_benchmark" / "rl_benchmark.png").is_file()
     for html in site.rglob("*.html"):
@@ -177,3 +178,9 @@ def test_the_returns_table_reads_summary_csv(tmp_path):
     lines = hooks._results_returns(csv).splitlines()
     assert lines[0] == "| trained on -> evaluated on | A 50k |"
     assert lines[2:] == ["| true | 10 +- 2 (3) |", "| est | 8 +- 2 (2) |", "| true -> est | 8 +- 0 (3) |"]
+    csv.write_text(
+        "# scripts/rl_benchmark.py --seeds 2 (2026-01-01 00:00 UTC)\n"
+        "env,algo,train_sensing,eval_sensing,steps,seeds,mean,std,min,max\n"
+        "A-v5,PPO,true,true,50000,2,10.4,1.6,9.2,11.5\n"
+    )
+    assert hooks._results_returns(csv).splitlines()[2] == "| true | 10 +- 2 [9, 12] (2) |"

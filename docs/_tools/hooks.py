@@ -7,8 +7,9 @@ Markers in a page's Markdown, replaced before conversion:
     tables and stay so, a first line ``# command, date`` becomes the command in a code block, every other line
     a paragraph.
 ``<!-- results-returns: PATH -->``
-    ``summary.csv`` of ``scripts/rl_benchmark.py``: mean +- standard deviation over seeds of the return, one row
-    per sensing (trained on -> evaluated on), one column per environment and budget.
+    ``summary.csv`` of ``scripts/rl_benchmark.py`` (its ``#`` lines skipped): mean +- standard deviation over seeds
+    of the return, and the range over seeds where the file has ``min`` and ``max``, one row per sensing (trained on
+    -> evaluated on), one column per environment and budget.
 
 After conversion (every page, the API reference included) the Sphinx roles of the docstrings are made readable:
 ``:class:`~smo_gym.observers.Levant``` -> ``Levant`` as code.
@@ -50,7 +51,7 @@ def _results_text(path: Path) -> str:
 
 def _results_returns(path: Path) -> str:
     with path.open() as f:
-        rows = list(csv.DictReader(f))
+        rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
     columns = []  # (env, steps) in file order
     cells: dict[tuple[str, str], dict[tuple[str, int], str]] = {}
     for r in rows:
@@ -58,7 +59,10 @@ def _results_returns(path: Path) -> str:
         if col not in columns:
             columns.append(col)
         label = (r["train_sensing"], r["eval_sensing"])
-        cells.setdefault(label, {})[col] = f"{float(r['mean']):.0f} +- {float(r['std']):.0f} ({r['seeds']})"
+        cell = f"{float(r['mean']):.0f} +- {float(r['std']):.0f}"
+        if r.get("min") and r.get("max"):
+            cell += f" [{float(r['min']):.0f}, {float(r['max']):.0f}]"
+        cells.setdefault(label, {})[col] = f"{cell} ({r['seeds']})"
 
     def name(label):
         train, ev = label
