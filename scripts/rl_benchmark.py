@@ -43,7 +43,7 @@ import numpy as np
 
 ENVS = ("InvertedDoublePendulum-v5", "Hopper-v5")
 SENSINGS = ("true", "auto", "estimated", "finite-difference", "no-velocity", "stacked-positions")
-#: sensings run by default ("estimated", the super-twisting default, is run on request)
+#: sensings run by default ("estimated", super-twisting, the former default, is run on request)
 DEFAULT_SENSINGS = ("true", "auto", "finite-difference", "no-velocity", "stacked-positions")
 #: benchmark sensing -> (smo_gym.rl sensing, observer spec)
 RL_SENSING = {
