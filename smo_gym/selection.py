@@ -40,7 +40,7 @@ import numpy as np
 from ._validation import DivergenceError, as_real_array, check_positive
 from .calibration import Calibration, bound_order, default_observer
 from .observers import Observer
-from .observers.base import reported_velocity, step_mean_coefficients
+from .observers.base import reported_coefficients, reported_velocity
 from .observers.composite import PerChannel
 from .specs import parse_observer_spec
 
@@ -180,16 +180,6 @@ class Selection:
         return f"auto ({self.source}): " + ", ".join(f"{name} on {channels}" for name, channels in groups.items())
 
 
-def _mean_coefficients(order: int, span: float | None, reports_instant: bool) -> np.ndarray:
-    """The combination of derivative estimates ``1..order`` reported as the velocity: the step mean
-    (:func:`~smo_gym.observers.base.step_mean_coefficients`) where it applies, else the first derivative."""
-    if span is not None and order >= 2 and reports_instant:
-        return step_mean_coefficients(order, span)
-    c = np.zeros(order)
-    c[0] = 1.0
-    return c
-
-
 def _kalman_ca_error(dt: float, q: float, r: float, c: np.ndarray) -> float:
     """RMS of the reported velocity ``c . x`` of the steady-state constant-acceleration Kalman filter."""
     from scipy.linalg import solve_discrete_are
@@ -227,7 +217,8 @@ def predicted_errors(calibration: Calibration, candidates: Sequence[str], mean_o
             observer = default_observer(name, calibration, kw)
             q = np.broadcast_to(observer.process_noise, calibration.noise.shape).reshape(-1)
             rr = np.broadcast_to(observer.measurement_noise, calibration.noise.shape).reshape(-1)
-            c = _mean_coefficients(2, mean_over, observer.reports_instant)
+            c = reported_coefficients(observer, mean_over)
+            c = np.array([1.0, 0.0]) if c is None else c  # the velocity, or its step mean
             errors[k] = [_kalman_ca_error(dt, float(q[i]), float(rr[i]), c) for i in range(n)]
     return errors
 
@@ -239,7 +230,7 @@ def _trial_errors(calibration: Calibration, trials: Trials, candidates, mean_ove
     for k, spec in enumerate(candidates):
         name, kw = parse_observer_spec(spec)
         observer = default_observer(name, calibration, {**kwargs, **kw})
-        c = _mean_coefficients(observer.order, mean_over, observer.reports_instant)
+        c = reported_coefficients(observer, mean_over)
         total, count = np.zeros(n), 0
         try:
             for Z, V in zip(trials.measured, trials.velocity, strict=True):

@@ -32,7 +32,7 @@ from numba import njit
 
 from .._validation import check_positive
 from ..observers import Observer
-from ..observers.base import reported_velocity, step_mean_coefficients
+from ..observers.base import reported_coefficients, reported_velocity, step_mean_coefficients
 from ..sensors import Sensor, Wrap, make_sensor
 from .tangent import integrate_pos, joint_table, tangent_advance
 
@@ -347,11 +347,7 @@ class VelocityEstimator:
         self.observer = observer
         self.mean_over = None if mean_over is None else check_positive("mean_over", mean_over)
         #: the coefficients of the step-mean velocity, or None: the reported velocity is the estimate's column 1
-        self.coefficients = (
-            step_mean_coefficients(observer.order, self.mean_over)
-            if self.mean_over is not None and observer.order >= 2 and observer.reports_instant
-            else None
-        )
+        self.coefficients = reported_coefficients(observer, self.mean_over)
 
     def velocity_of(self, estimate: np.ndarray) -> np.ndarray:
         """The reported velocity of an estimate ``(..., n, order + 1)`` of this observer: shape ``(..., n)``."""

@@ -21,7 +21,7 @@ from .._validation import (
 )
 from . import _kernels
 
-__all__ = ["Observer", "reported_velocity", "step_mean_coefficients", "taylor_matrix"]
+__all__ = ["Observer", "reported_coefficients", "reported_velocity", "step_mean_coefficients", "taylor_matrix"]
 
 _FLOAT64 = np.dtype(np.float64)
 _NDARRAY = np.ndarray
@@ -142,6 +142,16 @@ def step_mean_coefficients(order: int, span: float) -> np.ndarray:
     j = np.arange(1, int(order) + 1)
     factorial = np.cumprod(j).astype(float)
     return (-float(span)) ** (j - 1) / factorial
+
+
+def reported_coefficients(observer, span: float | None) -> np.ndarray | None:
+    """The coefficients (:func:`step_mean_coefficients`) that turn ``observer``'s derivatives at the sample time into
+    the mean velocity over the last ``span``: where a span is asked for, the observer estimates at least the
+    acceleration and reports at the sample time (:attr:`Observer.reports_instant`); otherwise None, its first
+    derivative is the velocity as it is."""
+    if span is None or observer.order < 2 or not observer.reports_instant:
+        return None
+    return step_mean_coefficients(observer.order, span)
 
 
 def reported_velocity(estimate: np.ndarray, coefficients: np.ndarray | None) -> np.ndarray:

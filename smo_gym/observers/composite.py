@@ -17,17 +17,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._validation import DivergenceError, as_real_array, check_keywords, check_mask, check_positive
-from .base import Observer, as_measurement, reported_velocity, step_mean_coefficients
+from .base import Observer, as_measurement, reported_coefficients, reported_velocity
 
 __all__ = ["PerChannel"]
-
-
-def _step_mean(observer: Observer, span: float | None) -> np.ndarray | None:
-    """The coefficients that turn ``observer``'s derivatives at the sample time into the mean velocity over the last
-    ``span`` (:func:`~smo_gym.observers.base.step_mean_coefficients`), or None: its first derivative as it is."""
-    if span is None or observer.order < 2 or not observer.reports_instant:
-        return None
-    return step_mean_coefficients(observer.order, span)
 
 
 class PerChannel(Observer):
@@ -95,7 +87,7 @@ class PerChannel(Observer):
         self.discretization = "per-channel"
         self.mean_over = None if mean_over is None else check_positive("mean_over", mean_over)
         self.parts = tuple(zip(owned, channels, strict=True))
-        self._coefficients = tuple(_step_mean(observer, self.mean_over) for observer in owned)
+        self._coefficients = tuple(reported_coefficients(observer, self.mean_over) for observer in owned)
         self.n_channels = n
         names = np.empty(n, dtype=object)
         for observer, idx in self.parts:
@@ -230,14 +222,6 @@ class PerChannel(Observer):
             "expected an observer with one flat state for step(), actual value: a PerChannel observer, whose state "
             "is its parts' (step each part's observer instead)"
         )
-
-    @property
-    def reports_instant(self) -> bool:
-        return False
-
-    @property
-    def velocity(self) -> np.ndarray:
-        return self._require_reset()[..., 1]
 
     @property
     def output_error(self) -> np.ndarray:
