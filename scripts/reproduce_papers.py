@@ -483,16 +483,26 @@ def reproduce_efimov2017(out_dir: Path | None) -> list[dict] | None:
     return module.reproduce_efimov2017(out_dir)
 
 
-#: ``--papers`` choice -> citation
+#: ``--papers`` choice -> (citation, runner); a runner takes the figure directory (or None) and ``fast`` and
+#: returns the claims as dicts with ``claim``, ``measured`` and ``ok`` (or None when its script is absent).
 PAPERS = {
-    "efimov2017": "Efimov, Polyakov, Levant and Perruquetti 2017",
-    "lopez-ramirez2016": "Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016",
-    "wetzlinger": "Wetzlinger, Reichhartinger and Horn",
+    "efimov2017": (
+        "Efimov, Polyakov, Levant and Perruquetti 2017",
+        lambda out, fast: reproduce_efimov2017(out),
+    ),
+    "lopez-ramirez2016": (
+        "Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016",
+        lambda out, fast: reproduce_lopez_ramirez2016(out, fast=fast),
+    ),
+    "wetzlinger": (
+        "Wetzlinger, Reichhartinger and Horn",
+        lambda out, fast: reproduce_wetzlinger(out),
+    ),
 }
 
 
 def _print(paper: str, claims: list[dict] | None) -> None:
-    print(f"\n=== {PAPERS[paper]} ===")
+    print(f"\n=== {PAPERS[paper][0]} ===")
     if claims is None:
         print("pending (scripts/reproduce_efimov2017.py not present yet)")
         return
@@ -510,12 +520,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for paper in args.papers:
         t0 = time.perf_counter()
-        if paper == "efimov2017":
-            claims = reproduce_efimov2017(out)
-        elif paper == "lopez-ramirez2016":
-            claims = reproduce_lopez_ramirez2016(out, fast=args.fast)
-        else:
-            claims = reproduce_wetzlinger(out)
+        claims = PAPERS[paper][1](out, args.fast)
         _print(paper, claims)
         print(f"({time.perf_counter() - t0:.1f} s)")
     print(f"\nfigures in {out.resolve()}")
