@@ -53,9 +53,9 @@ References
 .. [Mor01] J. A. Moreno, "Quasi-unknown input observers for linear systems", Proc. IEEE Conference on Control
    Applications, 2001.
 .. [Hau83] M. L. J. Hautus, "Strong detectability and observers", Linear Algebra Appl. 50, 1983.
-.. [AFM14] M. T. Angulo, L. Fridman and J. A. Moreno, "Output-feedback finite-time stabilization of disturbed
-   feedback linearizable nonlinear systems" / functional observers, J. Franklin Institute, 2014 (cited in the
-   slides as "[Angulo et al.: JFI14]").
+.. [AFM14] M. T. Angulo, L. Fridman and J. A. Moreno, functional unknown-input observers for linear systems with
+   HOSM differentiators, J. Franklin Institute, 2014 (the slides' "[Angulo et al.: JFI14]"; the title could not be
+   checked here).
 .. [SS87] P. Sannuti and A. Saberi, "Special coordinate basis for multivariable linear systems: finite and
    infinite zero structure, squaring down and decoupling", Int. J. Control 45(5), 1987.
 .. [BFP09] F. J. Bejarano, L. Fridman and A. Poznyak, "Unknown input and state estimation for unobservable
