@@ -109,6 +109,10 @@ def test_not_left_invertible_is_not_strongly_detectable():
     assert not rep.ok and "not left-invertible" in rep.reason and rep.zero_dynamics is None
     with pytest.raises(c.NotStronglyDetectableError, match="expected a left-invertible triple"):
         c.zero_dynamics(dup)
+    with pytest.raises(c.NotStronglyDetectableError, match="expected a left-invertible triple"):
+        c.functional_observability(dup, functional=np.eye(4)[:1])
+    inv = c.left_inverse(dup)
+    assert not inv.static and not inv.asymptotic and "D has rank 1 < m=2" in inv.reason
 
 
 def test_detectable_observer_finite_time_exact_part_and_zero_rate():
