@@ -161,7 +161,7 @@ def reproduce_strong_detectability(out_dir: Path | None = None, fast: bool = Fal
             ok=bool(rt.ok and np.allclose(rt.invariant_zeros, rt.zero_dynamics.zeros, atol=1e-9)),
         )
     )
-    dt, t_final = 1e-3, (3.0 if fast else 4.5)
+    dt, t_final = (2e-3, 3.0) if fast else (1e-3, 4.5)
     L = 3 * c.output_error_lipschitz(plant, 3, e_bound=1.0, w_bounds=(1.5, 2.0, 4.0, 8.0))
     obs = c.StronglyDetectableObserver(plant, dt, L, alpha=2)
     res = c.simulate(plant, _OpenLoop(obs), t_final=t_final, w=_w, x0=[0.3, -0.2, 0.1, 1.0])
@@ -175,8 +175,8 @@ def reproduce_strong_detectability(out_dir: Path | None = None, fast: bool = Fal
         dict(
             claim="x1 (strongly observable block) recovered exactly from y and its derivatives (finite time)",
             measured=f"error < 1e-4 from t = {t_conv:.3f} s, then max {e_obs[res.t > 1.5].max():.1e} "
-            f"(O(tau^3) at tau = 1 ms)",
-            ok=bool(t_conv < 1.0 and e_obs[res.t > 1.5].max() < 1e-6),
+            f"(O(tau^3) at tau = {dt * 1e3:g} ms)",
+            ok=bool(t_conv < 1.2 and e_obs[res.t > 1.5].max() < 1e-5),
         )
     )
     claims.append(
