@@ -483,6 +483,22 @@ def reproduce_efimov2017(out_dir: Path | None) -> list[dict] | None:
     return module.reproduce_efimov2017(out_dir)
 
 
+# ----------------------------------------------------------------------------------------------------------------
+# Fridman's slides: strong detectability, functional UIO, static left inverse
+# (scripts/reproduce_slides_unknown_inputs.py)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def reproduce_slides_unknown_inputs(key: str, out_dir: Path | None, fast: bool) -> list[dict] | None:
+    path = Path(__file__).with_name("reproduce_slides_unknown_inputs.py")
+    if not path.exists():
+        return None
+    spec = importlib.util.spec_from_file_location("reproduce_slides_unknown_inputs", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.RUNNERS[key](out_dir, fast)
+
+
 #: ``--papers`` choice -> (citation, runner); a runner takes the figure directory (or None) and ``fast`` and
 #: returns the claims as dicts with ``claim``, ``measured`` and ``ok`` (or None when its script is absent).
 PAPERS = {
@@ -498,13 +514,25 @@ PAPERS = {
         "Wetzlinger, Reichhartinger and Horn",
         lambda out, fast: reproduce_wetzlinger(out),
     ),
+    "strong-detectability": (
+        "Fridman's slides: observer for strongly detectable systems (Fridman, Davila and Levant 2011; Moreno 2001)",
+        lambda out, fast: reproduce_slides_unknown_inputs("strong-detectability", out, fast),
+    ),
+    "functional-uio": (
+        "Fridman's slides: functional unknown-input observers (Angulo, Fridman and Moreno 2014)",
+        lambda out, fast: reproduce_slides_unknown_inputs("functional-uio", out, fast),
+    ),
+    "left-inverse": (
+        "Fridman's slides: static left inverse (Bejarano, Fridman and Poznyak 2009)",
+        lambda out, fast: reproduce_slides_unknown_inputs("left-inverse", out, fast),
+    ),
 }
 
 
 def _print(paper: str, claims: list[dict] | None) -> None:
     print(f"\n=== {PAPERS[paper][0]} ===")
     if claims is None:
-        print("pending (scripts/reproduce_efimov2017.py not present yet)")
+        print("pending (its script is not present yet)")
         return
     for c in claims:
         print(f"[{'ok' if c['ok'] else 'DIFFERS'}] {c['claim']}\n        measured: {c['measured']}")
