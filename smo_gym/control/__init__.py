@@ -18,6 +18,14 @@ from .controllers import (
     regular_form,
 )
 from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz, sampled_observer_gain
+from .ltv import (
+    CascadedLTVObserver,
+    LTVPlant,
+    LTVStrongObservabilityReport,
+    ltv_state_map,
+    ltv_strong_observability,
+    simulate_ltv,
+)
 from .plants import (
     LinearPlant,
     MolinariDecoupling,
@@ -37,8 +45,11 @@ from .simulation import SimulationResult, fit_order, simulate, steady_state_erro
 
 __all__ = [
     "CascadedHOSMObserver",
+    "CascadedLTVObserver",
     "CompensationController",
     "IntegralSlidingModeController",
+    "LTVPlant",
+    "LTVStrongObservabilityReport",
     "LinearPlant",
     "LuenbergerObserver",
     "MolinariDecoupling",
@@ -55,12 +66,15 @@ __all__ = [
     "left_annihilator",
     "linearize",
     "lqr",
+    "ltv_state_map",
+    "ltv_strong_observability",
     "molinari_decoupling",
     "output_error_lipschitz",
     "regular_form",
     "relative_degrees",
     "sampled_observer_gain",
     "simulate",
+    "simulate_ltv",
     "steady_state_error",
     "strong_observability",
     "total_variation_rate",
