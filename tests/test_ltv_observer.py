@@ -16,6 +16,7 @@ from smo_gym.control import (
     fit_order,
     furuta_slides,
     helicopter_slides,
+    ltv_example,
     ltv_state_map,
     ltv_strong_observability,
     simulate_ltv,
@@ -98,6 +99,15 @@ def test_example_is_strongly_observable_with_two_blocks_and_K_matters():
     assert np.linalg.matrix_rank(J) == 1 and abs(J[3, 0] - (1 + 0.3 * np.cos(0.4))) < 1e-12
 
 
+def test_module_example_is_this_one_with_exact_derivatives():
+    ex, w_ex, x0 = ltv_example()
+    assert np.array_equal(x0, X0) and w_ex(0.7) == w(0.7)
+    for t in (0.0, 0.7, 2.0):
+        for name in EXACT:
+            assert np.abs(ex.taylor(name, t, 4) - plant(derivatives=EXACT).taylor(name, t, 4)).max() < 1e-15
+            assert np.array_equal(ex.matrix(name, t), {"A": A, "C": C, "D": D}[name](t))
+
+
 def test_taylor_derivatives_complex_central_and_exact_agree():
     t = 0.7
     for name, d in EXACT.items():
@@ -151,9 +161,13 @@ def test_observability_index_is_not_enough_derivatives():
     """x1' = x3, x3' = x4, x2' = x4 + w, y = (x1, x2): Rugh's index is 2 but x4 needs y1'' (three blocks)."""
     A_ = np.zeros((4, 4))
     A_[0, 2], A_[2, 3], A_[1, 3] = 1.0, 1.0, 1.0
-    pl = LTVPlant(A_, None, [[1.0, 0, 0, 0], [0, 1.0, 0, 0]], [[0.0], [1.0], [0.0], [0.0]])
+    C_, D_ = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]]), np.array([[0.0], [1.0], [0.0], [0.0]])
+    pl = LTVPlant(A_, None, C_, D_)
     rep = ltv_strong_observability(pl, 0.0)
     assert rep.ok and rep.observability_index == 2 and rep.blocks == 3
+    assert strong_observability(
+        A_, np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]]), np.array([[0.0], [1.0], [0.0], [0.0]])
+    ).ok
     two = ltv_strong_observability(pl, 0.0, blocks=2)
     assert not two.ok and two.condition == "strong observability" and "rank S(t) = 4 < rank S*(t) = 5" in two.reason
 
@@ -204,6 +218,23 @@ def test_exact_after_finite_time_on_an_unstable_plant():
     assert err[0] > 0.1  # the estimate did start wrong
     # theory: O(L tau^3) = 2e-6 for the order-3 differentiator
     assert err[t >= t_conv].max() < 2e-5
+
+
+def test_known_control_and_numerical_derivatives():
+    """B(t) u with u held between samples, and A, C, D differentiated by Cauchy's formula (the default)."""
+    dt = 8e-3
+    pl = LTVPlant(A, lambda t: np.array([[0.0], [1 + 0.2 * np.sin(t)], [0.0]]), C, D)
+
+    def u(t):
+        return np.array([2.0 * np.sin(5 * t)])
+
+    t, X, Y, U = simulate_ltv(pl, X0, T_FINAL, dt, w=w, u=u, substeps=4)
+    Xh = CascadedLTVObserver(pl, dt, LIPSCHITZ, alpha=2).run(Y, U)
+    without_u = CascadedLTVObserver(pl, dt, LIPSCHITZ, alpha=2).run(Y)
+    err = np.abs(Xh - X)[t >= STEADY].max()
+    print(f"steady error with B(t)u and numerical derivatives at dt={dt}: {err:.2e}")
+    assert err < 2e-4  # 5.7e-5 without control at this step
+    assert np.abs(without_u - X)[t >= STEADY].max() > 100 * err  # the control is not negligible
 
 
 def test_accuracy_order_in_the_sampling_step():

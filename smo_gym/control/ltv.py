@@ -49,6 +49,7 @@ __all__ = [
     "CascadedLTVObserver",
     "LTVPlant",
     "LTVStrongObservabilityReport",
+    "ltv_example",
     "ltv_state_map",
     "ltv_strong_observability",
     "simulate_ltv",
@@ -612,6 +613,65 @@ def simulate_ltv(plant: LTVPlant, x0, t_final: float, dt: float, *, w=None, u=No
             k4 = f(s + h, x + h * k3)
             x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     return t, X, Y, U
+
+
+# ---- an example -------------------------------------------------------------------------------------------------
+def ltv_example() -> tuple[LTVPlant, callable, np.ndarray]:
+    r"""An unstable, strongly observable LTV plant with an unknown input (our example; the slides print none).
+
+    .. math::
+        A(t) = \begin{bmatrix} 0.5 & 1 + 0.3\sin t & 0 \\ 0 & 0 & 1 \\ 1 & 0.4\cos t & 0.5 \end{bmatrix},\quad
+        C(t) = \begin{bmatrix} 1 & 0 & 0 \\ 0 & 0.3\sin t & 1 \end{bmatrix},\quad
+        D(t) = \begin{bmatrix} 0 \\ 0 \\ 1 + 0.3\cos t \end{bmatrix},
+
+    :math:`w(t) = 0.5\sin 2t + 0.3\cos 3t + 0.2`, :math:`x(0) = (1, -1, 0.5)`. The frozen ``A(t)`` has an
+    eigenvalue near ``1.5`` and the state grows about 14-fold in 2.5 s. The input reaches :math:`\dot y_2` (``CD``
+    is not zero), so the reconstruction must remove it (``K`` of the corollary): two derivative blocks, Rugh's
+    observability index 2. Exact derivatives are supplied (:class:`LTVPlant` ``derivatives``).
+
+    Returns
+    -------
+    plant : LTVPlant
+    w : callable ``t -> (1,)``
+    x0 : ndarray, shape (3,)
+    """
+
+    def A(t):
+        return np.array([[0.5, 1 + 0.3 * np.sin(t), 0.0], [0.0, 0.0, 1.0], [1.0, 0.4 * np.cos(t), 0.5]])
+
+    def C(t):
+        return np.array([[1.0, 0.0, 0.0], [0.0, 0.3 * np.sin(t), 1.0]])
+
+    def D(t):
+        return np.array([[0.0], [0.0], [1 + 0.3 * np.cos(t)]])
+
+    def shifted(f, t, k):  # f^(j)(t) = f(t + j pi / 2) for sin and cos
+        return np.array([f(t + j * np.pi / 2) for j in range(k + 1)])
+
+    def dA(t, k):
+        out = np.zeros((k + 1, 3, 3))
+        out[0] = A(t)
+        out[1:, 0, 1] = 0.3 * shifted(np.sin, t, k)[1:]
+        out[1:, 2, 1] = 0.4 * shifted(np.cos, t, k)[1:]
+        return out
+
+    def dC(t, k):
+        out = np.zeros((k + 1, 2, 3))
+        out[0] = C(t)
+        out[1:, 1, 1] = 0.3 * shifted(np.sin, t, k)[1:]
+        return out
+
+    def dD(t, k):
+        out = np.zeros((k + 1, 3, 1))
+        out[0] = D(t)
+        out[1:, 2, 0] = 0.3 * shifted(np.cos, t, k)[1:]
+        return out
+
+    def w(t):
+        return np.array([0.5 * np.sin(2 * t) + 0.3 * np.cos(3 * t) + 0.2])
+
+    plant = LTVPlant(A, None, C, D, derivatives={"A": dA, "C": dC, "D": dD})
+    return plant, w, np.array([1.0, -1.0, 0.5])
 
 
 # ---- the observer ------------------------------------------------------------------------------------------------
