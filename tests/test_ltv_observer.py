@@ -80,13 +80,19 @@ def plant(**kw):
 
 @cache
 def run(dt: float, noise: float = 0.0, seed: int = 0):
-    """Simulate the example and run the observer; returns (t, x, x_hat)."""
+    """Simulate the example and run the observer (identifying w as well); returns (t, x, x_hat, w, w_hat)."""
     pl = plant(derivatives=EXACT)  # exact derivatives: faster than the numerical ones (compared in another test)
     t, X, Y, _ = simulate_ltv(pl, X0, T_FINAL, dt, w=w, substeps=4)
     if noise:
         Y = Y + noise * np.random.default_rng(seed).uniform(-1, 1, Y.shape)
-    obs = CascadedLTVObserver(pl, dt, LIPSCHITZ, alpha=2)
-    return t, X, obs.run(Y)
+    obs = CascadedLTVObserver(pl, dt, LIPSCHITZ, alpha=2, identify=True)
+    Xh, Wh = np.zeros_like(X), np.zeros((len(t), 1))
+    obs.reset(Y[0])
+    for k in range(len(t)):
+        Xh[k] = obs.update(Y[k])
+        Wh[k] = obs.w_hat
+        obs.advance()
+    return t, X, Xh, np.array([w(s) for s in t]), Wh
 
 
 # ---- strong observability -------------------------------------------------------------------------------------
@@ -208,7 +214,7 @@ def _convergence_time(t, err, tol):
 
 
 def test_exact_after_finite_time_on_an_unstable_plant():
-    t, X, Xh = run(4e-3)
+    t, X, Xh, _, _ = run(4e-3)
     err = np.linalg.norm(Xh - X, axis=1)
     growth = np.linalg.norm(X[-1]) / np.linalg.norm(X[0])
     assert growth > 10  # the plant is unstable (13.6 over 2.5 s)
@@ -218,6 +224,29 @@ def test_exact_after_finite_time_on_an_unstable_plant():
     assert err[0] > 0.1  # the estimate did start wrong
     # theory: O(L tau^3) = 2e-6 for the order-3 differentiator
     assert err[t >= t_conv].max() < 2e-5
+
+
+def test_unknown_input_identification_order():
+    """w_hat = G (Y_{l+1} - O_{l+1} e_hat). Here w is read from y2' (CD != 0) and the first derivatives only:
+    G weights no e_y'', so the error is O(tau^(k+1-1)) = O(tau^3), not the worst case O(tau^alpha)."""
+    obs = CascadedLTVObserver(plant(derivatives=EXACT), 4e-3, LIPSCHITZ, alpha=2, identify=True)
+    expected = obs.theoretical_orders["identification"]
+    assert expected == 3.0
+    steps = [1.6e-2, 8e-3, 4e-3]
+    errors = []
+    for dt in steps:
+        t, _, _, W, Wh = run(dt)
+        errors.append(np.abs(Wh - W)[t >= STEADY].max())
+    order = fit_order(steps, errors)
+    print(f"identification errors {errors}, fitted order {order:.2f}, theory {expected}")
+    assert abs(order - expected) < 0.5 and errors[-1] < 1e-3
+    t, _, _, W, Wh = run(4e-3)
+    assert np.abs(Wh - W)[: int(0.5 / 4e-3)].max() > 0.1  # it did have to converge
+
+
+def test_identification_needs_a_higher_order_differentiator():
+    with pytest.raises(ValueError, match="alpha >= 1 with identify=True"):
+        CascadedLTVObserver(plant(), 1e-3, 1.0, alpha=0, identify=True)
 
 
 def test_known_control_and_numerical_derivatives():
@@ -241,7 +270,7 @@ def test_accuracy_order_in_the_sampling_step():
     steps = [1.6e-2, 8e-3, 4e-3]
     errors = []
     for dt in steps:
-        t, X, Xh = run(dt)
+        t, X, Xh, _, _ = run(dt)
         errors.append(np.abs(Xh - X)[t >= STEADY].max())
     obs = CascadedLTVObserver(plant(), 4e-3, LIPSCHITZ, alpha=2)
     expected = obs.theoretical_orders["state"]  # alpha + 1 = 3
@@ -254,7 +283,7 @@ def test_accuracy_order_in_the_noise_level():
     levels = [1e-4, 1e-3, 1e-2]  # the sampling error at dt = 8e-3 is 6e-5, below the noise's effect
     errors = []
     for eps in levels:
-        t, X, Xh = run(8e-3, eps)
+        t, X, Xh, _, _ = run(8e-3, eps)
         errors.append(np.abs(Xh - X)[t >= STEADY].max())
     expected = CascadedLTVObserver(plant(), 8e-3, LIPSCHITZ, alpha=2).theoretical_orders["noise"]  # 3/4
     order = fit_order(levels, errors)

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_choice, check_int_in_range, check_nonnegative, check_positive, check_real
+from .._validation import check_bool, check_choice, check_int_in_range, check_nonnegative, check_positive, check_real
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
 from .plants import NotStronglyObservableError, _rank, left_annihilator
@@ -138,6 +138,28 @@ def _state_map_from(O: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarra
     K = left_annihilator(J) if J.size else np.eye(O.shape[0])
     KO = K @ O
     return np.linalg.pinv(KO) @ K, K, KO
+
+
+def _highest_block(M: np.ndarray, p: int) -> int:
+    """Index of the last block of ``p`` columns of ``M`` with a non-negligible entry."""
+    col = np.nonzero(np.abs(M).max(axis=0) > 1e-9 * max(np.abs(M).max(), 1e-300))[0]
+    return int(col.max() // p) if col.size else 0
+
+
+def input_map(O: np.ndarray, J: np.ndarray, m: int) -> np.ndarray | None:
+    r"""``G`` with :math:`G\mathcal J = [I_m\ 0]`, so that :math:`w = G(\bar y - \mathcal O x)`; ``None`` if none.
+
+    From :math:`\bar y - \mathcal O x = \mathcal J \bar w = J_1 w + J_2 [\dot w; \ldots]`: with :math:`\Pi`
+    the left annihilator of :math:`J_2`, :math:`w = (\Pi J_1)^+\Pi(\bar y - \mathcal O x)` when
+    :math:`\Pi J_1` has full column rank ``m`` (``w`` is then fixed by the output derivatives, whatever its own
+    derivatives are).
+    """
+    J1, J2 = J[:, :m], J[:, m:]
+    Pi = left_annihilator(J2) if J2.size else np.eye(J.shape[0])
+    PJ1 = Pi @ J1
+    if _rank(PJ1) < m:
+        return None
+    return np.linalg.pinv(PJ1) @ Pi
 
 
 # ---- the plant -------------------------------------------------------------------------------------------------
@@ -716,6 +738,15 @@ class CascadedLTVObserver:
         Time of the first sample (default the plant's ``t0``).
     discretization : {"taylor", "euler"}
         Of the Levant differentiator.
+    identify : bool
+        Also estimate the unknown input (needs ``alpha >= 1``): between samples :math:`\dot e = Ae + Dw`, so the
+        stack of ``l + 1`` output-error derivatives obeys
+        :math:`\bar e_y = \mathcal O_{l+1} e + \mathcal J_{l+1}\bar w` and
+        :math:`\hat w = G(\hat{\bar e}_y - \mathcal O_{l+1}\hat e)` with :math:`G\mathcal J_{l+1} = [I\ 0]`
+        (:func:`input_map`; the slides give no LTV identification, this is the LTI one of Fridman, Levant and
+        Davila 2007 in the Kratz-Liebscher form). Error :math:`O(\tau^{\alpha})` at worst (when it weights the
+        ``l``-th derivative; :attr:`theoretical_orders` says which). Raises
+        :class:`~smo_gym.control.NotStronglyObservableError` where ``G`` does not exist.
 
     Notes
     -----
@@ -741,6 +772,8 @@ class CascadedLTVObserver:
     Attributes
     ----------
     x_hat : ndarray, shape (n,)
+    w_hat : ndarray, shape (m,) or None
+        The identified unknown input (``identify=True``), else ``None``.
     e_hat : ndarray, shape (n,)
         Estimated error of the auxiliary observer.
     z : ndarray, shape (n,)
@@ -769,6 +802,7 @@ class CascadedLTVObserver:
         forgetting: float = 1.0,
         t0=None,
         discretization: str = "taylor",
+        identify: bool = False,
     ):
         if not isinstance(plant, LTVPlant):
             raise TypeError(f"expected an LTVPlant, actual value: {type(plant).__name__}")
@@ -807,6 +841,20 @@ class CascadedLTVObserver:
         if not np.allclose(P0, P0.T) or np.linalg.eigvalsh((P0 + P0.T) / 2).min() <= 0:
             raise ValueError(f"expected P0 symmetric positive definite, actual value: {P0!r}")
         self._P0 = (P0 + P0.T) / 2
+        self.identify = check_bool("identify", identify)
+        if self.identify:
+            if alpha < 1:
+                raise ValueError(
+                    "expected alpha >= 1 with identify=True (w needs the output derivative of order l), actual "
+                    f"value: alpha={alpha}"
+                )
+            A_, C_, D_ = plant.series(self.t0, self.blocks)
+            if input_map(*kratz_liebscher_matrices(A_, C_, D_, self.blocks + 1), plant.n_unknown) is None:
+                raise NotStronglyObservableError(
+                    "expected the unknown input fixed by y .. y^(l) (G J = [I 0] solvable), actual value: not at "
+                    f"t={self.t0} with l={self.blocks}"
+                )
+        self.w_hat = None
         self.lipschitz = np.broadcast_to(np.asarray(lipschitz, dtype=float), (p,)).copy()
         self.differentiator = Levant(self.order, self.dt, self.lipschitz, discretization=discretization)
         self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
@@ -817,12 +865,27 @@ class CascadedLTVObserver:
 
     @property
     def theoretical_orders(self) -> dict[str, float]:
-        """Orders of the state error in ``tau`` (noise-free) and in the noise amplitude (``alpha = 0``: order 1)."""
-        k, i = self.order, self.blocks - 1
-        return {"state": float(k + 1 - i), "noise": (k + 1 - i) / (k + 1)}
+        r"""Orders of the errors in ``tau`` (noise-free) and in the noise amplitude, from the maps at ``t0``.
 
-    def _geometry(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(F(t), [N_0(t); ...; N_k(t)])``, cached for the sample times."""
+        The differentiator's ``i``-th derivative has error :math:`O(L\tau^{k+1-i})` and
+        :math:`O(\varepsilon^{(k+1-i)/(k+1)})` (Levant 2003; Livne and Levant 2014), so an estimate that is a
+        linear map of the derivative stack has the order of the highest derivative it weights: ``F`` weights
+        ``i = l - 1`` (order ``alpha + 1``), ``G`` at most ``i = l`` (order ``alpha``, or ``alpha + 1`` when
+        ``w`` reaches an output's derivative of order ``< l`` and the others are not needed).
+        """
+        k = self.order
+        F, _, ident = self._geometry(self.t0)
+        p = self.plant.n_outputs
+        i = _highest_block(F, p)
+        out = {"state": float(k + 1 - i), "noise": (k + 1 - i) / (k + 1)}
+        if ident is not None:
+            j = _highest_block(ident[0], p)
+            out["identification"] = float(k + 1 - j)
+            out["identification_noise"] = (k + 1 - j) / (k + 1)
+        return out
+
+    def _geometry(self, t: float):
+        """``(F(t), [N_0(t); ...; N_k(t)], (G, O_{l+1}) or None)``, cached for the sample times."""
         key = round(t, 12)
         hit = self._cache.get(key)
         if hit is not None:
@@ -834,10 +897,20 @@ class CascadedLTVObserver:
         if not np.all(np.isfinite(F)) or _rank(KO) < self.plant.n:
             _raise_if_not(ltv_strong_observability(self.plant, t, blocks=self.blocks))
         N = np.vstack([Ni[0] for Ni in Ns])
+        ident = None
+        if self.identify:  # w = G (Y_{l+1} - O_{l+1} e)
+            O1, J1 = kratz_liebscher_matrices(A, C, D, self.blocks + 1, _N=Ns)
+            G = input_map(O1, J1, self.plant.n_unknown)
+            if G is None:
+                raise NotStronglyObservableError(
+                    f"expected the unknown input fixed by y .. y^(l) at t={t:.6g}, actual value: G J = [I 0] has no "
+                    "solution there"
+                )
+            ident = (G, O1)
         if len(self._cache) > 4:
             self._cache.clear()
-        self._cache[key] = (F, N)
-        return F, N
+        self._cache[key] = (F, N, ident)
+        return F, N, ident
 
     def reset(self, y0, z0=None, *, P0=None) -> np.ndarray:
         """Start at ``t0`` with ``z = z0`` (default ``C(t0)^+ y0``) and the differentiator at the output error."""
@@ -867,16 +940,19 @@ class CascadedLTVObserver:
         ey = _vector("y", y, p, t) - C @ self.z
         self.output_error = ey
         new_state, Zd = self.differentiator.step(self._dstate, ey)  # (p, k+1): e_y and derivatives at t_k
-        F, _ = self._geometry(t)
+        F, _, ident = self._geometry(t)
         Y = Zd[:, : self.blocks].T.reshape(-1)  # derivative-major stack [e_y; e_y'; ...]
         self.e_hat = F @ Y
+        if ident is not None:
+            G, O1 = ident
+            self.w_hat = G @ (Zd[:, : self.blocks + 1].T.reshape(-1) - O1 @ self.e_hat)
         self.x_hat = self.z + self.e_hat
         # injection at the sample, and its known effect on the output error's derivatives at the next sample
         L = np.linalg.solve(self.P, C.T)
         correction = self.dt * (L @ ey)
         self._posterior = self.z + correction
         self._Phi = self._transition(t)
-        _, N_next = self._geometry(t + self.dt)
+        _, N_next, _ = self._geometry(t + self.dt)
         new_state[:, : self.order + 1] -= (N_next @ (self._Phi @ correction)).reshape(self.order + 1, p).T
         self._dstate = new_state
         return self.x_hat
