@@ -140,6 +140,20 @@ def test_kratz_liebscher_recursion_matches_output_derivatives_of_a_simulation():
     assert np.abs(ybar[4:6] - fd2).max() < 1e-4
 
 
+def test_constant_matrices_give_markov_parameters():
+    """For constant matrices N_i = C A^i and D_{mu,nu} = C A^(mu-nu-1) D (five blocks exercise every rule of the
+    recursion, including D_{4,2} = D_{3,1} + d/dt D_{3,2} that the slides' printed range 3 <= nu leaves out)."""
+    rng = np.random.default_rng(1)
+    A_, C_, D_ = rng.normal(size=(4, 4)), rng.normal(size=(2, 4)), rng.normal(size=(4, 2))
+    O, J = kratz_liebscher_matrices(*LTVPlant(A_, None, C_, D_).series(0.0, 5), 5)
+    P = np.linalg.matrix_power
+    assert np.allclose(O, np.vstack([C_ @ P(A_, i) for i in range(5)]), rtol=1e-12, atol=1e-12)
+    for i in range(5):
+        for j in range(4):
+            want = C_ @ P(A_, i - 1 - j) @ D_ if j < i else np.zeros((2, 2))
+            assert np.allclose(J[2 * i : 2 * i + 2, 2 * j : 2 * j + 2], want, rtol=1e-12, atol=1e-12), (i, j)
+
+
 @pytest.mark.parametrize("lti", [furuta_slides, helicopter_slides])
 def test_constant_matrices_agree_with_the_lti_test(lti):
     p = lti()
@@ -195,6 +209,27 @@ def test_not_strongly_observable_raises_with_the_condition():
     unobs = LTVPlant(np.diag([1.0, -1.0]), None, [[1.0, 0.0]], [[1.0], [0.0]])
     with pytest.raises(NotStronglyObservableError, match=r"observability condition fails.*not observable"):
         ltv_state_map(unobs, 0.0, 2)
+
+
+def test_observer_refuses_a_sample_where_the_condition_fails():
+    """Strongly observable at t0, but the sensor goes blind at t = 0.05: the run stops there, naming why."""
+
+    def C_(t):
+        return np.array([[1.0 if np.real(t) < 0.05 else 0.0, 0.0]])
+
+    def dC_(t, k):
+        out = np.zeros((k + 1, 1, 2))
+        out[0] = C_(t)
+        return out
+
+    pl = LTVPlant([[0.0, 1.0], [0.0, 0.0]], None, C_, [[0.0], [1.0]], derivatives={"C": dC_})
+    obs = CascadedLTVObserver(pl, 0.01, 1.0)
+    obs.reset(np.zeros(1))
+    with pytest.raises(NotStronglyObservableError, match=r"observability condition fails.*t=0.05") as info:
+        for _ in range(20):
+            obs.update(np.zeros(1))
+            obs.advance()
+    assert obs.t == pytest.approx(0.04), info.value  # refused while preparing the jump map for t = 0.05
 
 
 # ---- state reconstruction --------------------------------------------------------------------------------------

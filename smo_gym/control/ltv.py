@@ -43,7 +43,8 @@ import numpy as np
 from .._validation import check_bool, check_choice, check_int_in_range, check_nonnegative, check_positive, check_real
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
-from .plants import NotStronglyObservableError, _rank, left_annihilator
+from .estimators import _highest_block
+from .plants import RANK_TOL, NotStronglyObservableError, _rank, left_annihilator
 
 __all__ = [
     "CascadedLTVObserver",
@@ -138,12 +139,6 @@ def _state_map_from(O: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarra
     K = left_annihilator(J) if J.size else np.eye(O.shape[0])
     KO = K @ O
     return np.linalg.pinv(KO) @ K, K, KO
-
-
-def _highest_block(M: np.ndarray, p: int) -> int:
-    """Index of the last block of ``p`` columns of ``M`` with a non-negligible entry."""
-    col = np.nonzero(np.abs(M).max(axis=0) > 1e-9 * max(np.abs(M).max(), 1e-300))[0]
-    return int(col.max() // p) if col.size else 0
 
 
 def input_map(O: np.ndarray, J: np.ndarray, m: int) -> np.ndarray | None:
@@ -893,9 +888,16 @@ class CascadedLTVObserver:
         A, C, D = self.plant.series(t, self.order)
         Ns = _observability_series(A, C, self.order + 1)
         O, J = kratz_liebscher_matrices(A, C, D, self.blocks, _N=Ns)
-        F, _, KO = _state_map_from(O, J)
-        if not np.all(np.isfinite(F)) or _rank(KO) < self.plant.n:
-            _raise_if_not(ltv_strong_observability(self.plant, t, blocks=self.blocks))
+        K = left_annihilator(J) if J.size else np.eye(O.shape[0])
+        U, sv, Vt = np.linalg.svd(K @ O, full_matrices=False)
+        if sv.size < self.plant.n or not sv[-1] > RANK_TOL * max(sv[0], 1.0):  # the rank decision of _rank
+            report = ltv_strong_observability(self.plant, t, blocks=self.blocks)
+            _raise_if_not(report)
+            raise NotStronglyObservableError(
+                f"expected a strongly observable triple (A(t), C(t), D(t)), actual value: K O_{self.blocks}(t) "
+                f"singular at t={t:.6g} (singular values {sv})"
+            )
+        F = Vt.T @ (U.T / sv[:, None]) @ K  # (K O)^+ K
         N = np.vstack([Ni[0] for Ni in Ns])
         ident = None
         if self.identify:  # w = G (Y_{l+1} - O_{l+1} e)
