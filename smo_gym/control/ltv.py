@@ -25,7 +25,7 @@ References
 .. [KL98] W. Kratz and D. Liebscher, "A local characterization of observability", Linear Algebra and its
    Applications 269, 1998.
 .. [GFD17] R. Galvan-Guerra, L. Fridman and J. Davila, "High-order sliding-mode observer for linear time-varying
-   systems with unknown inputs", Int. J. Robust and Nonlinear Control 27(14), 2338-2356, 2017.
+   systems with unknown inputs", Int. J. Robust and Nonlinear Control 27, 2338-2356, 2017.
 .. [Rug96] W. J. Rugh, "Linear System Theory", 2nd ed., Prentice Hall, 1996.
 .. [LM67] J. N. Lyness and C. B. Moler, "Numerical differentiation of analytic functions", SIAM J. Numerical
    Analysis 4(2), 1967.
