@@ -330,6 +330,9 @@ def test_accuracy_order_in_the_noise_level():
 def test_wrong_shapes_and_values_are_typed_errors():
     with pytest.raises(ValueError, match=r"expected C\(t\) with shape \(2, 3\).*actual value: shape \(2, 2\)"):
         LTVPlant(A, None, lambda t: np.ones((2, 2)), D)
+    assert LTVPlant(A, None, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]).C(0.0).shape == (1, 3)  # a vector C is one row
+    with pytest.raises(TypeError, match="expected D a callable"):
+        LTVPlant(A, None, C, None)
     with pytest.raises(ValueError, match=r"expected A\(t\) square"):
         LTVPlant(np.ones((2, 3)), None, C, D)
     late = LTVPlant(A, None, lambda t: np.ones((2, 3)) if t < 1 else np.ones((3, 3)), D)

@@ -215,10 +215,12 @@ class LTVPlant:
             raise ValueError(f"expected an odd n_points for method='central', actual value: {n_points}")
         self._funcs, self._const = {}, {}
         for name, value in zip(_NAMES, (A, B, C, D), strict=True):
+            if value is None and name != "B":
+                raise TypeError(f"expected {name} a callable t -> matrix or a constant matrix, actual value: None")
             if callable(value):
                 self._funcs[name] = value
             elif value is not None:
-                arr = self._as_matrix(name, value, None)
+                arr = self._as_matrix(name, np.atleast_2d(value) if name == "C" else value, None)
                 self._const[name] = arr
                 self._funcs[name] = lambda t, arr=arr: arr
         A0 = self._as_matrix("A", self._funcs["A"](self.t0), None)
