@@ -5,8 +5,10 @@ claim next to what was measured.
 Usage::
 
     python scripts/reproduce_papers.py [--out outputs/papers] [--fast]
-        [--papers efimov2017 lopez-ramirez2016 wetzlinger]
+        [--papers efimov2017 lopez-ramirez2016 wetzlinger galvan-guerra2017 kratz-liebscher1998]
 
+Galvan-Guerra et al. 2017 (cascaded HOSM observer for LTV systems) and Kratz and Liebscher 1998 (LTV strong
+observability) are reproduced by ``scripts/reproduce_slides_ltv.py``, imported when present.
 Efimov et al. 2017 (switched-gain differentiator) is reproduced by ``reproduce_efimov2017`` of
 ``scripts/reproduce_efimov2017.py``, imported when present. Lopez-Ramirez et al. 2016 (ILF finite-time /
 fixed-time observers, section V) and Wetzlinger et al. (discrete-time HOSM observer, section 6) are reproduced
@@ -499,6 +501,22 @@ def reproduce_slides_unknown_inputs(key: str, out_dir: Path | None, fast: bool) 
     return module.RUNNERS[key](out_dir, fast)
 
 
+# ----------------------------------------------------------------------------------------------------------------
+# Fridman's slides, LTV systems: Kratz and Liebscher 1998, Galvan-Guerra, Fridman and Davila 2017
+# (from scripts/reproduce_slides_ltv.py)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _slides_ltv(runner: str, out_dir: Path | None, fast: bool) -> list[dict] | None:
+    path = Path(__file__).with_name("reproduce_slides_ltv.py")
+    if not path.exists():
+        return None
+    spec = importlib.util.spec_from_file_location("reproduce_slides_ltv", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return getattr(module, runner)(out_dir, fast)
+
+
 #: ``--papers`` choice -> (citation, runner); a runner takes the figure directory (or None) and ``fast`` and
 #: returns the claims as dicts with ``claim``, ``measured`` and ``ok`` (or None when its script is absent).
 PAPERS = {
@@ -525,6 +543,14 @@ PAPERS = {
     "left-inverse": (
         "Fridman's slides: static left inverse (Bejarano, Fridman and Poznyak 2009)",
         lambda out, fast: reproduce_slides_unknown_inputs("left-inverse", out, fast),
+    ),
+    "galvan-guerra2017": (
+        "Galvan-Guerra, Fridman and Davila 2017 (cascaded HOSM observer for LTV systems; our example)",
+        lambda out, fast: _slides_ltv("reproduce_galvan_guerra2017", out, fast),
+    ),
+    "kratz-liebscher1998": (
+        "Kratz and Liebscher 1998 (LTV strong observability; the slides' plants)",
+        lambda out, fast: _slides_ltv("reproduce_kratz_liebscher1998", out, fast),
     ),
 }
 

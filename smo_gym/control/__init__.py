@@ -2,7 +2,9 @@
 
 Disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
 and compensation of unmatched disturbances through the sliding surface; plants from the slides or linearized
-from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag.
+from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag. For linear
+time-varying plants: Kratz and Liebscher's strong-observability test and the cascaded HOSM observer of
+Galvan-Guerra, Fridman and Davila (2017).
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
 """
@@ -18,6 +20,15 @@ from .controllers import (
     regular_form,
 )
 from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz, sampled_observer_gain
+from .ltv import (
+    CascadedLTVObserver,
+    LTVPlant,
+    LTVStrongObservabilityReport,
+    ltv_example,
+    ltv_state_map,
+    ltv_strong_observability,
+    simulate_ltv,
+)
 from .plants import (
     LinearPlant,
     MolinariDecoupling,
@@ -54,10 +65,13 @@ from .unknown_inputs import (
 
 __all__ = [
     "CascadedHOSMObserver",
+    "CascadedLTVObserver",
     "CompensationController",
     "FunctionalObservabilityReport",
     "FunctionalUnknownInputObserver",
     "IntegralSlidingModeController",
+    "LTVPlant",
+    "LTVStrongObservabilityReport",
     "LeftInverseIdentifier",
     "LeftInverseReport",
     "LinearPlant",
@@ -85,12 +99,16 @@ __all__ = [
     "left_inverse",
     "linearize",
     "lqr",
+    "ltv_example",
+    "ltv_state_map",
+    "ltv_strong_observability",
     "molinari_decoupling",
     "output_error_lipschitz",
     "regular_form",
     "relative_degrees",
     "sampled_observer_gain",
     "simulate",
+    "simulate_ltv",
     "steady_state_error",
     "strong_detectability",
     "strong_observability",
