@@ -293,8 +293,8 @@ class WorstCaseOptimal(Observer):
         ``L >= |f''|``, per channel if an array.
     noise : float or array_like or None
         :math:`\epsilon \ge |\eta_k|`, the noise bound (not a standard deviation: :func:`bounded_noise` converts
-        one), per channel if an array; 0 for exact samples. ``None``: estimated online from the window [ASHG25]
-        (module notes).
+        one), per channel if an array; 0 for exact samples. ``None``: estimated online from the window by a chord
+        rule derived here, not the estimate of [ASHG25] (module notes).
     window : int, optional
         ``m``, the largest lag used (samples), in ``[1, MAX_WINDOW]``. Default: with ``noise``,
         :func:`default_window` per channel (the lag of the best single bound; more lags only narrow the
