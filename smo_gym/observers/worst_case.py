@@ -21,10 +21,10 @@ so that :math:`B_k` (:attr:`WorstCaseOptimal.certified_bound`) is an error bound
 every signal and noise within the assumptions, and is never larger than the best single lag's bound
 :math:`E_m = \min_{j \le m} r_j`; the adversarial data :math:`f = -Lt^2/2`, :math:`\eta = -\epsilon` before
 :math:`t_k` and :math:`+\epsilon` at :math:`t_k` make every lag interval :math:`[f',\ f' + 2r_j]`, so the error
-meets :math:`E_m` there: it is this estimator's worst case. Haimovich, Seeber, Aldana-López and Gómez-Gutiérrez
-(2021) pose the estimate as an optimization over all the window's samples; here only the constraints that pair the
-newest sample with an earlier one are used, which have the closed form above and cost ``O(m)`` per channel and
-sample. Asking one signal to fit all the samples at once can only narrow the interval further.
+meets :math:`E_m` there: it is this estimator's worst case. Only the constraints that pair the newest sample with
+an earlier one are used: they have the closed form above and cost ``O(m)`` per channel and sample. Asking one
+signal to fit all the window's samples at once narrows the interval on typical data (not in the worst case): this
+is not the linear program of Haimovich et al. (2021), see "Relation to the cited papers" below.
 
 Best worst-case accuracy. :math:`r_j` is smallest at the lag :math:`jh \approx 2\sqrt{\epsilon/L}`, so the
 default window :math:`m = \lceil 2\sqrt{\epsilon/L}/h\rceil` holds it, and
@@ -33,18 +33,25 @@ default window :math:`m = \lceil 2\sqrt{\epsilon/L}/h\rceil` holds it, and
     \qquad E_m \to 2\sqrt{\epsilon L}\quad (h \to 0)
 
 (with :math:`x = 2\sqrt{\epsilon/L}/h`, :math:`E_m = \sqrt{\epsilon L}\min_j(x/j + j/x)`: the excess is
-:math:`O(1/x^2)`, 0.14 % at :math:`x = 6.3`). No differentiator, sampled or not, does better: two signals
+:math:`O(1/x^2)`, 0.14 % at :math:`x = 6.3`). No *sampled* differentiator guarantees less than :math:`E_m` itself:
+a signal :math:`\varphi` with :math:`|\varphi''| \le L`, :math:`|\varphi(t_k - jh)| \le \epsilon` at every past
+sample and :math:`\varphi'(t_k) = E_m` exists (computed by a linear program in the tests, for ``x`` = 0, 0.3,
+1.5, 3 and 28.3), so :math:`\pm\varphi` with noise :math:`\mp\varphi` give the same (zero) samples and derivatives
+:math:`\pm E_m`: whatever a differentiator reports, it is off by :math:`E_m` on one of them. This estimator's worst
+case is therefore the smallest possible. No differentiator, sampled or not, does better than the limit: two signals
 :math:`f_1, f_2` with :math:`|f_i''| \le L` whose difference :math:`g = f_1 - f_2` stays within
 :math:`\pm 2\epsilon` on the past (both then fit the same measurements) can reach :math:`g'(t_k) = 4\sqrt{\epsilon L}`:
 :math:`g(t) = -2\epsilon + L(t - t_k + T)^2` on :math:`[t_k - T, t_k]`, :math:`T = 2\sqrt{\epsilon/L}`, constant
 before. Whatever a differentiator reports, it is off by :math:`2\sqrt{\epsilon L}` on one of them (the fundamental
-limitation of Seeber and Haimovich 2023, whose sampled optimum also tends to it as :math:`h \to 0`). Without noise
-the error is :math:`Lh/2`, the smallest any sampled differentiator can guarantee (Seeber and Haimovich's
-quasi-exactness: parabolas of curvature :math:`\pm L` through the same samples differ by :math:`Lh` in slope); for
+limitation that Seeber and Haimovich 2023 show; their sampled differentiator's bound also tends to it as
+:math:`h \to 0`). Without noise the error is :math:`E_m = Lh/2`, the smallest any sampled differentiator can
+guarantee (Seeber and Haimovich's quasi-exactness: parabolas of curvature :math:`\pm L` through the same samples
+differ by :math:`Lh` in slope); for
 :math:`h \ge \sqrt{2\epsilon/L}` the best lag is one sample: the backward difference is then worst-case optimal.
 
-Unknown noise bound (``noise=None``). As Aldana-López, Seeber, Haimovich and Gómez-Gutiérrez (2025) do, the noise
-bound is estimated from the window: for three samples :math:`t_a < t_b < t_c = t_k`, the chord through
+Unknown noise bound (``noise=None``). Aldana-López, Seeber, Haimovich and Gómez-Gutiérrez (2025) differentiate
+with an unknown noise bound; here (derived, not taken from that paper) the bound is estimated from the window:
+for three samples :math:`t_a < t_b < t_c = t_k`, the chord through
 :math:`(t_a, y_a)` and :math:`(t_c, y_c)` misses :math:`y_b` by :math:`Q_{abc}`, of which at most
 :math:`L(t_b - t_a)(t_c - t_b)/2` is the signal's curvature and at most :math:`2\epsilon` the noise, so
 
@@ -60,6 +67,39 @@ with :math:`\hat\epsilon_k \le \epsilon`, and the true derivative in those drawn
 at most the width of the latter, :math:`2\min_{j \le \hat m_k} r_j`; once :math:`\hat\epsilon_k` approaches
 :math:`\epsilon` (noise that visits both ends of its range within the window) this is the known-noise guarantee
 within a factor 2. The estimate forgets: an outlier or an impact raises it for ``W`` samples only.
+
+Relation to the cited papers. Only the abstracts of [HSAG21], [SH23] and [ASHG25] and the first paragraph of
+the introduction of [ASHG25] could be read (stored copies of the papers' pages hold their beginning only, the
+abstract of [HSAG21] came from an arXiv feed; queries tried: the arXiv numbers 2106.05320, 2111.12638 and
+2404.05863 with "linear program", "window", "quasi-exact", "theorem", "noise bound estimate", "worst-case error
+bound"). No equation, theorem or algorithm statement of any of them was visible, so none is cited by number here.
+What the abstracts say (paraphrased), and how this module stands:
+
+* [HSAG21]: the differentiator solves a linear program built from the available samples, needs no tuning beyond
+  the noise and second-derivative bounds, and has a tight worst-case error bound that is the best of all causal
+  differentiators and is reached after a fixed number of samples. This estimator is **not** that linear program
+  (its variables, constraints and output could not be read): it is the closed form of the pairwise lag constraints
+  above. Its worst case is nevertheless the smallest a sampled differentiator can guarantee (previous paragraphs,
+  checked numerically), reached once ``m`` samples have come: the worst-case accuracy the abstract claims. On
+  typical data its interval is wider than the range of derivatives of all the signals consistent with the window
+  (measured: :math:`B_k` 1.08 to 1.50 times that range's half-width over the last 60 samples, ``h = 1 ms``,
+  ``L = 5``, :math:`\epsilon = 10^{-3}`), and an estimator using that range may err less there. The closed form
+  of the paper's bound could not be read; in the setting here (uniform sampling, :math:`|f''| \le L`,
+  :math:`|\eta| \le \epsilon`) a bound that is the best among causal differentiators equals :math:`E_m` with the
+  default window.
+* [SH23]: shows the smallest worst-case error causal differentiators can achieve, in continuous time and from
+  samples, and calls quasi-exact the sampled differentiators with the lowest possible worst-case error without
+  noise. The values :math:`2\sqrt{\epsilon L}` and :math:`Lh/2` are derived and checked here, not read there. A
+  third-party summary of [ASHG25] (not the paper) gives the optimal worst-case accuracy as :math:`2\sqrt{2NL}`,
+  which disagrees with :math:`2\sqrt{\epsilon L}`; both halves of the latter (the pair of signals above, and this
+  estimator attaining it as :math:`h \to 0`) are checked here, and no convention of the paper that would explain
+  the factor could be read, so it is not used.
+* [ASHG25]: the noise is bounded by an unknown constant; the sampled differentiator is quasi-exact and keeps the
+  optimal worst-case bound. How the paper estimates the noise bound could not be read: the chord estimate of the
+  ``noise=None`` paragraph is derived here (never above the true bound, a theorem checked in the tests), not
+  taken from the paper, and whether the paper's estimate approaches the bound from above or from below is not
+  known. The paper's differentiator (a regularized, sliding-mode-filtered linear adaptive one with a
+  Lipschitz-continuous output) is not implemented.
 
 References
 ----------
@@ -236,11 +276,14 @@ def _bounded_noise_rule(cls, calibration, order, kwargs):
     examples=(dict(lipschitz=5.0, noise=1e-3), dict(lipschitz=5.0)),
 )
 class WorstCaseOptimal(Observer):
-    r"""The sampled differentiator with the best worst-case accuracy ([HSAG21], [SH23]; module notes).
+    r"""A sampled differentiator with the best worst-case accuracy ([HSAG21], [SH23]; module notes).
 
-    The derivative is the midpoint of the intersection of the intervals that each lag ``j = 1..m`` of the window
-    gives under :math:`|f''| \le L` and :math:`|\eta| \le \epsilon`; :attr:`certified_bound` is its half-width, an
-    error bound valid at every sample. The value estimate is the measurement itself (nothing is filtered).
+    It attains the smallest worst-case error any sampled differentiator can guarantee, the accuracy [HSAG21] claim
+    for theirs, but it is not their linear program: the derivative is the midpoint of the intersection of the
+    intervals that each lag ``j = 1..m`` of the window gives under :math:`|f''| \le L` and
+    :math:`|\eta| \le \epsilon`; :attr:`certified_bound` is its half-width, an error bound valid at every sample
+    (on typical data wider than the tightest the window allows). The value estimate is the measurement itself
+    (nothing is filtered).
 
     Parameters
     ----------
@@ -250,8 +293,8 @@ class WorstCaseOptimal(Observer):
         ``L >= |f''|``, per channel if an array.
     noise : float or array_like or None
         :math:`\epsilon \ge |\eta_k|`, the noise bound (not a standard deviation: :func:`bounded_noise` converts
-        one), per channel if an array; 0 for exact samples. ``None``: estimated online from the window [ASHG25]
-        (module notes).
+        one), per channel if an array; 0 for exact samples. ``None``: estimated online from the window by a chord
+        rule derived here, not the estimate of [ASHG25] (module notes).
     window : int, optional
         ``m``, the largest lag used (samples), in ``[1, MAX_WINDOW]``. Default: with ``noise``,
         :func:`default_window` per channel (the lag of the best single bound; more lags only narrow the
