@@ -1,9 +1,10 @@
 """Output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 3 and 6).
 
 Disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
-compensation of unmatched disturbances through the sliding surface, and finite-time output-feedback stabilization
-with Levant's arbitrary-order sliding-mode controllers (Angulo, Fridman and Levant 2012); plants from the slides or linearized
-from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag.
+compensation of unmatched disturbances through the sliding surface, and finite-time output-feedback
+stabilization with Levant's arbitrary-order sliding-mode controllers (Angulo, Fridman and Levant 2012); plants
+from the slides or linearized from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization
+and actuator lag.
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
 """

@@ -488,6 +488,23 @@ class FiniteTimeStabilizer(StateFeedback):
     sliding : SlidingOutput
     sigma : list of ndarray
         The chains' estimated :math:`(\zeta_i, \ldots, \zeta_i^{(r_i-1)})` at the last step.
+
+    Notes
+    -----
+    The slides print the example :math:`H_2` as ":math:`\zeta_i \leftarrow \dot\zeta_i + \beta|\zeta_i|^{1/2}
+    \mathrm{sign}\,\zeta_i`" (text scan); read as Levant's nested 2-sliding controller
+    :math:`H_2 = \mathrm{sign}(\dot\zeta + \beta|\zeta|^{1/2}\mathrm{sign}\,\zeta)`, which :func:`nested_hosm`
+    gives for ``r = 2``. Two conditions the slides leave implicit, both measured on the slides' Furuta model
+    (``tests/test_finite_time_control.py``, ``scripts/reproduce_slides_finite_time.py``):
+
+    - the differentiator of the observer must be sized for the disturbance the state-dependent part produces
+      (:math:`\|w\| \le W_1\|x\| + W_2` with the largest :math:`\|x\|` of the transient); with the bound sized for
+      ``W2`` alone the loop is lost from 0.2 rad with ``W1 = 10`` whatever ``k1`` (the slides: "adapt the gain of
+      the differentiator");
+    - sampled, the ripple :math:`O(\tau)` grows with the gain and the gain with :math:`\|\hat x\|`: with
+      :math:`\tau\,\alpha k_1/c` too large the two feed each other and the loop diverges (``alpha = 25``,
+      ``c = 10``, ``tau = 1 ms``, no ``W1``, from 0.05 rad: ``k1 = 10`` converges, ``k1 = 40`` diverges); ``k1``
+      must dominate ``W1`` with a moderate margin.
     """
 
     def __init__(
