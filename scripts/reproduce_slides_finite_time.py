@@ -206,7 +206,7 @@ def reproduce_angulo2012_mujoco(out_dir: Path | None = None, fast: bool = False)
     """The MuJoCo Furuta pendulum from measured positions (ideal sensor, and a 12-bit encoder unless fast)."""
     claims = []
     for sensor in ("ideal",) if fast else ("ideal", "encoder-12bit"):
-        rows = furuta_mujoco(sensor=sensor, t_final=6.0 if fast else 8.0, t_steady=4.0 if fast else 5.0)
+        rows = furuta_mujoco(sensor=sensor, t_final=4.0 if fast else 8.0, t_steady=3.0 if fast else 5.0)
         ft = rows[0]
         desc = []
         for r in rows:
