@@ -461,7 +461,7 @@ class FiniteTimeStabilizer(StateFeedback):
     observer : CascadedHOSMObserver (or any observer with ``plant``, ``dt``, ``x_hat``, ``update``, ``advance``)
         Its plant's unknown input must be matched (``span D`` in ``span B``).
     alpha : float or array_like, shape (m,)
-        ``> 0``.
+        ``> 0``, in the order of :attr:`sliding` ``.degrees``.
     k1 : float or array_like, shape (m,)
         ``>= 0``: the state-proportional part of the gain.
     k2 : float or array_like, shape (m,)
@@ -469,13 +469,13 @@ class FiniteTimeStabilizer(StateFeedback):
     output : array_like, shape (m, n), optional
         The virtual output ``K`` (checked); default :func:`sliding_output`'s canonical one (``G`` unit
         upper-triangular).
-    output_scale : float
-        ``c > 0``: the chains are :math:`c\zeta` (``K`` and ``G`` multiplied by ``c``). Levant's controllers need
-        ``alpha`` above a threshold even without perturbation (a property of :math:`H_r` and the betas, not of the
-        size of ``zeta``), while the physical control amplitude is :math:`\alpha(k_1\|x\| + k_2)/c` and the
-        perturbation condition :math:`\alpha_i k_{i,2} > c\,\|G_i\|W_2`: ``c`` lets a control just above the
-        disturbance meet that threshold, and the sampled ripple (:math:`O(\tau)` times the physical amplitude)
-        stay small.
+    output_scale : float or array_like, shape (m,)
+        ``c > 0``: the chains are :math:`c_i\zeta_i` (rows of ``K``, ``G``, ``F`` multiplied by ``c_i``).
+        Levant's controllers need ``alpha`` above a threshold even without perturbation (a property of
+        :math:`H_r` and the betas, not of the size of ``zeta``), while the physical control amplitude is
+        :math:`\alpha_i(k_{i,1}\|x\| + k_{i,2})/c_i` and the perturbation condition
+        :math:`\alpha_i k_{i,2} > c_i\|G_i\|W_2`: ``c`` lets a control just above the disturbance meet that
+        threshold, and the sampled ripple (:math:`O(\tau)` times the physical amplitude) stay small.
     kind : {"quasi-continuous", "nested"}
     betas : array_like, optional
         For every chain (default :data:`DEFAULT_BETAS` of each ``r_i``).
@@ -531,17 +531,22 @@ class FiniteTimeStabilizer(StateFeedback):
                 "expected a matched unknown input (span D inside span B) for finite-time stabilization through u, "
                 f"actual value: ||B B^+ D - D|| = {miss:.3g}"
             )
-        scale = check_positive("output_scale", output_scale)
         base = sliding_output(P.A, P.B, output)
-        self.sliding = SlidingOutput(
-            K=scale * base.K, degrees=base.degrees, T=scale * base.T, G=scale * base.G, F=scale * base.F
-        )
 
         def per_output(name, value, check):
             arr = np.broadcast_to(check(name, value), (m,)) if np.ndim(value) == 0 else check(name, value)
             if arr.shape != (m,):
                 raise ValueError(f"expected {name} scalar or of shape ({m},), actual value: shape {arr.shape}")
             return np.array(arr, dtype=float)
+
+        c = per_output("output_scale", output_scale, check_positive_array)
+        self.sliding = SlidingOutput(
+            K=c[:, None] * base.K,
+            degrees=base.degrees,
+            T=np.repeat(c, base.degrees)[:, None] * base.T,
+            G=c[:, None] * base.G,
+            F=c[:, None] * base.F,
+        )
 
         self.alpha = per_output("alpha", alpha, check_positive_array)
         self.k1 = per_output("k1", k1, check_nonnegative_array)
