@@ -517,12 +517,40 @@ def _slides_ltv(runner: str, out_dir: Path | None, fast: bool) -> list[dict] | N
     return getattr(module, runner)(out_dir, fast)
 
 
+# ----------------------------------------------------------------------------------------------------------------
+# Levant 2003, 2005 and Angulo, Fridman and Levant 2012 (from scripts/reproduce_slides_finite_time.py)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _finite_time(name: str):
+    """A runner of ``scripts/reproduce_slides_finite_time.py`` (None when the file is absent)."""
+    path = Path(__file__).with_name("reproduce_slides_finite_time.py")
+    if not path.exists():
+        return lambda out, fast: None
+    spec = importlib.util.spec_from_file_location("reproduce_slides_finite_time", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return getattr(module, name)
+
+
 #: ``--papers`` choice -> (citation, runner); a runner takes the figure directory (or None) and ``fast`` and
 #: returns the claims as dicts with ``claim``, ``measured`` and ``ok`` (or None when its script is absent).
 PAPERS = {
     "efimov2017": (
         "Efimov, Polyakov, Levant and Perruquetti 2017",
         lambda out, fast: reproduce_efimov2017(out),
+    ),
+    "levant2005": (
+        "Levant 2003, 2005 (r-sliding accuracy)",
+        lambda out, fast: _finite_time("reproduce_levant2005")(out, fast),
+    ),
+    "angulo2012": (
+        "Angulo, Fridman and Levant 2012 (slides' Furuta model)",
+        lambda out, fast: _finite_time("reproduce_angulo2012")(out, fast),
+    ),
+    "angulo2012-mujoco": (
+        "Angulo, Fridman and Levant 2012 (MuJoCo Furuta pendulum)",
+        lambda out, fast: _finite_time("reproduce_angulo2012_mujoco")(out, fast),
     ),
     "lopez-ramirez2016": (
         "Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016",

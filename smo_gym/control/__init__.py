@@ -1,10 +1,12 @@
-"""Output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 3 and 6).
+"""Output-feedback control and unknown-input observation of linear plants (Fridman's slides, sections 1, 3, 6, 7).
 
 Disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
-and compensation of unmatched disturbances through the sliding surface; plants from the slides or linearized
-from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag. For linear
-time-varying plants: Kratz and Liebscher's strong-observability test and the cascaded HOSM observer of
-Galvan-Guerra, Fridman and Davila (2017).
+compensation of unmatched disturbances through the sliding surface, and finite-time output-feedback
+stabilization with Levant's arbitrary-order sliding-mode controllers (Angulo, Fridman and Levant 2012); observers
+beyond strong observability (strongly detectable plants, functional observers, static left inverses); for linear
+time-varying plants, Kratz and Liebscher's strong-observability test and the cascaded HOSM observer of
+Galvan-Guerra, Fridman and Davila (2017); plants from the slides or linearized from MuJoCo models; a sampled-data
+closed-loop simulator with noise, quantization and actuator lag.
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
 """
@@ -20,6 +22,18 @@ from .controllers import (
     regular_form,
 )
 from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz, sampled_observer_gain
+from .finite_time import (
+    DEFAULT_BETAS,
+    FiniteTimeStabilizer,
+    RelativeDegreeError,
+    SlidingOutput,
+    hosm_control,
+    nested_hosm,
+    quasi_continuous_hosm,
+    settling_time,
+    simulate_chain,
+    sliding_output,
+)
 from .ltv import (
     CascadedLTVObserver,
     LTVPlant,
@@ -64,9 +78,11 @@ from .unknown_inputs import (
 )
 
 __all__ = [
+    "DEFAULT_BETAS",
     "CascadedHOSMObserver",
     "CascadedLTVObserver",
     "CompensationController",
+    "FiniteTimeStabilizer",
     "FunctionalObservabilityReport",
     "FunctionalUnknownInputObserver",
     "IntegralSlidingModeController",
@@ -81,7 +97,9 @@ __all__ = [
     "NoStaticLeftInverseError",
     "NotStronglyDetectableError",
     "NotStronglyObservableError",
+    "RelativeDegreeError",
     "SimulationResult",
+    "SlidingOutput",
     "StateFeedback",
     "StrongDetectabilityReport",
     "StrongObservabilityReport",
@@ -94,6 +112,7 @@ __all__ = [
     "furuta_disturbance",
     "furuta_slides",
     "helicopter_slides",
+    "hosm_control",
     "invariant_zeros",
     "left_annihilator",
     "left_inverse",
@@ -103,12 +122,17 @@ __all__ = [
     "ltv_state_map",
     "ltv_strong_observability",
     "molinari_decoupling",
+    "nested_hosm",
     "output_error_lipschitz",
+    "quasi_continuous_hosm",
     "regular_form",
     "relative_degrees",
     "sampled_observer_gain",
+    "settling_time",
     "simulate",
+    "simulate_chain",
     "simulate_ltv",
+    "sliding_output",
     "steady_state_error",
     "strong_detectability",
     "strong_observability",
