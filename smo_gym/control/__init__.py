@@ -1,6 +1,8 @@
-"""Output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 3 and 6).
+"""Observers and output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 1, 3, 6).
 
-Disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
+Conventional sliding-mode observers (Utkin, Drakunov's step-by-step, Walcott-Zak) and the unknown-input observer
+without differentiation (Darouach et al. 1994); disturbance identification with the cascaded HOSM observer,
+compensation control, output integral sliding mode,
 and compensation of unmatched disturbances through the sliding surface; plants from the slides or linearized
 from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag.
 
@@ -16,6 +18,21 @@ from .controllers import (
     UnmatchedCompensationController,
     lqr,
     regular_form,
+)
+from .conventional import (
+    ObservableBlockForm,
+    StepByStepObserver,
+    UnknownInputConditionError,
+    UnknownInputConditions,
+    UnknownInputObserver,
+    UtkinObserver,
+    WalcottZakDesign,
+    WalcottZakObserver,
+    certify_walcott_zak,
+    observable_block_form,
+    output_coordinate_change,
+    unknown_input_conditions,
+    walcott_zak_design,
 )
 from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz, sampled_observer_gain
 from .plants import (
@@ -43,10 +60,19 @@ __all__ = [
     "LuenbergerObserver",
     "MolinariDecoupling",
     "NotStronglyObservableError",
+    "ObservableBlockForm",
     "SimulationResult",
     "StateFeedback",
+    "StepByStepObserver",
     "StrongObservabilityReport",
+    "UnknownInputConditionError",
+    "UnknownInputConditions",
+    "UnknownInputObserver",
     "UnmatchedCompensationController",
+    "UtkinObserver",
+    "WalcottZakDesign",
+    "WalcottZakObserver",
+    "certify_walcott_zak",
     "fit_order",
     "furuta_disturbance",
     "furuta_slides",
@@ -56,6 +82,8 @@ __all__ = [
     "linearize",
     "lqr",
     "molinari_decoupling",
+    "observable_block_form",
+    "output_coordinate_change",
     "output_error_lipschitz",
     "regular_form",
     "relative_degrees",
@@ -64,4 +92,6 @@ __all__ = [
     "steady_state_error",
     "strong_observability",
     "total_variation_rate",
+    "unknown_input_conditions",
+    "walcott_zak_design",
 ]
