@@ -541,6 +541,9 @@ class StepByStepObserver(_SampledObserver):
         Step ``i`` was on its sliding manifold at the last sample (implicit: no component saturated).
     xi_hat : ndarray, shape (..., n)
         The reconstructions :math:`(z_1, \ldots, z_r)`; ``x_hat = xi_hat @ T``.
+    s, nu : ndarray, shape (..., n)
+        Per block ``i < r``: the sliding variable :math:`s_i = z_i - \hat x_i^-` before the correction and the
+        injection :math:`\nu_i` at the last sample.
     """
 
     def __init__(self, A, B, C, dt, gain, *, tau=None, discretization="implicit"):
@@ -561,9 +564,10 @@ class StepByStepObserver(_SampledObserver):
 
     def _reset(self, x0, y0):
         xi0 = x0 @ self.form.T.T
+        self._x_steps = xi0.copy()  # step observers x_hat_i (blocks 1..r-1 used), from the initial guess
         xi0[..., self._blocks[0]] = y0 @ self._C1_inv.T
         self.xi_hat = xi0  # reconstructions z_1..z_r
-        self._x_steps = xi0.copy()  # step observers x_hat_i (blocks 1..r-1 used)
+        self.s = np.zeros(self._batch + (self.n,))
         self._nu_f = np.zeros(self._batch + (self.n,))
         self.nu = np.zeros(self._batch + (self.n,))
         self.sliding = np.zeros(self._batch + (self.n_steps,), dtype=bool)
@@ -576,6 +580,7 @@ class StepByStepObserver(_SampledObserver):
         sliding = []
         for i in range(self.n_steps):
             s = self.xi_hat[..., b[i]] - self._x_steps[..., b[i]]
+            self.s[..., b[i]] = s
             nu = _injection(s, self.gain[i], dt, self.discretization)
             self._x_steps[..., b[i]] += dt * nu
             self.nu[..., b[i]] = nu
@@ -599,7 +604,7 @@ class StepByStepObserver(_SampledObserver):
             self._x_steps[..., rows] += self.dt * drift
 
     def _diagnostics(self):
-        return {"sliding": self.sliding, "nu": self.nu}
+        return {"sliding": self.sliding, "nu": self.nu, "s": self.s, "xi_hat": self.xi_hat}
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -897,6 +902,8 @@ class WalcottZakObserver(_SampledObserver):
         if self.discretization == "euler":
             norm = np.linalg.norm(s, axis=-1, keepdims=True)
             return np.where(norm > 0, self.rho * s / np.where(norm > 0, norm, 1.0), 0.0)
+        if self.m == 1:  # the implicit step of a scalar sign is a clip
+            return np.clip(s / (self.dt * self._lam[0]), -self.rho, self.rho)
         # implicit: v = rho z/|z|, z = s - dt M v  <=>  z_i = s_i r / (r + dt rho lam_i) in M's eigenbasis, r = |z|
         st = s @ self._Q
         hl = self.dt * self._lam
@@ -907,7 +914,9 @@ class WalcottZakObserver(_SampledObserver):
         r = np.maximum(np.linalg.norm(st, axis=-1, keepdims=True) - c.max(), 0.0)
         for _ in range(60):
             d = r + c
-            phi = np.sum(st**2 / d**2, axis=-1, keepdims=True) - 1.0
+            phi = np.where(slide, 0.0, np.sum(st**2 / d**2, axis=-1, keepdims=True) - 1.0)
+            if np.all(np.abs(phi) < 1e-13):
+                break
             dphi = -2.0 * np.sum(st**2 / d**3, axis=-1, keepdims=True)
             r = np.maximum(r - phi / np.where(dphi < 0, dphi, -1.0), 0.0)
         zt = st * r / (r + c)
@@ -959,7 +968,8 @@ class UnknownInputObserver(_SampledObserver):
         ``B`` may be None.
     dt : float
     decay : float
-        ``>= 0``; the eigenvalues of ``N`` that ``K`` can move go left of ``-decay``.
+        ``>= 0``; the eigenvalues of ``N`` that ``K`` can move go left of ``-decay``. The invariant zeros cannot
+        be moved: they must lie left of ``-decay`` (else :class:`UnknownInputConditionError`).
     K : array_like, shape (n, p), optional
         A given gain instead (``N`` must be Hurwitz).
 
@@ -981,6 +991,13 @@ class UnknownInputObserver(_SampledObserver):
         _, _, _, self.D = _check_system(self.A, None, self.C, D)
         self.conditions = unknown_input_conditions(self.A, self.C, self.D).require()
         decay = check_nonnegative("decay", decay)
+        zeros = self.conditions.invariant_zeros
+        if K is None and np.any(zeros.real >= -decay):
+            raise UnknownInputConditionError(
+                "minimum phase",
+                f"expected the invariant zeros (fixed eigenvalues of N) left of -decay = {-decay}, actual value: "
+                f"{zeros}",
+            )
         A, B, C, D = self.A, self.B, self.C, self.D
         n, p = self.n, self.p
         self.E = -D @ np.linalg.pinv(C @ D)
