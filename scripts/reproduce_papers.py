@@ -483,6 +483,21 @@ def reproduce_efimov2017(out_dir: Path | None) -> list[dict] | None:
     return module.reproduce_efimov2017(out_dir)
 
 
+# ----------------------------------------------------------------------------------------------------------------
+# Fridman's slides, section 1 (from scripts/reproduce_slides_conventional.py)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _slides_conventional(key: str, fast: bool) -> list[dict] | None:
+    path = Path(__file__).with_name("reproduce_slides_conventional.py")
+    if not path.exists():
+        return None
+    spec = importlib.util.spec_from_file_location("reproduce_slides_conventional", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.EXAMPLES[key][1](fast)
+
+
 #: ``--papers`` choice -> (citation, runner); a runner takes the figure directory (or None) and ``fast`` and
 #: returns the claims as dicts with ``claim``, ``measured`` and ``ok`` (or None when its script is absent).
 PAPERS = {
@@ -498,13 +513,33 @@ PAPERS = {
         "Wetzlinger, Reichhartinger and Horn",
         lambda out, fast: reproduce_wetzlinger(out),
     ),
+    "utkin": (
+        "Utkin 1992 (Fridman's slides, section 1: simple sliding-mode observer)",
+        lambda out, fast: _slides_conventional("utkin", fast),
+    ),
+    "drakunov-utkin": (
+        "Drakunov 1992; Drakunov and Utkin 1995 (step-by-step observer)",
+        lambda out, fast: _slides_conventional("drakunov-utkin", fast),
+    ),
+    "walcott-zak": (
+        "Walcott and Zak 1987; Edwards and Spurgeon 1994",
+        lambda out, fast: _slides_conventional("walcott-zak", fast),
+    ),
+    "hautus-uio": (
+        "Hautus 1983; Darouach, Zasadzinski and Xu 1994",
+        lambda out, fast: _slides_conventional("hautus-uio", fast),
+    ),
+    "furuta-unknown-input": (
+        "Walcott-Zak observer and UIO on the MuJoCo Furuta pendulum",
+        lambda out, fast: _slides_conventional("furuta-unknown-input", fast),
+    ),
 }
 
 
 def _print(paper: str, claims: list[dict] | None) -> None:
     print(f"\n=== {PAPERS[paper][0]} ===")
     if claims is None:
-        print("pending (scripts/reproduce_efimov2017.py not present yet)")
+        print("pending (its script is not present yet)")
         return
     for c in claims:
         print(f"[{'ok' if c['ok'] else 'DIFFERS'}] {c['claim']}\n        measured: {c['measured']}")
