@@ -232,6 +232,26 @@ def test_step_by_step_noise_free_error_is_first_order_in_the_step():
     assert abs(slope - 1.0) < 0.15, (slope, errs)
 
 
+def test_step_by_step_noise_response_grows_like_one_over_dt_to_the_block_index():
+    """In sliding mode every injection is a backward difference: a measurement noise eta reaches block i + 1 as
+    eta / dt^i. While no step saturates the observer is linear, so the noisy minus the noise-free estimate is the
+    noise response alone."""
+    eta, steps = 1e-5, [2e-3, 4e-3, 8e-3]
+    rms = []
+    for dt in steps:
+        noise = eta * np.random.default_rng(0).uniform(-1.0, 1.0, size=(int(round(3.0 / dt)) + 1, 1))
+        obs = c.StepByStepObserver(A3, B3, C3, dt, gain=[4.0, 12.0])
+        t, X, U, _ = simulate(A3, B3, [1.0, 0.5, -0.3], 3.0, dt, u=sin_input)
+        clean = obs.run(X @ C3.T, U, x_hat0=[0.5, -0.5, 1.0]) @ obs.form.T.T
+        noisy = obs.run(X @ C3.T + noise, U, x_hat0=[0.5, -0.5, 1.0]) @ obs.form.T.T
+        assert obs.history["sliding"][t > 1.5].all()
+        d = (noisy - clean)[t > 1.5]
+        rms.append(np.sqrt(np.mean(d**2, axis=0)))
+    rms = np.array(rms)
+    for block, exponent in ((1, -1.0), (2, -2.0)):
+        assert abs(c.fit_order(steps, rms[:, block]) - exponent) < 0.15, (block, rms[:, block])
+
+
 def test_step_by_step_textbook_discretization_with_low_pass_filters_has_the_filter_ripple():
     """Explicit sign and low-pass filtered injections: the next block inherits the filter's ripple, about
     M_1 dt / tau for a sign switching every sample, and the last block worse; the implicit form has none."""

@@ -854,8 +854,8 @@ class WalcottZakObserver(_SampledObserver):
     :math:`v = M^{-1}s/dt` when that has norm at most :math:`\rho` (the sliding sample, :math:`F e_y^+ = 0`), else
     the unique root of a scalar equation in the eigenbasis of ``M`` (Acary and Brogliato 2010).
 
-    The observer corrects at the samples only, so between samples the error grows by about
-    :math:`dt\,D(w - v)`: the sampled error is ``O(dt ||D w||)`` (measured order 1 in ``dt``), which is large when
+    The observer corrects at the samples only and its prediction ignores ``w``, so between samples the error grows
+    by about :math:`dt\,Dw`: the sampled error is ``O(dt ||D w||)`` (measured order 1 in ``dt``), which is large when
     ``D`` is (the MuJoCo Furuta pendulum: ``||D|| ~ 700``). The unknown-input observer
     :class:`UnknownInputObserver` annihilates ``w`` instead and has no such term.
 
