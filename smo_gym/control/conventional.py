@@ -65,6 +65,7 @@ import scipy.linalg as sla
 
 from .._extras import require
 from .._validation import as_real_array, check_choice, check_nonnegative, check_positive, check_positive_array
+from ..design.gains import ackermann_observer_gain
 from ..design.lmi import LMIInfeasibleError
 from .plants import RANK_TOL, _matrix, _rank, invariant_zeros
 
@@ -147,8 +148,11 @@ def output_coordinate_change(C) -> np.ndarray:
 
 
 def _place(A, C, poles) -> np.ndarray:
-    """``L`` with eigenvalues of ``A + L C`` at ``poles`` (``scipy.signal.place_poles`` on the dual pair)."""
-    from scipy.signal import place_poles  # lazy: scipy.signal is slow to import
+    """``L`` with eigenvalues of ``A + L C`` at ``poles``: Ackermann's formula for one output, else
+    ``scipy.signal.place_poles`` on the dual pair (imported only then: it is slow to import)."""
+    if C.shape[0] == 1:
+        return -ackermann_observer_gain(A, C[0], poles)[:, None]
+    from scipy.signal import place_poles
 
     return -place_poles(A.T, C.T, poles).gain_matrix.T
 
