@@ -132,7 +132,7 @@ def test_utkin_explicit_sign_needs_the_filter_and_keeps_its_ripple():
     B = np.array([[0.0], [1.0]])
     C = np.array([[1.0, 0.0]])
     obs = c.UtkinObserver(A, B, C, dt, gain=rho, poles=[lam], tau=tau, discretization="euler")
-    t, X, U, _ = simulate(A, B, [1.0, 0.5], 1.0, dt, u=sin_input)
+    t, X, U, _ = simulate(A, B, [1.0, 0.5], 0.7, dt, u=sin_input)
     Xh = obs.run(X @ C.T, U, x_hat0=[0.0, 0.0])
     sel = t > 0.4
     assert np.all(np.abs(obs.history["nu"][sel]) == rho)  # the raw injection is useless as it stands
