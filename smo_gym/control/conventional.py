@@ -670,6 +670,13 @@ def unknown_input_conditions(A, C, D) -> UnknownInputConditions:
     A : array_like, shape (n, n)
     C : array_like, shape (p, n)
     D : array_like, shape (n, m)
+
+    Notes
+    -----
+    The slide "State reconstruction without differentiation [Hautus 1983]" lists "the system does not have
+    invariant zeroes" (strong observability) among the assumptions; Hautus's theorem needs only that they are
+    stable (strong* detectability), which is what is checked. Without zeros (``strongly_observable``) every
+    eigenvalue of the observer's error can be placed.
     """
     A, _, C, D = _check_system(A, None, C, D)
     m = D.shape[1]
@@ -881,6 +888,12 @@ class WalcottZakObserver(_SampledObserver):
     Attributes
     ----------
     v, v_filtered : ndarray, shape (..., m)
+
+    Notes
+    -----
+    The slides write the injection in a canonical form, :math:`\nu = \rho\,e_2/\|e_2\|` on the output errors
+    :math:`e_2` that ``w`` contaminates; :math:`F e_y` with :math:`FC = D^TP` is the coordinate-free form of the
+    same switching function (Edwards and Spurgeon 1994), used here so that no canonical form is needed.
     """
 
     def __init__(self, A, B, C, D, dt, rho, *, design=None, decay=0.0, tau=0.02, discretization="implicit"):
