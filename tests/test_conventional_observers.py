@@ -495,3 +495,16 @@ def test_mujoco_furuta_unknown_input_observers():
     assert res["walcott_zak"] < 0.2 * res["luenberger"], res
     assert res["uio"] < 0.2 * res["luenberger"], res
     assert res["w_error"] < 0.3 * res["w_amplitude"], res
+
+
+def test_uio_bad_input():
+    with pytest.raises(ValueError, match=r"expected D with shape \(3x\*\)"):
+        c.UnknownInputObserver(AW, BW, CW, np.ones((2, 1)), 1e-3)
+    with pytest.raises(ValueError, match="expected decay >= 0"):
+        c.UnknownInputObserver(AW, BW, CW, DW, 1e-3, decay=-1.0)
+    with pytest.raises(ValueError, match="Hurwitz"):
+        c.UnknownInputObserver(AW, BW, CW, DW, 1e-3, K=-10.0 * np.ones((3, 2)))
+    with pytest.raises(ValueError, match=r"expected K with shape \(3x2\)"):
+        c.UnknownInputObserver(AW, BW, CW, DW, 1e-3, K=np.ones((2, 2)))
+    with pytest.raises(ValueError, match="full row rank"):
+        c.UnknownInputObserver(AW, BW, np.vstack([CW[0], CW[0]]), DW, 1e-3)
