@@ -5,8 +5,10 @@ claim next to what was measured.
 Usage::
 
     python scripts/reproduce_papers.py [--out outputs/papers] [--fast]
-        [--papers efimov2017 lopez-ramirez2016 wetzlinger]
+        [--papers efimov2017 lopez-ramirez2016 wetzlinger galvan-guerra2017 kratz-liebscher1998]
 
+Galvan-Guerra et al. 2017 (cascaded HOSM observer for LTV systems) and Kratz and Liebscher 1998 (LTV strong
+observability) are reproduced by ``scripts/reproduce_slides_ltv.py``, imported when present.
 Efimov et al. 2017 (switched-gain differentiator) is reproduced by ``reproduce_efimov2017`` of
 ``scripts/reproduce_efimov2017.py``, imported when present. Lopez-Ramirez et al. 2016 (ILF finite-time /
 fixed-time observers, section V) and Wetzlinger et al. (discrete-time HOSM observer, section 6) are reproduced
@@ -484,6 +486,38 @@ def reproduce_efimov2017(out_dir: Path | None) -> list[dict] | None:
 
 
 # ----------------------------------------------------------------------------------------------------------------
+# Fridman's slides: strong detectability, functional UIO, static left inverse
+# (scripts/reproduce_slides_unknown_inputs.py)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def reproduce_slides_unknown_inputs(key: str, out_dir: Path | None, fast: bool) -> list[dict] | None:
+    path = Path(__file__).with_name("reproduce_slides_unknown_inputs.py")
+    if not path.exists():
+        return None
+    spec = importlib.util.spec_from_file_location("reproduce_slides_unknown_inputs", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.RUNNERS[key](out_dir, fast)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Fridman's slides, LTV systems: Kratz and Liebscher 1998, Galvan-Guerra, Fridman and Davila 2017
+# (from scripts/reproduce_slides_ltv.py)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _slides_ltv(runner: str, out_dir: Path | None, fast: bool) -> list[dict] | None:
+    path = Path(__file__).with_name("reproduce_slides_ltv.py")
+    if not path.exists():
+        return None
+    spec = importlib.util.spec_from_file_location("reproduce_slides_ltv", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return getattr(module, runner)(out_dir, fast)
+
+
+# ----------------------------------------------------------------------------------------------------------------
 # Fridman's slides, section 1 (from scripts/reproduce_slides_conventional.py)
 # ----------------------------------------------------------------------------------------------------------------
 
@@ -512,6 +546,26 @@ PAPERS = {
     "wetzlinger": (
         "Wetzlinger, Reichhartinger and Horn",
         lambda out, fast: reproduce_wetzlinger(out),
+    ),
+    "strong-detectability": (
+        "Fridman's slides: observer for strongly detectable systems (Fridman, Davila and Levant 2011; Moreno 2001)",
+        lambda out, fast: reproduce_slides_unknown_inputs("strong-detectability", out, fast),
+    ),
+    "functional-uio": (
+        "Fridman's slides: functional unknown-input observers (Angulo, Fridman and Moreno 2014)",
+        lambda out, fast: reproduce_slides_unknown_inputs("functional-uio", out, fast),
+    ),
+    "left-inverse": (
+        "Fridman's slides: static left inverse (Bejarano, Fridman and Poznyak 2009)",
+        lambda out, fast: reproduce_slides_unknown_inputs("left-inverse", out, fast),
+    ),
+    "galvan-guerra2017": (
+        "Galvan-Guerra, Fridman and Davila 2017 (cascaded HOSM observer for LTV systems; our example)",
+        lambda out, fast: _slides_ltv("reproduce_galvan_guerra2017", out, fast),
+    ),
+    "kratz-liebscher1998": (
+        "Kratz and Liebscher 1998 (LTV strong observability; the slides' plants)",
+        lambda out, fast: _slides_ltv("reproduce_kratz_liebscher1998", out, fast),
     ),
     "utkin": (
         "Utkin 1992 (Fridman's slides, section 1: simple sliding-mode observer)",

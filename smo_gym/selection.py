@@ -54,6 +54,7 @@ __all__ = [
     "candidate_orders",
     "predicted_errors",
     "select",
+    "trial_errors",
 ]
 
 #: what a user would otherwise pick: a choice must not lose to the better of these by more than :data:`TOLERANCE`
@@ -91,10 +92,14 @@ class Trials:
         What the sensor reported (tangent coordinates of the joints), one array per episode.
     velocity : tuple of ndarray, shape (T_i, n)
         The velocity to estimate at the same samples.
+    inputs : tuple of ndarray, shape (T_i, m), optional
+        The control input that acted over the interval ending at each sample (what a model-based candidate is
+        given); None when unknown.
     """
 
     measured: tuple
     velocity: tuple
+    inputs: tuple | None = None
 
     def __post_init__(self):
         measured = tuple(as_real_array("measured", m) for m in self.measured)
@@ -114,6 +119,17 @@ class Trials:
                 raise ValueError(f"expected finite trials, actual value: a non-finite entry in episode {i}")
         if len({m.shape[1] for m in measured}) != 1:
             raise ValueError(f"expected one channel count, actual value: {[m.shape[1] for m in measured]}")
+        if self.inputs is not None:
+            inputs = tuple(as_real_array("inputs", u) for u in self.inputs)
+            if len(inputs) != len(measured) or any(
+                u.ndim != 2 or len(u) != len(m) or not np.isfinite(u).all()
+                for u, m in zip(inputs, measured, strict=False)
+            ):
+                raise ValueError(
+                    "expected one finite array (T_i, m) of inputs per episode, as long as its measurements, "
+                    f"actual value: shapes {[np.shape(u) for u in inputs]} for {[m.shape for m in measured]}"
+                )
+            object.__setattr__(self, "inputs", inputs)
         object.__setattr__(self, "measured", measured)
         object.__setattr__(self, "velocity", velocity)
 
@@ -131,11 +147,15 @@ class Selection:
         prediction); ``inf``: no prediction, or it diverged.
     source : {"trials", "prediction"}
         Whether the errors were measured on :class:`Trials` or predicted from the calibration.
+    joint : bool
+        Whether the last candidate estimates all channels together (a model-based observer, which cannot be split
+        over channels): :attr:`choice` then takes it for every channel or for none.
     """
 
     candidates: tuple
     errors: np.ndarray
     source: str
+    joint: bool = False
 
     @property
     def regret(self) -> np.ndarray:
@@ -162,11 +182,20 @@ class Selection:
     @property
     def choice(self) -> np.ndarray:
         """Index into :attr:`candidates` of every channel's choice, shape ``(n_channels,)``: the smallest
-        :attr:`regret` among the :attr:`safe` candidates (among all where none is), the first on a tie."""
-        regret = np.where(self.safe, self.regret, np.inf)
-        none_safe = ~np.isfinite(regret).any(axis=0)
-        regret[:, none_safe] = self.regret[:, none_safe]
-        return np.argmin(regret, axis=0)
+        :attr:`regret` among the :attr:`safe` candidates (among all where none is), the first on a tie. A
+        :attr:`joint` candidate is taken for every channel if it is safe on every channel and its worst regret
+        over the channels is smaller than that of the per-channel choice among the others."""
+        if not self.joint:
+            regret = np.where(self.safe, self.regret, np.inf)
+            none_safe = ~np.isfinite(regret).any(axis=0)
+            regret[:, none_safe] = self.regret[:, none_safe]
+            return np.argmin(regret, axis=0)
+        per_channel = Selection(self.candidates[:-1], np.asarray(self.errors)[:, :-1], self.source).choice
+        regret, k = self.regret, len(self.candidates) - 1
+        channels = np.arange(per_channel.size)
+        if self.safe[k].all() and regret[k].max() < regret[per_channel, channels].max():
+            return np.full(per_channel.size, k)
+        return per_channel
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -223,25 +252,34 @@ def predicted_errors(calibration: Calibration, candidates: Sequence[str], mean_o
     return errors
 
 
-def _trial_errors(calibration: Calibration, trials: Trials, candidates, mean_over, kwargs) -> np.ndarray:  # (C, n)
-    """Velocity RMSE of every candidate on every channel of the trials (every sample but each episode's first)."""
+def trial_errors(observer: Observer, trials: Trials, mean_over: float | None = None) -> np.ndarray:
+    """Velocity RMSE per channel of ``observer`` on ``trials``, over every sample but each episode's first; ``inf``
+    where it diverged. An observer that :attr:`~smo_gym.observers.Observer.takes_input` (a model-based one) gets
+    the trials' ``inputs`` and reports its velocity as it is; any other reports the mean over ``mean_over`` seconds
+    (:func:`~smo_gym.observers.base.reported_coefficients`). Shape ``(n,)``."""
     n = trials.measured[0].shape[1]
-    errors = np.full((len(candidates), n), np.inf)
-    for k, spec in enumerate(candidates):
-        name, kw = parse_observer_spec(spec)
-        observer = default_observer(name, calibration, {**kwargs, **kw})
-        c = reported_coefficients(observer, mean_over)
-        total, count = np.zeros(n), 0
-        try:
-            for Z, V in zip(trials.measured, trials.velocity, strict=True):
-                observer.reset(Z[0])
-                estimate = observer.run(Z[1:])
-                total += np.sum((reported_velocity(estimate, c) - V[1:]) ** 2, axis=0)
-                count += len(Z) - 1
-        except DivergenceError:
-            continue
-        errors[k] = np.sqrt(total / count)
-    return errors
+    if observer.takes_input and trials.inputs is None:
+        raise ValueError("expected trials with the inputs a model-based observer needs, actual value: inputs=None")
+    c = None if observer.takes_input else reported_coefficients(observer, mean_over)  # None: the velocity as it is
+    inputs = trials.inputs if observer.takes_input else (None,) * len(trials.measured)
+    total, count = np.zeros(n), 0
+    try:
+        for Z, V, U in zip(trials.measured, trials.velocity, inputs, strict=True):
+            observer.reset(Z[0])
+            estimate = observer.run(Z[1:]) if U is None else observer.run(Z[1:], U[1:])
+            total += np.sum((reported_velocity(estimate, c) - V[1:]) ** 2, axis=0)
+            count += len(Z) - 1
+    except DivergenceError:
+        return np.full(n, np.inf)
+    return np.sqrt(total / count)
+
+
+def _trial_errors(calibration: Calibration, trials: Trials, candidates, mean_over, kwargs) -> np.ndarray:  # (C, n)
+    """:func:`trial_errors` of every candidate, each with its calibrated gains."""
+    observers = (
+        default_observer(name, calibration, {**kwargs, **kw}) for name, kw in map(parse_observer_spec, candidates)
+    )
+    return np.stack([trial_errors(observer, trials, mean_over) for observer in observers])
 
 
 def select(

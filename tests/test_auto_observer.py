@@ -311,3 +311,27 @@ def test_the_wrapper_defaults_to_auto_chosen_on_its_own_trials(monkeypatch):
         np.testing.assert_array_equal(o1, o2)
         for a in actions:
             np.testing.assert_array_equal(env.step(a)[0], twin.step(a)[0])
+
+
+def test_a_joint_candidate_is_taken_for_all_channels_or_for_none():
+    """The model-based column wins every channel when it is safe everywhere and its worst regret is the smallest,
+    and none when it loses to the references on one channel, however much it wins on the others."""
+    candidates = ("finite-difference", "kalman-ca", "mechanical-super-twisting")
+    better = np.array([[[1.0, 1.0], [0.9, 1.1], [0.3, 0.5]]])  # (scenarios, candidates, channels)
+    assert Selection(candidates, better, "trials", joint=True).names == ("mechanical-super-twisting",) * 2
+    loses_once = better.copy()
+    loses_once[0, 2, 1] = 1.05  # 5 % worse than finite differences on channel 1
+    chosen = Selection(candidates, loses_once, "trials", joint=True)
+    assert chosen.names == ("kalman-ca", "finite-difference")  # the per-channel choice without the joint column
+    diverged = better.copy()
+    diverged[0, 2, 0] = np.inf
+    assert Selection(candidates, diverged, "trials", joint=True).names == ("kalman-ca", "finite-difference")
+
+
+def test_trials_check_their_inputs():
+    z = np.zeros((5, 2))
+    assert Trials((z,), (z,), (np.zeros((5, 1)),)).inputs[0].shape == (5, 1)
+    with pytest.raises(ValueError, match="inputs"):
+        Trials((z,), (z,), (np.zeros((4, 1)),))
+    with pytest.raises(ValueError, match="inputs"):
+        Trials((z,), (z,), (np.full((5, 1), np.nan),))

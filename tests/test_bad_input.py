@@ -615,23 +615,11 @@ class Family:
     fixed: callable = field(default=lambda n: {})  # n -> values that are not swept (dynamics objects)
 
 
-#: what each registered observer needs besides ``dt`` (for make_observer and differentiate)
-NAME_KWARGS = {
-    "super-twisting": dict(lipschitz=5.0),
-    "levant": dict(lipschitz=5.0),
-    "ured": dict(lipschitz=5.0),
-    "uniform-levant": dict(lipschitz=5.0),
-    "high-gain": dict(gain=20.0),
-    "finite-difference": {},
-    "kalman-ca": dict(process_noise=10.0, measurement_noise=1e-6),
-    "switched-gain": dict(gain=SG_GAIN, P=SG_P),
-    "low-power-high-gain": dict(gain=20.0),
-    "ilf-finite": dict(lipschitz=5.0, gain=ILF_GAIN),
-    "ilf-fixed": dict(lipschitz=5.0, gain=ILF_GAIN),
-    "discrete-hosm": dict(p1=5.0),
-    "filtering": dict(lipschitz=5.0),
-    "worst-case-optimal": dict(lipschitz=5.0),
-}
+def name_kwargs(name) -> dict:
+    """What the registered observer ``name`` needs besides ``dt`` (for make_observer and differentiate): the first
+    example its registration declares (:attr:`smo_gym.observers.Family.examples`); nothing for other names."""
+    family = observers.FAMILIES.get(name) if isinstance(name, str) else None
+    return dict(family.examples[0]) if family is not None and family.examples else {}
 
 
 def _disc(cls):
@@ -1269,7 +1257,7 @@ def sweep(family: Family):
             kwargs.update(family.fixed(n))
         if family.kind == "factory":  # the registered observer's own parameters
             name = kwargs.get("name", kwargs.get("method"))
-            kwargs = {**NAME_KWARGS.get(name if isinstance(name, str) else None, {}), **kwargs}
+            kwargs = {**name_kwargs(name), **kwargs}
         if family.cls is Chain:
             stages = data.draw(
                 st.lists(
@@ -1402,7 +1390,7 @@ def canonical_arguments(family: Family, n: int) -> dict:
     """:data:`GOOD` for ``family``, with what the family needs besides (the observer's own parameters, dynamics)."""
     kwargs = dict(GOOD[family.name])
     if family.kind == "factory":
-        kwargs = {**NAME_KWARGS[kwargs.get("name", kwargs.get("method"))], **kwargs}
+        kwargs = {**name_kwargs(kwargs.get("name", kwargs.get("method"))), **kwargs}
     if family.kind == "model":
         kwargs.update(family.fixed(n))
     return kwargs

@@ -1,10 +1,11 @@
 """Observers and output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 1, 3, 6).
 
 Conventional sliding-mode observers (Utkin, Drakunov's step-by-step, Walcott-Zak) and the unknown-input observer
-without differentiation (Darouach et al. 1994); disturbance identification with the cascaded HOSM observer,
-compensation control, output integral sliding mode,
+without differentiation (Darouach et al. 1994); disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
 and compensation of unmatched disturbances through the sliding surface; plants from the slides or linearized
-from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag.
+from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag. For linear
+time-varying plants: Kratz and Liebscher's strong-observability test and the cascaded HOSM observer of
+Galvan-Guerra, Fridman and Davila (2017).
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
 """
@@ -35,6 +36,15 @@ from .conventional import (
     walcott_zak_design,
 )
 from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz, sampled_observer_gain
+from .ltv import (
+    CascadedLTVObserver,
+    LTVPlant,
+    LTVStrongObservabilityReport,
+    ltv_example,
+    ltv_state_map,
+    ltv_strong_observability,
+    simulate_ltv,
+)
 from .plants import (
     LinearPlant,
     MolinariDecoupling,
@@ -51,20 +61,49 @@ from .plants import (
     strong_observability,
 )
 from .simulation import SimulationResult, fit_order, simulate, steady_state_error, total_variation_rate
+from .unknown_inputs import (
+    FunctionalObservabilityReport,
+    FunctionalUnknownInputObserver,
+    LeftInverseIdentifier,
+    LeftInverseReport,
+    NoFunctionalObserverError,
+    NoStaticLeftInverseError,
+    NotStronglyDetectableError,
+    StrongDetectabilityReport,
+    StronglyDetectableObserver,
+    ZeroDynamics,
+    detectable_observer_gain,
+    functional_observability,
+    left_inverse,
+    strong_detectability,
+    zero_dynamics,
+)
 
 __all__ = [
     "CascadedHOSMObserver",
+    "CascadedLTVObserver",
     "CompensationController",
+    "FunctionalObservabilityReport",
+    "FunctionalUnknownInputObserver",
     "IntegralSlidingModeController",
+    "LTVPlant",
+    "LTVStrongObservabilityReport",
+    "LeftInverseIdentifier",
+    "LeftInverseReport",
     "LinearPlant",
     "LuenbergerObserver",
     "MolinariDecoupling",
+    "NoFunctionalObserverError",
+    "NoStaticLeftInverseError",
+    "NotStronglyDetectableError",
     "NotStronglyObservableError",
     "ObservableBlockForm",
     "SimulationResult",
     "StateFeedback",
     "StepByStepObserver",
+    "StrongDetectabilityReport",
     "StrongObservabilityReport",
+    "StronglyDetectableObserver",
     "UnknownInputConditionError",
     "UnknownInputConditions",
     "UnknownInputObserver",
@@ -72,15 +111,22 @@ __all__ = [
     "UtkinObserver",
     "WalcottZakDesign",
     "WalcottZakObserver",
+    "ZeroDynamics",
     "certify_walcott_zak",
+    "detectable_observer_gain",
     "fit_order",
+    "functional_observability",
     "furuta_disturbance",
     "furuta_slides",
     "helicopter_slides",
     "invariant_zeros",
     "left_annihilator",
+    "left_inverse",
     "linearize",
     "lqr",
+    "ltv_example",
+    "ltv_state_map",
+    "ltv_strong_observability",
     "molinari_decoupling",
     "observable_block_form",
     "output_coordinate_change",
@@ -89,9 +135,12 @@ __all__ = [
     "relative_degrees",
     "sampled_observer_gain",
     "simulate",
+    "simulate_ltv",
     "steady_state_error",
+    "strong_detectability",
     "strong_observability",
     "total_variation_rate",
     "unknown_input_conditions",
     "walcott_zak_design",
+    "zero_dynamics",
 ]

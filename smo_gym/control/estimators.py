@@ -232,6 +232,8 @@ class CascadedHOSMObserver:
         ``w_hat`` and its estimated derivatives.
     e_hat : ndarray, shape (n,)
         Estimated error of the Luenberger stage.
+    e_hat_derivatives : ndarray, shape (n_w_derivatives + 2, n)
+        ``e_hat`` and its estimated derivatives (Molinari's relation on the shifted derivative stacks).
     order : int
         Differentiator order ``k``.
     """
@@ -250,7 +252,7 @@ class CascadedHOSMObserver:
     ):
         self.plant = plant
         self.injection = check_choice("injection", injection, ("sampled", "held"))
-        self.report = plant.require_strongly_observable()
+        self.report = self._check_plant(plant)
         self.dt = check_positive("dt", dt)
         alpha = check_int_in_range("alpha", alpha, 1, MAX_LEVANT_ORDER)
         n_w_derivatives = check_int_in_range("n_w_derivatives", n_w_derivatives, 0, MAX_LEVANT_ORDER)
@@ -283,7 +285,7 @@ class CascadedHOSMObserver:
         self.differentiator = Levant(self.order, self.dt, self.lipschitz, discretization=discretization)
         self.Phi, self.Gamma = plant.discretize(self.dt)
         if self.injection == "sampled":
-            self.L = sampled_observer_gain(plant.A, plant.C, self.dt, poles)
+            self.L = self._sampled_gain(poles)
         else:  # exact ZOH of x~' = (A - LC) x~ + B u_k + L y_k
             held = LinearPlant(self._Adyn, np.hstack([plant.B, self.L]), plant.C, plant.D)
             Phi_h, Gam_h = held.discretize(self.dt)
@@ -302,10 +304,18 @@ class CascadedHOSMObserver:
         )  # ((k+1) p, n), derivative-major
         self._prior = self._posterior = None
         self._dstate = None
-        self.x_hat = self.e_hat = None
+        self.x_hat = self.e_hat = self.e_hat_derivatives = None
         self.w_hat = np.zeros(plant.n_unknown)
         self.w_hat_derivatives = np.zeros((n_w_derivatives + 1, plant.n_unknown))
         self.output_error = None
+
+    def _check_plant(self, plant: LinearPlant):
+        """The plant's report, or the typed error saying why this observer cannot run on it."""
+        return plant.require_strongly_observable()
+
+    def _sampled_gain(self, poles) -> np.ndarray:
+        """Gain ``L_d`` of the sampled Luenberger stage (see :func:`sampled_observer_gain`)."""
+        return sampled_observer_gain(self.plant.A, self.plant.C, self.dt, poles)
 
     @property
     def theoretical_orders(self) -> dict[str, int]:
@@ -344,7 +354,7 @@ class CascadedHOSMObserver:
         new_state, Z = self.differentiator.step(self._dstate, ye)  # Z: (p, k+1), estimates at t_k (pre-jump)
         # e, e', e'', ...: Molinari's relation on the derivative stack shifted by j
         E = [self._S @ Z[:, j : j + self._N + 1].T.reshape(-1) for j in range(self.n_w_derivatives + 2)]
-        self.e_hat = E[0]
+        self.e_hat, self.e_hat_derivatives = E[0], np.array(E)
         self.x_hat = self._prior + E[0]
         for j in range(self.n_w_derivatives + 1):
             self.w_hat_derivatives[j] = self._Dpinv @ (E[j + 1] - self._Adyn @ E[j])

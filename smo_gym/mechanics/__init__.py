@@ -4,6 +4,7 @@ This layer may import MuJoCo but not Gymnasium. It implements the dynamics proto
 :mod:`smo_gym.observers.mechanical` so that the observers themselves stay free of MuJoCo.
 """
 
+from .design import default_transform, dissipative_gains
 from .dynamics import MujocoDynamics, calibrate_model_miss
 
-__all__ = ["MujocoDynamics", "calibrate_model_miss"]
+__all__ = ["MujocoDynamics", "calibrate_model_miss", "default_transform", "dissipative_gains"]

@@ -219,6 +219,8 @@ class Observer:
     #: time (every family but one), or 1, the one-step prediction :math:`\hat x_{k+1}` that
     #: :class:`~smo_gym.observers.DiscreteTimeHOSM` reports as its paper does (``reset`` reports at its sample)
     lead: ClassVar[int] = 0
+    #: whether ``update(y, u)`` and ``run(Y, U)`` take the control input (a model-based observer)
+    takes_input: ClassVar[bool] = False
     # compiled call of update(), bound lazily (class-level defaults keep subclasses and old pickles working):
     # ``(entry point, params, measurement shape, estimate shape)``, one attribute for the hot path
     _bound = None

@@ -119,6 +119,7 @@ class _ModelBasedSuperTwisting(Observer):
     """Shared shell: model term in Python (dynamics object), injection in the compiled kernel."""
 
     discretizations = ("semi-implicit", "euler")
+    takes_input = True
     #: the observer runs in transformed coordinates (:meth:`_measure`, :meth:`_to_estimate` and
     #: :meth:`_from_estimate` are not the identity): a subclass that overrides them sets this
     transformed: ClassVar[bool] = False

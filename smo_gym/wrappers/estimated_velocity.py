@@ -13,7 +13,7 @@ from ..calibration import Calibration, bound_order, calibration_from_velocities,
 from ..engine.fused import FusedSensing
 from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation, mean_velocity_span
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
-from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select
+from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select, trial_errors
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
 from .rollout import rollout, smooth_random_policy
@@ -241,19 +241,29 @@ def sensed_trials(adapter, measurement: JointMeasurement, sample_every: int, ste
     """The episodes of :func:`random_episodes` (with ``smoothing`` 0: those the calibration reads) measured by a copy
     of the sensor of ``measurement``: :class:`~smo_gym.selection.Trials` for ``observer="auto"``, or None."""
     sensed = JointMeasurement(adapter.model, copy.deepcopy(measurement.sensor), measurement.dt)
-    rng, measured, velocity = np.random.default_rng([0, _SEED_SALT]), [], []
+    rng, measured, velocity, inputs = np.random.default_rng([0, _SEED_SALT]), [], [], []
     for episode in random_episodes(adapter, sample_every, steps, 0, smoothing) or ():
         if len(episode.qpos) > 1 and np.isfinite(episode.qvel).all():
             sensed.reset(episode.qpos[0], rng)
             measured.append(np.vstack([sensed.z_measured, sensed.measure_block(episode.qpos[1:])]))
             velocity.append(episode.qvel)
-    return Trials(tuple(measured), tuple(velocity)) if measured else None
+            inputs.append(episode.ctrl)
+    return Trials(tuple(measured), tuple(velocity), tuple(inputs)) if measured else None
 
 
-def calibrated_observer(name: str, unwrapped, adapter, measurement: JointMeasurement, sample_every: int, kwargs, **how):
+#: the action smoothing of the two scenarios ``"auto"`` compares in: the policies of an untrained agent (uniform
+#: random actions) and of a trained one (low-passed, ``a = 0.9 a + 0.1 u``)
+TRIAL_SMOOTHING = (0.0, 0.9)
+
+
+def calibrated_observer(
+    name: str, unwrapped, adapter, measurement: JointMeasurement, sample_every: int, kwargs, joint=None, **how
+):
     """The observer ``name`` (or ``"auto"``, :func:`~smo_gym.selection.auto_observer` on :func:`sensed_trials`) with
     gains from :func:`calibrate_environment` (``how``: its ``safety``, ``quantile``, ``steps``, ``disk``), and that
-    calibration. The errors ``"auto"`` compares are cached like the calibration."""
+    calibration. The errors ``"auto"`` compares are cached like the calibration. ``joint``: ``(observer,
+    settings)``, a model-based candidate for all joints together and the model settings it was built with; it is
+    returned (with the selection) where :attr:`~smo_gym.selection.Selection.choice` takes it."""
     orders = candidate_orders() if name == "auto" else bound_order(name, kwargs)
     noise, resolution = measurement.noise_std(), measurement.quantization_step()
     calibration = calibrate_environment(
@@ -262,11 +272,13 @@ def calibrated_observer(name: str, unwrapped, adapter, measurement: JointMeasure
     if name != "auto":
         return default_observer(name, calibration, kwargs), calibration
     span = mean_velocity_span(adapter.model)
+    candidates = CANDIDATES + (() if joint is None else (joint[0].name,))
     settings = {k: v for k, v in how.items() if k != "disk"}  # where the result is kept is not what it depends on
     key = calibration_key(
         adapter.environment_key,
         adapter.model,
-        auto=CANDIDATES,
+        auto=candidates,
+        joint=stable_repr(None if joint is None else joint[1]),
         sensor=stable_repr(measurement.sensor),
         every=sample_every,
         kwargs=stable_repr(kwargs),
@@ -275,17 +287,22 @@ def calibrated_observer(name: str, unwrapped, adapter, measurement: JointMeasure
         v=2,
     )
 
-    def compute():  # the policies of an untrained agent (uniform random actions) and of a trained one (smooth)
+    def compute():
         steps = TRIAL_STEPS * how.get("steps", 2000)
-        scenes = [sensed_trials(adapter, measurement, sample_every, steps, s) for s in (0.0, 0.9)]
+        scenes = [sensed_trials(adapter, measurement, sample_every, steps, s) for s in TRIAL_SMOOTHING]
         scenes = [trials for trials in scenes if trials is not None]
-        found = select(calibration, scenes or None, mean_over=span, observer_kwargs=kwargs)
-        errors = found.errors.reshape(-1, found.errors.shape[-1])
-        return np.vstack([errors, np.full(errors.shape[1], len(scenes))])
+        errors = select(calibration, scenes or None, mean_over=span, observer_kwargs=kwargs).errors
+        if joint is not None:  # no trials, no evidence for the model: it is not chosen
+            found = [trial_errors(joint[0], trials) for trials in scenes] or [np.full(errors.shape[-1], np.inf)]
+            errors = np.concatenate([errors, np.stack(found)[:, None]], axis=1)
+        return np.vstack([errors.reshape(-1, errors.shape[-1]), np.full(errors.shape[-1], len(scenes))])
 
     stored = cached_bounds(key, compute, disk=how.get("disk", True))
-    errors = stored[:-1].reshape(-1, len(CANDIDATES), stored.shape[1])
-    found = Selection(CANDIDATES, errors, "trials" if stored[-1, 0] else "prediction")
+    errors = stored[:-1].reshape(-1, len(candidates), stored.shape[1])
+    found = Selection(candidates, errors, "trials" if stored[-1, 0] else "prediction", joint=joint is not None)
+    if joint is not None and found.choice[0] == len(CANDIDATES):
+        joint[0].selection = found
+        return joint[0], calibration
     return auto_observer(calibration, mean_over=span, observer_kwargs=kwargs, selection=found), calibration
 
 
@@ -322,7 +339,10 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         model-based observer also its model's settings: ``mass_scale``, a number (every mass and inertia of the
         observer's model scaled: a model mismatch) or a pair ``(low, high)`` (a scale drawn uniformly at each
         reset, from a stream seeded by ``reset(seed=...)``; the current one is ``observer.dynamics.mass_scale``),
-        and ``contact``, ``"unknown"`` or ``"measured"`` (:mod:`smo_gym.mechanics.dynamics`).
+        and ``contact``, ``"unknown"`` or ``"measured"`` (:mod:`smo_gym.mechanics.dynamics`). With
+        ``observer="auto"``, ``model=True`` (or a model-based name) makes that observer, with these model
+        settings, one more candidate for all joints together
+        (:func:`calibrated_observer`, :attr:`smo_gym.selection.Selection.joint`).
     positions : {"measured", "filtered"}
         Positions in the observation: the raw measurement or the observer's filtered value.
     contact_forces : {"sensor", "estimated", "zero"}
@@ -434,6 +454,24 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.calibration: Calibration | None = None
         self.model_miss_bound = self.mass_scale_range = None
         model_based = isinstance(observer, str) and observer in MODEL_BASED_OBSERVERS
+        joint = None  # observer="auto" with a model: the model-based candidate for all joints together
+        if isinstance(observer, str) and observer == "auto" and (observer_kwargs or {}).get("model"):
+            from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
+
+            observer_kwargs = dict(observer_kwargs)
+            name = observer_kwargs.pop("model")
+            name = "mechanical-super-twisting" if name is True else name
+            settings = {k: observer_kwargs.pop(k) for k in ("mass_scale", "contact") if k in observer_kwargs}
+            built = model_based_observer(
+                name,
+                self.adapter,
+                self.sample_every,
+                settings,
+                calibration_steps,
+                calibration_quantile,
+                calibration_safety,
+            )
+            joint = built.observer, (name, settings)
         if model_based:
             from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
 
@@ -477,7 +515,10 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 quantile=calibration_quantile,
                 steps=calibration_steps,
                 disk=disk_cache,
+                joint=joint,
             )
+        if joint is not None and obs_object is joint[0]:
+            model_based, self.model_miss_bound, self.mass_scale_range = True, *built[1:]
         if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
             self.estimator = InputAwareEstimator(obs_object, self.adapter)
         else:  # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4

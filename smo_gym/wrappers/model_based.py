@@ -27,11 +27,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import design
 from .._validation import check_positive_range
 from ..engine.measurement import VelocityEstimator
-from ..mechanics import MujocoDynamics, calibrate_model_miss
-from ..observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
+from ..mechanics import MujocoDynamics, calibrate_model_miss, default_transform, dissipative_gains
+from ..observers import DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
 from .estimated_velocity import EstimatedVelocity, random_episodes
 
 __all__ = [
@@ -94,10 +93,8 @@ def model_based_observer(
 
     Notes
     -----
-    For ``"dissipative-super-twisting"`` each joint gets the transform of its self-quadratic term
-    (:meth:`MujocoDynamics.alpha_function` at ``qpos0``) over its range (``jnt_range`` if limited, else
-    ``+-pi``), and gains from :func:`smo_gym.design.apaza_gains` with :math:`L_w` the calibrated bound and the
-    dissipativity of the joint damping, :math:`(q, s, r) = (-1, -c/2, 0)`, :math:`c = \max d_i / M_{ii}`.
+    For ``"dissipative-super-twisting"`` the transform and gains are :func:`smo_gym.mechanics.default_transform`
+    and :func:`smo_gym.mechanics.dissipative_gains` with :math:`L_w` the calibrated bound.
     """
     if name not in NAMES:
         raise ValueError(f"expected observer in {', '.join(NAMES)}, actual value: {name!r}")
@@ -124,11 +121,11 @@ def model_based_observer(
         kwargs.setdefault("model_substeps", sample_every)
         obs = MechanicalSuperTwisting(dt, dyn, **kwargs)
     else:
-        transform = kwargs.pop("transform", None) or _default_transform(model, dyn)
+        transform = kwargs.pop("transform", None) or default_transform(dyn)
         gains = kwargs.pop("gains", None)
         if gains is None:
             L = miss_bound if needs_bounds else np.broadcast_to(kwargs.pop("lipschitz"), (dyn.n,))
-            gains = _default_gains(model, dyn, transform, L)
+            gains = dissipative_gains(dyn, transform, L)
         kwargs.pop("lipschitz", None)
         obs = DissipativeSuperTwisting(dt, dyn, transform, gains, **kwargs)
     return ModelBasedObserver(obs, miss_bound, None if low == high else (low, high))
@@ -149,32 +146,6 @@ def _model_miss(adapter, dyn: MujocoDynamics, scales, steps: int, quantile: floa
             miss, acc = np.quantile(np.abs(A - f), quantile, axis=0), np.quantile(np.abs(A), quantile, axis=0)
         misses.append(miss)
     return np.max(misses, axis=0), acc
-
-
-def _default_transform(model, dyn: MujocoDynamics) -> CoordinateTransform:
-    jid = [model.dof_jntid[d] for d in dyn.dof]
-    lower = np.array([model.jnt_range[j, 0] if model.jnt_limited[j] else -np.pi for j in jid])
-    upper = np.array([model.jnt_range[j, 1] if model.jnt_limited[j] else np.pi for j in jid])
-    ref = np.clip(model.qpos0[dyn.dof], lower, upper)
-    return CoordinateTransform(dyn.alpha_function(), lower, upper, reference=ref, grid=201)
-
-
-def _default_gains(model, dyn: MujocoDynamics, transform: CoordinateTransform, L: np.ndarray) -> dict:
-    ref = model.qpos0[dyn.dof].copy()
-    rows = []
-    for i in range(dyn.n):
-        ys = transform.grid_y[:, i]
-        Mii = []
-        for y in ys[:: max(1, len(ys) // 20)]:
-            q = ref.copy()
-            q[i] = y
-            Mii.append(dyn.inertia(q)[i, i])
-        c = float(dyn.model.dof_damping[dyn.dof[i]]) / min(Mii)
-        g = design.apaza_gains(
-            float(L[i]), q=-1.0, s=-c / 2.0, r=0.0, upsilon_max=max(1.0, float(transform.grid_upsilon[:, i].max()))
-        )
-        rows.append(g.as_dict())
-    return {key: np.array([r[key] for r in rows]) for key in ("k1", "k2", "k3", "mu1", "mu2")}
 
 
 class ModelBasedEstimatedVelocity(EstimatedVelocity):

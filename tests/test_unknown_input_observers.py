@@ -1,0 +1,337 @@
+"""Tests of smo_gym.control.unknown_inputs: strongly detectable observer, functional UIO, static left inverse.
+
+Each plant is built so that its invariant zeros, weakly unobservable subspace and left inverse follow by hand
+(written next to it); the estimators are then measured against those: finite-time exactness of the strongly
+observable coordinates, decay at the rate of the slowest invariant zero for the rest, and the accuracy orders of
+the identification in the sampling step and in the noise amplitude (Fridman's slides, sections 3 and 7).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from smo_gym import control as c
+
+
+def _w(t):
+    return np.sin(2.0 * np.asarray(t)) + 0.5
+
+
+def _detectable_plant(zero: float) -> c.LinearPlant:
+    """x1' = x2, x2' = -2 x1 - x2 + x4 + w, x3' = x1 - x3, x4' = x3 + zero * x4; y = (x1, x3).
+
+    y = 0 forces x1 = x3 = 0, hence x2 = 0, w = -x4 and x4' = zero * x4: one invariant zero at ``zero``,
+    V* = span(e4); x1, x2, x3 are strongly observable (x2 = y1').
+    """
+    A = np.array([[0, 1, 0, 0], [-2, -1, 0, 1], [1, 0, -1, 0], [0, 0, 1, zero]], dtype=float)
+    D = np.array([[0.0], [1.0], [0.0], [0.0]])
+    C = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    return c.LinearPlant(A, D, C, D)
+
+
+def _transformed(plant: c.LinearPlant, seed: int = 3):
+    """The same plant in the coordinates x = T x' (T random, well conditioned), and T."""
+    rng = np.random.default_rng(seed)
+    T = np.linalg.qr(rng.standard_normal((plant.n, plant.n)))[0] @ np.diag(np.linspace(0.5, 2.0, plant.n))
+    Ti = np.linalg.inv(T)
+    return c.LinearPlant(Ti @ plant.A @ T, Ti @ plant.B, plant.C @ T, Ti @ plant.D), T
+
+
+class _OpenLoop:
+    """Zero control; records the estimator's outputs (the adapter :func:`smo_gym.control.simulate` expects)."""
+
+    def __init__(self, estimator, *, noise=0.0, seed=0):
+        self.dt, self.est, self.observer = estimator.dt, estimator, self
+        self.x_hat, self.w_hat, self.z = np.zeros(estimator.plant.n), np.zeros(estimator.plant.n_unknown), []
+        self.noise, self.rng = noise, np.random.default_rng(seed)
+
+    def reset(self, y0, x_hat0=None):
+        self.est.reset(y0)
+
+    def step(self, y, t):
+        if self.noise:  # bounded noise of amplitude eta with random signs: the worst case of the theory
+            y = y + self.noise * np.sign(self.rng.standard_normal(y.shape))
+        out = self.est.update(y)
+        if isinstance(self.est, c.LeftInverseIdentifier):
+            self.w_hat = out.copy()
+        else:
+            self.x_hat, self.w_hat = out.copy(), self.est.w_hat.copy()
+            self.z.append(self.est.z_hat.copy())
+            self.est.advance(np.zeros(self.est.plant.n_inputs))
+        return np.zeros(self.est.plant.n_inputs)
+
+
+def _settling_time(t, err, level):
+    """First time after which ``err`` stays below ``level`` (inf if never)."""
+    above = np.nonzero(err >= level)[0]
+    if above.size == 0:
+        return float(t[0])
+    return float(t[above[-1] + 1]) if above[-1] + 1 < t.size else np.inf
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# strong detectability
+# ---------------------------------------------------------------------------------------------------------------
+def test_strong_detectability_report_finds_the_stable_zero():
+    for plant in (_detectable_plant(-1.5), _transformed(_detectable_plant(-1.5))[0]):
+        rep = c.strong_detectability(plant)
+        assert rep.ok and not rep.strongly_observable and rep.reason == ""
+        np.testing.assert_allclose(rep.invariant_zeros, [-1.5], atol=1e-9)
+        assert rep.unstable_zeros.size == 0 and rep.weakly_unobservable_dim == 1
+        # the zero dynamics (Molinari + friend) and the staircase zeros are independent computations
+        np.testing.assert_allclose(rep.zero_dynamics.zeros, rep.invariant_zeros, atol=1e-9)
+    # on the untransformed plant V* = span(e4) and the strongly observable coordinates are x1, x2, x3
+    zd = c.zero_dynamics(_detectable_plant(-1.5))
+    np.testing.assert_allclose(np.abs(zd.T_w), [[0, 0, 0, 1]], atol=1e-12)
+    np.testing.assert_allclose(zd.T_o @ zd.T_o.T, np.eye(3), atol=1e-12)
+
+
+def test_unstable_zero_is_named_and_refused():
+    plant = _detectable_plant(1.0)
+    rep = c.strong_detectability(plant)
+    assert not rep.ok
+    np.testing.assert_allclose(rep.unstable_zeros, [1.0], atol=1e-9)
+    assert "unstable invariant zeros at s = 1+0j" in rep.reason
+    with pytest.raises(c.NotStronglyDetectableError, match=r"strongly detectable.*unstable invariant zeros at s = 1"):
+        c.StronglyDetectableObserver(plant, 1e-3, 20.0)
+    # a zero on the imaginary axis is not strongly detectable either
+    assert not c.strong_detectability(_detectable_plant(0.0)).ok
+    # the cascaded observer keeps refusing the stable-zero plant (not strongly observable)
+    with pytest.raises(c.NotStronglyObservableError, match=r"invariant zeros at s = -1\.5"):
+        c.CascadedHOSMObserver(_detectable_plant(-1.5), 1e-3, 20.0)
+
+
+def test_not_left_invertible_is_not_strongly_detectable():
+    P = _detectable_plant(-1.5)
+    dup = c.LinearPlant(P.A, P.B, P.C, np.hstack([P.D, 2 * P.D]))
+    rep = c.strong_detectability(dup)
+    assert not rep.ok and "not left-invertible" in rep.reason and rep.zero_dynamics is None
+    with pytest.raises(c.NotStronglyDetectableError, match="expected a left-invertible triple"):
+        c.zero_dynamics(dup)
+    with pytest.raises(c.NotStronglyDetectableError, match="expected a left-invertible triple"):
+        c.functional_observability(dup, functional=np.eye(4)[:1])
+    inv = c.left_inverse(dup)
+    assert not inv.static and not inv.asymptotic and "D has rank 1 < m=2" in inv.reason
+
+
+def test_detectable_observer_finite_time_exact_part_and_zero_rate():
+    """Strongly observable coordinates exact after ~1 s; the V* coordinate decays as exp(-1.5 t).
+
+    Run in random coordinates (x = T x'), where no block of the construction vanishes by accident."""
+    plant, T = _transformed(_detectable_plant(-1.5))
+    dt = 2e-3
+    L = 3 * c.output_error_lipschitz(plant, 3, e_bound=1.0, w_bounds=(1.5, 2.0, 4.0, 8.0))
+    obs = c.StronglyDetectableObserver(plant, dt, L, alpha=2)
+    assert obs.theoretical_orders == {"strongly observable state": 3}
+    res = c.simulate(plant, _OpenLoop(obs), t_final=4.0, w=_w, x0=np.linalg.solve(T, [0.3, -0.2, 0.1, 1.0]))
+    zd = obs.zero_dynamics
+    assert np.abs(zd.H).max() > 0.1  # the derivative of z enters the zero dynamics here
+    err = res.x_hat - res.x
+    e_obs = np.abs(err @ zd.T_o.T).max(axis=1)
+    e_zero = np.abs(err @ zd.T_w.T).max(axis=1)
+    t_conv = _settling_time(res.t, e_obs, 1e-4)
+    assert t_conv < 1.2, t_conv  # measured 0.96 s
+    # then exact up to O(tau^3) (measured 1.5e-6), while the error along the zero is still 0.1-0.01
+    assert e_obs[res.t > 1.5].max() < 1e-5
+    sel = (res.t > 1.0) & (res.t < 3.5)
+    rate = np.polyfit(res.t[sel], np.log(e_zero[sel]), 1)[0]
+    assert abs(rate - (-1.5)) < 0.03 * 1.5, rate  # the slowest (here the only) invariant zero; measured -1.49997
+    # w is identified as the zero dynamics converge (w = -x4 on V*): its error follows them down
+    ew = np.abs(res.w_hat - res.w)[:, 0]
+    assert ew[res.t > 3.5].max() < 0.05 * ew[(res.t > 1.0) & (res.t < 1.2)].max()  # measured 0.0047 vs 0.17
+
+
+def test_on_a_strongly_observable_plant_it_is_the_cascade():
+    """No zeros: V* = {0}, the observer must reproduce CascadedHOSMObserver sample by sample (x_hat and w_hat)."""
+    plant = c.furuta_slides()
+    a = c.CascadedHOSMObserver(plant, 1e-3, 300.0)
+    b = c.StronglyDetectableObserver(plant, 1e-3, 300.0)
+    assert b.zero_dynamics.T_w.shape == (0, 4)
+    ra = c.simulate(plant, c.StateFeedback(a, Q=np.diag([10.0, 1, 1, 1])), t_final=0.5, w=c.furuta_disturbance)
+    rb = c.simulate(plant, c.StateFeedback(b, Q=np.diag([10.0, 1, 1, 1])), t_final=0.5, w=c.furuta_disturbance)
+    np.testing.assert_allclose(rb.x_hat, ra.x_hat, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(rb.w_hat, ra.w_hat, rtol=1e-7, atol=1e-7)
+
+
+def test_detectable_pair_gain_keeps_unobservable_modes():
+    """(A, C) not observable but detectable: the gain places the observable modes only."""
+    A = np.array([[0.0, 1, 0], [-1, -1, 0], [1, 0, -0.7]])
+    C = np.array([[1.0, 0, 0]])
+    dt = 1e-2
+    Ld = c.detectable_observer_gain(A, C, dt, poles=[-5.0, -6.0])
+    import scipy.linalg as sla
+
+    ev = np.linalg.eigvals(sla.expm(A * dt) @ (np.eye(3) - Ld @ C))
+    np.testing.assert_allclose(np.sort(np.log(ev.real) / dt), [-6.0, -5.0, -0.7], rtol=1e-6)
+    with pytest.raises(ValueError, match="expected a detectable pair"):
+        c.detectable_observer_gain(A * np.array([1, 1, -1.0]), C, dt)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# functional unknown-input observer
+# ---------------------------------------------------------------------------------------------------------------
+def _functional_plant() -> c.LinearPlant:
+    """Two zeros: x4' = x3 + x4 (unstable, +1) and x5' = x1 - 2 x5 (stable, -2), both feeding x2' like w.
+
+    y = (x1, x3) = 0 forces x1 = x2 = x3 = 0 and w = -x4 - x5: V* = span(e4, e5), zero dynamics diag(1, -2).
+    """
+    A = np.zeros((5, 5))
+    A[0, 1] = 1.0
+    A[1] = [-2.0, -1.0, 0.0, 1.0, 1.0]
+    A[2, [0, 2]] = [1.0, -1.0]
+    A[3, [2, 3]] = [1.0, 1.0]
+    A[4, [0, 4]] = [1.0, -2.0]
+    D = np.eye(5)[:, [1]]
+    return c.LinearPlant(A, D, np.eye(5)[[0, 2]], D)
+
+
+def test_functional_existence_is_e4_zero():
+    plant = _functional_plant()
+    assert not c.strong_detectability(plant).ok  # no observer of the whole state
+    E = np.array([[1.0, 0, 0, 0, 1.0], [0, 1.0, 1.0, 0, 0]])
+    for P, F in ((plant, E), (_transformed(plant)[0], E @ _transformed(plant)[1])):
+        rep = c.functional_observability(P, functional=F)
+        assert rep.ok, rep.reason
+        assert rep.E4.shape == (2, 1) and np.abs(rep.E4).max() < 1e-12
+        np.testing.assert_allclose(rep.unstable_zeros, [1.0], atol=1e-9)
+    bad = c.functional_observability(plant, functional=[0, 0, 0, 1.0, 1.0])
+    assert not bad.ok and "E4 != 0" in bad.reason and "s = 1+0j" in bad.reason
+    np.testing.assert_allclose(np.abs(bad.E4), [[1.0]], atol=1e-12)
+    with pytest.raises(c.NoFunctionalObserverError, match=r"E4 = 0.*E4 != 0"):
+        c.FunctionalUnknownInputObserver(plant, [0, 0, 0, 1.0, 0], 1e-3, 20.0)
+
+
+def test_functional_observer_converges_while_the_state_diverges():
+    plant, T = _transformed(_functional_plant())
+    E = np.array([[1.0, 0, 0, 0, 1.0], [0, 1.0, 1.0, 0, 0]]) @ T  # row 0 sees the stable zero, row 1 none
+    dt = 1e-3
+    L = 3 * c.output_error_lipschitz(plant, 2, e_bound=1.0, w_bounds=(1.5, 2.0, 4.0))
+    obs = c.FunctionalUnknownInputObserver(plant, E, dt, L, poles=-np.arange(4.0, 9.0))
+    ctl = _OpenLoop(obs)
+    res = c.simulate(plant, ctl, t_final=4.0, w=_w, x0=np.linalg.solve(T, [0.3, -0.2, 0.1, 0.5, 1.0]))
+    assert np.abs(obs.zero_dynamics.H).max() > 0.1
+    err = np.abs(np.array(ctl.z) - res.x @ E.T)
+    assert np.abs(res.x[-1] @ T.T).max() > 20.0  # x4 grows as exp(t): no observer of the whole state could follow
+    assert _settling_time(res.t, err[:, 1], 1e-4) < 0.6  # strongly observable functional: finite time
+    sel = (res.t > 1.0) & (res.t < 3.5)
+    rate = np.polyfit(res.t[sel], np.log(err[sel, 0]), 1)[0]
+    assert abs(rate - (-2.0)) < 0.05 * 2.0, rate  # the stable zero
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# static left inverse
+# ---------------------------------------------------------------------------------------------------------------
+def _left_inverse_plant() -> c.LinearPlant:
+    """x1' = x2, x2' = -2 x1 - x2 + w, x3' = x1 - x3, x4' = x1 + x2 + 0.5 x4; y = (x1, x3).
+
+    x4 is an unstable unobservable mode (an invariant zero at 0.5): neither strongly observable nor strongly
+    detectable, yet w = y1'' + y1' + 2 y1 exactly.
+    """
+    A = np.array([[0, 1, 0, 0], [-2, -1, 0, 0], [1, 0, -1, 0], [1, 1, 0, 0.5]], dtype=float)
+    D = np.eye(4)[:, [1]]
+    return c.LinearPlant(A, D, np.eye(4)[[0, 2]], D)
+
+
+def _derivative_stack(plant, x, W, k):
+    """[y; y'; ...; y^(k)] of the trajectory through x with w, w', ... = W."""
+    A, C, D = plant.A, plant.C, plant.D
+    Y = []
+    for j in range(k + 1):
+        yj = C @ np.linalg.matrix_power(A, j) @ x
+        for i in range(j):
+            yj = yj + C @ np.linalg.matrix_power(A, j - 1 - i) @ D @ W[i]
+        Y.append(yj)
+    return np.concatenate(Y)
+
+
+def test_left_inverse_exists_without_strong_observability_or_detectability():
+    plant = _left_inverse_plant()
+    assert not c.strong_observability(plant).ok
+    assert not c.strong_detectability(plant).ok
+    rep = c.left_inverse(plant)
+    assert rep.static and rep.asymptotic and rep.n_derivatives == 2
+    np.testing.assert_allclose(rep.invariant_zeros, [0.5], atol=1e-9)
+    np.testing.assert_allclose(rep.unobservable_eigenvalues, [0.5], atol=1e-9)
+    assert rep.visible_zeros.size == 0
+    # the defining property: w = G Y for every state and every input (and its derivatives)
+    rng = np.random.default_rng(0)
+    for P in (plant, _transformed(plant)[0], c.furuta_slides()):  # the last: strongly observable
+        rep = c.left_inverse(P)
+        assert rep.static
+        for _ in range(5):
+            x, W = rng.standard_normal(P.n), rng.standard_normal((rep.n_derivatives + 1, 1))
+            Y = _derivative_stack(P, x, W, rep.n_derivatives)
+            np.testing.assert_allclose(rep.G @ Y, W[0], atol=1e-9 * max(1.0, np.abs(rep.G).max() * np.abs(Y).max()))
+
+
+def test_no_static_left_inverse_names_the_zero():
+    rep = c.left_inverse(_detectable_plant(-1.5))  # the zero -1.5 is not an unobservable mode
+    assert not rep.static and rep.asymptotic
+    np.testing.assert_allclose(rep.visible_zeros, [-1.5], atol=1e-9)
+    with pytest.raises(c.NoStaticLeftInverseError, match=r"zeros at s = -1.5\+0j are not unobservable modes"):
+        c.LeftInverseIdentifier(_detectable_plant(-1.5), 1e-3, 20.0)
+    unstable = c.left_inverse(_detectable_plant(1.0))
+    assert not unstable.static and not unstable.asymptotic
+
+
+def _identification_error(dt, alpha, lipschitz, noise=0.0, t_final=3.0):
+    plant = _left_inverse_plant()
+    idf = c.LeftInverseIdentifier(plant, dt, lipschitz, alpha=alpha)
+    res = c.simulate(plant, _OpenLoop(idf, noise=noise), t_final=t_final, w=_w, x0=[0.3, -0.2, 0.1, 1.0])
+    return res.t, np.abs(res.w_hat - res.w)[:, 0], idf
+
+
+@pytest.mark.parametrize("alpha, lipschitz", [(1, 30.0), (2, 60.0)])
+def test_left_inverse_identification_order_in_the_sampling_step(alpha, lipschitz):
+    steps, errs = [1e-3, 2e-3, 4e-3], []
+    for dt in steps:
+        t, e, idf = _identification_error(dt, alpha, lipschitz)
+        errs.append(e[t > 1.0].max())
+    assert idf.theoretical_orders["sampling"] == alpha
+    assert abs(c.fit_order(steps, errs) - alpha) <= 0.2  # measured 0.99 and 1.99
+    if alpha == 2:
+        t, e, _ = _identification_error(1e-3, 2, 60.0)
+        assert errs[0] < 5e-4 and _settling_time(t, e, 1e-3) < 1.0  # exact up to O(tau^2) after ~0.5 s
+
+
+def test_left_inverse_identification_order_in_the_noise():
+    """Bounded noise eta: error O(eta^(alpha/(K+1))) = O(eta^(1/2)) for alpha = 2, K = 3 (Levant 2003)."""
+    etas, errs = [1e-5, 1e-4, 1e-3], []
+    for eta in etas:
+        t, e, idf = _identification_error(1e-3, 2, 60.0, noise=eta)
+        errs.append(e[t > 1.0].max())
+    assert idf.theoretical_orders["noise"] == 0.5
+    assert abs(c.fit_order(etas, errs) - 0.5) <= 0.1, errs  # measured 0.51
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# bad input
+# ---------------------------------------------------------------------------------------------------------------
+def test_bad_input_is_typed_and_says_what_was_expected():
+    P = _detectable_plant(-1.5)
+    with pytest.raises(ValueError, match=r"expected functional with shape \(\*x4\)"):
+        c.functional_observability(P, functional=np.ones((1, 3)))
+    with pytest.raises(ValueError, match=r"expected functional with shape"):
+        c.FunctionalUnknownInputObserver(P, np.ones((2, 5)), 1e-3, 20.0)
+    with pytest.raises(TypeError, match="expected plant to be a LinearPlant"):
+        c.StronglyDetectableObserver(P.A, 1e-3, 20.0)
+    with pytest.raises(ValueError, match="expected dt > 0"):
+        c.StronglyDetectableObserver(P, -1e-3, 20.0)
+    with pytest.raises(ValueError, match="expected a square A"):
+        c.strong_detectability(np.ones((2, 3)), np.ones((1, 3)), np.ones((2, 1)))
+    with pytest.raises(
+        TypeError, match=r"expected strong_detectability\(plant\) with a LinearPlant or strong_detectability\(A, C, D\)"
+    ):
+        c.strong_detectability(P.A)
+    L = _left_inverse_plant()
+    with pytest.raises(ValueError, match="expected lipschitz > 0"):
+        c.LeftInverseIdentifier(L, 1e-3, [1.0, -1.0])
+    with pytest.raises(ValueError, match="expected dt > 0"):
+        c.LeftInverseIdentifier(L, 0.0, 1.0)
+    with pytest.raises(ValueError, match="alpha"):
+        c.LeftInverseIdentifier(L, 1e-3, 1.0, alpha=0)
+    with pytest.raises(RuntimeError, match="expected reset"):
+        c.LeftInverseIdentifier(L, 1e-3, 1.0).update([0.0, 0.0])
+    with pytest.raises(RuntimeError, match="expected reset"):
+        c.StronglyDetectableObserver(P, 1e-3, 20.0).update([0.0, 0.0])
