@@ -1,11 +1,11 @@
 """Observers and output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 1, 3, 6).
 
 Conventional sliding-mode observers (Utkin, Drakunov's step-by-step, Walcott-Zak) and the unknown-input observer
-without differentiation (Darouach et al. 1994); disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
-and compensation of unmatched disturbances through the sliding surface; plants from the slides or linearized
-from MuJoCo models; a sampled-data closed-loop simulator with noise, quantization and actuator lag. For linear
-time-varying plants: Kratz and Liebscher's strong-observability test and the cascaded HOSM observer of
-Galvan-Guerra, Fridman and Davila (2017).
+without differentiation (Darouach et al. 1994); disturbance identification with the cascaded HOSM observer,
+compensation control, output integral sliding mode, and compensation of unmatched disturbances through the sliding
+surface; plants from the slides or linearized from MuJoCo models; a sampled-data closed-loop simulator with noise,
+quantization and actuator lag. For linear time-varying plants: Kratz and Liebscher's strong-observability test and
+the cascaded HOSM observer of Galvan-Guerra, Fridman and Davila (2017).
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
 """
