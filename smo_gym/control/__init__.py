@@ -1,4 +1,4 @@
-"""Observers and output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 1, 3, 6).
+"""Observers and output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 1, 3, 6, 7).
 
 Conventional sliding-mode observers (Utkin, Drakunov's step-by-step, Walcott-Zak) and the unknown-input observer
 without differentiation (Darouach et al. 1994); disturbance identification with the cascaded HOSM observer,

@@ -58,7 +58,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
@@ -67,7 +67,8 @@ from .._extras import require
 from .._validation import as_real_array, check_choice, check_nonnegative, check_positive, check_positive_array
 from ..design.gains import ackermann_observer_gain
 from ..design.lmi import LMIInfeasibleError
-from .plants import RANK_TOL, _matrix, _rank, invariant_zeros
+from .plants import RANK_TOL, _matrix, _rank
+from .unknown_inputs import StrongDetectabilityReport, strong_detectability
 
 __all__ = [
     "ObservableBlockForm",
@@ -634,6 +635,9 @@ class UnknownInputConditions:
         pencil).
     strongly_observable : bool
         No invariant zeros at all (then the observer's error rate can be chosen freely).
+    detectability : StrongDetectabilityReport or None
+        The :func:`~smo_gym.control.strong_detectability` report behind the minimum-phase verdict (None when a
+        rank condition fails first).
     """
 
     ok: bool
@@ -643,6 +647,7 @@ class UnknownInputConditions:
     rank_CD: int
     invariant_zeros: np.ndarray
     strongly_observable: bool
+    detectability: StrongDetectabilityReport | None = field(default=None, repr=False)
 
     def require(self) -> UnknownInputConditions:
         """Return the report, or raise :class:`UnknownInputConditionError` naming the first failing condition."""
@@ -661,9 +666,10 @@ def unknown_input_conditions(A, C, D) -> UnknownInputConditions:
     1. ``rank(D) = m``: the unknown inputs act independently (a rank-deficient ``D`` can be reduced first).
     2. The observer-matching condition ``rank(CD) = rank(D)``: every unknown input reaches the output with
        relative degree one (the slides: "relative degree 1 condition").
-    3. Minimum phase: the invariant zeros of ``(A, D, C)``, the ``s`` where
-       :math:`\begin{bmatrix} sI - A & -D \\ C & 0\end{bmatrix}` loses rank, lie in the open left half-plane
-       (with 2., the strong detectability of Hautus). They are the eigenvalues that no observer gain can move.
+    3. Minimum phase (:func:`~smo_gym.control.strong_detectability`): the invariant zeros of ``(A, D, C)``, the
+       ``s`` where :math:`\begin{bmatrix} sI - A & -D \\ C & 0\end{bmatrix}` loses rank, lie in the open left
+       half-plane (with 2., the strong detectability of Hautus). They are the eigenvalues that no observer gain can
+       move.
 
     Parameters
     ----------
@@ -692,12 +698,13 @@ def unknown_input_conditions(A, C, D) -> UnknownInputConditions:
             f"rank(CD) = {rCD} != rank(D) = {rD}: some unknown input reaches y only through derivatives "
             "(relative degree > 1), so it cannot be rejected without differentiating y"
         )
-    if not failing:
-        zeros = invariant_zeros(A, C, D)
-        bad = zeros[zeros.real >= -RANK_TOL * max(np.linalg.norm(A), 1.0)]
-        if bad.size:
+    detect = None
+    if not failing:  # left-invertible now (rank CD = m): the zeros are those of a square-able pencil
+        detect = strong_detectability(A, C, D)
+        zeros = detect.invariant_zeros
+        if not detect.ok:
             failing.append("minimum phase")
-            z = ", ".join(f"{complex(v):.4g}" for v in bad)
+            z = ", ".join(f"{complex(v):.4g}" for v in detect.unstable_zeros)
             reasons.append(
                 f"(A, D, C) has invariant zeros at s = {z}, not in the open left half-plane: the error mode there "
                 "is invisible in y and cannot be stabilized (not strongly detectable)"
@@ -710,6 +717,7 @@ def unknown_input_conditions(A, C, D) -> UnknownInputConditions:
         rank_CD=rCD,
         invariant_zeros=zeros,
         strongly_observable=not failing and zeros.size == 0,
+        detectability=detect,
     )
 
 
