@@ -88,7 +88,7 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2)))
 
 
-def reproduce_efimov2017(out_dir) -> list[dict]:
+def reproduce_efimov2017(out_dir, fast: bool = False) -> list[dict]:
     """Rerun Section 6 of Efimov et al. 2017; write the figures into ``out_dir``; return the claims with measurements.
 
     Returns

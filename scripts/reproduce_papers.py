@@ -1,19 +1,17 @@
 #!/usr/bin/env python
-r"""Rerun the numerical examples of Efimov et al. 2017, Lopez-Ramirez et al. 2016 and Wetzlinger et al.; print each
-claim next to what was measured.
+r"""Rerun the numerical examples of the source papers and of Fridman's slides; print each claim next to what was
+measured, with a verdict.
 
 Usage::
 
-    python scripts/reproduce_papers.py [--out outputs/papers] [--fast]
-        [--papers efimov2017 lopez-ramirez2016 wetzlinger galvan-guerra2017 kratz-liebscher1998]
+    python scripts/reproduce_papers.py [--out outputs/papers] [--fast] [--papers KEY ...]
 
-Galvan-Guerra et al. 2017 (cascaded HOSM observer for LTV systems) and Kratz and Liebscher 1998 (LTV strong
-observability) are reproduced by ``scripts/reproduce_slides_ltv.py``, imported when present.
-Efimov et al. 2017 (switched-gain differentiator) is reproduced by ``reproduce_efimov2017`` of
-``scripts/reproduce_efimov2017.py``, imported when present. Lopez-Ramirez et al. 2016 (ILF finite-time /
-fixed-time observers, section V) and Wetzlinger et al. (discrete-time HOSM observer, section 6) are reproduced
-here with :class:`smo_gym.observers.ILFObserver`,
-:func:`smo_gym.design.ilf_gains` and :class:`smo_gym.observers.DiscreteTimeHOSM`. The experiment functions
+``PAPERS`` maps each key to its citation and runner. Lopez-Ramirez et al. 2016 (ILF finite-time / fixed-time
+observers, section V) and Wetzlinger et al. (discrete-time HOSM observer, section 6) are reproduced here with
+:class:`smo_gym.observers.ILFObserver`, :func:`smo_gym.design.ilf_gains` and
+:class:`smo_gym.observers.DiscreteTimeHOSM`; the others live in scripts of their own, loaded when run:
+``reproduce_efimov2017.py`` (switched-gain differentiator) and ``reproduce_slides_*.py`` (the slides' sections:
+conventional observers, LTV systems, unknown inputs, finite-time stabilization). The experiment functions
 (``lopez_ramirez_example``, ``run_ilf_errors``, ``simulate_wetzlinger_third_order``, ...) are also what
 ``tests/test_ilf.py`` and ``tests/test_discrete_hosm.py`` run, with coarser settings.
 
@@ -471,66 +469,26 @@ def reproduce_wetzlinger(out_dir: Path | None, T: float = 10.0) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Efimov et al. 2017 (from scripts/reproduce_efimov2017.py)
+# The reproductions kept in scripts of their own
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def reproduce_efimov2017(out_dir: Path | None) -> list[dict] | None:
-    path = Path(__file__).with_name("reproduce_efimov2017.py")
-    if not path.exists():
-        return None
-    spec = importlib.util.spec_from_file_location("reproduce_efimov2017", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.reproduce_efimov2017(out_dir)
+def _from_script(filename: str, function: str):
+    """The runner ``function(out_dir, fast)`` of ``scripts/<filename>``, loaded when first called (None when the
+    script is absent)."""
 
+    def run(out_dir: Path | None, fast: bool) -> list[dict] | None:
+        path = Path(__file__).with_name(filename)
+        if not path.exists():
+            return None
+        name = path.stem
+        if name not in sys.modules:
+            spec = importlib.util.spec_from_file_location(name, path)
+            sys.modules[name] = module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        return getattr(sys.modules[name], function)(out_dir, fast)
 
-# ----------------------------------------------------------------------------------------------------------------
-# Fridman's slides: strong detectability, functional UIO, static left inverse
-# (scripts/reproduce_slides_unknown_inputs.py)
-# ----------------------------------------------------------------------------------------------------------------
-
-
-def reproduce_slides_unknown_inputs(key: str, out_dir: Path | None, fast: bool) -> list[dict] | None:
-    path = Path(__file__).with_name("reproduce_slides_unknown_inputs.py")
-    if not path.exists():
-        return None
-    spec = importlib.util.spec_from_file_location("reproduce_slides_unknown_inputs", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.RUNNERS[key](out_dir, fast)
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Fridman's slides, LTV systems: Kratz and Liebscher 1998, Galvan-Guerra, Fridman and Davila 2017
-# (from scripts/reproduce_slides_ltv.py)
-# ----------------------------------------------------------------------------------------------------------------
-
-
-def _slides_ltv(runner: str, out_dir: Path | None, fast: bool) -> list[dict] | None:
-    path = Path(__file__).with_name("reproduce_slides_ltv.py")
-    if not path.exists():
-        return None
-    spec = importlib.util.spec_from_file_location("reproduce_slides_ltv", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return getattr(module, runner)(out_dir, fast)
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Levant 2003, 2005 and Angulo, Fridman and Levant 2012 (from scripts/reproduce_slides_finite_time.py)
-# ----------------------------------------------------------------------------------------------------------------
-
-
-def _finite_time(name: str):
-    """A runner of ``scripts/reproduce_slides_finite_time.py`` (None when the file is absent)."""
-    path = Path(__file__).with_name("reproduce_slides_finite_time.py")
-    if not path.exists():
-        return lambda out, fast: None
-    spec = importlib.util.spec_from_file_location("reproduce_slides_finite_time", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return getattr(module, name)
+    return run
 
 
 #: ``--papers`` choice -> (citation, runner); a runner takes the figure directory (or None) and ``fast`` and
@@ -538,19 +496,19 @@ def _finite_time(name: str):
 PAPERS = {
     "efimov2017": (
         "Efimov, Polyakov, Levant and Perruquetti 2017",
-        lambda out, fast: reproduce_efimov2017(out),
+        _from_script("reproduce_efimov2017.py", "reproduce_efimov2017"),
     ),
     "levant2005": (
         "Levant 2003, 2005 (r-sliding accuracy)",
-        lambda out, fast: _finite_time("reproduce_levant2005")(out, fast),
+        _from_script("reproduce_slides_finite_time.py", "reproduce_levant2005"),
     ),
     "angulo2012": (
         "Angulo, Fridman and Levant 2012 (slides' Furuta model)",
-        lambda out, fast: _finite_time("reproduce_angulo2012")(out, fast),
+        _from_script("reproduce_slides_finite_time.py", "reproduce_angulo2012"),
     ),
     "angulo2012-mujoco": (
         "Angulo, Fridman and Levant 2012 (MuJoCo Furuta pendulum)",
-        lambda out, fast: _finite_time("reproduce_angulo2012_mujoco")(out, fast),
+        _from_script("reproduce_slides_finite_time.py", "reproduce_angulo2012_mujoco"),
     ),
     "lopez-ramirez2016": (
         "Lopez-Ramirez, Polyakov, Efimov and Perruquetti 2016",
@@ -562,23 +520,43 @@ PAPERS = {
     ),
     "strong-detectability": (
         "Fridman's slides: observer for strongly detectable systems (Fridman, Davila and Levant 2011; Moreno 2001)",
-        lambda out, fast: reproduce_slides_unknown_inputs("strong-detectability", out, fast),
+        _from_script("reproduce_slides_unknown_inputs.py", "reproduce_strong_detectability"),
     ),
     "functional-uio": (
         "Fridman's slides: functional unknown-input observers (Angulo, Fridman and Moreno 2014)",
-        lambda out, fast: reproduce_slides_unknown_inputs("functional-uio", out, fast),
+        _from_script("reproduce_slides_unknown_inputs.py", "reproduce_functional_uio"),
     ),
     "left-inverse": (
         "Fridman's slides: static left inverse (Bejarano, Fridman and Poznyak 2009)",
-        lambda out, fast: reproduce_slides_unknown_inputs("left-inverse", out, fast),
+        _from_script("reproduce_slides_unknown_inputs.py", "reproduce_left_inverse"),
     ),
     "galvan-guerra2017": (
         "Galvan-Guerra, Fridman and Davila 2017 (cascaded HOSM observer for LTV systems; our example)",
-        lambda out, fast: _slides_ltv("reproduce_galvan_guerra2017", out, fast),
+        _from_script("reproduce_slides_ltv.py", "reproduce_galvan_guerra2017"),
     ),
     "kratz-liebscher1998": (
         "Kratz and Liebscher 1998 (LTV strong observability; the slides' plants)",
-        lambda out, fast: _slides_ltv("reproduce_kratz_liebscher1998", out, fast),
+        _from_script("reproduce_slides_ltv.py", "reproduce_kratz_liebscher1998"),
+    ),
+    "utkin": (
+        "Utkin 1992 (Fridman's slides, section 1: simple sliding-mode observer)",
+        _from_script("reproduce_slides_conventional.py", "reproduce_utkin"),
+    ),
+    "drakunov-utkin": (
+        "Drakunov 1992; Drakunov and Utkin 1995 (step-by-step observer)",
+        _from_script("reproduce_slides_conventional.py", "reproduce_drakunov_utkin"),
+    ),
+    "walcott-zak": (
+        "Walcott and Zak 1987; Edwards and Spurgeon 1994",
+        _from_script("reproduce_slides_conventional.py", "reproduce_walcott_zak"),
+    ),
+    "hautus-uio": (
+        "Hautus 1983; Darouach, Zasadzinski and Xu 1994",
+        _from_script("reproduce_slides_conventional.py", "reproduce_hautus_uio"),
+    ),
+    "furuta-unknown-input": (
+        "Walcott-Zak observer and UIO on the MuJoCo Furuta pendulum",
+        _from_script("reproduce_slides_conventional.py", "reproduce_furuta"),
     ),
 }
 

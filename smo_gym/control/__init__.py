@@ -1,12 +1,14 @@
-"""Output-feedback control and unknown-input observation of linear plants (Fridman's slides, sections 1, 3, 6, 7).
+"""Observers and output-feedback control of linear plants with unknown inputs (Fridman's slides, sections 1, 3, 6, 7).
 
-Disturbance identification with the cascaded HOSM observer, compensation control, output integral sliding mode,
-compensation of unmatched disturbances through the sliding surface, and finite-time output-feedback
-stabilization with Levant's arbitrary-order sliding-mode controllers (Angulo, Fridman and Levant 2012); observers
-beyond strong observability (strongly detectable plants, functional observers, static left inverses); for linear
-time-varying plants, Kratz and Liebscher's strong-observability test and the cascaded HOSM observer of
-Galvan-Guerra, Fridman and Davila (2017); plants from the slides or linearized from MuJoCo models; a sampled-data
-closed-loop simulator with noise, quantization and actuator lag.
+Conventional sliding-mode observers (Utkin, Drakunov's step-by-step, Walcott-Zak) and the unknown-input observer
+without differentiation (Darouach, Zasadzinski and Xu 1994); disturbance identification with the cascaded HOSM
+observer, compensation control, output integral sliding mode, compensation of unmatched disturbances through the
+sliding surface, and finite-time output-feedback stabilization with Levant's arbitrary-order sliding-mode
+controllers (Angulo, Fridman and Levant 2012); observers beyond strong observability (strongly detectable plants,
+functional observers, static left inverses); for linear time-varying plants, Kratz and Liebscher's
+strong-observability test and the cascaded HOSM observer of Galvan-Guerra, Fridman and Davila (2017). Plants come
+from the slides or are linearized from MuJoCo models; a sampled-data closed-loop simulator adds noise,
+quantization and actuator lag.
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
 """
@@ -20,6 +22,21 @@ from .controllers import (
     UnmatchedCompensationController,
     lqr,
     regular_form,
+)
+from .conventional import (
+    ObservableBlockForm,
+    StepByStepObserver,
+    UnknownInputConditionError,
+    UnknownInputConditions,
+    UnknownInputObserver,
+    UtkinObserver,
+    WalcottZakDesign,
+    WalcottZakObserver,
+    certify_walcott_zak,
+    observable_block_form,
+    output_coordinate_change,
+    unknown_input_conditions,
+    walcott_zak_design,
 )
 from .estimators import CascadedHOSMObserver, LuenbergerObserver, output_error_lipschitz, sampled_observer_gain
 from .finite_time import (
@@ -97,15 +114,24 @@ __all__ = [
     "NoStaticLeftInverseError",
     "NotStronglyDetectableError",
     "NotStronglyObservableError",
+    "ObservableBlockForm",
     "RelativeDegreeError",
     "SimulationResult",
     "SlidingOutput",
     "StateFeedback",
+    "StepByStepObserver",
     "StrongDetectabilityReport",
     "StrongObservabilityReport",
     "StronglyDetectableObserver",
+    "UnknownInputConditionError",
+    "UnknownInputConditions",
+    "UnknownInputObserver",
     "UnmatchedCompensationController",
+    "UtkinObserver",
+    "WalcottZakDesign",
+    "WalcottZakObserver",
     "ZeroDynamics",
+    "certify_walcott_zak",
     "detectable_observer_gain",
     "fit_order",
     "functional_observability",
@@ -123,6 +149,8 @@ __all__ = [
     "ltv_strong_observability",
     "molinari_decoupling",
     "nested_hosm",
+    "observable_block_form",
+    "output_coordinate_change",
     "output_error_lipschitz",
     "quasi_continuous_hosm",
     "regular_form",
@@ -137,5 +165,7 @@ __all__ = [
     "strong_detectability",
     "strong_observability",
     "total_variation_rate",
+    "unknown_input_conditions",
+    "walcott_zak_design",
     "zero_dynamics",
 ]
