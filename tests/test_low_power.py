@@ -237,3 +237,18 @@ def test_masked_reset_and_nan():
 def test_bad_parameters_raise_typed_errors(kwargs, exc):
     with pytest.raises(exc, match="expected"):
         LowPowerHighGain(**kwargs)
+
+
+def test_the_active_set_solver_matches_lapack_and_pivots():
+    """The compiled elimination of the active-set iteration solves like ``np.linalg.solve``, also where the first
+    pivot is zero (no pivoting would divide by it)."""
+    from smo_gym.observers.low_power import solve_in_place
+
+    rng = np.random.default_rng(0)
+    cases = [rng.normal(size=(n, n)) + n * np.eye(n) for n in (1, 3, 5, 7)]
+    cases.append(np.array([[0.0, 2.0, 1.0], [1.0, 1.0, 0.0], [3.0, 0.0, 1.0]]))
+    for M in cases:
+        b = rng.normal(size=len(M))
+        A, x = M.copy(), b.copy()
+        solve_in_place(A, x)
+        np.testing.assert_allclose(x, np.linalg.solve(M, b), rtol=1e-12, atol=1e-12)

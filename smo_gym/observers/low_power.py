@@ -163,6 +163,35 @@ def low_power_matrices(n: int, ell: float, K, k_n: float) -> dict[str, np.ndarra
 # state row:  [s (N), innovation]
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=CACHE)
+def solve_in_place(M, rhs):
+    """Solve ``M s = rhs`` by Gaussian elimination with partial pivoting, overwriting both; ``rhs`` becomes ``s``.
+
+    For the few-by-few systems of the active-set iteration this is as accurate as LAPACK's ``gesv`` (the same
+    algorithm) and keeps numba's LAPACK bindings, which cost most of this kernel's cold compilation, out of it. A
+    singular ``M`` gives non-finite entries, which the caller's state check rejects."""
+    N = rhs.shape[0]
+    for k in range(N):
+        pivot = k
+        for i in range(k + 1, N):
+            if abs(M[i, k]) > abs(M[pivot, k]):
+                pivot = i
+        if pivot != k:
+            for j in range(N):
+                M[k, j], M[pivot, j] = M[pivot, j], M[k, j]
+            rhs[k], rhs[pivot] = rhs[pivot], rhs[k]
+        for i in range(k + 1, N):
+            factor = M[i, k] / M[k, k]
+            for j in range(k, N):
+                M[i, j] -= factor * M[k, j]
+            rhs[i] -= factor * rhs[k]
+    for k in range(N - 1, -1, -1):
+        acc = rhs[k]
+        for j in range(k + 1, N):
+            acc -= M[k, j] * rhs[j]
+        rhs[k] = acc / M[k, k]
+
+
+@njit(cache=CACHE)
 def low_power_channel_step(x, y, p, n, x_new, out_row):
     r"""Implicit Euler step :math:`(I - hF)s_k = s_{k-1} + hGy_k` with the saturations handled by active sets."""
     N = 2 * n - 1
@@ -213,7 +242,8 @@ def low_power_channel_step(x, y, p, n, x_new, out_row):
                         hfc = p[o_fc + i * (n - 1) + j]
                         M[i, col] += hfc  # remove -h Fc_j xi_{j,2} from (I - hF)
                         rhs[i] += hfc * clamp[j] * r  # add h Fc_j sigma = h Fc_j (+-r)
-            sol = np.linalg.solve(M, rhs)
+            solve_in_place(M, rhs)
+            sol = rhs
             changed = False
             for j in range(n - 1):
                 v = sol[2 * j + 1]
