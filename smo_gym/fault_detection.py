@@ -344,8 +344,9 @@ class FaultObserverBank:
         if len(names) != len(faults):
             raise ValueError(f"expected {len(faults)} fault names, actual value: {len(names)}")
         self.names = ("nominal", *names)
-        th = np.broadcast_to(as_real_array("threshold", threshold), (n,)) if np.ndim(threshold) <= 1 else None
-        if th is None or th.shape != (n,) or not np.all(np.isfinite(th)) or np.any(th <= 0):
+        th = as_real_array("threshold", threshold)
+        th = np.broadcast_to(th, (n,)) if th.shape in ((), (1,), (n,)) else None
+        if th is None or not np.all(np.isfinite(th)) or np.any(th <= 0):
             raise ValueError(f"expected threshold > 0, finite, scalar or of shape ({n},), actual value: {threshold!r}")
         self.threshold = np.array(th, dtype=np.float64)
         self.dwell = check_positive("dwell", dwell)
