@@ -22,8 +22,10 @@ Decision (:func:`diagnose`), with the residuals normalized per joint by the thre
 * nothing is decided before ``settle_time`` (the observers' convergence from their initial error);
 * **detection**: the first sample at which the nominal residual leaves the band, :math:`\rho_0 > 1`;
 * **isolation**: after detection, the first sample at which exactly one fault model ``i`` has stayed inside the
-  band for the last ``dwell`` seconds: the fault is :math:`F_i`. If none does by the end of the record, the fault is
-  *unknown* (outside the bank).
+  band for the last ``dwell`` seconds: the fault is :math:`F_i`. The matching model's residual stays in the band
+  (it vanishes once its observer slides), so if model ``i`` leaves the band later the verdict is revoked and the
+  search starts again after the exit (a wrong model can fit for a while when the input excites little). If no
+  verdict stands at the end of the record, the fault is *unknown* (outside the bank).
 
 Where the threshold comes from
 ------------------------------
@@ -36,9 +38,10 @@ threshold, for the wrong models, persistently (the distinguishability condition 
 
 References
 ----------
-.. [RDFE14] H. Rios, J. Davila, L. Fridman and C. Edwards, "Fault detection and isolation for nonlinear non-affine
-   uncertain systems via sliding-mode techniques", International Journal of Robust and Nonlinear Control 25(14),
-   2015 (online 2014); in Fridman's slides, "Fault detection using multi-model approach".
+.. [RDFE14] H. Rios, J. Davila, L. Fridman and C. Edwards, "Fault detection and isolation for nonlinear systems via
+   high-order-sliding-mode multiple-observer", International Journal of Robust and Nonlinear Control, published
+   online 2014, doi:10.1002/rnc.3232; in Fridman's slides ("H. Rios et al. IJRNC 2014"), "Fault detection using
+   multi-model approach".
 .. [DFL05] J. Davila, L. Fridman and A. Levant, "Second-order sliding-mode observer for mechanical systems",
    IEEE TAC 50(11), 2005.
 """
@@ -109,7 +112,7 @@ class FaultDiagnosis:
         bank, the ``i - 1``-th entry of ``faults``), ``0`` no fault detected, ``-1`` detected but *unknown* (no
         fault model stayed in the band for ``dwell`` seconds).
     isolation_time : ndarray of float, shape B
-        Time [s] of isolation (the end of the dwell window); NaN where nothing was isolated.
+        Time [s] of the standing isolation (the end of its dwell window); NaN where nothing was isolated.
     residual_norms : ndarray, shape (T, *B, q + 1)
         Normalized residual :math:`\rho_i = \max_j |r_{i,j}|/\theta_j` of each model at each sample (band: ``<= 1``).
     names : tuple of str
@@ -197,15 +200,23 @@ def diagnose(
             continue
         kd = k0 + int(out[0])
         detected[b], t_det[b] = True, kd * dt
-        # windows counted from detection on: residuals before it describe the healthy system
-        full = _first_window(flat[kd:, b, 1:] <= 1.0, m)
-        single = np.flatnonzero(full.sum(axis=1) == 1)
-        if single.size == 0:
-            isolated[b] = UNKNOWN
-            continue
-        ki = int(single[0])
-        isolated[b] = 1 + int(np.flatnonzero(full[ki])[0])
-        t_iso[b] = (kd + ki) * dt
+        isolated[b] = UNKNOWN
+        start = kd  # windows counted from detection on: residuals before it describe the healthy system
+        while start < T:
+            inside = flat[start:, b, 1:] <= 1.0
+            full = _first_window(inside, m)
+            single = np.flatnonzero(full.sum(axis=1) == 1)
+            if single.size == 0:
+                isolated[b], t_iso[b] = UNKNOWN, np.nan
+                break
+            ki = int(single[0])
+            i = int(np.flatnonzero(full[ki])[0])
+            isolated[b], t_iso[b] = 1 + i, (start + ki) * dt
+            # the matching model's residual stays in the band: a later exit revokes the verdict, search again
+            exits = np.flatnonzero(~inside[ki + 1 :, i])
+            if exits.size == 0:
+                break
+            start += ki + 1 + int(exits[0])
     return FaultDiagnosis(
         detected=detected.reshape(batch),
         detection_time=t_det.reshape(batch),

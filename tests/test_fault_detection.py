@@ -216,6 +216,18 @@ def test_diagnose_on_hand_made_residuals():
     rho2[8:, 2] = 0.5
     d2 = diagnose(rho2, dt, dwell=0.3)
     assert d2.isolated == 2 and d2.isolation_time == pytest.approx(2.5)  # model 1 leaves at 25: model 2 alone
+    # a verdict whose model leaves the band later is revoked: model 1 fits from 10 to 19, then model 2 from 20 on
+    rho5 = np.full((T, 3), 5.0)
+    rho5[:, 0] = 0.2
+    rho5[10:, 0] = 3.0
+    rho5[10:20, 1] = 0.5
+    rho5[20:, 2] = 0.5
+    d5 = diagnose(rho5, dt, dwell=0.3)
+    assert d5.isolated == 2 and d5.isolation_time == pytest.approx(2.2)
+    rho5[30, 2] = 2.0  # and model 2 leaves once too: nothing stands by the end (window 31..33 does)
+    assert diagnose(rho5, dt, dwell=0.3).isolation_time == pytest.approx(3.3)
+    rho5[38, 2] = 2.0  # an exit too late for another full window: unknown
+    assert diagnose(rho5, dt, dwell=0.3).isolated == -1
     # an excursion before settle_time is ignored; nothing after it: no fault
     rho3 = np.full((T, 2), 0.1)
     rho3[3, 0] = 9.0
