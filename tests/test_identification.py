@@ -258,3 +258,44 @@ def test_identifier_rejects_bad_input():
     ident.reset(np.zeros(1))
     with pytest.raises(ValueError, match=r"regressor to return shape \(1, 3\)"):
         ident.update(np.zeros(1), np.zeros(1))
+
+
+# ---- the MuJoCo path ------------------------------------------------------------------------------------------
+def test_mujoco_regressor_is_exact_for_mass_and_damping():
+    """Affine parameters: the true acceleration minus the nominal one is Phi(a_true) (theta - theta_bar), exactly."""
+    import gymnasium as gym
+    import mujoco
+
+    from smo_gym.mechanics import MujocoDynamics, MujocoParameterRegressor
+
+    env = gym.make("smo_gym/TwoLinkArm-v0")
+    model = env.unwrapped.model
+    reg = MujocoParameterRegressor(model, [("body_mass", "lower"), ("dof_damping", "elbow")])
+    np.testing.assert_allclose(reg.theta_bar, [0.8, 0.05])
+    nominal, true = MujocoDynamics(model), MujocoDynamics(model)
+    true.model.body_mass[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "lower")] = 1.3
+    true.model.dof_damping[1] = 0.2
+    q, v, u = np.array([0.3, -0.7]), np.array([1.2, -0.5]), np.array([2.0, -1.0])
+    a = true.acceleration(q, v, u)
+    Phi = reg(0.0, q, v, u, a)
+    np.testing.assert_allclose(a - nominal.acceleration(q, v, u), Phi @ ([1.3, 0.2] - reg.theta_bar), rtol=1e-7)
+    assert reg(0.0, np.stack([q, q]), v, u, a).shape == (2, 2, 2)
+    with pytest.raises(ValueError, match="parameter kind"):
+        MujocoParameterRegressor(model, [("body_inertia", "lower")])
+    with pytest.raises(ValueError, match="name of a body"):
+        MujocoParameterRegressor(model, [("body_mass", "forearm")])
+    env.close()
+
+
+def test_mujoco_payload_mass_identified_from_encoder_readings():
+    """The demo's path, short: TwoLinkArm-v0 with a 1.2 kg forearm, nominal 0.8 kg, 12-bit noisy encoder, h = 10 ms."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "demo_identification.py"
+    spec = importlib.util.spec_from_file_location("demo_identification", path)
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    t, m_true, m_hat, _ = demo.run("encoder-12bit-noisy", 5, 3.0)
+    assert m_true[-1] == demo.TRUE_MASS
+    assert np.max(np.abs(m_hat[t > 2.0] - m_true[t > 2.0])) < 0.05 * demo.TRUE_MASS
