@@ -75,8 +75,8 @@ References
 ----------
 .. [DFL05] J. Davila, L. Fridman and A. Levant, "Second-order sliding-mode observer for mechanical systems",
    IEEE TAC 50(11), 2005.
-.. [F] L. Fridman, lecture slides on sliding-mode observers, section "Parameter identification" (regressor form,
-   equivalent output injection, dynamic least squares, matrix forgetting factor).
+.. [F] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides, section "Parameter
+   identification" (regressor form, equivalent output injection, dynamic least squares, matrix forgetting factor).
 .. [LS] L. Ljung and T. Söderström, "Theory and practice of recursive identification", MIT Press, 1983
    (least squares with exponential forgetting, the scalar case :math:`R = \rho I`).
 """
