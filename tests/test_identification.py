@@ -111,6 +111,24 @@ def test_regressor_matrix_is_the_slides_theta_phi():
     np.testing.assert_allclose(regressor_matrix(phi, 2) @ theta.reshape(-1), theta @ phi)
 
 
+def test_the_general_laws_are_the_slides_row_laws_for_theta_phi():
+    """With Phi = I_n (x) phi^T the vector law equals the slides' matrix law row by row:
+    Delta' = (z - Delta phi) phi^T Gamma with one l x l Gamma, checked on a sequence of samples with forgetting."""
+    rng = np.random.default_rng(2)
+    n, l, h = 2, 3, 0.05
+    vec = LeastSquaresIdentifier(n * l, h, gamma0=10.0, forgetting=0.6)
+    row = LeastSquaresIdentifier(l, h, gamma0=10.0, forgetting=0.6)  # each row of Delta: z_i = phi^T delta_i
+    vec.reset()
+    row.reset((n,))
+    for _ in range(20):
+        phi = rng.standard_normal(l)
+        z = rng.standard_normal(n)
+        vec.update(regressor_matrix(phi, n), z)
+        row.update(np.broadcast_to(phi, (n, 1, l)), z[:, None])
+    np.testing.assert_allclose(vec.estimate.reshape(n, l), row.estimate, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(vec.gain[:l, :l], row.gain[0], rtol=1e-10)
+
+
 # ---- defining properties on the pendulum ----------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def excitation_runs():
@@ -284,6 +302,12 @@ def test_mujoco_regressor_is_exact_for_mass_and_damping():
         MujocoParameterRegressor(model, [("body_inertia", "lower")])
     with pytest.raises(ValueError, match="name of a body"):
         MujocoParameterRegressor(model, [("body_mass", "forearm")])
+    with pytest.raises(ValueError, match="step > 0"):
+        MujocoParameterRegressor(model, [("body_mass", "lower")], step=0.0)
+    with pytest.raises(TypeError, match="MjModel"):
+        MujocoParameterRegressor(None, [("body_mass", "lower")])
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 2\)"):
+        reg(0.0, q[:1], v[:1], u, a[:1])
     env.close()
 
 
@@ -299,3 +323,13 @@ def test_mujoco_payload_mass_identified_from_encoder_readings():
     t, m_true, m_hat, _ = demo.run("encoder-12bit-noisy", 5, 3.0)
     assert m_true[-1] == demo.TRUE_MASS
     assert np.max(np.abs(m_hat[t > 2.0] - m_true[t > 2.0])) < 0.05 * demo.TRUE_MASS
+
+
+def test_the_guide_example_runs_and_identifies():
+    from pathlib import Path
+
+    guide = Path(__file__).resolve().parents[1] / "docs" / "guide" / "identification.md"
+    source = guide.read_text().split("```python\n", 1)[1].split("```", 1)[0]
+    namespace = {"__name__": "__guide__"}
+    exec(compile(source, str(guide), "exec"), namespace)
+    np.testing.assert_allclose(namespace["theta_hat"], [0.5, 0.3], atol=0.015)

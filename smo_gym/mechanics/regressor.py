@@ -25,6 +25,8 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+from .._validation import check_positive
+
 __all__ = ["MujocoParameterRegressor"]
 
 _KINDS = {"body_mass": mujoco.mjtObj.mjOBJ_BODY, "dof_damping": mujoco.mjtObj.mjOBJ_JOINT}
@@ -68,8 +70,7 @@ class MujocoParameterRegressor:
         ):
             raise ValueError("expected a model with hinge and slide joints only, actual value: other joint types")
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-        if not isinstance(step, float) or not step > 0.0:
-            raise ValueError(f"expected step > 0, actual value: {step!r}")
+        step = check_positive("step", step)
         self.model, self.data = m, mujoco.MjData(m)
         self.n = m.nv
         self.step = step
