@@ -413,9 +413,11 @@ class EquivalentInjectionIdentifier:
 
     Accuracy (noise free): the sampled observer's injection matches the model mismatch up to the explicit model
     term's error over one sample, :math:`O(h)`, so :math:`\hat\theta - \theta = O(h)` once excited. With position
-    noise of amplitude :math:`\varepsilon` the per-sample injection is corrupted (it is bounded by :math:`k_2`, the
-    set-valued sign), the velocity in the regressor by :math:`O(\varepsilon^{1/2})` (worst case); least squares
-    averages the zero-mean part, leaving an error that grows with the noise.
+    noise of amplitude :math:`\varepsilon > k_2 h^2` the injection saturates (the set-valued sign is bounded by
+    :math:`k_2`), the observer filters, and the velocity in the regressor is accurate to the worst-case
+    :math:`O(\varepsilon^{1/2})`, which the estimate inherits. For :math:`\varepsilon < k_2 h^2` the injection is a
+    second difference of the noise that shares it with the regressor's velocity: besides the zero-mean part
+    (:math:`O(\varepsilon)`, averaged by least squares) an errors-in-variables bias of order :math:`\varepsilon^2`.
     """
 
     @check_keywords

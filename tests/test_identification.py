@@ -197,17 +197,29 @@ def test_error_is_first_order_in_the_sampling_step():
     assert 0.8 < slope < 1.2, (slope, errs)  # measured 1.0
 
 
-def test_error_grows_with_the_noise_level():
-    """Position noise eps: linear response (slope 1) while eps < k2 h^2 (the injection unsaturated), slower beyond,
-    where the worst-case velocity accuracy O(eps^(1/2)) governs; measured 0.87 over eps = 1e-5 .. 1e-3 at h = 2 ms."""
-    levels = np.array([1e-5, 1e-4, 1e-3])
-    reps = 3
+def test_error_against_the_noise_level_in_its_two_regimes():
+    """Gaussian position noise eps, h = 2 ms, k2 = 22: the observer's injection saturates at k2 once eps > k2 h^2
+    (about 1e-4 rad).
+
+    Large noise (eps = 1e-4 .. 1e-3): the observer filters, its velocity is accurate to the worst-case
+    O(eps^(1/2)) of the super-twisting algorithm, and so is the estimate: slope 1/2 (measured 0.41 here; 0.40 to 0.61
+    for other noise seeds). Small noise (eps = 1e-6 .. 3e-5): the implicit step is a backward difference; the injection
+    (a second difference, error ~ eps/h^2) and the regressor's velocity (a first difference) share the noise, an
+    errors-in-variables bias of order eps^2 adds to the zero-mean part of order eps that least squares averages:
+    a slope between 1 and 2 (measured 1.40 here; 1.38 to 1.42 for other seeds).
+    """
+    small = np.array([1e-6, 3e-6, 1e-5, 3e-5])
+    large = np.array([1e-4, 3e-4, 1e-3])
+    levels = np.concatenate([small, large])
+    reps = 4
     sigma = np.concatenate([[0.0], np.repeat(levels, reps)])
     out, _, t = simulate(2e-3, 3.0, sigma, np.ones_like(sigma), seed=3)
     d = np.mean(np.abs(out[t > 2.0, 1:] - out[t > 2.0, :1]), axis=(0, 2))  # noise's effect: against noise free
     per_level = d.reshape(len(levels), reps).mean(axis=1)
-    slope = np.polyfit(np.log(levels), np.log(per_level), 1)[0]
-    assert 0.5 < slope < 1.2, (slope, per_level)
+    slope_small = np.polyfit(np.log(small), np.log(per_level[: len(small)]), 1)[0]
+    slope_large = np.polyfit(np.log(large), np.log(per_level[len(small) :]), 1)[0]
+    assert 1.1 < slope_small < 1.8, (slope_small, per_level)
+    assert 0.25 < slope_large < 0.75, (slope_large, per_level)
 
 
 # ---- bad input ------------------------------------------------------------------------------------------------
