@@ -32,13 +32,13 @@ the matrix forgetting factor (time-varying :math:`\theta`)
 The slides write the parameters as a matrix :math:`\theta \in \mathbb R^{n\times l}` times a regressor *vector*
 :math:`\varphi \in \mathbb R^l`; that is the special case :math:`\Phi = I_n \otimes \varphi^\top`,
 :math:`\vartheta = \mathrm{vec}_{row}(\theta - \bar\theta)` (:func:`regressor_matrix`), for which the laws above
-are the slides' row by row (with :math:`\Gamma \otimes` blocks). The general form is needed for physical
-parameters that act on several joints at once, such as a payload mass.
+are the slides' row by row (the gain of the vector law is :math:`I_n \otimes \Gamma`). The general form is needed
+for physical parameters that act on several joints at once, such as a payload mass.
 
 Sampled implementation
 ----------------------
-With :math:`P = \Gamma^{-1}` (transposed for the forgetting law, :math:`Q = \Gamma^{-\top}`) and
-:math:`b = Q\hat\vartheta`, both laws are *linear* ODEs,
+With :math:`Q = \Gamma^{-\top}` (:math:`= \Gamma^{-1}` unless a non-scalar :math:`R` makes :math:`\Gamma`
+asymmetric) and :math:`b = Q\hat\vartheta`, both laws are *linear* ODEs,
 
 .. math:: \dot Q = \Phi^\top\Phi + \ln R\;Q,\qquad \dot b = \Phi^\top z_{eq} + \ln R\; b,
    \qquad \hat\vartheta = Q^{-1} b,
@@ -46,9 +46,11 @@ With :math:`P = \Gamma^{-1}` (transposed for the forgetting law, :math:`Q = \Gam
 (:math:`\ln R = 0` for dynamic least squares). With :math:`\Phi` and :math:`z_{eq}` held over a sample (zero-order
 hold) they are integrated *exactly*: :math:`Q_{k+1} = E Q_k + S\Phi_k^\top\Phi_k`,
 :math:`b_{k+1} = E b_k + S\Phi_k^\top z_k`, :math:`E = R^{h}`, :math:`S = \int_0^h R^s ds = (\ln R)^{-1}(R^h - I)`
-(:math:`E = I, S = hI` without forgetting), :func:`forgetting_transition`. :math:`Q` stays positive definite for
-every step ``h`` (it is a sum of positive semidefinite terms and a positive definite start), so the discretization
-is unconditionally stable and needs no matrix inversion of :math:`\Gamma`.
+(:math:`E = I, S = hI` without forgetting), :func:`forgetting_transition`. Without forgetting and for
+:math:`R = \rho I`, :math:`Q` stays symmetric positive definite for every step ``h`` (a sum of positive semidefinite
+terms and a positive definite start): the discretization is unconditionally stable, and :math:`\Gamma` is never
+propagated (it is :math:`Q^{-\top}` on demand). For a general :math:`R` it is the exact sampled solution of the
+printed law, whose :math:`\Gamma` need not stay symmetric (Notes).
 
 Notes
 -----
