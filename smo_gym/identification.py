@@ -386,7 +386,8 @@ class EquivalentInjectionIdentifier:
         Nominal parameters (the estimate starts there).
     lipschitz : float or array_like, shape (n,)
         Bound on :math:`|\Phi\vartheta|` plus the model's sensitivity to the velocity error; sets the
-        observer's gains (:class:`~smo_gym.observers.MechanicalSuperTwisting`).
+        observer's gains (:class:`~smo_gym.observers.MechanicalSuperTwisting`). Required unless
+        ``observer_options`` gives both ``k1`` and ``k2``.
     gamma0, forgetting :
         See :class:`LeastSquaresIdentifier`.
     filter_time_constant : float
@@ -431,7 +432,7 @@ class EquivalentInjectionIdentifier:
         theta_bar,
         *,
         n: int,
-        lipschitz,
+        lipschitz=None,
         gamma0: float = 1e3,
         forgetting=None,
         filter_time_constant: float = 0.02,

@@ -276,6 +276,8 @@ def test_identifier_rejects_bad_input():
         EquivalentInjectionIdentifier(0.0, nominal, regressor, THETA_BAR, **kw)
     with pytest.raises(ValueError, match="lipschitz"):
         EquivalentInjectionIdentifier(1e-3, nominal, regressor, THETA_BAR, n=1, lipschitz=-1.0)
+    with pytest.raises(ValueError, match="lipschitz > 0 or both k1 and k2"):
+        EquivalentInjectionIdentifier(1e-3, nominal, regressor, THETA_BAR, n=1)
     with pytest.raises(ValueError, match="filter_time_constant > 0"):
         EquivalentInjectionIdentifier(1e-3, nominal, regressor, THETA_BAR, filter_time_constant=0.0, **kw)
     with pytest.raises(TypeError, match="callables"):
