@@ -14,7 +14,7 @@ from ._registration import register_envs
 from ._validation import DivergenceError
 from .offline import differentiate
 
-_LAZY_SUBMODULES = ("control", "engine", "envs", "experiments", "mechanics", "wrappers")
+_LAZY_SUBMODULES = ("control", "engine", "envs", "experiments", "identification", "mechanics", "wrappers")
 
 
 def __getattr__(name: str):

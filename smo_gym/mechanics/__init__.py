@@ -6,5 +6,12 @@ This layer may import MuJoCo but not Gymnasium. It implements the dynamics proto
 
 from .design import default_transform, dissipative_gains
 from .dynamics import MujocoDynamics, calibrate_model_miss
+from .regressor import MujocoParameterRegressor
 
-__all__ = ["MujocoDynamics", "calibrate_model_miss", "default_transform", "dissipative_gains"]
+__all__ = [
+    "MujocoDynamics",
+    "MujocoParameterRegressor",
+    "calibrate_model_miss",
+    "default_transform",
+    "dissipative_gains",
+]
