@@ -162,6 +162,8 @@ def reproduce_lopez_ramirez2016(out_dir: Path | None, h: float = 1e-3, fast: boo
     claims.append(
         dict(
             claim="Appendix decomposition gives the printed Phi (4 decimals)",
+            paper="Phi printed in V.A",
+            ours=f"max |Phi_computed - Phi_printed| = {np.abs(dec.Phi - ex['Phi']).max():.1e}",
             measured=f"max |Phi_computed - Phi_printed| = {np.abs(dec.Phi - ex['Phi']).max():.2e}, "
             f"blocks {dec.block_sizes}",
             ok=bool(np.abs(dec.Phi - ex["Phi"]).max() < 1e-4),
@@ -189,6 +191,8 @@ def reproduce_lopez_ramirez2016(out_dir: Path | None, h: float = 1e-3, fast: boo
     claims.append(
         dict(
             claim="Algorithm 12 finds L for mu = 0.5, alpha = 32/7 (T_max <= 1.75) (paper: L printed in V.B)",
+            paper=f"max |L| = {np.abs(ex['L_fixed']).max():.1f}",
+            ours=f"max |L| = {np.abs(des_x.L).max():.1f}, certified T_max bound {des_x.settling_time_bound:.3f}",
             measured=f"Prop. 11 grid (beta = r_1 = {des_x.variables.get('beta', 0.25)}), "
             f"{des_x.refinements} refinements, "
             f"certified (margin {des_x.certificate.parametric_margin:.1e}, T_max bound "
@@ -244,8 +248,9 @@ def reproduce_lopez_ramirez2016(out_dir: Path | None, h: float = 1e-3, fast: boo
             claim="fixed-time (paper L), x(0) = 1e4 x*: ||e(1.75)|| <= 2e-4 judged at a sampled step",
             paper="||e(1.75)|| <= 2e-4",
             ours=", ".join(f"h = {k:g}: {v:.1e}" for k, v in sampled.items()) + f"; continuous {e_cont:.3e}",
-            measured="sampled observer (exact prediction + implicit-Euler injection): the coarse step's numerical "
-            "damping meets the bound, the error grows back towards the continuous value as h decreases",
+            measured="sampled observer (exact prediction + implicit-Euler injection): at h >= 1 ms its numerical "
+            "damping meets the bound by 13 orders of magnitude; as h decreases the error approaches the continuous "
+            "value, which does not meet it",
             ok=bool(e_cont <= 2e-4),
         )
     )
@@ -258,6 +263,8 @@ def reproduce_lopez_ramirez2016(out_dir: Path | None, h: float = 1e-3, fast: boo
     claims.append(
         dict(
             claim="finite-time: ||e(1.75)|| >= 100 for x(0) = 1e3 x*",
+            paper=">= 100",
+            ours=f"{e175:.3g} (h = {h})",
             measured=f"||e(1.75)|| = {e175:.3g}",
             ok=bool(e175 >= 100),
         )
@@ -288,6 +295,8 @@ def reproduce_lopez_ramirez2016(out_dir: Path | None, h: float = 1e-3, fast: boo
     claims.append(
         dict(
             claim="Fig. 1: ||x(1)|| ~ 1e7 for x(0) = 0.1 (1,-1,1,-1,1), u = sin t",
+            paper="~1e7",
+            ours=f"{x_at_1:.3g}",
             measured=f"||x(1)|| = {x_at_1:.3g} (largest eigenvalue of A is "
             f"{np.max(np.linalg.eigvals(A).real):.2f}, so ||x(1)|| ~ 1e7 does not follow from the printed A)",
             ok=bool(1e6 <= x_at_1 <= 1e8),
@@ -474,11 +483,15 @@ def reproduce_wetzlinger(out_dir: Path | None, T: float = 10.0) -> list[dict]:
     claims = [
         dict(
             claim="Sigma2 drives sigma_3 to a band |sigma_3| < 2e-3",
+            paper="< 2e-3",
+            ours=f"{b['Sigma2'][2]:.2e}",
             measured=f"max |sigma_3| for t >= 1 s: {b['Sigma2'][2]:.2e}",
             ok=bool(b["Sigma2"][2] < 2e-3),
         ),
         dict(
             claim="with Sigma1 and Sigma3 the band of sigma_3 is ~500 times larger",
+            paper="~500",
+            ours=f"{r1:.0f} (Sigma1), {r3:.0f} (Sigma3)",
             measured=f"ratios {r1:.0f} (Sigma1) and {r3:.0f} "
             f"(Sigma3); bands {b['Sigma1'][2]:.2f}, {b['Sigma3'][2]:.2f}",
             ok=bool(200 <= r1 <= 1000 and 200 <= r3 <= 1000),
@@ -536,8 +549,8 @@ def reproduce_wetzlinger(out_dir: Path | None, T: float = 10.0) -> list[dict]:
             ),
             measured="steps to ||e_k|| <= 1e-6 for good, per decade of alpha: "
             + "; ".join(f"{m}: {k.tolist()}" for m, (hp, k) in fig2.items())
-            + ". The matching mapping is dead-beat (2 steps) for large errors; the semi-implicit one grows by about "
-            "one step per 20 decades: bounded over any practical range",
+            + ". The matching mapping is dead-beat (2 steps) for large errors; the semi-implicit one still grows, by "
+            "3 steps from 1e14 to 1e100: bounded over any practical range, not strictly",
             ok=bool(all(k.max() <= 40 for _, k in fig2.values()) and max(big["semi-implicit"]) <= 40),
         )
     )
@@ -546,6 +559,8 @@ def reproduce_wetzlinger(out_dir: Path | None, T: float = 10.0) -> list[dict]:
     claims.append(
         dict(
             claim="4th-order example: precision from ~1e-7 (first state) to ~0.4 (last state)",
+            paper="~1e-7 ... ~0.4",
+            ours=f"{b4[0]:.1e} ... {b4[-1]:.1e}",
             measured="max |sigma_i| for t >= 1 s: "
             + ", ".join(f"{v:.1e}" for v in b4)
             + " (x0 = (0, 0, 0, pi/8): the printed x0 lost one entry)",
