@@ -17,10 +17,15 @@ from smo_gym.observers import FAMILIES, OBSERVERS, DiscreteTimeHOSM, Levant, Obs
 from smo_gym.observers._kernels import eigenvalue_map
 from smo_gym.observers.discrete_hosm import (
     ackermann_gain,
+    canonical_error_step,
     eigenvalue_mapping,
+    lyapunov_decrease_matrix,
     max_eigenvalue,
     perturbation_bounds,
     printed_third_order_gain,
+    proven_eigenvalue_bound,
+    rate_for_max_eigenvalue,
+    stability_threshold,
 )
 from smo_gym.wrappers import EstimatedVelocity
 
@@ -126,11 +131,108 @@ def test_mappings_match_the_compiled_kernel_and_the_closed_forms():
 
 
 def test_stability_margin_of_the_section_6_parameters():
-    """p1 = 30, mu = 1, h = 0.01 (the paper says they satisfy (71)) give z_max = 0.638 > 0.498582 by (51): outside
-    the region proven in section 5 — (71) as printed is not what (51) and (70) give. p1 = 60 is inside."""
-    assert DiscreteTimeHOSM(3, 0.01, 30.0, 1.0).stability_margin() == pytest.approx(0.498582 - 0.6381766, abs=1e-6)
+    """p1 = 30, mu = 1, h = 0.01 (the paper says they satisfy (71)) give z_max = 0.638 > z* = 0.4985816 by (51):
+    outside the region proven in section 5 — (71) as printed is not what (51) and (70) give. p1 = 60 is inside."""
+    assert DiscreteTimeHOSM(3, 0.01, 30.0, 1.0).stability_margin() == pytest.approx(0.4985816 - 0.6381766, abs=1e-6)
     assert DiscreteTimeHOSM(3, 0.01, 60.0, 1.0).stability_margin() > 0
     assert DiscreteTimeHOSM(4, 0.01, 60.0, 1.0).stability_margin() is None
+
+
+def test_section5_bounds_are_derived_from_the_lyapunov_analysis():
+    """z* is computed (first root of det M(z)), not hard-coded: 1/sqrt2 for n = 2 ((61)) and 0.498582 for n = 3
+    ((69), to its 6 printed digits); P of (46) is the printed (58) and (66); M(z) is positive definite just below z*
+    and not just above it."""
+    assert proven_eigenvalue_bound(2) == pytest.approx(2**-0.5, abs=1e-12)
+    assert proven_eigenvalue_bound(3) == pytest.approx(0.498582, abs=5e-7)
+    r2 = np.sqrt(2.0)
+    np.testing.assert_allclose(lyapunov_decrease_matrix(0.0, 2)[0], [[3.0, r2], [r2, 1.0]], atol=1e-14)
+    np.testing.assert_allclose(
+        lyapunov_decrease_matrix(0.0, 3)[0], [[197 / 16, 6, 1], [6, 133 / 16, 4], [1, 4, 53 / 16]], atol=1e-14
+    )
+    for n in (2, 3):
+        z = proven_eigenvalue_bound(n)
+        assert np.linalg.eigvalsh(lyapunov_decrease_matrix(z * (1 - 1e-6), n)[1]).min() > 0
+        assert np.linalg.eigvalsh(lyapunov_decrease_matrix(z * (1 + 1e-6), n)[1]).min() < 0
+    # any Q with Q_(n-1) > 0 works (Theorem 1): the identity for n = 4
+    z4 = proven_eigenvalue_bound(4, np.eye(4))
+    assert 0 < z4 < 1 and np.linalg.eigvalsh(lyapunov_decrease_matrix(0.99 * z4, 4, np.eye(4))[1]).min() > 0
+    with pytest.raises(ValueError, match="Q"):
+        proven_eigenvalue_bound(4)
+
+
+@pytest.mark.parametrize("mu", [0.5, 1.0, 10.0])
+def test_thresholds_against_the_printed_63_64_71_72(mu):
+    """The derived smallest h p1 equals (63), (64) and (72) for every mu; (71) as printed, (2 - 0.9972)/(3 cbrt(2 mu)),
+    is not it: the derivation gives (2/z* - 2)/(3 cbrt(2 mu)) (the print has 2 - 2 z*)."""
+    z3 = 0.498582
+    assert stability_threshold(2, mu) == pytest.approx((np.sqrt(2) - 1) / (2 * np.sqrt(mu)), rel=1e-9)
+    assert stability_threshold(2, mu, "matching") == pytest.approx(np.log(2) / (4 * np.sqrt(mu)), rel=1e-9)
+    assert stability_threshold(3, mu, "matching") == pytest.approx(
+        -2 / (3 * (2 * mu) ** (1 / 3)) * np.log(z3), rel=1e-5
+    )
+    derived = stability_threshold(3, mu)
+    assert derived == pytest.approx((2 / z3 - 2) / (3 * (2 * mu) ** (1 / 3)), rel=1e-5)  # z3: 6 printed digits
+    assert derived > 1.9 * (2 - 0.9972) / (3 * (2 * mu) ** (1 / 3))
+    for n in (2, 3, 4):
+        for mapping in ("semi-implicit", "matching"):
+            hp = rate_for_max_eigenvalue(0.4, n, mu, mapping)
+            assert max_eigenvalue(n, 1.0, hp, mu, mapping) == pytest.approx(0.4, rel=1e-12)
+    with pytest.raises(ValueError, match="z_max"):
+        rate_for_max_eigenvalue(1.0, 2, 1.0)
+
+
+@pytest.mark.parametrize("mapping", ["semi-implicit", "matching"])
+@pytest.mark.parametrize("n", [2, 3])
+def test_threshold_is_where_the_simulated_step_stops_decreasing_V(n, mapping):
+    r"""Numerical check of the derived threshold on the simulated error step (22): with :math:`hp_1` 1 % above it,
+    :math:`V = e^TPe` decreases over one step from 20000 random errors spanning 16 decades; 1 % below it, the error
+    with :math:`e_n` at the mapping's maximiser :math:`1/(\mu(n-1))` along the negative direction of
+    :math:`\mathbf M(z_{\max})` increases :math:`V`. (The observer itself still converges there: the Lyapunov
+    condition is sufficient.)"""
+    mu = 2.0
+    hp0 = stability_threshold(n, mu, mapping)
+    P = lyapunov_decrease_matrix(0.0, n)[0]
+    rng = np.random.default_rng(n)
+    E = rng.standard_normal((20000, n)) * 10.0 ** rng.uniform(-8, 8, (20000, 1))
+    E[:, -1] = np.where(rng.random(20000) < 0.3, rng.choice([-1, 1], 20000) / (mu * (n - 1)), E[:, -1])
+
+    def dV(E, hp):
+        new = canonical_error_step(E, 1.0, hp, mu, mapping)
+        return np.einsum("bi,ij,bj->b", new, P, new) - np.einsum("bi,ij,bj->b", E, P, E)
+
+    V = np.einsum("bi,ij,bj->b", E, P, E)
+    assert np.all(dV(E, 1.01 * hp0) < 1e-12 * V)
+    hp = 0.99 * hp0
+    z = max_eigenvalue(n, 1.0, hp, mu, mapping)
+    w, U = np.linalg.eigh(lyapunov_decrease_matrix(z, n)[1])
+    assert w[0] < 0
+    e = U[:, 0] / U[-1, 0] / (mu * (n - 1))  # e_n at the maximiser, so the step uses z = z_max
+    assert eigenvalue_mapping(e[-1], 1.0, hp, mu, n, mapping) == pytest.approx(z, rel=1e-12)
+    assert dV(e[None], hp)[0] > 0
+
+
+def test_canonical_error_step_is_the_observers_error():
+    """The observer (33) (compiled step, Taylor coordinates) and the canonical error dynamics (22) are one system:
+    with the constant S of section 5 (e = S sigma, e_n = sigma_1), the observer's error on a zero signal, mapped by
+    S, equals the canonical recursion from S sigma_0."""
+    n, h, p1, mu = 3, 0.01, 60.0, 1.0
+    obs = DiscreteTimeHOSM(n, h, p1, mu)
+    obs.reset(np.zeros(1))
+    A = obs.A
+    a = np.poly(np.ones(n))  # (s - 1)^n, the characteristic polynomial of A
+    CA = np.eye(n, k=-1)
+    CA[:, -1] = -a[1:][::-1]
+    OA = np.array([np.linalg.matrix_power(A, j)[0] for j in range(n)])
+    OC = np.array([np.eye(n)[-1] @ np.linalg.matrix_power(CA, j) for j in range(n)])
+    S = np.linalg.solve(OC, OA)
+    sigma = np.array([0.3, -2.0, 5.0])
+    state = obs.state
+    state[0, :n] = -sigma  # the signal is 0: sigma = -xi_hat
+    e = S @ sigma
+    for _ in range(12):
+        state, _est = obs.step(state, np.zeros(1))
+        e = canonical_error_step(e, h, p1, mu)
+        np.testing.assert_allclose(S @ -state[0, :n], e, rtol=1e-7, atol=1e-12 * np.abs(S @ sigma).max())
 
 
 def test_perturbation_bounds_of_41():
@@ -525,3 +627,17 @@ def test_fourth_order_example_precision():
     b = repro.band(res["errors"], res["t"], 1.0)
     assert b[0] <= 1e-7 and b[-1] <= 0.4
     assert np.all(np.diff(np.log10(b)) > 0.3)
+
+
+def test_fig2_practical_convergence_time_is_bounded():
+    r"""Fig. 2: n = 2, h = 1, mu = 1, p1 per mapping with max z = 2/3 (h p1 = 0.25 for (15), ln(1.5)/2 for (16)),
+    :math:`e_0 = (\alpha, \alpha)`: steps to :math:`\|e_k\| \le 10^{-6}` for good stay bounded over
+    :math:`\alpha \in [10^{-6}, 10^{14}]` (measured at most 32 for (15), 24 for (16)); (16) is dead-beat (2 steps)
+    for large errors, (15) saturates (30-32 steps over the last six decades)."""
+    alphas = np.logspace(-6, 14, 21)
+    hp_s, k_s = repro.wetzlinger_fig2(alphas, "semi-implicit")
+    hp_m, k_m = repro.wetzlinger_fig2(alphas, "matching")
+    assert hp_s == pytest.approx(0.25) and hp_m == pytest.approx(np.log(1.5) / 2)
+    assert k_s.max() <= 35 and k_m.max() <= 30
+    assert np.ptp(k_s[-6:]) <= 2 and np.all(k_m[-5:] == 2)
+    assert k_s[0] < 5 and k_s.max() > 25  # it does depend on alpha, up to the bound

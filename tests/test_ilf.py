@@ -1,9 +1,9 @@
 r"""Lopez-Ramirez et al. 2016: block decomposition, LMI tuning (Algorithms 9 and 12) and the sampled ILF observers.
 
-The acceptance claims of section V are checked with the paper's printed gains (faithful reproduction) and with
-the gains our LMI design returns, on the error sequence of the sampled observer (autonomous: see
-``scripts/reproduce_papers.py``). Steps are coarser than in the script (the scheme is implicit, stable at any
-step) to keep the file fast.
+The fixed-time claim of section V (:math:`\|e(1.75)\| \le 2\cdot10^{-4}`, :math:`T_{\max} = 1.75`) is judged on the
+continuous-time error equation (18), step-converged (:func:`smo_gym.observers.ilf.continuous_settling`), not on a
+coarse sampled step whose numerical damping would decide it. Other sampled runs use coarse steps (the scheme is
+implicit, stable at any step) to keep the file fast.
 """
 
 from __future__ import annotations
@@ -171,20 +171,69 @@ def test_design_rejects_bad_arguments():
 # ----------------------------------------------------------------------------------------------------------------
 # the observers on the section V example
 # ----------------------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("which", ["paper", "designed"])
-def test_fixed_time_convergence_is_bounded_over_initial_conditions(which, paper_decomposition, fixed_design):
-    r"""Section V.B: from :math:`10^2x^*, 10^3x^*, 10^4x^*` the error is below 2e-4 before t = 1.75 (the paper's
-    claim :math:`\|e(1.75)\|\le2\cdot10^{-4}`), and the three convergence times stay within 0.5 s of each other
-    although the initial errors span two decades. h = 5 ms."""
-    if which == "paper":
-        obs = ILFObserver(A, C, EX["L_fixed"], 0.5, "fixed", dt=5e-3, B=B, decomposition=paper_decomposition)
-    else:
-        obs = ILFObserver.from_design(A, C, fixed_design, dt=5e-3, B=B)
-    t, norms = repro.run_ilf_errors(obs, np.array([1e2, 1e3, 1e4])[:, None] * XS, 1.75)
-    Tc = repro.convergence_time(t, norms, 2e-4)
-    assert np.all(norms[-1] <= 2e-4)
-    assert np.all(Tc <= 1.75) and np.ptp(Tc) < 0.5
-    assert np.all(np.diff(Tc) >= 0)  # larger errors still take (a bit) longer
+SCALES = np.array([1e2, 1e4, 1e6, 1e8, 1e10])
+
+
+@pytest.fixture(scope="module")
+def continuous_fixed_time(paper_decomposition):
+    """Settling of the continuous error (18) with the paper's fixed-time gain, at two integration tolerances."""
+    d, L = paper_decomposition, EX["L_fixed"]
+    return {
+        rtol: [repro.continuous_settling(d.Phi @ (s * XS), d, L, 0.5, "fixed", rtol=rtol) for s in SCALES]
+        for rtol in (1e-8, 1e-10)
+    }
+
+
+def test_fixed_time_settling_in_continuous_time(continuous_fixed_time):
+    r"""Section V.B judged in continuous time (the error equation (18), adaptive Dormand-Prince, step-converged:
+    tolerances 1e-8 and 1e-10 agree to 0.01 s): the time to :math:`\|x - \hat x\| \le 2\cdot10^{-4}` for good is
+    bounded uniformly over initial errors 1e2..1e10 x* (fixed time: its growth per two decades shrinks, 0.41, 0.15,
+    0.047, 0.016 s) but by about 2.3 s, not by the certified T_max = 1.75: from 1e4 x* it is 2.10 s and
+    :math:`\|e(1.75)\| = 0.082`, so the paper's claim :math:`\|e(1.75)\|\le2\cdot10^{-4}` does not hold for the
+    continuous observer. Measured: 1.68, 2.10, 2.25, 2.29, 2.31 s."""
+    fine, coarse = continuous_fixed_time[1e-10], continuous_fixed_time[1e-8]
+    T = np.array([c["T"] for c in fine])
+    assert np.all(np.abs(T - [c["T"] for c in coarse]) < 0.01)
+    steps = np.diff(T)  # growth per two decades of initial error: shrinking towards a finite supremum
+    assert np.all(steps > 0) and np.all(np.diff(steps) < 0) and steps[-1] < 0.03 and T.max() < 2.5
+    assert T[0] < 1.75 < T[1]
+    assert fine[1]["at_query"] == pytest.approx(0.0822, rel=1e-2)
+
+
+def test_continuous_integrator_matches_scipy(paper_decomposition, continuous_fixed_time):
+    """The compiled integrator agrees with scipy's DOP853 on the NumPy right-hand side ``error_rhs`` (an
+    independent implementation of (18)): ||x - xhat|| at 1.75 s from 1e4 x*."""
+    from scipy.integrate import solve_ivp
+
+    from smo_gym.design.ilf import ilf_degrees
+
+    d = paper_decomposition
+    r = np.repeat(ilf_degrees(d.m, 0.5), d.block_sizes)
+    sol = solve_ivp(
+        lambda t, e: repro.error_rhs(e, d.A_tilde, d.C_tilde, EX["L_fixed"], r, "fixed"),
+        (0.0, 1.75),
+        d.Phi @ (1e4 * XS),
+        method="DOP853",
+        rtol=1e-9,
+        atol=1e-14,
+    )
+    ref = np.linalg.norm(np.linalg.solve(d.Phi, sol.y[:, -1]))
+    assert continuous_fixed_time[1e-10][1]["at_query"] == pytest.approx(ref, rel=1e-5)
+
+
+@pytest.mark.slow  # 3500 implicit steps with a root finder each (~8 s on 2 loaded cores)
+def test_coarse_sampled_step_meets_the_bound_only_by_numerical_damping(paper_decomposition, continuous_fixed_time):
+    """At h = 5 ms (the step the test of this claim used) the sampled observer's ||e(1.75)|| from 1e4 x* is 7e-20,
+    far below 2e-4, while the continuous error is 0.082: the step's numerical damping, not the observer, meets the
+    bound. At h = 0.5 ms the sampled error (6.2e-2) is within a factor 1.5 of the continuous one and above the bound
+    (the implicit step is first order: the sampled error converges to the continuous one as h -> 0)."""
+    e = {}
+    for h in (5e-3, 5e-4):
+        obs = ILFObserver(A, C, EX["L_fixed"], 0.5, "fixed", dt=h, B=B, decomposition=paper_decomposition)
+        e[h] = repro.run_ilf_errors(obs, 1e4 * XS[None], 1.75)[1][-1, 0]
+    cont = continuous_fixed_time[1e-10][1]["at_query"]
+    assert e[5e-3] < 1e-15 and cont > 2e-4
+    assert 2e-4 < e[5e-4] < cont < 1.5 * e[5e-4]
 
 
 def test_finite_time_convergence_grows_with_initial_conditions(paper_decomposition):

@@ -42,8 +42,9 @@ References
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
-from typing import ClassVar
+from functools import lru_cache
 
 import numpy as np
 
@@ -63,11 +64,18 @@ from .registry import register_observer
 __all__ = [
     "DiscreteTimeHOSM",
     "ackermann_gain",
+    "canonical_error_matrix",
+    "canonical_error_step",
     "eigenvalue_mapping",
     "input_matrix",
+    "lyapunov_decrease_matrix",
     "max_eigenvalue",
+    "paper_lyapunov_q",
     "perturbation_bounds",
     "printed_third_order_gain",
+    "proven_eigenvalue_bound",
+    "rate_for_max_eigenvalue",
+    "stability_threshold",
 ]
 
 MAPPINGS = ("semi-implicit", "matching")
@@ -110,23 +118,177 @@ def max_eigenvalue(n: int, dt: float, p1: float, mu: float, mapping: str = "semi
     .. math:: z_{s,\max} = \frac{n-1}{n-1 + n(\mu(n-1))^{1/n}hp_1},\qquad
               z_{m,\max} = \exp\Big(-hp_1\frac{n}{n-1}(\mu(n-1))^{1/n}\Big).
 
-    The stability proofs of section 5 need :math:`z_{\max} < 1/\sqrt2` (n = 2, (62)) and
-    :math:`z_{\max} < 0.498582` (n = 3, (70)).
+    The stability proofs of section 5 need :math:`z_{\max} < z^*` with :math:`z^* = 1/\sqrt2` (n = 2, (62)) and
+    0.4985816 (n = 3, (70)), both derived by :func:`proven_eigenvalue_bound`; :func:`stability_threshold` turns
+    that into the smallest :math:`hp_1`.
 
     Notes
     -----
-    :math:`z_{s,\max}` is (51). The printed (52) reads :math:`\exp(-hp_1n(\mu(n-1))^{1/n})`; evaluating (16) at
-    its maximiser gives the factor :math:`n/(n-1)` above (the two agree for ``n = 2`` only). And (71) prints the
-    threshold :math:`hp_1 > (2 - 0.9972)/(3\sqrt[3]{2\mu})`, whereas (51) with (70) gives
-    :math:`hp_1 > (2/0.498582 - 2)/(3\sqrt[3]{2\mu})` (0.532 for :math:`\mu = 1`): the example's
-    :math:`p_1 = 30,\ h = 0.01` has :math:`z_{\max} = 0.638`, outside the proven region (it still converges in
-    simulation; the condition is sufficient).
+    Errata of Section 5 found by deriving it (each checked in ``tests/test_discrete_hosm.py``):
+
+    * (52): the printed :math:`z_{m,\max} = \exp(-hp_1n(\mu(n-1))^{1/n})` lacks the factor :math:`1/(n-1)`;
+      evaluating (16) at its maximiser :math:`1/(\mu(n-1))` gives :math:`\exp(-hp_1\frac{n}{n-1}(\mu(n-1))^{1/n})`
+      (the two agree for ``n = 2`` only). The paper's own (72) follows the corrected form.
+    * (71): the printed threshold :math:`hp_1 > (2 - 0.9972)/(3\sqrt[3]{2\mu})` (0.265 for :math:`\mu = 1`) reads
+      :math:`2 - 2z^*` where inverting (51) gives :math:`2/z^* - 2`: :math:`hp_1 > (2/z^* - 2)/(3\sqrt[3]{2\mu})`
+      (0.532 for :math:`\mu = 1`). Section 6's :math:`p_1 = 30,\ h = 0.01,\ \mu = 1` ("chosen such that (71)
+      is fulfilled") has :math:`z_{\max} = 0.638 > z^*`: outside the proven region (it converges in simulation;
+      the condition is sufficient, and conservative: the unperturbed error converges from every tested initial
+      error for :math:`hp_1` a hundred times smaller).
+    * (68c)-(68d): the printed :math:`m_1, m_2` are twice the entries of :math:`\mathbf M(z_3)` (the coefficients
+      of the cross terms of :math:`\mathbf e^T\mathbf M\mathbf e`), and in (68e) the factor :math:`1/16` applies
+      to the whole expression; (69) is nevertheless what the correct :math:`\mathbf M` gives.
+    * (48) prints :math:`\mathbf A_o^T\mathbf P\mathbf A_o^T`; the difference of the quadratic forms is
+      :math:`\mathbf A_o^T\mathbf P\mathbf A_o - \mathbf P`.
     """
     n = check_int_in_range("n", n, 2, 64)
     q = (mu * (n - 1)) ** (1.0 / n) * dt * p1
     if mapping == "semi-implicit":
         return (n - 1) / (n - 1 + n * q)
     return float(np.exp(-n / (n - 1) * q))
+
+
+def _char_coefficients(z, n: int) -> np.ndarray:
+    r""":math:`\Phi_1..\Phi_n` of (24), :math:`(s - z)^n = s^n + \Phi_n s^{n-1} + \dots + \Phi_1`:
+    :math:`\Phi_i = \binom{n}{i-1}(-z)^{n-i+1}`; shape ``z.shape + (n,)``."""
+    z = np.asarray(z, dtype=float)[..., None]
+    i = np.arange(1, n + 1)
+    binom = np.array([math.comb(n, k - 1) for k in i], dtype=float)
+    return binom * (-z) ** (n - i + 1)
+
+
+def canonical_error_matrix(z: float, n: int) -> np.ndarray:
+    r"""The error matrix :math:`\mathbf A_o(z)` of (23) in observable canonical form, shape ``(n, n)``:
+    :math:`\mathbf A_L` (43) (ones below the diagonal) with last column :math:`-(\Phi_1, \ldots, \Phi_n)` of (24)."""
+    A = np.eye(n, k=-1)
+    A[:, -1] = -_char_coefficients(z, n)
+    return A
+
+
+def canonical_error_step(e, dt: float, p1: float, mu: float, mapping: str = "semi-implicit") -> np.ndarray:
+    r"""One step of the unperturbed error dynamics (22), :math:`\mathbf e_{k+1} = \mathbf A_o(z_n(e_{n,k}))\mathbf e_k`,
+    batched: ``e`` of shape ``(..., n)``, the eigenvalue (15) or (16) of the measured error :math:`e_{n,k}`.
+
+    The observer's own error (in the Taylor coordinates of (31)) is this one after a constant change of coordinates
+    :math:`\mathbf e = \mathbf S\boldsymbol\sigma` with :math:`e_n = \sigma_1` (Section 5).
+    """
+    e = np.asarray(e, dtype=float)
+    n = e.shape[-1]
+    z = eigenvalue_mapping(e[..., -1], dt, p1, mu, n, mapping)
+    new = np.zeros_like(e)
+    new[..., 1:] = e[..., :-1]
+    return new - _char_coefficients(z, n) * e[..., -1:]
+
+
+def paper_lyapunov_q(n: int) -> np.ndarray:
+    r"""The matrix :math:`\mathbf Q` the proofs of Section 5 use: (59) for ``n = 2``, (67) for ``n = 3``.
+
+    These are the paper's choices (positive semi-definite, :math:`\mathbf Q_{n-1} \succ 0`); other orders need a
+    ``Q`` of the caller's (Theorem 1 admits any with :math:`\mathbf Q_{n-1} \succ 0`).
+    """
+    if n == 2:
+        r2 = np.sqrt(2.0)
+        return np.array([[2.0, r2], [r2, 1.0]])
+    if n == 3:
+        return np.array([[4.0, 2.0, 1.0], [2.0, 5.0, 4.0], [1.0, 4.0, 53.0 / 16.0]])
+    raise ValueError(f"expected n = 2 or 3 (the orders the paper gives Q for), actual value: {n!r}")
+
+
+def lyapunov_decrease_matrix(z: float, n: int, Q=None) -> tuple[np.ndarray, np.ndarray]:
+    r"""``(P, M(z))`` of the proof of Theorem 1: :math:`\mathbf P` solves (46),
+    :math:`\mathbf A_L^T\mathbf P\mathbf A_L - \mathbf P = -\mathbf Q`, and
+    :math:`\Delta V_k = -\mathbf e_k^T\mathbf M(z)\mathbf e_k` with
+    :math:`\mathbf M(z) = \mathbf P - \mathbf A_o(z)^T\mathbf P\mathbf A_o(z)` (48) (the printed (48) has
+    :math:`\mathbf A_o^T` twice, a typo). ``Q`` defaults to :func:`paper_lyapunov_q`.
+
+    :math:`\mathbf P` is the finite sum :math:`\sum_{j<n}(\mathbf A_L^T)^j\mathbf Q\mathbf A_L^j`
+    (:math:`\mathbf A_L` is nilpotent); for ``n = 2, 3`` it is (58) and (66).
+    """
+    Q = paper_lyapunov_q(n) if Q is None else np.asarray(Q, dtype=float)
+    if Q.shape != (n, n) or not np.allclose(Q, Q.T):
+        raise ValueError(f"expected a symmetric Q of shape ({n}, {n}), actual value: {Q!r}")
+    AL = np.eye(n, k=-1)
+    P = np.zeros((n, n))
+    Aj = np.eye(n)
+    for _ in range(n):
+        P += Aj.T @ Q @ Aj
+        Aj = AL @ Aj
+    Ao = canonical_error_matrix(z, n)
+    return P, P - Ao.T @ P @ Ao
+
+
+def proven_eigenvalue_bound(n: int, Q=None) -> float:
+    r""":math:`z^*` of Section 5, derived: the first :math:`z > 0` at which :math:`\det\mathbf M(z) = 0`.
+
+    For :math:`0 < z < z^*` the matrix :math:`\mathbf M(z)` of :func:`lyapunov_decrease_matrix` is positive definite
+    (its leading block :math:`\mathbf Q_{n-1}` is constant and positive definite, so positivity is the sign of the
+    determinant, a polynomial in ``z`` vanishing at 0 where :math:`\mathbf M(0) = \mathbf Q` is singular), hence
+    :math:`\Delta V_k < 0` whenever every eigenvalue the mapping takes is below :math:`z^*`. With the paper's ``Q``:
+    :math:`1/\sqrt2` for ``n = 2`` ((61)-(62)) and 0.4985816 for ``n = 3`` ((69)-(70), printed 0.498582).
+
+    The root is bracketed on a grid of 1000 points of (0, 1] and refined by bisection to 1e-15.
+    """
+    n = check_int_in_range("n", n, 2, MAX_N)
+    Q = paper_lyapunov_q(n) if Q is None else np.asarray(Q, dtype=float)
+    if np.min(np.linalg.eigvalsh(Q[:-1, :-1])) <= 0:
+        raise ValueError(f"expected Q with a positive definite leading block Q_(n-1), actual value: {Q!r}")
+
+    def det(z):
+        return np.linalg.det(lyapunov_decrease_matrix(z, n, Q)[1])
+
+    grid = np.linspace(0.0, 1.0, 1001)[1:]
+    values = np.array([det(z) for z in grid])
+    bad = np.flatnonzero(values <= 0.0)
+    if bad.size == 0:
+        return 1.0
+    if bad[0] == 0:
+        raise ValueError(f"expected M(z) > 0 for small z > 0 with this Q, actual value: det M({grid[0]}) <= 0")
+    lo, hi = grid[bad[0] - 1], grid[bad[0]]
+    while hi - lo > 1e-15:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if det(mid) > 0.0 else (lo, mid)
+    return float(lo)
+
+
+@lru_cache(maxsize=8)
+def _paper_eigenvalue_bound(n: int) -> float:
+    """:func:`proven_eigenvalue_bound` with the paper's ``Q`` (cached)."""
+    return proven_eigenvalue_bound(n)
+
+
+def stability_threshold(n: int, mu: float, mapping: str = "semi-implicit", Q=None) -> float:
+    r"""The smallest :math:`hp_1` proven to give global asymptotic stability (Section 5), derived: the value at which
+    :func:`max_eigenvalue` equals :func:`proven_eigenvalue_bound`.
+
+    With :math:`q = (\mu(n-1))^{1/n}hp_1`, :math:`z_{s,\max} = (n-1)/(n-1+nq)` and
+    :math:`z_{m,\max} = e^{-nq/(n-1)}`, so :math:`z_{\max} < z^*` if and only if
+
+    .. math:: hp_1 > \frac{(n-1)(1/z^* - 1)}{n(\mu(n-1))^{1/n}}\ \text{(15)},\qquad
+              hp_1 > \frac{-(n-1)\ln z^*}{n(\mu(n-1))^{1/n}}\ \text{(16)}.
+
+    For ``n = 2`` these are (63) and (64); for ``n = 3``, (72) and, instead of the printed (71),
+    :math:`(2/z^* - 2)/(3\sqrt[3]{2\mu})` (see Notes of :func:`max_eigenvalue`).
+    """
+    n = check_int_in_range("n", n, 2, MAX_N)
+    z_star = _paper_eigenvalue_bound(n) if Q is None else proven_eigenvalue_bound(n, Q)
+    return rate_for_max_eigenvalue(z_star, n, mu, mapping)
+
+
+def rate_for_max_eigenvalue(z_max: float, n: int, mu: float, mapping: str = "semi-implicit") -> float:
+    r"""The :math:`hp_1` at which :func:`max_eigenvalue` equals ``z_max`` (``0 < z_max < 1``): the inverse of (51) and
+    of the corrected (52), :math:`(n-1)(1/z_{\max} - 1)/(n(\mu(n-1))^{1/n})` and
+    :math:`-(n-1)\ln z_{\max}/(n(\mu(n-1))^{1/n})`."""
+    n = check_int_in_range("n", n, 2, MAX_N)
+    mu = check_nonnegative("mu", mu)
+    if mu == 0:
+        raise ValueError(f"expected mu > 0 (the maximum of the mapping is at 1/(mu (n-1))), actual value: {mu!r}")
+    check_choice("mapping", mapping, MAPPINGS)
+    if not 0.0 < z_max < 1.0:
+        raise ValueError(f"expected 0 < z_max < 1, actual value: {z_max!r}")
+    scale = n * (mu * (n - 1)) ** (1.0 / n)
+    if mapping == "semi-implicit":
+        return (n - 1) * (1.0 / z_max - 1.0) / scale
+    return -(n - 1) * math.log(z_max) / scale
 
 
 def input_matrix(n: int, dt: float) -> np.ndarray:
@@ -279,14 +441,13 @@ class DiscreteTimeHOSM(Observer):
     :math:`v_j = \binom nj\mathbf A^j\mathcal O^{-1}e_n` (the binomial expansion of :math:`(\mathbf A - zI)^n`).
     The printed closed form (79)-(82) is not stable (see :func:`printed_third_order_gain`). The paper's section 5
     proves global asymptotic stability of the unperturbed error for ``n = 2, 3`` when :func:`max_eigenvalue` is
-    below :math:`1/\sqrt2` and 0.498582; a ``RuntimeWarning`` is not raised for other settings, but
-    :meth:`stability_margin` reports :math:`z^* - z_{\max}` for ``n <= 3``.
+    below :math:`z^* = 1/\sqrt2` and 0.4985816 (derived by :func:`proven_eigenvalue_bound`, not hard-coded); a
+    ``RuntimeWarning`` is not raised for other settings, but :meth:`stability_margin` reports :math:`z^* - z_{\max}`
+    for ``n <= 3`` (:func:`stability_threshold` gives the corresponding smallest :math:`hp_1`).
     """
 
     discretizations = MAPPINGS
     lead = 1
-    #: :math:`z^*` of (62) and (70): the proven stability bounds on the discrete eigenvalue
-    PROVEN_Z_BOUND: ClassVar[dict[int, float]] = {2: 1.0 / np.sqrt(2.0), 3: 0.498582}
 
     @check_keywords
     def __init__(
@@ -410,10 +571,10 @@ class DiscreteTimeHOSM(Observer):
     @check_keywords
     def stability_margin(self, p1: float | None = None) -> float | None:
         """:math:`z^* - z_{\\max}` of section 5 (positive: inside the proven region), ``None`` for ``n > 3``."""
-        if self.n not in self.PROVEN_Z_BOUND:
+        if self.n > 3:
             return None
         p = float(np.min(check_positive_array("p1", self.p1 if p1 is None else p1)))
-        return self.PROVEN_Z_BOUND[self.n] - max_eigenvalue(self.n, self.dt, p, self.mu, self.mapping)
+        return _paper_eigenvalue_bound(self.n) - max_eigenvalue(self.n, self.dt, p, self.mu, self.mapping)
 
     def model_terms(self, xi: np.ndarray, u) -> np.ndarray:
         r"""The vector multiplying :math:`\mathbf B` in (33): :math:`\gamma_1`, then the saturated

@@ -53,6 +53,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
 from .._validation import (
     DivergenceError,
@@ -67,7 +68,14 @@ from ..design.ilf import BlockDecomposition, block_decomposition, ilf_degrees, i
 from .base import Observer
 from .registry import lipschitz_rule, register_observer
 
-__all__ = ["ILFDifferentiator", "ILFObserver", "injection_weights", "solve_implicit_output_error"]
+__all__ = [
+    "ILFDifferentiator",
+    "ILFObserver",
+    "continuous_settling",
+    "error_rhs",
+    "injection_weights",
+    "solve_implicit_output_error",
+]
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -194,6 +202,166 @@ def _zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray
 
     E = expm(M * h)
     return E[:n, :n], E[:n, n:]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# continuous-time reference: the error equations (9) / (18) integrated with adaptive steps
+# ----------------------------------------------------------------------------------------------------------------
+# Dormand-Prince 5(4) tableau (the method of scipy's RK45)
+_DP_A = np.array(
+    [
+        [0, 0, 0, 0, 0, 0],
+        [1 / 5, 0, 0, 0, 0, 0],
+        [3 / 40, 9 / 40, 0, 0, 0, 0],
+        [44 / 45, -56 / 15, 32 / 9, 0, 0, 0],
+        [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0, 0],
+        [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656, 0],
+        [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84],
+    ]
+)
+_DP_B = np.append(_DP_A[6], 0.0)  # 5th-order weights (the last stage is only for the error)
+_DP_E = np.array([71 / 57600, 0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
+
+
+def error_rhs(e: np.ndarray, A_tilde, C_tilde, L, r_full, kind: str) -> np.ndarray:
+    r"""Right-hand side of the error equations (9) (``"finite"``) and (18) (``"fixed"``) of Lopez-Ramirez et al.
+    2016: :math:`\dot e = (\tilde A + \mathcal D(\|\tilde Ce\|)L\tilde C)e`, NumPy reference of :func:`_rhs`."""
+    s = C_tilde @ e
+    rho = np.linalg.norm(s)
+    if rho == 0.0:
+        return A_tilde @ e
+    d = rho ** (-r_full) if kind == "finite" else 0.5 * (rho ** (-r_full) + rho**r_full)
+    return A_tilde @ e + d * (L @ s)
+
+
+@njit(cache=True)
+def _rhs(e, At, Ct, L, r, fixed, out):  # pragma: no cover - compiled
+    s = Ct @ e
+    rho = np.sqrt(np.sum(s * s))
+    Ls = L @ s
+    for i in range(e.size):
+        acc = 0.0
+        for j in range(e.size):
+            acc += At[i, j] * e[j]
+        if rho > 0.0:
+            d = 0.5 * (rho ** (-r[i]) + rho ** r[i]) if fixed else rho ** (-r[i])
+            acc += d * Ls[i]
+        out[i] = acc
+
+
+@njit(cache=True)
+def _dopri(e0, At, Ct, L, r, fixed, Tinv, t_end, t_query, tol, floor, rtol, atol):  # pragma: no cover - compiled
+    n = e0.size
+    K = np.zeros((7, n))
+    e = e0.copy()
+    t, h, steps = 0.0, 1e-7, 0
+    last_above = 0.0 if np.sqrt(np.sum((Tinv @ e) ** 2)) > tol else -1.0
+    at_query = np.nan
+    _rhs(e, At, Ct, L, r, fixed, K[0])
+    while t < t_end:
+        if t < t_query < t + h:
+            h = t_query - t  # land on t_query
+        h = min(h, t_end - t)
+        for i in range(1, 7):
+            y = e.copy()
+            for j in range(i):
+                y += h * _DP_A[i, j] * K[j]
+            _rhs(y, At, Ct, L, r, fixed, K[i])
+        y = e.copy()
+        err = np.zeros(n)
+        for j in range(7):
+            y += h * _DP_B[j] * K[j]
+            err += h * _DP_E[j] * K[j]
+        scale = atol + rtol * np.maximum(np.abs(e), np.abs(y))
+        en = np.sqrt(np.mean((err / scale) ** 2))
+        if en <= 1.0 and np.all(np.isfinite(y)):
+            t += h
+            e = y
+            K[0] = K[6]  # first same as last
+            steps += 1
+            nx = np.sqrt(np.sum((Tinv @ e) ** 2))
+            if nx > tol:
+                last_above = t
+            if abs(t - t_query) <= 1e-12 * max(1.0, t_query):
+                at_query = nx
+            if nx <= floor:
+                break
+            h *= min(5.0, max(0.2, 0.9 * en ** (-0.2))) if en > 0 else 5.0
+        else:
+            h *= max(0.1, 0.9 * en ** (-0.2)) if np.isfinite(en) else 0.1
+    return t, last_above, at_query, steps
+
+
+def continuous_settling(
+    e0,
+    dec,
+    L,
+    mu: float,
+    kind: str,
+    *,
+    tol: float = 2e-4,
+    t_query: float = 1.75,
+    rtol: float = 1e-10,
+    t_end: float = 10.0,
+) -> dict:
+    r"""Settling of the continuous-time error equation (9) (``"finite"``) or (18) (``"fixed"``) of [LPEP16].
+
+    :math:`\dot e = (\tilde A + \mathcal D(\|\tilde Ce\|)L\tilde C)e` from :math:`e(0) = \Phi(x(0) - \hat x(0))`,
+    integrated by an adaptive Dormand-Prince 5(4) method (compiled; relative tolerance ``rtol``, absolute 1e-14)
+    until :math:`\|x - \hat x\| = \|\Phi^{-1}e\| \le tol/100`. The reference against which the sampled observer
+    (whose implicit step damps the error) is judged: halve ``rtol`` by decades until the results agree.
+
+    Parameters
+    ----------
+    e0 : array_like, shape (n,)
+        Initial error in block coordinates.
+    dec : BlockDecomposition
+        The coordinates ``L`` is expressed in (:math:`\Phi`, :math:`\tilde A`, :math:`\tilde C`).
+    L : array_like, shape (n, k)
+    mu : float
+    kind : {"finite", "fixed"}
+    tol : float
+        Convergence threshold on :math:`\|x - \hat x\|` (2e-4: Section V.B).
+    t_query : float
+        A time at which :math:`\|x - \hat x\|` is reported (the step lands on it).
+    rtol, t_end : float
+
+    Returns
+    -------
+    dict
+        ``T``: the last time :math:`\|x - \hat x\| > tol` (resolution one accepted step), ``at_query``: the norm at
+        ``t_query`` (``nan`` if it stopped earlier: the norm was below ``tol / 100`` then), ``t_stop``, ``steps``.
+
+    Raises
+    ------
+    RuntimeError
+        If the error is not below ``tol / 100`` by ``t_end``.
+    """
+    kind = check_choice("kind", kind, ("finite", "fixed"))
+    for name, value in (("tol", tol), ("t_query", t_query), ("rtol", rtol), ("t_end", t_end), ("mu", mu)):
+        check_positive(name, value)
+    e0 = as_real_array("e0", e0)
+    if e0.shape != (dec.n,) or not np.isfinite(e0).all():
+        raise ValueError(f"expected a finite e0 with shape ({dec.n},), actual value: {e0!r}")
+    r = np.repeat(ilf_degrees(dec.m, mu), dec.block_sizes).astype(float)
+    t, T, at_q, steps = _dopri(
+        e0,
+        dec.A_tilde,
+        dec.C_tilde,
+        np.asarray(L, dtype=float),
+        r,
+        kind == "fixed",
+        np.linalg.inv(dec.Phi),
+        t_end,
+        t_query,
+        tol,
+        tol / 100.0,
+        rtol,
+        1e-14,
+    )
+    if not t < t_end:
+        raise RuntimeError(f"expected the error below {tol / 100} before t = {t_end}, actual value: not reached")
+    return dict(T=T, at_query=at_q, t_stop=t, steps=steps)
 
 
 # ----------------------------------------------------------------------------------------------------------------

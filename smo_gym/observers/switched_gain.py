@@ -33,10 +33,13 @@ Discretization
 
 :math:`S` is the upper-triangular matrix :math:`S_{ij} = h^{j-i}` (``j >= i``), applied by back substitution, so a
 step costs :math:`O(n)`. The step is stable for every :math:`\mu h` (the implicit Euler map of a Hurwitz matrix).
-The paper writes (11) with :math:`y(h\ell)` in place of :math:`y(h(\ell+1))` "to ensure causality": its
-estimate at :math:`t_{\ell+1}` uses samples up to :math:`t_\ell`. Here ``update(y_k)`` returns the estimate at
-:math:`t_k` from samples up to :math:`t_k`, which is the same recursion with the output labelled one sample
-earlier (no delay); the supervisor's clock advances by ``h`` per sample.
+Sample timing. The paper writes (11) with :math:`y(h\ell)` in place of :math:`y(h(\ell+1))` "to ensure
+causality": its estimate at :math:`t_{\ell+1}` uses samples up to :math:`t_\ell`, a one-sample delay. Here
+``update(y_k)`` returns the estimate at :math:`t_k` from samples up to :math:`t_k` (the implicit Euler step
+without that delay); the paper's recursion is ``update(y_{k-1})``, i.e. the same observer fed the samples one step
+late (``scripts/reproduce_efimov2017.py`` does so to reproduce Section 6: the delay changes the peak errors there
+by up to 8 %). In both, the gain used over :math:`[t_k, t_{k+1}]` is the one in force at :math:`t_k`, and the
+supervisor's clock advances by ``h`` per sample.
 
 References
 ----------
