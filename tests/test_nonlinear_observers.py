@@ -311,3 +311,14 @@ def test_mujoco_pendulum_measured_through_its_tip():
     assert fine["floor_q"] < 1e-6  # the angle from y = l sin q itself (finite-difference Newton tolerance)
     assert fine["floor_v"] < 0.5 * 30.0 * 2e-3  # O(L dt)
     assert 1.6 < coarse["floor_v"] / fine["floor_v"] < 2.5  # first order: ratio 2 for dt halved
+
+
+def test_the_guide_example_runs_and_converges(capsys):
+    """The python block of docs/guide/nonlinear-observers.md, executed as printed."""
+    text = (ROOT / "docs" / "guide" / "nonlinear-observers.md").read_text()
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
+    scope: dict = {}
+    exec(compile(code, "nonlinear-observers.md", "exec"), scope)
+    assert "singular at point 1" in capsys.readouterr().out
+    err = np.abs(scope["x_hat"] - scope["x"])
+    assert err[0] < 1e-6 and err[1] < 5e-3, err
