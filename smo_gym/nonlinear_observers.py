@@ -52,6 +52,21 @@ the highest Lie derivative) balances them to a relative accuracy of about :math:
 only) at most ``5e-8`` in the Jacobian up to ``r = 4`` (checked in
 ``tests/test_nonlinear_observers.py``). Each nesting doubles the evaluations (:math:`2^q` per Lie derivative).
 
+Notes
+-----
+Where the slides' print and the derivation differ (the scan garbles formulas):
+
+* the transformed system is printed with :math:`\eta = q(\xi, \eta)`; the internal dynamics are
+  :math:`\dot\eta = q(\xi, \eta)`. They have :math:`n - r` states, which the outputs' derivatives do not
+  determine: only ``r = n`` (no internal dynamics, :math:`x = \Phi^{-1}(\xi)`) is implemented;
+* the last-row vector printed :math:`\Phi_i` is :math:`\psi^i = (0, \ldots, 0, L_f^{r_i}h_i)` (the name
+  :math:`\Phi` is the coordinate change's), and the input term printed :math:`\sum_j a_{ij}\varphi^{-1}(x_j)` is,
+  by the chain rule, :math:`(0, \ldots, 0, L_g L_f^{r_i-1}h_i(x)\,\varphi)`: the relative-degree condition above;
+* the differentiator (16) has :math:`r_i + 1` states (order :math:`r_i`, the last one for the input
+  reconstruction); the state needs order :math:`r_i - 1` only (:class:`NonlinearHOSMObserver`, Notes);
+* in the slide on Davila et al. (2009), :math:`g(\hat x) = M^{-1}(\hat x)(0, \ldots, 0, 1)^T` is the direction
+  of their observer's correction, not the system's input field.
+
 References
 ----------
 .. [FSEY08] L. Fridman, Y. Shtessel, C. Edwards and X.-G. Yan, "Higher-order sliding-mode observer for state
@@ -378,7 +393,8 @@ class NonlinearHOSMObserver:
         outputs): it does not chatter, so the noise-free floor is its :math:`O(L\tau^{k+1-j})` error alone
         (measured: about 19 times smaller than with ``"taylor"`` on the pendulum of the tests).
     gains : array_like, optional
-        Levant's :math:`(\lambda_0, \ldots, \lambda_k)` for every output (default Levant's sequence).
+        Levant's :math:`(\lambda_0, \ldots, \lambda_k)`, used for every output (so all :math:`r_i > 1` must then be
+        equal); default Levant's sequence for each order.
     tol : float, optional
         Newton stops when :math:`\|\Phi(x) - \hat\xi\|_\infty \le \mathrm{tol}\,(1 + \|\hat\xi\|_\infty)` or
         :math:`\|\Delta x\|_\infty \le \mathrm{tol}\,(1 + \|x\|_\infty)`; default ``1e-10`` with
@@ -487,7 +503,7 @@ class NonlinearHOSMObserver:
         res = self.phi(x) - xi
         err = np.abs(res).max()
         scale = 1.0 + np.abs(xi).max()
-        self.converged = err <= self.tol * scale  # already solved (the warm start after convergence, often)
+        self.converged = bool(err <= self.tol * scale)  # already solved (the warm start after convergence, often)
         k = 0
         while not self.converged and k < self.max_iter:
             k += 1
@@ -506,7 +522,7 @@ class NonlinearHOSMObserver:
             else:
                 break  # no descent along the Newton direction: keep x
             x, res, err = x_new, res_new, err_new
-            self.converged = err <= self.tol * scale or np.abs(dx).max() <= self.tol * (1.0 + np.abs(x).max())
+            self.converged = bool(err <= self.tol * scale or np.abs(dx).max() <= self.tol * (1.0 + np.abs(x).max()))
         self.iterations, self.residual = k, float(err)
         return x
 
