@@ -311,6 +311,17 @@ def test_wrong_callable_shapes_are_named():
         observability_map(f, lambda x: np.array([1.0, 2.0]) if x[0] != 0.3 else np.array([1.0]), [0.3, 0.1])
 
 
+def test_bad_observability_arguments():
+    with pytest.raises(ValueError, match=r"expected finite points with shape \(N, n\)"):
+        check_observability(f, h, [[np.nan, 0.0]])
+    with pytest.raises(ValueError, match=r"expected rtol > 0"):
+        check_observability(f, h, [[0.1, 0.0]], rtol=0.0)
+    with pytest.raises(ValueError, match=r"expected g\(x\) with shape \(n,\) or \(n, m\), n = 2"):
+        check_observability(f, h, [[0.1, 0.0]], g=lambda x: np.ones(3))
+    with pytest.raises(TypeError, match=r"expected h to be a callable"):
+        check_observability(f, "sin", [[0.1, 0.0]])
+
+
 def test_update_before_reset_and_wrong_measurement():
     obs = NonlinearHOSMObserver(f, h, 2, 1e-3, L, phi=phi, phi_jacobian=phi_jacobian)
     with pytest.raises(RuntimeError, match=r"expected reset"):
