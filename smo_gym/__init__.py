@@ -14,7 +14,17 @@ from ._registration import register_envs
 from ._validation import DivergenceError
 from .offline import differentiate
 
-_LAZY_SUBMODULES = ("control", "engine", "envs", "experiments", "identification", "mechanics", "wrappers")
+_LAZY_SUBMODULES = (
+    "control",
+    "engine",
+    "envs",
+    "experiments",
+    "fault_detection",
+    "identification",
+    "mechanics",
+    "nonlinear_observers",
+    "wrappers",
+)
 
 
 def __getattr__(name: str):
