@@ -52,6 +52,14 @@ the highest Lie derivative) balances them to a relative accuracy of about :math:
 only) at most ``5e-8`` in the Jacobian up to ``r = 4`` (checked in
 ``tests/test_nonlinear_observers.py``). Each nesting doubles the evaluations (:math:`2^q` per Lie derivative).
 
+Unknown inputs and the observer without transformation
+------------------------------------------------------
+With ``unknown_input`` (``D``), :class:`NonlinearHOSMObserver` also returns
+:math:`\hat w = (y^{(n)} - L_f^nh(\hat x))/(L_DL_f^{n-1}h(\hat x))` (one output; ``p`` outputs by least squares),
+from one more differentiator order. :class:`HOSMInjectionObserver` is Davila, Fridman, Pisano and Usai's (2009)
+observer for one output: a copy of the system, :math:`\dot{\hat x} = f(\hat x) + M^{-1}(\hat x)\chi(y -
+h(\hat x))`, with no inversion of :math:`\Phi`; its error in :math:`\Phi`-coordinates is Levant's differentiator's.
+
 Notes
 -----
 Where the slides' print and the derivation differ (the scan garbles formulas):
@@ -63,9 +71,15 @@ Where the slides' print and the derivation differ (the scan garbles formulas):
   :math:`\Phi` is the coordinate change's), and the input term printed :math:`\sum_j a_{ij}\varphi^{-1}(x_j)` is,
   by the chain rule, :math:`(0, \ldots, 0, L_g L_f^{r_i-1}h_i(x)\,\varphi)`: the relative-degree condition above;
 * the differentiator (16) has :math:`r_i + 1` states (order :math:`r_i`, the last one for the input
-  reconstruction); the state needs order :math:`r_i - 1` only (:class:`NonlinearHOSMObserver`, Notes);
+  reconstruction); the state needs order :math:`r_i - 1` only (:class:`NonlinearHOSMObserver`, Notes), the
+  order used without ``unknown_input``;
 * in the slide on Davila et al. (2009), :math:`g(\hat x) = M^{-1}(\hat x)(0, \ldots, 0, 1)^T` is the direction
-  of their observer's correction, not the system's input field.
+  of their observer's correction, not the system's input field, and the law of the correction is not printed:
+  :class:`HOSMInjectionObserver` (Notes) injects the whole correction of Levant's differentiator through
+  :math:`M^{-1}(\hat x)`, whose last column is that :math:`g`;
+* (17) prints :math:`\hat\xi^m_{r_1} = v^m_{r_1-1}` and :math:`\dot{\hat\xi}^m_{r_1} = v^m_{r_1}` for the
+  ``m``-th output: the index is :math:`r_m`. The input is then read from :math:`v^i_{r_i} \approx y_i^{(r_i)}`
+  through :math:`B = [L_{d_j}L_f^{r_i-1}h_i]` (:class:`NonlinearHOSMObserver`, Notes).
 
 References
 ----------
@@ -86,9 +100,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._validation import as_real_array, check_int_at_least, check_keywords, check_positive
-from .observers.differentiators import Levant
+from .design.gains import levant_nonrecursive
+from .observers.differentiators import Levant, _levant_sequence
 
 __all__ = [
+    "HOSMInjectionObserver",
+    "InputReconstructionError",
     "NonlinearHOSMObserver",
     "ObservabilityError",
     "ObservabilityReport",
@@ -111,6 +128,16 @@ class ObservabilityError(ValueError):
         self.index = index
         self.point = point
         self.report = report
+
+
+class InputReconstructionError(ValueError):
+    r"""The unknown input cannot be read from the outputs: the matrix :math:`B(x) = [L_{d_j}L_f^{r_i-1}h_i(x)]`
+    (``p x m``) has rank below ``m`` at ``point`` (for one input and one output: :math:`L_D L_f^{n-1}h(x) = 0`)."""
+
+    def __init__(self, message: str, *, point: np.ndarray, matrix: np.ndarray):
+        super().__init__(message)
+        self.point = point
+        self.matrix = matrix
 
 
 def default_fd_step(max_nesting: int) -> float:
@@ -136,6 +163,46 @@ def _check_indices(indices, n: int) -> tuple[int, ...]:
             f"expected observability indices r_1 + ... + r_p = n = {n}, actual value: {r!r} (sum {sum(r)})"
         )
     return r
+
+
+def _input_field(d, n: int) -> Callable[[np.ndarray], np.ndarray]:
+    """An unknown-input field, callable ``d(x)`` or constant array, as a function ``x -> (n, m)`` (shape checked)."""
+    if d is None:
+        raise TypeError(
+            "expected unknown_input to be a callable d(x) or an array of shape (n,) or (n, m), actual value: None"
+        )
+    if not callable(d):
+        D = as_real_array("unknown_input", d)
+        if D.shape[:1] != (n,) or D.ndim > 2 or not np.isfinite(D).all():
+            raise ValueError(f"expected unknown_input with shape ({n},) or ({n}, m), actual value: shape {D.shape}")
+        D = D.reshape(n, -1).copy()
+        return lambda x: D
+
+    def field(x):
+        D = as_real_array("unknown_input(x)", d(x))
+        if D.shape[:1] != (n,) or D.ndim > 2:
+            raise ValueError(f"expected unknown_input(x) with shape ({n},) or ({n}, m), actual value: shape {D.shape}")
+        return D.reshape(n, -1)
+
+    return field
+
+
+def _input_matrix(jacobian_rows: np.ndarray, D: np.ndarray, rtol: float, x: np.ndarray) -> np.ndarray:
+    r""":math:`B = [dL_f^{r_i-1}h_i\,d_j]`, shape ``(p, m)``, checked for rank ``m`` relative to the norms of its
+    factors (:class:`InputReconstructionError` otherwise)."""
+    B = jacobian_rows @ D
+    scale = np.linalg.norm(jacobian_rows, axis=1)[:, None] * np.linalg.norm(D, axis=0)[None, :]
+    Bn = B / np.maximum(scale, np.finfo(float).tiny)
+    sv = np.linalg.svd(Bn, compute_uv=False)
+    if B.shape[0] < B.shape[1] or sv[-1] <= rtol:
+        raise InputReconstructionError(
+            "expected L_D L_f^(r_i - 1) h_i (the unknown input's gain on the outputs' r_i-th derivatives, p x m) of "
+            f"rank m = {D.shape[1]}, nonzero for one input, actual value: {B.tolist()} (relative singular values "
+            f"{sv.tolist()}, rtol {rtol}) at x = {x.tolist()}",
+            point=x.copy(),
+            matrix=B,
+        )
+    return B
 
 
 def _eval(name: str, func, x: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -401,6 +468,17 @@ class NonlinearHOSMObserver:
         an exact ``phi``, else 10 times the finite-difference accuracy :math:`\epsilon^{2/(r+2)}`.
     max_iter : int
         Newton iterations per sample (default 20); the estimate after them is kept, with ``converged = False``.
+    unknown_input : array_like, shape (n,) or (n, m), or callable, optional
+        The unknown input's field ``D`` (or ``d(x)``) of :math:`\dot x = f(x) + D\,w`. Given, the observer also
+        reconstructs ``w`` (Notes): each differentiator gets one more order, ``r_i``, and ``lipschitz`` must then
+        bound :math:`|y_i^{(r_i+1)}|` (``w`` Lipschitz in time; at a jump of ``w`` the estimate is lost for a
+        finite time). The observer assumes no known input then (:math:`y^{(r_i)} - L_f^{r_i}h_i` is read as
+        ``B w``).
+    lie_top : callable, optional
+        Exact :math:`x \mapsto (L_f^{r_1}h_1(x), \ldots, L_f^{r_p}h_p(x))`, shape ``(p,)``, for the reconstruction;
+        default nested central differences.
+    rtol : float
+        Relative tolerance on the rank of :math:`B(\hat x)` (:class:`InputReconstructionError` below it).
 
     Attributes
     ----------
@@ -415,6 +493,8 @@ class NonlinearHOSMObserver:
     residual : float
         :math:`\|\Phi(\hat x) - \hat\xi\|_\infty` after the last solve (nonzero while :math:`\hat\xi` is outside the
         range of :math:`\Phi`, during the differentiators' transient).
+    input_estimate : ndarray, shape (m,) or None
+        :math:`\hat w` of the last sample (with ``unknown_input``).
 
     Notes
     -----
@@ -425,7 +505,20 @@ class NonlinearHOSMObserver:
     :math:`J\Delta x = \Phi(x) - \hat\xi` by least squares (a rank-deficient :math:`J` during a transient gives
     the minimum-norm step), halving it at most 8 times while the residual does not decrease. The observer of Davila,
     Fridman, Pisano and Usai (2009), which injects the differentiator into a copy of the system through
-    :math:`M^{-1}(\hat x)` instead of inverting :math:`\Phi`, is not implemented.
+    :math:`M^{-1}(\hat x)` instead of inverting :math:`\Phi`, is :class:`HOSMInjectionObserver`.
+
+    Unknown-input reconstruction (the slides' (17): :math:`\dot{\hat\xi}_{r_i} = v_{r_i}`). With
+    :math:`\dot x = f(x) + D(x)w` and the relative-degree condition,
+    :math:`y_i^{(r_i)} = L_f^{r_i}h_i(x) + \sum_j L_{d_j}L_f^{r_i-1}h_i(x)\,w_j`, so
+
+    .. math:: \hat w = B(\hat x)^{+}\big(z_{r_i}^i - L_f^{r_i}h_i(\hat x)\big)_i,\qquad
+        B = [L_{d_j}L_f^{r_i-1}h_i] = [dL_f^{r_i-1}h_i\,d_j] \in \mathbb R^{p\times m},
+
+    for one input and one output :math:`\hat w = (z_n - L_f^nh(\hat x))/(L_DL_f^{n-1}h(\hat x))`, with the
+    differentiator's last state :math:`z_{r_i} \approx y_i^{(r_i)}`. It needs :math:`B` of rank ``m`` (checked at
+    every sample: :class:`InputReconstructionError`). Accuracy, sampled and noise-free (Levant 2003, order
+    :math:`k = r_i`): :math:`|z_{r_i} - y_i^{(r_i)}| = O(L\tau)`, so :math:`\hat w - w = O(\tau)`, and the state,
+    now from :math:`z_0..z_{r_i-1}`, gains an order: :math:`O(L\tau^2)` (measured in the tests: slopes 1.00 and 2.00).
     """
 
     @check_keywords
@@ -444,10 +537,13 @@ class NonlinearHOSMObserver:
         gains=None,
         tol: float | None = None,
         max_iter: int = 20,
+        unknown_input=None,
+        lie_top: Callable | None = None,
+        rtol: float = 1e-6,
     ):
         _check_callable("f", f)
         _check_callable("h", h)
-        for name, func in (("phi", phi), ("phi_jacobian", phi_jacobian)):
+        for name, func in (("phi", phi), ("phi_jacobian", phi_jacobian), ("lie_top", lie_top)):
             if func is not None:
                 _check_callable(name, func)
         self.n = check_int_at_least("n", n, 1)
@@ -465,17 +561,24 @@ class NonlinearHOSMObserver:
         exact = phi is not None
         self.tol = (1e-10 if exact else 10.0 * self.step**2) if tol is None else check_positive("tol", tol)
         self.max_iter = check_int_at_least("max_iter", max_iter, 1)
-        # one Levant differentiator of order r_i - 1 per output (none for r_i = 1: the output is the coordinate)
+        self.rtol = check_positive("rtol", rtol)
+        self._d = None if unknown_input is None else _input_field(unknown_input, self.n)
+        self._lie_top = lie_top
+        # one Levant differentiator per output, of order r_i - 1 for the state (none for r_i = 1: the output is the
+        # coordinate), one more (order r_i) for the unknown input, which needs y_i^(r_i)
+        extra = 0 if self._d is None else 1
         self._diffs = [
             None
-            if r == 1
-            else Levant(r - 1, self.dt, float(self.lipschitz[i]), discretization=discretization, gains=gains)
+            if r - 1 + extra == 0
+            else Levant(r - 1 + extra, self.dt, float(self.lipschitz[i]), discretization=discretization, gains=gains)
             for i, r in enumerate(self.indices)
         ]
+        self._top_rows = np.cumsum(self.indices) - 1  # the rows dL_f^(r_i - 1) h_i of dPhi/dx
         self._offsets = np.cumsum((0,) + self.indices)
         self.state: np.ndarray | None = None
         self.derivatives: np.ndarray | None = None
         self.converged, self.iterations, self.residual = False, 0, np.nan
+        self.input_estimate: np.ndarray | None = None
 
     def _y(self, y) -> np.ndarray:
         y = as_real_array("y", y).reshape(-1) if np.ndim(y) <= 1 else as_real_array("y", y)
@@ -530,8 +633,25 @@ class NonlinearHOSMObserver:
         xi = np.empty(self.n)
         for i, (d, est) in enumerate(zip(self._diffs, estimates, strict=True)):
             a, b = self._offsets[i], self._offsets[i + 1]
-            xi[a:b] = y[i] if d is None else est
+            xi[a:b] = y[i] if d is None else est[: b - a]
         return xi
+
+    def lie_top(self, x) -> np.ndarray:
+        """:math:`(L_f^{r_1}h_1(x), \\ldots, L_f^{r_p}h_p(x))`, shape ``(p,)`` (the supplied ``lie_top`` or nested
+        central differences)."""
+        x = np.asarray(x, dtype=float)
+        p = len(self.indices)
+        if self._lie_top is not None:
+            return _eval("lie_top", self._lie_top, x, (p,))
+        r_max = max(self.indices)
+        L = lie_derivatives(self.f, self.h, x, r_max, step=default_fd_step(r_max))
+        return np.array([L[r, i] for i, r in enumerate(self.indices)])
+
+    def _input(self, estimates, x) -> np.ndarray:
+        r"""The unknown input from :math:`y_i^{(r_i)} = L_f^{r_i}h_i(x) + B(x)\,w` (least squares for ``p > m``)."""
+        top = np.array([est[-1] for est in estimates])
+        B = _input_matrix(self.jacobian(x)[self._top_rows], self._d(x), self.rtol, x)
+        return np.linalg.lstsq(B, top - self.lie_top(x), rcond=None)[0]
 
     def reset(self, y0, x0) -> np.ndarray:
         """Start at the first measurement ``y0`` (shape ``(p,)``) with the state guess ``x0`` (shape ``(n,)``).
@@ -544,15 +664,19 @@ class NonlinearHOSMObserver:
         if x0.shape != (self.n,) or not np.isfinite(x0).all():
             raise ValueError(f"expected a finite x0 with shape ({self.n},), actual value: {x0!r}")
         guess = self.phi(x0)
+        top = None if self._d is None else self.lie_top(x0)
         estimates = []
         for i, d in enumerate(self._diffs):
             if d is None:
                 estimates.append(None)
                 continue
             a, b = self._offsets[i], self._offsets[i + 1]
-            estimates.append(d.reset(y[i : i + 1], derivatives=guess[None, a + 1 : b])[0])
+            start = guess[a + 1 : b] if top is None else np.append(guess[a + 1 : b], top[i])
+            estimates.append(d.reset(y[i : i + 1], derivatives=start[None, :])[0])
         self.derivatives = self._xi(estimates, y)
         self.state = self.invert(self.derivatives, x0)
+        if self._d is not None:
+            self.input_estimate = self._input(estimates, self.state)
         return self.state.copy()
 
     def update(self, y) -> np.ndarray:
@@ -563,17 +687,202 @@ class NonlinearHOSMObserver:
         estimates = [None if d is None else d.update(y[i : i + 1])[0] for i, d in enumerate(self._diffs)]
         self.derivatives = self._xi(estimates, y)
         self.state = self.invert(self.derivatives, self.state)
+        if self._d is not None:
+            self.input_estimate = self._input(estimates, self.state)
         return self.state.copy()
 
-    def run(self, Y, x0) -> np.ndarray:
+    def run(self, Y, x0, *, inputs: bool = False):
         """Reset at ``Y[0]`` with the guess ``x0`` and process the record ``Y`` (shape ``(T, p)`` or ``(T,)``);
-        returns the estimates, shape ``(T, n)``."""
+        returns the estimates, shape ``(T, n)``, and with ``inputs=True`` (needs ``unknown_input``) also the
+        unknown-input estimates, shape ``(T, m)``."""
         Y = as_real_array("Y", Y)
         Y = Y.reshape(Y.shape[0], -1) if Y.ndim >= 1 and Y.shape[0] > 0 else Y
         if Y.ndim != 2 or Y.shape[0] == 0:
             raise ValueError(f"expected Y with shape (T, p), T >= 1, actual value: shape {Y.shape}")
+        if inputs and self._d is None:
+            raise ValueError("expected unknown_input at construction for run(..., inputs=True), actual value: None")
         out = np.empty((Y.shape[0], self.n))
         out[0] = self.reset(Y[0], x0)
+        W = [self.input_estimate] if inputs else None
         for k in range(1, Y.shape[0]):
+            out[k] = self.update(Y[k])
+            if inputs:
+                W.append(self.input_estimate)
+        return (out, np.array(W)) if inputs else out
+
+
+class HOSMInjectionObserver:
+    r"""Observer without system transformation of Davila, Fridman, Pisano and Usai (2009): a copy of the system
+    corrected by a HOSM injection through :math:`M^{-1}(\hat x)`, for one output.
+
+    The system :math:`\dot x = f(x) + D\,w(x, t)`, :math:`y = h(x) \in \mathbb R`, with a known distribution
+    ``D`` and a bounded unknown input ``w``, under the two assumptions of the slides:
+
+    * :math:`dL_f^i h\,D = 0` for ``i = 0..n-2`` (the input reaches :math:`y^{(n)}` only);
+    * :math:`M(z) = \partial\Phi/\partial z`, rows :math:`dh, dL_fh, \ldots, dL_f^{n-1}h`, nonsingular.
+
+    The observer integrates
+
+    .. math::
+        \dot{\hat x} = f(\hat x) + M^{-1}(\hat x)\,\chi(y - h(\hat x)),\qquad
+        \chi_j(e) = \Lambda_{j+1} L^{\frac{j+1}{n}} \lceil e\rfloor^{\frac{n-1-j}{n}}\ (j < n-1),\quad
+        \chi_{n-1}(e) = \lambda_0 L\,\mathrm{sign}(e),
+
+    the corrections of Levant's order-``(n-1)`` differentiator in non-recursive form
+    (:func:`smo_gym.design.levant_gains`). Since :math:`\frac{d}{dt}\Phi(\hat x) = M(\hat x)\dot{\hat x}`, the
+    estimate's coordinates :math:`\hat\xi = \Phi(\hat x)` obey :math:`\dot{\hat\xi}_j = \hat\xi_{j+1} + \chi_j`,
+    :math:`\dot{\hat\xi}_{n-1} = L_f^n h(\hat x) + \chi_{n-1}`, and the error :math:`e = \Phi(x) - \Phi(\hat x)`
+
+    .. math::
+        \dot e_j = e_{j+1} - \chi_j(e_0),\qquad \dot e_{n-1} = \underbrace{L_f^nh(x) - L_f^nh(\hat x)
+        + L_DL_f^{n-1}h(x)\,w}_{|\cdot|\ \le\ L} - \chi_{n-1}(e_0)
+
+    is exactly the error of Levant's differentiator driven by a bounded perturbation: :math:`e = 0` after a finite
+    time (Levant 2003), so :math:`\Phi(\hat x) = \Phi(x)` and :math:`\hat x = x` where :math:`\Phi` is injective.
+    ``L`` must bound the perturbation along both trajectories (the system BIBS, the estimate bounded).
+
+    Parameters
+    ----------
+    f, h : callable
+        Drift ``f(x) -> (n,)`` and output ``h(x)`` (a scalar or shape ``(1,)``).
+    n : int
+    dt : float
+        Sampling step ``tau > 0`` [s]; the observer is integrated by explicit Euler at this step with the
+        measurement held (Levant 2003: the sampled differentiator keeps :math:`|e_j| = O(L\tau^{n-j})`, so the
+        state error is :math:`O(L\tau)`, from :math:`e_{n-1}`).
+    lipschitz : float
+        ``L`` above.
+    unknown_input : array_like, shape (n,) or (n, m), or callable, optional
+        ``D``; with ``check_points`` it is checked against :math:`dL_f^ih\,D = 0`.
+    check_points : array_like, shape (N, n), optional
+        Points (the region the state and the estimate visit) on which both assumptions are checked at
+        construction by :func:`check_observability` (raises :class:`ObservabilityError` naming the point and
+        the condition).
+    phi_jacobian : callable, optional
+        Exact :math:`M(x)`, ``(n,) -> (n, n)``; default central differences of :func:`observability_map`.
+    gains : array_like, shape (n,), optional
+        Levant's recursive :math:`(\lambda_0, \ldots, \lambda_{n-1})`; default Levant's sequence.
+    rtol : float
+        A step raises :class:`ObservabilityError` when :math:`M(\hat x)` has a singular value below ``rtol``
+        times its largest (the estimate left the region where the assumption holds).
+
+    Attributes
+    ----------
+    state : ndarray, shape (n,)
+        :math:`\hat x` at the time of the last measurement.
+    output_error : float
+        :math:`y - h(\hat x)` at the last measurement.
+    injection : ndarray, shape (n,)
+        :math:`\chi` of the last step (its last entry, averaged once :math:`e = 0`, is the equivalent injection
+        :math:`L_DL_f^{n-1}h(x)\,w`, Notes).
+
+    Notes
+    -----
+    The slides print the observer as :math:`\dot{\hat x} = f(\hat x) + g(\hat x)u`, :math:`g = M^{-1}(\hat x)
+    (0, \ldots, 0, 1)^T`, without the law of ``u``. A scalar ``u`` through that one direction acts on the output
+    error only through its ``n``-th derivative, so ``u`` would have to be an ``n``-sliding controller with its own
+    differentiator; the derivation above injects the differentiator's whole correction vector through
+    :math:`M^{-1}(\hat x)`, whose last column is the slides' :math:`g`, and carries the unknown input
+    :math:`L_DL_f^{n-1}h(x)\,w` in the last component. That component switches at the sampling rate (explicit
+    Euler, ``sign``), so the unknown input is not read from it here: :class:`NonlinearHOSMObserver` with
+    ``unknown_input`` reconstructs it.
+
+    References
+    ----------
+    J. Davila, L. Fridman, A. Pisano and E. Usai, "Finite-time state observation for non-linear uncertain systems
+    via higher-order sliding modes", Int. J. Control 82(8), 2009; Fridman's slides, section 5, "Observers for BIBS
+    systems with unknown inputs without system transformation". A. Levant, "Higher-order sliding modes,
+    differentiation and output-feedback control", Int. J. Control 76(9-10), 2003.
+    """
+
+    @check_keywords
+    def __init__(
+        self,
+        f: Callable,
+        h: Callable,
+        n: int,
+        dt: float,
+        lipschitz: float,
+        *,
+        unknown_input=None,
+        check_points=None,
+        phi_jacobian: Callable | None = None,
+        gains=None,
+        rtol: float = 1e-9,
+    ):
+        _check_callable("f", f)
+        _check_callable("h", h)
+        if phi_jacobian is not None:
+            _check_callable("phi_jacobian", phi_jacobian)
+        self.f, self.h = f, h
+        self.n = check_int_at_least("n", n, 2)
+        self.dt = check_positive("dt", dt)
+        self.lipschitz = check_positive("lipschitz", lipschitz)
+        self.rtol = check_positive("rtol", rtol)
+        self._d = None if unknown_input is None else _input_field(unknown_input, self.n)
+        self._phi_jacobian = phi_jacobian
+        self.step = default_fd_step(self.n)
+        self._phi = _fd_map(f, h, self.n, (self.n,), self.step)
+        # Levant's non-recursive gains Lambda_{j+1} L^((j+1)/n) and powers (n-1-j)/n of the order n-1 differentiator
+        nonrecursive = levant_nonrecursive(_levant_sequence(gains, self.n - 1))
+        self._gains = nonrecursive * self.lipschitz ** (np.arange(1, self.n + 1) / self.n)
+        self._powers = (self.n - 1 - np.arange(self.n)) / self.n
+        if check_points is not None:
+            check_observability(f, h, check_points, g=self._d, phi_jacobian=phi_jacobian)
+        self.state: np.ndarray | None = None
+        self.output_error = np.nan
+        self.injection = np.zeros(self.n)
+
+    def jacobian(self, x) -> np.ndarray:
+        """:math:`M(x) = \\partial\\Phi/\\partial x`, shape ``(n, n)``."""
+        x = np.asarray(x, dtype=float)
+        if self._phi_jacobian is not None:
+            return _eval("phi_jacobian", self._phi_jacobian, x, (self.n, self.n))
+        return _jacobian(self._phi, x, self.step)
+
+    def _y(self, y) -> float:
+        y = as_real_array("y", y)
+        if y.size != 1 or not np.isfinite(y).all():
+            raise ValueError(f"expected one finite measurement y, actual value: {y!r}")
+        return float(y.reshape(()))
+
+    def _error(self, y: float) -> float:
+        return y - float(_eval("h", self.h, self.state, (1,))[0])
+
+    def reset(self, y0, x0) -> np.ndarray:
+        """Start at the measurement ``y0`` with the guess ``x0`` (shape ``(n,)``); returns :math:`\\hat x = x_0`."""
+        x0 = as_real_array("x0", x0)
+        if x0.shape != (self.n,) or not np.isfinite(x0).all():
+            raise ValueError(f"expected a finite x0 with shape ({self.n},), actual value: {x0!r}")
+        self.state = x0.copy()
+        self.output_error = self._error(self._y(y0))
+        return self.state.copy()
+
+    def update(self, y) -> np.ndarray:
+        r"""Euler step from the previous measurement's time to this one's, with the previous output error held;
+        returns :math:`\hat x` at this measurement, shape ``(n,)``."""
+        if self.state is None:
+            raise RuntimeError("expected reset(y0, x0) before update(y), actual value: the observer was never reset")
+        y = self._y(y)
+        x = self.state
+        M = self.jacobian(x)
+        sv = np.linalg.svd(M, compute_uv=False)
+        if not sv[-1] > self.rtol * sv[0]:
+            check_observability(self.f, self.h, x, g=self._d, phi_jacobian=lambda z: M, rtol=self.rtol)
+        e = self.output_error
+        self.injection = self._gains * np.abs(e) ** self._powers * np.sign(e)
+        self.state = x + self.dt * (_eval("f", self.f, x, (self.n,)) + np.linalg.solve(M, self.injection))
+        self.output_error = self._error(y)
+        return self.state.copy()
+
+    def run(self, Y, x0) -> np.ndarray:
+        """Reset at ``Y[0]`` with the guess ``x0`` and process the record ``Y`` (shape ``(T,)``); returns the
+        estimates, shape ``(T, n)``."""
+        Y = as_real_array("Y", Y).reshape(-1)
+        if Y.size == 0:
+            raise ValueError("expected Y with shape (T,), T >= 1, actual value: shape (0,)")
+        out = np.empty((Y.size, self.n))
+        out[0] = self.reset(Y[0], x0)
+        for k in range(1, Y.size):
             out[k] = self.update(Y[k])
         return out
