@@ -564,3 +564,21 @@ def test_the_guide_example_runs_and_converges(capsys):
     assert "singular at point 1" in capsys.readouterr().out
     err = np.abs(scope["x_hat"] - scope["x"])
     assert err[0] < 1e-6 and err[1] < 5e-3, err
+
+
+def test_the_guide_examples_of_the_unknown_input_and_the_injection_observer(capsys):
+    """The second and third python blocks of docs/guide/nonlinear-observers.md, executed as printed (they print the
+    errors that the guide quotes)."""
+    text = (ROOT / "docs" / "guide" / "nonlinear-observers.md").read_text()
+    blocks = [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
+    assert len(blocks) == 3
+    scope: dict = {}
+    exec(compile(blocks[1], "nonlinear-observers.md", "exec"), scope)
+    err = np.abs(scope["x_hat"] - scope["x"])
+    assert err[0] < 1e-6 and err[1] < 1e-5, err
+    assert abs(scope["obs"].input_estimate[0] - scope["w"](scope["k"] * scope["dt"])) < 5e-3
+    scope = {}
+    exec(compile(blocks[2], "nonlinear-observers.md", "exec"), scope)
+    assert "expected L_g L_f^j h_i = 0" in capsys.readouterr().out
+    err = np.abs(scope["x_hat"] - scope["x"])
+    assert err[0] < 1e-4 and err[1] < 3e-2, err
