@@ -466,7 +466,7 @@ def test_injection_observer_on_a_third_order_system():
     """n = 3 (order-2 corrections |e|^(2/3), |e|^(1/3), sign) with M by finite differences: the system of
     test_third_order_system_with_finite_difference_lie_derivatives, an unknown input 0.5 sin(3t) on x3' (dh D =
     dL_f h D = 0, checked). Error floors O(L dt) in x3 (Euler-sampled sign term, constant about 2.3), far smaller
-    in x1 (e_0, O(L dt^3)); measured at 2 ms with L = 20 over 1.2-1.6 s: (4.2e-7, 6.5e-4, 0.093), convergence
+    in x1 (e_0, O(L dt^3)); measured at 2 ms with L = 20 over 1.2-1.6 s: (3.9e-7, 6.5e-4, 0.082), convergence
     1.08 s (0.048 in x3 at 1 ms: first order)."""
 
     def f3(x):
