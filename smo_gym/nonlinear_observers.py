@@ -449,7 +449,7 @@ class NonlinearHOSMObserver:
         Sampling step ``tau > 0`` [s].
     lipschitz : float or array_like, shape (p,)
         :math:`L_i \ge |y_i^{(r_i)}|` along the trajectories (inputs included): exists for a BIBS system with
-        bounded inputs.
+        bounded inputs. With ``unknown_input``, :math:`L_i \ge |y_i^{(r_i+1)}|` (one more differentiator order).
     indices : sequence of int, optional
         Observability indices :math:`(r_1, \ldots, r_p)` with sum ``n``; default ``(n,)`` (one output).
     phi, phi_jacobian : callable, optional
