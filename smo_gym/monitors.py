@@ -68,7 +68,9 @@ def check_monitor(monitor, key: str):
             f"expected a monitor with reset(q_measured) and update(q_measured, ctrl), actual value: "
             f"{type(monitor).__name__}"
         )
-    if not isinstance(key, str) or not key or key == "smo":
+    if not isinstance(key, str):
+        raise TypeError(f"expected key as a string, actual value: {type(key).__name__}")
+    if not key or key == "smo":
         raise ValueError(f"expected key as a non-empty string other than 'smo', actual value: {key!r}")
     return monitor
 
@@ -216,8 +218,8 @@ class FaultMonitor:
     ====================  ==========  ==============================================================================
 
     The flags at sample ``k`` equal those of ``diagnose`` on the residuals up to ``k`` (an isolation can be
-    revoked when the matching model's residual leaves the band). Cost: constant per sample until detection; after
-    it, ``diagnose`` on the samples since detection (linear in their number).
+    revoked when the matching model's residual leaves the band). Cost: constant per sample until detection and while
+    an isolation stands; otherwise ``diagnose`` on the samples since detection (linear in their number).
     """
 
     def __init__(self, bank: FaultObserverBank):
@@ -236,6 +238,7 @@ class FaultMonitor:
         self.bank.reset(_vector("q_measured", q_measured, self.bank.n))
         self._rho = [np.zeros(self.bank.q + 1)]  # the reset sample: in the band by construction (as bank.diagnose)
         self._k_detect = None
+        self._standing = None  # (model, isolation time) of a standing isolation
         return self._record()
 
     def update(self, q_measured, ctrl) -> dict:
@@ -266,14 +269,21 @@ class FaultMonitor:
             "time": k * bank.dt,
         }
         kd = self._k_detect
-        if kd is not None:  # windows are counted from detection on: the rule of diagnose on the samples since then
+        if kd is None:
+            return record
+        standing = self._standing
+        # a standing isolation of model i stays while i's residual stays in the band (diagnose's rule): no new call
+        if standing is None or self._rho[-1][standing[0]] > 1.0:
+            # windows are counted from detection on: the rule of diagnose on the samples since then
             d = diagnose(np.stack(self._rho[kd:]), bank.dt, dwell=bank.dwell, names=bank.names)
-            i = int(d.isolated)
-            record.update(
-                detected=True,
-                detection_time=kd * bank.dt,
-                isolated=i,
-                isolated_name="unknown" if i == UNKNOWN else bank.names[i],
-                isolation_time=kd * bank.dt + float(d.isolation_time),
-            )
+            i, t_iso = int(d.isolated), kd * bank.dt + float(d.isolation_time)
+            standing = self._standing = (i, t_iso) if i >= 1 else None
+        i, t_iso = standing if standing is not None else (UNKNOWN, math.nan)
+        record.update(
+            detected=True,
+            detection_time=kd * bank.dt,
+            isolated=i,
+            isolated_name="unknown" if i == UNKNOWN else bank.names[i],
+            isolation_time=t_iso,
+        )
         return record

@@ -17,7 +17,7 @@ import pytest
 
 import smo_gym  # noqa: F401  (registers the environments)
 from smo_gym import wrappers
-from smo_gym.fault_detection import FaultObserverBank
+from smo_gym.fault_detection import FaultObserverBank, diagnose
 from smo_gym.mechanics import MujocoDynamics
 from smo_gym.monitors import FaultMonitor, ParameterMonitor
 
@@ -136,6 +136,47 @@ def test_a_mid_episode_fault_is_detected_and_isolated_in_info():
     env.close()
 
 
+class ScriptedBank(FaultObserverBank):
+    """A bank whose normalized residuals are given (the decision alone is under test)."""
+
+    def __init__(self, rows: np.ndarray, dt: float):
+        faults = [FaultFree()] * (rows.shape[1] - 1)
+        super().__init__(dt, FaultFree(), faults, 1.0, n=1, lipschitz=1.0, dwell=0.05, settle_time=0.03)
+        self.rows, self._k = rows, -1
+
+    def update(self, y, u=None):
+        self._k += 1
+        return self.rows[self._k]
+
+
+class FaultFree:
+    def __call__(self, q, v, u):
+        return np.zeros_like(q)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_online_flags_are_the_decision_on_the_record_so_far(seed):
+    """At every sample the record equals ``diagnose`` on the residuals up to it: detection, isolation, revocation
+    (the matching model leaving the band) and unknown, on residuals that enter and leave the band in random runs."""
+    rng = np.random.default_rng(seed)
+    T, dt = 300, 0.01
+    runs = rng.integers(1, 25, size=(T, 4)).cumsum(axis=0)  # in/out runs of random lengths, per model
+    inside = np.stack([np.searchsorted(runs[:, j], np.arange(T)) % 2 == 0 for j in range(4)], axis=1)
+    rows = np.where(inside, rng.uniform(0.0, 1.0, (T, 4)), rng.uniform(1.01, 3.0, (T, 4)))
+    monitor = FaultMonitor(ScriptedBank(rows, dt))
+    monitor.reset(np.zeros(1))
+    verdicts = [0]
+    for k in range(T):
+        record = monitor.update(np.zeros(1), np.zeros(1))
+        d = diagnose(np.vstack([np.zeros((1, 4)), rows[: k + 1]]), dt, dwell=0.05, settle_time=0.03)
+        assert record["detected"] == bool(d.detected) and record["isolated"] == int(d.isolated), k
+        got, expected = [record["detection_time"], record["isolation_time"]], [d.detection_time, d.isolation_time]
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12, equal_nan=True)
+        verdicts.append(record["isolated"])
+    revoked = sum(a >= 1 and b == -1 for a, b in zip(verdicts, verdicts[1:], strict=False))
+    assert -1 in verdicts and max(verdicts) >= 1 and revoked >= 1  # unknown, isolation and revocation all occur
+
+
 def test_info_keys_are_present_and_finite_from_the_first_step():
     env = make_env()
     _, info = env.reset(seed=1)
@@ -245,9 +286,11 @@ def test_bad_input_raises_typed_errors():
         wrappers.Monitored(sensed, object())
     model = nominal_model()
     monitor = parameter_monitor(model, 0.01)
-    for key in ("", "smo", 3):
+    for key in ("", "smo"):
         with pytest.raises(ValueError, match="key"):
             wrappers.Monitored(sensed, monitor, key=key)
+    with pytest.raises(TypeError, match="key"):
+        wrappers.Monitored(sensed, monitor, key=3)
     with pytest.raises(ValueError, match=r"qpos_measured"):  # nothing sensed below: no measured positions
         wrappers.Monitored(gym.make(ENV_ID), monitor).reset(seed=0)
     with pytest.raises(RuntimeError, match="reset"):
