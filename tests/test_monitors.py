@@ -198,6 +198,8 @@ def test_info_keys_are_present_and_finite_from_the_first_step():
         assert fault["detected"] is False and fault["isolated_name"] == "no fault"
         assert "smo" in step_info  # the sensing record is passed through
     assert step_info["identification"]["time"] == pytest.approx(env.unwrapped.dt)
+    recorded = env.spec.additional_wrappers[-1].kwargs  # constructor arguments, the monitor itself (not a copy)
+    assert recorded["key"] == "fault" and recorded["monitor"] is env.monitor
     env.close()
 
 

@@ -7,7 +7,7 @@ class Monitored(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """``info[key] = monitor.update(info["smo"]["qpos_measured"], ctrl)``, reset alike (why: :mod:`smo_gym.monitors`)"""
 
     def __init__(self, env: gym.Env, monitor, key: str = "monitor"):
-        gym.utils.RecordConstructorArgs.__init__(self, monitor=monitor, key=key)
+        gym.utils.RecordConstructorArgs.__init__(self, monitor=monitor, key=key, _disable_deepcopy=True)
         gym.Wrapper.__init__(self, env)  # ctrl: from the simulation adapter of the EstimatedVelocity below, per step
         self.monitor, self.key = check_monitor(monitor, key), key
 
