@@ -22,6 +22,7 @@ _LAZY_SUBMODULES = (
     "fault_detection",
     "identification",
     "mechanics",
+    "monitors",
     "nonlinear_observers",
     "wrappers",
 )

@@ -316,3 +316,15 @@ def test_mujoco_arm_actuator_fault_is_isolated_and_fault_free_is_quiet():
     assert d.label() == "elbow-gain"
     quiet, _ = demo.run_episode(0, None, duration=1.4, fault_time=0.7, threshold=threshold)
     assert not quiet.detected and quiet.label() == "no fault"
+
+
+def test_the_guide_environment_example_flags_the_fault_in_info():
+    """The python block of the guide's "In an environment" section, executed as printed."""
+    guide = Path(__file__).resolve().parents[1] / "docs" / "guide" / "fault-detection.md"
+    section = guide.read_text().split("## In an environment", 1)[1]
+    source = section.split("```python\n", 1)[1].split("```", 1)[0]
+    namespace = {"__name__": "__guide__"}
+    exec(compile(source, str(guide), "exec"), namespace)
+    fault = namespace["fault"]
+    assert fault["detected"] and 1.0 <= fault["detection_time"] <= 1.2  # the motor weakens at t = 1 s
+    assert fault["isolated_name"] == "elbow-gain" and fault["isolation_time"] > fault["detection_time"]

@@ -347,3 +347,16 @@ def test_the_guide_example_runs_and_identifies():
     namespace = {"__name__": "__guide__"}
     exec(compile(source, str(guide), "exec"), namespace)
     np.testing.assert_allclose(namespace["theta_hat"], [0.5, 0.3], atol=0.015)
+
+
+def test_the_guide_environment_example_reads_the_payload_from_info():
+    """The python block of the guide's "In an environment" section, executed as printed."""
+    from pathlib import Path
+
+    guide = Path(__file__).resolve().parents[1] / "docs" / "guide" / "identification.md"
+    section = guide.read_text().split("## In an environment", 1)[1]
+    source = section.split("```python\n", 1)[1].split("```", 1)[0]
+    namespace = {"__name__": "__guide__"}
+    exec(compile(source, str(guide), "exec"), namespace)
+    assert abs(namespace["mass"] - 1.2) < 0.05 * 1.2  # the simulation's payload, from 0.8 kg nominal
+    assert namespace["info"]["identification"]["gamma_diag"][0] < 1e-2

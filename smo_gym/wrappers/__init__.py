@@ -11,6 +11,7 @@ from . import adapters, sensing
 from .adapters import CONTACT_FORCES, GymnasiumMujocoAdapter, MujocoAdapter, make_adapter, register_adapter
 from .dm_control import DmControlAdapter, make_dm_control  # registers the dm_control adapter (lazy imports)
 from .estimated_velocity import EstimatedVelocity
+from .monitored import Monitored
 from .vec import JointSensor, VectorEstimatedVelocity, sensing_config
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "EstimatedVelocity",
     "GymnasiumMujocoAdapter",
     "JointSensor",
+    "Monitored",
     "MujocoAdapter",
     "VecEstimatedVelocity",
     "VectorEstimatedVelocity",

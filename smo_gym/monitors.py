@@ -1,0 +1,289 @@
+r"""Online monitors of a sensed system: identified parameters and fault flags from measured positions and inputs.
+
+A *monitor* is a stateful object with
+
+* ``reset(q_measured) -> record`` at the first sample of an episode, and
+* ``update(q_measured, ctrl) -> record`` at every following sample, ``ctrl`` the input that acted over the sample
+  interval ending at ``q_measured``,
+
+whose record is a flat ``dict`` of NumPy arrays, numbers and strings (what Gymnasium's vector environments
+aggregate per key). It sees what a controller sees, never a simulator's true state, so the same object serves a
+simulation (:class:`smo_gym.wrappers.Monitored` writes its record into ``info``), a logged record and a real plant.
+
+* :class:`ParameterMonitor`: online parameter identification by the equivalent output injection of a super-twisting
+  observer (:class:`smo_gym.identification.EquivalentInjectionIdentifier`, Davila, Fridman and Levant 2005);
+  :meth:`ParameterMonitor.from_mujoco` builds it for MuJoCo model parameters (a payload mass, a joint's damping;
+  :class:`smo_gym.mechanics.MujocoParameterRegressor`).
+* :class:`FaultMonitor`: fault detection and isolation by a bank of observers
+  (:class:`smo_gym.fault_detection.FaultObserverBank`, Rios, Davila, Fridman and Edwards 2014), with the decision
+  rule of :func:`smo_gym.fault_detection.diagnose` applied online: the flags at a sample are those that
+  ``diagnose`` gives on the record up to that sample.
+
+Why a wrapper of its own (:class:`smo_gym.wrappers.Monitored`) rather than an option of the model-based velocity
+observer: a monitor needs only the sensor's reading and the input, not the velocity observer, so it serves every
+observer family and sensor; one wrapper per monitor composes (a parameter monitor and a fault monitor stacked, each
+under its own ``info`` key); and the maths stays here, free of Gymnasium, testable on arrays and usable on logged
+data. The wrapper reads ``info["smo"]["qpos_measured"]`` of the :class:`~smo_gym.wrappers.EstimatedVelocity` below
+it and, at each step, the ``ctrl`` of the simulation through that wrapper's adapter (its ``adapter`` attribute):
+the input after any action transformation of the stack.
+
+References
+----------
+.. [DFL05] J. Davila, L. Fridman and A. Levant, "Second-order sliding-mode observer for mechanical systems",
+   IEEE TAC 50(11), 2005.
+.. [RDFE14] H. Rios, J. Davila, L. Fridman and C. Edwards, "Fault detection and isolation for nonlinear systems via
+   high-order-sliding-mode multiple-observer", International Journal of Robust and Nonlinear Control, 2014.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._validation import as_real_array
+from .fault_detection import UNKNOWN, FaultObserverBank, diagnose
+from .identification import EquivalentInjectionIdentifier
+
+__all__ = ["FaultMonitor", "ParameterMonitor", "check_monitor", "measured"]
+
+
+def measured(info) -> np.ndarray:
+    """``info["smo"]["qpos_measured"]`` (the sensor's reading, :class:`smo_gym.wrappers.sensing.SensingInfo`),
+    with a typed error naming what is missing."""
+    sensing = info.get("smo") if isinstance(info, dict) else None
+    if not isinstance(sensing, dict) or "qpos_measured" not in sensing:
+        raise ValueError(
+            "expected info['smo']['qpos_measured'] (an EstimatedVelocity wrapper below this one), actual value: "
+            f"info keys {sorted(info) if isinstance(info, dict) else type(info).__name__}"
+        )
+    return sensing["qpos_measured"]
+
+
+def check_monitor(monitor, key: str):
+    """Check that ``monitor`` has ``reset`` and ``update`` and that ``key`` is a non-empty string; return it."""
+    if not (callable(getattr(monitor, "reset", None)) and callable(getattr(monitor, "update", None))):
+        raise TypeError(
+            f"expected a monitor with reset(q_measured) and update(q_measured, ctrl), actual value: "
+            f"{type(monitor).__name__}"
+        )
+    if not isinstance(key, str):
+        raise TypeError(f"expected key as a string, actual value: {type(key).__name__}")
+    if not key or key == "smo":
+        raise ValueError(f"expected key as a non-empty string other than 'smo', actual value: {key!r}")
+    return monitor
+
+
+def _vector(name: str, value, n: int) -> np.ndarray:
+    """A finite float array of shape ``(n,)`` (a copy)."""
+    arr = as_real_array(name, value, copy=True)
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise ValueError(f"expected a finite {name} of shape ({n},), actual value: {arr!r}")
+    return arr
+
+
+class _TimeInvariant:
+    """``nominal(t, q, v, u)`` of a dynamics object's ``acceleration(q, v, u)`` (a class, not a lambda: picklable)."""
+
+    def __init__(self, dynamics):
+        self.dynamics = dynamics
+
+    def __call__(self, t, q, v, u):
+        return self.dynamics.acceleration(q, v, u)
+
+
+class ParameterMonitor:
+    r"""Identified parameters :math:`\hat\theta` and the least-squares gain :math:`\Gamma`, sample by sample.
+
+    Parameters
+    ----------
+    identifier : smo_gym.identification.EquivalentInjectionIdentifier
+        Unbatched (its state is reset by this monitor at :meth:`reset`).
+    names : sequence of str, optional
+        Names of the ``p`` parameters (default ``theta0``, ``theta1``, ...).
+    n_ctrl : int, optional
+        Expected length of ``ctrl`` (checked when given).
+
+    Notes
+    -----
+    The record of :meth:`reset` and :meth:`update`:
+
+    ================  =========  ==================================================================================
+    key               shape      what
+    ================  =========  ==================================================================================
+    ``theta``         ``(p,)``   :math:`\hat\theta = \bar\theta + \hat\vartheta` (at reset: :math:`\bar\theta`)
+    ``gamma_diag``    ``(p,)``   diagonal of :math:`\Gamma` (for dynamic least squares :math:`\sigma^2\Gamma` is
+                                 the covariance of the estimate under white injection noise of variance
+                                 :math:`\sigma^2`; it stays at :math:`\gamma_0` in unexcited directions)
+    ``time``          ``()``     time since the reset [s]
+    ================  =========  ==================================================================================
+    """
+
+    def __init__(self, identifier: EquivalentInjectionIdentifier, *, names: Sequence[str] | None = None, n_ctrl=None):
+        if not isinstance(identifier, EquivalentInjectionIdentifier):
+            raise TypeError(f"expected an EquivalentInjectionIdentifier, actual value: {type(identifier).__name__}")
+        self.identifier = identifier
+        self.names = tuple(f"theta{i}" for i in range(identifier.p)) if names is None else tuple(map(str, names))
+        if len(self.names) != identifier.p:
+            raise ValueError(f"expected {identifier.p} parameter names, actual value: {len(self.names)}")
+        self.n_ctrl = None if n_ctrl is None else int(n_ctrl)
+        self._started = False
+
+    @classmethod
+    def from_mujoco(
+        cls,
+        model,
+        parameters: Sequence[tuple[str, str]],
+        dt: float,
+        *,
+        lipschitz,
+        gamma0: float = 1e3,
+        forgetting=None,
+        filter_time_constant: float = 0.02,
+        observer_options: dict | None = None,
+    ) -> ParameterMonitor:
+        r"""Identify MuJoCo model parameters (``("body_mass", body)``, ``("dof_damping", joint)``) of ``model``.
+
+        ``model`` is the *nominal* model (copied: :class:`smo_gym.mechanics.MujocoDynamics` gives :math:`\bar f`,
+        :class:`smo_gym.mechanics.MujocoParameterRegressor` gives :math:`\Phi` and :math:`\bar\theta`); ``dt`` the
+        sampling step (an environment's ``dt``); the other arguments are those of
+        :class:`~smo_gym.identification.EquivalentInjectionIdentifier` (``uses_acceleration=True``: a mass enters
+        the inertia).
+        """
+        from .mechanics import MujocoDynamics, MujocoParameterRegressor  # mujoco only when asked for
+
+        regressor = MujocoParameterRegressor(model, parameters)
+        identifier = EquivalentInjectionIdentifier(
+            dt,
+            _TimeInvariant(MujocoDynamics(model)),
+            regressor,
+            regressor.theta_bar,
+            n=regressor.n,
+            lipschitz=lipschitz,
+            gamma0=gamma0,
+            forgetting=forgetting,
+            filter_time_constant=filter_time_constant,
+            uses_acceleration=True,
+            observer_options=observer_options,
+        )
+        return cls(identifier, names=[f"{kind}:{name}" for kind, name in regressor.names], n_ctrl=model.nu)
+
+    def _record(self) -> dict:
+        ident = self.identifier
+        gain = ident.gain
+        return {"theta": ident.theta, "gamma_diag": np.diagonal(gain).copy(), "time": float(ident.time)}
+
+    def reset(self, q_measured) -> dict:
+        """Restart at the measurement ``q_measured`` (shape ``(n,)``): estimate :math:`\\bar\\theta`,
+        :math:`\\Gamma = \\gamma_0 I`, velocity estimate zero, time 0."""
+        self.identifier.reset(_vector("q_measured", q_measured, self.identifier.n))
+        self._started = True
+        return self._record()
+
+    def update(self, q_measured, ctrl) -> dict:
+        """One sample: the measurement ``q_measured`` ``(n,)`` and the ``ctrl`` that acted over the interval."""
+        if not self._started:
+            raise RuntimeError("expected reset(q_measured) before update(...), actual value: never reset")
+        q = _vector("q_measured", q_measured, self.identifier.n)
+        u = as_real_array("ctrl", ctrl, copy=True)
+        if u.ndim != 1 or (self.n_ctrl is not None and u.shape != (self.n_ctrl,)) or not np.isfinite(u).all():
+            raise ValueError(f"expected a finite ctrl of shape ({self.n_ctrl or 'nu'},), actual value: {u!r}")
+        self.identifier.update(q, u)
+        return self._record()
+
+
+class FaultMonitor:
+    r"""Fault detection and isolation flags, sample by sample, from a bank of observers.
+
+    Parameters
+    ----------
+    bank : smo_gym.fault_detection.FaultObserverBank
+        Unbatched; its ``dwell`` and ``settle_time`` set the decision (:func:`smo_gym.fault_detection.diagnose`).
+
+    Notes
+    -----
+    The record of :meth:`reset` and :meth:`update` (times from the reset sample, which is time 0):
+
+    ====================  ==========  ==============================================================================
+    key                   shape       what
+    ====================  ==========  ==============================================================================
+    ``detected``          ``()``      bool: the nominal residual left the band after ``settle_time``
+    ``detection_time``    ``()``      time of detection [s], NaN before
+    ``isolated``          ``()``      int: ``i >= 1`` fault ``i`` of the bank, ``0`` none detected, ``-1`` unknown
+    ``isolated_name``     str         ``"no fault"``, the fault's name or ``"unknown"``
+    ``isolation_time``    ``()``      time of the standing isolation [s], NaN without one
+    ``residual_norms``    ``(q+1,)``  :math:`\rho_i = \max_j |r_{i,j}|/\theta_j` of each model (band: ``<= 1``)
+    ``time``              ``()``      time since the reset [s]
+    ====================  ==========  ==============================================================================
+
+    The flags at sample ``k`` equal those of ``diagnose`` on the residuals up to ``k`` (an isolation can be
+    revoked when the matching model's residual leaves the band). Cost: constant per sample until detection and while
+    an isolation stands; otherwise ``diagnose`` on the samples since detection (linear in their number).
+    """
+
+    def __init__(self, bank: FaultObserverBank):
+        if not isinstance(bank, FaultObserverBank):
+            raise TypeError(f"expected a FaultObserverBank, actual value: {type(bank).__name__}")
+        self.bank = bank
+        self._rho: list[np.ndarray] | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """``("nominal", *fault names)``."""
+        return self.bank.names
+
+    def reset(self, q_measured) -> dict:
+        """Restart every observer at ``q_measured`` (shape ``(n,)``) and clear the flags."""
+        self.bank.reset(_vector("q_measured", q_measured, self.bank.n))
+        self._rho = [np.zeros(self.bank.q + 1)]  # the reset sample: in the band by construction (as bank.diagnose)
+        self._k_detect = None
+        self._standing = None  # (model, isolation time) of a standing isolation
+        return self._record()
+
+    def update(self, q_measured, ctrl) -> dict:
+        """One sample: the measurement ``q_measured`` ``(n,)`` and the ``ctrl`` that acted over the interval."""
+        if self._rho is None:
+            raise RuntimeError("expected reset(q_measured) before update(...), actual value: never reset")
+        q = _vector("q_measured", q_measured, self.bank.n)
+        u = as_real_array("ctrl", ctrl, copy=True)
+        if u.ndim != 1 or not np.isfinite(u).all():
+            raise ValueError(f"expected a finite ctrl of shape (nu,), actual value: {u!r}")
+        rho = np.asarray(self.bank.update(q, u), dtype=np.float64)
+        self._rho.append(rho)
+        k = len(self._rho) - 1
+        bank = self.bank
+        if self._k_detect is None and rho[0] > 1.0 and k >= math.ceil(bank.settle_time / bank.dt - 1e-9):
+            self._k_detect = k
+        return self._record()
+
+    def _record(self) -> dict:
+        bank, k = self.bank, len(self._rho) - 1
+        record = {
+            "detected": False,
+            "detection_time": math.nan,
+            "isolated": 0,
+            "isolated_name": "no fault",
+            "isolation_time": math.nan,
+            "residual_norms": self._rho[-1].copy(),
+            "time": k * bank.dt,
+        }
+        kd = self._k_detect
+        if kd is None:
+            return record
+        standing = self._standing
+        # a standing isolation of model i stays while i's residual stays in the band (diagnose's rule): no new call
+        if standing is None or self._rho[-1][standing[0]] > 1.0:
+            # windows are counted from detection on: the rule of diagnose on the samples since then
+            d = diagnose(np.stack(self._rho[kd:]), bank.dt, dwell=bank.dwell, names=bank.names)
+            i, t_iso = int(d.isolated), kd * bank.dt + float(d.isolation_time)
+            standing = self._standing = (i, t_iso) if i >= 1 else None
+        i, t_iso = standing if standing is not None else (UNKNOWN, math.nan)
+        record.update(
+            detected=True,
+            detection_time=kd * bank.dt,
+            isolated=i,
+            isolated_name="unknown" if i == UNKNOWN else bank.names[i],
+            isolation_time=t_iso,
+        )
+        return record
