@@ -9,7 +9,7 @@ import pytest
 
 from smo_gym import wrappers
 from smo_gym.observers import DissipativeSuperTwisting, MechanicalSuperTwisting
-from smo_gym.wrappers.model_based import InputAwareEstimator, ModelBasedEstimatedVelocity
+from smo_gym.wrappers.model_based import InputAwareEstimator
 
 
 def velocity_rmse(env, T=300, seed=0):
@@ -27,7 +27,12 @@ def velocity_rmse(env, T=300, seed=0):
 
 def test_mechanical_observer_in_the_wrapper_beats_model_free():
     """Two-link arm, 10 % heavier model, noisy 12-bit encoder, physics rate (measured 0.11 vs 0.52 / 0.78)."""
-    mb = ModelBasedEstimatedVelocity(gym.make("smo_gym/TwoLinkArm-v0"), mass_scale=1.1, disk_cache=False)
+    mb = wrappers.EstimatedVelocity(
+        gym.make("smo_gym/TwoLinkArm-v0"),
+        observer="mechanical-super-twisting",
+        observer_kwargs={"mass_scale": 1.1},
+        disk_cache=False,
+    )
     assert isinstance(mb.observer, MechanicalSuperTwisting)
     assert mb.observer.dynamics.model is not mb.unwrapped.model
     st = wrappers.EstimatedVelocity(gym.make("smo_gym/TwoLinkArm-v0"), disk_cache=False)
@@ -39,8 +44,11 @@ def test_mechanical_observer_in_the_wrapper_beats_model_free():
 
 def test_the_wrapper_passes_the_action_to_the_model():
     """Dropping the input (u = 0 in the model) is measurably worse: the action reaches the observer."""
-    mb = ModelBasedEstimatedVelocity(
-        gym.make("smo_gym/TwoLinkArm-v0"), disk_cache=False, observer_kwargs={"lipschitz": 20.0, "accel_bound": 1000.0}
+    mb = wrappers.EstimatedVelocity(
+        gym.make("smo_gym/TwoLinkArm-v0"),
+        observer="mechanical-super-twisting",
+        observer_kwargs={"lipschitz": 20.0, "accel_bound": 1000.0},
+        disk_cache=False,
     )
     with_input = velocity_rmse(mb)
     mb.estimator.update = lambda z: mb.observer.update(z, None)[..., 1]
@@ -49,7 +57,7 @@ def test_the_wrapper_passes_the_action_to_the_model():
 
 def test_dissipative_in_the_wrapper_and_limits():
     gains = {"k1": 2.0, "k2": 1.0, "k3": 0.0, "mu1": 12.0, "mu2": 12.0}
-    ds = ModelBasedEstimatedVelocity(
+    ds = wrappers.EstimatedVelocity(
         gym.make("smo_gym/TwoLinkArm-v0"),
         observer="dissipative-super-twisting",
         observer_kwargs={"gains": gains},
@@ -58,9 +66,9 @@ def test_dissipative_in_the_wrapper_and_limits():
     assert isinstance(ds.observer, DissipativeSuperTwisting)
     assert np.isfinite(velocity_rmse(ds, T=100))
     with pytest.raises(ValueError, match="couplings"):
-        ModelBasedEstimatedVelocity(gym.make("smo_gym/VariableInertia-v0"), disk_cache=False)
-    with pytest.raises(ValueError, match="observer in"):
-        ModelBasedEstimatedVelocity(gym.make("smo_gym/TwoLinkArm-v0"), observer="levant", disk_cache=False)
+        wrappers.EstimatedVelocity(
+            gym.make("smo_gym/VariableInertia-v0"), observer="mechanical-super-twisting", disk_cache=False
+        )
 
 
 # ---- the model-based names through EstimatedVelocity -----------------------------------------------------------
@@ -78,20 +86,23 @@ def estimates(env, T=60, seed=0):
     return np.array(vel), np.array(meas)
 
 
-def test_a_model_based_name_in_estimated_velocity_is_the_model_based_wrapper():
-    """Same observer, same model mismatch, the action as input, the general path: bit-identical estimates."""
+def test_a_model_based_name_in_estimated_velocity_builds_the_model_based_observer():
+    """The observer on a mismatched private model, the action as input, the general path; the same settings give
+    the same estimates, bit for bit."""
     kw = {"mass_scale": 1.1, "contact": "measured"}
     ev = wrappers.EstimatedVelocity(
         gym.make("smo_gym/TwoLinkArm-v0"), observer="mechanical-super-twisting", observer_kwargs=kw, disk_cache=False
     )
-    mb = ModelBasedEstimatedVelocity(gym.make("smo_gym/TwoLinkArm-v0"), disk_cache=False, **kw)
+    again = wrappers.EstimatedVelocity(
+        gym.make("smo_gym/TwoLinkArm-v0"), observer="mechanical-super-twisting", observer_kwargs=kw, disk_cache=False
+    )
     assert isinstance(ev.observer, MechanicalSuperTwisting)
     assert isinstance(ev.estimator, InputAwareEstimator)
     dyn = ev.observer.dynamics
     assert dyn.mass_scale == 1.1 and dyn.contact == "measured" and ev.mass_scale_range is None
     np.testing.assert_array_equal(dyn.model.body_mass, 1.1 * ev.unwrapped.model.body_mass)
-    np.testing.assert_array_equal(ev.model_miss_bound, mb.model_miss_bound)
-    np.testing.assert_array_equal(estimates(ev)[0], estimates(mb)[0])
+    np.testing.assert_array_equal(ev.model_miss_bound, again.model_miss_bound)
+    np.testing.assert_array_equal(estimates(ev)[0], estimates(again)[0])
     assert ev._fused is None  # not fusable: the general path, which feeds the action
     gains = {"k1": 2.0, "k2": 1.0, "k3": 0.0, "mu1": 12.0, "mu2": 12.0}
     ds = wrappers.EstimatedVelocity(

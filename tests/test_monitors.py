@@ -248,9 +248,7 @@ def test_reset_restarts_the_estimates_and_seeds_reproduce_them():
 @pytest.mark.parametrize("clone", [lambda e: pickle.loads(pickle.dumps(e)), copy.deepcopy], ids=["pickle", "deepcopy"])
 def test_a_copy_of_the_wrapped_env_runs_as_the_original(clone):
     """Gymnasium's MuJoCo envs copy and pickle by their constructor arguments (a fresh simulation, as in
-    tests/test_wrapper.py): the monitors travel with their configuration, and seeded resets run both alike.
-    ``rate="env"``: with ``rate="physics"`` a copy's substep hook steps a stale copy of the model (the adapter's
-    ``model`` attribute), so an in-place fault of the copy's ``unwrapped.model`` would not reach its physics."""
+    tests/test_wrapper.py): the monitors travel with their configuration, and seeded resets run both alike."""
     env = make_env(payload=None, sensor="encoder-12bit-noisy", rate="env")
     run(env, 30)  # mid-episode
     twin = clone(env)

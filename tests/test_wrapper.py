@@ -433,3 +433,21 @@ def test_user_mujoco_env_with_a_ball_joint(tmp_path):
     _obs, info = noisy.reset(seed=0)
     q = info["smo"]["qpos_measured"]
     assert np.isclose(np.linalg.norm(q[:4]), 1.0) and not np.allclose(q, info["smo"]["qpos"])
+
+
+def test_a_copied_wrapper_steps_the_model_of_its_own_environment():
+    """``copy.deepcopy`` rebuilds a Gymnasium MuJoCo environment with a new model; the copy's physics-rate sampling
+    must step that model (an edit of it, a payload or a fault, reaches the copy's physics), not the original's."""
+    import copy
+
+    env = EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer="finite-difference", disk_cache=False)
+    twin = copy.deepcopy(env)
+    assert twin.get_wrapper_attr("adapter").model is twin.unwrapped.model
+    twin.unwrapped.model.body_mass[:] *= 10.0  # a heavier pole in the copy only
+    qpos = []
+    for e in (env, twin):
+        e.reset(seed=3)
+        for _ in range(20):
+            e.step(np.array([1.0]))
+        qpos.append(e.unwrapped.data.qpos.copy())
+    assert not np.allclose(qpos[0], qpos[1])

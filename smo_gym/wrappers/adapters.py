@@ -133,7 +133,6 @@ class GymnasiumMujocoAdapter:
                 f"{type(env).__name__} has no {', '.join(missing)}"
             )
         self.env = env
-        self.model = env.model
         self.frame_skip = int(env.frame_skip)
         self.contact_forces = contact_forces
         #: the class's observation function, called as ``_obs_function(env)`` with ``env.data`` set to the data
@@ -155,6 +154,10 @@ class GymnasiumMujocoAdapter:
             return self._obs_function(env)
         finally:
             env.data = live
+
+    @property
+    def model(self) -> mujoco.MjModel:  # read through: a copied environment is rebuilt with a model of its own
+        return self.env.model
 
     @property
     def data(self) -> mujoco.MjData:

@@ -31,11 +31,10 @@ from .._validation import check_positive_range
 from ..engine.measurement import VelocityEstimator
 from ..mechanics import MujocoDynamics, calibrate_model_miss, default_transform, dissipative_gains
 from ..observers import DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
-from .estimated_velocity import EstimatedVelocity, random_episodes
+from .estimated_velocity import random_episodes
 
 __all__ = [
     "InputAwareEstimator",
-    "ModelBasedEstimatedVelocity",
     "ModelBasedObserver",
     "model_based_observer",
 ]
@@ -146,26 +145,3 @@ def _model_miss(adapter, dyn: MujocoDynamics, scales, steps: int, quantile: floa
             miss, acc = np.quantile(np.abs(A - f), quantile, axis=0), np.quantile(np.abs(A), quantile, axis=0)
         misses.append(miss)
     return np.max(misses, axis=0), acc
-
-
-class ModelBasedEstimatedVelocity(EstimatedVelocity):
-    """The earlier spelling of ``EstimatedVelocity(env, sensor, observer, rate, {"mass_scale": mass_scale,
-    "contact": contact, **observer_kwargs}, **wrapper_kwargs)`` with a model-based ``observer`` (same behaviour;
-    ``wrapper_kwargs`` are the other keyword arguments of :class:`EstimatedVelocity`)."""
-
-    def __init__(
-        self,
-        env,
-        sensor="encoder-12bit-noisy",
-        observer: str = "mechanical-super-twisting",
-        rate="physics",
-        observer_kwargs: dict | None = None,
-        *,
-        mass_scale=1.0,
-        contact: str = "unknown",
-        **wrapper_kwargs,
-    ):
-        if observer not in NAMES:
-            raise ValueError(f"expected observer in {', '.join(NAMES)}, actual value: {observer!r}")
-        kwargs = {"mass_scale": mass_scale, "contact": contact, **(observer_kwargs or {})}
-        super().__init__(env, sensor, observer, rate, kwargs, **wrapper_kwargs)

@@ -1,10 +1,23 @@
+"""Online estimators on what a sensed environment measures, their record in ``info`` (:mod:`smo_gym.monitors`)."""
+
 import gymnasium as gym
 
 from ..monitors import check_monitor, measured
 
 
 class Monitored(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """``info[key] = monitor.update(info["smo"]["qpos_measured"], ctrl)``, reset alike (why: :mod:`smo_gym.monitors`)"""
+    """Run ``monitor`` on the measured positions and the applied ``ctrl``, and put its record in ``info[key]``.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        An environment with an :class:`~smo_gym.wrappers.EstimatedVelocity` in its stack (the measured positions
+        ``info["smo"]["qpos_measured"]`` and its simulation adapter's ``ctrl``; never the true state).
+    monitor : smo_gym.monitors.ParameterMonitor or smo_gym.monitors.FaultMonitor
+        Anything with ``reset(q) -> record`` and ``update(q, ctrl) -> record`` (a dict of arrays).
+    key : str
+        The ``info`` entry of the record.
+    """
 
     def __init__(self, env: gym.Env, monitor, key: str = "monitor"):
         gym.utils.RecordConstructorArgs.__init__(self, monitor=monitor, key=key, _disable_deepcopy=True)
