@@ -166,3 +166,41 @@ def test_bad_arguments(record):
         obs.update([0.0], 0)
     with pytest.raises(ValueError, match="mode"):
         obs.reset([0.0], 5)
+
+
+# ---- MuJoCo: the demonstration's path, one seed ----------------------------------------------------------------
+
+
+def test_mujoco_arm_gear_switch_is_detected():
+    pytest.importorskip("mujoco")
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "demo_switched.py"
+    spec = importlib.util.spec_from_file_location("demo_switched", path)
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    threshold = demo.calibrate(1, 1.0)  # calibration seed 1000, not the evaluated seed
+    assert threshold > 0
+    steps = 800  # 1.6 s at 2 ms: nominal, then the shoulder gear drops at 0.8 s
+    sigma = np.where(np.arange(steps) < steps // 2, 0, 1)
+    est, sig, qvel = demo.run_episode(0, duration=1.6, threshold=threshold, sigma=sigma)
+    m = mode_metrics(est, sig, start=demo.SETTLE)
+    assert est.new_modes.tolist() == [1] and m.missed == 0 and m.false_switches == 0
+    assert 0.0 < m.delays[0] < 0.5  # shorter than the shortest dwell of the demonstration's schedules (0.6 s)
+    k0 = round(demo.SETTLE / est.dt)
+    assert np.sqrt(np.mean((est.x_hat[k0:, 2:] - qvel[k0:]) ** 2)) < 0.2  # rad/s, noisy 12-bit encoder
+
+
+def test_the_guide_example_runs_as_printed():
+    """The python block of the "Switched systems" section of docs/guide/control.md, executed as printed."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "control.md").read_text()
+    section = text[text.index("## Switched systems") :]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    scope: dict = {}
+    exec(compile(code, "control.md", "exec"), scope)
+    est = scope["est"]
+    assert est.new_modes.tolist() == [1]
+    assert abs(est.switch_times[0] - 1.5) < 0.02 and 1.5 < est.detection_times[0] < 1.8
