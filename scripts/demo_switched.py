@@ -48,7 +48,7 @@ CENTRE = np.array([np.pi / 2, 0.0])  # hanging (the joint axis is +y): the linea
 GEARS = {"nominal": (1.0, 1.0), "shoulder-low": (0.4, 1.0), "elbow-low": (1.0, 0.4)}
 LIPSCHITZ = 1000.0  # rad/s^3: the last derivative slews at ~L, so a mismatch jump of J is followed in ~J / L
 TAU = 0.05  # s, residual (mean-square) filter: averages the differentiator's noise
-DWELL = 0.03  # s
+DWELL = 0.01  # s, the new mode must fit this long (the residual filter already averages over TAU)
 SETTLE = 0.3  # s
 MARGIN = 1.5
 
@@ -157,7 +157,18 @@ def table(rows: list[dict]) -> str:
         )
     delays = np.concatenate([r["metrics"].delays for r in rows])
     acc = np.mean([r["metrics"].accuracy for r in rows])
+    missed: dict[str, int] = {}
+    names = list(GEARS)
+    for r in rows:
+        for _, a, b in r["metrics"].missed_switches:
+            key = f"{names[a]} -> {names[b]}"
+            missed[key] = missed.get(key, 0) + 1
     out.append("")
+    out.append(
+        "Missed switches by transition: "
+        + (", ".join(f"{k}: {v}" for k, v in sorted(missed.items(), key=lambda kv: -kv[1])) or "none")
+        + "."
+    )
     out.append(
         f"All seeds: {delays.size}/{sum(r['switches'] for r in rows)} switches detected, "
         f"{sum(r['metrics'].false_switches for r in rows)} false switches, mean mode accuracy {100 * acc:.1f} %, "

@@ -204,3 +204,26 @@ def test_the_guide_example_runs_as_printed():
     est = scope["est"]
     assert est.new_modes.tolist() == [1]
     assert abs(est.switch_times[0] - 1.5) < 0.02 and 1.5 < est.detection_times[0] < 1.8
+
+
+def test_mode_metrics_by_hand():
+    from smo_gym.control import SwitchedEstimate
+
+    dt = 0.1
+    sigma = np.repeat([0, 1, 2], 10)  # true switches at 1.0 s (to 1) and 2.0 s (to 2)
+    modes = np.repeat([0, 2, 0, 1], [3, 2, 7, 18])  # a false switch to 2 at 0.3 s, back at 0.5 s, to 1 at 1.2 s
+    est = SwitchedEstimate(
+        modes=modes,
+        switch_times=np.array([0.3, 0.5, 1.0]),
+        detection_times=np.array([0.3, 0.5, 1.2]),
+        new_modes=np.array([2, 0, 1]),
+        residual_norms=np.zeros((30, 3)),
+        x_hat=np.zeros((30, 2)),
+        dt=dt,
+    )
+    m = mode_metrics(est, sigma)
+    assert m.delays == pytest.approx([0.2])
+    assert m.missed == 1 and m.missed_switches == ((pytest.approx(2.0), 1, 2),)
+    assert m.false_switches == 2  # the switch to 2 at 0.3 s and the one back at 0.5 s
+    assert m.accuracy == pytest.approx(np.mean(modes == sigma))  # 3 + 5 + 8 right of 30
+    assert np.mean(modes == sigma) == pytest.approx(16 / 30)

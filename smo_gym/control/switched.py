@@ -265,13 +265,12 @@ class SwitchedLinearSystem:
     def require_observable(self) -> SwitchedConditions:
         """Conditions 1-2 (every mode detectable and strongly observable), or the typed error naming the mode."""
         c = self.conditions()
-        for i in range(self.q):
-            if not c.detectable[i] or not c.mode_reports[i].ok:
-                what = "detectable" if not c.detectable[i] else "strongly observable"
-                raise NotStronglyObservableError(
-                    f"expected every mode {what} (continuous-state estimation in finite time), actual value: "
-                    f"{c.reason if c.reason.startswith(('detect', 'strong')) else what}"
-                )
+        if not all(c.detectable) or not all(c.strongly_observable):
+            # conditions() checks mode by mode, detectability first: its reason names the first failing mode
+            raise NotStronglyObservableError(
+                "expected every mode detectable and strongly observable (continuous-state estimation in finite "
+                f"time), actual value: {c.reason}"
+            )
         return c
 
     def require_distinguishable(self) -> SwitchedConditions:
@@ -412,8 +411,9 @@ class SwitchedHOSMObserver:
     """
 
     @check_keywords
-    def __init__(self, system: SwitchedLinearSystem, dt: float, lipschitz, *, alpha: int = 1, poles=None,
-                 on_switch: str = "continue"):  # fmt: skip
+    def __init__(
+        self, system: SwitchedLinearSystem, dt: float, lipschitz, *, alpha: int = 1, poles=None, on_switch="continue"
+    ):
         if not isinstance(system, SwitchedLinearSystem):
             raise TypeError(f"expected a SwitchedLinearSystem, actual value: {type(system).__name__}")
         system.require_observable()
@@ -551,10 +551,21 @@ class SwitchedObserverBank:
     """
 
     @check_keywords
-    def __init__(self, system: SwitchedLinearSystem, dt: float, lipschitz, *, threshold: float,
-                 initial_mode: int = 0, dwell: float = 0.02, settle_time: float = 0.0,
-                 residual_time_constant: float = 0.0, alpha: int = 1, poles=None,
-                 reset_on_switch: bool = True):  # fmt: skip
+    def __init__(
+        self,
+        system: SwitchedLinearSystem,
+        dt: float,
+        lipschitz,
+        *,
+        threshold: float,
+        initial_mode: int = 0,
+        dwell: float = 0.02,
+        settle_time: float = 0.0,
+        residual_time_constant: float = 0.0,
+        alpha: int = 1,
+        poles=None,
+        reset_on_switch: bool = True,
+    ):
         if not isinstance(system, SwitchedLinearSystem):
             raise TypeError(f"expected a SwitchedLinearSystem, actual value: {type(system).__name__}")
         if system.q < 2:
@@ -580,6 +591,7 @@ class SwitchedObserverBank:
         """Start every observer at the sample ``y0`` (estimate ``x_hat0``, default ``C^+ y0``) in the initial mode."""
         for obs in self.observers:
             obs.reset(y0, x_hat0)
+            obs.update(y0)  # the differentiator consumes the sample it was reset at
         self.mode = self.initial_mode
         self.residuals = np.zeros((self.system.q, self.system.n))
         self._mean_square = np.zeros(self.system.q)
@@ -684,6 +696,8 @@ class ModeMetrics:
     delays: np.ndarray
     missed: int
     false_switches: int
+    #: ``(time [s], from mode, to mode)`` of each missed true switch
+    missed_switches: tuple[tuple[float, int, int], ...] = ()
 
 
 def mode_metrics(estimate: SwitchedEstimate, sigma, *, start: float = 0.0) -> ModeMetrics:
@@ -715,7 +729,7 @@ def mode_metrics(estimate: SwitchedEstimate, sigma, *, start: float = 0.0) -> Mo
     true_k = [k for k in range(1, T) if s[k] != s[k - 1] and k >= k0]
     bounds = true_k + [T]
     used = np.zeros(estimate.detection_times.shape[0], dtype=bool)
-    delays, missed = [], 0
+    delays, missed = [], []
     for i, k in enumerate(true_k):
         t0, t1 = k * dt, bounds[i + 1] * dt
         hit = np.flatnonzero(
@@ -728,6 +742,8 @@ def mode_metrics(estimate: SwitchedEstimate, sigma, *, start: float = 0.0) -> Mo
             used[hit[0]] = True
             delays.append(float(estimate.detection_times[hit[0]] - t0))
         else:
-            missed += 1
+            missed.append((k * dt, int(s[k - 1]), int(s[k])))
     false = int(np.sum(~used & (estimate.detection_times >= k0 * dt)))
-    return ModeMetrics(accuracy=acc, delays=np.array(delays), missed=missed, false_switches=false)
+    return ModeMetrics(
+        accuracy=acc, delays=np.array(delays), missed=len(missed), false_switches=false, missed_switches=tuple(missed)
+    )
