@@ -227,3 +227,17 @@ def test_mode_metrics_by_hand():
     assert m.false_switches == 2  # the switch to 2 at 0.3 s and the one back at 0.5 s
     assert m.accuracy == pytest.approx(np.mean(modes == sigma))  # 3 + 5 + 8 right of 30
     assert np.mean(modes == sigma) == pytest.approx(16 / 30)
+
+
+def test_undetectable_mode_is_named_first():
+    # an unstable mode (eigenvalue +1) that the output never sees: not detectable (Hautus), hence not observable
+    hidden = LinearPlant([[1.0, 0.0], [0.0, -1.0]], [[0], [1]], [[0, 1]], [[0], [1]])
+    system = SwitchedLinearSystem([oscillator(1, 1), hidden], names=["ok", "hidden"])
+    c = system.conditions()
+    assert c.detectable == (True, False)
+    assert c.reason.startswith("detectability: (A, C) of 'hidden'")
+    with pytest.raises(NotStronglyObservableError, match=r"detectability: .* 'hidden'"):
+        SwitchedObserverBank(system, DT, L, threshold=1.0)
+    # the same mode with its unstable part seen by the output is detectable
+    seen = LinearPlant([[1.0, 0.0], [0.0, -1.0]], [[0], [1]], [[1, 1]], [[0], [1]])
+    assert SwitchedLinearSystem([seen]).conditions().detectable == (True,)
