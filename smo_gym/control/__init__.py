@@ -6,8 +6,9 @@ observer, compensation control, output integral sliding mode, compensation of un
 sliding surface, and finite-time output-feedback stabilization with Levant's arbitrary-order sliding-mode
 controllers (Angulo, Fridman and Levant 2012); observers beyond strong observability (strongly detectable plants,
 functional observers, static left inverses); for linear time-varying plants, Kratz and Liebscher's
-strong-observability test and the cascaded HOSM observer of Galvan-Guerra, Fridman and Davila (2017). Plants come
-from the slides or are linearized from MuJoCo models; a sampled-data closed-loop simulator adds noise,
+strong-observability test and the cascaded HOSM observer of Galvan-Guerra, Fridman and Davila (2017); for linear
+switched systems (section 10), the bank of cascaded HOSM observers estimating the continuous state and the mode.
+Plants come from the slides or are linearized from MuJoCo models; a sampled-data closed-loop simulator adds noise,
 quantization and actuator lag.
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
@@ -76,6 +77,16 @@ from .plants import (
     strong_observability,
 )
 from .simulation import SimulationResult, fit_order, simulate, steady_state_error, total_variation_rate
+from .switched import (
+    ModeMetrics,
+    NotDistinguishableError,
+    SwitchedConditions,
+    SwitchedEstimate,
+    SwitchedHOSMObserver,
+    SwitchedLinearSystem,
+    SwitchedObserverBank,
+    mode_metrics,
+)
 from .unknown_inputs import (
     FunctionalObservabilityReport,
     FunctionalUnknownInputObserver,
@@ -109,9 +120,11 @@ __all__ = [
     "LeftInverseReport",
     "LinearPlant",
     "LuenbergerObserver",
+    "ModeMetrics",
     "MolinariDecoupling",
     "NoFunctionalObserverError",
     "NoStaticLeftInverseError",
+    "NotDistinguishableError",
     "NotStronglyDetectableError",
     "NotStronglyObservableError",
     "ObservableBlockForm",
@@ -123,6 +136,11 @@ __all__ = [
     "StrongDetectabilityReport",
     "StrongObservabilityReport",
     "StronglyDetectableObserver",
+    "SwitchedConditions",
+    "SwitchedEstimate",
+    "SwitchedHOSMObserver",
+    "SwitchedLinearSystem",
+    "SwitchedObserverBank",
     "UnknownInputConditionError",
     "UnknownInputConditions",
     "UnknownInputObserver",
@@ -147,6 +165,7 @@ __all__ = [
     "ltv_example",
     "ltv_state_map",
     "ltv_strong_observability",
+    "mode_metrics",
     "molinari_decoupling",
     "nested_hosm",
     "observable_block_form",

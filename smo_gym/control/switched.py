@@ -1,0 +1,749 @@
+r"""Observation of the continuous and discrete state of linear switched systems (Fridman's slides, section 10).
+
+A linear switched system has ``q`` modes sharing one state,
+
+.. math::
+    \dot x = A_\sigma x + B_\sigma u + D_\sigma w,\qquad y = C_\sigma x,\qquad \sigma(t) \in \{0, \dots, q-1\},
+
+(the slides' (29), modes numbered from 0 here). Two problems:
+
+*continuous state, known* :math:`\sigma` (:class:`SwitchedHOSMObserver`)
+    one cascaded HOSM observer per mode (:class:`~smo_gym.control.CascadedHOSMObserver`: Luenberger stage, Levant
+    differentiator of the output error, Molinari's relation); at a switch the new mode's observer is restarted
+    from the estimate carried across the switch (the slides' reset equations: :math:`z_{\hat\sigma(t_i^+)} =
+    \tilde x_{\hat\sigma^*}(t_i)`, :math:`\nu = 0`), or from the output alone (``on_switch="restart"``), after which
+    it is exact again in finite time, shorter than the dwell time.
+*continuous and discrete state, unknown* :math:`\sigma` (:class:`SwitchedObserverBank`)
+    the bank of the slides: all ``q`` observers run on the same data, and the *equivalent injection* of observer
+    ``j``, the part of its output-error dynamics its model does not explain,
+
+    .. math:: r_j = \hat{\dot e}_j - A_j \hat e_j ,
+
+    vanishes for the mode that is active (with :math:`w = 0`, the slides' assumption for the discrete state)
+    and equals the model mismatch :math:`(A_\sigma - A_j)x + (B_\sigma - B_j)u` for the others. The mode estimate
+    follows the decision rule of :mod:`smo_gym.fault_detection` (band and dwell) rather than the slides' bare
+    :math:`\arg\min_j r_j` (which flips on every noise sample where two residuals are close): a switch is
+    *detected* when the current mode's residual has left the band and exactly one other mode's residual has
+    stayed in it for ``dwell`` seconds; the switching instant is estimated as the time the old mode's residual left
+    the band. At each detection every observer of the bank restarts from the new mode's estimate (the slides'
+    reset equations), so that the wrong models' errors start again from zero.
+
+Conditions (:meth:`SwitchedLinearSystem.conditions`)
+----------------------------------------------------
+The slides' assumptions, each checked and named when it fails:
+
+1. every pair :math:`(A_\sigma, C_\sigma)` is detectable (assumption 1);
+2. every mode is *strongly observable* with respect to its unknown input (the slides' "best case": the relative
+   degree vector sums to :math:`n` and there are no invariant zeros), the condition under which the cascaded HOSM
+   observer is exact in finite time (:func:`~smo_gym.control.strong_observability`, which says why it fails);
+3. the modes are pairwise *distinguishable*: :math:`(A_i, B_i, C_i) \neq (A_j, B_j, C_j)` for :math:`i \neq j`
+   (assumption 6 of the slides, :math:`A_{1i} \neq A_{1j} \vee B_{1i} \neq B_{1j}`, on the strongly observable
+   part, which is the whole state under condition 2);
+4. a positive dwell time longer than the observers' convergence time (assumption 4): a property of the signal
+   :math:`\sigma`, not of the matrices; the tests and the demonstration measure it.
+
+Notes
+-----
+Where the slides' print and the derivation differ:
+
+* The slides call the switching driven by the state (:math:`\sigma = i` when :math:`Hx \in \mathcal H_i`)
+  *autonomous* and decide it from :math:`H\hat x` (condition :math:`\mathcal V^*_\sigma \subset \ker Q_\sigma`);
+  the exogenous (*non-autonomous*) switching is decided from the equivalent injection with :math:`w = 0`. Here
+  :class:`SwitchedObserverBank` implements the latter, which needs no knowledge of a switching surface; the
+  state-dependent rule is not implemented.
+* The slides' residual :math:`r_j = \sum \nu_{k,i,j}^2` is the squared equivalent injection in the coordinates of
+  the differentiator; here it is the injection mapped to the state, :math:`\hat{\dot e}_j - A_j\hat e_j`, whose
+  norm is comparable across modes whose output matrices differ (it is zero exactly when theirs is).
+* Condition 3 (the printed assumption 6) is structural: a mismatch :math:`(A_i - A_j)x + (B_i - B_j)u` that the
+  trajectory does not excite (e.g. a gear change while :math:`u = 0`) leaves the modes indistinguishable *for
+  that trajectory*; the detection delay then grows until the input excites it.
+* The sampled-data form is the one of :class:`~smo_gym.control.CascadedHOSMObserver` (module
+  :mod:`smo_gym.control.estimators`); a switch between samples is seen at the next sample.
+
+References
+----------
+.. [Fri] L. Fridman, "Sliding Mode Observers: Theory and Practice", lecture slides, section "Switched systems".
+.. [DRF12] J. Davila, H. Rios and L. Fridman, "State observation for nonlinear switched systems using nonhomogeneous
+   high-order sliding mode observers", Asian Journal of Control 14(4), 2012.
+.. [RDF12] H. Rios, J. Davila and L. Fridman, "High-order sliding mode observers for nonlinear autonomous switched
+   systems with unknown inputs", Journal of the Franklin Institute 349(10), 2012.
+.. [RDF14] H. Rios, J. Davila and L. Fridman, "State estimation of linear switched systems with unknown inputs",
+   Int. J. Adaptive Control and Signal Processing, 2014.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import (
+    as_real_array,
+    check_choice,
+    check_int_in_range,
+    check_keywords,
+    check_nonnegative,
+    check_positive,
+)
+from .estimators import CascadedHOSMObserver
+from .plants import RANK_TOL, LinearPlant, NotStronglyObservableError, StrongObservabilityReport
+
+__all__ = [
+    "ModeMetrics",
+    "NotDistinguishableError",
+    "SwitchedConditions",
+    "SwitchedEstimate",
+    "SwitchedHOSMObserver",
+    "SwitchedLinearSystem",
+    "SwitchedObserverBank",
+    "mode_metrics",
+]
+
+
+class NotDistinguishableError(ValueError):
+    """Two modes of a switched system cannot be told apart from the output; the message names them."""
+
+
+def is_detectable(A, C) -> bool:
+    r"""Hautus test: :math:`\operatorname{rank}[A - \lambda I; C] = n` for every eigenvalue with
+    :math:`\operatorname{Re}\lambda \ge 0`."""
+    A, C = np.asarray(A, float), np.atleast_2d(np.asarray(C, float))
+    n = A.shape[0]
+    for lam in np.linalg.eigvals(A):
+        if lam.real < -RANK_TOL * max(1.0, abs(lam)):
+            continue
+        M = np.vstack([A - lam * np.eye(n), C])
+        s = np.linalg.svd(M, compute_uv=False)
+        if np.sum(s > RANK_TOL * max(s[0], 1.0)) < n:
+            return False
+    return True
+
+
+def mode_mismatch(a: LinearPlant, b: LinearPlant) -> float:
+    r"""Relative size of the difference of two modes, :math:`\|[\Delta A, \Delta B; \Delta C, 0]\|_F /
+    \|[A_a, B_a; C_a, 0]\|_F` (0: the same mode for the output; the unknown-input matrix does not count)."""
+
+    def block(p):
+        return np.block([[p.A, p.B], [p.C, np.zeros((p.n_outputs, p.n_inputs))]])
+
+    ref = max(np.linalg.norm(block(a)), np.linalg.norm(block(b)), 1e-300)
+    return float(np.linalg.norm(block(a) - block(b)) / ref)
+
+
+@dataclass(frozen=True)
+class SwitchedConditions:
+    """What :meth:`SwitchedLinearSystem.conditions` found; ``ok`` is the verdict, ``reason`` names a failure.
+
+    Attributes
+    ----------
+    detectable : tuple of bool
+        Per mode, :math:`(A_\\sigma, C_\\sigma)` detectable.
+    mode_reports : tuple of StrongObservabilityReport
+        Per mode, :func:`~smo_gym.control.strong_observability` of :math:`(A_\\sigma, C_\\sigma, D_\\sigma)`.
+    mismatch : ndarray, shape (q, q)
+        :func:`mode_mismatch` of each pair (symmetric, zero diagonal).
+    distinguishable : ndarray of bool, shape (q, q)
+        ``mismatch > tol`` off the diagonal (the diagonal is True).
+    """
+
+    ok: bool
+    reason: str
+    names: tuple[str, ...]
+    detectable: tuple[bool, ...]
+    mode_reports: tuple[StrongObservabilityReport, ...]
+    mismatch: np.ndarray
+    distinguishable: np.ndarray
+
+    @property
+    def strongly_observable(self) -> tuple[bool, ...]:
+        return tuple(r.ok for r in self.mode_reports)
+
+    @property
+    def relative_degrees(self) -> tuple[np.ndarray, ...]:
+        """Per mode, the relative degree of each output with respect to the unknown input."""
+        return tuple(r.relative_degrees for r in self.mode_reports)
+
+
+class SwitchedLinearSystem:
+    r"""The ``q`` modes :math:`(A_\sigma, B_\sigma, C_\sigma, D_\sigma)` of a linear switched system.
+
+    Parameters
+    ----------
+    modes : sequence of LinearPlant
+        At least one; all with the same state, control, output and unknown-input dimensions.
+    names : sequence of str, optional
+        Labels of the modes (default ``"mode 0"``, ...).
+    tol : float
+        Relative mismatch below which two modes count as the same (:func:`mode_mismatch`).
+    """
+
+    @check_keywords
+    def __init__(self, modes: Sequence[LinearPlant], *, names: Sequence[str] | None = None, tol: float = 1e-9):
+        if isinstance(modes, (str, bytes, LinearPlant)) or not isinstance(modes, Sequence):
+            raise TypeError(f"expected modes as a sequence of LinearPlant, actual value: {type(modes).__name__}")
+        if len(modes) == 0:
+            raise ValueError("expected at least one mode in modes, actual value: an empty sequence")
+        for i, m in enumerate(modes):
+            if not isinstance(m, LinearPlant):
+                raise TypeError(f"expected modes[{i}] to be a LinearPlant, actual value: {type(m).__name__}")
+        dims = [(m.n, m.n_inputs, m.n_outputs, m.n_unknown) for m in modes]
+        for i, d in enumerate(dims):
+            if d != dims[0]:
+                raise ValueError(
+                    f"expected every mode with the dimensions of modes[0] (n, inputs, outputs, unknown inputs) = "
+                    f"{dims[0]}, actual value: modes[{i}] has {d}"
+                )
+        self.modes = tuple(modes)
+        names = [f"mode {i}" for i in range(len(modes))] if names is None else [str(s) for s in names]
+        if len(names) != len(modes):
+            raise ValueError(f"expected {len(modes)} mode names, actual value: {len(names)}")
+        self.names = tuple(names)
+        self.tol = check_positive("tol", tol)
+        self._zoh: dict[tuple[int, float], tuple[np.ndarray, np.ndarray]] = {}
+
+    @property
+    def q(self) -> int:
+        """Number of modes."""
+        return len(self.modes)
+
+    @property
+    def n(self) -> int:
+        return self.modes[0].n
+
+    @property
+    def n_inputs(self) -> int:
+        return self.modes[0].n_inputs
+
+    @property
+    def n_outputs(self) -> int:
+        return self.modes[0].n_outputs
+
+    @property
+    def n_unknown(self) -> int:
+        return self.modes[0].n_unknown
+
+    def conditions(self) -> SwitchedConditions:
+        """Check conditions 1-3 of the module docstring; ``reason`` names the first that fails."""
+        det = tuple(is_detectable(m.A, m.C) for m in self.modes)
+        reps = tuple(m.strong_observability() for m in self.modes)
+        q = self.q
+        mis = np.zeros((q, q))
+        for i in range(q):
+            for j in range(i + 1, q):
+                mis[i, j] = mis[j, i] = mode_mismatch(self.modes[i], self.modes[j])
+        dist = mis > self.tol
+        np.fill_diagonal(dist, True)
+        reason = ""
+        for i in range(q):
+            if not det[i]:
+                reason = f"detectability: (A, C) of {self.names[i]!r} is not detectable"
+                break
+            if not reps[i].ok:
+                reason = f"strong observability: {self.names[i]!r} is not strongly observable: {reps[i].reason}"
+                break
+        if not reason:
+            bad = [(i, j) for i in range(q) for j in range(i + 1, q) if not dist[i, j]]
+            if bad:
+                i, j = bad[0]
+                reason = (
+                    f"distinguishability: {self.names[i]!r} and {self.names[j]!r} have the same (A, B, C) "
+                    f"(relative mismatch {mis[i, j]:.3g} <= tol {self.tol:g}); they differ at most in the "
+                    "unknown-input matrix D, which no output with w = 0 reveals"
+                )
+        return SwitchedConditions(
+            ok=not reason,
+            reason=reason,
+            names=self.names,
+            detectable=det,
+            mode_reports=reps,
+            mismatch=mis,
+            distinguishable=dist,
+        )
+
+    def require_observable(self) -> SwitchedConditions:
+        """Conditions 1-2 (every mode detectable and strongly observable), or the typed error naming the mode."""
+        c = self.conditions()
+        if not all(c.detectable) or not all(c.strongly_observable):
+            # conditions() checks mode by mode, detectability first: its reason names the first failing mode
+            raise NotStronglyObservableError(
+                "expected every mode detectable and strongly observable (continuous-state estimation in finite "
+                f"time), actual value: {c.reason}"
+            )
+        return c
+
+    def require_distinguishable(self) -> SwitchedConditions:
+        """Conditions 1-3, or the typed error naming the failing condition and the modes."""
+        c = self.require_observable()
+        if not c.ok:
+            raise NotDistinguishableError(f"expected pairwise distinguishable modes, actual value: {c.reason}")
+        return c
+
+    def discretize(self, mode: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Exact zero-order-hold ``(Phi, Gamma)`` of mode ``mode`` over ``dt``, ``Gamma`` acting on ``[u; w]``."""
+        mode = check_int_in_range("mode", mode, 0, self.q - 1)
+        key = (mode, float(dt))
+        if key not in self._zoh:
+            m = self.modes[mode]
+            aug = LinearPlant(m.A, np.hstack([m.B, m.D]), m.C, m.D)
+            self._zoh[key] = aug.discretize(check_positive("dt", dt))
+        return self._zoh[key]
+
+    def simulate(self, x0, sigma, dt: float, u=None, w=None) -> tuple[np.ndarray, np.ndarray]:
+        r"""Exact sampled trajectory with ``sigma[k]``, ``u[k]`` and ``w[k]`` held over :math:`[t_k, t_{k+1})`.
+
+        Parameters
+        ----------
+        x0 : array_like, shape (n,)
+        sigma : array_like of int, shape (T,)
+        dt : float
+        u : array_like, shape (T, inputs), optional (zero)
+        w : array_like, shape (T, unknown inputs), optional (zero)
+
+        Returns
+        -------
+        X : ndarray, shape (T + 1, n)
+            ``X[k] = x(k dt)``.
+        Y : ndarray, shape (T + 1, outputs)
+            ``Y[k] = C_{sigma[k]} X[k]`` (the last sample uses ``sigma[T - 1]``).
+        """
+        dt = check_positive("dt", dt)
+        sigma = self._check_sigma(sigma)
+        T = sigma.shape[0]
+        x = as_real_array("x0", x0).reshape(-1)
+        if x.shape != (self.n,):
+            raise ValueError(f"expected x0 with shape ({self.n},), actual value: shape {x.shape}")
+        U = self._signal("u", u, T, self.n_inputs)
+        W = self._signal("w", w, T, self.n_unknown)
+        X = np.zeros((T + 1, self.n))
+        Y = np.zeros((T + 1, self.n_outputs))
+        X[0] = x
+        for k in range(T):
+            Phi, Gam = self.discretize(int(sigma[k]), dt)
+            Y[k] = self.modes[sigma[k]].C @ X[k]
+            X[k + 1] = Phi @ X[k] + Gam @ np.concatenate([U[k], W[k]])
+        Y[T] = self.modes[sigma[T - 1]].C @ X[T]
+        return X, Y
+
+    def _check_sigma(self, sigma) -> np.ndarray:
+        s = as_real_array("sigma", sigma).reshape(-1)
+        if s.size == 0 or np.any(s != np.round(s)) or np.any(s < 0) or np.any(s >= self.q):
+            raise ValueError(
+                f"expected sigma as a non-empty sequence of mode indices in 0..{self.q - 1}, actual value: "
+                f"{np.unique(s)[:10]!r}"
+            )
+        return s.astype(int)
+
+    @staticmethod
+    def _signal(name: str, value, T: int, width: int, *, extra: int = 0) -> np.ndarray:
+        """``value`` as shape ``(T, width)`` (zero if None); ``extra`` more rows are accepted and dropped."""
+        if value is None:
+            return np.zeros((T, width))
+        arr = as_real_array(name, value)
+        if arr.ndim == 1 and width == 1:
+            arr = arr[:, None]
+        if arr.ndim == 2 and T <= arr.shape[0] <= T + extra:
+            arr = arr[:T]
+        if arr.shape != (T, width):
+            raise ValueError(f"expected {name} with shape ({T}, {width}), actual value: shape {arr.shape}")
+        return arr
+
+    def __repr__(self) -> str:
+        return f"SwitchedLinearSystem(q={self.q}, n={self.n}, names={list(self.names)})"
+
+
+def _per_mode_lipschitz(system: SwitchedLinearSystem, lipschitz) -> np.ndarray:
+    """``lipschitz`` as shape ``(q, p)``: a scalar, one value per output, or one row per mode."""
+    L = as_real_array("lipschitz", lipschitz)
+    q, p = system.q, system.n_outputs
+    if L.shape in ((), (1,), (p,)):
+        L = np.broadcast_to(L.reshape(-1) if L.ndim else L, (q, p))
+    elif L.shape != (q, p):
+        raise ValueError(
+            f"expected lipschitz as a scalar, shape ({p},) or shape ({q}, {p}), actual value: shape {L.shape}"
+        )
+    if not np.all(np.isfinite(L)) or np.any(L <= 0):
+        raise ValueError(f"expected lipschitz > 0 and finite, actual value: {lipschitz!r}")
+    return np.array(L, dtype=float)
+
+
+def _bank(system, dt, lipschitz, alpha, poles) -> list[CascadedHOSMObserver]:
+    L = _per_mode_lipschitz(system, lipschitz)
+    return [CascadedHOSMObserver(m, dt, L[i], alpha=alpha, poles=poles) for i, m in enumerate(system.modes)]
+
+
+class SwitchedHOSMObserver:
+    r"""Continuous-state observer of a switched system whose mode :math:`\sigma` is known (exogenous, measured).
+
+    One :class:`~smo_gym.control.CascadedHOSMObserver` per mode; only the active mode's observer runs. When the
+    mode changes at sample ``k`` the new mode's observer restarts
+
+    * ``on_switch="continue"`` (default; the slides' reset equations): at the prior carried across the switch,
+      :math:`\tilde x_k^- = \Phi_{old}\hat x_{k-1} + \Gamma_{old}u_{k-1}`, with the differentiator at zero output
+      error (:math:`\nu = 0`). When the estimate before the switch was exact it stays exact;
+    * ``on_switch="restart"``: from the output alone (:math:`\tilde x = C^+ y_k`), as if nothing were known;
+      exact again after the differentiator's finite convergence time, which must be shorter than the dwell time.
+
+    Parameters
+    ----------
+    system : SwitchedLinearSystem
+        Every mode must be strongly observable (raises :class:`~smo_gym.control.NotStronglyObservableError`).
+    dt : float
+        Sampling step.
+    lipschitz : float or array_like, shape (p,) or (q, p)
+        Per mode, the bound on the ``(k+1)``-th derivative of the output error
+        (:func:`~smo_gym.control.output_error_lipschitz`).
+    alpha : int
+        Smoothness exploited by each cascade (see :class:`~smo_gym.control.CascadedHOSMObserver`).
+    poles : array_like, optional
+        Continuous-time poles of the Luenberger stages.
+    on_switch : {"continue", "restart"}
+
+    Attributes
+    ----------
+    observers : list of CascadedHOSMObserver
+    mode : int
+        The mode of the last sample.
+    x_hat : ndarray, shape (n,)
+    switch_samples : list of int
+        Samples (counted from the reset, which is sample 0) at which the mode changed.
+    """
+
+    @check_keywords
+    def __init__(
+        self, system: SwitchedLinearSystem, dt: float, lipschitz, *, alpha: int = 1, poles=None, on_switch="continue"
+    ):
+        if not isinstance(system, SwitchedLinearSystem):
+            raise TypeError(f"expected a SwitchedLinearSystem, actual value: {type(system).__name__}")
+        system.require_observable()
+        self.system = system
+        self.dt = check_positive("dt", dt)
+        self.on_switch = check_choice("on_switch", on_switch, ("continue", "restart"))
+        self.observers = _bank(system, self.dt, lipschitz, alpha, poles)
+        self.mode: int | None = None
+        self.x_hat = None
+        self.switch_samples: list[int] = []
+        self._carry = None
+        self._k = 0
+
+    def reset(self, y0, mode: int, x_hat0=None) -> np.ndarray:
+        """Start in ``mode`` at the sample ``y0`` (estimate ``x_hat0``, default ``C^+ y0``); return the estimate."""
+        self.mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
+        self.observers[self.mode].reset(y0, x_hat0)
+        self.x_hat = self.observers[self.mode].update(y0)
+        self.switch_samples, self._k, self._carry = [], 0, None
+        return self.x_hat
+
+    def update(self, y, mode: int) -> np.ndarray:
+        r"""Process the sample ``y_k`` taken in ``mode`` (the mode over :math:`[t_k, t_{k+1})`); return
+        :math:`\hat x_k`."""
+        if self.mode is None:
+            raise RuntimeError("expected reset(y0, mode) before update(y, mode), actual value: never reset")
+        if self._carry is None:
+            raise RuntimeError("expected advance(u) after each update, actual value: update called twice in a row")
+        mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
+        self._k += 1
+        if mode != self.mode:
+            self.observers[mode].reset(y, self._carry if self.on_switch == "continue" else None)
+            self.switch_samples.append(self._k)
+            self.mode = mode
+        self.x_hat = self.observers[self.mode].update(y)
+        self._carry = None
+        return self.x_hat
+
+    def advance(self, u=None) -> None:
+        """Predict to the next sample with the control ``u`` (default zero) held over the interval."""
+        if self.mode is None:
+            raise RuntimeError("expected reset(y0, mode) before advance(u), actual value: never reset")
+        u = np.zeros(self.system.n_inputs) if u is None else np.atleast_1d(np.asarray(u, dtype=float))
+        self.observers[self.mode].advance(u)
+        Phi, Gam = self.system.discretize(self.mode, self.dt)
+        self._carry = Phi @ self.x_hat + Gam[:, : self.system.n_inputs] @ u
+
+    def run(self, Y, sigma, U=None, x_hat0=None) -> np.ndarray:
+        """Reset at ``Y[0]`` in ``sigma[0]`` and process ``Y[1:]``; ``U[k]``, ``sigma[k]`` act over
+        ``[t_k, t_{k+1})`` (``Y``: shape ``(T, p)``; ``sigma``, ``U``: ``T`` or ``T - 1`` rows). Returns ``X_hat``,
+        shape ``(T, n)``."""
+        Y = as_real_array("Y", Y)
+        sigma = self.system._check_sigma(sigma)
+        T = Y.shape[0]
+        if Y.ndim != 2 or Y.shape[1] != self.system.n_outputs or sigma.shape[0] < T - 1:
+            raise ValueError(
+                f"expected Y with shape (T, {self.system.n_outputs}) and sigma with at least T - 1 entries, "
+                f"actual value: Y shape {Y.shape}, sigma length {sigma.shape[0]}"
+            )
+        U = SwitchedLinearSystem._signal("U", U, T - 1, self.system.n_inputs, extra=1)
+        X = np.zeros((T, self.system.n))
+        X[0] = self.reset(Y[0], int(sigma[0]), x_hat0)
+        for k in range(1, T):
+            self.advance(U[k - 1])
+            X[k] = self.update(Y[k], int(sigma[k] if k < sigma.shape[0] else sigma[-1]))
+        return X
+
+
+@dataclass(frozen=True)
+class SwitchedEstimate:
+    r"""What :class:`SwitchedObserverBank` concluded about a record.
+
+    Attributes
+    ----------
+    modes : ndarray of int, shape (T,)
+        Estimated mode :math:`\hat\sigma` at each sample (sample 0 is the reset).
+    switch_times : ndarray, shape (s,)
+        Estimated switching instants [s]: when the old mode's residual left the band.
+    detection_times : ndarray, shape (s,)
+        When each switch was decided [s] (the end of the new mode's dwell window).
+    new_modes : ndarray of int, shape (s,)
+        The mode switched to.
+    residual_norms : ndarray, shape (T, q)
+        Normalized residual :math:`\sqrt{\overline{\|r_j\|^2}}/\theta` of every mode (band: ``<= 1``).
+    x_hat : ndarray, shape (T, n)
+        The estimated mode's continuous-state estimate.
+    dt : float
+    """
+
+    modes: np.ndarray
+    switch_times: np.ndarray
+    detection_times: np.ndarray
+    new_modes: np.ndarray
+    residual_norms: np.ndarray
+    x_hat: np.ndarray
+    dt: float
+
+
+class SwitchedObserverBank:
+    r"""Bank of cascaded HOSM observers estimating the continuous state *and* the unknown mode (module docstring).
+
+    Parameters
+    ----------
+    system : SwitchedLinearSystem
+        Must satisfy conditions 1-3 (raises :class:`~smo_gym.control.NotStronglyObservableError` or
+        :class:`NotDistinguishableError` naming the failing condition).
+    dt : float
+    lipschitz : float or array_like, shape (p,) or (q, p)
+        Of each observer (must also cover what a wrong model misses, the mismatch, for the wrong observers to stay
+        bounded).
+    threshold : float
+        :math:`\theta > 0`: the band :math:`\|r_j\|_2 \le \theta` of the residuals (units of :math:`\dot x`). Noise
+        free, the active mode's residual is the sampling error; with noise, calibrate it on runs with a known mode.
+    initial_mode : int
+        :math:`\sigma(0)`, known (the slides' assumption 3).
+    dwell : float
+        How long [s] the new mode's residual must stay in the band before a switch is decided.
+    settle_time : float
+        No decision before this time [s] (the observers' convergence from the initial estimate).
+    residual_time_constant : float
+        Time constant [s] of the first-order filter of the squared residuals (0: none): the decision compares the
+        root mean square :math:`\sqrt{\overline{\|r_j\|^2}}` over about this time with the band.
+    alpha : int
+    poles : array_like, optional
+    reset_on_switch : bool
+        Restart every observer from the new mode's estimate at each detection (the slides' reset equations).
+
+    Attributes
+    ----------
+    observers : list of CascadedHOSMObserver
+    mode : int
+        Current mode estimate.
+    residuals : ndarray, shape (q, n)
+        The equivalent injections :math:`r_j` of the last sample (unfiltered).
+    """
+
+    @check_keywords
+    def __init__(
+        self,
+        system: SwitchedLinearSystem,
+        dt: float,
+        lipschitz,
+        *,
+        threshold: float,
+        initial_mode: int = 0,
+        dwell: float = 0.02,
+        settle_time: float = 0.0,
+        residual_time_constant: float = 0.0,
+        alpha: int = 1,
+        poles=None,
+        reset_on_switch: bool = True,
+    ):
+        if not isinstance(system, SwitchedLinearSystem):
+            raise TypeError(f"expected a SwitchedLinearSystem, actual value: {type(system).__name__}")
+        if system.q < 2:
+            raise ValueError(f"expected at least 2 modes for mode estimation, actual value: {system.q}")
+        self.conditions = system.require_distinguishable()
+        self.system = system
+        self.dt = check_positive("dt", dt)
+        self.threshold = check_positive("threshold", threshold)
+        self.initial_mode = check_int_in_range("initial_mode", initial_mode, 0, system.q - 1)
+        self.dwell = check_positive("dwell", dwell)
+        self.settle_time = check_nonnegative("settle_time", settle_time)
+        self.residual_time_constant = check_nonnegative("residual_time_constant", residual_time_constant)
+        self.reset_on_switch = bool(reset_on_switch)
+        self.observers = _bank(system, self.dt, lipschitz, alpha, poles)
+        self._dwell_samples = max(1, math.ceil(self.dwell / self.dt - 1e-9))
+        self._settle_samples = math.ceil(self.settle_time / self.dt - 1e-9)
+        self._gain = self.dt / (self.residual_time_constant + self.dt)  # implicit Euler of the low-pass filter
+        self.mode: int | None = None
+        self.residuals = None
+        self._history = None
+
+    def reset(self, y0, x_hat0=None) -> np.ndarray:
+        """Start every observer at the sample ``y0`` (estimate ``x_hat0``, default ``C^+ y0``) in the initial mode."""
+        for obs in self.observers:
+            obs.reset(y0, x_hat0)
+            obs.update(y0)  # the differentiator consumes the sample it was reset at
+        self.mode = self.initial_mode
+        self.residuals = np.zeros((self.system.q, self.system.n))
+        self._mean_square = np.zeros(self.system.q)
+        self._runs = np.zeros(self.system.q, dtype=int)
+        self._exit = None
+        self._k = 0
+        self._switches: list[tuple[float, float, int]] = []
+        x = self.observers[self.mode].x_hat
+        self._history = {"modes": [self.mode], "rho": [np.zeros(self.system.q)], "x": [x.copy()]}
+        return x
+
+    def _residual(self, j: int) -> np.ndarray:
+        obs = self.observers[j]
+        return obs.e_hat_derivatives[1] - self.system.modes[j].A @ obs.e_hat_derivatives[0]
+
+    def update(self, y) -> np.ndarray:
+        """Process the sample ``y_k``; return the estimated mode's :math:`\\hat x_k` (the mode is :attr:`mode`)."""
+        if self._history is None:
+            raise RuntimeError("expected reset(y0) before update(y), actual value: the bank was never reset")
+        self._k += 1
+        for obs in self.observers:
+            obs.update(y)
+        self.residuals = np.stack([self._residual(j) for j in range(self.system.q)])
+        # mean square over the filter's memory (the slides' squared injection): a wrong model's mismatch changes
+        # sign along the trajectory, and its instantaneous value passing through zero must not look like a fit
+        self._mean_square += self._gain * (np.sum(self.residuals**2, axis=1) - self._mean_square)
+        rho = np.sqrt(self._mean_square) / self.threshold
+        if self._k >= self._settle_samples:
+            self._decide(rho, y)
+        x = self.observers[self.mode].x_hat
+        self._history["modes"].append(self.mode)
+        self._history["rho"].append(rho)
+        self._history["x"].append(x.copy())
+        return x
+
+    def _decide(self, rho: np.ndarray, y) -> None:
+        """Band-and-dwell rule (module docstring): count in-band runs, switch on a unique candidate."""
+        inside = rho <= 1.0
+        self._runs = np.where(inside, self._runs + 1, 0)
+        if inside[self.mode]:
+            self._exit = None
+            return
+        if self._exit is None:
+            self._exit = self._k
+        cand = [j for j in range(self.system.q) if j != self.mode and self._runs[j] >= self._dwell_samples]
+        if len(cand) != 1:
+            return
+        new = cand[0]
+        self._switches.append((self._exit * self.dt, self._k * self.dt, new))
+        self.mode, self._exit = new, None
+        if self.reset_on_switch:
+            x = self.observers[new].x_hat.copy()
+            for obs in self.observers:
+                obs.reset(y, x)
+                obs.update(y)  # the sample is consumed: predict from it at the next advance
+            self._mean_square[:] = 0.0
+            self._runs[:] = 0
+
+    def advance(self, u=None) -> None:
+        """Predict every observer to the next sample with the control ``u`` (default zero)."""
+        if self._history is None:
+            raise RuntimeError("expected reset(y0) before advance(u), actual value: the bank was never reset")
+        u = np.zeros(self.system.n_inputs) if u is None else u
+        for obs in self.observers:
+            obs.advance(u)
+
+    def result(self) -> SwitchedEstimate:
+        """Everything processed since :meth:`reset` (time 0 is the reset sample)."""
+        if self._history is None:
+            raise RuntimeError("expected reset(y0) before result(), actual value: the bank was never reset")
+        sw = np.array(self._switches, dtype=float).reshape(-1, 3)
+        return SwitchedEstimate(
+            modes=np.array(self._history["modes"], dtype=int),
+            switch_times=sw[:, 0],
+            detection_times=sw[:, 1],
+            new_modes=sw[:, 2].astype(int),
+            residual_norms=np.array(self._history["rho"]),
+            x_hat=np.array(self._history["x"]),
+            dt=self.dt,
+        )
+
+    def run(self, Y, U=None, x_hat0=None) -> SwitchedEstimate:
+        """Reset at ``Y[0]`` and process ``Y[1:]`` (shape ``(T, p)``) with ``U[k]`` held over ``[t_k, t_{k+1})``
+        (``U``: ``T`` or ``T - 1`` rows)."""
+        Y = as_real_array("Y", Y)
+        if Y.ndim != 2 or Y.shape[1] != self.system.n_outputs or Y.shape[0] < 2:
+            raise ValueError(f"expected Y with shape (T >= 2, {self.system.n_outputs}), actual value: shape {Y.shape}")
+        T = Y.shape[0]
+        U = None if U is None else SwitchedLinearSystem._signal("U", U, T - 1, self.system.n_inputs, extra=1)
+        self.reset(Y[0], x_hat0)
+        for k in range(1, T):
+            self.advance(None if U is None else U[k - 1])
+            self.update(Y[k])
+        return self.result()
+
+
+@dataclass(frozen=True)
+class ModeMetrics:
+    """Comparison of an estimated mode sequence with the true one (:func:`mode_metrics`)."""
+
+    accuracy: float
+    delays: np.ndarray
+    missed: int
+    false_switches: int
+    #: ``(time [s], from mode, to mode)`` of each missed true switch
+    missed_switches: tuple[tuple[float, int, int], ...] = ()
+
+
+def mode_metrics(estimate: SwitchedEstimate, sigma, *, start: float = 0.0) -> ModeMetrics:
+    r"""Score an estimated mode sequence against the true one.
+
+    Parameters
+    ----------
+    estimate : SwitchedEstimate
+    sigma : array_like of int, shape (T,)
+        True mode at each sample of the record (``sigma[k]`` over :math:`[t_k, t_{k+1})`).
+    start : float
+        Score from this time [s] on (e.g. after the settle time).
+
+    Returns
+    -------
+    ModeMetrics
+        ``accuracy``: fraction of samples from ``start`` with the right mode; ``delays``: for each true switch
+        after ``start``, the time from it to the first detection of the new mode before the next true switch
+        (missed switches are left out and counted in ``missed``); ``false_switches``: detections that match no
+        true switch.
+    """
+    s = np.asarray(sigma, dtype=int).reshape(-1)
+    T = estimate.modes.shape[0]
+    if s.shape[0] != T:
+        raise ValueError(f"expected sigma with {T} samples (one per estimate), actual value: {s.shape[0]}")
+    dt = estimate.dt
+    k0 = math.ceil(check_nonnegative("start", start) / dt - 1e-9)
+    acc = float(np.mean(estimate.modes[k0:] == s[k0:]))
+    true_k = [k for k in range(1, T) if s[k] != s[k - 1] and k >= k0]
+    bounds = true_k + [T]
+    used = np.zeros(estimate.detection_times.shape[0], dtype=bool)
+    delays, missed = [], []
+    for i, k in enumerate(true_k):
+        t0, t1 = k * dt, bounds[i + 1] * dt
+        hit = np.flatnonzero(
+            (estimate.detection_times >= t0 - 1e-12)
+            & (estimate.detection_times < t1)
+            & (estimate.new_modes == s[k])
+            & ~used
+        )
+        if hit.size:
+            used[hit[0]] = True
+            delays.append(float(estimate.detection_times[hit[0]] - t0))
+        else:
+            missed.append((k * dt, int(s[k - 1]), int(s[k])))
+    false = int(np.sum(~used & (estimate.detection_times >= k0 * dt)))
+    return ModeMetrics(
+        accuracy=acc, delays=np.array(delays), missed=len(missed), false_switches=false, missed_switches=tuple(missed)
+    )

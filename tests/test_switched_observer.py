@@ -1,0 +1,243 @@
+"""Linear switched systems: conditions, the known-mode HOSM observer, and the bank estimating the unknown mode.
+
+Noise-free, sampled exactly (zero-order hold): after each switch the state is recovered exactly (to the sampled
+differentiator's floor) within a measured finite time shorter than the dwell time, and the bank identifies every
+switch with a delay bounded by the observers' convergence time (Fridman's slides, section "Switched systems").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from smo_gym.control import (
+    LinearPlant,
+    NotDistinguishableError,
+    NotStronglyObservableError,
+    SwitchedHOSMObserver,
+    SwitchedLinearSystem,
+    SwitchedObserverBank,
+    mode_metrics,
+)
+
+DT = 1e-3
+SEGMENT = 1500  # samples per mode: the dwell time is 1.5 s
+L = 300.0  # bounds the third derivative of each output error, the wrong models' mismatch included
+BANK = dict(threshold=0.5, dwell=0.01, settle_time=0.3, residual_time_constant=0.02)
+
+
+def oscillator(k: float, b: float, d=(0.0, 1.0)) -> LinearPlant:
+    """x1' = x2, x2' = -k x1 - 0.5 x2 + b u + w, position measured (relative degree 2: strongly observable)."""
+    return LinearPlant([[0, 1], [-k, -0.5]], [[0], [b]], [[1, 0]], np.array(d, float)[:, None])
+
+
+@pytest.fixture(scope="module")
+def record():
+    system = SwitchedLinearSystem([oscillator(1, 1), oscillator(9, 1), oscillator(4, 3)], names=["a", "b", "c"])
+    T = 3 * SEGMENT
+    sigma = np.repeat([0, 1, 2], SEGMENT)
+    t = np.arange(T) * DT
+    u = (2 * np.sin(3 * t) + np.sin(7.3 * t))[:, None]
+    X, Y = system.simulate([1.0, 2.0], sigma, DT, u=u)
+    return system, sigma, u, X, Y
+
+
+def _convergence_times(err, threshold, switches, T):
+    """Per segment, the time from its start to the last sample whose error exceeds ``threshold``."""
+    bounds = [0, *switches, T]
+    out = []
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        bad = np.flatnonzero(err[a:b] > threshold)
+        out.append((bad.max() + 1) * DT if bad.size else 0.0)
+    return np.array(out)
+
+
+def test_conditions_report_every_assumption(record):
+    system = record[0]
+    c = system.conditions()
+    assert c.ok and c.reason == ""
+    assert c.detectable == (True, True, True) and c.strongly_observable == (True, True, True)
+    assert [r.tolist() for r in c.relative_degrees] == [[2], [2], [2]]
+    # mismatch of a and b: |Delta A|_F = 8 over ||[A, B; C, 0]||_F of b
+    ref = np.linalg.norm([[0, 1, 0], [-9, -0.5, 1], [1, 0, 0]])
+    assert c.mismatch[0, 1] == pytest.approx(8 / ref)
+    assert c.distinguishable.all()
+
+
+def test_known_mode_restart_is_exact_in_finite_time_after_each_switch(record):
+    system, sigma, u, X, Y = record
+    obs = SwitchedHOSMObserver(system, DT, L, on_switch="restart")
+    X_hat = obs.run(Y, sigma, U=u, x_hat0=[0.0, 0.0])
+    assert obs.switch_samples == [SEGMENT, 2 * SEGMENT]
+    err = np.abs(X_hat - X).max(axis=1)
+    t_conv = _convergence_times(err, 1e-2, obs.switch_samples, len(err))
+    # restarted from the output alone (velocity unknown), exact again well within the dwell time
+    assert np.all(t_conv > 0.0) and np.all(t_conv < 0.5), t_conv
+    for a in (SEGMENT - 200, 2 * SEGMENT - 200, 3 * SEGMENT - 200):  # the sampled floor O(L dt^2) before switches
+        assert err[a : a + 200].max() < 2e-3
+
+
+def test_known_mode_continuation_stays_exact_across_switches(record):
+    system, sigma, u, X, Y = record
+    obs = SwitchedHOSMObserver(system, DT, L)  # on_switch="continue": the slides' reset equations
+    X_hat = obs.run(Y, sigma, U=u, x_hat0=X[0])
+    err = np.abs(X_hat - X).max(axis=1)
+    assert err.max() < 2e-3  # no transient at the switches
+    # the same observer without the mode change would be wrong: the model matters
+    wrong = SwitchedHOSMObserver(system, DT, L).run(Y, np.zeros_like(sigma), U=u, x_hat0=X[0])
+    assert np.abs(wrong - X).max() > 10 * err.max()
+
+
+def test_bank_identifies_the_modes_with_delay_bounded_by_convergence(record):
+    system, sigma, u, X, Y = record
+    bank = SwitchedObserverBank(system, DT, L, **BANK)
+    est = bank.run(Y, U=u, x_hat0=[0.0, 0.0])
+    full_sigma = np.r_[sigma, sigma[-1]]
+    m = mode_metrics(est, full_sigma, start=BANK["settle_time"])
+    assert est.new_modes.tolist() == [1, 2] and m.missed == 0 and m.false_switches == 0
+    # the switching instants themselves are seen within a few samples
+    assert np.all(np.abs(est.switch_times - [SEGMENT * DT, 2 * SEGMENT * DT]) < 0.02), est.switch_times
+    # detection delay: the new mode's observer converges (measured with the known-mode restart observer) plus
+    # the residual filter's memory and the dwell
+    obs = SwitchedHOSMObserver(system, DT, L, on_switch="restart")
+    err = np.abs(obs.run(Y, sigma, U=u, x_hat0=[0.0, 0.0]) - X).max(axis=1)
+    t_conv = _convergence_times(err, 1e-2, [SEGMENT, 2 * SEGMENT], len(err))[1:]
+    bound = t_conv + 5 * BANK["residual_time_constant"] + BANK["dwell"]
+    assert np.all(m.delays > 0) and np.all(m.delays <= bound), (m.delays, bound)
+    assert m.accuracy > 0.9
+    # after detection the bank's estimate is the right mode's: exact again
+    k = int(round(est.detection_times[-1] / DT)) + 200
+    assert np.abs(est.x_hat[k:] - X[k:]).max() < 2e-2
+
+
+def test_indistinguishable_modes_are_refused_by_name():
+    # the two modes differ only in where the unknown input enters: with w = 0 no output tells them apart
+    system = SwitchedLinearSystem([oscillator(1, 1), oscillator(1, 1, d=(0.0, 2.0))], names=["x", "y"])
+    c = system.conditions()
+    assert not c.ok and c.reason.startswith("distinguishability") and "'x' and 'y'" in c.reason
+    with pytest.raises(NotDistinguishableError, match="distinguishability: 'x' and 'y'"):
+        SwitchedObserverBank(system, DT, L, threshold=0.5)
+    SwitchedHOSMObserver(system, DT, L)  # a known mode needs no distinguishability
+
+
+def test_not_strongly_observable_mode_is_refused_by_name():
+    # velocity measured, unknown input in the acceleration: relative degree 1, sum 1 < n = 2 (a zero at 0)
+    bad = LinearPlant([[0, 1], [-1, -0.5]], [[0], [1]], [[0, 1]], [[0], [1]])
+    system = SwitchedLinearSystem([oscillator(1, 1), bad], names=["ok", "velocity-only"])
+    assert system.conditions().reason.startswith("strong observability: 'velocity-only'")
+    with pytest.raises(NotStronglyObservableError, match="velocity-only"):
+        SwitchedHOSMObserver(system, DT, L)
+
+
+@pytest.mark.parametrize(
+    "modes, error",
+    [
+        ([], ValueError),
+        (oscillator(1, 1), TypeError),
+        ([oscillator(1, 1), "B"], TypeError),
+        ([oscillator(1, 1), LinearPlant(np.eye(3), np.ones((3, 1)), np.eye(3)[:1], np.ones((3, 1)))], ValueError),
+    ],
+)
+def test_bad_mode_sets(modes, error):
+    with pytest.raises(error, match="expected"):
+        SwitchedLinearSystem(modes)
+
+
+def test_bad_arguments(record):
+    system = record[0]
+    with pytest.raises(ValueError, match="lipschitz > 0"):
+        SwitchedHOSMObserver(system, DT, -1.0)
+    with pytest.raises(ValueError, match=r"shape \(3, 1\)"):
+        SwitchedHOSMObserver(system, DT, np.ones((2, 2)))
+    with pytest.raises(ValueError, match="dt > 0"):
+        SwitchedHOSMObserver(system, 0.0, L)
+    with pytest.raises(ValueError, match="threshold > 0"):
+        SwitchedObserverBank(system, DT, L, threshold=0.0)
+    with pytest.raises(ValueError, match="dwell > 0"):
+        SwitchedObserverBank(system, DT, L, threshold=1.0, dwell=-0.1)
+    with pytest.raises(ValueError, match="at least 2 modes"):
+        SwitchedObserverBank(SwitchedLinearSystem([oscillator(1, 1)]), DT, L, threshold=1.0)
+    with pytest.raises(ValueError, match="mode indices"):
+        system.simulate([0, 0], [0, 3], DT)
+    with pytest.raises(ValueError, match="mode names"):
+        SwitchedLinearSystem([oscillator(1, 1)], names=["a", "b"])
+    obs = SwitchedHOSMObserver(system, DT, L)
+    with pytest.raises(RuntimeError, match="never reset"):
+        obs.update([0.0], 0)
+    with pytest.raises(ValueError, match="mode"):
+        obs.reset([0.0], 5)
+
+
+# ---- MuJoCo: the demonstration's path, one seed ----------------------------------------------------------------
+
+
+def test_mujoco_arm_gear_switch_is_detected():
+    pytest.importorskip("mujoco")
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "demo_switched.py"
+    spec = importlib.util.spec_from_file_location("demo_switched", path)
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    threshold = demo.calibrate(1, 1.0)  # calibration seed 1000, not the evaluated seed
+    assert threshold > 0
+    steps = 800  # 1.6 s at 2 ms: nominal, then the shoulder gear drops at 0.8 s
+    sigma = np.where(np.arange(steps) < steps // 2, 0, 1)
+    est, sig, qvel = demo.run_episode(0, duration=1.6, threshold=threshold, sigma=sigma)
+    m = mode_metrics(est, sig, start=demo.SETTLE)
+    assert est.new_modes.tolist() == [1] and m.missed == 0 and m.false_switches == 0
+    assert 0.0 < m.delays[0] < 0.5  # shorter than the shortest dwell of the demonstration's schedules (0.6 s)
+    k0 = round(demo.SETTLE / est.dt)
+    assert np.sqrt(np.mean((est.x_hat[k0:, 2:] - qvel[k0:]) ** 2)) < 0.2  # rad/s, noisy 12-bit encoder
+
+
+def test_the_guide_example_runs_as_printed():
+    """The python block of the "Switched systems" section of docs/guide/control.md, executed as printed."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "control.md").read_text()
+    section = text[text.index("## Switched systems") :]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    scope: dict = {}
+    exec(compile(code, "control.md", "exec"), scope)
+    est = scope["est"]
+    assert est.new_modes.tolist() == [1]
+    assert abs(est.switch_times[0] - 1.5) < 0.02 and 1.5 < est.detection_times[0] < 1.8
+
+
+def test_mode_metrics_by_hand():
+    from smo_gym.control import SwitchedEstimate
+
+    dt = 0.1
+    sigma = np.repeat([0, 1, 2], 10)  # true switches at 1.0 s (to 1) and 2.0 s (to 2)
+    modes = np.repeat([0, 2, 0, 1], [3, 2, 7, 18])  # a false switch to 2 at 0.3 s, back at 0.5 s, to 1 at 1.2 s
+    est = SwitchedEstimate(
+        modes=modes,
+        switch_times=np.array([0.3, 0.5, 1.0]),
+        detection_times=np.array([0.3, 0.5, 1.2]),
+        new_modes=np.array([2, 0, 1]),
+        residual_norms=np.zeros((30, 3)),
+        x_hat=np.zeros((30, 2)),
+        dt=dt,
+    )
+    m = mode_metrics(est, sigma)
+    assert m.delays == pytest.approx([0.2])
+    assert m.missed == 1 and m.missed_switches == ((pytest.approx(2.0), 1, 2),)
+    assert m.false_switches == 2  # the switch to 2 at 0.3 s and the one back at 0.5 s
+    assert m.accuracy == pytest.approx(np.mean(modes == sigma))  # 3 + 5 + 8 right of 30
+    assert np.mean(modes == sigma) == pytest.approx(16 / 30)
+
+
+def test_undetectable_mode_is_named_first():
+    # an unstable mode (eigenvalue +1) that the output never sees: not detectable (Hautus), hence not observable
+    hidden = LinearPlant([[1.0, 0.0], [0.0, -1.0]], [[0], [1]], [[0, 1]], [[0], [1]])
+    system = SwitchedLinearSystem([oscillator(1, 1), hidden], names=["ok", "hidden"])
+    c = system.conditions()
+    assert c.detectable == (True, False)
+    assert c.reason.startswith("detectability: (A, C) of 'hidden'")
+    with pytest.raises(NotStronglyObservableError, match=r"detectability: .* 'hidden'"):
+        SwitchedObserverBank(system, DT, L, threshold=1.0)
+    # the same mode with its unstable part seen by the output is detectable
+    seen = LinearPlant([[1.0, 0.0], [0.0, -1.0]], [[0], [1]], [[1, 1]], [[0], [1]])
+    assert SwitchedLinearSystem([seen]).conditions().detectable == (True,)
