@@ -34,19 +34,26 @@ if str(ROOT) not in sys.path:
 from smo_gym import control as c
 
 
-def _w(t):
+def unknown_input(t):
     return np.sin(2.0 * np.asarray(t)) + 0.5
 
 
 def detectable_plant(zero: float) -> c.LinearPlant:
-    """x1' = x2, x2' = -2 x1 - x2 + x4 + w, x3' = x1 - x3, x4' = x3 + zero x4; y = (x1, x3): one zero at ``zero``."""
+    """x1' = x2, x2' = -2 x1 - x2 + x4 + w, x3' = x1 - x3, x4' = x3 + zero * x4; y = (x1, x3).
+
+    y = 0 forces x1 = x3 = 0, hence x2 = 0, w = -x4 and x4' = zero * x4: one invariant zero at ``zero``,
+    V* = span(e4); x1, x2, x3 are strongly observable (x2 = y1').
+    """
     A = np.array([[0, 1, 0, 0], [-2, -1, 0, 1], [1, 0, -1, 0], [0, 0, 1, zero]], dtype=float)
     D = np.eye(4)[:, [1]]
     return c.LinearPlant(A, D, np.eye(4)[[0, 2]], D)
 
 
 def functional_plant() -> c.LinearPlant:
-    """Zeros +1 (x4' = x3 + x4) and -2 (x5' = x1 - 2 x5), both entering x2' like w; y = (x1, x3)."""
+    """Two zeros: x4' = x3 + x4 (unstable, +1) and x5' = x1 - 2 x5 (stable, -2), both feeding x2' like w.
+
+    y = (x1, x3) = 0 forces x1 = x2 = x3 = 0 and w = -x4 - x5: V* = span(e4, e5), zero dynamics diag(1, -2).
+    """
     A = np.zeros((5, 5))
     A[0, 1] = 1.0
     A[1] = [-2.0, -1.0, 0.0, 1.0, 1.0]
@@ -58,20 +65,24 @@ def functional_plant() -> c.LinearPlant:
 
 
 def left_inverse_plant() -> c.LinearPlant:
-    """Unstable unobservable mode x4' = x1 + x2 + 0.5 x4; w = y1'' + y1' + 2 y1."""
+    """x1' = x2, x2' = -2 x1 - x2 + w, x3' = x1 - x3, x4' = x1 + x2 + 0.5 x4; y = (x1, x3).
+
+    x4 is an unstable unobservable mode (an invariant zero at 0.5): neither strongly observable nor strongly
+    detectable, yet w = y1'' + y1' + 2 y1 exactly.
+    """
     A = np.array([[0, 1, 0, 0], [-2, -1, 0, 0], [1, 0, -1, 0], [1, 1, 0, 0.5]], dtype=float)
     D = np.eye(4)[:, [1]]
     return c.LinearPlant(A, D, np.eye(4)[[0, 2]], D)
 
 
-def _transformed(plant: c.LinearPlant, seed: int = 3):
+def transformed(plant: c.LinearPlant, seed: int = 3):
     rng = np.random.default_rng(seed)
     T = np.linalg.qr(rng.standard_normal((plant.n, plant.n)))[0] @ np.diag(np.linspace(0.5, 2.0, plant.n))
     Ti = np.linalg.inv(T)
     return c.LinearPlant(Ti @ plant.A @ T, Ti @ plant.B, plant.C @ T, Ti @ plant.D), T
 
 
-class _OpenLoop:
+class OpenLoop:
     """Zero control around an estimator (the adapter :func:`smo_gym.control.simulate` expects)."""
 
     def __init__(self, est, *, noise=0.0, seed=0):
@@ -95,7 +106,8 @@ class _OpenLoop:
         return np.zeros(self.est.plant.n_inputs)
 
 
-def _settling(t, err, level):
+def settling_time(t, err, level):
+    """First time after which ``err`` stays below ``level`` (inf if never)."""
     above = np.nonzero(err >= level)[0]
     return float(t[0]) if above.size == 0 else (float(t[above[-1] + 1]) if above[-1] + 1 < t.size else np.inf)
 
@@ -150,7 +162,7 @@ def reproduce_strong_detectability(out_dir: Path | None = None, fast: bool = Fal
         )
     )
     # every strongly detectable system has the canonical form (Moreno 2001): here coordinate-free
-    Pt, _ = _transformed(plant)
+    Pt, _ = transformed(plant)
     rt = c.strong_detectability(Pt)
     claims.append(
         dict(
@@ -164,11 +176,11 @@ def reproduce_strong_detectability(out_dir: Path | None = None, fast: bool = Fal
     dt, t_final = (2e-3, 3.0) if fast else (1e-3, 4.5)
     L = 3 * c.output_error_lipschitz(plant, 3, e_bound=1.0, w_bounds=(1.5, 2.0, 4.0, 8.0))
     obs = c.StronglyDetectableObserver(plant, dt, L, alpha=2)
-    res = c.simulate(plant, _OpenLoop(obs), t_final=t_final, w=_w, x0=[0.3, -0.2, 0.1, 1.0])
+    res = c.simulate(plant, OpenLoop(obs), t_final=t_final, w=unknown_input, x0=[0.3, -0.2, 0.1, 1.0])
     zd = obs.zero_dynamics
     err = res.x_hat - res.x
     e_obs, e_zero = np.abs(err @ zd.T_o.T).max(axis=1), np.abs(err @ zd.T_w.T).max(axis=1)
-    t_conv = _settling(res.t, e_obs, 1e-4)
+    t_conv = settling_time(res.t, e_obs, 1e-4)
     sel = (res.t > 1.0) & (res.t < t_final - 0.5)
     rate = _fit_rate(res.t[sel], e_zero[sel])
     claims.append(
@@ -231,8 +243,8 @@ def reproduce_functional_uio(out_dir: Path | None = None, fast: bool = False) ->
     dt, t_final = 1e-3, (3.0 if fast else 4.0)
     L = 3 * c.output_error_lipschitz(plant, 2, e_bound=1.0, w_bounds=(1.5, 2.0, 4.0))
     obs = c.FunctionalUnknownInputObserver(plant, E, dt, L, poles=-np.arange(4.0, 9.0))
-    ctl = _OpenLoop(obs)
-    res = c.simulate(plant, ctl, t_final=t_final, w=_w, x0=[0.3, -0.2, 0.1, 0.5, 1.0])
+    ctl = OpenLoop(obs)
+    res = c.simulate(plant, ctl, t_final=t_final, w=unknown_input, x0=[0.3, -0.2, 0.1, 0.5, 1.0])
     err = np.abs(np.array(ctl.z) - res.x @ E.T)
     sel = (res.t > 1.0) & (res.t < t_final - 0.5)
     rate = _fit_rate(res.t[sel], err[sel, 0])
@@ -241,8 +253,8 @@ def reproduce_functional_uio(out_dir: Path | None = None, fast: bool = False) ->
             claim="despite no UIO existing (not strongly detectable), the functional UIO exists and converges",
             measured=f"strongly detectable={det.ok}; |x(T)| = {np.abs(res.x[-1]).max():.1f} (diverges); "
             f"E x error: row on the stable zero decays at {rate:.4f} (zero -2), strongly observable row < 1e-4 "
-            f"from t = {_settling(res.t, err[:, 1], 1e-4):.3f} s",
-            ok=bool(not det.ok and abs(rate + 2.0) < 0.1 and _settling(res.t, err[:, 1], 1e-4) < 1.0),
+            f"from t = {settling_time(res.t, err[:, 1], 1e-4):.3f} s",
+            ok=bool(not det.ok and abs(rate + 2.0) < 0.1 and settling_time(res.t, err[:, 1], 1e-4) < 1.0),
         )
     )
     if out_dir is not None:
@@ -258,10 +270,10 @@ def reproduce_functional_uio(out_dir: Path | None = None, fast: bool = False) ->
 # ---------------------------------------------------------------------------------------------------------------
 # static left inverse (Bejarano, Fridman and Poznyak 2009)
 # ---------------------------------------------------------------------------------------------------------------
-def _identify(dt, alpha, lipschitz, noise=0.0, t_final=3.0):
+def identification_error(dt, alpha, lipschitz, noise=0.0, t_final=3.0):
     plant = left_inverse_plant()
     idf = c.LeftInverseIdentifier(plant, dt, lipschitz, alpha=alpha)
-    res = c.simulate(plant, _OpenLoop(idf, noise=noise), t_final=t_final, w=_w, x0=[0.3, -0.2, 0.1, 1.0])
+    res = c.simulate(plant, OpenLoop(idf, noise=noise), t_final=t_final, w=unknown_input, x0=[0.3, -0.2, 0.1, 1.0])
     return res.t, np.abs(res.w_hat - res.w)[:, 0], idf
 
 
@@ -300,23 +312,23 @@ def reproduce_left_inverse(out_dir: Path | None = None, fast: bool = False) -> l
     for alpha, lip in ((1, 30.0), (2, 60.0)):
         errs = []
         for dt in steps:
-            t, e, idf = _identify(dt, alpha, lip, t_final=2.0 if fast else 3.0)
+            t, e, idf = identification_error(dt, alpha, lip, t_final=2.0 if fast else 3.0)
             errs.append(e[t > 1.0].max())
         orders[alpha] = (c.fit_order(steps, errs), errs[0], idf.theoretical_orders["sampling"])
-    t, e, _ = _identify(1e-3, 2, 60.0, t_final=2.0 if fast else 3.0)
+    t, e, _ = identification_error(1e-3, 2, 60.0, t_final=2.0 if fast else 3.0)
     claims.append(
         dict(
             claim="w = G(y, y', y'') identified exactly after a finite time (HOSM differentiators)",
-            measured=f"alpha=2, tau=1 ms: |w - w_hat| < 1e-3 from t = {_settling(t, e, 1e-3):.3f} s, then max "
+            measured=f"alpha=2, tau=1 ms: |w - w_hat| < 1e-3 from t = {settling_time(t, e, 1e-3):.3f} s, then max "
             f"{e[t > 1.0].max():.1e}; order in tau: alpha=1 {orders[1][0]:.2f} (theory 1), alpha=2 "
             f"{orders[2][0]:.2f} (theory 2)",
-            ok=bool(abs(orders[1][0] - 1) < 0.2 and abs(orders[2][0] - 2) < 0.2 and _settling(t, e, 1e-3) < 1.0),
+            ok=bool(abs(orders[1][0] - 1) < 0.2 and abs(orders[2][0] - 2) < 0.2 and settling_time(t, e, 1e-3) < 1.0),
         )
     )
     etas = [1e-5, 1e-4, 1e-3]
     errs = []
     for eta in etas:
-        t, e, idf = _identify(1e-3, 2, 60.0, noise=eta)  # 2 s after the transient even when fast
+        t, e, idf = identification_error(1e-3, 2, 60.0, noise=eta)  # 2 s after the transient even when fast
         errs.append(e[t > 1.0].max())
     slope = c.fit_order(etas, errs)
     claims.append(

@@ -8,66 +8,25 @@ the identification in the sampling step and in the noise amplitude (Fridman's sl
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from smo_gym import control as c
 
-
-def _w(t):
-    return np.sin(2.0 * np.asarray(t)) + 0.5
-
-
-def _detectable_plant(zero: float) -> c.LinearPlant:
-    """x1' = x2, x2' = -2 x1 - x2 + x4 + w, x3' = x1 - x3, x4' = x3 + zero * x4; y = (x1, x3).
-
-    y = 0 forces x1 = x3 = 0, hence x2 = 0, w = -x4 and x4' = zero * x4: one invariant zero at ``zero``,
-    V* = span(e4); x1, x2, x3 are strongly observable (x2 = y1').
-    """
-    A = np.array([[0, 1, 0, 0], [-2, -1, 0, 1], [1, 0, -1, 0], [0, 0, 1, zero]], dtype=float)
-    D = np.array([[0.0], [1.0], [0.0], [0.0]])
-    C = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
-    return c.LinearPlant(A, D, C, D)
-
-
-def _transformed(plant: c.LinearPlant, seed: int = 3):
-    """The same plant in the coordinates x = T x' (T random, well conditioned), and T."""
-    rng = np.random.default_rng(seed)
-    T = np.linalg.qr(rng.standard_normal((plant.n, plant.n)))[0] @ np.diag(np.linspace(0.5, 2.0, plant.n))
-    Ti = np.linalg.inv(T)
-    return c.LinearPlant(Ti @ plant.A @ T, Ti @ plant.B, plant.C @ T, Ti @ plant.D), T
-
-
-class _OpenLoop:
-    """Zero control; records the estimator's outputs (the adapter :func:`smo_gym.control.simulate` expects)."""
-
-    def __init__(self, estimator, *, noise=0.0, seed=0):
-        self.dt, self.est, self.observer = estimator.dt, estimator, self
-        self.x_hat, self.w_hat, self.z = np.zeros(estimator.plant.n), np.zeros(estimator.plant.n_unknown), []
-        self.noise, self.rng = noise, np.random.default_rng(seed)
-
-    def reset(self, y0, x_hat0=None):
-        self.est.reset(y0)
-
-    def step(self, y, t):
-        if self.noise:  # bounded noise of amplitude eta with random signs: the worst case of the theory
-            y = y + self.noise * np.sign(self.rng.standard_normal(y.shape))
-        out = self.est.update(y)
-        if isinstance(self.est, c.LeftInverseIdentifier):
-            self.w_hat = out.copy()
-        else:
-            self.x_hat, self.w_hat = out.copy(), self.est.w_hat.copy()
-            self.z.append(self.est.z_hat.copy())
-            self.est.advance(np.zeros(self.est.plant.n_inputs))
-        return np.zeros(self.est.plant.n_inputs)
-
-
-def _settling_time(t, err, level):
-    """First time after which ``err`` stays below ``level`` (inf if never)."""
-    above = np.nonzero(err >= level)[0]
-    if above.size == 0:
-        return float(t[0])
-    return float(t[above[-1] + 1]) if above[-1] + 1 < t.size else np.inf
+# the example plants and the open-loop harness are the reproduction script's (one definition of each)
+_spec = importlib.util.spec_from_file_location(
+    "reproduce_slides_unknown_inputs",
+    Path(__file__).resolve().parents[1] / "scripts" / "reproduce_slides_unknown_inputs.py",
+)
+examples = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(examples)
+_w, _transformed, _OpenLoop = examples.unknown_input, examples.transformed, examples.OpenLoop
+_settling_time, _identification_error = examples.settling_time, examples.identification_error
+_detectable_plant, _functional_plant = examples.detectable_plant, examples.functional_plant
+_left_inverse_plant = examples.left_inverse_plant
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -171,21 +130,6 @@ def test_detectable_pair_gain_keeps_unobservable_modes():
 # ---------------------------------------------------------------------------------------------------------------
 # functional unknown-input observer
 # ---------------------------------------------------------------------------------------------------------------
-def _functional_plant() -> c.LinearPlant:
-    """Two zeros: x4' = x3 + x4 (unstable, +1) and x5' = x1 - 2 x5 (stable, -2), both feeding x2' like w.
-
-    y = (x1, x3) = 0 forces x1 = x2 = x3 = 0 and w = -x4 - x5: V* = span(e4, e5), zero dynamics diag(1, -2).
-    """
-    A = np.zeros((5, 5))
-    A[0, 1] = 1.0
-    A[1] = [-2.0, -1.0, 0.0, 1.0, 1.0]
-    A[2, [0, 2]] = [1.0, -1.0]
-    A[3, [2, 3]] = [1.0, 1.0]
-    A[4, [0, 4]] = [1.0, -2.0]
-    D = np.eye(5)[:, [1]]
-    return c.LinearPlant(A, D, np.eye(5)[[0, 2]], D)
-
-
 def test_functional_existence_is_e4_zero():
     plant = _functional_plant()
     assert not c.strong_detectability(plant).ok  # no observer of the whole state
@@ -222,17 +166,6 @@ def test_functional_observer_converges_while_the_state_diverges():
 # ---------------------------------------------------------------------------------------------------------------
 # static left inverse
 # ---------------------------------------------------------------------------------------------------------------
-def _left_inverse_plant() -> c.LinearPlant:
-    """x1' = x2, x2' = -2 x1 - x2 + w, x3' = x1 - x3, x4' = x1 + x2 + 0.5 x4; y = (x1, x3).
-
-    x4 is an unstable unobservable mode (an invariant zero at 0.5): neither strongly observable nor strongly
-    detectable, yet w = y1'' + y1' + 2 y1 exactly.
-    """
-    A = np.array([[0, 1, 0, 0], [-2, -1, 0, 0], [1, 0, -1, 0], [1, 1, 0, 0.5]], dtype=float)
-    D = np.eye(4)[:, [1]]
-    return c.LinearPlant(A, D, np.eye(4)[[0, 2]], D)
-
-
 def _derivative_stack(plant, x, W, k):
     """[y; y'; ...; y^(k)] of the trajectory through x with w, w', ... = W."""
     A, C, D = plant.A, plant.C, plant.D
@@ -273,13 +206,6 @@ def test_no_static_left_inverse_names_the_zero():
         c.LeftInverseIdentifier(_detectable_plant(-1.5), 1e-3, 20.0)
     unstable = c.left_inverse(_detectable_plant(1.0))
     assert not unstable.static and not unstable.asymptotic
-
-
-def _identification_error(dt, alpha, lipschitz, noise=0.0, t_final=3.0):
-    plant = _left_inverse_plant()
-    idf = c.LeftInverseIdentifier(plant, dt, lipschitz, alpha=alpha)
-    res = c.simulate(plant, _OpenLoop(idf, noise=noise), t_final=t_final, w=_w, x0=[0.3, -0.2, 0.1, 1.0])
-    return res.t, np.abs(res.w_hat - res.w)[:, 0], idf
 
 
 @pytest.mark.parametrize("alpha, lipschitz", [(1, 30.0), (2, 60.0)])
