@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.linalg as sla
 
 from smo_gym import control as c
 from smo_gym.design import LMIInfeasibleError
@@ -30,23 +29,14 @@ CW = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 DW = np.array([[0.0], [1.0], [1.0]])
 
 
-def simulate(A, B, x0, t_final, dt, u=None, D=None, w=None):
-    """Exact zero-order hold of ``x' = Ax + Bu + Dw`` with ``u(t_k)``, ``w(t_k)`` held; returns ``t, x, u, w``."""
-    n = A.shape[0]
-    t = np.arange(int(round(t_final / dt)) + 1) * dt
-    U = np.zeros((t.size, B.shape[1])) if u is None else u(t)
-    W = np.zeros((t.size, 0)) if w is None else w(t)
-    G = B if D is None else np.hstack([B, D])
-    M = np.zeros((n + G.shape[1],) * 2)
-    M[:n, :n], M[:n, n:] = A * dt, G * dt
-    E = sla.expm(M)
-    Phi, Gam = E[:n, :n], E[:n, n:]
-    inputs = np.hstack([U, W])
-    X = np.empty((t.size, n))
-    X[0] = x0
-    for k in range(t.size - 1):
-        X[k + 1] = Phi @ X[k] + Gam @ inputs[k]
-    return t, X, U, W
+# the zero-order-hold simulation and the MuJoCo demonstration are the reproduction script's
+_spec = importlib.util.spec_from_file_location(
+    "reproduce_slides_conventional",
+    Path(__file__).resolve().parents[1] / "scripts" / "reproduce_slides_conventional.py",
+)
+examples = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(examples)
+simulate = examples.simulate
 
 
 def sin_input(t):
@@ -483,13 +473,7 @@ def test_mujoco_furuta_unknown_input_observers():
     tachometer added, both observers track the nonlinear MuJoCo pendulum under a torque through qfrc_applied."""
     pytest.importorskip("gymnasium")
     pytest.importorskip("cvxpy")
-    spec = importlib.util.spec_from_file_location(
-        "reproduce_slides_conventional",
-        Path(__file__).resolve().parents[1] / "scripts" / "reproduce_slides_conventional.py",
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    res = mod.furuta_mujoco_demo(t_final=3.0, verbose=False)
+    res = examples.furuta_mujoco_demo(t_final=3.0, verbose=False)
     assert res["angles_only_condition"] == "rank(CD) = rank(D)"
     # pendulum velocity error after 1.5 s, against the disturbance's effect on the Luenberger baseline
     assert res["walcott_zak"] < 0.2 * res["luenberger"], res
