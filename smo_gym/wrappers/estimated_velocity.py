@@ -3,6 +3,7 @@ r"""``EstimatedVelocity``: a Gymnasium MuJoCo environment seen through joint sen
 from __future__ import annotations
 
 import copy
+from typing import NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -256,14 +257,21 @@ def sensed_trials(adapter, measurement: JointMeasurement, sample_every: int, ste
 TRIAL_SMOOTHING = (0.0, 0.9)
 
 
+class JointCandidate(NamedTuple):
+    """A model-based candidate of ``"auto"`` for all joints together, and the model settings it was built with."""
+
+    observer: Observer
+    settings: tuple
+
+
 def calibrated_observer(
     name: str, unwrapped, adapter, measurement: JointMeasurement, sample_every: int, kwargs, joint=None, **how
 ):
     """The observer ``name`` (or ``"auto"``, :func:`~smo_gym.selection.auto_observer` on :func:`sensed_trials`) with
     gains from :func:`calibrate_environment` (``how``: its ``safety``, ``quantile``, ``steps``, ``disk``), and that
-    calibration. The errors ``"auto"`` compares are cached like the calibration. ``joint``: ``(observer,
-    settings)``, a model-based candidate for all joints together and the model settings it was built with; it is
-    returned (with the selection) where :attr:`~smo_gym.selection.Selection.choice` takes it."""
+    calibration. The errors ``"auto"`` compares are cached like the calibration. ``joint``: a
+    :class:`JointCandidate`, returned (with the selection) where :attr:`~smo_gym.selection.Selection.choice` takes
+    it."""
     orders = candidate_orders() if name == "auto" else bound_order(name, kwargs)
     noise, resolution = measurement.noise_std(), measurement.quantization_step()
     calibration = calibrate_environment(
@@ -272,13 +280,13 @@ def calibrated_observer(
     if name != "auto":
         return default_observer(name, calibration, kwargs), calibration
     span = mean_velocity_span(adapter.model)
-    candidates = CANDIDATES + (() if joint is None else (joint[0].name,))
+    candidates = CANDIDATES + (() if joint is None else (joint.observer.name,))
     settings = {k: v for k, v in how.items() if k != "disk"}  # where the result is kept is not what it depends on
     key = calibration_key(
         adapter.environment_key,
         adapter.model,
         auto=candidates,
-        joint=stable_repr(None if joint is None else joint[1]),
+        joint=stable_repr(None if joint is None else joint.settings),
         sensor=stable_repr(measurement.sensor),
         every=sample_every,
         kwargs=stable_repr(kwargs),
@@ -293,7 +301,7 @@ def calibrated_observer(
         scenes = [trials for trials in scenes if trials is not None]
         errors = select(calibration, scenes or None, mean_over=span, observer_kwargs=kwargs).errors
         if joint is not None:  # no trials, no evidence for the model: it is not chosen
-            found = [trial_errors(joint[0], trials) for trials in scenes] or [np.full(errors.shape[-1], np.inf)]
+            found = [trial_errors(joint.observer, trials) for trials in scenes] or [np.full(errors.shape[-1], np.inf)]
             errors = np.concatenate([errors, np.stack(found)[:, None]], axis=1)
         return np.vstack([errors.reshape(-1, errors.shape[-1]), np.full(errors.shape[-1], len(scenes))])
 
@@ -301,8 +309,8 @@ def calibrated_observer(
     errors = stored[:-1].reshape(-1, len(candidates), stored.shape[1])
     found = Selection(candidates, errors, "trials" if stored[-1, 0] else "prediction", joint=joint is not None)
     if joint is not None and found.choice[0] == len(CANDIDATES):
-        joint[0].selection = found
-        return joint[0], calibration
+        joint.observer.selection = found
+        return joint.observer, calibration
     return auto_observer(calibration, mean_over=span, observer_kwargs=kwargs, selection=found), calibration
 
 
@@ -471,7 +479,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 calibration_quantile,
                 calibration_safety,
             )
-            joint = built.observer, (name, settings)
+            joint = JointCandidate(built.observer, (name, settings))
         if model_based:
             from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
 
@@ -517,7 +525,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 disk=disk_cache,
                 joint=joint,
             )
-        if joint is not None and obs_object is joint[0]:
+        if joint is not None and obs_object is joint.observer:
             model_based, self.model_miss_bound, self.mass_scale_range = True, *built[1:]
         if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
             self.estimator = InputAwareEstimator(obs_object, self.adapter)
