@@ -26,6 +26,10 @@ what a user would otherwise pick; among the safe candidates the one with the sma
 the best candidate's, worst over the scenarios) wins. The references are never both unsafe unless each loses to the
 other in some scenario; then the smallest worst regret decides among all.
 
+A model-based observer estimates all channels together (its model couples them): as the last candidate of a
+:class:`Selection` with ``joint=True`` it is taken for every channel or for none (:attr:`Selection.choice`; the
+wrapper's ``observer_kwargs={"model": True}``), measured on trials that carry the inputs (:func:`trial_errors`).
+
 The result is a single observer when one candidate wins every channel (the wrapper's one-call path then applies),
 else a :class:`smo_gym.observers.composite.PerChannel`; :class:`Selection` says what was chosen and why.
 """
