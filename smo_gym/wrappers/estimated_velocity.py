@@ -470,15 +470,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             name = observer_kwargs.pop("model")
             name = "mechanical-super-twisting" if name is True else name
             settings = {k: observer_kwargs.pop(k) for k in ("mass_scale", "contact") if k in observer_kwargs}
-            built = model_based_observer(
-                name,
-                self.adapter,
-                self.sample_every,
-                settings,
-                calibration_steps,
-                calibration_quantile,
-                calibration_safety,
-            )
+            how = (calibration_steps, calibration_quantile, calibration_safety)
+            built = model_based_observer(name, self.adapter, self.sample_every, settings, *how)
             joint = JointCandidate(built.observer, (name, settings))
         if model_based:
             from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
@@ -526,7 +519,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 joint=joint,
             )
         if joint is not None and obs_object is joint.observer:
-            model_based, self.model_miss_bound, self.mass_scale_range = True, *built[1:]
+            model_based = True
+            self.model_miss_bound, self.mass_scale_range = built.model_miss_bound, built.mass_scale_range
         if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
             self.estimator = InputAwareEstimator(obs_object, self.adapter)
         else:  # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4
