@@ -64,19 +64,13 @@ def inputs(t):
     return 0.5 * np.sin(2.0 * t) + 0.3 * np.sign(np.sin(3.0 * t))
 
 
-def simulate(dt: float, T: float, sub: int = 4) -> np.ndarray:
-    """Samples of the true state, RK4 with ``sub`` substeps per sample (error far below the observer's)."""
-    N = int(round(T / dt))
-    X = np.empty((N + 1, 2))
-    x = np.array(X0, dtype=float)
-    X[0] = x
-    hs = dt / sub
-
-    def F(t, z):
-        return np.array([z[1], -np.sin(z[0]) - DAMP * z[1] + inputs(t)])
-
-    t = 0.0
-    for k in range(N):
+def rk4_samples(F, x0, dt: float, n: int, sub: int = 4) -> np.ndarray:
+    """``n`` samples every ``dt`` of ``x' = F(t, x)`` from ``x0`` (row 0), RK4 with ``sub`` substeps per sample
+    (error far below the observers')."""
+    X = np.empty((n, len(x0)))
+    x = np.array(x0, dtype=float)
+    X[0], hs, t = x, dt / sub, 0.0
+    for k in range(1, n):
         for _ in range(sub):
             k1 = F(t, x)
             k2 = F(t + hs / 2, x + hs / 2 * k1)
@@ -84,8 +78,17 @@ def simulate(dt: float, T: float, sub: int = 4) -> np.ndarray:
             k4 = F(t + hs, x + hs * k3)
             x = x + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             t += hs
-        X[k + 1] = x
+        X[k] = x
     return X
+
+
+def simulate(dt: float, T: float, sub: int = 4) -> np.ndarray:
+    """Samples of the true state over ``[0, T]``."""
+
+    def F(t, z):
+        return np.array([z[1], -np.sin(z[0]) - DAMP * z[1] + inputs(t)])
+
+    return rk4_samples(F, X0, dt, int(round(T / dt)) + 1, sub)
 
 
 _SIMS: dict[float, np.ndarray] = {}
@@ -212,28 +215,8 @@ def test_third_order_system_with_finite_difference_lie_derivatives():
     part plus a bounded nonlinearity (BIBS); y = x1 + 0.1 x1^3 makes dPhi/dx triangular with diagonal
     h'(x1) = 1 + 0.3 x1^2 > 0, observable everywhere. Theory: state error O(L dt) from y'' (k = 2, i = 2)."""
 
-    def f3(x):
-        return np.array([x[1], x[2], -x[0] - 2.0 * x[1] - 1.5 * x[2] - 0.5 * np.sin(x[0])])
-
-    def h3(x):
-        return x[0] + 0.1 * x[0] ** 3
-
     dt, N = 2e-3, 1500
-    x = np.array([1.0, 0.0, 0.0])
-    X = np.empty((N, 3))
-    for k in range(N):  # RK4 with 4 substeps; the input 0.5 sin(3t) acts on x3' only (relative degree 3)
-        X[k] = x
-        for j in range(4):
-            t, hs = k * dt + j * dt / 4, dt / 4
-
-            def F(tt, z):
-                return f3(z) + np.array([0.0, 0.0, 0.5 * np.sin(3.0 * tt)])
-
-            k1 = F(t, x)
-            k2 = F(t + hs / 2, x + hs / 2 * k1)
-            k3 = F(t + hs / 2, x + hs / 2 * k2)
-            k4 = F(t + hs, x + hs * k3)
-            x = x + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    X = third_order_trajectory(dt, N)
     check_observability(f3, h3, X[::100], g=lambda z: np.array([0.0, 0.0, 1.0]))
     Y = np.array([h3(z) for z in X])
     obs = NonlinearHOSMObserver(f3, h3, 3, dt, 20.0)
@@ -300,27 +283,24 @@ def square_input(t):
 
 @functools.lru_cache(maxsize=16)
 def simulate_input(dt: float, T: float, w, D=(0.0, 1.0), sub: int = 4) -> np.ndarray:
-    """The unforced pendulum plus D w(t) (only w, no known input), RK4 with ``sub`` substeps per sample (cached:
-    read only)."""
-    N = int(round(T / dt))
-    X = np.empty((N + 1, 2))
-    x = np.array(X0, dtype=float)
-    X[0] = x
-    hs, t, D = dt / sub, 0.0, np.asarray(D, dtype=float)
+    """The unforced pendulum plus D w(t) (only w, no known input) over ``[0, T]`` (cached: read only)."""
+    D = np.asarray(D, dtype=float)
+    return rk4_samples(lambda t, z: f(z) + D * w(t), X0, dt, int(round(T / dt)) + 1, sub)
 
-    def F(tt, z):
-        return f(z) + D * w(tt)
 
-    for k in range(N):
-        for _ in range(sub):
-            k1 = F(t, x)
-            k2 = F(t + hs / 2, x + hs / 2 * k1)
-            k3 = F(t + hs / 2, x + hs / 2 * k2)
-            k4 = F(t + hs, x + hs * k3)
-            x = x + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            t += hs
-        X[k + 1] = x
-    return X
+def f3(x):
+    """A stable linear chain plus a bounded nonlinearity (BIBS)."""
+    return np.array([x[1], x[2], -x[0] - 2.0 * x[1] - 1.5 * x[2] - 0.5 * np.sin(x[0])])
+
+
+def h3(x):
+    """y = x1 + 0.1 x1^3: dPhi/dx triangular with diagonal 1 + 0.3 x1^2 > 0."""
+    return x[0] + 0.1 * x[0] ** 3
+
+
+def third_order_trajectory(dt: float, n: int) -> np.ndarray:
+    """``n`` samples of the third-order system from (1, 0, 0) with the input 0.5 sin(3t) on x3' (relative degree 3)."""
+    return rk4_samples(lambda t, z: f3(z) + np.array([0.0, 0.0, 0.5 * np.sin(3.0 * t)]), [1.0, 0.0, 0.0], dt, n)
 
 
 L3 = 20.0  # >= |y'''| (measured max 2.6 with the smooth input): the order-2 differentiator's bound
@@ -469,28 +449,8 @@ def test_injection_observer_on_a_third_order_system():
     in x1 (e_0, O(L dt^3)); measured at 2 ms with L = 20 over 1.2-1.6 s: (3.9e-7, 6.5e-4, 0.082), convergence
     1.08 s (0.048 in x3 at 1 ms: first order)."""
 
-    def f3(x):
-        return np.array([x[1], x[2], -x[0] - 2.0 * x[1] - 1.5 * x[2] - 0.5 * np.sin(x[0])])
-
-    def h3(x):
-        return x[0] + 0.1 * x[0] ** 3
-
     dt, N = 2e-3, 800
-    x = np.array([1.0, 0.0, 0.0])
-    X = np.empty((N, 3))
-    for k in range(N):  # RK4 with 4 substeps
-        X[k] = x
-        for j in range(4):
-            t, hs = k * dt + j * dt / 4, dt / 4
-
-            def F(tt, z):
-                return f3(z) + np.array([0.0, 0.0, 0.5 * np.sin(3.0 * tt)])
-
-            k1 = F(t, x)
-            k2 = F(t + hs / 2, x + hs / 2 * k1)
-            k3 = F(t + hs / 2, x + hs / 2 * k2)
-            k4 = F(t + hs, x + hs * k3)
-            x = x + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    X = third_order_trajectory(dt, N)
     obs = HOSMInjectionObserver(f3, h3, 3, dt, 20.0, unknown_input=[0.0, 0.0, 1.0], check_points=X[::100])
     E = np.abs(obs.run([h3(z) for z in X], [0.5, 0.5, -0.5]) - X)
     late = E[600:].max(axis=0)  # after 1.2 s
