@@ -363,17 +363,19 @@ def table_wrapper(T):
     from smo_gym.wrappers import EstimatedVelocity
 
     env_id, skip = "InvertedDoublePendulum-v5", 4  # the first 4 environment steps of an episode: convergence
-    observers = {
-        "mechanical-super-twisting": {"mass_scale": 1.1},
-        "finite-difference": None,
-        "super-twisting": None,
-        "kalman-ca": None,
+    observers = {  # label -> observer, observer_kwargs
+        "mechanical-super-twisting": ("mechanical-super-twisting", {"mass_scale": 1.1}),
+        "auto, model=True": ("auto", {"model": True, "mass_scale": 1.1}),
+        "auto": ("auto", None),
+        "finite-difference": ("finite-difference", None),
+        "super-twisting": ("super-twisting", None),
+        "kalman-ca": ("kalman-ca", None),
     }
     # the wrapper never perturbs the simulation: the same seeds and actions give every wrapper the same
     # trajectory, and the same seeds the same encoder noise
     envs = {
-        name: EstimatedVelocity(gym.make(env_id), observer=name, observer_kwargs=kw, disk_cache=False)
-        for name, kw in observers.items()
+        label: EstimatedVelocity(gym.make(env_id), observer=name, observer_kwargs=kw, disk_cache=False)
+        for label, (name, kw) in observers.items()
     }
     first = next(iter(envs.values())).unwrapped
     lo, hi = first.model.actuator_ctrlrange[:, 0], first.model.actuator_ctrlrange[:, 1]
