@@ -12,7 +12,7 @@ Prints the tables and writes the plots of :func:`smo_gym.experiments.control.run
 - the Furuta pendulum in MuJoCo (``smo_gym/FurutaPendulum-v0``) through ``EstimatedVelocity``.
 
 Usage: ``python scripts/control_experiments.py [--out outputs/control] [--quick] [--no-plots]`` (the same as
-``smo-gym control``).
+``smo-gym control --reproduce``).
 """
 
 from __future__ import annotations
@@ -20,17 +20,19 @@ from __future__ import annotations
 import argparse
 import time
 
-from smo_gym.experiments.control import add_arguments, cli
+from smo_gym.experiments.control import run_all
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_arguments(parser)
+    parser.add_argument("--out", default="outputs/control", help="directory for the plots (default %(default)s)")
+    parser.add_argument("--quick", action="store_true", help="fewer sampling steps and shorter runs")
+    parser.add_argument("--no-plots", action="store_true", help="tables only")
     args = parser.parse_args(argv)
     t0 = time.time()
-    status = cli(args)
+    run_all(args.out, quick=args.quick, plots=not args.no_plots)
     print(f"\ndone in {time.time() - t0:.0f} s")
-    return status
+    return 0
 
 
 if __name__ == "__main__":

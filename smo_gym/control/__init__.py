@@ -23,6 +23,7 @@ from .controllers import (
     UnmatchedCompensationController,
     lqr,
     regular_form,
+    sampled_lqr,
 )
 from .conventional import (
     ObservableBlockForm,
@@ -174,6 +175,7 @@ __all__ = [
     "quasi_continuous_hosm",
     "regular_form",
     "relative_degrees",
+    "sampled_lqr",
     "sampled_observer_gain",
     "settling_time",
     "simulate",

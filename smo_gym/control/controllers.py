@@ -47,6 +47,7 @@ __all__ = [
     "UnmatchedCompensationController",
     "lqr",
     "regular_form",
+    "sampled_lqr",
 ]
 
 
@@ -66,6 +67,36 @@ def lqr(A, B, Q=None, R=None) -> np.ndarray:
     ev = np.linalg.eigvals(A - B @ K)
     if np.any(ev.real >= 0):
         raise ValueError(f"expected a stabilizing LQR gain, actual value: eigenvalues of A - BK {ev}")
+    return K
+
+
+def sampled_lqr(plant: LinearPlant, dt: float, Q=None, R=None) -> np.ndarray:
+    r"""LQR gain for the plant sampled with a zero-order hold: the gain a digital controller should use.
+
+    The continuous cost :math:`\int x^TQx + u^TRu` is approximated on the samples by
+    :math:`\sum_k \tau(x_k^TQx_k + u_k^TRu_k)` for the exact ZOH model :math:`x_{k+1} = \Phi x_k + \Gamma u_k`:
+
+    .. math:: K = (\tau R + \Gamma^TP\Gamma)^{-1}\Gamma^TP\Phi,
+
+    with ``P`` from ``scipy.linalg.solve_discrete_are``. As :math:`\tau \to 0` it tends to :func:`lqr`; at a
+    sampling step comparable to the continuous design's fastest pole (the inverted double pendulum at 10 ms: a pole
+    near -100 rad/s) the two differ, and this one is the optimum for the plant the controller actually drives
+    (checked: the eigenvalues of :math:`\Phi - \Gamma K` inside the unit circle).
+
+    Returns
+    -------
+    ndarray, shape (q, n)
+    """
+    dt = check_positive("dt", dt)
+    n, q = plant.n, plant.n_inputs
+    Q = np.eye(n) if Q is None else np.asarray(Q, float)
+    R = np.eye(q) if R is None else np.atleast_2d(np.asarray(R, float))
+    Phi, Gamma = plant.discretize(dt)
+    P = sla.solve_discrete_are(Phi, Gamma, Q * dt, R * dt)
+    K = np.linalg.solve(R * dt + Gamma.T @ P @ Gamma, Gamma.T @ P @ Phi)
+    rho = np.abs(np.linalg.eigvals(Phi - Gamma @ K)).max()
+    if rho >= 1.0:
+        raise ValueError(f"expected a stabilizing sampled LQR gain, actual value: spectral radius {rho:.6g}")
     return K
 
 

@@ -636,6 +636,7 @@ def linearize(
     method: str = "difference",
     D=None,
     C=None,
+    force_dofs=None,
 ) -> LinearPlant:
     r"""Linearize a MuJoCo model around an equilibrium with ``mujoco.mjd_transitionFD``.
 
@@ -672,15 +673,22 @@ def linearize(
         Unknown-input matrix; default ``B`` (input-matched disturbance).
     C : array_like, optional
         Output matrix; default the joint positions ``[I_nv, 0]``.
+    force_dofs : array_like of int, optional
+        Instead of ``D``: the unknown input is a generalized force on these ``qvel`` addresses (MuJoCo's
+        ``qfrc_applied``), differentiated through the same step as ``B`` (so a force on an actuated joint is
+        matched exactly).
     """
     import mujoco  # lazy: the rest of smo_gym.control does not need MuJoCo
 
     if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
-        # mjd_transitionFD does not support RK4: differentiate the same dynamics with the Euler step
+        # mjd_transitionFD does not support RK4: differentiate the same dynamics with the explicit Euler step
+        # (MuJoCo's Euler treats joint damping implicitly, v+ = v + h (M + h B)^-1 f, an O(h) change of B and of
+        # the damping terms that RK4 does not make: disabled, so that (A_d - I)/h is the continuous Jacobian)
         import copy
 
         model = copy.deepcopy(model)
         model.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
     if method not in ("difference", "logm"):
         raise ValueError(f"expected method to be one of 'difference', 'logm', actual value: {method!r}")
     if data is None:
@@ -725,4 +733,40 @@ def linearize(
         B = np.linalg.solve(S, Bd)
     if C is None:
         C = np.hstack([np.eye(model.nv), np.zeros((model.nv, model.nv + model.na))])
+    if force_dofs is not None:
+        if D is not None:
+            raise TypeError(f"expected D or force_dofs, actual value: both (force_dofs={force_dofs!r})")
+        if method != "difference":
+            raise ValueError(f"expected method='difference' with force_dofs, actual value: {method!r}")
+        D = _force_input(model, d, np.asarray(force_dofs, dtype=int).reshape(-1), h)
     return LinearPlant(A, B, C, B.copy() if D is None else D)
+
+
+def _force_input(model, data, dofs: np.ndarray, h: float) -> np.ndarray:
+    r"""``D`` for generalized forces on ``dofs`` (``qfrc_applied``), from the same one-step map as ``B``.
+
+    The step is affine in ``qfrc_applied`` (it enters the right-hand side like ``qfrc_actuator``), so one step per
+    column with a unit force, minus one without, gives :math:`\partial v^+/\partial w` exactly; it is converted to
+    continuous time as ``B`` is (position rows zero), so a force on an actuated joint is exactly matched.
+    """
+    import mujoco
+
+    nv, nx = model.nv, 2 * model.nv + model.na
+    if dofs.size == 0 or dofs.min() < 0 or dofs.max() >= nv:
+        raise ValueError(f"expected force_dofs in [0, {nv}), actual value: {dofs.tolist()}")
+    d = mujoco.MjData(model)
+
+    def step(force):
+        mujoco.mj_copyData(d, model, data)
+        d.qfrc_applied[:] = 0.0
+        d.qfrc_applied[dofs] = force
+        mujoco.mj_step(model, d)
+        return np.concatenate([d.qvel, d.act])
+
+    base = step(np.zeros(dofs.size))
+    Dd = np.zeros((nx, dofs.size))
+    for j in range(dofs.size):
+        e = np.zeros(dofs.size)
+        e[j] = 1.0
+        Dd[nv:, j] = step(e) - base
+    return Dd / h

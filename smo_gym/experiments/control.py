@@ -42,6 +42,7 @@ from ..control import (
     steady_state_error,
     total_variation_rate,
 )
+from .closed_loop import DEFAULT_CONTROLLERS
 
 __all__ = [
     "ENCODER_12BIT",
@@ -664,9 +665,34 @@ def run_all(out_dir="outputs/control", quick: bool = False, plots: bool = True, 
 # command line (``smo-gym control`` and ``scripts/control_experiments.py`` share it)
 # ---------------------------------------------------------------------------------------------------------------
 def add_arguments(parser) -> None:
-    """Options of the ``control`` command: ``--out``, ``--quick``, ``--no-plots``."""
+    """Options of the ``control`` command: a closed loop on ``--env``, or the slides' experiments (``--reproduce``)."""
+    parser.add_argument("--env", default="smo_gym/TwoLinkArm-v0", help="MuJoCo environment id (default %(default)s)")
+    parser.add_argument(
+        "--controller",
+        default=",".join(DEFAULT_CONTROLLERS),
+        help="comma-separated controllers of smo_gym.control.design: compensation, ism, unmatched, lqr, "
+        "lqr-luenberger, lqr-kalman, pid, computed-torque (default %(default)s)",
+    )
+    parser.add_argument(
+        "--disturbance",
+        default="0.5*sin(2*t) + 0.2",
+        help="external force on the actuated joints, expressions of t separated by commas, or 'none' "
+        "(default %(default)s)",
+    )
+    parser.add_argument("--sensor", default="encoder-12bit-noisy", help="sensor preset (default %(default)s)")
+    parser.add_argument(
+        "--frame-skip", type=int, default=None, help="physics steps per control step (default: the env's)"
+    )
+    parser.add_argument("--seconds", type=float, default=8.0, help="run length (default %(default)s)")
+    parser.add_argument("--seeds", type=int, default=1, help="seeded runs per controller (default %(default)s)")
+    parser.add_argument(
+        "--target", default=None, help="comma-separated qpos to regulate to (default the model's qpos0)"
+    )
+    parser.add_argument(
+        "--reproduce", action="store_true", help="run the experiments of Fridman's slides, section 6, instead"
+    )
     parser.add_argument("--out", default="outputs/control", help="directory for the plots (default %(default)s)")
-    parser.add_argument("--quick", action="store_true", help="fewer sampling steps and shorter runs")
+    parser.add_argument("--quick", action="store_true", help="with --reproduce: fewer sampling steps, shorter runs")
     parser.add_argument("--no-plots", action="store_true", help="tables only")
 
 
@@ -674,16 +700,49 @@ def add_subcommand(subparsers):
     """Register ``control`` on an ``argparse`` sub-parser collection (used by ``smo-gym``)."""
     parser = subparsers.add_parser(
         "control",
-        help="output-feedback control experiments of Fridman's slides, section 6",
-        description="Disturbance identification with the cascaded HOSM observer, compensation control, output "
-        "integral sliding mode and unmatched compensation on the slides' Furuta pendulum and 3-DOF "
-        "helicopter (and the MuJoCo Furuta environment when available): tables and plots.",
+        help="output-feedback control of a MuJoCo environment from measured positions (or --reproduce the slides')",
+        description="Designs each controller for the environment (smo_gym.control.design: linearization, strong "
+        "observability, LQR, cascaded HOSM observer gains from the sensor), runs them in closed loop from measured "
+        "positions under the sensor and the disturbance, and prints state error, control effort, disturbance "
+        "identification and observer convergence (medians over the seeds), with a plot. --reproduce runs the "
+        "experiments of Fridman's slides, section 6, instead (Furuta pendulum, 3-DOF helicopter).",
     )
     add_arguments(parser)
     return parser
 
 
 def cli(args) -> int:
-    """Run the experiments for parsed ``args`` (see :func:`add_arguments`)."""
-    run_all(args.out, quick=args.quick, plots=not args.no_plots)
+    """Run the command for parsed ``args`` (see :func:`add_arguments`)."""
+    if args.reproduce:
+        run_all(args.out, quick=args.quick, plots=not args.no_plots)
+        return 0
+    from .closed_loop import compare_controllers, plot_closed_loop, summarize
+
+    names = [c.strip() for c in args.controller.split(",") if c.strip()]
+    disturbance = None if args.disturbance.strip().lower() == "none" else args.disturbance
+    env_kwargs = {} if args.frame_skip is None else {"frame_skip": args.frame_skip}
+    design_kwargs = {}
+    if args.target:
+        design_kwargs["operating_point"] = np.array([float(v) for v in args.target.split(",")])
+    rows, runs = compare_controllers(
+        args.env,
+        names,
+        disturbance=disturbance,
+        sensor=args.sensor,
+        seeds=range(args.seeds),
+        t_final=args.seconds,
+        env_kwargs=env_kwargs,
+        design_kwargs=design_kwargs,
+    )
+    title = f"{args.env}, sensor {args.sensor}, disturbance {disturbance or 'none'}"
+    print(format_table(rows, f"{title}; medians over {args.seeds} seed(s), steady window t >= {args.seconds / 2:g} s"))
+    ratios = summarize(rows)
+    if ratios:
+        print(format_table(ratios, "\nSliding-mode controllers against the best baseline (steady band)"))
+    if not args.no_plots:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / f"{args.env.replace('/', '_')}.png"
+        plot_closed_loop(runs, path, title)
+        print(f"\nplot written to {path}")
     return 0

@@ -1,0 +1,150 @@
+r"""Output-feedback control of a MuJoCo environment: several controllers on the same seeded runs, a table, a plot.
+
+``smo-gym control --env ID --controller NAME[,NAME...] --disturbance EXPR --sensor PRESET`` and
+``scripts/bench_control.py`` call :func:`compare_controllers`: every controller is designed by
+:func:`smo_gym.control.design` for the same environment, run by :func:`smo_gym.control.run_closed_loop` from the
+same seeded resets with the same sensor and disturbance, and summarized by
+:func:`smo_gym.control.closed_loop_metrics` (medians over the seeds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..control.closed_loop import closed_loop_metrics, parse_disturbance, run_closed_loop, scale_body_mass
+
+__all__ = ["BASELINES", "DEFAULT_CONTROLLERS", "compare_controllers", "plot_closed_loop", "summarize"]
+
+#: the sliding-mode controllers and the baselines a control engineer would otherwise use
+DEFAULT_CONTROLLERS = ("compensation", "ism", "lqr-luenberger", "lqr-kalman", "pid")
+
+
+def compare_controllers(
+    env_id: str,
+    controllers: Sequence[str] = DEFAULT_CONTROLLERS,
+    *,
+    disturbance: str | None = None,
+    sensor: str = "encoder-12bit-noisy",
+    seeds: Sequence[int] = (0,),
+    t_final: float = 8.0,
+    t_steady: float | None = None,
+    env_kwargs: dict | None = None,
+    design_kwargs: dict | None = None,
+    payload: tuple[float, str, float] | None = None,
+    progress=None,
+) -> tuple[list[dict], dict]:
+    """Design and run each controller on each seed; return ``(rows, runs)``.
+
+    Parameters
+    ----------
+    env_id : str
+        Gymnasium id of a MuJoCo environment with hinge and slide joints.
+    controllers : sequence of str
+        Names accepted by :func:`smo_gym.control.design`.
+    disturbance : str, optional
+        Expression(s) of ``t`` for the external force on the disturbance channels (:func:`parse_disturbance`).
+    sensor : str
+        Sensor preset.
+    seeds : sequence of int
+        One run per seed and controller (the same resets and sensor streams for every controller).
+    t_final, t_steady : float
+        Run length and start of the steady window (default half the run).
+    env_kwargs, design_kwargs : dict, optional
+        Passed to ``gymnasium.make`` and to :func:`smo_gym.control.design`.
+    payload : (float, str, float), optional
+        ``(time, body, factor)``: the body's mass and inertia change by ``factor`` at ``time``.
+    progress : callable, optional
+        Called with a short text after each run.
+
+    Returns
+    -------
+    rows : list of dict
+        One per controller: the medians over the seeds of :func:`closed_loop_metrics` and the number of runs that
+        fell (or could not be designed).
+    runs : dict
+        ``{controller: ClosedLoopRun}`` of the first seed, for the plot.
+    """
+    import gymnasium as gym
+
+    from .. import envs as _envs  # noqa: F401 - registers smo_gym's environments
+    from ..control.policies import design
+
+    t_steady = t_final / 2 if t_steady is None else t_steady
+    force = None if disturbance is None else parse_disturbance(disturbance)
+    events = () if payload is None else ((payload[0], scale_body_mass(payload[1], payload[2])),)
+    rows, runs = [], {}
+    for name in controllers:
+        metrics, failed = [], []
+        for seed in seeds:
+            env = gym.make(env_id, **(env_kwargs or {}))
+            policy = design(env, name, sensor=sensor, **(design_kwargs or {}))
+            run = run_closed_loop(env, policy, t_final=t_final, seed=seed, disturbance=force, sensor=sensor,
+                                  events=events)  # fmt: skip
+            runs.setdefault(name, run)
+            m = closed_loop_metrics(run, t_steady)
+            (failed if run.terminated else metrics).append(m)
+            if progress is not None:
+                progress(f"{name} seed {seed}: " + ("fell" if run.terminated else f"band {m['steady band']:.3g}"))
+        row = {"controller": name}
+        keys = ("error RMS", "steady band", "effort RMS", "TV(u)/s", "ident. RMS", "converged [s]")
+        for k in keys:
+            vals = [m[k] for m in metrics]
+            row[k] = float(np.median(vals)) if vals else np.inf
+        row["fell"] = f"{len(failed)}/{len(seeds)}"
+        rows.append(row)
+    return rows, runs
+
+
+#: the controllers a control engineer would otherwise use
+BASELINES = ("lqr-luenberger", "lqr-kalman", "pid")
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    """For each controller that is not a baseline (:data:`BASELINES`): its steady band and effort divided by those of
+    the best baseline (the one with the smallest steady band among those that did not fall); below 1 is better."""
+    base = [r for r in rows if r["controller"] in BASELINES and np.isfinite(r["steady band"])]
+    if not base:
+        return []
+    best = min(base, key=lambda b: b["steady band"])
+    return [
+        {
+            "controller": r["controller"],
+            "best baseline": best["controller"],
+            "band / best baseline": r["steady band"] / best["steady band"],
+            "effort / its effort": r["effort RMS"] / best["effort RMS"],
+        }
+        for r in rows
+        if r["controller"] not in BASELINES
+    ]
+
+
+def plot_closed_loop(runs: dict, path, title: str = "") -> None:
+    """Position error, command, identified vs true disturbance and velocity estimation error of each run."""
+    from .._extras import require
+
+    require("matplotlib", "plots").use("Agg")
+    plt = require("matplotlib.pyplot", "plots")
+    fig, axes = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
+    for name, r in runs.items():
+        axes[0].semilogy(r.t, np.maximum(np.abs(r.qpos - r.target).max(axis=1), 1e-7), lw=0.8, label=name)
+        axes[1].plot(r.t, r.ctrl[:, 0], lw=0.6, label=name)
+        w_hat = r.disturbance_hat
+        if w_hat.shape == r.disturbance.shape and np.any(w_hat != 0):
+            axes[2].plot(r.t, w_hat[:, 0], lw=0.6, label=f"{name}: identified")
+        verr = np.abs(r.qvel_hat - r.qvel[:, : r.qvel_hat.shape[1]]).max(axis=1)
+        axes[3].semilogy(r.t, np.maximum(verr, 1e-7), lw=0.6, label=name)
+    first = next(iter(runs.values()))
+    if first.disturbance.size:
+        axes[2].plot(first.t, first.disturbance[:, 0], "k", lw=1.2, label="true")
+    labels = ("max |q - q*| [rad, m]", "command (first actuator)", "disturbance (first channel)", "max |v_hat - v|")
+    for ax, label in zip(axes, labels, strict=True):
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
+    axes[0].set_title(title)
+    axes[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
