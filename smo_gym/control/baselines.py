@@ -208,6 +208,16 @@ class KalmanObserver(LuenbergerObserver):
         :math:`\sigma_x`: square root of the spectral density of white noise on every state (model error); 0 by
         default. Needed when ``D`` does not reach a marginally stable mode.
 
+    Notes
+    -----
+    The gain is optimal for the stochastic model, not for a smooth disturbance: modelling ``w`` as white noise
+    makes the filter fast in the channels ``D`` drives, which cuts the bias a persistent ``w`` causes but passes
+    more measurement noise. Measured on the slides' Furuta pendulum (``dt = 1e-3``, noise ``1e-3`` rad, LQR
+    closed loop, ``disturbance_std = 0.5``): RMS velocity errors 0.44 / 0.13 rad/s against 2.23 / 0.47 for
+    :class:`~smo_gym.control.LuenbergerObserver` with its default poles under the slides' disturbance, but
+    0.44 / 0.13 against 0.0013 / 0.0015 without any disturbance. Choose ``disturbance_std`` for the disturbance
+    actually expected.
+
     Attributes
     ----------
     L : ndarray, shape (n, p)
