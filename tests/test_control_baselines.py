@@ -314,6 +314,9 @@ def test_pid_typed_errors(furuta):
         pid.step(np.zeros(2), 0.0)
     with pytest.raises(ValueError, match=r"expected y0 with shape \(2,\)"):
         pid.reset(np.zeros(3))
+    pid.reset(np.zeros(2))
+    with pytest.raises(ValueError, match=r"expected y with shape \(2,\)"):
+        pid.step(np.zeros(4), 0.0)
     assert isinstance(pid.observer, FiniteDifferenceState)
 
 

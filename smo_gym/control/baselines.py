@@ -346,7 +346,9 @@ class FiniteDifferenceState:
     def update(self, y) -> np.ndarray:
         """Backward difference and integral with the sample ``y_k``; return :math:`\\hat x_k`."""
         self._require()
-        y = np.asarray(y, dtype=float)
+        y = as_real_array("y", y)
+        if y.shape != self._y_prev.shape:
+            raise ValueError(f"expected y with shape {self._y_prev.shape}, actual value: shape {y.shape}")
         self.x_hat = np.concatenate([y, (y - self._y_prev) / self.dt])
         self.integral = self.integral + self.dt * y[self.integral_outputs]
         self._y_prev = y
