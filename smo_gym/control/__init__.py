@@ -9,13 +9,23 @@ functional observers, static left inverses); for linear time-varying plants, Kra
 strong-observability test and the cascaded HOSM observer of Galvan-Guerra, Fridman and Davila (2017); for linear
 switched systems (section 10), the bank of cascaded HOSM observers estimating the continuous state and the mode.
 Plants come from the slides or are linearized from MuJoCo models; a sampled-data closed-loop simulator adds noise,
-quantization and actuator lag.
+quantization and actuator lag. The baselines a control engineer would reach for first live here too: LQR with a
+steady-state Kalman filter (:class:`KalmanObserver` in :class:`StateFeedback`) and a matrix PID on finite-difference
+velocities with LQI gains (:class:`PIDController`).
 
 Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
 """
 
 from __future__ import annotations
 
+from .baselines import (
+    FiniteDifferenceState,
+    KalmanObserver,
+    PIDController,
+    default_integral_outputs,
+    kalman_gain,
+    van_loan_covariance,
+)
 from .controllers import (
     CompensationController,
     IntegralSlidingModeController,
@@ -111,10 +121,12 @@ __all__ = [
     "CascadedHOSMObserver",
     "CascadedLTVObserver",
     "CompensationController",
+    "FiniteDifferenceState",
     "FiniteTimeStabilizer",
     "FunctionalObservabilityReport",
     "FunctionalUnknownInputObserver",
     "IntegralSlidingModeController",
+    "KalmanObserver",
     "LTVPlant",
     "LTVStrongObservabilityReport",
     "LeftInverseIdentifier",
@@ -129,6 +141,7 @@ __all__ = [
     "NotStronglyDetectableError",
     "NotStronglyObservableError",
     "ObservableBlockForm",
+    "PIDController",
     "RelativeDegreeError",
     "SimulationResult",
     "SlidingOutput",
@@ -151,6 +164,7 @@ __all__ = [
     "WalcottZakObserver",
     "ZeroDynamics",
     "certify_walcott_zak",
+    "default_integral_outputs",
     "detectable_observer_gain",
     "fit_order",
     "functional_observability",
@@ -159,6 +173,7 @@ __all__ = [
     "helicopter_slides",
     "hosm_control",
     "invariant_zeros",
+    "kalman_gain",
     "left_annihilator",
     "left_inverse",
     "linearize",
@@ -187,6 +202,7 @@ __all__ = [
     "strong_observability",
     "total_variation_rate",
     "unknown_input_conditions",
+    "van_loan_covariance",
     "walcott_zak_design",
     "zero_dynamics",
 ]
