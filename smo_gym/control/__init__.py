@@ -13,7 +13,12 @@ quantization and actuator lag. The baselines a control engineer would reach for 
 steady-state Kalman filter (:class:`KalmanObserver` in :class:`StateFeedback`) and a matrix PID on finite-difference
 velocities with LQI gains (:class:`PIDController`).
 
-Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
+On a MuJoCo environment, :func:`design` goes from the environment to an output-feedback policy in one call
+(equilibrium, linearization, strong-observability check, sampled LQR, observer gains from the sensor) and
+:func:`run_closed_loop` runs it on the sensed environment (:mod:`smo_gym.control.closed_loop`).
+
+Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; :func:`linearize` and :func:`design` import MuJoCo lazily, and
+the closed-loop names (which need Gymnasium) are imported on first use.
 """
 
 from __future__ import annotations
@@ -87,6 +92,18 @@ from .plants import (
     relative_degrees,
     strong_observability,
 )
+from .policies import (
+    ControlDiagnostics,
+    LinearDesign,
+    LinearizedPolicy,
+    OperatingPoint,
+    OutputFeedbackPolicy,
+    actuator_map,
+    default_weights,
+    design,
+    differentiator_bound,
+    equilibrium,
+)
 from .simulation import SimulationResult, fit_order, simulate, steady_state_error, total_variation_rate
 from .switched import (
     ModeMetrics,
@@ -120,7 +137,10 @@ __all__ = [
     "DEFAULT_BETAS",
     "CascadedHOSMObserver",
     "CascadedLTVObserver",
+    "ClosedLoopRun",
     "CompensationController",
+    "ControlDiagnostics",
+    "ExternalForce",
     "FiniteDifferenceState",
     "FiniteTimeStabilizer",
     "FunctionalObservabilityReport",
@@ -131,7 +151,9 @@ __all__ = [
     "LTVStrongObservabilityReport",
     "LeftInverseIdentifier",
     "LeftInverseReport",
+    "LinearDesign",
     "LinearPlant",
+    "LinearizedPolicy",
     "LuenbergerObserver",
     "ModeMetrics",
     "MolinariDecoupling",
@@ -141,6 +163,8 @@ __all__ = [
     "NotStronglyDetectableError",
     "NotStronglyObservableError",
     "ObservableBlockForm",
+    "OperatingPoint",
+    "OutputFeedbackPolicy",
     "PIDController",
     "RelativeDegreeError",
     "SimulationResult",
@@ -163,9 +187,15 @@ __all__ = [
     "WalcottZakDesign",
     "WalcottZakObserver",
     "ZeroDynamics",
+    "actuator_map",
     "certify_walcott_zak",
+    "closed_loop_metrics",
     "default_integral_outputs",
+    "default_weights",
+    "design",
     "detectable_observer_gain",
+    "differentiator_bound",
+    "equilibrium",
     "fit_order",
     "functional_observability",
     "furuta_disturbance",
@@ -187,11 +217,14 @@ __all__ = [
     "observable_block_form",
     "output_coordinate_change",
     "output_error_lipschitz",
+    "parse_disturbance",
     "quasi_continuous_hosm",
     "regular_form",
     "relative_degrees",
+    "run_closed_loop",
     "sampled_lqr",
     "sampled_observer_gain",
+    "scale_body_mass",
     "settling_time",
     "simulate",
     "simulate_chain",
@@ -206,3 +239,16 @@ __all__ = [
     "walcott_zak_design",
     "zero_dynamics",
 ]
+
+#: names of :mod:`smo_gym.control.closed_loop`, imported on first use (it needs Gymnasium, the rest of the package
+#: does not)
+_CLOSED_LOOP = ("ClosedLoopRun", "ExternalForce", "closed_loop_metrics", "parse_disturbance", "run_closed_loop",
+                "scale_body_mass")  # fmt: skip
+
+
+def __getattr__(name: str):
+    if name in _CLOSED_LOOP:
+        from . import closed_loop
+
+        return getattr(closed_loop, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -287,11 +287,15 @@ class FiniteDifferenceState:
         Indices of the outputs integrated (:math:`C_I` selects them).
     tracking_time : float
         :math:`T_t`.
+    derivative_filter : float
+        :math:`T_f \ge 0`: the backward difference passes a first-order low-pass filter,
+        :math:`v_k = v_{k-1} + \frac{\tau}{T_f + \tau}\big((y_k - y_{k-1})/\tau - v_{k-1}\big)` (the filtered
+        derivative of a practical PID, [AH95]); 0 (default) leaves the raw difference.
 
     Attributes
     ----------
     x_hat : ndarray, shape (n,)
-        :math:`[y_k; (y_k - y_{k-1})/\tau]`.
+        :math:`[y_k; v_k]`, :math:`v_k` the (filtered) backward difference.
     integral : ndarray, shape (n_i,)
         :math:`z_k`.
     augmented : ndarray, shape (n_i + n,)
@@ -302,9 +306,13 @@ class FiniteDifferenceState:
 
     n_w_derivatives = 0
 
-    def __init__(self, plant: LinearPlant, dt: float, K, integral_outputs, tracking_time: float):
+    def __init__(
+        self, plant: LinearPlant, dt: float, K, integral_outputs, tracking_time: float, derivative_filter: float = 0.0
+    ):
         self.plant = plant
         self.dt = check_positive("dt", dt)
+        self.derivative_filter = check_nonnegative("derivative_filter", derivative_filter)
+        self._a = self.dt / (self.derivative_filter + self.dt)
         self.integral_outputs = np.asarray(integral_outputs, dtype=int)
         self.K = np.asarray(K, dtype=float)
         n_i = self.integral_outputs.size
@@ -349,7 +357,9 @@ class FiniteDifferenceState:
         y = as_real_array("y", y)
         if y.shape != self._y_prev.shape:
             raise ValueError(f"expected y with shape {self._y_prev.shape}, actual value: shape {y.shape}")
-        self.x_hat = np.concatenate([y, (y - self._y_prev) / self.dt])
+        p = y.size
+        v = self.x_hat[p:] + self._a * ((y - self._y_prev) / self.dt - self.x_hat[p:])
+        self.x_hat = np.concatenate([y, v])
         self.integral = self.integral + self.dt * y[self.integral_outputs]
         self._y_prev = y
         return self.x_hat
@@ -444,6 +454,8 @@ class PIDController(StateFeedback):
         ``s = 0``).
     tracking_time : float, optional
         :math:`T_t` of the anti-windup (:class:`FiniteDifferenceState`); default ``dt``.
+    derivative_filter : float
+        :math:`T_f` of the filtered derivative (:class:`FiniteDifferenceState`); default 0 (raw difference).
 
     Attributes
     ----------
@@ -454,7 +466,16 @@ class PIDController(StateFeedback):
     """
 
     def __init__(
-        self, plant: LinearPlant, dt: float, *, Q=None, R=None, Qi=None, integral_outputs=None, tracking_time=None
+        self,
+        plant: LinearPlant,
+        dt: float,
+        *,
+        Q=None,
+        R=None,
+        Qi=None,
+        integral_outputs=None,
+        tracking_time=None,
+        derivative_filter: float = 0.0,
     ):
         if not isinstance(plant, LinearPlant):
             raise TypeError(f"expected plant to be a LinearPlant, actual value: {type(plant).__name__}")
@@ -498,7 +519,7 @@ class PIDController(StateFeedback):
         K = lqr(Aa, Ba, Qa, Rm)
         self.integral_outputs = idx
         T_t = dt if tracking_time is None else tracking_time
-        super().__init__(FiniteDifferenceState(plant, dt, K, idx, T_t), K)
+        super().__init__(FiniteDifferenceState(plant, dt, K, idx, T_t, derivative_filter), K)
 
     @property
     def K_i(self) -> np.ndarray:

@@ -93,6 +93,12 @@ HOSM_CONTROLLERS = ("compensation", "ism", "unmatched", "lqr")
 POSITION_SCALE = 0.05
 #: time scale [s] of the default velocity weight: a velocity of ``POSITION_SCALE / VELOCITY_TIME`` costs as much
 VELOCITY_TIME = 0.1
+#: time scale [s] of the PID baseline's integral weight: an integrated error of ``POSITION_SCALE * INTEGRAL_TIME``
+#: costs as much as a position error of ``POSITION_SCALE``
+INTEGRAL_TIME = 0.5
+#: time constant [s] of the PID baseline's derivative filter (a raw backward difference of a noisy encoder at a
+#: few milliseconds is too noisy to feed back)
+DERIVATIVE_FILTER = 0.02
 #: safety factor on the differentiator's bound (:func:`smo_gym.control.output_error_lipschitz`)
 SAFETY = 2.5
 #: default disturbance amplitude, as a fraction of the actuators' force range on the disturbance channels
@@ -645,10 +651,12 @@ def design(
     elif controller == "lqr-kalman":
         from .baselines import KalmanObserver
 
-        ctl = StateFeedback(KalmanObserver(plant, dt, noise_std=noise, disturbance_std=W / np.sqrt(2.0)), K)
+        # w as white noise of the same power: an RMS W/sqrt(2) correlated over 1/omega has the density W^2/omega
+        ctl = StateFeedback(KalmanObserver(plant, dt, noise_std=noise, disturbance_std=W / np.sqrt(omega)), K)
     else:  # "pid"
-        from .baselines import PIDController
+        from .baselines import PIDController, default_integral_outputs
 
-        ctl = PIDController(plant, dt, Q=Q, R=R)
+        Qi = np.eye(len(default_integral_outputs(plant))) / (POSITION_SCALE * INTEGRAL_TIME) ** 2
+        ctl = PIDController(plant, dt, Q=Q, R=R, Qi=Qi, derivative_filter=DERIVATIVE_FILTER)
     record = LinearDesign(plant, op, joints, dist_dofs, K, Q, R, lipschitz, w_bounds, noise)
     return LinearizedPolicy(ctl, record, dt, controller, model.actuator_ctrlrange.copy(), out_adr)
