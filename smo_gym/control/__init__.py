@@ -17,8 +17,7 @@ On a MuJoCo environment, :func:`design` goes from the environment to an output-f
 (equilibrium, linearization, strong-observability check, sampled LQR, observer gains from the sensor) and
 :func:`run_closed_loop` runs it on the sensed environment (:mod:`smo_gym.control.closed_loop`).
 
-Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; :func:`linearize` and :func:`design` import MuJoCo lazily, and
-the closed-loop names (which need Gymnasium) are imported on first use.
+NumPy/SciPy on top of :mod:`smo_gym.observers`; :func:`linearize` and :func:`design` import MuJoCo lazily.
 """
 
 from __future__ import annotations
@@ -30,6 +29,14 @@ from .baselines import (
     default_integral_outputs,
     kalman_gain,
     van_loan_covariance,
+)
+from .closed_loop import (
+    ClosedLoopRun,
+    ExternalForce,
+    closed_loop_metrics,
+    parse_disturbance,
+    run_closed_loop,
+    scale_body_mass,
 )
 from .controllers import (
     CompensationController,
@@ -239,16 +246,3 @@ __all__ = [
     "walcott_zak_design",
     "zero_dynamics",
 ]
-
-#: names of :mod:`smo_gym.control.closed_loop`, imported on first use (it needs Gymnasium, the rest of the package
-#: does not)
-_CLOSED_LOOP = ("ClosedLoopRun", "ExternalForce", "closed_loop_metrics", "parse_disturbance", "run_closed_loop",
-                "scale_body_mass")  # fmt: skip
-
-
-def __getattr__(name: str):
-    if name in _CLOSED_LOOP:
-        from . import closed_loop
-
-        return getattr(closed_loop, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
