@@ -8,6 +8,9 @@ controllers (Angulo, Fridman and Levant 2012); observers beyond strong observabi
 functional observers, static left inverses); for linear time-varying plants, Kratz and Liebscher's
 strong-observability test and the cascaded HOSM observer of Galvan-Guerra, Fridman and Davila (2017); for linear
 switched systems (section 10), the bank of cascaded HOSM observers estimating the continuous state and the mode.
+For fully actuated MuJoCo mechanisms, without linearization: computed torque with the model-based super-twisting
+observer's identification and compensation of the external torques, optionally with output integral sliding mode
+(:class:`ComputedTorquePolicy`, an output-feedback policy on a sensed environment).
 Plants come from the slides or are linearized from MuJoCo models; a sampled-data closed-loop simulator adds noise,
 quantization and actuator lag.
 
@@ -16,6 +19,7 @@ Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` impo
 
 from __future__ import annotations
 
+from .computed_torque import ComputedTorquePolicy, UnderactuatedError
 from .controllers import (
     CompensationController,
     IntegralSlidingModeController,
@@ -110,6 +114,7 @@ __all__ = [
     "CascadedHOSMObserver",
     "CascadedLTVObserver",
     "CompensationController",
+    "ComputedTorquePolicy",
     "FiniteTimeStabilizer",
     "FunctionalObservabilityReport",
     "FunctionalUnknownInputObserver",
@@ -141,6 +146,7 @@ __all__ = [
     "SwitchedHOSMObserver",
     "SwitchedLinearSystem",
     "SwitchedObserverBank",
+    "UnderactuatedError",
     "UnknownInputConditionError",
     "UnknownInputConditions",
     "UnknownInputObserver",
