@@ -14,7 +14,8 @@ observer's identification and compensation of the external torques, optionally w
 Plants come from the slides or are linearized from MuJoCo models; a sampled-data closed-loop simulator adds noise,
 quantization and actuator lag.
 
-Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` imports MuJoCo (lazily).
+Pure NumPy/SciPy on top of :mod:`smo_gym.observers`; only :func:`linearize` and :class:`ComputedTorquePolicy` import
+MuJoCo (lazily).
 """
 
 from __future__ import annotations
