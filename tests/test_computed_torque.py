@@ -219,6 +219,10 @@ def test_act_before_reset_raises_and_bad_input_is_rejected():
         ComputedTorquePolicy(model, dt, target=[0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="disturbance_bound >= 0"):
         ComputedTorquePolicy(model, dt, disturbance_bound=[-1.0, 1.0])
+    with pytest.raises(ValueError, match="accel_bound > 0"):
+        ComputedTorquePolicy(model, dt, accel_bound=[0.0, 1.0])
+    with pytest.raises(ValueError, match="ism_gain > 0"):
+        ComputedTorquePolicy(model, dt, ism=True, ism_gain=-1.0)
     with pytest.raises(TypeError, match="True or False"):
         ComputedTorquePolicy(model, dt, ism="yes")
     with pytest.raises(ValueError, match="discontinuity"):

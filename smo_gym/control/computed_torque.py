@@ -467,6 +467,8 @@ class ComputedTorquePolicy:
             self.accel_bound = self.safety * acceleration_bound(Minv, static)
         else:
             self.accel_bound = _as_joint_vector("accel_bound", accel_bound, n)
+            if np.any(self.accel_bound <= 0):
+                raise ValueError(f"expected accel_bound > 0, actual value: {accel_bound!r}")
         ratio = self.dt / dyn.timestep
         substeps = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-6 and ratio >= 1 else 1
         self.observer = MechanicalSuperTwisting(
