@@ -8,16 +8,21 @@ controllers (Angulo, Fridman and Levant 2012); observers beyond strong observabi
 functional observers, static left inverses); for linear time-varying plants, Kratz and Liebscher's
 strong-observability test and the cascaded HOSM observer of Galvan-Guerra, Fridman and Davila (2017); for linear
 switched systems (section 10), the bank of cascaded HOSM observers estimating the continuous state and the mode.
+For fully actuated MuJoCo mechanisms, without linearization: computed torque with the model-based super-twisting
+observer's identification and compensation of the external torques, optionally with output integral sliding mode
+(:class:`ComputedTorquePolicy`, an output-feedback policy on a sensed environment).
 Plants come from the slides or are linearized from MuJoCo models; a sampled-data closed-loop simulator adds noise,
 quantization and actuator lag. The baselines a control engineer would reach for first live here too: LQR with a
 steady-state Kalman filter (:class:`KalmanObserver` in :class:`StateFeedback`) and a matrix PID on finite-difference
 velocities with LQI gains (:class:`PIDController`).
 
 On a MuJoCo environment, :func:`design` goes from the environment to an output-feedback policy in one call
-(equilibrium, linearization, strong-observability check, sampled LQR, observer gains from the sensor) and
-:func:`run_closed_loop` runs it on the sensed environment (:mod:`smo_gym.control.closed_loop`).
+(equilibrium, linearization, strong-observability check, sampled LQR, observer gains from the sensor; or, for a
+fully actuated arm, :class:`ComputedTorquePolicy` without linearizing) and :func:`run_closed_loop` runs it on the
+sensed environment (:mod:`smo_gym.control.closed_loop`).
 
-NumPy/SciPy on top of :mod:`smo_gym.observers`; :func:`linearize` and :func:`design` import MuJoCo lazily.
+NumPy/SciPy on top of :mod:`smo_gym.observers`; :func:`linearize`, :func:`design` and :class:`ComputedTorquePolicy`
+import MuJoCo lazily.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from .closed_loop import (
     run_closed_loop,
     scale_body_mass,
 )
+from .computed_torque import ComputedTorquePolicy, UnderactuatedError
 from .controllers import (
     CompensationController,
     IntegralSlidingModeController,
@@ -146,6 +152,7 @@ __all__ = [
     "CascadedLTVObserver",
     "ClosedLoopRun",
     "CompensationController",
+    "ComputedTorquePolicy",
     "ControlDiagnostics",
     "ExternalForce",
     "FiniteDifferenceState",
@@ -186,6 +193,7 @@ __all__ = [
     "SwitchedHOSMObserver",
     "SwitchedLinearSystem",
     "SwitchedObserverBank",
+    "UnderactuatedError",
     "UnknownInputConditionError",
     "UnknownInputConditions",
     "UnknownInputObserver",
