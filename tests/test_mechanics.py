@@ -197,3 +197,14 @@ def test_self_quadratic_coefficient_is_the_v_i_squared_coefficient_of_f(arm):
             e[i] = s
             second = dyn.acceleration(q, e) - 2 * dyn.acceleration(q, np.zeros(2)) + dyn.acceleration(q, -e)
             assert second[i] / (2 * s * s) == pytest.approx(alpha[i], rel=1e-6, abs=1e-8)
+
+
+def test_acceleration_without_input_means_zero_input_after_a_call_with_one(arm):
+    """``u`` omitted is zero: a previous call's input must not linger in the scratch data (the one-environment
+    fast path once kept it)."""
+    dyn = MujocoDynamics(arm.model)
+    q, v = np.zeros(2), np.zeros(2)
+    free = dyn.acceleration(q, v)
+    dyn.acceleration(q, v, np.array([5.0, 0.0]))
+    np.testing.assert_array_equal(dyn.acceleration(q, v), free)
+    np.testing.assert_array_equal(dyn.acceleration(q, v, np.zeros(2)), free)

@@ -298,8 +298,7 @@ class MujocoDynamics:
             # hot path (one environment, all joints measured in model order): no index arithmetic
             self._qpos[:] = q
             self._qvel[:] = v
-            if u is not None:
-                self._uview[:] = u
+            self._uview[:] = 0.0 if u is None else u  # "zero if omitted", not the previous call's input
             mujoco.mj_forward(self.model, self.data)
             return self._qacc.copy()
         q = self._check("q", q, self.n)
