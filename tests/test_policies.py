@@ -258,3 +258,15 @@ def test_cli_runs_a_closed_loop_and_prints_the_table(capsys, tmp_path):
     out = capsys.readouterr().out
     assert status == 0
     assert "compensation" in out and "lqr-luenberger" in out and "steady band" in out
+
+
+def test_design_computed_torque_uses_the_operating_point_and_refuses_underactuated_models():
+    env = gym.make(ARM, frame_skip=1)
+    target = env.unwrapped.TARGET
+    policy = design(env, "computed-torque", operating_point=target, disturbance_bound=0.7)
+    assert isinstance(policy, control.ComputedTorquePolicy)
+    run = run_closed_loop(env, policy, t_final=3.0, seed=0, disturbance=parse_disturbance("0.5*sin(2*t) + 0.2"))
+    np.testing.assert_array_equal(run.target, target)
+    assert closed_loop_metrics(run, 1.5)["steady band"] < 0.02
+    with pytest.raises(control.UnderactuatedError, match="pendulum"):
+        design(gym.make(FURUTA), "computed-torque")

@@ -540,8 +540,10 @@ def design(
         (:class:`IntegralSlidingModeController`, unit vector), ``"unmatched"``
         (:class:`UnmatchedCompensationController`), ``"lqr"`` (LQR on the cascaded observer's estimate), or the
         baselines ``"lqr-luenberger"``, ``"lqr-kalman"`` (:class:`KalmanObserver` with the same noise and disturbance
-        bounds) and ``"pid"`` (:class:`PIDController`, on finite-difference velocities). ``"computed-torque"``
-        returns :meth:`ComputedTorquePolicy.from_env` (no linearization).
+        bounds) and ``"pid"`` (:class:`PIDController`, on filtered finite-difference velocities).
+        ``"computed-torque"`` returns :meth:`ComputedTorquePolicy.from_env` (no linearization; fully actuated
+        models only) with ``operating_point`` as its target and ``disturbance_bound``; the other options are
+        those of the linear designs.
     measured : "positions" or sequence of str
         The measured joints (default all).
     disturbance : "actuated", "joints" or sequence of str
@@ -597,7 +599,13 @@ def design(
     if controller == "computed-torque":
         from .computed_torque import ComputedTorquePolicy
 
-        return ComputedTorquePolicy.from_env(env, sensor=sensor, target=operating_point)
+        target = model.qpos0 if operating_point is None else operating_point
+        bound = (
+            {}
+            if disturbance_bound is None
+            else {"disturbance_bound": check_positive("disturbance_bound", disturbance_bound)}
+        )
+        return ComputedTorquePolicy.from_env(env, sensor=sensor, target=np.asarray(target, dtype=float), **bound)
     alpha = check_int_in_range("alpha", alpha, 1, 4)
     op = equilibrium(model, operating_point)
     joints, out_adr, out_dofs = _joint_dofs(model, None if measured == "positions" else measured)
