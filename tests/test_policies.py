@@ -270,3 +270,22 @@ def test_design_computed_torque_uses_the_operating_point_and_refuses_underactuat
     assert closed_loop_metrics(run, 1.5)["steady band"] < 0.02
     with pytest.raises(control.UnderactuatedError, match="pendulum"):
         design(gym.make(FURUTA), "computed-torque")
+
+
+class _PointMass(gym.Env):
+    """A mass on a slide with an unlimited motor: the smallest MuJoCo environment ``design`` accepts."""
+
+    XML = """<mujoco><option timestep="0.002"/><worldbody><body><joint name="x" type="slide" axis="1 0 0"/>
+      <geom type="sphere" size="0.1" mass="1"/></body></worldbody>
+      <actuator><motor joint="x" ctrllimited="false"/></actuator></mujoco>"""
+
+    def __init__(self):
+        self.model = mujoco.MjModel.from_xml_string(self.XML)
+        self.dt = 0.002
+
+
+def test_an_unlimited_actuator_is_not_clipped_to_its_empty_range():
+    """MuJoCo stores ctrlrange (0, 0) for an unlimited actuator: the command must not be clipped to it."""
+    policy = design(_PointMass(), "lqr-luenberger", sensor="ideal", disturbance_bound=1.0)
+    policy.reset(np.array([0.1]))
+    assert policy.act(np.array([0.1]))[0] < -1.0  # pushes back, well outside (0, 0)

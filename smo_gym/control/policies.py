@@ -420,17 +420,20 @@ class LinearizedPolicy:
         The numbers it was built from.
     """
 
-    def __init__(self, controller, design: LinearDesign, dt: float, name: str, ctrlrange: np.ndarray, qpos_adr):
+    def __init__(self, controller, design: LinearDesign, dt: float, name: str, model, qpos_adr):
         self.controller = controller
         self.design = design
         self.dt = float(dt)
         self.name = name
         self._q0 = design.operating_point.qpos
         self._u0 = design.operating_point.ctrl
-        self._lo, self._hi = ctrlrange[:, 0], ctrlrange[:, 1]
+        limited = model.actuator_ctrllimited.astype(bool)  # an unlimited actuator's ctrlrange is (0, 0)
+        self._lo = np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf)
+        self._hi = np.where(limited, model.actuator_ctrlrange[:, 1], np.inf)
         self._out_adr = np.asarray(qpos_adr, dtype=int)
         self._nv = design.plant.n // 2
-        self._t = None
+        self._t = None  # time of the next sample; None before reset
+        self._last_t = 0.0  # time of the last command
 
     def _outputs(self, qpos_measured) -> np.ndarray:
         q = np.asarray(qpos_measured, dtype=float)
@@ -445,6 +448,7 @@ class LinearizedPolicy:
         point)."""
         self.controller.reset(self._outputs(qpos_measured))
         self._t = 0.0
+        self._last_t = 0.0
 
     def act(self, qpos_measured) -> np.ndarray:
         """The actuator command for this sample, shape ``(nu,)``, within ``ctrlrange``."""
@@ -464,16 +468,15 @@ class LinearizedPolicy:
         """Estimated positions and velocities of every joint, identified disturbance, sliding variable (before the
         first :meth:`act`: the operating point at rest)."""
         if self._t is None:  # nothing estimated yet: the operating point, at rest, no disturbance
-            nu = len(self._u0)
-            return ControlDiagnostics(0.0, self._q0.copy(), np.zeros(self._nv), np.zeros(self.design.plant.n_unknown),
-                                      np.zeros(nu))  # fmt: skip
+            m, nu = self.design.plant.n_unknown, len(self._u0)
+            return ControlDiagnostics(0.0, self._q0.copy(), np.zeros(self._nv), np.zeros(m), np.zeros(nu))
         obs, nv = self.controller.observer, self._nv
         x = obs.x_hat
         q = self._q0.copy()
         q[:nv] += x[:nv]  # hinge/slide joints: qpos and qvel share addresses
         s = getattr(self.controller, "s", None)
         return ControlDiagnostics(
-            t=getattr(self, "_last_t", 0.0),
+            t=self._last_t,
             qpos=q,
             qvel=x[nv : 2 * nv].copy(),
             disturbance=np.array(obs.w_hat, dtype=float),
@@ -667,4 +670,4 @@ def design(
         Qi = np.eye(len(default_integral_outputs(plant))) / (POSITION_SCALE * INTEGRAL_TIME) ** 2
         ctl = PIDController(plant, dt, Q=Q, R=R, Qi=Qi, derivative_filter=DERIVATIVE_FILTER)
     record = LinearDesign(plant, op, joints, dist_dofs, K, Q, R, lipschitz, w_bounds, noise)
-    return LinearizedPolicy(ctl, record, dt, controller, model.actuator_ctrlrange.copy(), out_adr)
+    return LinearizedPolicy(ctl, record, dt, controller, model, out_adr)
