@@ -90,6 +90,7 @@ def main(argv=None) -> int:
             env_kwargs=env_kwargs,
             design_kwargs=design_kwargs,
             payload=payload,
+            show_progress=True,
         )
         title = f"\n{key}: {env_id}, {args.sensor}, disturbance {disturbance or 'none'}"
         if payload:

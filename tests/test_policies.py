@@ -253,6 +253,7 @@ def test_cli_runs_a_closed_loop_and_prints_the_table(capsys, tmp_path):
             "--seconds",
             "1",
             "--no-plots",
+            "--no-progress",
         ]
     )
     out = capsys.readouterr().out

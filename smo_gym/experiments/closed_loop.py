@@ -33,7 +33,7 @@ def compare_controllers(
     env_kwargs: dict | None = None,
     design_kwargs: dict | None = None,
     payload: tuple[float, str, float] | None = None,
-    progress=None,
+    show_progress: bool = False,
 ) -> tuple[list[dict], dict]:
     """Design and run each controller on each seed; return ``(rows, runs)``.
 
@@ -55,44 +55,43 @@ def compare_controllers(
         Passed to ``gymnasium.make`` and to :func:`smo_gym.control.design`.
     payload : (float, str, float), optional
         ``(time, body, factor)``: the body's mass and inertia change by ``factor`` at ``time``.
-    progress : callable, optional
-        Called with a short text after each run.
+    show_progress : bool
+        A progress bar over the runs on standard error.
 
     Returns
     -------
     rows : list of dict
-        One per controller: the medians over the seeds of :func:`closed_loop_metrics` and the number of runs that
-        fell (or could not be designed).
+        One per controller: the medians over the seeds of :func:`closed_loop_metrics` (over the runs that did not
+        fall) and the number of runs that fell.
     runs : dict
         ``{controller: ClosedLoopRun}`` of the first seed, for the plot.
     """
     import gymnasium as gym
 
     from .. import envs as _envs  # noqa: F401 - registers smo_gym's environments
+    from .._extras import progress
     from ..control.policies import design
 
     t_steady = t_final / 2 if t_steady is None else t_steady
     force = None if disturbance is None else parse_disturbance(disturbance)
     events = () if payload is None else ((payload[0], scale_body_mass(payload[1], payload[2])),)
-    rows, runs = [], {}
-    for name in controllers:
-        metrics, failed = [], []
-        for seed in seeds:
-            env = gym.make(env_id, **(env_kwargs or {}))
-            policy = design(env, name, sensor=sensor, **(design_kwargs or {}))
-            run = run_closed_loop(env, policy, t_final=t_final, seed=seed, disturbance=force, sensor=sensor,
-                                  events=events)  # fmt: skip
-            runs.setdefault(name, run)
-            m = closed_loop_metrics(run, t_steady)
-            (failed if run.terminated else metrics).append(m)
-            if progress is not None:
-                progress(f"{name} seed {seed}: " + ("fell" if run.terminated else f"band {m['steady band']:.3g}"))
+    results: dict[str, list] = {name: [] for name in controllers}
+    runs = {}
+    pairs = [(name, seed) for name in controllers for seed in seeds]
+    for name, seed in progress(pairs, desc="closed loops", unit="run") if show_progress else pairs:
+        env = gym.make(env_id, **(env_kwargs or {}))
+        policy = design(env, name, sensor=sensor, **(design_kwargs or {}))
+        run = run_closed_loop(env, policy, t_final=t_final, seed=seed, disturbance=force, sensor=sensor, events=events)
+        runs.setdefault(name, run)
+        results[name].append((run.terminated, closed_loop_metrics(run, t_steady)))
+    rows = []
+    keys = ("error RMS", "steady band", "effort RMS", "TV(u)/s", "ident. RMS", "converged [s]")
+    for name, outcomes in results.items():
+        metrics = [m for fell, m in outcomes if not fell]
         row = {"controller": name}
-        keys = ("error RMS", "steady band", "effort RMS", "TV(u)/s", "ident. RMS", "converged [s]")
         for k in keys:
-            vals = [m[k] for m in metrics]
-            row[k] = float(np.median(vals)) if vals else np.inf
-        row["fell"] = f"{len(failed)}/{len(seeds)}"
+            row[k] = float(np.median([m[k] for m in metrics])) if metrics else np.inf
+        row["fell"] = f"{len(outcomes) - len(metrics)}/{len(outcomes)}"
         rows.append(row)
     return rows, runs
 

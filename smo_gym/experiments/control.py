@@ -694,6 +694,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", default="outputs/control", help="directory for the plots (default %(default)s)")
     parser.add_argument("--quick", action="store_true", help="with --reproduce: fewer sampling steps, shorter runs")
     parser.add_argument("--no-plots", action="store_true", help="tables only")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar over the runs")
 
 
 def add_subcommand(subparsers):
@@ -733,6 +734,7 @@ def cli(args) -> int:
         t_final=args.seconds,
         env_kwargs=env_kwargs,
         design_kwargs=design_kwargs,
+        show_progress=not args.no_progress,
     )
     title = f"{args.env}, sensor {args.sensor}, disturbance {disturbance or 'none'}"
     print(format_table(rows, f"{title}; medians over {args.seeds} seed(s), steady window t >= {args.seconds / 2:g} s"))
