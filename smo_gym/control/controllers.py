@@ -235,6 +235,10 @@ class IntegralSlidingModeController(StateFeedback):
     Sampled form: over each sampling interval the integral is that of the nominal model started at
     :math:`\hat x_{k-1}` with :math:`u_{n,k-1}` held, i.e. the exact ZOH map,
     :math:`s_k = s_{k-1} + B^+(\hat x_k - \Phi\hat x_{k-1} - \Gamma u_{n,k-1})`, :math:`s(T) = 0`.
+    Anti-windup: when the command applied (``self.u``, set by :meth:`step` or by a caller that clips it to the
+    actuator's range) differs from the one computed, :math:`u_{n,k-1}` is shifted by that difference, so that
+    :math:`s` integrates the disturbance and the discontinuous term only, not the saturation (otherwise the
+    integral winds up during a saturated transient and the sliding term spends seconds unwinding it).
 
     Parameters
     ----------
@@ -279,10 +283,14 @@ class IntegralSlidingModeController(StateFeedback):
         if t < self.t_start:
             return u_n
         if self._last is not None:
-            x_prev, un_prev = self._last
+            x_prev, un_prev, u_cmd_prev = self._last
+            # anti-windup: what the actuator did not deliver of the last command (self.u is the command applied,
+            # clipped by a saturating actuator) is not the disturbance's doing, so it is kept out of s
+            un_prev = un_prev + (self.u - u_cmd_prev)
             self.s = self.s + self.Bpinv @ (x_hat - self.Phi @ x_prev - self.Gamma @ un_prev)
-        self._last = (x_hat.copy(), u_n.copy())
-        return u_n + self.switch(self.s)
+        u = u_n + self.switch(self.s)
+        self._last = (x_hat.copy(), u_n.copy(), u.copy())
+        return u
 
 
 class UnmatchedCompensationController(StateFeedback):

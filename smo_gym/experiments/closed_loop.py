@@ -119,30 +119,51 @@ def summarize(rows: list[dict]) -> list[dict]:
     ]
 
 
-def plot_closed_loop(runs: dict, path, title: str = "") -> None:
-    """Position error, command, identified vs true disturbance and velocity estimation error of each run."""
+def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
+    """Centered moving average over ``n`` samples along axis 0 (edges averaged over what exists)."""
+    if n <= 1:
+        return x
+    kernel = np.ones(n)
+    norm = np.convolve(np.ones(len(x)), kernel, mode="same")
+    return np.stack([np.convolve(col, kernel, mode="same") / norm for col in np.atleast_2d(x.T)], axis=-1)
+
+
+def plot_closed_loop(runs: dict, path, title: str = "", smoothing: float = 0.05) -> None:
+    """Position error, command, identified vs true disturbance and velocity estimation error of each run.
+
+    Noisy signals (command, identified disturbance) are drawn faintly as sampled and boldly as their centered moving
+    average over ``smoothing`` seconds, so that the mean behaviour stays readable under sensor noise.
+    """
     from .._extras import require
 
     require("matplotlib", "plots").use("Agg")
     plt = require("matplotlib.pyplot", "plots")
     fig, axes = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
-    for name, r in runs.items():
-        axes[0].semilogy(r.t, np.maximum(np.abs(r.qpos - r.target).max(axis=1), 1e-7), lw=0.8, label=name)
-        axes[1].plot(r.t, r.ctrl[:, 0], lw=0.6, label=name)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (name, r) in enumerate(runs.items()):
+        c = colors[i % len(colors)]
+        n = max(1, int(round(smoothing / max(r.t[1] - r.t[0], 1e-12)))) if r.t.size > 1 else 1
+        err = np.abs(r.qpos - r.target).max(axis=1)
+        axes[0].semilogy(r.t, np.maximum(err, 1e-7), color=c, lw=0.3, alpha=0.35)
+        axes[0].semilogy(r.t, np.maximum(_moving_average(err[:, None], n)[:, 0], 1e-7), color=c, lw=1.2, label=name)
+        axes[1].plot(r.t, r.ctrl[:, 0], color=c, lw=0.3, alpha=0.3)
+        axes[1].plot(r.t, _moving_average(r.ctrl, n)[:, 0], color=c, lw=1.2, label=name)
         w_hat = r.disturbance_hat
         if w_hat.shape == r.disturbance.shape and np.any(w_hat != 0):
-            axes[2].plot(r.t, w_hat[:, 0], lw=0.6, label=f"{name}: identified")
+            axes[2].plot(r.t, w_hat[:, 0], color=c, lw=0.3, alpha=0.3)
+            axes[2].plot(r.t, _moving_average(w_hat, n)[:, 0], color=c, lw=1.2, label=f"{name}: identified")
         verr = np.abs(r.qvel_hat - r.qvel[:, : r.qvel_hat.shape[1]]).max(axis=1)
-        axes[3].semilogy(r.t, np.maximum(verr, 1e-7), lw=0.6, label=name)
+        axes[3].semilogy(r.t, np.maximum(verr, 1e-7), color=c, lw=0.3, alpha=0.35)
+        axes[3].semilogy(r.t, np.maximum(_moving_average(verr[:, None], n)[:, 0], 1e-7), color=c, lw=1.2, label=name)
     first = next(iter(runs.values()))
     if first.disturbance.size:
-        axes[2].plot(first.t, first.disturbance[:, 0], "k", lw=1.2, label="true")
+        axes[2].plot(first.t, first.disturbance[:, 0], "k", lw=1.5, label="true")
     labels = ("max |q - q*| [rad, m]", "command (first actuator)", "disturbance (first channel)", "max |v_hat - v|")
     for ax, label in zip(axes, labels, strict=True):
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")
-    axes[0].set_title(title)
+    axes[0].set_title(f"{title}\n(faint: as sampled; bold: {smoothing * 1e3:g} ms moving average)", fontsize=9)
     axes[-1].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
