@@ -14,6 +14,9 @@ simulation (:class:`smo_gym.wrappers.Monitored` writes its record into ``info``)
   observer (:class:`smo_gym.identification.EquivalentInjectionIdentifier`, Davila, Fridman and Levant 2005);
   :meth:`ParameterMonitor.from_mujoco` builds it for MuJoCo model parameters (a payload mass, a joint's damping;
   :class:`smo_gym.mechanics.MujocoParameterRegressor`).
+* :class:`ModeMonitor`: the discrete mode of a switched system and its switching instants, by the bank of cascaded
+  HOSM observers of :class:`smo_gym.control.SwitchedObserverBank` (Davila, Rios and Fridman 2012; Rios et al.
+  2012, 2014), run online.
 * :class:`FaultMonitor`: fault detection and isolation by a bank of observers
   (:class:`smo_gym.fault_detection.FaultObserverBank`, Rios, Davila, Fridman and Edwards 2014), with the decision
   rule of :func:`smo_gym.fault_detection.diagnose` applied online: the flags at a sample are those that
@@ -46,7 +49,7 @@ from ._validation import as_real_array
 from .fault_detection import UNKNOWN, FaultObserverBank, diagnose
 from .identification import EquivalentInjectionIdentifier
 
-__all__ = ["FaultMonitor", "ParameterMonitor", "check_monitor", "measured"]
+__all__ = ["FaultMonitor", "ModeMonitor", "ParameterMonitor", "check_monitor", "measured"]
 
 
 def measured(info) -> np.ndarray:
@@ -287,3 +290,93 @@ class FaultMonitor:
             isolation_time=t_iso,
         )
         return record
+
+
+class ModeMonitor:
+    r"""The estimated mode of a switched system and its switching instants, sample by sample.
+
+    The online form of :meth:`smo_gym.control.SwitchedObserverBank.run`: the bank's observers are predicted with the
+    input that acted over the interval, then updated with the sample. The bank works in the deviation coordinates
+    of its linearizations, :math:`y = q_{meas} - q_0` (of the ``outputs`` entries of the measured ``qpos``) and
+    :math:`u = \mathtt{ctrl} - u_0`.
+
+    Parameters
+    ----------
+    bank : smo_gym.control.SwitchedObserverBank
+    qpos_offset : float or array_like, shape (p,)
+        :math:`q_0`, the configuration the modes were linearized at.
+    ctrl_offset : float or array_like, shape (inputs,)
+        :math:`u_0`, the control they were linearized at.
+    outputs : array_like of int, shape (p,), optional
+        Which entries of the measured ``qpos`` are the bank's outputs (default the first ``p``).
+
+    Notes
+    -----
+    The record of :meth:`reset` and :meth:`update` (times from the reset sample):
+
+    ====================  ==========  ==============================================================================
+    key                   shape       what
+    ====================  ==========  ==============================================================================
+    ``mode``              ``()``      int: the estimated mode :math:`\hat\sigma`
+    ``mode_name``         str         its name in the :class:`~smo_gym.control.SwitchedLinearSystem`
+    ``switched``          ``()``      bool: a switch was decided at this sample
+    ``switch_time``       ``()``      estimated instant of the last switch [s], NaN before the first
+    ``switches``          ``()``      int: switches decided since the reset
+    ``residual_norms``    ``(q,)``    :math:`\rho_j` of each mode's observer (band: ``<= 1``)
+    ``time``              ``()``      time since the reset [s]
+    ====================  ==========  ==============================================================================
+    """
+
+    def __init__(self, bank, *, qpos_offset=0.0, ctrl_offset=0.0, outputs=None):
+        from .control import SwitchedObserverBank
+
+        if not isinstance(bank, SwitchedObserverBank):
+            raise TypeError(f"expected a SwitchedObserverBank, actual value: {type(bank).__name__}")
+        self.bank = bank
+        p, m = bank.system.n_outputs, bank.system.n_inputs
+        self.outputs = np.arange(p) if outputs is None else np.asarray(outputs, dtype=int).reshape(-1)
+        if self.outputs.shape != (p,) or np.any(self.outputs < 0):
+            raise ValueError(f"expected {p} non-negative qpos indices as outputs, actual value: {outputs!r}")
+        self.qpos_offset = _vector("qpos_offset", np.broadcast_to(np.asarray(qpos_offset, dtype=float), (p,)), p)
+        self.ctrl_offset = _vector("ctrl_offset", np.broadcast_to(np.asarray(ctrl_offset, dtype=float), (m,)), m)
+        self._k = None
+
+    def _outputs(self, q_measured) -> np.ndarray:
+        q = as_real_array("q_measured", q_measured)
+        if q.ndim != 1 or q.size <= self.outputs.max() or not np.isfinite(q).all():
+            raise ValueError(
+                f"expected a finite q_measured of shape (nq,) with nq > {self.outputs.max()}, actual value: {q!r}"
+            )
+        return q[self.outputs] - self.qpos_offset
+
+    def reset(self, q_measured) -> dict:
+        """Restart every observer at ``q_measured`` in the bank's initial mode."""
+        self.bank.reset(self._outputs(q_measured))
+        self._k, self._n_switches = 0, 0
+        return self._record()
+
+    def update(self, q_measured, ctrl) -> dict:
+        """One sample: the measurement and the ``ctrl`` (shape ``(inputs,)``) that acted over the interval."""
+        if self._k is None:
+            raise RuntimeError("expected reset(q_measured) before update(...), actual value: never reset")
+        y = self._outputs(q_measured)
+        u = _vector("ctrl", ctrl, self.ctrl_offset.size)
+        self.bank.advance(u - self.ctrl_offset)
+        self.bank.update(y)
+        self._k += 1
+        return self._record()
+
+    def _record(self) -> dict:
+        bank = self.bank
+        switches = bank.switches
+        switched = len(switches) > self._n_switches
+        self._n_switches = len(switches)
+        return {
+            "mode": int(bank.mode),
+            "mode_name": bank.system.names[bank.mode],
+            "switched": switched,
+            "switch_time": switches[-1][0] if switches else math.nan,
+            "switches": len(switches),
+            "residual_norms": np.array(bank.residual_norms, dtype=float),
+            "time": self._k * bank.dt,
+        }

@@ -314,3 +314,74 @@ def test_bad_input_raises_typed_errors():
         ParameterMonitor(monitor.identifier, names=["a", "b"])
     with pytest.raises(TypeError, match="FaultObserverBank"):
         FaultMonitor(object())
+
+
+# ---- the mode of a switched system ------------------------------------------------------------------------------
+def _oscillator(k: float, b: float):
+    """x1' = x2, x2' = -k x1 - 0.5 x2 + b u + w, position measured."""
+    from smo_gym.control import LinearPlant
+
+    return LinearPlant([[0, 1], [-k, -0.5]], [[0], [b]], [[1, 0]], [[0.0], [1.0]])
+
+
+def _bank(system):
+    from smo_gym.control import SwitchedObserverBank
+
+    return SwitchedObserverBank(system, 1e-3, 300.0, threshold=0.5, dwell=0.01, settle_time=0.3,
+                                residual_time_constant=0.02)  # fmt: skip
+
+
+def test_mode_monitor_is_the_bank_run_online():
+    """Sample by sample, the monitor's mode and switching instants are those of SwitchedObserverBank.run on the
+    whole record (measured positions offset by q0, inputs by u0)."""
+    from smo_gym.control import SwitchedLinearSystem
+    from smo_gym.monitors import ModeMonitor
+
+    system = SwitchedLinearSystem([_oscillator(1, 1), _oscillator(9, 1), _oscillator(4, 3)], names=["a", "b", "c"])
+    sigma = np.repeat([0, 1, 2], 1500)
+    t = np.arange(sigma.size) * 1e-3
+    u = (2 * np.sin(3 * t) + np.sin(7.3 * t))[:, None]
+    _, Y = system.simulate([1.0, 2.0], sigma, 1e-3, u=u)
+    offline = _bank(system).run(Y, u)  # Y: T + 1 samples, u[k] held over [t_k, t_k+1)
+    q0, u0 = 0.3, -1.0
+    monitor = ModeMonitor(_bank(system), qpos_offset=q0, ctrl_offset=u0)
+    records = [monitor.reset(Y[0] + q0)] + [monitor.update(Y[k] + q0, u[k - 1] + u0) for k in range(1, len(Y))]
+    np.testing.assert_array_equal([r["mode"] for r in records], offline.modes)
+    assert records[-1]["switches"] == len(offline.switch_times) == 2
+    assert records[-1]["switch_time"] == pytest.approx(offline.switch_times[-1])
+    assert sum(r["switched"] for r in records) == 2
+    assert records[-1]["mode_name"] == "c" and records[-1]["residual_norms"].shape == (3,)
+    with pytest.raises(RuntimeError, match="reset"):
+        ModeMonitor(_bank(system)).update(Y[1], u[0])
+    with pytest.raises(ValueError, match="ctrl"):
+        monitor.update(Y[1], [np.nan])
+    with pytest.raises(TypeError, match="SwitchedObserverBank"):
+        ModeMonitor(system)
+
+
+def test_mode_monitor_in_info_through_the_monitored_wrapper():
+    """The arm held at rest by its equilibrium torque, modes linearized there (actuator gears 1 and 0.4): the
+    record reaches info['mode'] at every step, and the nominal mode stands."""
+    from smo_gym import control
+    from smo_gym.monitors import ModeMonitor
+
+    env = gym.make(ENV_ID, frame_skip=1, reset_noise_scale=0.0)
+    model = env.unwrapped.model
+    op = control.equilibrium(model)
+    plants = []
+    for gear in ((1.0, 1.0), (0.4, 1.0)):
+        m = copy.deepcopy(model)
+        m.actuator_gear[:, 0] = gear
+        plants.append(control.linearize(m, op.qpos, op.ctrl))
+    bank = control.SwitchedObserverBank(
+        control.SwitchedLinearSystem(plants, names=["nominal", "shoulder-low"]), 2e-3, 1000.0, threshold=50.0,
+        settle_time=0.1, residual_time_constant=0.05,
+    )  # fmt: skip
+    sensed = wrappers.EstimatedVelocity(env, sensor="encoder-12bit", rate="env", observer="finite-difference")
+    monitored = wrappers.Monitored(sensed, ModeMonitor(bank, qpos_offset=op.qpos, ctrl_offset=op.ctrl), key="mode")
+    _, info = monitored.reset(seed=0)
+    assert info["mode"]["mode"] == 0 and info["mode"]["time"] == 0.0
+    for _ in range(200):
+        *_, info = monitored.step(op.ctrl)
+        assert info["mode"]["mode_name"] == "nominal" and np.isfinite(info["mode"]["residual_norms"]).all()
+    assert info["mode"]["switches"] == 0 and info["mode"]["time"] == pytest.approx(0.4)

@@ -303,3 +303,15 @@ def test_integral_sliding_mode_does_not_wind_up_while_the_motors_saturate():
     assert np.abs(run.ctrl[run.t < 0.3]).max() == pytest.approx(10.0)  # the transient does saturate
     err = np.abs(run.qpos - run.target).max(axis=1)
     assert err[run.t >= 1.0].max() < 0.006
+
+
+def test_the_guide_example_runs_as_printed(capsys):
+    """The first python block of the control guide (design, closed loop, metrics) executed as printed."""
+    from pathlib import Path
+
+    guide = Path(__file__).resolve().parents[1] / "docs" / "guide" / "control.md"
+    source = guide.read_text().split("```python\n", 1)[1].split("```", 1)[0]
+    assert "control.design(" in source and len(source.strip().splitlines()) < 15
+    exec(compile(source, str(guide), "exec"), {"__name__": "__guide__"})
+    band = float(capsys.readouterr().out.split()[0])
+    assert band < 0.1

@@ -548,6 +548,8 @@ class SwitchedObserverBank:
         Current mode estimate.
     residuals : ndarray, shape (q, n)
         The equivalent injections :math:`r_j` of the last sample (unfiltered).
+    residual_norms : ndarray, shape (q,)
+        The normalized filtered residuals :math:`\rho_j` of the last sample (band: ``<= 1``).
     """
 
     @check_keywords
@@ -585,6 +587,7 @@ class SwitchedObserverBank:
         self._gain = self.dt / (self.residual_time_constant + self.dt)  # implicit Euler of the low-pass filter
         self.mode: int | None = None
         self.residuals = None
+        self.residual_norms = None
         self._history = None
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
@@ -594,6 +597,7 @@ class SwitchedObserverBank:
             obs.update(y0)  # the differentiator consumes the sample it was reset at
         self.mode = self.initial_mode
         self.residuals = np.zeros((self.system.q, self.system.n))
+        self.residual_norms = np.zeros(self.system.q)
         self._mean_square = np.zeros(self.system.q)
         self._runs = np.zeros(self.system.q, dtype=int)
         self._exit = None
@@ -619,6 +623,7 @@ class SwitchedObserverBank:
         # sign along the trajectory, and its instantaneous value passing through zero must not look like a fit
         self._mean_square += self._gain * (np.sum(self.residuals**2, axis=1) - self._mean_square)
         rho = np.sqrt(self._mean_square) / self.threshold
+        self.residual_norms = rho
         if self._k >= self._settle_samples:
             self._decide(rho, y)
         x = self.observers[self.mode].x_hat
@@ -649,6 +654,13 @@ class SwitchedObserverBank:
                 obs.update(y)  # the sample is consumed: predict from it at the next advance
             self._mean_square[:] = 0.0
             self._runs[:] = 0
+
+    @property
+    def switches(self) -> tuple[tuple[float, float, int], ...]:
+        """``(switching instant [s], decision time [s], new mode)`` of every switch decided since :meth:`reset`."""
+        if self._history is None:
+            raise RuntimeError("expected reset(y0) before switches, actual value: the bank was never reset")
+        return tuple(self._switches)
 
     def advance(self, u=None) -> None:
         """Predict every observer to the next sample with the control ``u`` (default zero)."""
