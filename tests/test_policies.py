@@ -315,3 +315,24 @@ def test_the_guide_example_runs_as_printed(capsys):
     exec(compile(source, str(guide), "exec"), {"__name__": "__guide__"})
     band = float(capsys.readouterr().out.split()[0])
     assert band < 0.1
+
+
+def test_design_unmatched_refuses_what_the_surface_cannot_compensate_and_runs_otherwise():
+    """The surface compensation of Ferreira et al. needs the disturbance reachable through the pseudo-control: a
+    torque on the Furuta pendulum (no actuator) is refused with the reason; the arm's torque (matched) is handled."""
+    env = gym.make(FURUTA, frame_skip=1)
+    with pytest.raises(ValueError, match="compensated on the regulated output"):
+        design(env, "unmatched", disturbance=["pendulum"], disturbance_bound=0.004)
+    run = _run("Furuta", "unmatched")
+    assert not run.terminated
+    assert closed_loop_metrics(run, 2.0)["steady band"] < 0.1
+
+
+def test_external_force_on_a_joint_outside_the_environments_own_input():
+    """The Furuta environment's own input drives the arm; a force on the pendulum goes to qfrc_applied and stays
+    there through the environment's step (which rewrites only its own channels)."""
+    env = ExternalForce(gym.make(FURUTA, frame_skip=1), lambda t: [0.01, -0.002], [0, 1])
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(1))
+    np.testing.assert_allclose(env.unwrapped.data.qfrc_applied, [0.01, -0.002])
+    np.testing.assert_allclose(info["disturbance"], [0.01, -0.002])

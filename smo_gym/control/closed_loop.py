@@ -101,9 +101,10 @@ class ExternalForce(gym.Wrapper):
     r"""Apply a generalized force :math:`w(t)` to chosen joints, through MuJoCo's ``qfrc_applied``.
 
     Evaluated at the start of every environment step and held over its physics steps (zero-order hold at the
-    control rate); reported as ``info["disturbance"]``. An environment with its own disturbance input (the smo_gym
-    environments' ``set_disturbance``) gets the force through it; others get ``qfrc_applied`` written on the
-    joints' ``qvel`` addresses before the step (MuJoCo never clears it; a reset does).
+    control rate); reported as ``info["disturbance"]``. On the joints of an environment's own disturbance input (the
+    smo_gym environments' ``set_disturbance``, which rewrites them at every step) the force goes through that
+    input; on other joints ``qfrc_applied`` is written at their ``qvel`` addresses before the step (MuJoCo never
+    clears it; a reset does).
 
     Parameters
     ----------
@@ -125,16 +126,11 @@ class ExternalForce(gym.Wrapper):
         if self.dofs.size == 0 or self.dofs.min() < 0 or self.dofs.max() >= nv:
             raise ValueError(f"expected qvel addresses in [0, {nv}), actual value: {self.dofs.tolist()}")
         own = getattr(self.env.unwrapped, "disturbance_dofs", None)
-        self._own = own is not None and callable(getattr(self.env.unwrapped, "set_disturbance", None))
-        if self._own:  # the environment writes qfrc_applied itself (and clears the rest): go through its input
-            own = [int(d) for d in own]
-            missing = [int(d) for d in self.dofs if int(d) not in own]
-            if missing:
-                raise ValueError(
-                    f"expected dofs among the environment's disturbance channels {own}, actual value: {missing}"
-                )
-            self._slot = np.array([own.index(int(d)) for d in self.dofs])
-            self._full = np.zeros(len(own))
+        own = [] if own is None or not callable(getattr(self.env.unwrapped, "set_disturbance", None)) else list(own)
+        # the environment writes its own channels at every step: forces on them go through its input
+        self._own_slot = np.array([own.index(int(d)) for d in self.dofs if int(d) in own], dtype=int)
+        self._own_mask = np.array([int(d) in own for d in self.dofs], dtype=bool)
+        self._own_value = np.zeros(len(own))
 
     def _value(self) -> np.ndarray:
         w = np.broadcast_to(np.asarray(self.force(float(self.env.unwrapped.data.time)), dtype=float), self.dofs.shape)
@@ -145,11 +141,10 @@ class ExternalForce(gym.Wrapper):
     def step(self, action):
         w = self._value()
         u = self.env.unwrapped
-        if self._own:
-            self._full[self._slot] = w
-            u.set_disturbance(self._full)
-        else:
-            u.data.qfrc_applied[self.dofs] = w
+        if self._own_mask.any():
+            self._own_value[self._own_slot] = w[self._own_mask]
+            u.set_disturbance(self._own_value)
+        u.data.qfrc_applied[self.dofs[~self._own_mask]] = w[~self._own_mask]
         obs, reward, terminated, truncated, info = self.env.step(action)
         info["disturbance"] = w.copy()
         return obs, reward, terminated, truncated, info

@@ -117,7 +117,7 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
     def step(self, action):
         action = np.asarray(action, dtype=np.float64)
         d = self._disturbance_at(self.data.time)
-        self.data.qfrc_applied[:] = 0.0
+        # only its own channels: forces another wrapper applies to other joints stay (a reset clears them all)
         self.data.qfrc_applied[self.disturbance_dofs] = d
         self._last_disturbance = d
         self.do_simulation(action, self.frame_skip)
