@@ -241,3 +241,78 @@ def test_undetectable_mode_is_named_first():
     # the same mode with its unstable part seen by the output is detectable
     seen = LinearPlant([[1.0, 0.0], [0.0, -1.0]], [[0], [1]], [[1, 1]], [[0], [1]])
     assert SwitchedLinearSystem([seen]).conditions().detectable == (True,)
+
+
+# ---- autonomous switching ---------------------------------------------------------------------------------------
+def _direction_dependent_damper():
+    """x1' = x2, x2' = -4 x1 - b x2 + u + w, position measured; damping b = 0.2 extending (x2 > 0) and 3 when
+    compressing (x2 <= 0): the mode is decided by the *unmeasured* velocity, H = [0, 1]."""
+    from smo_gym.control import SwitchingSurface
+
+    def damper(b):
+        return LinearPlant([[0, 1], [-4, -b]], [[0], [1]], [[1, 0]], [[0.0], [1.0]])
+
+    system = SwitchedLinearSystem([damper(0.2), damper(3.0)], names=["extending", "compressing"])
+    return system, SwitchingSurface([0, 1], [0.0], [1, 0])
+
+
+def test_autonomous_switching_is_estimated_exactly_once_the_state_is():
+    """The discrete-state observer sigma_hat = sigma(H x_hat) (the slides' autonomous case): from a wrong initial
+    velocity and under an unknown input, the continuous estimate converges in finite time (0.16 s measured) and from
+    then on every mode of every interval is right (7 switches in 6 s), the state error at the sampled floor."""
+    from smo_gym.control import AutonomousSwitchedObserver
+
+    system, surface = _direction_dependent_damper()
+    T = 6000
+    t = np.arange(T) * DT
+    u = (3 * np.sin(4 * t) + np.sin(9.3 * t))[:, None]
+    w = (0.5 * np.sin(3 * t))[:, None]
+    X, Y, sigma = system.simulate([0.5, 1.0], surface, DT, u=u, w=w, steps=T)
+    assert np.count_nonzero(np.diff(sigma)) >= 6
+    observer = AutonomousSwitchedObserver(system, surface, DT, L)
+    X_hat, modes = observer.run(Y, u)  # starts at C^+ y0: the velocity estimate is off by 1
+    err = np.abs(X_hat[:T] - X[:T]).max(axis=1)
+    converged = t[np.flatnonzero(err > 1e-2).max() + 1]
+    assert converged < 0.3
+    after = t >= converged
+    np.testing.assert_array_equal(modes[:T][after], sigma[after])
+    assert err[t >= converged + 0.1].max() < 2e-3
+    true_switches = t[1:][np.diff(sigma) != 0]
+    np.testing.assert_allclose(
+        [s for s in observer.switch_times if s > converged], true_switches[true_switches > converged]
+    )
+
+
+def test_switching_surface_condition_holds_and_fails_with_the_weakly_unobservable_subspace():
+    """V* inside ker Q (the slides' condition): x3 (stable, unmeasured, never reaching y) is weakly unobservable;
+    H = e1 never sees it (holds), H = e3 reads it directly (fails, naming the mode)."""
+    from smo_gym.control import SwitchingSurface
+
+    A = [[0, 1, 0], [-1, 0, 0], [1, 0, -1]]
+    plant = LinearPlant(A, [[0], [1], [0]], [[1, 0, 0]], [[0], [1], [0]])
+    other = LinearPlant(np.array(A) + np.diag([0, -1, 0]), [[0], [1], [0]], [[1, 0, 0]], [[0], [1], [0]])
+    system = SwitchedLinearSystem([plant, other], names=["a", "b"])
+    assert SwitchingSurface([1, 0, 0], [0.0], [0, 1]).condition(system) == (True, "")
+    ok, reason = SwitchingSurface([0, 0, 1], [0.0], [0, 1]).condition(system)
+    assert not ok and "mode 'a'" in reason and "dimension 1" in reason
+    # strongly observable modes (V* = {0}) satisfy it for every H
+    damper, _ = _direction_dependent_damper()
+    assert SwitchingSurface([3, -2], [0.0], [0, 1]).condition(damper)[0]
+
+
+def test_switching_surface_bad_input():
+    from smo_gym.control import AutonomousSwitchedObserver, SwitchingSurface
+
+    with pytest.raises(ValueError, match="increasing edges"):
+        SwitchingSurface([0, 1], [1.0, 0.0], [0, 1, 0])
+    with pytest.raises(ValueError, match="one per interval"):
+        SwitchingSurface([0, 1], [0.0], [0])
+    with pytest.raises(ValueError, match="nonzero H"):
+        SwitchingSurface([0, 0], [0.0], [0, 1])
+    system, surface = _direction_dependent_damper()
+    with pytest.raises(ValueError, match="steps"):
+        system.simulate([0, 0], surface, DT)
+    with pytest.raises(TypeError, match="SwitchingSurface"):
+        AutonomousSwitchedObserver(system, [0, 1], DT, L)
+    with pytest.raises(RuntimeError, match="reset"):
+        AutonomousSwitchedObserver(system, surface, DT, L).update([0.0])

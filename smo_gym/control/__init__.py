@@ -119,6 +119,7 @@ from .policies import (
 )
 from .simulation import SimulationResult, fit_order, simulate, steady_state_error, total_variation_rate
 from .switched import (
+    AutonomousSwitchedObserver,
     ModeMetrics,
     NotDistinguishableError,
     SwitchedConditions,
@@ -126,6 +127,7 @@ from .switched import (
     SwitchedHOSMObserver,
     SwitchedLinearSystem,
     SwitchedObserverBank,
+    SwitchingSurface,
     mode_metrics,
 )
 from .unknown_inputs import (
@@ -148,6 +150,7 @@ from .unknown_inputs import (
 
 __all__ = [
     "DEFAULT_BETAS",
+    "AutonomousSwitchedObserver",
     "CascadedHOSMObserver",
     "CascadedLTVObserver",
     "ClosedLoopRun",
@@ -193,6 +196,7 @@ __all__ = [
     "SwitchedHOSMObserver",
     "SwitchedLinearSystem",
     "SwitchedObserverBank",
+    "SwitchingSurface",
     "UnderactuatedError",
     "UnknownInputConditionError",
     "UnknownInputConditions",

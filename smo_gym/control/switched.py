@@ -47,10 +47,10 @@ Notes
 Where the slides' print and the derivation differ:
 
 * The slides call the switching driven by the state (:math:`\sigma = i` when :math:`Hx \in \mathcal H_i`)
-  *autonomous* and decide it from :math:`H\hat x` (condition :math:`\mathcal V^*_\sigma \subset \ker Q_\sigma`);
-  the exogenous (*non-autonomous*) switching is decided from the equivalent injection with :math:`w = 0`. Here
-  :class:`SwitchedObserverBank` implements the latter, which needs no knowledge of a switching surface; the
-  state-dependent rule is not implemented.
+  *autonomous* and decide it from :math:`H\hat x` (condition :math:`\mathcal V^*_\sigma \subset \ker Q_\sigma`):
+  :class:`AutonomousSwitchedObserver` with a :class:`SwitchingSurface`; the exogenous (*non-autonomous*) switching
+  is decided from the equivalent injection with :math:`w = 0` by :class:`SwitchedObserverBank`, which needs no
+  knowledge of a switching surface (and also serves autonomous switching whose surface is unknown).
 * The slides' residual :math:`r_j = \sum \nu_{k,i,j}^2` is the squared equivalent injection in the coordinates of
   the differentiator; here it is the injection mapped to the state, :math:`\hat{\dot e}_j - A_j\hat e_j`, whose
   norm is comparable across modes whose output matrices differ (it is zero exactly when theirs is).
@@ -91,6 +91,7 @@ from .estimators import CascadedHOSMObserver
 from .plants import RANK_TOL, LinearPlant, NotStronglyObservableError, StrongObservabilityReport
 
 __all__ = [
+    "AutonomousSwitchedObserver",
     "ModeMetrics",
     "NotDistinguishableError",
     "SwitchedConditions",
@@ -98,6 +99,7 @@ __all__ = [
     "SwitchedHOSMObserver",
     "SwitchedLinearSystem",
     "SwitchedObserverBank",
+    "SwitchingSurface",
     "mode_metrics",
 ]
 
@@ -290,13 +292,15 @@ class SwitchedLinearSystem:
             self._zoh[key] = aug.discretize(check_positive("dt", dt))
         return self._zoh[key]
 
-    def simulate(self, x0, sigma, dt: float, u=None, w=None) -> tuple[np.ndarray, np.ndarray]:
+    def simulate(self, x0, sigma, dt: float, u=None, w=None, *, steps: int | None = None) -> tuple:
         r"""Exact sampled trajectory with ``sigma[k]``, ``u[k]`` and ``w[k]`` held over :math:`[t_k, t_{k+1})`.
 
         Parameters
         ----------
         x0 : array_like, shape (n,)
-        sigma : array_like of int, shape (T,)
+        sigma : array_like of int, shape (T,), or SwitchingSurface
+            The modes (exogenous switching), or the rule that decides them from the state (autonomous switching:
+            :math:`\sigma_k = \sigma(x_k)`, sampled; give ``steps``; the modes are returned as a third array).
         dt : float
         u : array_like, shape (T, inputs), optional (zero)
         w : array_like, shape (T, unknown inputs), optional (zero)
@@ -307,10 +311,21 @@ class SwitchedLinearSystem:
             ``X[k] = x(k dt)``.
         Y : ndarray, shape (T + 1, outputs)
             ``Y[k] = C_{sigma[k]} X[k]`` (the last sample uses ``sigma[T - 1]``).
+        sigma : ndarray of int, shape (T,)
+            With a switching surface only: the modes it decided.
+        steps : int, optional
+            ``T``, with a switching surface.
         """
         dt = check_positive("dt", dt)
-        sigma = self._check_sigma(sigma)
-        T = sigma.shape[0]
+        surface = sigma if isinstance(sigma, SwitchingSurface) else None
+        if surface is not None:  # autonomous: the mode over [t_k, t_k+1) is decided by the state at t_k
+            if steps is None:
+                raise ValueError("expected steps (the number of samples) with a switching surface, actual value: None")
+            T = check_int_in_range("steps", steps, 1, 2**31)
+            sigma = np.zeros(T, dtype=int)
+        else:
+            sigma = self._check_sigma(sigma)
+            T = sigma.shape[0]
         x = as_real_array("x0", x0).reshape(-1)
         if x.shape != (self.n,):
             raise ValueError(f"expected x0 with shape ({self.n},), actual value: shape {x.shape}")
@@ -320,11 +335,13 @@ class SwitchedLinearSystem:
         Y = np.zeros((T + 1, self.n_outputs))
         X[0] = x
         for k in range(T):
+            if surface is not None:
+                sigma[k] = surface.mode(X[k])
             Phi, Gam = self.discretize(int(sigma[k]), dt)
             Y[k] = self.modes[sigma[k]].C @ X[k]
             X[k + 1] = Phi @ X[k] + Gam @ np.concatenate([U[k], W[k]])
         Y[T] = self.modes[sigma[T - 1]].C @ X[T]
-        return X, Y
+        return (X, Y, sigma) if surface is not None else (X, Y)
 
     def _check_sigma(self, sigma) -> np.ndarray:
         s = as_real_array("sigma", sigma).reshape(-1)
@@ -698,6 +715,175 @@ class SwitchedObserverBank:
             self.advance(None if U is None else U[k - 1])
             self.update(Y[k])
         return self.result()
+
+
+class SwitchingSurface:
+    r"""Autonomous switching: the mode is decided by the state through intervals of :math:`Hx` (the slides' (29)).
+
+    .. math:: \sigma = \mathrm{modes}[i]\quad\text{for}\quad Hx \in (e_{i-1}, e_i],\qquad
+              e_0 = -\infty,\ e_q = +\infty .
+
+    Parameters
+    ----------
+    H : array_like, shape (n,)
+        The row :math:`H` (the slides' :math:`H \in \mathbb R^{1\times n}`, known).
+    edges : array_like, shape (r,)
+        Increasing interior edges :math:`e_1 < \dots < e_r` of the ``r + 1`` disjoint intervals
+        :math:`\mathcal H_i`.
+    modes : sequence of int, shape (r + 1,)
+        The mode of each interval, from :math:`-\infty` up.
+    """
+
+    def __init__(self, H, edges, modes):
+        self.H = as_real_array("H", H, copy=True).reshape(-1)
+        self.edges = as_real_array("edges", edges, copy=True).reshape(-1)
+        self.modes = np.asarray(modes, dtype=int).reshape(-1)
+        if not np.all(np.isfinite(self.H)) or not np.any(self.H):
+            raise ValueError(f"expected a finite, nonzero H, actual value: {self.H!r}")
+        if not np.all(np.isfinite(self.edges)) or np.any(np.diff(self.edges) <= 0):
+            raise ValueError(f"expected finite, strictly increasing edges, actual value: {self.edges!r}")
+        if self.modes.shape != (self.edges.size + 1,) or np.any(self.modes < 0):
+            raise ValueError(
+                f"expected {self.edges.size + 1} non-negative mode indices (one per interval), actual value: {modes!r}"
+            )
+
+    def mode(self, x) -> int:
+        """The mode of the state ``x`` (shape ``(n,)``)."""
+        return int(self.modes[np.searchsorted(self.edges, float(self.H @ x), side="left")])
+
+    def condition(self, system: SwitchedLinearSystem) -> tuple[bool, str]:
+        r"""The slides' condition for exact, finite-time discrete-state estimation from :math:`H\hat x`:
+
+        .. math:: \mathcal V^*_\sigma \subset \ker Q_\sigma,\qquad
+                  Q_\sigma = [H;\ HA_\sigma;\ \dots;\ HA_\sigma^{n-1}],
+
+        for every mode (:math:`\mathcal V^*_\sigma` the weakly unobservable subspace, the kernel of Molinari's
+        ``M``): what the HOSM observer cannot recover never moves :math:`Hx` or its derivatives. It holds whenever
+        every mode is strongly observable (:math:`\mathcal V^* = \{0\}`). Returns ``(ok, reason)``.
+        """
+        if self.H.shape != (system.n,):
+            raise ValueError(f"expected H with {system.n} entries, actual value: {self.H.shape}")
+        if self.modes.max() >= system.q:
+            raise ValueError(f"expected modes in 0..{system.q - 1}, actual value: {self.modes.tolist()}")
+        from .plants import molinari_decoupling
+
+        for j, m in enumerate(system.modes):
+            M = molinari_decoupling(m.A, m.C, m.D).M
+            _, sv, Vh = np.linalg.svd(M) if M.size else (None, np.zeros(0), np.eye(system.n))
+            rank = int(np.sum(sv > RANK_TOL * max(sv.max(initial=0.0), 1.0)))
+            V = Vh[rank:].T  # basis of the weakly unobservable subspace
+            if V.size == 0:
+                continue
+            Q = np.vstack([self.H @ np.linalg.matrix_power(m.A, i) for i in range(system.n)])
+            leak = np.abs(Q @ V).max()
+            if leak > 1e-9 * max(np.abs(Q).max(), 1.0):
+                return False, (
+                    f"mode {system.names[j]!r}: its weakly unobservable subspace (dimension {V.shape[1]}) is not in "
+                    f"ker Q (|Q V| = {leak:.3g}): H x depends on what the observer cannot recover"
+                )
+        return True, ""
+
+    def __repr__(self) -> str:
+        return f"SwitchingSurface(H={self.H.tolist()}, edges={self.edges.tolist()}, modes={self.modes.tolist()})"
+
+
+class AutonomousSwitchedObserver:
+    r"""Continuous and discrete state of a switched system whose switching is autonomous (Fridman's slides,
+    section 10, "autonomous switchings"; Rios, Davila and Fridman 2012).
+
+    The discrete-state observer is the switching rule applied to the estimate,
+    :math:`\hat\sigma = \sigma(H\hat x)` (:class:`SwitchingSurface`): under the condition of
+    :meth:`SwitchingSurface.condition` it is exact once the continuous estimate is, i.e. in finite time. One
+    cascaded HOSM observer per mode; the active one processes each sample with the mode that acted over the last
+    interval, then the rule decides the mode of the next interval from its estimate, and at a change the new
+    mode's observer starts from that estimate (the slides' reset, :math:`\nu = 0`).
+
+    Parameters
+    ----------
+    system : SwitchedLinearSystem
+        Every mode strongly observable (:class:`~smo_gym.control.NotStronglyObservableError` otherwise).
+    surface : SwitchingSurface
+    dt : float
+    lipschitz : float or array_like, shape (p,) or (q, p)
+        As for :class:`SwitchedHOSMObserver`.
+    alpha : int
+    poles : array_like, optional
+
+    Attributes
+    ----------
+    mode : int
+        :math:`\hat\sigma` for the next interval.
+    x_hat : ndarray, shape (n,)
+    switch_times : list of float
+        Times [s] (from the reset) at which the estimated mode changed.
+    """
+
+    @check_keywords
+    def __init__(
+        self, system: SwitchedLinearSystem, surface: SwitchingSurface, dt: float, lipschitz, *, alpha: int = 1,
+        poles=None,
+    ):  # fmt: skip
+        if not isinstance(system, SwitchedLinearSystem):
+            raise TypeError(f"expected a SwitchedLinearSystem, actual value: {type(system).__name__}")
+        if not isinstance(surface, SwitchingSurface):
+            raise TypeError(f"expected a SwitchingSurface, actual value: {type(surface).__name__}")
+        system.require_observable()
+        ok, reason = surface.condition(system)
+        if not ok:  # unreachable under strong observability, kept for the statement's sake
+            raise NotStronglyObservableError(f"expected V*_sigma inside ker Q_sigma, actual value: {reason}")
+        self.system, self.surface = system, surface
+        self.dt = check_positive("dt", dt)
+        self.observers = _bank(system, self.dt, lipschitz, alpha, poles)
+        self.mode: int | None = None
+        self.x_hat = None
+        self.switch_times: list[float] = []
+        self._k = 0
+
+    def reset(self, y0, x_hat0=None, mode: int | None = None) -> np.ndarray:
+        """Start at the sample ``y0`` (estimate ``x_hat0``, default ``C^+ y0``) in ``mode`` (default: the rule
+        applied to the initial estimate)."""
+        m0 = self.surface.mode(np.zeros(self.system.n) if x_hat0 is None else np.asarray(x_hat0, float))
+        self.mode = m0 if mode is None else check_int_in_range("mode", mode, 0, self.system.q - 1)
+        self.observers[self.mode].reset(y0, x_hat0)
+        self.x_hat = self.observers[self.mode].update(y0)
+        self.switch_times, self._k = [], 0
+        return self.x_hat
+
+    def update(self, y) -> np.ndarray:
+        r"""Process the sample ``y_k``; return :math:`\hat x_k` and set :attr:`mode` for the next interval."""
+        if self.mode is None:
+            raise RuntimeError("expected reset(y0) before update(y), actual value: never reset")
+        self._k += 1
+        self.x_hat = self.observers[self.mode].update(y)
+        new = self.surface.mode(self.x_hat)
+        if new != self.mode:
+            self.observers[new].reset(y, self.x_hat)
+            self.observers[new].update(y)  # the sample is consumed: predict from it at the next advance
+            self.mode = new
+            self.switch_times.append(self._k * self.dt)
+        return self.x_hat
+
+    def advance(self, u=None) -> None:
+        """Predict to the next sample with the control ``u`` (default zero) in the estimated mode."""
+        if self.mode is None:
+            raise RuntimeError("expected reset(y0) before advance(u), actual value: never reset")
+        u = np.zeros(self.system.n_inputs) if u is None else np.atleast_1d(np.asarray(u, dtype=float))
+        self.observers[self.mode].advance(u)
+
+    def run(self, Y, U=None, x_hat0=None) -> tuple[np.ndarray, np.ndarray]:
+        """Reset at ``Y[0]`` and process ``Y[1:]`` with ``U[k]`` held over ``[t_k, t_{k+1})``. Returns ``(X_hat,
+        modes)``: the estimates ``(T, n)`` and the estimated mode of each interval ``(T,)``."""
+        Y = as_real_array("Y", Y)
+        if Y.ndim != 2 or Y.shape[1] != self.system.n_outputs or Y.shape[0] < 2:
+            raise ValueError(f"expected Y with shape (T >= 2, {self.system.n_outputs}), actual value: shape {Y.shape}")
+        T = Y.shape[0]
+        U = SwitchedLinearSystem._signal("U", U, T - 1, self.system.n_inputs, extra=1)
+        X, modes = np.zeros((T, self.system.n)), np.zeros(T, dtype=int)
+        X[0], modes[0] = self.reset(Y[0], x_hat0), self.mode
+        for k in range(1, T):
+            self.advance(U[k - 1])
+            X[k], modes[k] = self.update(Y[k]), self.mode
+        return X, modes
 
 
 @dataclass(frozen=True)
