@@ -529,6 +529,74 @@ class SwitchedEstimate:
     dt: float
 
 
+class _ModeDecision:
+    """The band-and-dwell rule of the banks (module docstring), on the squared residual norms of each mode.
+
+    Filters the squared norms (first order, ``residual_time_constant``), normalizes their root by the band, and
+    switches to the unique other mode whose residual stayed in the band for ``dwell`` once the current mode's has
+    left it (not before ``settle_time``). Keeps the history the banks report.
+    """
+
+    def __init__(self, q: int, dt: float, threshold: float, dwell: float, settle_time: float, time_constant: float):
+        self.q, self.dt, self.threshold = q, dt, threshold
+        self.dwell_samples = max(1, math.ceil(dwell / dt - 1e-9))
+        self.settle_samples = math.ceil(settle_time / dt - 1e-9)
+        self.gain = dt / (time_constant + dt)  # implicit Euler of the low-pass filter
+        self.mode: int | None = None
+
+    def reset(self, mode: int) -> None:
+        self.mode, self.k, self.exit = mode, 0, None
+        self.mean_square = np.zeros(self.q)
+        self.runs = np.zeros(self.q, dtype=int)
+        self.rho = np.zeros(self.q)
+        self.switches: list[tuple[float, float, int]] = []
+        self.modes, self.rhos = [mode], [np.zeros(self.q)]
+
+    def step(self, squared_norms: np.ndarray) -> bool:
+        """One sample; returns whether the mode switched (then :attr:`mode` is the new one)."""
+        self.k += 1
+        # mean square over the filter's memory (the slides' squared injection): a wrong model's mismatch changes
+        # sign along the trajectory, and its instantaneous value passing through zero must not look like a fit
+        self.mean_square += self.gain * (squared_norms - self.mean_square)
+        self.rho = np.sqrt(self.mean_square) / self.threshold
+        switched = self.k >= self.settle_samples and self._decide()
+        self.modes.append(self.mode)
+        self.rhos.append(self.rho)
+        return switched
+
+    def _decide(self) -> bool:
+        inside = self.rho <= 1.0
+        self.runs = np.where(inside, self.runs + 1, 0)
+        if inside[self.mode]:
+            self.exit = None
+            return False
+        if self.exit is None:
+            self.exit = self.k
+        cand = [j for j in range(self.q) if j != self.mode and self.runs[j] >= self.dwell_samples]
+        if len(cand) != 1:
+            return False
+        self.switches.append((self.exit * self.dt, self.k * self.dt, cand[0]))
+        self.mode, self.exit = cand[0], None
+        return True
+
+    def restart(self) -> None:
+        """Forget the filtered residuals and the runs (after the observers were restarted at a switch)."""
+        self.mean_square[:] = 0.0
+        self.runs[:] = 0
+
+    def estimate(self, x_hat: list) -> SwitchedEstimate:
+        sw = np.array(self.switches, dtype=float).reshape(-1, 3)
+        return SwitchedEstimate(
+            modes=np.array(self.modes, dtype=int),
+            switch_times=sw[:, 0],
+            detection_times=sw[:, 1],
+            new_modes=sw[:, 2].astype(int),
+            residual_norms=np.array(self.rhos),
+            x_hat=np.array(x_hat),
+            dt=self.dt,
+        )
+
+
 class SwitchedObserverBank:
     r"""Bank of cascaded HOSM observers estimating the continuous state *and* the unknown mode (module docstring).
 
@@ -599,29 +667,25 @@ class SwitchedObserverBank:
         self.residual_time_constant = check_nonnegative("residual_time_constant", residual_time_constant)
         self.reset_on_switch = bool(reset_on_switch)
         self.observers = _bank(system, self.dt, lipschitz, alpha, poles)
-        self._dwell_samples = max(1, math.ceil(self.dwell / self.dt - 1e-9))
-        self._settle_samples = math.ceil(self.settle_time / self.dt - 1e-9)
-        self._gain = self.dt / (self.residual_time_constant + self.dt)  # implicit Euler of the low-pass filter
+        self._rule = _ModeDecision(
+            system.q, self.dt, self.threshold, self.dwell, self.settle_time, self.residual_time_constant
+        )
         self.mode: int | None = None
         self.residuals = None
         self.residual_norms = None
-        self._history = None
+        self._x_history = None
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start every observer at the sample ``y0`` (estimate ``x_hat0``, default ``C^+ y0``) in the initial mode."""
         for obs in self.observers:
             obs.reset(y0, x_hat0)
             obs.update(y0)  # the differentiator consumes the sample it was reset at
+        self._rule.reset(self.initial_mode)
         self.mode = self.initial_mode
         self.residuals = np.zeros((self.system.q, self.system.n))
         self.residual_norms = np.zeros(self.system.q)
-        self._mean_square = np.zeros(self.system.q)
-        self._runs = np.zeros(self.system.q, dtype=int)
-        self._exit = None
-        self._k = 0
-        self._switches: list[tuple[float, float, int]] = []
         x = self.observers[self.mode].x_hat
-        self._history = {"modes": [self.mode], "rho": [np.zeros(self.system.q)], "x": [x.copy()]}
+        self._x_history = [x.copy()]
         return x
 
     def _residual(self, j: int) -> np.ndarray:
@@ -630,58 +694,34 @@ class SwitchedObserverBank:
 
     def update(self, y) -> np.ndarray:
         """Process the sample ``y_k``; return the estimated mode's :math:`\\hat x_k` (the mode is :attr:`mode`)."""
-        if self._history is None:
+        if self._x_history is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the bank was never reset")
-        self._k += 1
         for obs in self.observers:
             obs.update(y)
         self.residuals = np.stack([self._residual(j) for j in range(self.system.q)])
-        # mean square over the filter's memory (the slides' squared injection): a wrong model's mismatch changes
-        # sign along the trajectory, and its instantaneous value passing through zero must not look like a fit
-        self._mean_square += self._gain * (np.sum(self.residuals**2, axis=1) - self._mean_square)
-        rho = np.sqrt(self._mean_square) / self.threshold
-        self.residual_norms = rho
-        if self._k >= self._settle_samples:
-            self._decide(rho, y)
+        if self._rule.step(np.sum(self.residuals**2, axis=1)):
+            self.mode = self._rule.mode
+            if self.reset_on_switch:
+                x = self.observers[self.mode].x_hat.copy()
+                for obs in self.observers:
+                    obs.reset(y, x)
+                    obs.update(y)  # the sample is consumed: predict from it at the next advance
+                self._rule.restart()
+        self.residual_norms = self._rule.rho
         x = self.observers[self.mode].x_hat
-        self._history["modes"].append(self.mode)
-        self._history["rho"].append(rho)
-        self._history["x"].append(x.copy())
+        self._x_history.append(x.copy())
         return x
-
-    def _decide(self, rho: np.ndarray, y) -> None:
-        """Band-and-dwell rule (module docstring): count in-band runs, switch on a unique candidate."""
-        inside = rho <= 1.0
-        self._runs = np.where(inside, self._runs + 1, 0)
-        if inside[self.mode]:
-            self._exit = None
-            return
-        if self._exit is None:
-            self._exit = self._k
-        cand = [j for j in range(self.system.q) if j != self.mode and self._runs[j] >= self._dwell_samples]
-        if len(cand) != 1:
-            return
-        new = cand[0]
-        self._switches.append((self._exit * self.dt, self._k * self.dt, new))
-        self.mode, self._exit = new, None
-        if self.reset_on_switch:
-            x = self.observers[new].x_hat.copy()
-            for obs in self.observers:
-                obs.reset(y, x)
-                obs.update(y)  # the sample is consumed: predict from it at the next advance
-            self._mean_square[:] = 0.0
-            self._runs[:] = 0
 
     @property
     def switches(self) -> tuple[tuple[float, float, int], ...]:
         """``(switching instant [s], decision time [s], new mode)`` of every switch decided since :meth:`reset`."""
-        if self._history is None:
+        if self._x_history is None:
             raise RuntimeError("expected reset(y0) before switches, actual value: the bank was never reset")
-        return tuple(self._switches)
+        return tuple(self._rule.switches)
 
     def advance(self, u=None) -> None:
         """Predict every observer to the next sample with the control ``u`` (default zero)."""
-        if self._history is None:
+        if self._x_history is None:
             raise RuntimeError("expected reset(y0) before advance(u), actual value: the bank was never reset")
         u = np.zeros(self.system.n_inputs) if u is None else u
         for obs in self.observers:
@@ -689,18 +729,9 @@ class SwitchedObserverBank:
 
     def result(self) -> SwitchedEstimate:
         """Everything processed since :meth:`reset` (time 0 is the reset sample)."""
-        if self._history is None:
+        if self._x_history is None:
             raise RuntimeError("expected reset(y0) before result(), actual value: the bank was never reset")
-        sw = np.array(self._switches, dtype=float).reshape(-1, 3)
-        return SwitchedEstimate(
-            modes=np.array(self._history["modes"], dtype=int),
-            switch_times=sw[:, 0],
-            detection_times=sw[:, 1],
-            new_modes=sw[:, 2].astype(int),
-            residual_norms=np.array(self._history["rho"]),
-            x_hat=np.array(self._history["x"]),
-            dt=self.dt,
-        )
+        return self._rule.estimate(self._x_history)
 
     def run(self, Y, U=None, x_hat0=None) -> SwitchedEstimate:
         """Reset at ``Y[0]`` and process ``Y[1:]`` (shape ``(T, p)``) with ``U[k]`` held over ``[t_k, t_{k+1})``
