@@ -580,6 +580,11 @@ class NonlinearHOSMObserver:
         self.converged, self.iterations, self.residual = False, 0, np.nan
         self.input_estimate: np.ndarray | None = None
 
+    @property
+    def reconstructs_input(self) -> bool:
+        """Whether the observer was built with ``unknown_input`` (and sets :attr:`input_estimate`)."""
+        return self._d is not None
+
     def _y(self, y) -> np.ndarray:
         y = as_real_array("y", y).reshape(-1) if np.ndim(y) <= 1 else as_real_array("y", y)
         if y.shape != (len(self.indices),):

@@ -121,6 +121,7 @@ from .simulation import SimulationResult, fit_order, simulate, steady_state_erro
 from .switched import (
     AutonomousSwitchedObserver,
     ModeMetrics,
+    NonlinearSwitchedObserverBank,
     NotDistinguishableError,
     SwitchedConditions,
     SwitchedEstimate,
@@ -176,6 +177,7 @@ __all__ = [
     "MolinariDecoupling",
     "NoFunctionalObserverError",
     "NoStaticLeftInverseError",
+    "NonlinearSwitchedObserverBank",
     "NotDistinguishableError",
     "NotStronglyDetectableError",
     "NotStronglyObservableError",

@@ -93,6 +93,7 @@ from .plants import RANK_TOL, LinearPlant, NotStronglyObservableError, StrongObs
 __all__ = [
     "AutonomousSwitchedObserver",
     "ModeMetrics",
+    "NonlinearSwitchedObserverBank",
     "NotDistinguishableError",
     "SwitchedConditions",
     "SwitchedEstimate",
@@ -746,6 +747,137 @@ class SwitchedObserverBank:
             self.advance(None if U is None else U[k - 1])
             self.update(Y[k])
         return self.result()
+
+
+class NonlinearSwitchedObserverBank:
+    r"""Continuous and discrete state of a *nonlinear* switched system, mode unknown (Davila, Rios and Fridman
+    2012; Rios, Davila and Fridman 2012): a bank of HOSM observers, the mode from their input reconstructions.
+
+    Mode ``j`` is :math:`\dot x = f_j(x) + d_j(x)w,\ y = h_j(x)`; its observer is a
+    :class:`smo_gym.nonlinear_observers.NonlinearHOSMObserver` with ``unknown_input`` :math:`d_j`, which
+    reconstructs the input that model ``j`` needs to explain the measured output,
+    :math:`\hat w_j = B_j(\hat x_j)^+\big(\hat y^{(r)} - L_{f_j}^{r}h_j(\hat x_j)\big)`. With :math:`w = 0` (the
+    slides' assumption for the discrete state) it vanishes for the active mode, up to the differentiator's
+    accuracy, and equals the model mismatch for the others: the nonlinear counterpart of the equivalent injection
+    of :class:`SwitchedObserverBank`, and the mode follows the same band-and-dwell rule on
+    :math:`\|\hat w_j\|`.
+
+    Parameters
+    ----------
+    observers : sequence of NonlinearHOSMObserver
+        One per mode, each with ``unknown_input`` (the same output, sampling step and differentiator settings).
+    threshold : float
+        :math:`\theta > 0`: the band :math:`\|\hat w_j\| \le \theta` (units of ``w``).
+    names : sequence of str, optional
+    initial_mode, dwell, settle_time, residual_time_constant, reset_on_switch :
+        As for :class:`SwitchedObserverBank`.
+
+    Attributes
+    ----------
+    mode : int
+    x_hat : ndarray, shape (n,)
+        The estimated mode's estimate.
+    residual_norms : ndarray, shape (q,)
+    """
+
+    @check_keywords
+    def __init__(
+        self,
+        observers,
+        *,
+        threshold: float,
+        names: Sequence[str] | None = None,
+        initial_mode: int = 0,
+        dwell: float = 0.02,
+        settle_time: float = 0.0,
+        residual_time_constant: float = 0.0,
+        reset_on_switch: bool = True,
+    ):
+        from ..nonlinear_observers import NonlinearHOSMObserver
+
+        observers = list(observers)
+        if len(observers) < 2 or not all(isinstance(o, NonlinearHOSMObserver) for o in observers):
+            raise TypeError(
+                "expected at least two NonlinearHOSMObserver (one per mode), actual value: "
+                f"{[type(o).__name__ for o in observers]}"
+            )
+        if not all(o.reconstructs_input for o in observers):
+            raise ValueError(
+                "expected observers built with unknown_input (their input reconstruction is the residual), actual "
+                f"value: modes {[j for j, o in enumerate(observers) if not o.reconstructs_input]} have none"
+            )
+        first = observers[0]
+        if any(o.n != first.n or o.dt != first.dt or o.indices != first.indices for o in observers):
+            raise ValueError("expected observers with the same state size, sampling step and observability indices")
+        self.observers = observers
+        self.q = len(observers)
+        self.names = tuple(f"mode{j}" for j in range(self.q)) if names is None else tuple(names)
+        if len(self.names) != self.q:
+            raise ValueError(f"expected {self.q} names, actual value: {len(self.names)}")
+        self.dt = first.dt
+        self.threshold = check_positive("threshold", threshold)
+        self.initial_mode = check_int_in_range("initial_mode", initial_mode, 0, self.q - 1)
+        self.reset_on_switch = bool(reset_on_switch)
+        self._rule = _ModeDecision(
+            self.q,
+            self.dt,
+            self.threshold,
+            check_positive("dwell", dwell),
+            check_nonnegative("settle_time", settle_time),
+            check_nonnegative("residual_time_constant", residual_time_constant),
+        )
+        self.mode: int | None = None
+        self.x_hat = None
+        self.residual_norms = None
+        self._x_history = None
+
+    def reset(self, y0, x0) -> np.ndarray:
+        """Start every observer at the sample ``y0`` with the state guess ``x0``, in the initial mode."""
+        for obs in self.observers:
+            obs.reset(y0, x0)
+        self._rule.reset(self.initial_mode)
+        self.mode = self.initial_mode
+        self.residual_norms = np.zeros(self.q)
+        self.x_hat = self.observers[self.mode].state.copy()
+        self._x_history = [self.x_hat.copy()]
+        return self.x_hat
+
+    def update(self, y) -> np.ndarray:
+        """Process the sample ``y_k``; return the estimated mode's :math:`\\hat x_k` (the mode is :attr:`mode`)."""
+        if self._x_history is None:
+            raise RuntimeError("expected reset(y0, x0) before update(y), actual value: the bank was never reset")
+        for obs in self.observers:
+            obs.update(y)
+        squared = np.array([float(np.sum(obs.input_estimate**2)) for obs in self.observers])
+        if self._rule.step(squared):
+            self.mode = self._rule.mode
+            if self.reset_on_switch:  # every model restarts from the new mode's estimate (the slides' reset)
+                x = self.observers[self.mode].state.copy()
+                for obs in self.observers:
+                    obs.reset(y, x)
+                self._rule.restart()
+        self.residual_norms = self._rule.rho
+        self.x_hat = self.observers[self.mode].state.copy()
+        self._x_history.append(self.x_hat.copy())
+        return self.x_hat
+
+    @property
+    def switches(self) -> tuple[tuple[float, float, int], ...]:
+        """``(switching instant [s], decision time [s], new mode)`` of every switch decided since :meth:`reset`."""
+        if self._x_history is None:
+            raise RuntimeError("expected reset(y0, x0) before switches, actual value: the bank was never reset")
+        return tuple(self._rule.switches)
+
+    def run(self, Y, x0) -> SwitchedEstimate:
+        """Reset at ``Y[0]`` with the guess ``x0`` and process ``Y[1:]`` (shape ``(T, p)`` or ``(T,)``)."""
+        Y = as_real_array("Y", Y)
+        Y = Y.reshape(Y.shape[0], -1) if Y.ndim >= 1 and Y.shape[0] > 0 else Y
+        if Y.ndim != 2 or Y.shape[0] < 2:
+            raise ValueError(f"expected Y with shape (T >= 2, p), actual value: shape {Y.shape}")
+        self.reset(Y[0], x0)
+        for k in range(1, Y.shape[0]):
+            self.update(Y[k])
+        return self._rule.estimate(self._x_history)
 
 
 class SwitchingSurface:
