@@ -60,6 +60,13 @@ from one more differentiator order. :class:`HOSMInjectionObserver` is Davila, Fr
 observer for one output: a copy of the system, :math:`\dot{\hat x} = f(\hat x) + M^{-1}(\hat x)\chi(y -
 h(\hat x))`, with no inversion of :math:`\Phi`; its error in :math:`\Phi`-coordinates is Levant's differentiator's.
 
+Without the BIBS property
+-------------------------
+:class:`GlobalHOSMObserver` is Apaza-Perez, Fridman and Moreno's (2018) global observer for the triangular form
+:math:`\dot x = Ax + B(\psi(x) + w) + \varphi(u, y)`, :math:`y = x_1`, whose state may grow without bound: it
+differentiates the output error of a high-gain copy, whose error stays bounded, instead of the output itself
+(:func:`design_global_observer`: the design algorithm of the slides with its matrix inequality checked).
+
 Notes
 -----
 Where the slides' print and the derivation differ (the scan garbles formulas):
@@ -90,6 +97,8 @@ References
    systems via higher-order sliding modes", Int. J. Control 82(8), 2009.
 .. [Lev03] A. Levant, "Higher-order sliding modes, differentiation and output-feedback control",
    Int. J. Control 76(9-10), 2003.
+.. [AFM18] J. C. Apaza-Perez, L. Fridman and J. A. Moreno, Int. J. Control, 2018, as presented in Fridman's
+   slides, section 5, "Global observers for nonlinear systems with unknown inputs without BIBS property".
 """
 
 from __future__ import annotations
@@ -104,6 +113,8 @@ from .design.gains import levant_nonrecursive
 from .observers.differentiators import Levant, _levant_sequence
 
 __all__ = [
+    "GlobalHOSMObserver",
+    "GlobalObserverDesign",
     "HOSMInjectionObserver",
     "InputReconstructionError",
     "NonlinearHOSMObserver",
@@ -111,6 +122,8 @@ __all__ = [
     "ObservabilityReport",
     "check_observability",
     "default_fd_step",
+    "design_global_observer",
+    "dissipativity_constant",
     "lie_derivatives",
     "observability_jacobian",
     "observability_map",
@@ -890,4 +903,264 @@ class HOSMInjectionObserver:
         out[0] = self.reset(Y[0], x0)
         for k in range(1, Y.size):
             out[k] = self.update(Y[k])
+        return out
+
+
+def _chain(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, C)`` of the chain of ``n`` integrators of the triangular form (21)."""
+    A = np.eye(n, k=1)
+    B = np.zeros(n)
+    B[-1] = 1.0
+    C = np.zeros(n)
+    C[0] = 1.0
+    return A, B, C
+
+
+def dissipativity_constant(q: float, S, R) -> float:
+    r""":math:`\varrho_\psi` of a :math:`\{q, S, R\}`-dissipative nonlinearity (Apaza-Perez, Fridman and Moreno 2018):
+
+    .. math:: \varrho_\psi = \frac{1}{\sqrt{-q}}\Big(\sqrt{-\lambda_{max}(R)\,q + \lambda_{max}(S^TS)}
+              + \lambda_{max}(S^TS)^{1/2}\Big),
+
+    the gain :math:`|\Psi(x, h)| \le \varrho_\psi\|h\|` that the dissipation inequality implies for :math:`q < 0`.
+    """
+    q = float(q)
+    if not q < 0:
+        raise ValueError(f"expected q < 0 (the dissipativity of the assumption), actual value: {q!r}")
+    S = np.atleast_2d(np.asarray(S, dtype=float))
+    R = np.atleast_2d(np.asarray(R, dtype=float))
+    sts = float(np.linalg.eigvalsh(S.T @ S).max())
+    return (np.sqrt(-float(np.linalg.eigvalsh(R).max()) * q + sts) + np.sqrt(sts)) / np.sqrt(-q)
+
+
+@dataclass(frozen=True)
+class GlobalObserverDesign:
+    r"""The design of :class:`GlobalHOSMObserver` by the algorithm of Apaza-Perez, Fridman and Moreno (2018).
+
+    Attributes
+    ----------
+    K : ndarray, shape (n,)
+        :math:`A_K = A + KC` Hurwitz.
+    P : ndarray, shape (n, n)
+        Solution of :math:`PA_K + A_K^TP + \epsilon Q + \Lambda_{\varrho_\psi} = -I` (step c, with margin).
+    l : float
+        The smallest scale of the search for which the theorem's matrix inequality holds (step d).
+    margin : float
+        Largest eigenvalue of that matrix at ``l`` (negative: the inequality holds).
+    rho_psi : float
+    """
+
+    K: np.ndarray
+    P: np.ndarray
+    l: float
+    margin: float
+    rho_psi: float
+
+
+def design_global_observer(n: int, q: float, S, R, *, poles=None, N=None, epsilon: float = 1.0,
+                           l_max: float = 1e4) -> GlobalObserverDesign:  # fmt: skip
+    r"""Steps a)-d) of the design algorithm of Apaza-Perez, Fridman and Moreno (2018), checked in NumPy.
+
+    a) ``K`` places the eigenvalues of :math:`A_K = A + KC` at ``poles`` (default ``-1, -1.5, ..., ``);
+    b) :math:`Q = I`, :math:`\tilde N` (``N[1:]``, default zero) and :math:`\epsilon`;
+    c) ``P`` from the Lyapunov equation :math:`PA_K + A_K^TP = -(\epsilon Q + \Lambda_{\varrho_\psi} + I)`,
+       :math:`\Lambda_{\varrho_\psi} = \mathrm{diag}(\varrho_\psi/(n - i + 1)^2)`;
+    d) ``l`` doubled from 1 until the theorem's inequality holds,
+
+    .. math::
+        \begin{bmatrix} PA_K + A_K^TP + \epsilon Q + l^{-2n}T_l^TRT_l & * \\
+        B^TP + l^{-(2n-1)}ST_l & lq \end{bmatrix} \preceq 0,\qquad T_l = \tilde I_n\Delta_l + l\tilde NC,
+
+    (:math:`\tilde I_n` the rows 2..n of the identity, :math:`\Delta_l = \mathrm{diag}(l, \ldots, l^n)`) as
+    printed in Fridman's slides; raises ``ValueError`` when no ``l <= l_max`` satisfies it.
+    """
+    from scipy.linalg import solve_continuous_lyapunov
+    from scipy.signal import place_poles
+
+    n = check_int_at_least("n", n, 2)
+    A, B, C = _chain(n)
+    poles = -(1.0 + 0.5 * np.arange(n)) if poles is None else np.asarray(poles, dtype=float)
+    if poles.shape != (n,) or np.any(poles >= 0):
+        raise ValueError(f"expected {n} negative poles, actual value: {poles!r}")
+    K = -place_poles(A.T, C[:, None], poles).gain_matrix.reshape(-1)  # A + K C has the poles
+    rho = dissipativity_constant(q, S, R)
+    S = np.atleast_2d(np.asarray(S, dtype=float)).reshape(1, n - 1)
+    R = np.atleast_2d(np.asarray(R, dtype=float)).reshape(n - 1, n - 1)
+    Nt = np.zeros(n - 1) if N is None else np.asarray(N, dtype=float).reshape(-1)[1:]
+    epsilon = check_positive("epsilon", epsilon)
+    AK = A + np.outer(K, C)
+    Lam = np.diag(rho / (n - np.arange(n)) ** 2)
+    P = solve_continuous_lyapunov(AK.T, -(epsilon * np.eye(n) + Lam + np.eye(n)))
+    It = np.eye(n)[1:]
+    l = 1.0
+    while l <= l_max:
+        T = It @ np.diag(l ** np.arange(1, n + 1)) + l * np.outer(Nt, C)
+        top = P @ AK + AK.T @ P + epsilon * np.eye(n) + T.T @ R @ T / l ** (2 * n)
+        off = B @ P + (S @ T).reshape(-1) / l ** (2 * n - 1)
+        M = np.block([[top, off[:, None]], [off[None, :], np.array([[l * float(q)]])]])
+        margin = float(np.linalg.eigvalsh(0.5 * (M + M.T)).max())
+        if margin <= 0.0:
+            return GlobalObserverDesign(K=K, P=P, l=l, margin=margin, rho_psi=rho)
+        l *= 2.0
+    raise ValueError(
+        f"expected a scale l <= {l_max} satisfying the theorem's matrix inequality, actual value: none (last "
+        f"largest eigenvalue {margin:.3g}); the nonlinearity's dissipativity {q, S.tolist(), R.tolist()} is too weak "
+        "for these poles"
+    )
+
+
+class GlobalHOSMObserver:
+    r"""Global finite-time observer for nonlinear systems with unknown inputs without the BIBS property
+    (Apaza-Perez, Fridman and Moreno, IJC 2018; Fridman's slides, section 5, (21)-(22)).
+
+    The system is in the triangular form
+
+    .. math:: \dot x = Ax + B(\psi(x) + w) + \varphi(u, y),\qquad y = Cx = x_1,
+
+    (``A`` the chain of integrators, :math:`B = e_n`), forward complete but possibly *unbounded*: no Lipschitz bound
+    on :math:`y^{(n)}` exists, so the observer of Fridman et al. (2008) (:class:`NonlinearHOSMObserver`) cannot be
+    used globally. The observer (22) bounds the error of a high-gain copy first and differentiates *its* output:
+
+    .. math::
+        \dot v = Av + B\psi\big(v + N(Cv - y)\big) + \varphi(u, y) + \Delta_lK(Cv - y),\qquad
+        \hat x = v - \mathcal O^{-1}z,
+
+    with :math:`\Delta_l = \mathrm{diag}(l, \ldots, l^n)`, :math:`N = (-1, \tilde N)` (so the nonlinearity reads
+    the *measured* first coordinate: the unbounded part cancels in the error), ``z`` Levant's differentiator of
+    :math:`e_{vy} = Cv - y` (order ``n - 1``, bound :math:`L_f` on :math:`e_{vy}^{(n)}`, which exists because the
+    copy's error :math:`e_v = v - x` stays bounded) and
+    :math:`\mathcal O = [C; CA_{K,l}; \ldots; CA_{K,l}^{n-1}]`, :math:`A_{K,l} = A + \Delta_lKC`: since
+    :math:`e_{vy}^{(j)} = CA_{K,l}^je_v` for :math:`j < n`, :math:`z = \mathcal O e_v` after the differentiator's
+    finite convergence time and :math:`\hat x = x` exactly.
+
+    Parameters
+    ----------
+    psi : callable
+        :math:`\psi(x) \to` scalar, for one state ``(n,)``; :math:`\{q, S, R\}`-dissipative in the coordinates
+        ``2..n`` (:func:`design_global_observer` checks the theorem's inequality for given ``q, S, R``).
+    n : int
+    dt : float
+        Sampling step.
+    K : array_like, shape (n,)
+        :math:`A + KC` Hurwitz (:func:`design_global_observer`).
+    l : float
+        Scale :math:`l \ge l_0` of the theorem.
+    lipschitz : float
+        :math:`L_f \ge |e_{vy}^{(n)}|`.
+    N : array_like, shape (n,), optional
+        Default ``(-1, 0, ..., 0)``; its first entry must be ``-1``.
+    phi : callable, optional
+        :math:`\varphi(u, y) \to (n,)` (default zero).
+    substeps : int
+        RK4 steps of the copy ``v`` per sample. Between samples the copy reads ``y`` as its Taylor polynomial at
+        the last estimate, :math:`y(t_k + s) \approx \sum_{j<n} \hat x_{j+1}s^j/j!` (:math:`y^{(j)} = x_{j+1}` in
+        the chain), whose error :math:`O(\tau^n)` does not grow with :math:`\Delta_l` the way a held sample's
+        :math:`O(\tau)` does.
+
+    Attributes
+    ----------
+    state : ndarray, shape (n,)
+        :math:`\hat x`.
+    copy : ndarray, shape (n,)
+        ``v``.
+    """
+
+    @check_keywords
+    def __init__(self, psi: Callable, n: int, dt: float, *, K, l: float, lipschitz: float, N=None,
+                 phi: Callable | None = None, substeps: int = 4, discretization: str = "implicit"):  # fmt: skip
+        _check_callable("psi", psi)
+        if phi is not None:
+            _check_callable("phi", phi)
+        self.n = check_int_at_least("n", n, 2)
+        self.dt = check_positive("dt", dt)
+        self.l = check_positive("l", l)
+        self.lipschitz = check_positive("lipschitz", lipschitz)
+        self.substeps = check_int_at_least("substeps", substeps, 1)
+        self.psi, self.phi = psi, phi
+        self.K = as_real_array("K", K, copy=True).reshape(-1)
+        self.N = np.r_[-1.0, np.zeros(self.n - 1)] if N is None else as_real_array("N", N, copy=True).reshape(-1)
+        if self.K.shape != (self.n,) or self.N.shape != (self.n,) or self.N[0] != -1.0:
+            raise ValueError(
+                f"expected K and N of shape ({self.n},) with N[0] = -1 (psi reads the measured x1), actual value: "
+                f"K={self.K!r}, N={self.N!r}"
+            )
+        A, self._B, self._C = _chain(self.n)
+        self._A = A
+        if np.any(np.linalg.eigvals(A + np.outer(self.K, self._C)).real >= 0):
+            raise ValueError(f"expected A + K C Hurwitz, actual value: K={self.K!r}")
+        self._DK = (self.l ** np.arange(1, self.n + 1)) * self.K  # Delta_l K
+        AKl = A + np.outer(self._DK, self._C)
+        O = np.vstack([self._C @ np.linalg.matrix_power(AKl, j) for j in range(self.n)])
+        self._O_inv = np.linalg.inv(O)
+        self._diff = Levant(self.n - 1, self.dt, self.lipschitz, discretization=discretization)
+        self._fact = np.array([1.0 / np.prod(np.arange(1, j + 1)) for j in range(self.n)])
+        self.state: np.ndarray | None = None
+        self.copy: np.ndarray | None = None
+
+    def _psi(self, x) -> float:
+        value = np.asarray(self.psi(x), dtype=float)
+        if value.size != 1 or not np.isfinite(value).all():
+            raise ValueError(f"expected psi(x) to return a finite scalar, actual value: {value!r}")
+        return float(value.reshape(-1)[0])
+
+    def _rhs(self, v, y: float, u) -> np.ndarray:
+        e = self._C @ v - y
+        dv = self._A @ v + self._B * self._psi(v + self.N * e) + self._DK * e
+        if self.phi is not None:
+            dv = dv + np.asarray(self.phi(u, y), dtype=float).reshape(self.n)
+        return dv
+
+    def reset(self, y0, x0) -> np.ndarray:
+        """Start the copy at the guess ``x0`` (its first entry replaced by ``y0``); the first :meth:`update`, with
+        the sample ``y0``, starts the differentiator. Returns :math:`\\hat x`."""
+        y = float(as_real_array("y0", y0).reshape(-1)[0])
+        x0 = as_real_array("x0", x0, copy=True).reshape(-1)
+        if x0.shape != (self.n,) or not np.isfinite(x0).all():
+            raise ValueError(f"expected a finite x0 with shape ({self.n},), actual value: {x0!r}")
+        x0[0] = y
+        self.copy = x0
+        self.state = x0.copy()
+        self._fresh = True  # the first update starts the differentiator at its sample
+        return self.state.copy()
+
+    def update(self, y, u=None) -> np.ndarray:
+        """Process the sample ``y_k``; return :math:`\\hat x_k`, then move the copy to the next sample with the input
+        ``u`` held over :math:`[t_k, t_{k+1})`."""
+        if self.state is None:
+            raise RuntimeError("expected reset(y0, x0) before update(y), actual value: the observer was never reset")
+        y = float(as_real_array("y", y).reshape(-1)[0])
+        if not np.isfinite(y):
+            raise ValueError(f"expected a finite measurement y, actual value: {y!r}")
+        e = np.array([self._C @ self.copy - y])
+        z = (self._diff.reset(e) if self._fresh else self._diff.update(e))[0]
+        self._fresh = False
+        self.state = self.copy - self._O_inv @ z
+        # the copy over the next interval, y read as the Taylor polynomial of the estimate
+        h = self.dt / self.substeps
+        v, s = self.copy.copy(), 0.0
+        taylor = self.state * self._fact
+
+        def y_at(t):
+            return float(np.polyval(taylor[::-1], t))
+
+        for _ in range(self.substeps):
+            k1 = self._rhs(v, y_at(s), u)
+            k2 = self._rhs(v + h / 2 * k1, y_at(s + h / 2), u)
+            k3 = self._rhs(v + h / 2 * k2, y_at(s + h / 2), u)
+            k4 = self._rhs(v + h * k3, y_at(s + h), u)
+            v = v + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            s += h
+        if not np.all(np.isfinite(v)):
+            raise FloatingPointError("expected a finite copy v, actual value: non-finite after the step; lower dt or l")
+        self.copy = v
+        return self.state.copy()
+
+    def run(self, Y, x0, U=None) -> np.ndarray:
+        """Reset at ``Y[0]`` with the guess ``x0`` and process ``Y`` (shape ``(T,)``), ``U[k]`` held over
+        ``[t_k, t_{k+1})``; returns the estimates, shape ``(T, n)``."""
+        Y = as_real_array("Y", Y).reshape(-1)
+        out = np.empty((Y.size, self.n))
+        self.reset(Y[0], x0)
+        for k in range(Y.size):
+            out[k] = self.update(Y[k], None if U is None else U[k])
         return out

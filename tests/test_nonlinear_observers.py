@@ -564,11 +564,12 @@ def test_the_guide_example_runs_and_converges(capsys):
 
 
 def test_the_guide_examples_of_the_unknown_input_and_the_injection_observer(capsys):
-    """The second and third python blocks of docs/guide/nonlinear-observers.md, executed as printed (they print the
-    errors that the guide quotes)."""
+    """The second, third and fourth python blocks of docs/guide/nonlinear-observers.md, executed as printed (the
+    first two print the errors that the guide quotes; the last builds the global observer by the design
+    algorithm)."""
     text = (ROOT / "docs" / "guide" / "nonlinear-observers.md").read_text()
     blocks = [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
-    assert len(blocks) == 3
+    assert len(blocks) == 4
     scope: dict = {}
     exec(compile(blocks[1], "nonlinear-observers.md", "exec"), scope)
     err = np.abs(scope["x_hat"] - scope["x"])
@@ -579,6 +580,9 @@ def test_the_guide_examples_of_the_unknown_input_and_the_injection_observer(caps
     assert "expected L_g L_f^j h_i = 0" in capsys.readouterr().out
     err = np.abs(scope["x_hat"] - scope["x"])
     assert err[0] < 1e-4 and err[1] < 3e-2, err
+    scope = {}
+    exec(compile(blocks[3], "nonlinear-observers.md", "exec"), scope)
+    assert scope["design"].margin <= 0 and np.isfinite(scope["x_hat"]).all() and scope["x_hat"][0] == 1.0
 
 
 # ---- nonlinear switched systems ---------------------------------------------------------------------------------
@@ -645,3 +649,72 @@ def test_nonlinear_switched_bank_bad_input():
     bank = NonlinearSwitchedObserverBank([_pendulum_mode_observer(a, 1e-3, 20.0) for a in (1.0, 4.0)], threshold=0.3)
     with pytest.raises(RuntimeError, match="reset"):
         bank.update([0.0])
+
+
+# ---- global observer without the BIBS property ------------------------------------------------------------------
+def _unbounded_psi(x):
+    """psi = 0.5 x1 + sin x2: x1 grows like exp(0.7 t) (not BIBS, forward complete); the part in x2..xn is
+    {q, S, R} = {-1, 0, 1}-dissipative (|sin(x2 + h) - sin x2| <= |h|)."""
+    return 0.5 * x[0] + np.sin(x[1])
+
+
+def test_global_observer_design_algorithm_is_checked():
+    from smo_gym.nonlinear_observers import design_global_observer, dissipativity_constant
+
+    d = design_global_observer(2, -1.0, [0.0], [[1.0]])
+    A, C = np.eye(2, k=1), np.array([1.0, 0.0])
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(A + np.outer(d.K, C)).real), [-1.5, -1.0])
+    AK = A + np.outer(d.K, C)
+    lam = np.diag(d.rho_psi / (2 - np.arange(2)) ** 2)
+    np.testing.assert_allclose(d.P @ AK + AK.T @ d.P, -(2 * np.eye(2) + lam), atol=1e-10)  # step c, margin I
+    assert d.margin <= 0 and d.rho_psi == pytest.approx(1.0) == dissipativity_constant(-1.0, [0.0], [[1.0]])
+
+    def largest_eigenvalue(l):  # the theorem's matrix, written out for n = 2, N = (-1, 0)
+        T = np.array([[0.0, l * l]])
+        top = d.P @ AK + AK.T @ d.P + np.eye(2) + T.T @ T / l**4
+        off = d.P[1] + 0.0
+        return np.linalg.eigvalsh(np.block([[top, off[:, None]], [off[None, :], np.array([[-l]])]])).max()
+
+    assert largest_eigenvalue(d.l) <= 0 < largest_eigenvalue(d.l / 2)  # the doubling search stops at the first l
+    with pytest.raises(ValueError, match="q < 0"):
+        design_global_observer(2, 0.5, [0.0], [[1.0]])
+    with pytest.raises(ValueError, match="no"):
+        design_global_observer(2, -1e-6, [0.0], [[1e6]], l_max=64.0)
+
+
+def test_global_observer_is_exact_on_an_unbounded_trajectory_where_the_bibs_observer_is_not():
+    """x1 grows to ~70 in 6 s: the observer of (22) converges in < 0.1 s from a velocity guess off by 2 and stays
+    at its sampled floor (< 2e-3, 3e-6 of the state at the end: its copy's error stays bounded whatever x does);
+    the observer of Fridman et al. 2008 with L = 20 bounds y'' only while |y''| < 20, and its error grows past 1
+    once the state outgrows it."""
+    from smo_gym.nonlinear_observers import GlobalHOSMObserver, design_global_observer
+
+    dt, n = 1e-3, 6001
+    X = rk4_samples(lambda t, x: np.array([x[1], _unbounded_psi(x) + 0.5 * np.sin(t)]), [1.0, 0.0], dt, n)
+    d = design_global_observer(2, -1.0, [0.0], [[1.0]])
+    observer = GlobalHOSMObserver(_unbounded_psi, 2, dt, K=d.K, l=d.l, lipschitz=200.0, substeps=2)
+    err = np.abs(observer.run(X[:, 0], [1.0, 2.0]) - X).max(axis=1)
+    t = np.arange(n) * dt
+    assert t[np.flatnonzero(err > 1e-2).max() + 1] < 0.1
+    assert err[t > 0.2].max() < 2e-3  # the sampled floor, which does not grow with the state
+    assert np.abs(X[-1]).max() > 50 and err[-1] / np.abs(X[-1]).max() < 1e-5
+    bibs = NonlinearHOSMObserver(
+        lambda x: np.array([x[1], _unbounded_psi(x)]), lambda x: x[0], 2, dt, 20.0,
+        phi=lambda x: np.array(x, dtype=float), phi_jacobian=lambda x: np.eye(2),
+    )  # fmt: skip
+    assert np.abs(bibs.run(X[:, 0], [1.0, 2.0])[-1] - X[-1]).max() > 1.0
+
+
+def test_global_observer_bad_input():
+    from smo_gym.nonlinear_observers import GlobalHOSMObserver
+
+    with pytest.raises(ValueError, match="N\\[0\\] = -1"):
+        GlobalHOSMObserver(_unbounded_psi, 2, 1e-3, K=[-2.5, -1.5], l=16.0, lipschitz=200.0, N=[1.0, 0.0])
+    with pytest.raises(ValueError, match="Hurwitz"):
+        GlobalHOSMObserver(_unbounded_psi, 2, 1e-3, K=[2.5, 1.5], l=16.0, lipschitz=200.0)
+    observer = GlobalHOSMObserver(lambda x: x, 2, 1e-3, K=[-2.5, -1.5], l=16.0, lipschitz=200.0)
+    with pytest.raises(RuntimeError, match="reset"):
+        observer.update(0.0)
+    observer.reset(0.0, [0.0, 0.0])
+    with pytest.raises(ValueError, match="finite scalar"):
+        observer.update(0.0)
