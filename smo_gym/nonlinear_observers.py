@@ -65,7 +65,8 @@ Without the BIBS property
 :class:`GlobalHOSMObserver` is Apaza-Perez, Fridman and Moreno's (2018) global observer for the triangular form
 :math:`\dot x = Ax + B(\psi(x) + w) + \varphi(u, y)`, :math:`y = x_1`, whose state may grow without bound: it
 differentiates the output error of a high-gain copy, whose error stays bounded, instead of the output itself
-(:func:`design_global_observer`: the design algorithm of the slides with its matrix inequality checked).
+(:func:`design_global_observer`: the design algorithm of the slides with its matrix inequality checked;
+:func:`check_dissipativity`: its assumption on :math:`\psi`, tested on sample points).
 
 Notes
 -----
@@ -120,6 +121,7 @@ __all__ = [
     "NonlinearHOSMObserver",
     "ObservabilityError",
     "ObservabilityReport",
+    "check_dissipativity",
     "check_observability",
     "default_fd_step",
     "design_global_observer",
@@ -931,6 +933,47 @@ def dissipativity_constant(q: float, S, R) -> float:
     R = np.atleast_2d(np.asarray(R, dtype=float))
     sts = float(np.linalg.eigvalsh(S.T @ S).max())
     return (np.sqrt(-float(np.linalg.eigvalsh(R).max()) * q + sts) + np.sqrt(sts)) / np.sqrt(-q)
+
+
+def check_dissipativity(psi: Callable, q: float, S, R, points, *, h_scale: float = 1.0, samples: int = 64,
+                        seed: int = 0) -> tuple[bool, float, np.ndarray, np.ndarray]:  # fmt: skip
+    r"""Test the assumption of :class:`GlobalHOSMObserver` on sample points: :math:`\psi` is
+    :math:`\{q, S, R\}`-dissipative in the coordinates ``2..n``,
+
+    .. math:: \begin{bmatrix}\Psi \\ h\end{bmatrix}^T\begin{bmatrix} q & S \\ S^T & R\end{bmatrix}
+              \begin{bmatrix}\Psi \\ h\end{bmatrix} \ge 0,\qquad
+              \Psi(x, h) = \psi(x_1, x_2 + h_1, \ldots, x_n + h_{n-1}) - \psi(x),
+
+    at every point of ``points`` (shape ``(P, n)``) for ``samples`` random increments ``h`` per point (normal, scale
+    ``h_scale``, seeded) and the unit increments :math:`\pm e_i`. A sample test, not a proof: it finds violations,
+    it cannot certify their absence.
+
+    Returns
+    -------
+    ok : bool
+    worst : float
+        The smallest value of the quadratic form found (relative to :math:`\|h\|^2`).
+    x, h : ndarray
+        Where it was found.
+    """
+    _check_callable("psi", psi)
+    points = as_real_array("points", points)
+    if points.ndim != 2 or points.shape[1] < 2:
+        raise ValueError(f"expected points of shape (P, n >= 2), actual value: shape {points.shape}")
+    n = points.shape[1]
+    S = np.atleast_2d(np.asarray(S, dtype=float)).reshape(1, n - 1)
+    R = np.atleast_2d(np.asarray(R, dtype=float)).reshape(n - 1, n - 1)
+    rng = np.random.default_rng(seed)
+    unit = np.vstack([np.eye(n - 1), -np.eye(n - 1)]) * h_scale
+    worst, where = np.inf, (points[0], unit[0])
+    for x in points:
+        base = float(np.asarray(psi(x), dtype=float).reshape(-1)[0])
+        for h in np.vstack([unit, h_scale * rng.standard_normal((samples, n - 1))]):
+            Psi = float(np.asarray(psi(x + np.r_[0.0, h]), dtype=float).reshape(-1)[0]) - base
+            value = (float(q) * Psi * Psi + 2.0 * Psi * (S @ h).item() + h @ R @ h) / max(h @ h, 1e-300)
+            if value < worst:
+                worst, where = value, (x, h)
+    return bool(worst >= -1e-12), float(worst), np.array(where[0]), np.array(where[1])
 
 
 @dataclass(frozen=True)

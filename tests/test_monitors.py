@@ -385,3 +385,14 @@ def test_mode_monitor_in_info_through_the_monitored_wrapper():
         *_, info = monitored.step(op.ctrl)
         assert info["mode"]["mode_name"] == "nominal" and np.isfinite(info["mode"]["residual_norms"]).all()
     assert info["mode"]["switches"] == 0 and info["mode"]["time"] == pytest.approx(0.4)
+
+
+def test_the_guide_mode_monitor_example_runs_as_printed(capsys):
+    """The control guide's ModeMonitor block, executed: the nominal mode stands with the arm at rest."""
+    from pathlib import Path
+
+    guide = Path(__file__).resolve().parents[1] / "docs" / "guide" / "control.md"
+    section = guide.read_text().split("In an environment, `smo_gym.monitors.ModeMonitor`", 1)[1]
+    source = section.split("```python\n", 1)[1].split("```", 1)[0]
+    exec(compile(source, str(guide), "exec"), {"__name__": "__guide__"})
+    assert capsys.readouterr().out.startswith("nominal 0 ")

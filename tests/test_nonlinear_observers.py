@@ -705,6 +705,20 @@ def test_global_observer_is_exact_on_an_unbounded_trajectory_where_the_bibs_obse
     assert np.abs(bibs.run(X[:, 0], [1.0, 2.0])[-1] - X[-1]).max() > 1.0
 
 
+def test_dissipativity_holds_for_the_example_and_fails_for_a_steeper_nonlinearity():
+    """|sin(x2 + h) - sin(x2)| <= |h|: {-1, 0, 1}-dissipative everywhere; psi = 2 x2 has Psi = 2 h, so the form
+    is -4 h^2 + h^2 = -3 h^2 < 0 at every point (found, with the value -3)."""
+    from smo_gym.nonlinear_observers import check_dissipativity
+
+    points = np.random.default_rng(1).uniform(-5, 5, (20, 2))
+    ok, worst, _, _ = check_dissipativity(_unbounded_psi, -1.0, [0.0], [[1.0]], points)
+    assert ok and worst >= -1e-12
+    ok, worst, _, h = check_dissipativity(lambda x: 2.0 * x[1], -1.0, [0.0], [[1.0]], points)
+    assert not ok and worst == pytest.approx(-3.0) and h.shape == (1,)
+    with pytest.raises(ValueError, match="points of shape"):
+        check_dissipativity(_unbounded_psi, -1.0, [0.0], [[1.0]], np.zeros(3))
+
+
 def test_global_observer_bad_input():
     from smo_gym.nonlinear_observers import GlobalHOSMObserver
 
