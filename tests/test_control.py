@@ -376,3 +376,19 @@ def test_held_injection_loses_the_orders_the_sampled_one_keeps(furuta):
         )
         ev.append(np.abs(res.x_hat - res.x)[res.after(2.0)][:, 2:].max())
     assert c.fit_order(steps, ev) < 1.5  # the sampled injection gives 3.0 (test above)
+
+
+@pytest.mark.parametrize("make", ["luenberger", "cascade"])
+def test_observers_refuse_samples_of_the_wrong_size_or_not_finite(make):
+    """Two outputs: a scalar or a length-1 sample would broadcast against C x silently; it is refused, as is NaN."""
+    plant = c.furuta_slides()
+    obs = c.LuenbergerObserver(plant, 1e-3) if make == "luenberger" else c.CascadedHOSMObserver(plant, 1e-3, 300.0)
+    with pytest.raises(ValueError, match=r"y0 with shape \(2,\)"):
+        obs.reset([0.1])
+    obs.reset([0.0, 0.0])
+    for bad in (0.1, [0.1], [0.1, 0.2, 0.3]):
+        with pytest.raises(ValueError, match=r"y with shape \(2,\)"):
+            obs.update(bad)
+    with pytest.raises(ValueError, match="finite y"):
+        obs.update([np.nan, 0.0])
+    obs.update([0.0, 0.0])

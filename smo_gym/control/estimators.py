@@ -64,6 +64,17 @@ from .plants import LinearPlant, molinari_decoupling
 __all__ = ["CascadedHOSMObserver", "LuenbergerObserver", "output_error_lipschitz", "sampled_observer_gain"]
 
 
+def _output_sample(name: str, y, p: int) -> np.ndarray:
+    """``y`` as a finite float vector of the ``p`` outputs (a typed error otherwise: a wrong length would broadcast
+    silently against ``C x``)."""
+    arr = np.asarray(y, dtype=float).reshape(-1) if np.ndim(y) <= 1 else np.asarray(y, dtype=float)
+    if arr.shape != (p,):
+        raise ValueError(f"expected {name} with shape ({p},) (one value per output), actual value: shape {np.shape(y)}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"expected a finite {name}, actual value: {arr!r}")
+    return arr
+
+
 def _highest_block(M: np.ndarray, p: int) -> int:
     """Index of the last block of ``p`` columns of ``M`` with a non-negligible entry."""
     col = np.nonzero(np.abs(M).max(axis=0) > 1e-9 * max(np.abs(M).max(), 1e-300))[0]
@@ -160,7 +171,7 @@ class LuenbergerObserver:
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start from ``x_hat0`` (default: the least-squares state matching ``y0``, zero elsewhere)."""
-        y0 = np.asarray(y0, dtype=float)
+        y0 = _output_sample("y0", y0, self.plant.n_outputs)
         self._prior = np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else np.array(x_hat0, dtype=float)
         self.x_hat = self._prior.copy()
         return self.x_hat
@@ -172,7 +183,7 @@ class LuenbergerObserver:
     def update(self, y) -> np.ndarray:
         """Correct with the sample ``y_k`` and return :math:`\\hat x_k`."""
         self._require()
-        innov = np.asarray(y, dtype=float) - self.plant.C @ self._prior
+        innov = _output_sample("y", y, self.plant.n_outputs) - self.plant.C @ self._prior
         self.x_hat = self._prior + self.L @ innov
         return self.x_hat
 
@@ -335,7 +346,7 @@ class CascadedHOSMObserver:
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start the Luenberger stage at ``x_hat0`` (default ``C^+ y0``) and the differentiator at its output error."""
-        y0 = np.asarray(y0, dtype=float)
+        y0 = _output_sample("y0", y0, self.plant.n_outputs)
         self._prior = np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else np.array(x_hat0, dtype=float)
         ye0 = y0 - self.plant.C @ self._prior
         self.differentiator.reset(ye0)
@@ -349,7 +360,7 @@ class CascadedHOSMObserver:
         """Process the sample ``y_k``: return :math:`\\hat x_k` and set ``w_hat`` (and its derivatives)."""
         if self._prior is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
-        ye = np.asarray(y, dtype=float) - self.plant.C @ self._prior
+        ye = _output_sample("y", y, self.plant.n_outputs) - self.plant.C @ self._prior
         self.output_error = ye
         new_state, Z = self.differentiator.step(self._dstate, ye)  # Z: (p, k+1), estimates at t_k (pre-jump)
         # e, e', e'', ...: Molinari's relation on the derivative stack shifted by j
