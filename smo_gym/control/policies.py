@@ -97,8 +97,10 @@ VELOCITY_TIME = 0.1
 #: costs as much as a position error of ``POSITION_SCALE``
 INTEGRAL_TIME = 0.5
 #: time constant [s] of the PID baseline's derivative filter (a raw backward difference of a noisy encoder at a
-#: few milliseconds is too noisy to feed back)
-DERIVATIVE_FILTER = 0.02
+#: few milliseconds is too noisy to feed back). Tuned, not calibrated: on the two-link arm of
+#: ``scripts/bench_control.py`` (2 ms, 12-bit noisy encoder, 3 seeds) the steady band is 1.7 / 0.77 / 0.24 / 0.028 /
+#: 0.0063 / 0.0096 rad for 0 / 4 / 10 / 20 / 40 / 80 ms, so the baseline gets its best value
+DERIVATIVE_FILTER = 0.04
 #: safety factor on the differentiator's bound (:func:`smo_gym.control.output_error_lipschitz`)
 SAFETY = 2.5
 #: default disturbance amplitude, as a fraction of the actuators' force range on the disturbance channels
