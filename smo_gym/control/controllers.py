@@ -179,10 +179,16 @@ class StateFeedback:
     def law(self, t: float) -> np.ndarray:
         return self.nominal()
 
-    def step(self, y, t: float) -> np.ndarray:
-        """Update the observer with ``y_k``, compute ``u_k``, predict the observer with it; return ``u_k``."""
+    def step(self, y, t: float, limits=None) -> np.ndarray:
+        """Update the observer with ``y_k``, compute ``u_k``, predict the observer with it; return ``u_k``.
+
+        ``limits = (low, high)`` (arrays of shape ``(q,)``, infinite entries allowed) clips ``u_k`` to a saturating
+        actuator's range first: the observer predicts with, and the laws' memories (:attr:`u`) hold, the command
+        actually applied.
+        """
         self.observer.update(y)
-        self.u = np.atleast_1d(self.law(t))
+        u = np.atleast_1d(self.law(t))
+        self.u = u if limits is None else np.clip(u, limits[0], limits[1])
         self.observer.advance(self.u)
         return self.u
 

@@ -456,14 +456,12 @@ class LinearizedPolicy:
         """The actuator command for this sample, shape ``(nu,)``, within ``ctrlrange``."""
         if self._t is None:
             raise RuntimeError("expected reset(qpos_measured) before act(), actual value: the policy was never reset")
-        c = self.controller
-        c.observer.update(self._outputs(qpos_measured))
-        u = np.clip(self._u0 + np.atleast_1d(c.law(self._t)), self._lo, self._hi)
-        c.u = u - self._u0
-        c.observer.advance(c.u)
+        du = self.controller.step(
+            self._outputs(qpos_measured), self._t, limits=(self._lo - self._u0, self._hi - self._u0)
+        )
         self._last_t = self._t
         self._t += self.dt
-        return u
+        return self._u0 + du
 
     @property
     def diagnostics(self) -> ControlDiagnostics:
