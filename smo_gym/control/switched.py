@@ -470,6 +470,18 @@ class SwitchedHOSMObserver:
         self._carry = None
         return self.x_hat
 
+    def switch(self, mode: int, y, x_hat) -> np.ndarray:
+        """Make ``mode`` the active mode at the sample ``y`` just processed, its observer started at the estimate
+        ``x_hat`` (the slides' reset); for a mode decided after the sample, as in autonomous switching."""
+        if self.mode is None:
+            raise RuntimeError("expected reset(y0, mode) before switch(...), actual value: never reset")
+        mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
+        self.observers[mode].reset(y, x_hat)
+        self.x_hat = self.observers[mode].update(y)  # the sample is consumed: predict from it at the next advance
+        self.mode = mode
+        self.switch_samples.append(self._k)
+        return self.x_hat
+
     def advance(self, u=None) -> None:
         """Predict to the next sample with the control ``u`` (default zero) held over the interval."""
         if self.mode is None:
@@ -979,6 +991,11 @@ class AutonomousSwitchedObserver:
     x_hat : ndarray, shape (n,)
     switch_times : list of float
         Times [s] (from the reset) at which the estimated mode changed.
+
+    Notes
+    -----
+    The continuous state is a :class:`SwitchedHOSMObserver` told the mode the rule decides, switched by
+    :meth:`SwitchedHOSMObserver.switch` after the sample that decided it.
     """
 
     @check_keywords
@@ -990,48 +1007,44 @@ class AutonomousSwitchedObserver:
             raise TypeError(f"expected a SwitchedLinearSystem, actual value: {type(system).__name__}")
         if not isinstance(surface, SwitchingSurface):
             raise TypeError(f"expected a SwitchingSurface, actual value: {type(surface).__name__}")
-        system.require_observable()
+        # the continuous state: the known-mode observer, told the mode the rule decides (and its checks)
+        self._known = SwitchedHOSMObserver(system, dt, lipschitz, alpha=alpha, poles=poles)
         ok, reason = surface.condition(system)
         if not ok:  # unreachable under strong observability, kept for the statement's sake
             raise NotStronglyObservableError(f"expected V*_sigma inside ker Q_sigma, actual value: {reason}")
-        self.system, self.surface = system, surface
-        self.dt = check_positive("dt", dt)
-        self.observers = _bank(system, self.dt, lipschitz, alpha, poles)
-        self.mode: int | None = None
-        self.x_hat = None
-        self.switch_times: list[float] = []
-        self._k = 0
+        self.system, self.surface, self.dt = system, surface, self._known.dt
+
+    @property
+    def mode(self) -> int | None:
+        return self._known.mode
+
+    @property
+    def x_hat(self) -> np.ndarray | None:
+        return self._known.x_hat
+
+    @property
+    def switch_times(self) -> list[float]:
+        return [k * self.dt for k in self._known.switch_samples]
 
     def reset(self, y0, x_hat0=None, mode: int | None = None) -> np.ndarray:
         """Start at the sample ``y0`` (estimate ``x_hat0``, default ``C^+ y0``) in ``mode`` (default: the rule
         applied to the initial estimate)."""
         m0 = self.surface.mode(np.zeros(self.system.n) if x_hat0 is None else np.asarray(x_hat0, float))
-        self.mode = m0 if mode is None else check_int_in_range("mode", mode, 0, self.system.q - 1)
-        self.observers[self.mode].reset(y0, x_hat0)
-        self.x_hat = self.observers[self.mode].update(y0)
-        self.switch_times, self._k = [], 0
-        return self.x_hat
+        return self._known.reset(y0, m0 if mode is None else mode, x_hat0)
 
     def update(self, y) -> np.ndarray:
-        r"""Process the sample ``y_k``; return :math:`\hat x_k` and set :attr:`mode` for the next interval."""
-        if self.mode is None:
+        """Process the sample ``y_k``; return :math:`\\hat x_k` and set :attr:`mode` for the next interval."""
+        if self._known.mode is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: never reset")
-        self._k += 1
-        self.x_hat = self.observers[self.mode].update(y)
-        new = self.surface.mode(self.x_hat)
-        if new != self.mode:
-            self.observers[new].reset(y, self.x_hat)
-            self.observers[new].update(y)  # the sample is consumed: predict from it at the next advance
-            self.mode = new
-            self.switch_times.append(self._k * self.dt)
-        return self.x_hat
+        x_hat = self._known.update(y, self._known.mode)  # the mode that acted over the last interval
+        new = self.surface.mode(x_hat)
+        return x_hat if new == self._known.mode else self._known.switch(new, y, x_hat)
 
     def advance(self, u=None) -> None:
         """Predict to the next sample with the control ``u`` (default zero) in the estimated mode."""
-        if self.mode is None:
+        if self._known.mode is None:
             raise RuntimeError("expected reset(y0) before advance(u), actual value: never reset")
-        u = np.zeros(self.system.n_inputs) if u is None else np.atleast_1d(np.asarray(u, dtype=float))
-        self.observers[self.mode].advance(u)
+        self._known.advance(u)
 
     def run(self, Y, U=None, x_hat0=None) -> tuple[np.ndarray, np.ndarray]:
         """Reset at ``Y[0]`` and process ``Y[1:]`` with ``U[k]`` held over ``[t_k, t_{k+1})``. Returns ``(X_hat,
