@@ -116,6 +116,7 @@ from .policies import (
     design,
     differentiator_bound,
     equilibrium,
+    sensor_noise,
 )
 from .simulation import SimulationResult, fit_order, simulate, steady_state_error, total_variation_rate
 from .switched import (
@@ -246,6 +247,7 @@ __all__ = [
     "sampled_lqr",
     "sampled_observer_gain",
     "scale_body_mass",
+    "sensor_noise",
     "settling_time",
     "simulate",
     "simulate_chain",

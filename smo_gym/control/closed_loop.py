@@ -252,10 +252,8 @@ def run_closed_loop(
     # the sensing of the wrapper; the policy reads the measured positions only, so the cheapest observer suffices
     sensed = EstimatedVelocity(env, sensor=sensor, rate="env", observer="finite-difference")
     if disturbance is not None:  # on top: the sensing wrapper accepts only observation wrappers beneath it
-        if disturbance_dofs is None:
+        if disturbance_dofs is None:  # the linearized design's channels
             disturbance_dofs = getattr(getattr(policy, "design", None), "disturbance_dofs", None)
-        if disturbance_dofs is None:
-            disturbance_dofs = getattr(policy, "disturbance_dofs", None)
         if disturbance_dofs is None:  # the joints the actuators drive
             disturbance_dofs = np.unique(model.jnt_dofadr[model.actuator_trnid[:, 0]])
         sensed = ExternalForce(sensed, disturbance, disturbance_dofs)

@@ -500,17 +500,16 @@ class ComputedTorquePolicy:
         """
         import mujoco
 
-        from ..sensors import make_sensor
-
         base = getattr(env, "unwrapped", env)
         model = getattr(base, "model", None)
         if not isinstance(model, mujoco.MjModel):
             raise TypeError(f"expected a MuJoCo environment (env.unwrapped.model), actual value: {type(base).__name__}")
         if "target" not in kwargs and getattr(base, "TARGET", None) is not None:
             kwargs["target"] = np.asarray(base.TARGET, dtype=np.float64)
-        if "noise_std" not in kwargs:  # the largest error over the joints (one qpos entry per hinge or slide)
-            angular = [int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) for j in range(model.njnt)]
-            kwargs["noise_std"] = float(np.max(make_sensor(sensor).error_std(model.njnt, angular)))
+        if "noise_std" not in kwargs:  # the largest error over the joints
+            from .policies import sensor_noise
+
+            kwargs["noise_std"] = float(np.max(sensor_noise(sensor, model, np.arange(model.nv))))
         return cls(model, float(base.dt), **kwargs)
 
     # ---- policy protocol ---------------------------------------------------------------------------------------

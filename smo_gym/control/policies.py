@@ -30,6 +30,7 @@ __all__ = [
     "design",
     "differentiator_bound",
     "equilibrium",
+    "sensor_noise",
 ]
 
 
@@ -487,8 +488,9 @@ class LinearizedPolicy:
         return f"LinearizedPolicy({self.name!r}, dt={self.dt}, joints={list(self.design.joints)})"
 
 
-def _sensor_noise(sensor, model, dofs) -> np.ndarray:
-    """The sensor's error standard deviation on the measured joints (hinges angular, slides linear)."""
+def sensor_noise(sensor, model, dofs) -> np.ndarray:
+    """The sensor's error standard deviation per joint of ``dofs`` (``qvel`` addresses, hinge and slide joints:
+    hinges read as angles, slides as lengths), shape ``(len(dofs),)`` (:meth:`smo_gym.sensors.Sensor.error_std`)."""
     from ..sensors import make_sensor
 
     mujoco = _mujoco()
@@ -634,7 +636,7 @@ def design(
     Q = Qd if Q is None else np.asarray(Q, dtype=float)
     R = Rd if R is None else np.atleast_2d(np.asarray(R, dtype=float))
     K = sampled_lqr(plant, dt, Q, R)
-    noise = _sensor_noise(sensor, model, out_dofs)
+    noise = sensor_noise(sensor, model, out_dofs)
     t_start = max(0.05, 5 * dt) if t_start is None else check_nonnegative("t_start", t_start)
     lipschitz = None
     if controller in HOSM_CONTROLLERS:
