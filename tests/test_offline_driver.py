@@ -17,9 +17,9 @@ N = 5  # channels (not a multiple of the vector width: the kernels' scalar tails
 
 
 def _observer(name):
-    if name == "super-twisting":  # the two-call-site loop (_drive)
+    if name == "super-twisting":  # the implicit super-twisting kernel
         return SuperTwisting(dt=1e-3, lipschitz=50.0)
-    return Levant(order=1, dt=1e-3, lipschitz=50.0)  # the HOSM kernel: the one-call-site loop (_drive_compact)
+    return Levant(order=1, dt=1e-3, lipschitz=50.0)  # the HOSM kernel
 
 
 def _stepped(obs, state, Y):

@@ -243,7 +243,7 @@ ENTRY_COS = 2
 """Entry function code: the observation entry is ``cos`` of the MjData entry."""
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _entry_function(code, v):
     """``v``, ``sin(v)`` or ``cos(v)`` by ``code`` (:data:`ENTRY_IDENTITY`, :data:`ENTRY_SIN`, :data:`ENTRY_COS`)."""
     if code == ENTRY_SIN:

@@ -40,7 +40,7 @@ def joint_table(model: mujoco.MjModel) -> np.ndarray:
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _normalize3(x, y, z):
     """``(x, y, z) / norm`` and ``norm``, MuJoCo's ``mju_normalize3``: ``(1, 0, 0)`` below ``mjMINVAL``."""
     norm = math.sqrt(x * x + y * y + z * z)
@@ -50,7 +50,7 @@ def _normalize3(x, y, z):
     return x * inv, y * inv, z * inv, norm
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _sub_quat(qa, a, qb, b, out, o, accumulate):
     r"""``out[o:o+3] = log(qb^{-1} qa)`` (rotation vector; ``+=`` with ``accumulate``), MuJoCo's
     ``mju_subQuat(res, qa, qb)``."""
@@ -76,7 +76,7 @@ def _sub_quat(qa, a, qb, b, out, o, accumulate):
         out[o + 2] = z * speed
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _quat_integrate(q, a, v, d):
     r"""``q[a:a+4] <- normalize(q) * exp(v[d:d+3] / 2)``, MuJoCo's ``mju_quatIntegrate(quat, vel, 1)``."""
     vx, vy, vz, angle = _normalize3(v[d], v[d + 1], v[d + 2])

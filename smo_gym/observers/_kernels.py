@@ -76,8 +76,15 @@ small:
   :func:`smo_gym._numba_cache.cached_instance`), so numba caches every one on disk.
 * No reference counting at the entry. The batch kernels are compiled with numba's ``_nrt=False``: called from
   Python, their arrays are then unboxed without allocating a reference-counted ``MemInfo`` each, which halves
-  the cost of the call (an empty five-array kernel: 0.27 against 0.13 us). The kernels allocate nothing, and
-  inlined into a compiled driver they take the driver's options.
+  the cost of the call (an empty five-array kernel: 0.27 against 0.13 us). The kernels allocate nothing.
+* Compiled separately, joined by LLVM. Each numba function (helper, channel step, loop, batch kernel, driver) is
+  compiled once and linked into its callers, where LLVM inlines it; numba compiles a call with a literal argument
+  (``m = 2``, ``shared``) for that value, so the constants still unroll the loops. Inlining in numba's own IR
+  (``inline="always"``) instead re-types the callee at every call site: with the ``m`` variants and the driver's
+  two call sites that took 67 s for the eigenvalue-map driver from an empty cache (0.7 s now) and half of a cold
+  test run, at no measured gain per ``update``, offline or in ``scripts/bench_wrapper.py``. Only functions that
+  take a function as an argument (the drivers' time loops, :func:`_chain_loop`, :func:`monotone_root`) are inlined
+  in numba's IR: a compiled function with a function argument cannot be cached.
 * ``error_model="numpy"`` (no zero-division checks: every divisor is positive for valid parameters; a
   non-finite result still ends as status ``-2 - i``), and ``_flat`` reshapes only measurements with batch
   dimensions (a 1-D ``y`` passes through untouched).
@@ -100,7 +107,7 @@ from numba import njit, types
 from numba.core.dispatcher import Dispatcher
 from numba.extending import intrinsic, overload
 
-from .._numba_cache import cached_instance
+from .._numba_cache import cached_instance, drop_stale
 
 #: Number of signed-power terms per state in the HOSM family (URED needs three in its second equation).
 N_TERMS = 3
@@ -118,13 +125,13 @@ def _without_nrt() -> dict:
 
 
 #: options of the batch kernels: compiled without numba's reference counting when called from Python
-KERNEL = dict(cache=CACHE, error_model="numpy", inline="always", **_without_nrt())
+KERNEL = dict(cache=CACHE, error_model="numpy", **_without_nrt())
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # helpers
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def signed_power(e, p):
     r"""``|e|^p sign(e)`` with ``signed_power(0, p) = 0`` (so ``p = 0`` is the sign function)."""
     if e > 0.0:
@@ -134,7 +141,7 @@ def signed_power(e, p):
     return 0.0
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _taylor_back(x_new, m, dt, out_row):
     r"""``out = exp(-dt N) x_new``: move a prediction for ``t + dt`` back to ``t`` along the Taylor polynomial."""
     for i in range(m):
@@ -160,14 +167,14 @@ def _flat_impl(y, out):
     return lambda y, out: (y.reshape(y.size), out.reshape((y.size, out.shape[-1])))
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _check_rows(params, n, shared):
     """Require one parameter row per channel (``n``), or a single row if ``shared``."""
     if params.shape[0] != (1 if shared else n):
         raise ValueError("expected params with one row per channel, or one row for a *_shared_kernel")
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _first_nonfinite(y):
     """Index of the first non-finite entry of ``y`` (N,), or -1: one branch-free pass, a second only on failure."""
     bad = False
@@ -180,7 +187,7 @@ def _first_nonfinite(y):
     return -1
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _unwrap_rows(y, state, period, y_out):
     """The loop of :func:`unwrap_measurement` on flat ``y`` (N,), ``state`` (N, S), ``period``, ``y_out`` (N,)."""
     for c in range(y.shape[0]):
@@ -225,7 +232,7 @@ def _check_state(new_state, out):
     return -1
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _check_widths(state, new_state, params, out, S, P, m):
     """Fix the array widths for the compiler: after this check LLVM indexes rows with constant strides."""
     if state.shape[1] != S or new_state.shape[1] != S or params.shape[-1] != P or out.shape[1] != m:
@@ -256,7 +263,7 @@ def _from_bits(typingctx, i):
     return types.float64(types.int64), codegen
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def cbrt(a):
     r"""Cube root of ``a >= 0`` (finite), fdlibm's ``s_cbrt.c``: error below 0.667 ulp, no branches.
 
@@ -287,7 +294,7 @@ def cbrt(a):
     return t if a > 0.0 else 0.0
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _pow2(k):
     """``2.0 ** k`` for an integer-valued float ``-1022 <= k <= 1023`` (bits of the exponent field)."""
     # k + 1.5 * 2^52 has k in its low mantissa bits: an int conversion AVX2 can vectorize (cvtpd2qq cannot)
@@ -295,7 +302,7 @@ def _pow2(k):
     return _from_bits((ki + 1023) << 52)
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def exp_nonpositive(x):
     r"""``exp(x)`` for ``x <= 0`` (``-inf`` gives 0), fdlibm's ``e_exp.c``: error below 1 ulp, no branches.
 
@@ -321,7 +328,7 @@ def exp_nonpositive(x):
     return y * _pow2(k1) * _pow2(kf - k1)
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _row_finite(row):
     """Whether every entry of a state row is finite (checked per channel, right after the channel's step)."""
     for j in range(row.shape[0]):  # noqa: SIM110 - a loop numba compiles; all() of a generator it does not
@@ -330,7 +337,7 @@ def _row_finite(row):
     return True
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _abs_power(a, r, p, m):
     r"""``a**p`` given ``r = a**(1/m)``: ``r**q`` by multiplication when ``p = q/m`` with an integer ``0 <= q <= 16``.
 
@@ -352,7 +359,7 @@ def _abs_power(a, r, p, m):
 # HOSM family: Levant (any order), super-twisting (explicit), URED, uniform Levant
 # params row: [dt, taylor, gains (m * N_TERMS), powers (m * N_TERMS)]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def hosm_channel_step(x, y, params, m, x_new, out_row):
     r"""One explicit step of a differentiator with signed-power injections.
 
@@ -396,9 +403,10 @@ def hosm_channel_step(x, y, params, m, x_new, out_row):
     return -e
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _hosm_loop(state, y, params, new_state, out, shared, m):
-    """The channel loop of :func:`hosm_rows` for ``m`` estimates (a compile-time constant when inlined)."""
+    """The channel loop of :func:`hosm_rows` for ``m`` estimates (a compile-time constant where the call passes
+    a literal)."""
     _check_widths(state, new_state, params, out, m + 1, 2 + 2 * m * N_TERMS, m)
     failed = False
     for c in range(y.shape[0]):
@@ -409,7 +417,7 @@ def _hosm_loop(state, y, params, new_state, out, shared, m):
     return _check_state(new_state, out) if failed else -1
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def hosm_rows(state, y, params, new_state, out, shared):
     """:func:`hosm_channel_step` on every channel: one explicit step of a signed-power differentiator (Levant
     2003, any order; the explicit super-twisting step; Cruz-Zavala, Moreno and Fridman 2011; Angulo, Moreno and
@@ -427,7 +435,7 @@ def hosm_rows(state, y, params, new_state, out, shared):
 # Super-twisting, set-valued implicit Euler (closed form)
 # params row: [dt, k1, k2]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def sta_implicit_channel_step(x, y, params, x_new):
     r"""Implicit Euler step of the super-twisting differentiator,
     :math:`\dot x_1 = x_2 + k_1\lceil y-x_1\rfloor^{1/2},\ \dot x_2 = k_2\,\mathrm{Sign}(y-x_1)`.
@@ -457,7 +465,7 @@ def sta_implicit_channel_step(x, y, params, x_new):
     return w
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def sta_implicit_rows(state, y, params, new_state, out, shared):
     """:func:`sta_implicit_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     _check_widths(state, new_state, params, out, 3, 3, 2)
@@ -481,7 +489,7 @@ def sta_implicit_rows(state, y, params, new_state, out, shared):
 # back: the report is exp(-back N) z_{k+1}, back = dt (the estimate at t_k) or 0 (the predictor z_{k+1} itself);
 # state row: [z_0, ..., z_{m-1}, w_1, ..., w_nf, innovation], n = m + nf states (nf = 0: no filter)
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _eigenvalue_root(a, n):
     r"""The root :math:`|\sigma|^{1/n}` of the eigenvalue maps, for finite ``a >= 0``.
 
@@ -496,7 +504,7 @@ def _eigenvalue_root(a, n):
     return math.sqrt(a) if n == 2 else (cbrt(a) if n == 3 else a ** (1.0 / n))
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _homogeneous_root(a, n, degree):
     r"""The root :math:`|\sigma|^{-q}`, :math:`q = d/(1 - d(n - 1))`, of the eigenvalue :math:`s = -p_1|\sigma|^q`
     of a differentiator of homogeneity degree ``d`` with ``n`` states (Andritsch et al.).
@@ -509,7 +517,7 @@ def _homogeneous_root(a, n, degree):
     return a ** (-degree / (1.0 - degree * (n - 1)))
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _eigenvalue_from_root(a, root, dt, p1, mu, mode):
     r"""(15) or (16) given ``a = |sigma|`` and its root (see :func:`eigenvalue_map`); 0 where the root is 0 (the
     eigenvalue :math:`s \to -\infty` of a discontinuous differentiator at :math:`\sigma = 0`)."""
@@ -519,7 +527,7 @@ def _eigenvalue_from_root(a, root, dt, p1, mu, mode):
     return z if root != 0.0 else 0.0
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def eigenvalue_map(sigma, dt, p1, mu, n, mode):
     r"""State-dependent eigenvalue :math:`z_n(\sigma)`: (15) semi-implicit or (16) matching of Wetzlinger et al.
 
@@ -530,7 +538,7 @@ def eigenvalue_map(sigma, dt, p1, mu, n, mode):
     return _eigenvalue_from_root(a, _eigenvalue_root(a, n), dt, p1, mu, mode)
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def eigmap_channel_step(x, y, params, m, n, x_new, out_row):
     r"""One step of (33) with zero model terms, :math:`\hat\xi_{k+1} = \Phi\hat\xi_k + b(y_k)
     + \tilde l(z(\sigma_k))\sigma_k`, on a chain of ``n`` states whose last ``m`` estimate ``(f, ..., f^(m-1))``.
@@ -591,15 +599,15 @@ def _chain_loop(channel_step, state, y, params, new_state, out, shared, m, n):
     return _check_state(new_state, out) if failed else -1
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _eigmap_loop(state, y, params, new_state, out, shared, m, n):
-    """The channel loop of :func:`eigmap_rows` for ``m`` estimates of ``n`` states (compile-time constants when
-    inlined)."""
+    """The channel loop of :func:`eigmap_rows` for ``m`` estimates of ``n`` states (compile-time constants where
+    the call passes literals)."""
     _check_widths(state, new_state, params, out, n + 1, 6 + (n + 1) * n, m)
     return _chain_loop(eigmap_channel_step, state, y, params, new_state, out, shared, m, n)
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def eigmap_rows(state, y, params, new_state, out, shared):
     """:func:`eigmap_channel_step` on every channel, ``m = out.shape[1]`` estimates of ``n = state.shape[1] - 1``
     states (``shared``: one parameter row for every channel); the common orders without filter with ``m`` a
@@ -618,14 +626,14 @@ def eigmap_rows(state, y, params, new_state, out, shared):
 # params row: [dt, degree, k (n)]; state row as the eigenvalue-map step's, [z_0, ..., z_{m-1}, w_1, ..., w_nf,
 # innovation] with n = m + nf states
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _chain_column(c, m, nf):
     """The state column of chain state ``c`` of ``w_1, ..., w_nf, z_0, ..., z_{m-1}``: the state stores the ``z``
     block first (column 0 is the value estimate, as in every family)."""
     return c - nf if c >= nf else m + c
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _injection_sum(s, params, dt, q, n):
     r""":math:`g(s) = s + \sum_c \beta_c s^{p_c}` and :math:`g'(s)` at ``s > 0``, with :math:`\beta_c = \tau^{c+1}k_c`
     and :math:`p_c = 1 + q(c + 1)` (:func:`filtering_implicit_channel_step`)."""
@@ -667,7 +675,7 @@ def monotone_root(fun, target, params, dt, a, b):
     return s
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
     r"""One implicit (backward) Euler step of the filtering differentiator of degree ``d``
     (:class:`smo_gym.observers.FilteringDifferentiator`), in chain coordinates
@@ -722,7 +730,7 @@ def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
     return y - x[0]
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def filtering_implicit_rows(state, y, params, new_state, out, shared):
     """:func:`filtering_implicit_channel_step` on every channel, ``m = out.shape[1]`` estimates of
     ``n = state.shape[1] - 1`` states (``shared``: one parameter row for every channel)."""
@@ -737,7 +745,7 @@ def filtering_implicit_rows(state, y, params, new_state, out, shared):
 # params row: [dt, gains (m * N_TERMS), powers (m * N_TERMS), M (m * m)]; state row [xi_0, ..., xi_{m-1},
 # innovation]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _signed_power_sum(s, params, dt, m, unused):
     r""":math:`g(s) = s + \sum_{c,j} \tau^{c+1} g_{cj} s^{p_{cj}}` and :math:`g'(s)` at ``s > 0``
     (:func:`hosm_implicit_channel_step`; ``unused`` keeps the signature of :func:`monotone_root`'s ``fun``)."""
@@ -757,7 +765,7 @@ def _signed_power_sum(s, params, dt, m, unused):
     return g, dg
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def hosm_implicit_channel_step(x, y, params, m, x_new, out_row):
     r"""One implicit (backward) Euler step of a signed-power differentiator (Levant 2003; Cruz-Zavala, Moreno and
     Fridman 2011; Angulo, Moreno and Fridman 2013), :math:`\dot\xi = A\xi + \psi(y - \xi_0)`:
@@ -824,7 +832,7 @@ def hosm_implicit_channel_step(x, y, params, m, x_new, out_row):
     return rho
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def hosm_implicit_rows(state, y, params, new_state, out, shared):
     """:func:`hosm_implicit_channel_step` on every channel, ``m = out.shape[1]`` estimates (``shared``: one
     parameter row for every channel)."""
@@ -843,9 +851,9 @@ def hosm_implicit_rows(state, y, params, new_state, out, shared):
 # Linear time-invariant observers (high-gain): s_new = F s + g y, out = R s_new
 # params row: [F (m * m), g (m), R (m * m)]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _linear_loops(state, y, params, new_state, out, shared, m):
-    """The loops of :func:`linear_rows` for ``m`` estimates (a compile-time constant when inlined).
+    """The loops of :func:`linear_rows` for ``m`` estimates (a compile-time constant where the call passes a literal).
 
     Two passes (``s_new = F s + g y``, then ``out = R s_new``) so that each loop has few enough strided accesses
     for LLVM's vectorizer.
@@ -873,7 +881,7 @@ def _linear_loops(state, y, params, new_state, out, shared, m):
     return _check_state(new_state, out) if failed else -1
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def linear_rows(state, y, params, new_state, out, shared):
     r"""The linear step :math:`s^+ = F s + g y`, :math:`\hat x = R s^+` on every channel (``shared``: one parameter
     row for every channel)."""
@@ -892,7 +900,7 @@ def linear_rows(state, y, params, new_state, out, shared):
 # Constant-acceleration Kalman filter (3 states, scalar measurement)
 # state row: [x0, x1, x2, P00, P01, P02, P11, P12, P22, innovation]; params row: [dt, q, r]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def kalman_ca_prior_covariance(p00, p01, p02, p11, p12, p22, dt, q):
     r"""Prior covariance :math:`P^- = F P F^T + Q` (upper triangle ``(m00, m01, m02, m11, m12, m22)``)."""
     h = 0.5 * dt * dt
@@ -918,7 +926,7 @@ def kalman_ca_prior_covariance(p00, p01, p02, p11, p12, p22, dt, q):
     return m00, m01, m02, m11, m12, m22
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r):
     r"""Gain :math:`K = P^- c / (c^T P^- c + r)` and :math:`P^+ = (I - K c^T) P^-`, ``c = (1, 0, 0)``.
 
@@ -931,7 +939,7 @@ def kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r):
     return (m00 - k0 * m00, m01 - k0 * m01, m02 - k0 * m02, m11 - k1 * m01, m12 - k1 * m02, m22 - k2 * m02, k0, k1, k2)
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
     r"""Covariance half of :func:`kalman_ca_channel_step`: posterior :math:`P^+` (upper triangle) and gain ``K``.
 
@@ -944,7 +952,7 @@ def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
     return kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r)
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2):
     r"""Mean half of :func:`kalman_ca_channel_step`: :math:`x^- = F x`, :math:`x^+ = x^- + K(y - c^T x^-)`.
 
@@ -960,7 +968,7 @@ def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2):
     return m0 + k0 * nu, m1 + k1 * nu, m2 + k2 * nu, nu
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def kalman_ca_channel_step(s, y, params, s_new):
     r"""Predict with :math:`F = e^{\tau N}` and the white-jerk process noise, then update with ``y``.
 
@@ -982,7 +990,7 @@ def kalman_ca_channel_step(s, y, params, s_new):
     return nu
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def kalman_ca_rows(state, y, params, new_state, out, shared):
     """:func:`kalman_ca_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     _check_widths(state, new_state, params, out, 10, 3, 3)
@@ -1033,9 +1041,10 @@ def kalman_ca_rows(state, y, params, new_state, out, shared):
 # Backward finite differences (order 1 or 2)
 # state row: [y, v, (a), innovation, samples since reset]; params row: [dt]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def _finite_difference_loop(state, y, params, new_state, out, shared, m):
-    """The loop of :func:`finite_difference_rows` for ``m`` = 2 or 3 estimates (compile-time when inlined)."""
+    """The loop of :func:`finite_difference_rows` for ``m`` = 2 or 3 estimates (a compile-time constant where the
+    call passes a literal)."""
     _check_widths(state, new_state, params, out, m + 2, 1, m)
     failed = False
     for c in range(y.shape[0]):
@@ -1061,7 +1070,7 @@ def _finite_difference_loop(state, y, params, new_state, out, shared, m):
     return _check_state(new_state, out) if failed else -1
 
 
-@njit(cache=CACHE, error_model="numpy", inline="always")
+@njit(cache=CACHE, error_model="numpy")
 def finite_difference_rows(state, y, params, new_state, out, shared):
     """Backward differences of order 1 or 2 on every channel (``shared``: one row for every channel)."""
     if out.shape[1] == 2:
@@ -1072,7 +1081,7 @@ def finite_difference_rows(state, y, params, new_state, out, shared):
 # ----------------------------------------------------------------------------------------------------------------
 # offline driver
 # ----------------------------------------------------------------------------------------------------------------
-@njit(error_model="numpy", inline="always")
+@njit(error_model="numpy")
 def _copy_rows(src, dst):
     """``dst[:, :] = src`` for two ``(N, S)`` arrays, as a loop.
 
@@ -1086,15 +1095,14 @@ def _copy_rows(src, dst):
 
 @njit(error_model="numpy", inline="always")
 def _drive(kernel, state, Y, params, out):
-    """The time loop of :func:`run_offline`, inlined into each kernel's compiled driver.
+    """The time loop of :func:`run_offline`, inlined into each kernel's compiled driver (it takes the kernel
+    as an argument, which only an inlined function can do and still be cached).
 
     Ping-pong between ``state`` and one scratch buffer (no copy per sample), unrolled by two samples: the first
     call of a pair reads ``state`` and writes the scratch buffer, the second the reverse. Swapping two array
     variables instead (one call site) leaves LLVM with loop-carried array descriptors and halves the throughput of
     the vectorized kernel loop (measured for the implicit super-twisting kernel: 85 against 160 M channel-samples/s
-    at 32768 channels); the price is a second inlined copy of the kernel, so a large kernel (the HOSM family) uses
-    :func:`_drive_compact` (``register_step(..., compact=True)``). ``state`` receives the last accepted state at
-    the end, also when a sample fails.
+    at 32768 channels). ``state`` receives the last accepted state at the end, also when a sample fails.
     """
     scratch = np.empty_like(state)
     T = Y.shape[0]
@@ -1113,28 +1121,9 @@ def _drive(kernel, state, Y, params, out):
 
 
 @njit(error_model="numpy", inline="always")
-def _drive_compact(kernel, state, Y, params, out):
-    """:func:`_drive` with one call site of the kernel (the two arrays swapped after each sample): half the
-    compiled code, for kernels whose inlined body is large, at the cost of the throughput noted there."""
-    cur = state
-    nxt = np.empty_like(state)
-    T = Y.shape[0]
-    for t in range(T):
-        status = kernel(cur, Y[t], params, nxt, out[t])
-        if status != -1:
-            if t % 2 == 1:
-                _copy_rows(cur, state)
-            return status, t
-        cur, nxt = nxt, cur
-    if T % 2 == 1:
-        _copy_rows(cur, state)
-    return -1, T
-
-
-@njit(error_model="numpy", inline="always")
 def _drive_wrapped(kernel, state, Y, params, out, period):
-    """:func:`_drive_compact` with :func:`unwrap_measurement` before every sample (channels with ``period > 0``
-    wrap).
+    """The time loop with :func:`unwrap_measurement` before every sample (channels with ``period > 0`` wrap),
+    swapping its two state arrays after each sample (one call site: the wrapped path is not the fast one).
 
     A failed sample reports the channel of ``Y[t]``: a non-finite measurement stays non-finite when unwrapped.
     """
@@ -1172,17 +1161,12 @@ def _batch_template(state, y, params, new_state, out):
 
 
 def _run_template(state, Y, params, out):
-    """The offline driver of ``_KERNEL``: :func:`_drive` with the kernel inlined."""
+    """The offline driver of ``_KERNEL``: :func:`_drive` calling it."""
     return _drive(_KERNEL, state, Y, params, out)
 
 
-def _run_compact_template(state, Y, params, out):
-    """The offline driver of ``_KERNEL`` with one inlined copy of it: :func:`_drive_compact`."""
-    return _drive_compact(_KERNEL, state, Y, params, out)
-
-
 def _run_wrapped_template(state, Y, params, out, period):
-    """The offline driver of ``_KERNEL`` for wrapped channels: :func:`_drive_wrapped` with the kernel inlined."""
+    """The offline driver of ``_KERNEL`` for wrapped channels: :func:`_drive_wrapped` calling it."""
     return _drive_wrapped(_KERNEL, state, Y, params, out, period)
 
 
@@ -1200,7 +1184,7 @@ class Step:
     shared_kernel : numba dispatcher
         The same for one parameter row ``(1, P)`` shared by every channel (the loops see ``shared`` as a constant).
     run : numba dispatcher
-        ``run(state, Y, params, out) -> (status, t)``: the offline time loop with the kernel inlined.
+        ``run(state, Y, params, out) -> (status, t)``: the offline time loop calling :attr:`kernel`.
     run_wrapped : numba dispatcher
         ``run_wrapped(state, Y, params, out, period)``: the same with :func:`unwrap_measurement` per sample.
     """
@@ -1223,18 +1207,16 @@ STEPS: dict = {}
 SHARED_KERNELS: dict = {}
 
 
-def register_step(rows, *, allocates: bool = False, compact: bool = False) -> Step:
+def register_step(rows, *, allocates: bool = False) -> Step:
     """Generate and register the batch kernels and the offline drivers of a step (idempotent).
 
-    ``rows`` is a module-level ``@njit(cache=True, inline="always")`` function
+    ``rows`` is a module-level ``@njit(cache=True)`` function
     ``rows(state, y, params, new_state, out, shared) -> status`` (the calling convention of the module notes, after
     the measurements were found finite). Every generated function is cached on disk by numba and reused by a new
     process (:func:`smo_gym._numba_cache.cached_instance`), and its cache is dropped when ``rows``'s module
     changes. Observer families name the returned :attr:`Step.kernel` as their ``_kernel``;
     :func:`smo_gym.observers.registry.register_observer` registers the steps a family declares. ``allocates``:
-    ``rows`` creates arrays, so its batch kernels keep numba's reference counting (module notes). ``compact``: the
-    offline driver inlines the kernel once (:func:`_drive_compact`) instead of twice, for a step whose compiled
-    body is large (the HOSM family: the unrolled driver compiled for over a minute cold). A :class:`Step` is
+    ``rows`` creates arrays, so its batch kernels keep numba's reference counting (module notes). A :class:`Step` is
     returned as it is.
     """
     if isinstance(rows, Step):
@@ -1244,6 +1226,7 @@ def register_step(rows, *, allocates: bool = False, compact: bool = False) -> St
             return step
     label = f"{rows.py_func.__module__}.{rows.py_func.__qualname__}"
     deps = [inspect.getfile(rows.py_func)]
+    drop_stale([rows], [__file__])  # rows is cached in its own module and links this module's helpers
     options = dict(KERNEL, _nrt=True) if allocates and "_nrt" in KERNEL else KERNEL
     kernel = cached_instance(_batch_template, label, options, deps, _ROWS=rows, _SHARED=False)
     shared = cached_instance(_batch_template, label + ".shared", options, deps, _ROWS=rows, _SHARED=True)
@@ -1252,7 +1235,7 @@ def register_step(rows, *, allocates: bool = False, compact: bool = False) -> St
         rows=rows,
         kernel=kernel,
         shared_kernel=shared,
-        run=cached_instance(_run_compact_template if compact else _run_template, label, driver, deps, _KERNEL=kernel),
+        run=cached_instance(_run_template, label, driver, deps, _KERNEL=kernel),
         run_wrapped=cached_instance(_run_wrapped_template, label, driver, deps, _KERNEL=kernel),
     )
     STEPS[kernel] = step
@@ -1260,11 +1243,11 @@ def register_step(rows, *, allocates: bool = False, compact: bool = False) -> St
     return step
 
 
-hosm = register_step(hosm_rows, compact=True)
+hosm = register_step(hosm_rows)
 sta_implicit = register_step(sta_implicit_rows)
 eigmap = register_step(eigmap_rows)
 filtering_implicit = register_step(filtering_implicit_rows)
-hosm_implicit = register_step(hosm_implicit_rows, compact=True)
+hosm_implicit = register_step(hosm_implicit_rows)
 linear = register_step(linear_rows)
 kalman_ca = register_step(kalman_ca_rows)
 finite_difference = register_step(finite_difference_rows)

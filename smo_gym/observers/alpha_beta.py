@@ -46,7 +46,7 @@ def tracking_index_gains(tracking_index: float) -> tuple[float, float]:
     return root * u / (2.0 * (root + lam)), lam * u / (root + lam)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def alpha_beta_step(x, v, y, dt, alpha, beta):
     r"""One step of the alpha-beta tracker [Kal84]: predict with constant velocity, correct by the residual.
 
@@ -59,7 +59,7 @@ def alpha_beta_step(x, v, y, dt, alpha, beta):
     return x_prior + alpha * r, v + (beta / dt) * r, r
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def alpha_beta_rows(state, y, params, new_state, out, shared):
     """:func:`alpha_beta_step` on every channel; state rows ``[x, v, r]``, parameter rows ``[T, alpha, beta]``."""
     for c in range(y.shape[0]):

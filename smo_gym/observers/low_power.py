@@ -264,7 +264,7 @@ def low_power_channel_step(x, y, p, n, x_new, out_row):
     return y - x[0]
 
 
-@njit(cache=CACHE, inline="always")
+@njit(cache=CACHE)
 def low_power_rows(state, y, params, new_state, out, shared):
     """:func:`low_power_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     n = out.shape[1]

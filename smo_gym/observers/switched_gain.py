@@ -107,7 +107,7 @@ def dwell_time(mu, n: int, kappa: float, eig_ratio: float, q: float):
     return -2.0 / (kappa * mu) * np.log(eig_ratio * mu ** (1.0 - n) / q)
 
 
-@njit(cache=CACHE, inline="always")
+@njit(cache=CACHE)
 def _dwell(mu, n, kappa, s, q):
     return -2.0 / (kappa * mu) * math.log(s * mu ** (1.0 - n) / q)
 
@@ -275,7 +275,7 @@ def switched_gain_channel_step(x, y, params, m, x_new, out_row):
     return innovation
 
 
-@njit(cache=CACHE, inline="always")
+@njit(cache=CACHE)
 def switched_gain_rows(state, y, params, new_state, out, shared):
     """:func:`switched_gain_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     m = out.shape[1]
