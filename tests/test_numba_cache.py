@@ -94,6 +94,7 @@ def test_every_registered_step_and_fused_driver_is_cached_on_disk():
     from smo_gym.observers import _kernels as K
 
     for step in K.STEPS.values():
-        for f in (step.kernel, step.shared_kernel, step.run, step.run_wrapped, *_fused.FUSED_DRIVERS[step.kernel]):
+        drivers = (step.run, step.run_wrapped, step.shared_run, step.shared_run_wrapped)
+        for f in (step.kernel, step.shared_kernel, *drivers, *_fused.FUSED_DRIVERS[step.kernel]):
             assert f._cache._cache_file._index_path.endswith(".nbi")
             assert step.label in f.py_func.__qualname__

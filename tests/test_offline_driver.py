@@ -59,3 +59,26 @@ def test_run_offline_equals_the_kernel_stepped_sample_by_sample(name, T, fail):
     assert K.run_offline(obs._kernel, state, Y, obs._params, out) == (status, t)
     np.testing.assert_array_equal(state, ref_state)  # the last accepted state, after t samples
     np.testing.assert_array_equal(out[:t], ref_out[:t])
+
+
+@pytest.mark.parametrize("name", ["super-twisting", "levant"])
+@pytest.mark.parametrize("wrap", [False, True])
+def test_run_with_shared_gains_equals_the_per_channel_driver(name, wrap):
+    """``Observer.run`` with scalar gains drives the shared-parameter kernel; it must give the per-channel
+    driver's results bit for bit (the same arithmetic with the parameters loop invariant)."""
+    rng = np.random.default_rng(0)
+    obs = _observer(name)
+    obs.reset(rng.standard_normal(N))
+    Y = np.cumsum(1e-2 * rng.standard_normal((9, N)), axis=0)
+    period = np.full(N, 2 * np.pi) if wrap else None
+    kernel, params = obs._step_kernel()
+    assert kernel is K.SHARED_KERNELS[obs._kernel] and params.shape[0] == 1
+    results = []
+    for k, p in ((obs._kernel, obs._params), (kernel, params)):
+        state, out = obs._state.copy(), np.full((9, N, obs.order + 1), np.nan)
+        assert K.run_offline(k, state, Y, p, out, period) == (-1, 9)
+        results.append((state, out))
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    np.testing.assert_array_equal(results[0][1], results[1][1])
+    if not wrap:  # Observer.run takes the shared path
+        np.testing.assert_array_equal(obs.run(Y), results[0][1])

@@ -70,7 +70,8 @@ small:
   ``Observer.update`` passes that one row ``(1, P)`` to the step's shared variant (:attr:`Step.shared_kernel`),
   whose loops are compiled with ``shared`` as a constant (they read parameter row ``pc = 0 if shared else c``):
   every parameter is then loop invariant instead of a load at a stride of ``P`` values per channel.
-  ``Observer.run`` and the wrapper's compiled drivers use the per-channel kernels.
+  ``Observer.run`` does the same through the offline driver of that variant (:attr:`Step.shared_run`); the
+  wrapper's compiled drivers use the per-channel kernels.
 * Generated, cached code. A family declares its step once, as a ``rows`` function; :func:`register_step`
   generates the batch kernels and the drivers from one template each (bound to the step as a global, see
   :func:`smo_gym._numba_cache.cached_instance`), so numba caches every one on disk.
@@ -1187,6 +1188,8 @@ class Step:
         ``run(state, Y, params, out) -> (status, t)``: the offline time loop calling :attr:`kernel`.
     run_wrapped : numba dispatcher
         ``run_wrapped(state, Y, params, out, period)``: the same with :func:`unwrap_measurement` per sample.
+    shared_run, shared_run_wrapped : numba dispatcher
+        :attr:`run` and :attr:`run_wrapped` calling :attr:`shared_kernel` (one parameter row ``(1, P)``).
     """
 
     rows: Any
@@ -1194,6 +1197,8 @@ class Step:
     shared_kernel: Any
     run: Any
     run_wrapped: Any
+    shared_run: Any
+    shared_run_wrapped: Any
 
     @property
     def label(self) -> str:
@@ -1205,6 +1210,8 @@ class Step:
 STEPS: dict = {}
 #: batch kernel -> its variant for one parameter row ``(1, P)`` shared by every channel (module notes)
 SHARED_KERNELS: dict = {}
+#: batch kernel (per-channel or shared) -> its offline drivers ``(run, run_wrapped)``, for :func:`run_offline`
+_DRIVERS: dict = {}
 
 
 def register_step(rows, *, allocates: bool = False) -> Step:
@@ -1230,16 +1237,20 @@ def register_step(rows, *, allocates: bool = False) -> Step:
     options = dict(KERNEL, _nrt=True) if allocates and "_nrt" in KERNEL else KERNEL
     kernel = cached_instance(_batch_template, label, options, deps, _ROWS=rows, _SHARED=False)
     shared = cached_instance(_batch_template, label + ".shared", options, deps, _ROWS=rows, _SHARED=True)
-    driver = dict(cache=CACHE, error_model="numpy")
+    driver = dict(cache=CACHE, error_model="numpy")  # numba compiles each on its first call only
     step = Step(
         rows=rows,
         kernel=kernel,
         shared_kernel=shared,
         run=cached_instance(_run_template, label, driver, deps, _KERNEL=kernel),
         run_wrapped=cached_instance(_run_wrapped_template, label, driver, deps, _KERNEL=kernel),
+        shared_run=cached_instance(_run_template, label + ".shared", driver, deps, _KERNEL=shared),
+        shared_run_wrapped=cached_instance(_run_wrapped_template, label + ".shared", driver, deps, _KERNEL=shared),
     )
     STEPS[kernel] = step
     SHARED_KERNELS[kernel] = shared
+    _DRIVERS[kernel] = (step.run, step.run_wrapped)
+    _DRIVERS[shared] = (step.shared_run, step.shared_run_wrapped)
     return step
 
 
@@ -1285,17 +1296,18 @@ def run_offline(kernel, state, Y, params, out, period=None):
 
     Returns ``(status, t)``: ``status`` as the kernel's, ``t`` the sample at which it failed (or ``T``).
     ``state`` holds the last accepted state on return (the final state on success). A registered kernel
-    (:data:`STEPS`) runs through its cached compiled driver; a kernel written in NumPy through a Python loop.
-    ``period`` (N,), optional: wrap the channels with ``period > 0`` (:func:`unwrap_measurement` before every
-    sample).
+    (:attr:`Step.kernel` with a row of ``params`` per channel, or :attr:`Step.shared_kernel` with one row) runs
+    through its cached compiled driver; a kernel written in NumPy through a Python loop. ``period`` (N,), optional:
+    wrap the channels with ``period > 0`` (:func:`unwrap_measurement` before every sample).
     """
-    step = STEPS.get(kernel)
-    if step is None:
+    drivers = _DRIVERS.get(kernel)
+    if drivers is None:
         if isinstance(kernel, Dispatcher):
             raise TypeError(
                 f"expected a kernel registered with register_step (a compiled driver for it), actual value: {kernel!r}"
             )
         return _run_python(kernel, state, Y, params, out, period)
+    run, run_wrapped = drivers
     if period is not None:
-        return step.run_wrapped(state, Y, params, out, period)
-    return step.run(state, Y, params, out)
+        return run_wrapped(state, Y, params, out, period)
+    return run(state, Y, params, out)

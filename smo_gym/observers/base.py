@@ -671,9 +671,8 @@ class Observer:
             return out
         # all or nothing, like update(): the kernel loop advances a copy, committed only if every sample passed
         state = self._state.copy()
-        status, t = _kernels.run_offline(
-            self._kernel, state, Y.reshape(T, -1), self._params, out.reshape(T, -1, m), self._period
-        )
+        kernel, params = self._step_kernel()  # scalar gains: the driver of the shared-parameter kernel
+        status, t = _kernels.run_offline(kernel, state, Y.reshape(T, -1), params, out.reshape(T, -1, m), self._period)
         if status != -1:
             self._raise_status(status, Y[t])
         self._state = state
