@@ -8,8 +8,9 @@ from ``import smo_gym`` to the end of the first step, twice per repeat: *cold* w
 (fresh ``NUMBA_CACHE_DIR`` and ``SMO_GYM_CACHE_DIR``: everything compiles, the calibration runs), then *warm* in a
 second process on the caches the first one filled. Prints the median over the repeats.
 
-``--compiles`` lists, for one cold process, every numba compilation with its duration (numba's ``numba:compile``
-events; nested compilations are included in their caller's time), longest first: what a cold start pays for.
+The table also gives the time spent in numba compilations (numba's ``numba:compile`` events, nested ones counted
+once) and their number; in a warm process these events load the cached machine code instead. ``--compiles`` lists, for one cold process, every compilation with its duration (nested
+compilations included in their caller's time), longest first: what a cold start pays for.
 
 Usage::
 
@@ -30,22 +31,25 @@ import time
 CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
-listen = {listen}
 compiles = []
-if listen:
-    from numba.core import event
+depth = [0]
+from numba.core import event
 
-    class _Compiles(event.Listener):
-        def on_start(self, ev):
-            ev.data["_t0"] = time.perf_counter()
 
-        def on_end(self, ev):
-            d = ev.data["dispatcher"]
-            name = getattr(d, "py_func", d).__qualname__
-            compiles.append((time.perf_counter() - ev.data["_t0"], getattr(d, "py_func", d).__module__, name,
-                             str(ev.data["args"])))
+class _Compiles(event.Listener):
+    def on_start(self, ev):
+        ev.data["_t0"] = time.perf_counter()
+        depth[0] += 1
 
-    event.register("numba:compile", _Compiles())
+    def on_end(self, ev):
+        depth[0] -= 1
+        d = ev.data["dispatcher"]
+        name = getattr(d, "py_func", d).__qualname__
+        compiles.append((time.perf_counter() - ev.data["_t0"], getattr(d, "py_func", d).__module__, name,
+                         str(ev.data["args"]), depth[0]))
+
+
+event.register("numba:compile", _Compiles())
 import gymnasium as gym
 import numpy as np
 import smo_gym  # noqa: F401
@@ -58,14 +62,15 @@ env.step(np.zeros(env.action_space.shape, dtype=env.action_space.dtype))
 t_step = time.perf_counter()
 compiles.sort(reverse=True)
 print(json.dumps(dict(total=t_step - t0, imports=t_import - t0, reset=t_reset - t_import, step=t_step - t_reset,
+                      compile=sum(c[0] for c in compiles if c[4] == 0), n_compiles=len(compiles),
                       compiles=compiles)))
 """
 
 
-def _one(env_id: str, numba_dir: str, smo_dir: str, listen: bool = False) -> dict:
+def _one(env_id: str, numba_dir: str, smo_dir: str) -> dict:
     environ = dict(os.environ, NUMBA_CACHE_DIR=numba_dir, SMO_GYM_CACHE_DIR=smo_dir)
     environ.setdefault("MUJOCO_GL", "disable")
-    code = CHILD.format(env=env_id, listen=listen)
+    code = CHILD.format(env=env_id)
     proc = subprocess.run([sys.executable, "-c", code], env=environ, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"the child process failed:\n{proc.stderr}")
@@ -80,9 +85,9 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     if args.compiles:
         with tempfile.TemporaryDirectory() as numba_dir, tempfile.TemporaryDirectory() as smo_dir:
-            result = _one(args.env, numba_dir, smo_dir, listen=True)
+            result = _one(args.env, numba_dir, smo_dir)
         print(f"cold start {result['total']:.2f} s; numba compilations (s, module, function, argument types):")
-        for seconds, module, name, types in result["compiles"]:
+        for seconds, module, name, types, _ in result["compiles"]:
             print(f"{seconds:8.2f}  {module}.{name}  {types[:100]}")
         return
     cold, warm = [], []
@@ -91,10 +96,11 @@ def main(argv=None) -> None:
             cold.append(_one(args.env, numba_dir, smo_dir))
             warm.append(_one(args.env, numba_dir, smo_dir))
     print(f"{args.env}: EstimatedVelocity, first reset(seed=0) + step, median of {args.repeats} fresh processes")
-    print(f"{'':6s} {'total s':>8s} {'imports':>8s} {'reset':>8s} {'step':>8s}")
+    print(f"{'':6s} {'total s':>8s} {'imports':>8s} {'reset':>8s} {'step':>8s} {'compile':>8s} {'compilations':>12s}")
     for name, runs in (("cold", cold), ("warm", warm)):
-        row = [statistics.median(r[k] for r in runs) for k in ("total", "imports", "reset", "step")]
-        print(f"{name:6s} " + " ".join(f"{v:8.2f}" for v in row))
+        row = [statistics.median(r[k] for r in runs) for k in ("total", "imports", "reset", "step", "compile")]
+        count = statistics.median(r["n_compiles"] for r in runs)
+        print(f"{name:6s} " + " ".join(f"{v:8.2f}" for v in row) + f" {count:12.0f}")
     print(f"(started {time.strftime('%Y-%m-%d %H:%M')}, python {sys.version.split()[0]})")
 
 

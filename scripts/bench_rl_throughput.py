@@ -1,7 +1,8 @@
 """Training throughput with and without the sensing wrappers, side by side (interleaved rounds, medians).
 
 For each environment, PPO models are built once per configuration (same hyperparameters as
-``scripts/rl_benchmark.py``: 4 environments, 512 steps each per rollout, minibatches of 256, VecNormalize):
+``scripts/rl_benchmark.py``: 4 environments, 512 steps each per rollout, minibatches of 256, VecNormalize), the
+wrappers with the observer ``--observer`` (default ``auto``, the wrappers' own default):
 
     unwrapped          the environment's true observation
     per-env physics    EstimatedVelocity(rate="physics") in every environment (the default sensing)
@@ -44,7 +45,7 @@ import numpy as np
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 
-def _venv(env_id: str, kind: str, n_envs: int, subproc: bool = False):
+def _venv(env_id: str, kind: str, n_envs: int, subproc: bool = False, observer: str = "auto"):
     import gymnasium as gym
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -61,7 +62,7 @@ def _venv(env_id: str, kind: str, n_envs: int, subproc: bool = False):
             seed=0,
             vec_env_cls=cls,
             wrapper_class=EstimatedVelocity,
-            wrapper_kwargs=dict(rate="physics"),
+            wrapper_kwargs=dict(rate="physics", observer=observer),
         )
     if kind == "per-env env":
         return make_vec_env(
@@ -70,14 +71,15 @@ def _venv(env_id: str, kind: str, n_envs: int, subproc: bool = False):
             seed=0,
             vec_env_cls=cls,
             wrapper_class=EstimatedVelocity,
-            wrapper_kwargs=dict(rate="env"),
+            wrapper_kwargs=dict(rate="env", observer=observer),
         )
     if kind == "vec env":
         if subproc:
             return VecEstimatedVelocity(
-                make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=cls, wrapper_class=JointSensor)
+                make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=cls, wrapper_class=JointSensor),
+                observer=observer,
             )
-        return VecEstimatedVelocity(make_vec_env(lambda: gym.make(env_id), n_envs=n_envs, seed=0))
+        return VecEstimatedVelocity(make_vec_env(lambda: gym.make(env_id), n_envs=n_envs, seed=0), observer=observer)
     raise ValueError(kind)
 
 
@@ -92,7 +94,9 @@ SETTINGS = {
 }
 
 
-def training(env_id: str, rounds: int, setting: str) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+def training(
+    env_id: str, rounds: int, setting: str, observer: str = "auto"
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
     """Steps per wall-clock second and per CPU second of this process, per configuration and round."""
     import torch
     from stable_baselines3 import PPO
@@ -101,7 +105,10 @@ def training(env_id: str, rounds: int, setting: str) -> tuple[dict[str, list[flo
     torch.set_num_threads(1)
     cfg = dict(SETTINGS[setting])
     n_envs = cfg.pop("n_envs")
-    models = {k: PPO("MlpPolicy", VecNormalize(_venv(env_id, k, n_envs)), seed=0, device="cpu", **cfg) for k in KINDS}
+    models = {
+        k: PPO("MlpPolicy", VecNormalize(_venv(env_id, k, n_envs, observer=observer)), seed=0, device="cpu", **cfg)
+        for k in KINDS
+    }
     per_round = cfg["n_steps"] * n_envs
     for m in models.values():  # warm-up: compilation, calibration caches, first allocations
         m.learn(per_round)
@@ -255,6 +262,7 @@ def main(argv=None) -> int:
     p.add_argument("--tables", default="ppo,subproc", help="among ppo, subproc, in-process")
     p.add_argument("--n-envs", default="8,32", help="environments per vector env of the in-process table")
     p.add_argument("--steps", type=int, default=200, help="vector steps per round of the in-process table")
+    p.add_argument("--observer", default="auto", help="the wrappers' observer in the PPO table (default: auto)")
     args = p.parse_args(argv)
     tables = set(args.tables.split(","))
     if args.no_subproc:
@@ -276,8 +284,8 @@ def main(argv=None) -> int:
     if "ppo" not in tables:
         return _subproc_table(args)
     print(
-        "PPO training throughput: env steps per second of wall clock and of process CPU time (median of "
-        "interleaved rounds) and their ratio to unwrapped"
+        f"PPO training throughput (observer={args.observer!r}): env steps per second of wall clock and of process "
+        "CPU time (median of interleaved rounds) and their ratio to unwrapped"
     )
     print(
         f"{'env':26s} {'PPO setting':13s} {'configuration':16s} {'wall/s':>7s} {'ratio':>6s} {'cpu/s':>7s} "
@@ -286,7 +294,7 @@ def main(argv=None) -> int:
     worst = {"wall": np.inf, "cpu": np.inf}
     for env_id in args.envs.split(","):
         for setting in args.settings.split(","):
-            wall, cpu = training(env_id, args.rounds, setting)
+            wall, cpu = training(env_id, args.rounds, setting, args.observer)
             bw, bc = float(np.median(wall["unwrapped"])), float(np.median(cpu["unwrapped"]))
             for k in KINDS:
                 mw, mc = float(np.median(wall[k])), float(np.median(cpu[k]))
