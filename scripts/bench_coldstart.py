@@ -9,8 +9,9 @@ from ``import smo_gym`` to the end of the first step, twice per repeat: *cold* w
 second process on the caches the first one filled. Prints the median over the repeats.
 
 The table also gives the time spent in numba compilations (numba's ``numba:compile`` events, nested ones counted
-once) and their number; in a warm process these events load the cached machine code instead. ``--compiles`` lists, for one cold process, every compilation with its duration (nested
-compilations included in their caller's time), longest first: what a cold start pays for.
+once) and their number (none in a warm process: numba loads cached code without a compile event).
+``--compiles`` lists, for one cold process, every compilation with its duration (nested compilations included in
+their caller's time), longest first: what a cold start pays for.
 
 Usage::
 
