@@ -127,7 +127,7 @@ def test_shared_parameter_kernels_equal_the_per_channel_kernels(case):
     Y = np.sin(t * rng.uniform(0.5, 3.0, (1, 4, 7))) + 1e-3 * rng.standard_normal((60, 4, 7))
     obs.reset(Y[0])
     kernel, row = obs._step_kernel()
-    assert kernel is K.SHARED_KERNELS[obs._kernel] and row.shape == (1, obs._params.shape[1])
+    assert kernel is K.STEPS[obs._kernel].shared_kernel and row.shape == (1, obs._params.shape[1])
     np.testing.assert_array_equal(row[0], obs._params[5])
     state = obs.state
     for y in Y[1:]:

@@ -72,7 +72,7 @@ def test_run_with_shared_gains_equals_the_per_channel_driver(name, wrap):
     Y = np.cumsum(1e-2 * rng.standard_normal((9, N)), axis=0)
     period = np.full(N, 2 * np.pi) if wrap else None
     kernel, params = obs._step_kernel()
-    assert kernel is K.SHARED_KERNELS[obs._kernel] and params.shape[0] == 1
+    assert kernel is K.STEPS[obs._kernel].shared_kernel and params.shape[0] == 1
     results = []
     for k, p in ((obs._kernel, obs._params), (kernel, params)):
         state, out = obs._state.copy(), np.full((9, N, obs.order + 1), np.nan)

@@ -56,7 +56,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_choice, check_int_in_range, check_positive
+from .._validation import as_real_array, check_choice, check_int_in_range, check_positive
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
 from .plants import LinearPlant, molinari_decoupling
@@ -67,7 +67,8 @@ __all__ = ["CascadedHOSMObserver", "LuenbergerObserver", "output_error_lipschitz
 def _output_sample(name: str, y, p: int) -> np.ndarray:
     """``y`` as a finite float vector of the ``p`` outputs (a typed error otherwise: a wrong length would broadcast
     silently against ``C x``)."""
-    arr = np.asarray(y, dtype=float).reshape(-1) if np.ndim(y) <= 1 else np.asarray(y, dtype=float)
+    arr = as_real_array(name, y)
+    arr = arr.reshape(-1) if arr.ndim <= 1 else arr
     if arr.shape != (p,):
         raise ValueError(f"expected {name} with shape ({p},) (one value per output), actual value: shape {np.shape(y)}")
     if not np.all(np.isfinite(arr)):

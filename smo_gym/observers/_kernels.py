@@ -1208,8 +1208,6 @@ class Step:
 
 #: batch kernel -> its :class:`Step`, for every registered step
 STEPS: dict = {}
-#: batch kernel -> its variant for one parameter row ``(1, P)`` shared by every channel (module notes)
-SHARED_KERNELS: dict = {}
 #: batch kernel (per-channel or shared) -> its offline drivers ``(run, run_wrapped)``, for :func:`run_offline`
 _DRIVERS: dict = {}
 
@@ -1248,7 +1246,6 @@ def register_step(rows, *, allocates: bool = False) -> Step:
         shared_run_wrapped=cached_instance(_run_wrapped_template, label + ".shared", driver, deps, _KERNEL=shared),
     )
     STEPS[kernel] = step
-    SHARED_KERNELS[kernel] = shared
     _DRIVERS[kernel] = (step.run, step.run_wrapped)
     _DRIVERS[shared] = (step.shared_run, step.shared_run_wrapped)
     return step
