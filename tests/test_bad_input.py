@@ -1012,11 +1012,6 @@ def constructor_arguments(draw, family: Family, n: int):
 
 def _observer_snapshot(obs):
     def snap():
-        if isinstance(obs, PerChannel):  # the parts' states and the assembled estimate
-            if obs.shape is None:
-                return (np.zeros(0),)
-            parts = [a for part, _ in obs.parts for a in _observer_snapshot(part)()]
-            return (obs.estimate.copy(), np.array(obs.n_updates), *parts)
         if getattr(obs, "_state", None) is None:
             return (np.zeros(0),)
         return (obs._state.copy(), obs._estimate.copy(), np.array(obs.n_updates))
@@ -1123,8 +1118,6 @@ def exercise_observer(data, family: Family, obj, shape):
                 attempt(name, obj.run, Y, U, snapshot=snap)
             else:
                 attempt(name, obj.run, Y, snapshot=snap)
-        elif op == "step" and isinstance(obj, PerChannel):  # no flat state: step() is refused, in words
-            attempt(name, obj.step, None, data.draw(measurement(shape, scale=0.5)), snapshot=snap)
         elif op == "step":
             state = obj.state if obj.shape is not None else np.zeros((1, 1))
             state = data.draw(

@@ -45,8 +45,8 @@ from numba.extending import intrinsic
 
 from .._numba_cache import cached_instance
 from ..observers import _kernels as K
-from ..observers import family_of
 from ..observers.base import _compiled_entry
+from ..observers.composite import compiled_step
 from ..sensors import _chain_block
 from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
@@ -351,10 +351,10 @@ FUSED_DRIVERS = _FusedDrivers()
 
 
 def fusable(observer) -> bool:
-    """Whether the fused drivers serve this observer: its family is registered with compiled steps only (not
-    model-based; a subclass of a registered class is not the registered family) and its kernel has a driver."""
-    family = family_of(observer)
-    return family is not None and family.compiled and observer._kernel in FUSED_DRIVERS
+    """Whether the fused drivers serve this observer: it runs a registered compiled step as it is
+    (:func:`smo_gym.observers.composite.compiled_step`: a registered family with compiled steps only, or a
+    :class:`~smo_gym.observers.PerChannel` of such families)."""
+    return compiled_step(observer) is not None
 
 
 class FusedSensing:

@@ -582,22 +582,6 @@ class Observer:
         self.n_updates += 1
         return out
 
-    def _undo_update(self, previous: np.ndarray) -> None:
-        """Step back over the last :meth:`update`, whose estimate was ``previous`` before it: ``update`` swaps the
-        state with its scratch buffer, which still holds the state it started from (for a caller that updates
-        several observers all or nothing, :class:`~smo_gym.observers.composite.PerChannel`)."""
-        self._state, self._scratch = self._scratch, self._state
-        self._estimate = previous
-        self.n_updates -= 1
-
-    def _checkpoint(self) -> tuple:
-        """What :meth:`_rollback` needs to return to the present state (a copy of the state array)."""
-        return self._state.copy(), self._estimate, self.n_updates
-
-    def _rollback(self, checkpoint: tuple) -> None:
-        """Return to the state of a :meth:`_checkpoint` (a caller that runs several observers all or nothing)."""
-        self._state, self._estimate, self.n_updates = checkpoint
-
     def _raise_status(self, status: int, y: np.ndarray):
         if status >= 0:
             self._raise_nonfinite(y, "y")

@@ -7,19 +7,173 @@ channels and reports what a consumer of velocities reads, the value and the firs
 (``order = 1``), each part's velocity taken as that part reports it (optionally converted to the mean over the last
 step, as :class:`smo_gym.engine.measurement.VelocityEstimator` does). :func:`smo_gym.selection.auto_observer` builds
 one from a calibration.
+
+One compiled step
+-----------------
+The composite is an ordinary compiled observer: its step (:func:`composite_step`, generated and cached on disk per
+tuple of part steps, registered with :func:`smo_gym.observers._kernels.register_step`) calls each part's own
+compiled step on that part's channels, so ``update``, ``run``, the wrapper's one-call path and a masked reset are
+the engine's, and a rejected sample leaves every part where it was. Its state has a row per channel, the part's
+own state row padded with zeros to the widest part; its parameter row per channel is
+
+.. code-block:: text
+
+    [part, S, P, m, innovation column, K, start, c_0 .. c_{K-1}, the part's P parameters, zeros]
+
+(:data:`PART` ... :data:`COEFFICIENTS`): the part's state, parameter and estimate widths, where its innovation is,
+the ``K`` coefficients of the reported velocity :math:`\sum_j c_j \hat z_{j+1}` (``[1]``: the first derivative as
+it is; :func:`smo_gym.observers.base.reported_coefficients` otherwise) and the column where its parameters start.
+Per sample and part, the step gathers the part's rows into contiguous arrays, calls the part's step and scatters
+the result back (a few dozen numbers: negligible next to the steps themselves).
 """
 
 from __future__ import annotations
 
 import copy
+import hashlib
+import inspect
 from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
 
-from .._validation import DivergenceError, as_real_array, check_keywords, check_mask, check_positive
-from .base import Observer, as_measurement, reported_coefficients, reported_velocity
+from .._numba_cache import cached_instance
+from .._validation import check_keywords, check_positive
+from . import _kernels
+from .base import Observer, reported_coefficients
+from .registry import family_of
 
-__all__ = ["PerChannel"]
+__all__ = [
+    "COEFFICIENTS",
+    "ESTIMATES",
+    "INNOVATION",
+    "MAX_PARTS",
+    "N_COEFFICIENTS",
+    "PARAMS_AT",
+    "PARAM_WIDTH",
+    "PART",
+    "STATE_WIDTH",
+    "PerChannel",
+    "compiled_step",
+    "composite_step",
+]
+
+#: columns of a channel's parameter row (module notes): its part, the part's state, parameter and estimate widths,
+#: the part's innovation column, the number of velocity coefficients, the column where the part's parameters start
+PART, STATE_WIDTH, PARAM_WIDTH, ESTIMATES, INNOVATION, N_COEFFICIENTS, PARAMS_AT = range(7)
+#: the first column of the velocity coefficients
+COEFFICIENTS = 7
+#: the most parts one composite step holds
+MAX_PARTS = 8
+
+
+def compiled_step(observer) -> _kernels.Step | None:
+    """The compiled step an observer's ``update`` runs, or None: a registered family with compiled steps only, or a
+    :class:`PerChannel` (a subclass of either is a family of its own whose Python may differ from the kernel)."""
+    family = family_of(observer)
+    if type(observer) is PerChannel or (family is not None and family.compiled):
+        return _kernels.STEPS.get(observer._kernel)
+    return None
+
+
+@njit(error_model="numpy", inline="always")
+def _advance_part(rows, part, state, y, params, new_state, out, shared):
+    """One sample of the part ``part`` (its step ``rows``) on its channels: gathered into contiguous arrays,
+    advanced, scattered back into ``new_state`` (padding columns copied) and ``out`` (value, reported velocity).
+    Returns the step's status with the part's channel translated to the composite's. Inlined into the composite's
+    step (it takes a function: see :func:`smo_gym.observers._kernels._drive`)."""
+    n, width = state.shape
+    index = np.empty(n, np.int64)
+    count = 0
+    for c in range(n):
+        if params[0 if shared else c, PART] == part:
+            index[count] = c
+            count += 1
+    if count == 0:
+        return -1
+    row = params[0 if shared else index[0]]
+    S, P, m, at = int(row[STATE_WIDTH]), int(row[PARAM_WIDTH]), int(row[ESTIMATES]), int(row[PARAMS_AT])
+    part_state = np.empty((count, S))
+    part_new = np.empty((count, S))
+    part_params = np.empty((count, P))
+    part_y = np.empty(count)
+    part_out = np.empty((count, m))
+    for r in range(count):
+        c = index[r]
+        pc = 0 if shared else c
+        part_y[r] = y[c]
+        for j in range(S):
+            part_state[r, j] = state[c, j]
+        for j in range(P):
+            part_params[r, j] = params[pc, at + j]
+    status = rows(part_state, part_y, part_params, part_new, part_out, False)
+    if status != -1:
+        return index[status] if status >= 0 else -2 - index[-2 - status]
+    for r in range(count):
+        c = index[r]
+        pc = 0 if shared else c
+        for j in range(S):
+            new_state[c, j] = part_new[r, j]
+        for j in range(S, width):
+            new_state[c, j] = state[c, j]
+        # reported_velocity's sum, term by term in its order: the same numbers as the parts' own estimates
+        v = params[pc, COEFFICIENTS] * part_out[r, 1]
+        for j in range(1, int(params[pc, N_COEFFICIENTS])):
+            v = v + params[pc, COEFFICIENTS + j] * part_out[r, 1 + j]
+        out[c, 0] = part_out[r, 0]
+        out[c, 1] = v
+    return -1
+
+
+# the globals of the template below, bound per tuple of part steps by cached_instance (unused slots: None, in
+# branches numba prunes because _N_PARTS is a constant)
+_N_PARTS = 0
+_R0 = _R1 = _R2 = _R3 = _R4 = _R5 = _R6 = _R7 = None
+
+
+def _per_channel_rows_template(state, y, params, new_state, out, shared):
+    """The composite's step (module notes): every part's step (``_R0`` ...) on its channels, stopping at the first
+    that fails."""
+    status = _advance_part(_R0, 0, state, y, params, new_state, out, shared)
+    if _N_PARTS > 1 and status == -1:
+        status = _advance_part(_R1, 1, state, y, params, new_state, out, shared)
+    if _N_PARTS > 2 and status == -1:
+        status = _advance_part(_R2, 2, state, y, params, new_state, out, shared)
+    if _N_PARTS > 3 and status == -1:
+        status = _advance_part(_R3, 3, state, y, params, new_state, out, shared)
+    if _N_PARTS > 4 and status == -1:
+        status = _advance_part(_R4, 4, state, y, params, new_state, out, shared)
+    if _N_PARTS > 5 and status == -1:
+        status = _advance_part(_R5, 5, state, y, params, new_state, out, shared)
+    if _N_PARTS > 6 and status == -1:
+        status = _advance_part(_R6, 6, state, y, params, new_state, out, shared)
+    if _N_PARTS > 7 and status == -1:
+        status = _advance_part(_R7, 7, state, y, params, new_state, out, shared)
+    return status
+
+
+_COMPOSITE_STEPS: dict = {}
+
+
+def composite_step(steps: Sequence[_kernels.Step]) -> _kernels.Step:
+    """The registered step (:func:`smo_gym.observers._kernels.register_step`) of a composite of ``steps``, one per
+    part in order: generated once per tuple, cached on disk like every step (its code contains the parts' code, so
+    its cache is dropped when their modules change)."""
+    rows = tuple(step.rows for step in steps)
+    step = _COMPOSITE_STEPS.get(rows)
+    if step is None:
+        if not 1 <= len(rows) <= MAX_PARTS:
+            raise ValueError(f"expected 1 to {MAX_PARTS} parts, actual value: {len(rows)}")
+        labels = [f"{r.py_func.__module__}.{r.py_func.__qualname__}" for r in rows]
+        # the name numba caches it under: short (it is part of a file name), unique (the digest of the full names)
+        digest = hashlib.sha1("+".join(labels).encode()).hexdigest()[:10]
+        label = "+".join(r.py_func.__qualname__ for r in rows)[:60] + "." + digest
+        slots = {f"_R{i}": rows[i] if i < len(rows) else None for i in range(MAX_PARTS)}
+        deps = sorted({inspect.getfile(r.py_func) for r in rows} | {_kernels.__file__})
+        options = dict(cache=_kernels.CACHE, error_model="numpy")
+        compiled = cached_instance(_per_channel_rows_template, label, options, deps, _N_PARTS=len(rows), **slots)
+        step = _COMPOSITE_STEPS[rows] = _kernels.register_step(compiled, allocates=True)
+    return step
 
 
 class PerChannel(Observer):
@@ -29,7 +183,10 @@ class PerChannel(Observer):
     ----------
     parts : sequence of (Observer, sequence of int)
         Each observer with the channels (indices into the last axis of the measurement) it observes. Every
-        channel belongs to exactly one part; the observers must share ``dt``.
+        channel belongs to exactly one part; the observers must share ``dt`` and run compiled steps (registered
+        families that are not model-based; at most :data:`MAX_PARTS` parts). They configure
+        the parts: their gains and per-channel parameters are read at each full reset, their state is the
+        composite's own.
     mean_over : float, optional
         Report each part's velocity as the mean over the last ``mean_over`` seconds where the part reports
         derivatives at the sample time (:attr:`~smo_gym.observers.Observer.reports_instant`; the velocity of an
@@ -46,8 +203,9 @@ class PerChannel(Observer):
     Notes
     -----
     Estimates have shape ``(..., n_channels, 2)``: the value estimate of each channel's observer, and its
-    velocity. ``update`` and ``run`` are all or nothing across the parts: if one part rejects a sample (a
-    non-finite measurement, a diverging state), every part keeps the state it had before the call.
+    velocity. One compiled step advances every part (module notes), so ``update`` and ``run`` are all or nothing
+    across the parts as for any observer: if one part rejects a sample (a non-finite measurement, a diverging
+    state), every part keeps the state it had before the call.
     """
 
     discretizations = ("per-channel",)
@@ -70,9 +228,17 @@ class PerChannel(Observer):
                     f"expected the channels of parts[{i}] as a non-empty 1-d sequence of ints, actual value: "
                     f"{part[1]!r}"
                 ) from None
+            if isinstance(observer, PerChannel) or compiled_step(observer) is None or observer.lead != 0:
+                raise TypeError(
+                    f"expected parts[{i}] to be an observer that runs a compiled step and reports at its sample "
+                    "(a registered family that is not model-based), actual value: "
+                    f"{type(observer).__name__}"
+                )
             owned.append(copy.deepcopy(observer))
             channels.append(idx.astype(np.intp))
             dts.append(observer.dt)
+        if len(owned) > MAX_PARTS:
+            raise ValueError(f"expected at most {MAX_PARTS} parts, actual value: {len(owned)}")
         flat = np.concatenate(channels)
         n = flat.size
         if flat.min() < 0 or not np.array_equal(np.sort(flat), np.arange(n)):
@@ -82,162 +248,76 @@ class PerChannel(Observer):
             )
         if not np.allclose(dts, dts[0], rtol=1e-12, atol=0.0):
             raise ValueError(f"expected parts sharing one dt, actual value: dt {dts}")
-        self.dt = float(dts[0])
-        self.order = 1
-        self.discretization = "per-channel"
-        self.mean_over = None if mean_over is None else check_positive("mean_over", mean_over)
+        mean_over = None if mean_over is None else check_positive("mean_over", mean_over)
+        wrap = np.zeros(n, dtype=bool)
+        for observer, idx in zip(owned, channels, strict=True):  # a part's wrap: None, a bool, or one per channel
+            wrap[idx] = np.broadcast_to(np.asarray(False if observer.wrap is None else observer.wrap), idx.shape)
+        super().__init__(dts[0], 1, "per-channel", wrap=wrap if wrap.any() else None)
+        self.mean_over = mean_over
         self.parts = tuple(zip(owned, channels, strict=True))
-        self._coefficients = tuple(reported_coefficients(observer, self.mean_over) for observer in owned)
         self.n_channels = n
+        self._coefficients = tuple(reported_coefficients(observer, mean_over) for observer in owned)
         names = np.empty(n, dtype=object)
         for observer, idx in self.parts:
             names[idx] = observer.name or type(observer).__name__
         self.names = tuple(names)
-        wrap = np.zeros(n, dtype=bool)
-        for observer, idx in self.parts:  # a part's wrap: None, a bool, or one per channel of the part
-            wrap[idx] = np.broadcast_to(np.asarray(False if observer.wrap is None else observer.wrap), idx.shape)
-        self.wrap = wrap if wrap.any() else None
-        self._shape = None
-        self._estimate = None
-        self.n_updates = 0
 
-    # ---- assembling the parts' estimates --------------------------------------------------------------------
-    def _assemble(self, estimates: Sequence[np.ndarray], lead: tuple[int, ...]) -> np.ndarray:
-        out = np.empty(lead + (self.n_channels, 2))
-        for i, ((_, idx), est) in enumerate(zip(self.parts, estimates, strict=True)):
-            out[..., idx, 0] = est[..., 0]
-            out[..., idx, 1] = reported_velocity(est, self._coefficients[i])
-        return out
+    @property
+    def _kernel(self):
+        return composite_step([compiled_step(observer) for observer, _ in self.parts]).kernel
 
-    def _checked(self, y, name: str) -> np.ndarray:
-        y = as_measurement(y, name)
-        if y.shape[-1] != self.n_channels:
-            raise ValueError(f"expected {name} with {self.n_channels} channels (last axis), actual value: {y.shape}")
-        if not np.isfinite(y).all():
-            self._raise_nonfinite(y, name)
-        return y
+    # ---- the state and parameters of the composite step (module notes) ---------------------------------------
+    def _rows(self, shape: tuple[int, ...], idx: np.ndarray) -> np.ndarray:
+        """The flat rows of the channels ``idx`` in every batch element, in the part's own flat order."""
+        batch = int(np.prod(shape[:-1], dtype=np.int64))
+        return (np.arange(batch)[:, None] * self.n_channels + idx[None, :]).reshape(-1)
 
-    # ---- public API -----------------------------------------------------------------------------------------
-    @check_keywords
-    def reset(self, y0, mask=None, *, derivatives=None) -> np.ndarray:
-        """Start (or restart) every part at ``y0``; arguments as :meth:`Observer.reset` (``derivatives``: at most
-        the velocity, shape ``(..., n_channels, 1)``)."""
-        y0 = self._checked(y0, "y0")
-        if mask is not None:
-            if self._shape is None:
-                raise RuntimeError("expected a full reset(y0) before a masked reset, actual value: never reset")
-            if y0.shape != self._shape:
-                raise ValueError(f"expected y0 with shape {self._shape} for a masked reset, actual value: {y0.shape}")
-            mask = check_mask("mask", mask)
-            if mask.shape not in (y0.shape[:-1], y0.shape):
-                raise ValueError(f"expected mask with shape {y0.shape[:-1]} or {y0.shape}, actual value: {mask.shape}")
-        if derivatives is not None:
-            d = as_real_array("derivatives", derivatives)
-            if d.shape not in (y0.shape + (0,), y0.shape + (1,)):
-                raise ValueError(
-                    f"expected derivatives with shape {y0.shape + (1,)} (the velocity of every channel), actual "
-                    f"value: shape {d.shape}"
-                )
-        estimates = []
+    def _state_width(self) -> int:
+        return max(observer._state_width() for observer, _ in self.parts)
+
+    def _channel_params(self, shape: tuple[int, ...]) -> np.ndarray:
+        if shape[-1] != self.n_channels:
+            raise ValueError(
+                f"expected a measurement with {self.n_channels} channels (last axis), actual value: shape {shape}"
+            )
+        packed = []
         for observer, idx in self.parts:
-            kw = {}
-            if mask is not None:
-                kw["mask"] = mask if mask.shape == y0.shape[:-1] else mask[..., idx]
-            if derivatives is not None:
-                kw["derivatives"] = d[..., idx, :]
-            estimates.append(observer.reset(y0[..., idx], **kw))
-        self._shape = y0.shape
-        self._estimate_parts = [observer.estimate for observer, _ in self.parts]
-        self._estimate = self._assemble(estimates, y0.shape[:-1])
-        if mask is None:
-            self.n_updates = 0
-        return self._estimate.copy()
+            observer.reset(np.zeros(shape[:-1] + idx.shape))  # sizes the part's per-channel parameters
+            packed.append(observer.arrays.params)
+        K = max(len(c) if c is not None else 1 for c in self._coefficients)
+        at = COEFFICIENTS + K
+        params = np.zeros((int(np.prod(shape, dtype=np.int64)), at + max(p.shape[1] for p in packed)))
+        for k, ((observer, idx), part_params, c) in enumerate(zip(self.parts, packed, self._coefficients, strict=True)):
+            c = np.ones(1) if c is None else c
+            rows = self._rows(shape, idx)
+            params[rows, :COEFFICIENTS] = [
+                k,
+                observer._state_width(),
+                part_params.shape[1],
+                observer.order + 1,
+                observer._innovation_column(),
+                len(c),
+                at,
+            ]
+            params[rows, COEFFICIENTS : COEFFICIENTS + len(c)] = c
+            params[rows, at : at + part_params.shape[1]] = part_params
+        return params
 
-    def restart(self, y0, *, derivatives=None) -> np.ndarray:
-        """A full :meth:`reset` of every part (each keeps its parameters where it can: :meth:`Observer.restart`)."""
-        if self._shape is None:
-            raise RuntimeError("expected a full reset(y0) before restart(y0), actual value: never reset")
-        y0 = self._checked(y0, "y0")
-        if y0.shape != self._shape:
-            raise ValueError(f"expected y0 with shape {self._shape} for a restart, actual value: {y0.shape}")
-        if derivatives is not None:
-            return self.reset(y0, derivatives=derivatives)
-        self._estimate = self._assemble([o.restart(y0[..., idx]) for o, idx in self.parts], y0.shape[:-1])
-        self._estimate_parts = [observer.estimate for observer, _ in self.parts]
-        self.n_updates = 0
-        return self._estimate.copy()
-
-    def update(self, y) -> np.ndarray:
-        """One sample through every part; returns the estimate ``(..., n_channels, 2)``; see :meth:`Observer.update`."""
-        if self._shape is None:
-            raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
-        y = self._checked(y, "y")
-        if y.shape != self._shape:
-            raise ValueError(f"expected y with shape {self._shape}, actual value: {y.shape}")
-        estimates = []
-        for k, (observer, idx) in enumerate(self.parts):
-            try:
-                estimates.append(observer.update(np.ascontiguousarray(y[..., idx])))
-            except DivergenceError:
-                for (earlier, _), previous in zip(self.parts[:k], self._estimate_parts, strict=False):
-                    earlier._undo_update(previous)  # all or nothing: the parts already advanced step back
-                raise
-        self._estimate_parts = estimates
-        self._estimate = out = self._assemble(estimates, y.shape[:-1])
-        self.n_updates += 1
-        return out
-
-    @check_keywords
-    def run(self, Y, *, out: np.ndarray | None = None) -> np.ndarray:
-        """A recorded block ``Y`` ``(T, ..., n_channels)`` through every part (each in one compiled call); returns
-        ``(T, ..., n_channels, 2)``; see :meth:`Observer.run`."""
-        if self._shape is None:
-            raise RuntimeError("expected reset(y0) before run(Y), actual value: the observer was never reset")
-        Y = as_real_array("Y", Y)
-        if Y.ndim == 0 or Y.shape[1:] != self._shape:
-            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
-        if not np.isfinite(Y).all():
-            self._raise_nonfinite(Y, "Y")
-        T = Y.shape[0]
-        out = self._output_array(out, (T,) + self._shape + (2,))
-        if T == 0:
-            return out
-        checkpoints = [observer._checkpoint() for observer, _ in self.parts]
-        estimates = []
-        try:
-            for observer, idx in self.parts:
-                estimates.append(observer.run(np.ascontiguousarray(Y[..., idx])))
-        except DivergenceError:  # all or nothing: the parts already advanced go back
-            for (observer, _), checkpoint in zip(self.parts, checkpoints, strict=True):
-                observer._rollback(checkpoint)
-            raise
-        out[...] = self._assemble(estimates, Y.shape[:-1])
-        self._estimate_parts = [observer.estimate for observer, _ in self.parts]
-        self._estimate = out[-1].copy()
-        self.n_updates += T
-        return out
-
-    def step(self, state, y):
-        raise TypeError(
-            "expected an observer with one flat state for step(), actual value: a PerChannel observer, whose state "
-            "is its parts' (step each part's observer instead)"
-        )
+    def _fresh_state(self, y0: np.ndarray, x0: np.ndarray | None) -> np.ndarray:
+        """Every part's state after its own reset at ``y0`` (with the velocity of ``x0``), row by row."""
+        state = np.zeros((y0.size, self._state_width()))
+        for observer, idx in self.parts:
+            derivatives = None if x0 is None else x0[..., idx, 1:]
+            observer.restart(y0[..., idx], derivatives=derivatives)
+            part_state = observer.state
+            state[self._rows(y0.shape, idx), : part_state.shape[1]] = part_state
+        return state
 
     @property
     def output_error(self) -> np.ndarray:
         self._require_reset()
-        out = np.empty(self._shape)
-        for observer, idx in self.parts:
-            out[..., idx] = observer.output_error
-        return out
-
-    @property
-    def state(self):
-        raise TypeError("expected an observer with one flat state, actual value: PerChannel (see each part's state)")
-
-    @property
-    def arrays(self):
-        raise TypeError("expected an observer with one flat state, actual value: PerChannel (see each part's arrays)")
+        columns = self._params[:, INNOVATION].astype(np.intp)
+        return self._state[np.arange(self._state.shape[0]), columns].reshape(self._shape)
 
     def __repr__(self) -> str:
         groups = ", ".join(f"{self.names[idx[0]]}: {idx.tolist()}" for _, idx in self.parts)
