@@ -77,13 +77,13 @@ def compiled_step(observer) -> _kernels.Step | None:
 
 
 @njit(error_model="numpy", inline="always")
-def _advance_part(rows, part, state, y, params, new_state, out, shared):
-    """One sample of the part ``part`` (its step ``rows``) on its channels: gathered into contiguous arrays,
-    advanced, scattered back into ``new_state`` (padding columns copied) and ``out`` (value, reported velocity).
-    Returns the step's status with the part's channel translated to the composite's. Inlined into the composite's
-    step (it takes a function: see :func:`smo_gym.observers._kernels._drive`)."""
+def _advance_part(rows, part, state, y, params, new_state, out, shared, index, work):
+    """One sample of the part ``part`` (its step ``rows``) on its channels: gathered into contiguous arrays (views
+    of ``work``; ``index`` receives the channels), advanced, scattered back into ``new_state`` (padding columns
+    copied) and ``out`` (value, reported velocity). Returns the step's status with the part's channel translated to
+    the composite's. Inlined into the composite's step (it takes a function: see
+    :func:`smo_gym.observers._kernels._drive`)."""
     n, width = state.shape
-    index = np.empty(n, np.int64)
     count = 0
     for c in range(n):
         if params[0 if shared else c, PART] == part:
@@ -93,11 +93,12 @@ def _advance_part(rows, part, state, y, params, new_state, out, shared):
         return -1
     row = params[0 if shared else index[0]]
     S, P, m, at = int(row[STATE_WIDTH]), int(row[PARAM_WIDTH]), int(row[ESTIMATES]), int(row[PARAMS_AT])
-    part_state = np.empty((count, S))
-    part_new = np.empty((count, S))
-    part_params = np.empty((count, P))
-    part_y = np.empty(count)
-    part_out = np.empty((count, m))
+    # work holds n (3 width + P_max + 1) numbers: enough for every part (S, m <= width, P <= P_max)
+    part_state = work[: count * S].reshape((count, S))
+    part_new = work[count * S : 2 * count * S].reshape((count, S))
+    part_out = work[2 * count * S : count * (2 * S + m)].reshape((count, m))
+    part_params = work[count * (2 * S + m) : count * (2 * S + m + P)].reshape((count, P))
+    part_y = work[count * (2 * S + m + P) : count * (2 * S + m + P + 1)]
     for r in range(count):
         c = index[r]
         pc = 0 if shared else c
@@ -134,21 +135,24 @@ _R0 = _R1 = _R2 = _R3 = _R4 = _R5 = _R6 = _R7 = None
 def _per_channel_rows_template(state, y, params, new_state, out, shared):
     """The composite's step (module notes): every part's step (``_R0`` ...) on its channels, stopping at the first
     that fails."""
-    status = _advance_part(_R0, 0, state, y, params, new_state, out, shared)
+    n, width = state.shape
+    index = np.empty(n, np.int64)
+    work = np.empty(n * (3 * width + params.shape[1] + 1))  # one allocation per sample, shared by the parts
+    status = _advance_part(_R0, 0, state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 1 and status == -1:
-        status = _advance_part(_R1, 1, state, y, params, new_state, out, shared)
+        status = _advance_part(_R1, 1, state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 2 and status == -1:
-        status = _advance_part(_R2, 2, state, y, params, new_state, out, shared)
+        status = _advance_part(_R2, 2, state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 3 and status == -1:
-        status = _advance_part(_R3, 3, state, y, params, new_state, out, shared)
+        status = _advance_part(_R3, 3, state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 4 and status == -1:
-        status = _advance_part(_R4, 4, state, y, params, new_state, out, shared)
+        status = _advance_part(_R4, 4, state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 5 and status == -1:
-        status = _advance_part(_R5, 5, state, y, params, new_state, out, shared)
+        status = _advance_part(_R5, 5, state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 6 and status == -1:
-        status = _advance_part(_R6, 6, state, y, params, new_state, out, shared)
+        status = _advance_part(_R6, 6, state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 7 and status == -1:
-        status = _advance_part(_R7, 7, state, y, params, new_state, out, shared)
+        status = _advance_part(_R7, 7, state, y, params, new_state, out, shared, index, work)
     return status
 
 
