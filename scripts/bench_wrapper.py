@@ -186,7 +186,7 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     full, no_scratch, no_observe, no_sensing = wrapped(), wrapped(), wrapped(), wrapped()
     const = np.array(full.observation_space.sample(), dtype=np.float64)
     for env in (no_scratch, no_observe, no_sensing):
-        env.adapter.observe_scratch = lambda *args, c=const: c
+        env._fused.evaluation.observe_scratch = lambda *args, c=const: c  # what _observe_fused calls
         env._fused.maps_observation = False  # a selection built by the compiled call is switched off here too
 
     def no_observation(block, info, clean, c=const):
@@ -217,7 +217,7 @@ def format_ablation(env_id: str, rate: str, res: dict) -> str:
 
     parts = [
         (
-            "observation at the sensed state (adapter.observe_scratch, or built by the compiled call)",
+            "observation at the sensed state (ScratchObservation.observe_scratch, or built by the compiled call)",
             diff("full", "-scratch obs"),
         ),
         ("finiteness check and info['smo']", diff("-scratch obs", "-observe")),
