@@ -49,6 +49,7 @@ def test_per_channel_equals_each_part_on_its_channels():
         want = np.array([(estimator.update(y[channels]), estimator.filtered) for y in Y[1:]])
         np.testing.assert_array_equal(got[:, channels, 1], want[:, 0])
         np.testing.assert_array_equal(got[:, channels, 0], want[:, 1])
+        np.testing.assert_array_equal(composite.output_error[channels], estimator.observer.output_error)
     assert composite.names == ("kalman-ca", "finite-difference", "kalman-ca", "levant")
     assert "finite-difference: [1]" in repr(composite) and not composite.reports_instant
 

@@ -23,7 +23,8 @@ and cached on disk (:data:`FUSED_DRIVERS`; a compiled function taking the kernel
 recompiled in every new process, see :func:`smo_gym._numba_cache.cached_instance`). The joint kind is a
 compile-time constant because compilation, not the call, is what a new process pays for (the first step from an
 empty cache): a model without free or ball joints never compiles the tangent arithmetic. Observers that are not a
-registered compiled family use the general path.
+registered compiled family (or a :class:`~smo_gym.observers.PerChannel` of such families, whose composite step is
+registered too) use the general path.
 
 Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produced a non-finite value at sample
 ``t``, channel ``j``; ``-2 - (t * nv + j)`` the observer's state became non-finite there.
@@ -366,8 +367,8 @@ class FusedSensing:
     random block, the observer's estimate and update count), so both objects stay usable as they are.
 
     Use :meth:`supports` first: a plain :class:`VelocityEstimator` around an observer of a registered compiled
-    family (:func:`fusable`) and an adapter with a scratch state (every sensor qualifies: a sensor is its stages,
-    see :class:`smo_gym.sensors.Sensor`).
+    family or a composite of them (:func:`fusable`) and an adapter with a scratch state (every sensor qualifies: a
+    sensor is its stages, see :class:`smo_gym.sensors.Sensor`).
 
     Parameters
     ----------
