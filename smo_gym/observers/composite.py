@@ -127,7 +127,9 @@ def _advance_part(rows, part, state, y, params, new_state, out, shared, index, w
 
 
 # the globals of the template below, bound per tuple of part steps by cached_instance (unused slots: None, in
-# branches numba prunes because _N_PARTS is a constant)
+# branches numba prunes because _N_PARTS is a constant). The slots are written out: a loop over different
+# functions needs numba's first-class function types, still experimental, and calls through a pointer that LLVM
+# cannot inline.
 _N_PARTS = 0
 _R0 = _R1 = _R2 = _R3 = _R4 = _R5 = _R6 = _R7 = None
 
