@@ -92,6 +92,9 @@ TABLE_SLOTS = (
     ("velocity", np.float64, 1),
 )
 _N_SLOTS = len(TABLE_SLOTS)
+_SLOT_ROW = {name: row for row, (name, _, _) in enumerate(TABLE_SLOTS)}
+#: the rows of the observer's and the sensor's state: :meth:`FusedSensing.sample` checks they are the arrays in use
+_OBSERVER_STATE, _SENSOR_STATE = _SLOT_ROW["state"], _SLOT_ROW["sensor_state"]
 
 
 # the globals of the template below, bound per observer kernel and joint kind by cached_instance
@@ -554,7 +557,7 @@ class FusedSensing:
             self._bind(Q, qvel_true)
             call = self._call
         static = self._static
-        if static[6] is not observer.arrays.state or static[2] is not sensor.arrays.state:
+        if static[_OBSERVER_STATE] is not observer.arrays.state or static[_SENSOR_STATE] is not sensor.arrays.state:
             # replaced since prepare(): Observer.run commits a new state array, Sensor.reset new arrays
             self.prepare()
         if self._Zm.shape[0] < T:
