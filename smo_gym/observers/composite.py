@@ -23,8 +23,9 @@ own state row padded with zeros to the widest part; its parameter row per channe
 (:data:`PART` ... :data:`COEFFICIENTS`): the part's state, parameter and estimate widths, where its innovation is,
 the ``K`` coefficients of the reported velocity :math:`\sum_j c_j \hat z_{j+1}` (``[1]``: the first derivative as
 it is; :func:`smo_gym.observers.base.reported_coefficients` otherwise) and the column where its parameters start.
-Per sample and part, the step gathers the part's rows into contiguous arrays, calls the part's step and scatters
-the result back (a few dozen numbers: negligible next to the steps themselves).
+Per sample and part, the step gathers the part's rows into contiguous views of one buffer, calls the part's step
+and scatters the result back: about 0.3 us per sample on six channels of two parts (measured against the parts
+alone), more than a cheap step itself costs but a few percent of a wrapped environment step.
 """
 
 from __future__ import annotations
