@@ -178,9 +178,7 @@ def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
     for i in range(nq):
         info[i] = last[i]
     for c in range(n):
-        v = velocity[0] * est[c, 1]  # the reported velocity, VelocityEstimator.velocity_of in the same order
-        for j in range(1, velocity.shape[0]):
-            v = v + velocity[j] * est[c, 1 + j]
+        v = K.reported_sum(velocity, est[c])  # VelocityEstimator.velocity_of, bit for bit
         info[o_qvel + c] = qvel_true[c]
         info[o_vhat + c] = v
         info[o_zm + c] = zm[c]

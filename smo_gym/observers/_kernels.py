@@ -189,6 +189,17 @@ def _first_nonfinite(y):
 
 
 @njit(cache=CACHE, error_model="numpy")
+def reported_sum(coefficients, estimate):
+    r"""The reported velocity :math:`\sum_j c_j \hat z_{j+1}` of one channel's ``estimate`` (m,) with the
+    ``coefficients`` (k,), summed term by term in the order of :func:`smo_gym.observers.base.reported_velocity`:
+    the same numbers bit for bit (``[1.0]``: the first derivative as it is)."""
+    v = coefficients[0] * estimate[1]
+    for j in range(1, coefficients.shape[0]):
+        v = v + coefficients[j] * estimate[1 + j]
+    return v
+
+
+@njit(cache=CACHE, error_model="numpy")
 def _unwrap_rows(y, state, period, y_out):
     """The loop of :func:`unwrap_measurement` on flat ``y`` (N,), ``state`` (N, S), ``period``, ``y_out`` (N,)."""
     for c in range(y.shape[0]):

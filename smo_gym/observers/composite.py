@@ -118,12 +118,10 @@ def _advance_part(rows, part, state, y, params, new_state, out, shared, index, w
             new_state[c, j] = part_new[r, j]
         for j in range(S, width):
             new_state[c, j] = state[c, j]
-        # reported_velocity's sum, term by term in its order: the same numbers as the parts' own estimates
-        v = params[pc, COEFFICIENTS] * part_out[r, 1]
-        for j in range(1, int(params[pc, N_COEFFICIENTS])):
-            v = v + params[pc, COEFFICIENTS + j] * part_out[r, 1 + j]
         out[c, 0] = part_out[r, 0]
-        out[c, 1] = v
+        out[c, 1] = _kernels.reported_sum(
+            params[pc, COEFFICIENTS : COEFFICIENTS + int(params[pc, N_COEFFICIENTS])], part_out[r]
+        )
     return -1
 
 
