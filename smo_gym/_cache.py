@@ -1,11 +1,16 @@
 """Memoized calibrations: cache keys that are the same in every process, kept in memory and in a JSON file.
 
 The file is ``$SMO_GYM_CACHE_DIR/calibration.json`` (default ``~/.cache/smo_gym``); a read-only home is not an
-error, the memory cache still works.
+error, the memory cache still works. Below the user's file lies a read-only one shipped with the package
+(:data:`SHIPPED_FILE`): the calibrations of Gymnasium's MuJoCo environments with the wrapper's defaults, written by
+``scripts/ship_calibrations.py``. The keys are the same (they hash the model itself and every setting), so an
+environment, model, sensor or setting of its own simply misses it and is calibrated as before; a hit spares a new
+process the calibration rollouts, the trials of ``observer="auto"`` and compiling the candidates it tries.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -16,9 +21,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-__all__ = ["cached_bounds", "calibration_key", "stable_repr"]
+__all__ = ["SHIPPED_FILE", "cached_bounds", "calibration_key", "memory_entries", "stable_repr"]
 
 _MEMORY_CACHE: dict[str, list[float]] = {}
+#: the calibrations shipped with the package (read-only; see the module docstring)
+SHIPPED_FILE = Path(__file__).parent / "data" / "calibrations.json"
 
 
 def _cache_file() -> Path:
@@ -28,8 +35,17 @@ def _cache_file() -> Path:
     return Path(root) / "calibration.json"
 
 
+@functools.cache
+def _shipped() -> dict[str, list]:
+    try:
+        return json.loads(SHIPPED_FILE.read_text())
+    except (OSError, ValueError):  # an install without the data file calibrates as before
+        return {}
+
+
 def cached_bounds(key: str, compute, *, disk: bool = True) -> np.ndarray:
-    """``compute()`` memoized under ``key`` in memory and (``disk=True``) in the user cache file."""
+    """``compute()`` memoized under ``key`` in memory and (``disk=True``) in the user cache file, which falls back
+    on the calibrations shipped with the package (:data:`SHIPPED_FILE`) before computing."""
     if key in _MEMORY_CACHE:
         return np.array(_MEMORY_CACHE[key])
     path = _cache_file()
@@ -41,6 +57,9 @@ def cached_bounds(key: str, compute, *, disk: bool = True) -> np.ndarray:
                 return np.array(stored[key])
         except (OSError, ValueError):
             pass
+        if key in _shipped():
+            _MEMORY_CACHE[key] = _shipped()[key]
+            return np.array(_MEMORY_CACHE[key])
     value = np.asarray(compute(), dtype=float)
     _MEMORY_CACHE[key] = value.tolist()
     if disk:
@@ -58,6 +77,11 @@ def cached_bounds(key: str, compute, *, disk: bool = True) -> np.ndarray:
         except OSError:  # a read-only home is not an error: the memory cache still works
             pass
     return value
+
+
+def memory_entries() -> dict[str, list]:
+    """A copy of what this process has memoized, by key (what ``scripts/ship_calibrations.py`` ships)."""
+    return {key: list(value) for key, value in _MEMORY_CACHE.items()}
 
 
 def calibration_key(env_key: str, model: mujoco.MjModel, **settings) -> str:
