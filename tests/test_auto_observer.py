@@ -252,6 +252,26 @@ def test_trials_choose_per_channel_and_the_choice_holds_on_new_data():
     )  # one winner everywhere: that observer itself (the wrapper's one-call path)
 
 
+def test_what_auto_measures_is_what_it_deploys():
+    """A channel's trial error does not depend on which channels share its observer: the composite built for a
+    mixed choice (the high-gain filter on channels 0 and 2, the Kalman filter on 1, where the largest bound is)
+    reproduces on the trials, channel by channel, the errors the candidates had there on all channels."""
+    rng = np.random.default_rng(3)
+    t = np.arange(3000) * DT
+    q = np.column_stack([np.sin(t), 0.3 * np.sin(7 * t), np.cos(2 * t)])
+    v = np.column_stack([np.cos(t), 2.1 * np.cos(7 * t), -2 * np.sin(2 * t)])
+    trials = Trials((q + 1e-3 * rng.standard_normal(q.shape),), (v,))
+    calibration = Calibration(
+        DT, {2: [1.0, 15.0, 4.0], 3: [1.0, 100.0, 8.0]}, {2: [0.7, 10.0, 2.8], 3: [0.7, 70.0, 5.7]}, [1e-3] * 3
+    )
+    candidates = ("low-power-high-gain", "kalman-ca")
+    alone = np.stack([selection.trial_errors(selection.default_observer(c, calibration), trials) for c in candidates])
+    chosen = Selection(candidates, np.array([[[1.0, 2.0, 1.0], [2.0, 1.0, 2.0]]]), "trials")
+    observer = auto_observer(calibration, selection=chosen)
+    assert isinstance(observer, PerChannel)
+    np.testing.assert_allclose(selection.trial_errors(observer, trials), alone[[0, 1, 0], [0, 1, 2]], rtol=1e-12)
+
+
 def test_auto_observer_gives_each_part_its_wrapped_channels():
     calibration = Calibration(DT, {2: [20.0, 8.0, 8.0], 3: [400.0, 16.0, 16.0]}, {2: 5.0, 3: 100.0}, [0.0, 1e-3, 0.0])
     errors = np.array([[[1.0, 2.0, 1.0], [2.0, 1.0, 2.0]]])  # the backward difference on 0 and 2, Kalman on 1

@@ -252,3 +252,30 @@ def test_the_active_set_solver_matches_lapack_and_pivots():
         A, x = M.copy(), b.copy()
         solve_in_place(A, x)
         np.testing.assert_allclose(x, np.linalg.solve(M, b), rtol=1e-12, atol=1e-12)
+
+
+def test_a_gain_per_channel_is_each_channel_with_its_own_gain():
+    """An array ``gain`` runs every channel as the observer with that channel's gain would, bit for bit, and the
+    internal state, a reset with derivatives and the repr follow it."""
+    h, gains = 1e-3, np.array([20.0, 80.0, 20.0])
+    t = np.arange(400) * h
+    Y = np.column_stack([np.sin(t), np.sin(3 * t), np.cos(t)]) + 1e-4 * np.random.default_rng(0).standard_normal(
+        (400, 3)
+    )
+    obs = LowPowerHighGain(dt=h, gain=gains, order=2, bounds=[5.0, 50.0])
+    d0 = np.array([[1.0, 0.0], [3.0, 0.0], [0.0, -1.0]])
+    obs.reset(Y[0], derivatives=d0)
+    est = obs.run(Y[1:])
+    for c, g in enumerate(gains):
+        alone = LowPowerHighGain(dt=h, gain=g, order=2, bounds=[5.0, 50.0])
+        alone.reset(Y[:1, c], derivatives=d0[c : c + 1])
+        np.testing.assert_array_equal(alone.run(Y[1:, c : c + 1])[:, 0], est[:, c])
+        np.testing.assert_array_equal(alone.internal_state[0], obs.internal_state[c])
+    assert "gain=[20.0, 80.0, 20.0]" in repr(obs)
+    np.testing.assert_allclose(obs.state_scale()[1], obs.state_scale(80.0))
+    with pytest.raises(ValueError, match="expected a gain for an observer with one per channel"):
+        obs.system_matrices()
+    with pytest.raises(ValueError, match="gain"):
+        LowPowerHighGain(dt=h, gain=[20.0, -1.0])
+    with pytest.raises(ValueError, match="broadcastable to the measurement shape"):
+        obs.reset(np.zeros(2))

@@ -77,17 +77,27 @@ import numpy as np
 from numba import njit
 
 from .._numba_cache import drop_stale
-from .._validation import as_real_array, check_choice, check_int_in_range, check_keywords, check_positive
+from .._validation import (
+    as_real_array,
+    check_choice,
+    check_int_in_range,
+    check_keywords,
+    check_positive,
+    check_positive_array,
+)
 from . import _kernels
 from .base import Observer
 from .registry import register_observer
 
 
 def _balanced_gain_rule(cls, calibration, order, kwargs):
-    r"""The high gain balancing the bound and the noise, :math:`\ell = (L/\epsilon)^{1/n}` (largest ``L``)."""
+    r"""The high gain balancing the bound and the noise of each channel, :math:`\ell = (L/\epsilon)^{1/n}`.
+
+    Per channel, so that a channel's estimate does not depend on which channels share the observer: what
+    ``observer="auto"`` measures on its trials is what it deploys on any subset of the channels."""
     n = int(kwargs.get("order", 1)) + 1
-    bound = float(np.max(calibration.bound(order)))
-    return cls(dt=calibration.dt, **kwargs, gain=(bound / calibration.noise_level) ** (1.0 / n))
+    noise = np.sqrt(calibration.measurement_variance)  # floored like every noise level a formula divides by
+    return cls(dt=calibration.dt, **kwargs, gain=(calibration.bound(order) / noise) ** (1.0 / n))
 
 
 __all__ = ["LowPowerHighGain", "low_power_default_coefficients", "low_power_matrices", "polynomial_powers"]
@@ -299,9 +309,9 @@ class LowPowerHighGain(Observer):
     ----------
     dt : float
         Sampling step.
-    gain : float
+    gain : float or array_like
         The high gain :math:`\ell > 0` (1/s); with the default coefficients every error eigenvalue is at
-        :math:`-\ell`.
+        :math:`-\ell`. An array is one gain per channel (broadcast to the measurement's shape).
     order : int
         Derivatives estimated, ``n = order + 1`` (``1 <= order <= 9``). Observer dimension ``2n - 1``.
     bounds : float or array_like, shape (order,), optional
@@ -332,7 +342,7 @@ class LowPowerHighGain(Observer):
     def __init__(
         self,
         dt: float,
-        gain: float,
+        gain,
         order: int = 1,
         *,
         bounds=None,
@@ -345,7 +355,8 @@ class LowPowerHighGain(Observer):
         order = check_int_in_range("order", order, 1, 9)
         super().__init__(dt, order, discretization, wrap)
         n = order + 1
-        self.gain = check_positive("gain", gain)
+        gains = check_positive_array("gain", gain)
+        self.gain = float(gains) if gains.ndim == 0 else gains
         self.readout = check_choice("readout", readout, ("peaking-free", "low-power"))
         K, k_n = low_power_default_coefficients(n)
         if coefficients is not None:
@@ -374,11 +385,18 @@ class LowPowerHighGain(Observer):
             if np.any(~(b > 0)) or np.any(np.isnan(b)):
                 raise ValueError(f"expected bounds > 0, actual value: {bounds!r}")
             self.bounds = b
-        self._channel_params((1,))  # fail at construction, not at reset, if the discrete matrices overflow
+        self._channel_params(gains.shape or (1,))  # fail at construction, not at reset, if a step overflows
 
-    def system_matrices(self) -> dict[str, np.ndarray]:
-        """The continuous-time matrices at this ``gain`` (see :func:`low_power_matrices`)."""
-        return low_power_matrices(self.order + 1, self.gain, self.coefficients, self.filter_coefficient)
+    def system_matrices(self, gain: float | None = None) -> dict[str, np.ndarray]:
+        """The continuous-time matrices at ``gain`` (default: this observer's, if it is one number), see
+        :func:`low_power_matrices`."""
+        if gain is None:
+            if np.ndim(self.gain):
+                raise ValueError(f"expected a gain for an observer with one per channel, actual value: {gain!r}")
+            gain = self.gain
+        return low_power_matrices(
+            self.order + 1, check_positive("gain", gain), self.coefficients, self.filter_coefficient
+        )
 
     def powers_of_gain(self) -> list[int]:
         r"""Powers of :math:`\ell` that appear in the observer's matrices, found numerically.
@@ -402,7 +420,7 @@ class LowPowerHighGain(Observer):
         the papers' coordinates, shape ``(..., n_channels, 2n - 1)``."""
         self._require_reset()
         n = self.order + 1
-        return (self._state[:, : 2 * n - 1] * self.state_scale()).reshape(self._shape + (2 * n - 1,))
+        return (self._state[:, : 2 * n - 1] * self._channel_scale()).reshape(self._shape + (2 * n - 1,))
 
     @property
     def _kernel(self):
@@ -423,30 +441,42 @@ class LowPowerHighGain(Observer):
         s[:, 0 : 2 * n - 2 : 2] = x0[:, : n - 1]  # xi_{i,1} = x_i
         s[:, 1 : 2 * n - 2 : 2] = x0[:, 1:]  # xi_{i,2} = x_{i+1}
         s[:, 2 * n - 2] = x0[:, n - 1]  # eta = x_n
-        state[:, : 2 * n - 1] = s / self.state_scale()
+        state[:, : 2 * n - 1] = s / self._channel_scale()
 
-    def state_scale(self) -> np.ndarray:
+    def state_scale(self, gain=None) -> np.ndarray:
         r"""Diagonal ``T`` of the internal coordinates: the kernel's state is :math:`\zeta = T^{-1}s` with
         :math:`\zeta_{i,1} = \xi_{i,1}/\ell^{i-1}`, :math:`\zeta_{i,2} = \xi_{i,2}/\ell^{i}`,
         :math:`\zeta_\eta = \eta/\ell^{n-1}`, in which the observer matrix is :math:`\ell F|_{\ell=1}`; the implicit
-        step is solved there (condition number of order :math:`(\ell h)^{2}` instead of :math:`\ell^{2n}`)."""
+        step is solved there (condition number of order :math:`(\ell h)^{2}` instead of :math:`\ell^{2n}`).
+        Shape ``np.shape(gain) + (2n - 1,)``, at ``gain`` (default: this observer's)."""
         n = self.order + 1
         powers = np.concatenate([[i, i + 1] for i in range(n - 1)] + [[n - 1]])
-        return self.gain ** powers.astype(float)
+        gain = self.gain if gain is None else gain
+        return np.asarray(gain, dtype=float)[..., None] ** powers.astype(float)
+
+    def _channel_scale(self) -> np.ndarray:
+        """:meth:`state_scale` of every channel of the last reset, shape ``(N, 2n - 1)``."""
+        return self.state_scale(self._per_channel("gain", self.gain, self._shape))
 
     def _channel_params(self, shape):
+        gains = self._per_channel("gain", self.gain, shape)
+        unique, which = np.unique(gains, return_inverse=True)  # one step's matrices per distinct gain
+        return np.stack([self._gain_params(float(gain)) for gain in unique])[which.reshape(-1)]
+
+    def _gain_params(self, gain: float) -> np.ndarray:
+        """The parameter row of a channel with high gain ``gain`` (the kernel's discrete step)."""
         n = self.order + 1
         N = 2 * n - 1
         h = self.dt
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # overflow is reported below
             try:
-                M = self.system_matrices()
+                M = self.system_matrices(gain)
             except OverflowError:  # ell**2 of a Python float
                 M = {
                     k: np.full_like(v, np.nan)
                     for k, v in low_power_matrices(n, 1.0, self.coefficients, self.filter_coefficient).items()
                 }
-            T = self.state_scale()
+            T = self.state_scale(gain)
             cols = 2 * np.arange(n - 1) + 1  # xi_{j,2}, the saturated interconnection signals
             F = M["F"] * T[None, :] / T[:, None]  # T^-1 F T
             Aimp = np.eye(N) - h * F
@@ -461,14 +491,13 @@ class LowPowerHighGain(Observer):
         if not all(np.isfinite(a).all() for a in (Minv, b, Aimp, fc, R)) or np.isnan(levels).any():
             raise ValueError(
                 f"expected gain and dt giving a finite implicit step (gain^(2n-2) and gain * dt "
-                f"representable), actual value: gain={self.gain!r}, dt={self.dt!r}, order={self.order}"
+                f"representable), actual value: gain={gain!r}, dt={self.dt!r}, order={self.order}"
             )
-        row = np.concatenate([[h], Minv.ravel(), b, Aimp.ravel(), fc.ravel(), levels, R.ravel()])
-        return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
+        return np.concatenate([[h], Minv.ravel(), b, Aimp.ravel(), fc.ravel(), levels, R.ravel()])
 
     def __repr__(self) -> str:
         return (
-            f"LowPowerHighGain(dt={self.dt}, gain={self.gain}, order={self.order}, "
+            f"LowPowerHighGain(dt={self.dt}, gain={np.asarray(self.gain).tolist()}, order={self.order}, "
             f"bounds={self.bounds.tolist()}, readout={self.readout!r})"
         )
 

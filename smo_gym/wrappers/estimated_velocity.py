@@ -292,7 +292,7 @@ def calibrated_observer(
         kwargs=stable_repr(kwargs),
         trial_steps=TRIAL_STEPS,
         **settings,
-        v=2,
+        v=3,
     )
 
     def compute():
