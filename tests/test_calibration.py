@@ -131,11 +131,14 @@ def _calibration(order, bounds, typical, noise, resolution=0.0):
 def test_default_observer_gain_formulas():
     noise = np.array([1e-4, 3e-4])
     acc = _calibration(2, [4.0, 9.0], [1.0, 2.0], noise)
+    # the high-gain observers balance each channel's bound and noise: ell = (L / eps)^(1/n) per channel
     obs = calibration.default_observer("high-gain", acc, None)
-    assert isinstance(obs, HighGain) and obs.gain == pytest.approx(np.sqrt(9.0 / 2e-4))
+    assert isinstance(obs, HighGain)
+    np.testing.assert_allclose(obs.gain, np.sqrt([4.0 / 1e-4, 9.0 / 3e-4]))
+    np.testing.assert_allclose(calibration.default_observer("low-power-high-gain", acc).gain, obs.gain)
     jerk = _calibration(3, [4.0, 9.0], [1.5, 0.5], noise)
     obs = calibration.default_observer("high-gain", jerk, {"order": 2})
-    assert obs.gain == pytest.approx((9.0 / 2e-4) ** (1 / 3))
+    np.testing.assert_allclose(obs.gain, np.array([4.0 / 1e-4, 9.0 / 3e-4]) ** (1 / 3))
     # the Kalman filter reads the typical jerk J, q = J^2 dt, and the noise variance, per channel
     obs = calibration.default_observer("kalman-ca", jerk)
     assert isinstance(obs, KalmanCA)

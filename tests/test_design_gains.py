@@ -322,3 +322,21 @@ def test_finite_difference_is_np_diff(rng):
     acc = a.run(Y[1:])[..., 2]
     np.testing.assert_array_equal(acc[0], 0.0)  # no previous velocity after a reset
     np.testing.assert_allclose(acc[1:], np.diff(Y, 2, axis=0) / dt**2, rtol=1e-9)
+
+
+@pytest.mark.parametrize("discretization", ["implicit", "euler"])
+def test_high_gain_per_channel_is_each_channel_with_its_own_gain(discretization, rng):
+    """An array ``gain`` runs every channel as the observer with that channel's gain would, bit for bit."""
+    dt, gains = 0.002, np.array([30.0, 120.0])
+    Y = np.column_stack([np.sin(np.arange(300) * dt), np.cos(3 * np.arange(300) * dt)])
+    Y += 1e-4 * rng.standard_normal(Y.shape)
+    both = HighGain(dt, gains, 2, discretization=discretization)
+    both.reset(Y[0])
+    joint = both.run(Y[1:])
+    for c, ell in enumerate(gains):
+        alone = HighGain(dt, ell, 2, discretization=discretization)
+        alone.reset(Y[0, c : c + 1])
+        np.testing.assert_array_equal(alone.run(Y[1:, c : c + 1])[:, 0], joint[:, c])
+    with pytest.raises(ValueError, match="expected a gain for an observer with one per channel"):
+        both.system_matrices()
+    np.testing.assert_allclose(HighGain.from_bounds(dt, [4.0, 9.0], [1e-4, 1e-4]).gain, np.sqrt([4e4, 9e4]))

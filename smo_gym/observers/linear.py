@@ -31,10 +31,11 @@ def _scalar_or_array(arr: np.ndarray):
 
 
 def _high_gain_rule(cls, calibration, order, kwargs):
-    r""":meth:`HighGain.from_bounds` with the largest bound: :math:`\ell = (L/\epsilon)^{1/n}`."""
+    r""":meth:`HighGain.from_bounds` per channel, :math:`\ell = (L/\epsilon)^{1/n}` with each channel's bound and
+    noise level (floored like every noise level a formula divides by)."""
     kw = dict(kwargs)
-    bound = float(np.max(calibration.bound(order)))
-    return cls.from_bounds(calibration.dt, bound, calibration.noise_level, order=kw.pop("order", 1), **kw)
+    noise = np.sqrt(calibration.measurement_variance)
+    return cls.from_bounds(calibration.dt, calibration.bound(order), noise, order=kw.pop("order", 1), **kw)
 
 
 def _kalman_rule(cls, calibration, order, kwargs):
@@ -68,8 +69,8 @@ class HighGain(Observer):
     Parameters
     ----------
     dt : float
-    gain : float
-        The high gain ``ell > 0`` (1/s).
+    gain : float or array_like
+        The high gain ``ell > 0`` (1/s); an array is one gain per channel (broadcast to the measurement's shape).
     order : int
         Derivatives estimated (``1 <= order <= 9``).
     coefficients : array_like, shape (order + 1,), optional
@@ -85,11 +86,11 @@ class HighGain(Observer):
 
     @check_keywords
     def __init__(
-        self, dt: float, gain: float, order: int = 1, *, coefficients=None, discretization: str | None = None, wrap=None
+        self, dt: float, gain, order: int = 1, *, coefficients=None, discretization: str | None = None, wrap=None
     ):
         order = check_int_in_range("order", order, 1, 9)
         super().__init__(dt, order, discretization, wrap)
-        self.gain = check_positive("gain", gain)
+        self.gain = _scalar_or_array(check_positive_array("gain", gain))
         n = order + 1
         if coefficients is None:
             coefficients = binomial_coefficients(n)
@@ -99,23 +100,30 @@ class HighGain(Observer):
         if np.any(np.roots(np.concatenate([[1.0], coefficients])).real >= 0):
             raise ValueError(f"expected coefficients of a Hurwitz polynomial, actual value: {coefficients}")
         self.coefficients = coefficients
-        self._discrete_row()  # fail at construction, not at reset, if the discrete matrices overflow
+        for gain in np.unique(self.gain):  # fail at construction, not at reset, if the discrete matrices overflow
+            self._discrete_row(float(gain))
 
     @classmethod
     @check_keywords
-    def from_bounds(cls, dt: float, lipschitz: float, noise: float, order: int = 1, **kwargs) -> HighGain:
+    def from_bounds(cls, dt: float, lipschitz, noise, order: int = 1, **kwargs) -> HighGain:
         r"""Gain balancing the two error terms of the first derivative: :math:`\ell = (L/\epsilon)^{1/(n)}`.
 
-        ``lipschitz`` bounds :math:`|f^{(n)}|`, ``noise`` is the measurement noise amplitude.
+        ``lipschitz`` bounds :math:`|f^{(n)}|`, ``noise`` is the measurement noise amplitude; scalars or arrays
+        (one per channel, broadcast together: a gain per channel).
         """
-        L, eps = check_positive("lipschitz", lipschitz), check_positive("noise", noise)
+        L, eps = check_positive_array("lipschitz", lipschitz), check_positive_array("noise", noise)
         order = check_int_in_range("order", order, 1, 9)
-        return cls(dt, (L / eps) ** (1.0 / (order + 1)), order, **kwargs)
+        return cls(dt, _scalar_or_array((L / eps) ** (1.0 / (order + 1))), order, **kwargs)
 
-    def system_matrices(self) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous-time error-injection form ``(A - H c^T, H)`` with ``H = D(ell) K``."""
+    def system_matrices(self, gain: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous-time error-injection form ``(A - H c^T, H)`` with ``H = D(ell) K``, at ``gain`` (default: this
+        observer's, if it is one number)."""
+        if gain is None:
+            if np.ndim(self.gain):
+                raise ValueError(f"expected a gain for an observer with one per channel, actual value: {gain!r}")
+            gain = self.gain
         n = self.order + 1
-        H = self.coefficients * self.gain ** np.arange(1, n + 1)
+        H = self.coefficients * check_positive("gain", gain) ** np.arange(1, n + 1)
         A = np.eye(n, k=1)
         A[:, 0] -= H
         return A, H
@@ -127,11 +135,11 @@ class HighGain(Observer):
     def _predicts(self):
         return self.discretization == "euler"
 
-    def _discrete_row(self) -> np.ndarray:
-        """The kernel's parameter row ``[F, g, R]`` of the chosen discretization (shared by every channel)."""
+    def _discrete_row(self, gain: float) -> np.ndarray:
+        """The kernel's parameter row ``[F, g, R]`` of the chosen discretization for a channel of gain ``gain``."""
         n, dt = self.order + 1, self.dt
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below, as a bad gain
-            A, H = self.system_matrices()
+            A, H = self.system_matrices(gain)
             try:
                 if self.discretization == "implicit":
                     # (I - dt (A - H c^T)) x_k = x_{k-1} + dt H y_k
@@ -149,13 +157,14 @@ class HighGain(Observer):
         if not np.isfinite(row).all():
             raise ValueError(
                 f"expected gain, coefficients and dt giving finite injection gains k_i gain^i and a "
-                f"finite discrete step, actual value: gain={self.gain!r}, dt={self.dt!r}"
+                f"finite discrete step, actual value: gain={gain!r}, dt={self.dt!r}"
             )
         return row
 
     def _channel_params(self, shape):
-        row = self._discrete_row()
-        return np.broadcast_to(row, (int(np.prod(shape)), row.size)).copy()
+        gains = self._per_channel("gain", self.gain, shape)
+        unique, which = np.unique(gains, return_inverse=True)  # one discrete step per distinct gain
+        return np.stack([self._discrete_row(float(gain)) for gain in unique])[which.reshape(-1)]
 
 
 @register_observer(
