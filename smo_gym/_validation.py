@@ -29,6 +29,7 @@ __all__ = [
     "check_nonnegative_array",
     "check_positive",
     "check_positive_array",
+    "check_positive_parameter",
     "check_positive_range",
     "check_real",
     "check_real_in_range",
@@ -135,6 +136,13 @@ def check_positive_array(name: str, value) -> np.ndarray:
     if np.any(bad):
         raise ValueError(f"expected {name} > 0 everywhere, actual value: {_short(value)}")
     return arr
+
+
+def check_positive_parameter(name: str, value) -> float | np.ndarray:
+    """A positive observer parameter given as one number (kept a ``float``) or one per channel (an array), checked
+    as :func:`check_positive_array`."""
+    arr = check_positive_array(name, value)
+    return float(arr) if arr.ndim == 0 else arr
 
 
 def check_nonnegative_array(name: str, value) -> np.ndarray:

@@ -297,6 +297,14 @@ class Observer:
         state[:, :m] = x0 @ taylor_matrix(m, self.dt).T if self._predicts() else x0
 
     # ---- helpers for subclasses -----------------------------------------------------------------------------
+    @classmethod
+    def _rows_per_value(cls, name: str, value, shape: tuple[int, ...], row) -> np.ndarray:
+        """Parameter rows ``row(v)`` of every channel, ``v`` the positive parameter ``value`` (one number or one per
+        channel) of that channel: shape ``(prod(shape), P)``, ``row`` evaluated once per distinct value."""
+        values = cls._per_channel(name, value, shape)
+        unique, which = np.unique(values, return_inverse=True)
+        return np.stack([row(float(v)) for v in unique])[which.reshape(-1)]
+
     @staticmethod
     def _per_channel(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
         """Broadcast a positive scalar or array parameter to the channel shape and flatten it to ``(N,)``."""

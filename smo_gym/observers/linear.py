@@ -18,16 +18,12 @@ from .._validation import (
     check_keywords,
     check_positive,
     check_positive_array,
+    check_positive_parameter,
 )
 from ..design.gains import binomial_coefficients
 from . import _kernels
 from .base import Observer
 from .registry import register_observer
-
-
-def _scalar_or_array(arr: np.ndarray):
-    """A checked parameter kept as a float when it is one number (as given), else as its array."""
-    return float(arr) if arr.ndim == 0 else arr
 
 
 def _high_gain_rule(cls, calibration, order, kwargs):
@@ -90,7 +86,7 @@ class HighGain(Observer):
     ):
         order = check_int_in_range("order", order, 1, 9)
         super().__init__(dt, order, discretization, wrap)
-        self.gain = _scalar_or_array(check_positive_array("gain", gain))
+        self.gain = check_positive_parameter("gain", gain)
         n = order + 1
         if coefficients is None:
             coefficients = binomial_coefficients(n)
@@ -113,7 +109,7 @@ class HighGain(Observer):
         """
         L, eps = check_positive_array("lipschitz", lipschitz), check_positive_array("noise", noise)
         order = check_int_in_range("order", order, 1, 9)
-        return cls(dt, _scalar_or_array((L / eps) ** (1.0 / (order + 1))), order, **kwargs)
+        return cls(dt, (L / eps) ** (1.0 / (order + 1)), order, **kwargs)
 
     def system_matrices(self, gain: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Continuous-time error-injection form ``(A - H c^T, H)`` with ``H = D(ell) K``, at ``gain`` (default: this
@@ -162,9 +158,7 @@ class HighGain(Observer):
         return row
 
     def _channel_params(self, shape):
-        gains = self._per_channel("gain", self.gain, shape)
-        unique, which = np.unique(gains, return_inverse=True)  # one discrete step per distinct gain
-        return np.stack([self._discrete_row(float(gain)) for gain in unique])[which.reshape(-1)]
+        return self._rows_per_value("gain", self.gain, shape, self._discrete_row)
 
 
 @register_observer(
@@ -261,8 +255,8 @@ class KalmanCA(Observer):
         wrap=None,
     ):
         super().__init__(dt, 2, discretization, wrap)
-        self.process_noise = _scalar_or_array(check_positive_array("process_noise", process_noise))
-        self.measurement_noise = _scalar_or_array(check_positive_array("measurement_noise", measurement_noise))
+        self.process_noise = check_positive_parameter("process_noise", process_noise)
+        self.measurement_noise = check_positive_parameter("measurement_noise", measurement_noise)
         if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:
             raise TypeError(
                 f"expected initial_std to be a pair (velocity std, acceleration std), actual value: {initial_std!r}"

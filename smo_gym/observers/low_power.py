@@ -83,7 +83,7 @@ from .._validation import (
     check_int_in_range,
     check_keywords,
     check_positive,
-    check_positive_array,
+    check_positive_parameter,
 )
 from . import _kernels
 from .base import Observer
@@ -355,8 +355,7 @@ class LowPowerHighGain(Observer):
         order = check_int_in_range("order", order, 1, 9)
         super().__init__(dt, order, discretization, wrap)
         n = order + 1
-        gains = check_positive_array("gain", gain)
-        self.gain = float(gains) if gains.ndim == 0 else gains
+        self.gain = check_positive_parameter("gain", gain)
         self.readout = check_choice("readout", readout, ("peaking-free", "low-power"))
         K, k_n = low_power_default_coefficients(n)
         if coefficients is not None:
@@ -385,7 +384,7 @@ class LowPowerHighGain(Observer):
             if np.any(~(b > 0)) or np.any(np.isnan(b)):
                 raise ValueError(f"expected bounds > 0, actual value: {bounds!r}")
             self.bounds = b
-        self._channel_params(gains.shape or (1,))  # fail at construction, not at reset, if a step overflows
+        self._channel_params(np.shape(self.gain) or (1,))  # fail at construction, not at reset, if a step overflows
 
     def system_matrices(self, gain: float | None = None) -> dict[str, np.ndarray]:
         """The continuous-time matrices at ``gain`` (default: this observer's, if it is one number), see
@@ -459,9 +458,7 @@ class LowPowerHighGain(Observer):
         return self.state_scale(self._per_channel("gain", self.gain, self._shape))
 
     def _channel_params(self, shape):
-        gains = self._per_channel("gain", self.gain, shape)
-        unique, which = np.unique(gains, return_inverse=True)  # one step's matrices per distinct gain
-        return np.stack([self._gain_params(float(gain)) for gain in unique])[which.reshape(-1)]
+        return self._rows_per_value("gain", self.gain, shape, self._gain_params)
 
     def _gain_params(self, gain: float) -> np.ndarray:
         """The parameter row of a channel with high gain ``gain`` (the kernel's discrete step)."""
