@@ -709,11 +709,15 @@ def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
     with :math:`\psi_{n-1} = k_{n-1}\rho/\beta_{n-1}` when :math:`|\rho| \le \beta_{n-1}`; otherwise
     :math:`\sigma^+ = \mathrm{sign}(\rho)s` with ``s`` the root of a monotone scalar equation
     (:func:`monotone_root`; for ``d = 0`` it is linear and the first Newton step solves it). Returns the
-    innovation :math:`y^+ - \hat z_0`; ``out_row`` receives the ``z`` block of :math:`\xi^+`.
+    innovation :math:`y^+ - \hat z_0`; ``out_row`` receives the estimates :math:`M z^+` of the ``z`` block, ``M``
+    the output matrix of :func:`hosm_implicit_channel_step` (Newton's backward formula: on the true trajectory of a
+    polynomial of degree ``< m`` the ``z`` block holds the backward differences of the samples, and ``M`` maps them
+    to the derivatives at the sample time). Parameters ``[dt, d, k_0 .. k_{n-1}, M (m * m)]``.
     """
     dt = params[0]
     degree = params[1]
     nf = n - m
+    moff = 2 + n
     q = degree / (1.0 - degree * (n - 1))
     # a_c = [T (xi + tau b y)]_c, by the recursion a_c = v_c + tau a_{c+1} from the last chain state up
     acc = 0.0
@@ -737,8 +741,11 @@ def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
             psi = sign * params[2 + c] * s ** (1.0 + q * (c + 1)) if s > 0.0 else 0.0
         acc = dt * (psi + acc)
         x_new[_chain_column(c, m, nf)] += acc
-    for j in range(m):
-        out_row[j] = x_new[j]
+    for i in range(m):
+        z = 0.0
+        for j in range(i, m):
+            z += params[moff + i * m + j] * x_new[j]
+        out_row[i] = z
     return y - x[0]
 
 
@@ -748,7 +755,7 @@ def filtering_implicit_rows(state, y, params, new_state, out, shared):
     ``n = state.shape[1] - 1`` states (``shared``: one parameter row for every channel)."""
     m = out.shape[1]
     n = state.shape[1] - 1
-    _check_widths(state, new_state, params, out, n + 1, 2 + n, m)
+    _check_widths(state, new_state, params, out, n + 1, 2 + n + m * m, m)
     return _chain_loop(filtering_implicit_channel_step, state, y, params, new_state, out, shared, m, n)
 
 

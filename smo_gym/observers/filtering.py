@@ -55,7 +55,13 @@ from .._validation import check_int_in_range, check_keywords, check_positive_arr
 from ..design.gains import MAX_LEVANT_ORDER
 from . import _kernels
 from .base import Observer
-from .differentiators import _pack_eigmap, eigenvalue_map_rate, eigenvalue_mapping_vectors
+from .differentiators import (
+    _ImplicitOutputs,
+    _pack_eigmap,
+    backward_difference_outputs,
+    eigenvalue_map_rate,
+    eigenvalue_mapping_vectors,
+)
 from .registry import lipschitz_rule, register_observer
 
 __all__ = ["MAX_FILTERING_ORDER", "FilteringDifferentiator"]
@@ -78,7 +84,7 @@ MAX_FILTERING_ORDER = 4
         dict(order=2, filtering_order=0, lipschitz=5.0, degree=0.0, discretization="implicit"),
     ),
 )
-class FilteringDifferentiator(Observer):
+class FilteringDifferentiator(_ImplicitOutputs, Observer):
     r"""Levant & Livne's robust exact filtering differentiator of homogeneity degree ``d`` ([LL20], [AHK21]).
 
     Order ``n`` (``order``) with :math:`n_f` (``filtering_order``) integrations of the output error in front
@@ -130,9 +136,14 @@ class FilteringDifferentiator(Observer):
     there, as Wetzlinger et al.'s is without filter (tested: :math:`|z_i - f^{(i)}| \propto h^{n+1-i}` for
     ``d = -1``). The eigenvalues are placed on that sampled chain by Ackermann's formula, as in [WRH].
 
-    **Reports.** ``"matching"`` stores the one-step prediction and reports it moved back to the sample time,
-    :math:`e^{-hN_z}\hat z_{k+1}`, as :class:`~smo_gym.observers.Levant` does; ``"implicit"`` reports its state.
-    A reset with ``derivatives`` starts the filter states at zero, the equilibrium on the true signal.
+    **Reports.** Both report the derivatives at the sample time. ``"matching"`` stores the one-step prediction and
+    reports it moved back, :math:`e^{-hN_z}\hat z_{k+1}`, as :class:`~smo_gym.observers.Levant` does;
+    ``"implicit"`` reports :math:`M z` with ``M`` Newton's backward formula
+    (:func:`~smo_gym.observers.differentiators.backward_difference_outputs`), as the implicit
+    :class:`~smo_gym.observers.Levant` does after Seeber (2024): on the true trajectory of a polynomial of degree
+    ``<= order`` the filter states are zero, :math:`z_0` is the sample and the other ``z`` are its backward
+    differences, late by :math:`h f''/2` and more, which ``M`` maps to the derivatives exactly. A reset with
+    ``derivatives`` starts the filter states at zero, the equilibrium on the true signal.
     """
 
     discretizations = ("matching", "implicit")
@@ -186,7 +197,7 @@ class FilteringDifferentiator(Observer):
 
     @property
     def reports_instant(self) -> bool:
-        return self.discretization == "matching"
+        return True  # matching: the prediction moved back to the sample; implicit: Newton's backward formula
 
     def _state_width(self) -> int:
         return self.n_states + 1
@@ -209,7 +220,8 @@ class FilteringDifferentiator(Observer):
             )
         gains = np.array([comb(n, c + 1) for c in range(n)])[None, :] * r[:, None] ** np.arange(1, n + 1)[None, :]
         head = np.column_stack([np.full(r.shape, self.dt), np.full(r.shape, self.degree)])
-        return np.hstack([head, gains])
+        outputs = np.broadcast_to(backward_difference_outputs(m, self.dt).reshape(1, -1), (r.size, m * m))
+        return np.hstack([head, gains, outputs])
 
     def __repr__(self) -> str:
         wrap = "" if self.wrap is None else f", wrap={self.wrap!r}"
