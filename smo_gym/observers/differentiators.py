@@ -109,9 +109,12 @@ def backward_difference_outputs(m: int, dt: float) -> np.ndarray:
     power[0] = 1.0
     M = np.zeros((m, m))
     j = np.arange(m)
-    for i in range(m):
-        M[i] = power * dt ** (j - i).clip(min=0)
-        power = np.convolve(power, series)[:m]
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow (inf, or 0 * inf) is reported below
+        for i in range(m):
+            M[i] = power * dt ** (j - i).clip(min=0)
+            power = np.convolve(power, series)[:m]
+    if not np.isfinite(M).all():
+        raise ValueError(f"expected dt giving finite outputs (dt^{m - 1} representable), actual value: {dt!r}")
     return M
 
 

@@ -76,9 +76,9 @@ MAX_FILTERING_ORDER = 4
     calibrate=lipschitz_rule,
     given=(("lipschitz",), ("p1",)),
     examples=(
-        dict(order=2, filtering_order=1, lipschitz=5.0),
-        dict(order=1, filtering_order=2, lipschitz=5.0, degree=-0.5),
-        dict(order=3, filtering_order=0, lipschitz=5.0, degree=0.0),
+        dict(order=2, filtering_order=1, lipschitz=5.0, discretization="matching"),
+        dict(order=1, filtering_order=2, lipschitz=5.0, degree=-0.5, discretization="matching"),
+        dict(order=3, filtering_order=0, lipschitz=5.0, degree=0.0, discretization="matching"),
         dict(order=2, filtering_order=1, lipschitz=5.0, discretization="implicit"),
         dict(order=1, filtering_order=2, lipschitz=5.0, degree=-0.4, discretization="implicit"),
         dict(order=2, filtering_order=0, lipschitz=5.0, degree=0.0, discretization="implicit"),
@@ -104,8 +104,10 @@ class FilteringDifferentiator(_ImplicitOutputs, Observer):
     degree : float
         Homogeneity degree ``d`` in ``[-1, 0]``: -1 the discontinuous (sliding-mode) differentiator, 0 the linear
         high-gain one, in between continuous and finite-time-free.
-    discretization : {"matching", "implicit"}
-        Module notes; default ``"matching"``.
+    discretization : {"implicit", "matching"}
+        Module notes; default ``"implicit"``, the more accurate of the two on every table of the documentation
+        (wrapper rows: geometric-mean regret 1.24 against 2.81; at 10 ms the eigenvalue mapping can be worse than
+        the backward difference).
     p1 : float or array_like, optional
         The rate ``r`` (Wetzlinger et al.'s :math:`p_1`): the gains are those of :math:`(s + r)^N`,
         :math:`N = n + n_f + 1`. Default :math:`(1.1L)^{1/N}`, so that the gain of the sign term,
@@ -146,7 +148,7 @@ class FilteringDifferentiator(_ImplicitOutputs, Observer):
     ``derivatives`` starts the filter states at zero, the equilibrium on the true signal.
     """
 
-    discretizations = ("matching", "implicit")
+    discretizations = ("implicit", "matching")
 
     @check_keywords
     def __init__(
@@ -170,6 +172,8 @@ class FilteringDifferentiator(_ImplicitOutputs, Observer):
         if p1 is not None:
             check_positive_array("p1", p1)
         self.p1 = p1
+        if self.discretization == "implicit":
+            backward_difference_outputs(order + 1, self.dt)  # fail at construction, not at reset, if it overflows
         if self.discretization == "matching":
             try:
                 with np.errstate(all="ignore"):
@@ -218,7 +222,13 @@ class FilteringDifferentiator(_ImplicitOutputs, Observer):
             return _pack_eigmap(
                 self.dt, r, 0.0, "matching", m, filtering_order=self.filtering_order, degree=self.degree
             )
-        gains = np.array([comb(n, c + 1) for c in range(n)])[None, :] * r[:, None] ** np.arange(1, n + 1)[None, :]
+        with np.errstate(over="ignore"):  # reported below
+            gains = np.array([comb(n, c + 1) for c in range(n)])[None, :] * r[:, None] ** np.arange(1, n + 1)[None, :]
+        if not np.isfinite(gains).all():
+            raise ValueError(
+                f"expected a rate r giving finite gains (r^{n} representable), actual value: r up to {r.max()!r} "
+                f"(from lipschitz={self.lipschitz!r}, p1={self.p1!r})"
+            )
         head = np.column_stack([np.full(r.shape, self.dt), np.full(r.shape, self.degree)])
         outputs = np.broadcast_to(backward_difference_outputs(m, self.dt).reshape(1, -1), (r.size, m * m))
         return np.hstack([head, gains, outputs])
