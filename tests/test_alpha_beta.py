@@ -12,6 +12,7 @@ from scipy.linalg import solve_discrete_are
 
 import smo_gym
 import smo_gym.specs
+from smo_gym.calibration import Calibration, default_observer
 from smo_gym.observers import FAMILIES, make_observer
 from smo_gym.observers.alpha_beta import AlphaBeta, tracking_index_gains
 
@@ -63,7 +64,7 @@ def test_registered_with_its_gain_rule_and_compiled_drivers():
     obs = make_observer("alpha-beta", dt=1e-3, alpha=0.5, beta=0.2)
     assert obs._kernel in _kernels.STEPS and obs._kernel in FUSED_DRIVERS and fusable(obs)
     assert not family.needs_calibration({"alpha": 0.5, "beta": 0.2})
-    # calibrated from the data: sigma_w from the acceleration bound, sigma_v from the noise
+    # calibrated from the data: sigma_w the typical (RMS) acceleration, sigma_v the noise, per channel
     t = np.arange(0, 5, 1e-3)
     y = np.sin(3 * t) + 1e-4 * np.random.default_rng(0).standard_normal(t.size)
     z = smo_gym.differentiate(y, 1e-3, observer="alpha-beta")
@@ -91,3 +92,23 @@ def test_registered_with_its_gain_rule_and_compiled_drivers():
 def test_bad_parameters_raise_typed_errors(kwargs, error):
     with pytest.raises(error, match="expected"):
         AlphaBeta(1e-3, **kwargs)
+
+
+def test_gains_per_channel_and_the_calibration_rule():
+    """Arrays of ``acceleration_std``/``noise_std`` (or of ``alpha``/``beta``) give every channel the tracker of its
+    own tracking index, bit for bit; the registered rule takes each channel's typical acceleration and noise."""
+    T = 1e-3
+    Y = np.cumsum(np.random.default_rng(1).standard_normal((500, 2)), axis=0) * 1e-3
+    both = AlphaBeta(T, [5.0, 500.0], [1e-4, 1e-3])
+    both.reset(Y[0])
+    joint = both.run(Y[1:])
+    for c, (acc, noise) in enumerate([(5.0, 1e-4), (500.0, 1e-3)]):
+        alone = AlphaBeta(T, acc, noise)
+        assert (alone.alpha, alone.beta) == (both.alpha[c], both.beta[c])
+        alone.reset(Y[0, c : c + 1])
+        np.testing.assert_array_equal(alone.run(Y[1:, c : c + 1])[:, 0], joint[:, c])
+    calibration = Calibration(T, {2: [40.0, 400.0]}, {2: [5.0, 500.0]}, [1e-4, 1e-3])
+    ruled = default_observer("alpha-beta", calibration)
+    np.testing.assert_allclose(ruled.alpha, both.alpha, rtol=1e-12)
+    with pytest.raises(ValueError, match="stable tracker"):
+        AlphaBeta(T, alpha=[0.5, 1.9], beta=[0.2, 0.5])

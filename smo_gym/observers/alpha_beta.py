@@ -22,12 +22,10 @@ References
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
-from .._validation import check_keywords, check_positive
+from .._validation import check_keywords, check_positive_parameter
 from . import _kernels
 from .base import Observer
 from .registry import register_observer
@@ -35,13 +33,14 @@ from .registry import register_observer
 __all__ = ["AlphaBeta", "alpha_beta_step", "tracking_index_gains"]
 
 
-def tracking_index_gains(tracking_index: float) -> tuple[float, float]:
-    r"""The steady-state gains ``(alpha, beta)`` of Kalata's tracking index :math:`\Lambda > 0` (module notes)."""
-    lam = check_positive("tracking_index", tracking_index)
+def tracking_index_gains(tracking_index):
+    r"""The steady-state gains ``(alpha, beta)`` of Kalata's tracking index :math:`\Lambda > 0` (module notes); a
+    float or an array of them (one per channel), and gains of the same shape."""
+    lam = check_positive_parameter("tracking_index", tracking_index)
     # Kalata's alpha = -(L^2 + 8L - (L + 4) r) / 8 and beta = (L^2 + 4L - L r) / 4 with r = sqrt(L^2 + 8L), written
     # with u = r - L = 8L / (r + L): the same values without the cancellation of the printed form (which loses
     # all digits for large L) and without overflowing L^2
-    root = lam * math.sqrt(1.0 + 8.0 / lam)
+    root = lam * np.sqrt(1.0 + 8.0 / lam)
     u = 8.0 * lam / (root + lam)
     return root * u / (2.0 * (root + lam)), lam * u / (root + lam)
 
@@ -74,9 +73,11 @@ def alpha_beta_rows(state, y, params, new_state, out, shared):
 
 
 def _tracking_index_rule(cls, calibration, order, kwargs):
-    r""":math:`\sigma_w` = the largest calibrated acceleration bound, :math:`\sigma_v` = the noise level."""
-    accel = float(np.max(calibration.bound(order)))
-    return cls(dt=calibration.dt, **{"acceleration_std": accel, "noise_std": calibration.noise_level, **kwargs})
+    r"""Per channel, :math:`\sigma_w` = the typical (RMS) acceleration and :math:`\sigma_v` = the noise level (floored
+    like every noise level a formula divides by): the model's white acceleration is a typical level, not a worst
+    case (which would make the tracker trust the samples about as much as a backward difference does)."""
+    noise = np.sqrt(calibration.measurement_variance)
+    return cls(dt=calibration.dt, **{"acceleration_std": calibration.rms(order), "noise_std": noise, **kwargs})
 
 
 _STEP = _kernels.register_step(alpha_beta_rows)
@@ -97,10 +98,10 @@ class AlphaBeta(Observer):
     ----------
     dt : float
         Sampling step ``T > 0``.
-    acceleration_std, noise_std : float, optional
+    acceleration_std, noise_std : float or array_like, optional
         :math:`\sigma_w` and :math:`\sigma_v`; the gains follow from :math:`\Lambda = \sigma_w T^2/\sigma_v`.
-        Required unless ``alpha`` and ``beta`` are given.
-    alpha, beta : float, optional
+        Required unless ``alpha`` and ``beta`` are given. Arrays are per channel (broadcast to the measurement).
+    alpha, beta : float or array_like, optional
         The gains themselves, inside the stability region :math:`0 < \alpha < 2`, :math:`0 < \beta < 4 - 2\alpha`.
     discretization : {"exact"}
         The tracker is a discrete-time filter.
@@ -114,11 +115,11 @@ class AlphaBeta(Observer):
     def __init__(
         self,
         dt: float,
-        acceleration_std: float | None = None,
-        noise_std: float | None = None,
+        acceleration_std=None,
+        noise_std=None,
         *,
-        alpha: float | None = None,
-        beta: float | None = None,
+        alpha=None,
+        beta=None,
         discretization: str | None = None,
         wrap=None,
     ):
@@ -129,19 +130,15 @@ class AlphaBeta(Observer):
                     "expected acceleration_std and noise_std, or alpha and beta, actual value: "
                     f"acceleration_std={acceleration_std!r}, noise_std={noise_std!r}"
                 )
-            lam = (
-                check_positive("acceleration_std", acceleration_std)
-                * self.dt**2
-                / check_positive("noise_std", noise_std)
-            )
-            alpha, beta = tracking_index_gains(lam)
+            accel = check_positive_parameter("acceleration_std", acceleration_std)
+            alpha, beta = tracking_index_gains(accel * self.dt**2 / check_positive_parameter("noise_std", noise_std))
         elif alpha is None or beta is None or acceleration_std is not None or noise_std is not None:
             raise ValueError(
                 f"expected both alpha and beta without acceleration_std and noise_std, actual value: alpha={alpha!r}, "
                 f"beta={beta!r}, acceleration_std={acceleration_std!r}, noise_std={noise_std!r}"
             )
-        self.alpha, self.beta = check_positive("alpha", alpha), check_positive("beta", beta)
-        if not (self.alpha < 2.0 and self.beta < 4.0 - 2.0 * self.alpha):
+        self.alpha, self.beta = check_positive_parameter("alpha", alpha), check_positive_parameter("beta", beta)
+        if not (np.all(self.alpha < 2.0) and np.all(self.beta < 4.0 - 2.0 * np.asarray(self.alpha))):
             raise ValueError(
                 f"expected 0 < alpha < 2 and 0 < beta < 4 - 2 alpha (a stable tracker), actual value: "
                 f"alpha={self.alpha!r}, beta={self.beta!r}"
@@ -152,4 +149,5 @@ class AlphaBeta(Observer):
         return _STEP.kernel
 
     def _channel_params(self, shape):
-        return np.tile([self.dt, self.alpha, self.beta], (int(np.prod(shape)), 1))
+        alpha, beta = self._per_channel("alpha", self.alpha, shape), self._per_channel("beta", self.beta, shape)
+        return np.column_stack([np.full(alpha.shape, self.dt), alpha, beta])
