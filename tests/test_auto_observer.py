@@ -254,8 +254,9 @@ def test_trials_choose_per_channel_and_the_choice_holds_on_new_data():
 
 def test_what_auto_measures_is_what_it_deploys():
     """A channel's trial error does not depend on which channels share its observer: the composite built for a
-    mixed choice (the high-gain filter on channels 0 and 2, the Kalman filter on 1, where the largest bound is)
-    reproduces on the trials, channel by channel, the errors the candidates had there on all channels."""
+    mixed choice (the low-power high-gain observer on channels 0 and 2, the Kalman filter on 1, which has the
+    largest bound) reproduces on the trials, channel by channel, the errors the candidates had there on all
+    channels."""
     rng = np.random.default_rng(3)
     t = np.arange(3000) * DT
     q = np.column_stack([np.sin(t), 0.3 * np.sin(7 * t), np.cos(2 * t)])
