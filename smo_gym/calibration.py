@@ -450,9 +450,14 @@ class Calibration:
         return float(max(np.mean(self.noise), NOISE_FLOOR))
 
     @property
+    def noise_levels(self) -> np.ndarray:
+        """The noise level per channel, floored at :data:`NOISE_FLOOR` (for gain formulas that divide by it)."""
+        return np.maximum(self.noise, NOISE_FLOOR)
+
+    @property
     def measurement_variance(self) -> np.ndarray:
         """Variance of the measurement error per channel, floored at ``NOISE_FLOOR**2``."""
-        return np.maximum(self.noise**2, NOISE_FLOOR**2)
+        return self.noise_levels**2
 
 
 def calibration_of_signal(

@@ -688,6 +688,18 @@ def monotone_root(fun, target, params, dt, a, b):
 
 
 @njit(cache=CACHE, error_model="numpy")
+def _newton_outputs(params, offset, x, m, out_row):
+    """``out_row = M x[:m]`` for the upper-triangular output matrix ``M`` (m, m) stored row by row in ``params`` from
+    ``offset`` (:func:`smo_gym.observers.differentiators.backward_difference_outputs`): the estimates of the implicit
+    steps, the derivatives at the sample time from the backward-Euler states."""
+    for i in range(m):
+        z = 0.0
+        for j in range(i, m):
+            z += params[offset + i * m + j] * x[j]
+        out_row[i] = z
+
+
+@njit(cache=CACHE, error_model="numpy")
 def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
     r"""One implicit (backward) Euler step of the filtering differentiator of degree ``d``
     (:class:`smo_gym.observers.FilteringDifferentiator`), in chain coordinates
@@ -741,11 +753,7 @@ def filtering_implicit_channel_step(x, y, params, m, n, x_new, out_row):
             psi = sign * params[2 + c] * s ** (1.0 + q * (c + 1)) if s > 0.0 else 0.0
         acc = dt * (psi + acc)
         x_new[_chain_column(c, m, nf)] += acc
-    for i in range(m):
-        z = 0.0
-        for j in range(i, m):
-            z += params[moff + i * m + j] * x_new[j]
-        out_row[i] = z
+    _newton_outputs(params, moff, x_new, m, out_row)
     return y - x[0]
 
 
@@ -843,11 +851,7 @@ def hosm_implicit_channel_step(x, y, params, m, x_new, out_row):
         x_new[c] += acc
     if stick:
         x_new[0] = y  # what the recursion gives up to rounding: sigma+ = 0 exactly
-    for i in range(m):
-        z = 0.0
-        for j in range(i, m):
-            z += params[moff + i * m + j] * x_new[j]
-        out_row[i] = z
+    _newton_outputs(params, moff, x_new, m, out_row)
     return rho
 
 

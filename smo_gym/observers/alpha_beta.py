@@ -76,8 +76,8 @@ def _tracking_index_rule(cls, calibration, order, kwargs):
     r"""Per channel, :math:`\sigma_w` = the typical (RMS) acceleration and :math:`\sigma_v` = the noise level (floored
     like every noise level a formula divides by): the model's white acceleration is a typical level, not a worst
     case (which would make the tracker trust the samples about as much as a backward difference does)."""
-    noise = np.sqrt(calibration.measurement_variance)
-    return cls(dt=calibration.dt, **{"acceleration_std": calibration.rms(order), "noise_std": noise, **kwargs})
+    levels = {"acceleration_std": calibration.rms(order), "noise_std": calibration.noise_levels}
+    return cls(dt=calibration.dt, **{**levels, **kwargs})
 
 
 _STEP = _kernels.register_step(alpha_beta_rows)

@@ -30,8 +30,8 @@ def _high_gain_rule(cls, calibration, order, kwargs):
     r""":meth:`HighGain.from_bounds` per channel, :math:`\ell = (L/\epsilon)^{1/n}` with each channel's bound and
     noise level (floored like every noise level a formula divides by)."""
     kw = dict(kwargs)
-    noise = np.sqrt(calibration.measurement_variance)
-    return cls.from_bounds(calibration.dt, calibration.bound(order), noise, order=kw.pop("order", 1), **kw)
+    bound, noise = calibration.bound(order), calibration.noise_levels
+    return cls.from_bounds(calibration.dt, bound, noise, order=kw.pop("order", 1), **kw)
 
 
 def _kalman_rule(cls, calibration, order, kwargs):

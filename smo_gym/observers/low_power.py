@@ -96,8 +96,7 @@ def _balanced_gain_rule(cls, calibration, order, kwargs):
     Per channel, so that a channel's estimate does not depend on which channels share the observer: what
     ``observer="auto"`` measures on its trials is what it deploys on any subset of the channels."""
     n = int(kwargs.get("order", 1)) + 1
-    noise = np.sqrt(calibration.measurement_variance)  # floored like every noise level a formula divides by
-    return cls(dt=calibration.dt, **kwargs, gain=(calibration.bound(order) / noise) ** (1.0 / n))
+    return cls(dt=calibration.dt, **kwargs, gain=(calibration.bound(order) / calibration.noise_levels) ** (1.0 / n))
 
 
 __all__ = ["LowPowerHighGain", "low_power_default_coefficients", "low_power_matrices", "polynomial_powers"]
