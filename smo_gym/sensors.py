@@ -86,7 +86,7 @@ _GAUSS, _UNIFORM, _QUANT, _BIAS, _DRIFT, _DELAY, _DROPOUT, _OUTLIER, _WRAP = ran
 # ----------------------------------------------------------------------------------------------------------------
 # compiled chain
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _chain_kernel(y, kinds, params, state, ring, ring_pos, rand, prime, out):
     """Apply the stages ``kinds`` to one sample ``y`` (N,), writing ``out`` (N,).
 

@@ -6,8 +6,8 @@ only a few microseconds of sensing, and each Python-level operation costs two to
 path is one compiled function per observer kernel that, for the ``T`` samples of a control period,
 
 1. runs the sensor chain (:func:`smo_gym.sensors._chain_block`, the call and random numbers of ``Sensor.run``),
-2. advances the observer (its own compiled kernel, the same one ``Observer.update`` calls), all or nothing:
-   the state is committed only if every sample passed,
+2. advances the observer (its own compiled step, with the checks of the batch kernel ``Observer.update``
+   calls), all or nothing: the state is committed only if every sample passed,
 3. writes the sensed state into the scratch ``MjData`` (measured or filtered ``qpos``, estimated ``qvel``) and
    the ``info["smo"]`` block (true ``qpos``, true ``qvel``, estimated ``qvel``, measured ``qpos``),
 4. and, where the observation is a clipped selection of ``qpos``/``qvel`` (probed by the adapter: Hopper,
@@ -33,7 +33,6 @@ Status codes of a driver: ``-1`` success; ``t * nv + j >= 0`` the sensor produce
 from __future__ import annotations
 
 import functools
-import inspect
 import math
 import operator
 from collections.abc import Callable, Mapping
@@ -97,8 +96,10 @@ _SLOT_ROW = {name: row for row, (name, _, _) in enumerate(TABLE_SLOTS)}
 _OBSERVER_STATE, _SENSOR_STATE = _SLOT_ROW["state"], _SLOT_ROW["sensor_state"]
 
 
-# the globals of the template below, bound per observer kernel and joint kind by cached_instance
-_KERNEL = None
+# the globals of the template below, bound per observer step and joint kind by cached_instance: the step's
+# rows function (called directly, not through its batch kernel: one compiled level less, whose LLVM optimization
+# of the observer's code a cold start would pay once more)
+_ROWS = None
 _MANIFOLD = False
 
 
@@ -163,9 +164,12 @@ def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
     status = _chain_block(block, kinds, sparams, sstate, ring, ring_pos, rand, t0, block, np.bool_(False))
     if status != -1:
         return status
+    K._check_rows(params, n, False)
     cur = 0
     for t in range(T):
-        status = _KERNEL(work[cur], Zm[t], params, work[1 - cur], est)
+        status = K._first_nonfinite(Zm[t])  # the batch kernel's checks, as Observer.update makes them
+        if status == -1:
+            status = _ROWS(work[cur], Zm[t], params, work[1 - cur], est, False)
         if status != -1:
             return -2 - (t * n + (-2 - status if status <= -2 else status))
         cur = 1 - cur
@@ -331,12 +335,12 @@ class _FusedDrivers(Mapping):
             from .. import sensors
             from . import tangent
 
-            deps = [inspect.getfile(step.rows.py_func), K.__file__, sensors.__file__, tangent.__file__]
+            deps = [*step.sources, K.__file__, sensors.__file__, tangent.__file__]
             options = dict(cache=True, error_model="numpy")
             driver = self._drivers[kernel] = FusedDriver(
-                flat=cached_instance(_sense_template, step.label, options, deps, _KERNEL=kernel, _MANIFOLD=False),
+                flat=cached_instance(_sense_template, step.label, options, deps, _ROWS=step.rows, _MANIFOLD=False),
                 manifold=cached_instance(
-                    _sense_template, step.label + ".manifold", options, deps, _KERNEL=kernel, _MANIFOLD=True
+                    _sense_template, step.label + ".manifold", options, deps, _ROWS=step.rows, _MANIFOLD=True
                 ),
             )
         return driver

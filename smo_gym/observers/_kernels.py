@@ -99,6 +99,7 @@ from __future__ import annotations
 
 import inspect
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -1212,6 +1213,9 @@ class Step:
         ``run_wrapped(state, Y, params, out, period)``: the same with :func:`unwrap_measurement` per sample.
     shared_run, shared_run_wrapped : numba dispatcher
         :attr:`run` and :attr:`run_wrapped` calling :attr:`shared_kernel` (one parameter row ``(1, P)``).
+    sources : tuple of str
+        The files whose code a compiled caller of :attr:`rows` contains (``rows``'s module, and those of the
+        functions it calls from other modules): a caller's cached code is dropped when one of them changes.
     """
 
     rows: Any
@@ -1221,6 +1225,7 @@ class Step:
     run_wrapped: Any
     shared_run: Any
     shared_run_wrapped: Any
+    sources: tuple = ()
 
     @property
     def label(self) -> str:
@@ -1234,7 +1239,7 @@ STEPS: dict = {}
 _DRIVERS: dict = {}
 
 
-def register_step(rows, *, allocates: bool = False) -> Step:
+def register_step(rows, *, allocates: bool = False, sources: Sequence[str] = ()) -> Step:
     """Generate and register the batch kernels and the offline drivers of a step (idempotent).
 
     ``rows`` is a module-level ``@njit(cache=True)`` function
@@ -1243,8 +1248,9 @@ def register_step(rows, *, allocates: bool = False) -> Step:
     process (:func:`smo_gym._numba_cache.cached_instance`), and its cache is dropped when ``rows``'s module
     changes. Observer families name the returned :attr:`Step.kernel` as their ``_kernel``;
     :func:`smo_gym.observers.registry.register_observer` registers the steps a family declares. ``allocates``:
-    ``rows`` creates arrays, so its batch kernels keep numba's reference counting (module notes). A :class:`Step` is
-    returned as it is.
+    ``rows`` creates arrays, so its batch kernels keep numba's reference counting (module notes). ``sources``: the
+    files of other modules whose functions ``rows`` calls (:attr:`Step.sources`). A :class:`Step` is returned as it
+    is.
     """
     if isinstance(rows, Step):
         return rows
@@ -1252,7 +1258,7 @@ def register_step(rows, *, allocates: bool = False) -> Step:
         if step.rows is rows:
             return step
     label = f"{rows.py_func.__module__}.{rows.py_func.__qualname__}"
-    deps = [inspect.getfile(rows.py_func)]
+    deps = sorted({inspect.getfile(rows.py_func), __file__, *sources})
     drop_stale([rows], [__file__])  # rows is cached in its own module and links this module's helpers
     options = dict(KERNEL, _nrt=True) if allocates and "_nrt" in KERNEL else KERNEL
     kernel = cached_instance(_batch_template, label, options, deps, _ROWS=rows, _SHARED=False)
@@ -1266,6 +1272,7 @@ def register_step(rows, *, allocates: bool = False) -> Step:
         run_wrapped=cached_instance(_run_wrapped_template, label, driver, deps, _KERNEL=kernel),
         shared_run=cached_instance(_run_template, label + ".shared", driver, deps, _KERNEL=shared),
         shared_run_wrapped=cached_instance(_run_wrapped_template, label + ".shared", driver, deps, _KERNEL=shared),
+        sources=tuple(deps),
     )
     STEPS[kernel] = step
     _DRIVERS[kernel] = (step.run, step.run_wrapped)

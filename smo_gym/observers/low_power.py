@@ -171,7 +171,7 @@ def low_power_matrices(n: int, ell: float, K, k_n: float) -> dict[str, np.ndarra
 # params row: [dt, Minv (N*N), b (N), Aimp (N*N), hFc (N*(n-1)), r (n-1), R (n*N)]
 # state row:  [s (N), innovation]
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=CACHE)
+@njit(cache=CACHE, inline="always")
 def solve_in_place(M, rhs):
     """Solve ``M s = rhs`` by Gaussian elimination with partial pivoting, overwriting both; ``rhs`` becomes ``s``.
 
@@ -200,7 +200,7 @@ def solve_in_place(M, rhs):
         rhs[k] = acc / M[k, k]
 
 
-@njit(cache=CACHE)
+@njit(cache=CACHE, inline="always")
 def low_power_channel_step(x, y, p, n, x_new, out_row):
     r"""Implicit Euler step :math:`(I - hF)s_k = s_{k-1} + hGy_k` with the saturations handled by active sets."""
     N = 2 * n - 1
