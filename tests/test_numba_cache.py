@@ -36,6 +36,25 @@ def test_the_fused_drivers_are_checked_against_their_dependencies():
             assert driver._cache._cache_file._index_path.endswith(".nbi")
 
 
+def test_a_composite_step_names_the_files_of_its_parts(monkeypatch):
+    """The composite's callers (batch kernels, the wrapper's driver) contain its parts' code: their cached code
+    must be checked against the parts' modules, not only the composite's."""
+    import inspect
+
+    from smo_gym import _numba_cache
+    from smo_gym.engine import fused as _fused
+    from smo_gym.observers import _kernels, composite, low_power
+
+    step = composite.composite_step([_kernels.kalman_ca, low_power.low_power])
+    expected = {inspect.getfile(composite), inspect.getfile(low_power), inspect.getfile(_kernels)}
+    assert expected <= set(step.sources)
+    checked = []
+    monkeypatch.setattr(_numba_cache, "drop_stale", lambda dispatchers, deps: checked.append(set(deps)))
+    monkeypatch.setattr(_fused.FUSED_DRIVERS, "_drivers", {})
+    _fused.FUSED_DRIVERS[step.kernel]  # builds the two drivers (compiled only when called)
+    assert len(checked) == 2 and all(expected <= deps for deps in checked)
+
+
 _TEMPLATE_MODULE = """
 from numba import njit
 from smo_gym._numba_cache import cached_instance
