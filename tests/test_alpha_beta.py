@@ -112,3 +112,44 @@ def test_gains_per_channel_and_the_calibration_rule():
     np.testing.assert_allclose(ruled.alpha, both.alpha, rtol=1e-12)
     with pytest.raises(ValueError, match="stable tracker"):
         AlphaBeta(T, alpha=[0.5, 1.9], beta=[0.2, 0.5])
+
+
+def _spectral_radius(alpha: float, beta: float, T: float = 1.0) -> float:
+    """The largest eigenvalue magnitude of the tracker's error dynamics ``(I - K c) F``, ``K = [alpha, beta/T]``."""
+    F = np.array([[1.0, T], [0.0, 1.0]])
+    K = np.array([[alpha], [beta / T]])
+    return float(np.max(np.abs(np.linalg.eigvals((np.eye(2) - K @ np.array([[1.0, 0.0]])) @ F))))
+
+
+def test_the_tracking_index_is_capped_where_the_poles_meet():
+    """Kalata's gains have their smallest spectral radius at the tracking index 8, a double pole at -(sqrt 2 - 1)^2;
+    above it the radius grows towards 1 (alpha -> 1, beta -> 2). The tracker takes larger indices as 8."""
+    from smo_gym.observers.alpha_beta import MAX_TRACKING_INDEX
+
+    indices = np.concatenate([np.geomspace(1e-2, 1e6, 400), [MAX_TRACKING_INDEX]])
+    radii = np.array([_spectral_radius(*tracking_index_gains(lam)) for lam in indices])
+    assert radii[-1] <= radii.min() + 1e-12
+    assert abs(radii[-1] - (np.sqrt(2.0) - 1.0) ** 2) < 1e-6  # a double eigenvalue: sqrt(eps) accuracy
+    assert radii[indices.argmax()] > 0.999  # uncapped, the tracker approaches the stability boundary
+    T = 0.01
+    capped = AlphaBeta(T, 100.0, 1e-9)  # an ideal sensor: the index is 1e7
+    assert (capped.alpha, capped.beta) == tracking_index_gains(MAX_TRACKING_INDEX)
+    below = AlphaBeta(T, 100.0, 100.0 * T**2 / 7.5)
+    np.testing.assert_allclose((below.alpha, below.beta), tracking_index_gains(7.5), rtol=1e-13)
+
+
+def test_an_ideal_sensor_on_a_semi_implicit_euler_trajectory_does_not_ring():
+    """A semi-implicit Euler trajectory (MuJoCo's default integrator) with impulsive accelerations, sampled
+    exactly: Kalata's uncapped gains (tracking index 3e6) ring on every impulse, the capped tracker settles."""
+    rng = np.random.default_rng(3)
+    T, n = 0.01, 3000
+    a = np.where(rng.random(n) < 0.02, rng.normal(0.0, 200.0, n), 0.0) + 5.0 * np.sin(3.0 * T * np.arange(n))
+    v = np.cumsum(T * a)
+    q = np.cumsum(T * v)  # the position moves by T v_k with the new velocity
+    sigma_w = float(np.sqrt(np.mean(a**2)))
+    alpha, beta = tracking_index_gains(sigma_w * T**2 / 1e-9)
+    errors = {}
+    for name, obs in (("capped", AlphaBeta(T, sigma_w, 1e-9)), ("uncapped", AlphaBeta(T, alpha=alpha, beta=beta))):
+        obs.reset(q[:1])
+        errors[name] = np.sqrt(np.mean((obs.run(q[1:, None])[100:, 0, 1] - v[101:]) ** 2))
+    assert errors["capped"] < 0.15 < 5.0 < errors["uncapped"]
