@@ -71,6 +71,7 @@ TOLERANCE = 0.02
 CANDIDATES: tuple[str, ...] = (
     "finite-difference",
     "kalman-ca",
+    "alpha-beta",
     "low-power-high-gain",
     "levant:discretization=implicit",
 )
