@@ -83,9 +83,15 @@ small:
   (``m = 2``, ``shared``) for that value, so the constants still unroll the loops. Inlining in numba's own IR
   (``inline="always"``) instead re-types the callee at every call site: with the ``m`` variants and the driver's
   two call sites that took 67 s for the eigenvalue-map driver from an empty cache (0.7 s now) and half of a cold
-  test run, at no measured gain per ``update``, offline or in ``scripts/bench_wrapper.py``. Only functions that
-  take a function as an argument (the drivers' time loops, :func:`_chain_loop`, :func:`monotone_root`) are inlined
-  in numba's IR: a compiled function with a function argument cannot be cached.
+  test run, at no measured gain per ``update``, offline or in ``scripts/bench_wrapper.py``. Functions that take a
+  function as an argument (the drivers' time loops, :func:`_chain_loop`, :func:`monotone_root`) are inlined in
+  numba's IR: a compiled function with a function argument cannot be cached. Linking has its own cost: LLVM
+  optimizes and emits a linked function again inside every caller, so each level of a call chain pays for all the
+  code below it. A function with a single call site whose standalone compilation buys nothing is therefore
+  inlined in numba's IR too: the composite step of :class:`~smo_gym.observers.PerChannel` (into its batch kernels
+  and the wrapper's driver, which calls a step's ``rows`` directly rather than its batch kernel), the low-power
+  observer's channel step and its solver, the sensor chain's per-sample kernel (a cold start of the default
+  wrapper: 13.4 to about 10 s, ``scripts/bench_coldstart.py``).
 * ``error_model="numpy"`` (no zero-division checks: every divisor is positive for valid parameters; a
   non-finite result still ends as status ``-2 - i``), and ``_flat`` reshapes only measurements with batch
   dimensions (a 1-D ``y`` passes through untouched).
