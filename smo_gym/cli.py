@@ -20,7 +20,9 @@ from ._extras import MissingExtraError, require
 
 __all__ = ["DEFAULT_OBSERVERS", "HelpFormatter", "build_parser", "check_env_id", "check_output_file", "main"]
 
-DEFAULT_OBSERVERS = "auto,super-twisting,levant:discretization=implicit,low-power-high-gain,kalman-ca,finite-difference"
+DEFAULT_OBSERVERS = (
+    "auto,super-twisting,levant:discretization=implicit,low-power-high-gain,alpha-beta,kalman-ca,finite-difference"
+)
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
