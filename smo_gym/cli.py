@@ -180,7 +180,7 @@ def check_output_file(path: str) -> Path:
 
 def compare(args: argparse.Namespace) -> int:
     from .experiments import compare as lib
-    from .specs import make_sensor, parse_observer_spec
+    from .specs import make_sensor
 
     # every argument is checked before the rollout
     if args.steps < 1:
@@ -192,8 +192,7 @@ def compare(args: argparse.Namespace) -> int:
     observers = [name.strip() for name in args.observers.split(",") if name.strip()]
     if not observers:
         raise ValueError(f"expected at least one observer in --observers, actual value: {args.observers!r}")
-    for spec in observers:
-        parse_observer_spec(spec)
+    lib.parse_observer_specs(observers)
     check_output_file(args.out)
     joints = [j.strip() for j in args.joints.split(",") if j.strip()]
     if joints:

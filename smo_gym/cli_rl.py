@@ -16,7 +16,8 @@ _SENSINGS_HELP = (
     "--observer),\n  finite-difference (measured positions, backward differences), no-velocity "
     "(measured positions,\n  velocity entries zeroed), stacked-positions (measured positions of the "
     "last two steps, no velocities).\n  --sensor and --rate act under every sensing but true; "
-    "--observer only under estimated."
+    "--observer only under estimated.\n  Model-based observers take their model's settings, e.g. "
+    "mechanical-super-twisting:mass_scale=1.1,\n  and auto:model=true:mass_scale=1.1 adds one as a candidate."
 )
 
 _ZOO_HELP = """--hyperparams FILE reads rl-zoo3's yaml format: the entry of --env, e.g.

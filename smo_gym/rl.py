@@ -39,6 +39,7 @@ import numpy as np
 
 from ._extras import require
 from .envs import make as make_by_id
+from .observers import MODEL_BASED_OBSERVERS
 from .specs import make_sensor, parse_observer_spec
 
 __all__ = [
@@ -206,14 +207,16 @@ def make_vec(
     With ``rate="env"``, an estimating sensing (``"estimated"``, ``"finite-difference"``) and a ``Box`` observation
     the observers run batched in :class:`~smo_gym.wrappers.VecEstimatedVelocity` (``vectorized=None`` or
     ``True``); otherwise one :class:`~smo_gym.wrappers.EstimatedVelocity` per environment. Both give the same
-    observations.
+    observations. Model-based observers (and ``"auto"`` with a model) run per environment.
     """
     make_vec_env = require("stable_baselines3.common.env_util", "rl").make_vec_env
 
     _check_sensing(sensing)
     explicit = vectorized
-    if vectorized is None:
-        vectorized = rate == "env" and sensing in ("estimated", "finite-difference")
+    if vectorized is None:  # a model-based observer needs its environment's control input: per environment
+        name, kwargs = _observer(sensing, observer, observer_kwargs)
+        model_based = name in MODEL_BASED_OBSERVERS or bool((kwargs or {}).get("model"))
+        vectorized = rate == "env" and sensing in ("estimated", "finite-difference") and not model_based
     if vectorized:
         if sensing not in ("estimated", "finite-difference"):
             raise ValueError(

@@ -342,13 +342,23 @@ def select(
 
 
 def _check_kwargs(observer_kwargs) -> dict:
-    """The constructor arguments every candidate gets: ``wrap`` only (each candidate's gains are its own)."""
+    """The constructor arguments every candidate gets: ``wrap`` only (each candidate's gains are its own;
+    ``model=False``, no model-based candidate, is dropped)."""
     kwargs = dict(observer_kwargs or {})
+    if "model" in kwargs and not kwargs["model"]:
+        del kwargs["model"]
     unknown = sorted(set(kwargs) - {"wrap"})
     if unknown:
+        model = {"model", "mass_scale", "contact"} & set(unknown)
+        hint = (
+            "mass_scale and contact are the settings of a model-based candidate's model, which "
+            "EstimatedVelocity(..., observer_kwargs={'model': True, ...}) adds"
+            if model
+            else "name an observer to set its gains"
+        )
         raise ValueError(
             "expected no observer parameters but wrap for observer='auto', which calibrates the gains of each "
-            f"candidate (name an observer to set its gains), actual value: {unknown}"
+            f"candidate ({hint}), actual value: {unknown}"
         )
     return kwargs
 

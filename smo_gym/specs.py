@@ -6,6 +6,12 @@ One syntax for both, shared by ``smo-gym compare``, ``train`` and ``evaluate`` a
 ``levant:order=1:discretization=matching``
     an observer of :data:`smo_gym.observers.OBSERVERS` with constructor options (gains not given are calibrated
     by the wrapper, :func:`smo_gym.calibration.default_observer`);
+``mechanical-super-twisting:mass_scale=1.1``
+    a model-based observer of :data:`smo_gym.observers.MODEL_BASED_OBSERVERS` with constructor options and the
+    settings of its private model (:data:`MODEL_OPTIONS`), for :class:`smo_gym.wrappers.EstimatedVelocity`;
+``auto:model=true:mass_scale=1.1``
+    the automatic choice, with a model-based observer as one more candidate (``model``: ``true`` or a model-based
+    name) and the settings of its model;
 ``encoder-12bit-noisy``
     a sensor preset of :data:`smo_gym.sensors.PRESETS` (presets take no options);
 ``encoder:counts_per_revolution=4096:noise_std=1e-3``
@@ -26,9 +32,17 @@ import re
 
 from . import sensors
 from ._validation import did_you_mean
-from .observers import FAMILIES, OBSERVERS
+from .observers import FAMILIES, MODEL_BASED_OBSERVERS, OBSERVERS
 
-__all__ = ["SENSOR_MODELS", "make_sensor", "parse_observer_spec", "parse_spec", "parse_value", "sensor_names"]
+__all__ = [
+    "MODEL_OPTIONS",
+    "SENSOR_MODELS",
+    "make_sensor",
+    "parse_observer_spec",
+    "parse_spec",
+    "parse_value",
+    "sensor_names",
+]
 
 #: spec name -> sensor model class (the stages of :mod:`smo_gym.sensors` and the encoder)
 SENSOR_MODELS: dict[str, type[sensors.Sensor]] = {
@@ -112,12 +126,27 @@ def _check_keys(kind: str, name: str, kwargs: dict, valid: list[str], spec: str)
             )
 
 
+#: the settings of a model-based observer's private model of the environment (``mass_scale``: every mass and
+#: inertia scaled, a model mismatch; ``contact``: ``"unknown"`` or ``"measured"``), as
+#: :func:`smo_gym.wrappers.model_based.model_based_observer` reads them
+MODEL_OPTIONS = ("mass_scale", "contact")
+
+
 def observer_options(name: str) -> list[str]:
     """The options an observer spec may set: the parameters its family registers
     (:attr:`Family.parameters <smo_gym.observers.Family.parameters>`: the constructor's, ``dt`` excepted since the
-    rate sets it); ``"auto"`` (:mod:`smo_gym.selection`) takes none."""
-    _check_name("an observer name", name, ["auto", *OBSERVERS])
-    return [] if name == "auto" else list(FAMILIES[name].parameters)
+    rate sets it); for a model-based observer ``lipschitz`` (the bound of its model miss, which the dissipative
+    observer's gains are designed from), its constructor's other scalar options and :data:`MODEL_OPTIONS` (the
+    dynamics are built from the environment); for ``"auto"`` (:mod:`smo_gym.selection`) ``model`` (a model-based
+    candidate: ``true`` or its name) and :data:`MODEL_OPTIONS`."""
+    _check_name("an observer name", name, ["auto", *OBSERVERS, *MODEL_BASED_OBSERVERS])
+    if name == "auto":
+        return ["model", *MODEL_OPTIONS]
+    if name in MODEL_BASED_OBSERVERS:
+        built = ("self", "dt", "dynamics", "transform", "gains")  # from the environment's model
+        options = _options([MODEL_BASED_OBSERVERS[name]], skip=built)
+        return [*dict.fromkeys(["lipschitz", *options]), *MODEL_OPTIONS]
+    return list(FAMILIES[name].parameters)
 
 
 def parse_observer_spec(spec: str) -> tuple[str, dict]:

@@ -277,3 +277,27 @@ def test_auto_keeps_the_model_free_choice_when_the_model_loses():
 def test_auto_refuses_an_unknown_model():
     with pytest.raises(ValueError, match="expected observer in mechanical-super-twisting"):
         wrappers.EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), observer_kwargs={"model": "kalman-ca"})
+
+
+def test_auto_without_a_model_refuses_model_settings_and_takes_model_false():
+    with pytest.raises(ValueError, match=r"settings of a model-based candidate's model.*\['mass_scale'\]"):
+        wrappers.EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), observer_kwargs={"mass_scale": 1.1})
+    env = wrappers.EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), observer_kwargs={"model": False})
+    assert "mechanical-super-twisting" not in env.observer.selection.candidates
+
+
+def test_model_based_specs_train_through_smo_gym_rl():
+    """The spec syntax of ``smo-gym train --observer`` reaches the model-based observers and auto's model: the same
+    observers as the keyword arguments, and per-environment wrappers (the vector wrappers have no control input)
+    even at the environment rate."""
+    from smo_gym import rl
+
+    env = rl.make_env("InvertedDoublePendulum-v5", observer="mechanical-super-twisting:mass_scale=1.1")
+    assert isinstance(env.observer, MechanicalSuperTwisting)
+    assert env.observer.dynamics.mass_scale == pytest.approx(1.1)
+    venv = rl.make_vec("InvertedDoublePendulum-v5", observer="auto:model=true:mass_scale=1.1", rate="env", n_envs=2)
+    assert not isinstance(venv, wrappers.VecEstimatedVelocity)
+    (observer,) = set(map(type, venv.get_attr("observer")))
+    assert observer is MechanicalSuperTwisting  # at 50 ms too the heavier model beats the model-free candidates
+    assert venv.reset().shape == (2, 9)
+    venv.close()

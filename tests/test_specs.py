@@ -82,3 +82,28 @@ def test_sensor_spec_errors_name_what_was_expected():
         specs.make_sensor("delay")
     with pytest.raises(ValueError, match="probability"):  # the model's own check of the value
         specs.make_sensor("dropout:probability=2")
+
+
+def test_model_based_observer_specs_and_autos_model_options():
+    assert specs.parse_observer_spec("mechanical-super-twisting:mass_scale=1.1:contact=measured") == (
+        "mechanical-super-twisting",
+        {"mass_scale": 1.1, "contact": "measured"},
+    )
+    assert specs.parse_observer_spec("dissipative-super-twisting:lipschitz=50") == (
+        "dissipative-super-twisting",
+        {"lipschitz": 50},
+    )
+    assert specs.parse_observer_spec("auto:model=true:mass_scale=0.9") == ("auto", {"model": True, "mass_scale": 0.9})
+    with pytest.raises(ValueError, match="options of observer 'auto' in model, mass_scale, contact"):
+        specs.parse_observer_spec("auto:order=2")  # auto calibrates each candidate's gains itself
+    with pytest.raises(ValueError, match="options of observer 'dissipative-super-twisting'"):
+        specs.parse_observer_spec("dissipative-super-twisting:k1=2")  # its gains come from the design lemma
+
+
+def test_compare_takes_model_free_observers_only():
+    from smo_gym.experiments.compare import parse_observer_specs
+
+    assert parse_observer_specs(["auto", "levant:order=1"])["levant:order=1"] == ("levant", {"order": 1})
+    for spec in ("mechanical-super-twisting", "auto:model=true"):
+        with pytest.raises(ValueError, match=f"expected model-free observers.*'{spec}'"):
+            parse_observer_specs([spec])

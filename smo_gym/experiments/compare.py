@@ -38,6 +38,7 @@ from .. import _extras as extras
 from .._validation import DivergenceError
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs, mean_velocity_span
 from ..envs import make as make_by_id
+from ..observers import MODEL_BASED_OBSERVERS
 from ..specs import make_sensor, parse_observer_spec
 from ..wrappers.adapters import make_adapter
 from ..wrappers.estimated_velocity import calibrated_observer, resolve_rate
@@ -51,6 +52,7 @@ __all__ = [
     "env_dof_names",
     "estimate_errors",
     "format_table",
+    "parse_observer_specs",
     "plot_velocities",
     "record_rollout",
     "resolve_joints",
@@ -221,6 +223,26 @@ DEFAULT_OBSERVERS = (
 )
 
 
+def parse_observer_specs(observers) -> dict[str, tuple[str, dict]]:
+    """``{spec: (name, options)}`` of model-free observer specs (:func:`smo_gym.specs.parse_observer_spec`).
+
+    Raises
+    ------
+    ValueError
+        A spec is not valid, or names a model-based observer (or ``auto`` with a model): those need the control
+        input at every sample, which a recording does not replay; they run in
+        :class:`~smo_gym.wrappers.EstimatedVelocity`.
+    """
+    specs = {spec: parse_observer_spec(spec) for spec in observers}
+    for spec, (name, kw) in specs.items():
+        if name in MODEL_BASED_OBSERVERS or kw.get("model"):
+            raise ValueError(
+                "expected model-free observers (they run on the recorded measurements, without the control input "
+                f"a model-based observer needs; run that one in EstimatedVelocity), actual value: {spec!r}"
+            )
+    return specs
+
+
 def compare_observers(
     rec: Recording,
     observers=DEFAULT_OBSERVERS,
@@ -231,11 +253,12 @@ def compare_observers(
 ) -> list[ObserverResult]:
     """Run every observer on the recorded measurements.
 
-    ``observers`` are names or specs ``"name:key=value:..."`` (:func:`smo_gym.specs.parse_observer_spec`);
+    ``observers`` are names or specs ``"name:key=value:..."`` of model-free observers
+    (:func:`parse_observer_specs`);
     ``observer_kwargs`` maps a spec to further overrides. The reported name is the spec.
     """
     names = list(observers)
-    specs = {spec: parse_observer_spec(spec) for spec in names}
+    specs = parse_observer_specs(names)
     ctx = rec.context
     starts = list(rec.episode_starts) + [len(rec.z_measured)]
     results = []
