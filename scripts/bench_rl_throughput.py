@@ -1,19 +1,19 @@
 """Training throughput with and without the sensing wrappers, side by side (interleaved rounds, medians).
 
-For each environment, PPO models are built once per configuration (same hyperparameters as
-``scripts/rl_benchmark.py``: 4 environments, 512 steps each per rollout, minibatches of 256, VecNormalize), the
-wrappers with the observer ``--observer`` (default ``auto``, the wrappers' own default):
+For each environment and PPO setting (:data:`SETTINGS`, all with VecNormalize), PPO models are built once per
+configuration, the wrappers with the observer ``--observer`` (default ``auto``, the wrappers' own default):
 
     unwrapped          the environment's true observation
     per-env physics    EstimatedVelocity(rate="physics") in every environment (the default sensing)
     per-env env        EstimatedVelocity(rate="env")
-    vec env            VecEstimatedVelocity (one batched observer call for the 4 environments, rate="env")
+    vec env            VecEstimatedVelocity (one batched observer call for all environments, rate="env")
 
-then trained in interleaved rounds of one rollout + update each (``--rounds``), so that load changes on a shared
-machine hit every configuration alike; the table gives the median env steps/s and its ratio to the unwrapped
-median (acceptance: >= 0.90). A second table times bare vector-env steps (no learning) with ``SubprocVecEnv``:
-per-environment wrappers inside the workers against ``VecEstimatedVelocity`` on top of the workers (which costs
-one extra parallel round trip per step to rebuild the observations where the MuJoCo state is).
+then trained in interleaved rounds of rollouts + updates of at least 2048 environment steps each (``--rounds``),
+so that load changes on a shared machine hit every configuration alike; the table gives the median env steps/s
+and its ratio to the unwrapped median (acceptance: >= 0.90). A second table times bare vector-env steps (no
+learning) with ``SubprocVecEnv``: per-environment wrappers inside the workers against ``VecEstimatedVelocity`` on
+top of the workers (which costs one extra parallel round trip per step to rebuild the observations where the MuJoCo
+state is).
 
 A third table (``--tables in-process``) times bare in-process vector-env steps (no learning) for both vector
 APIs, ``gymnasium.vector.SyncVectorEnv`` and SB3's ``DummyVecEnv``, with ``--n-envs`` environments each:
@@ -39,6 +39,7 @@ import gc
 import os
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -86,12 +87,29 @@ def _venv(env_id: str, kind: str, n_envs: int, subproc: bool = False, observer: 
 KINDS = ("unwrapped", "per-env physics", "per-env env", "vec env")
 
 
-#: PPO settings: the RL benchmark's (4 envs, large minibatches: little learning cost per step, so the environment
-#: and the wrapper weigh the most) and SB3's defaults (1 env, 2048 steps, minibatches of 64, 10 epochs)
+#: PPO settings: ``large-batch`` (4 envs, minibatches of 256: little learning cost per environment step, so the
+#: environment and the wrapper weigh the most), SB3's defaults (1 env, 2048 steps, minibatches of 64, 10 epochs)
+#: and ``rl-zoo3``, the tuned hyperparameters ``scripts/rl_benchmark.py`` trains with (its ``ZOO``, per environment)
 SETTINGS = {
-    "rl_benchmark": dict(n_envs=4, n_steps=512, batch_size=256),
+    "large-batch": dict(n_envs=4, n_steps=512, batch_size=256),
     "sb3-default": dict(n_envs=1, n_steps=2048, batch_size=64),
+    "rl-zoo3": None,
 }
+#: environment steps per timed round, at least (whole rollouts)
+ROUND_STEPS = 2048
+
+
+def _setting(env_id: str, setting: str) -> tuple[int, dict]:
+    """``(n_envs, PPO keyword arguments)`` of a :data:`SETTINGS` entry for ``env_id``."""
+    if SETTINGS[setting] is not None:
+        cfg = dict(SETTINGS[setting])
+        return cfg.pop("n_envs"), cfg
+    from rl_benchmark import ZOO  # the sibling script (this script's folder is first on sys.path)
+
+    from smo_gym.rl import algo_kwargs
+
+    zoo = ZOO[(env_id, "PPO")]
+    return zoo["n_envs"], algo_kwargs("PPO", zoo["hyperparams"])
 
 
 def training(
@@ -103,13 +121,15 @@ def training(
     from stable_baselines3.common.vec_env import VecNormalize
 
     torch.set_num_threads(1)
-    cfg = dict(SETTINGS[setting])
-    n_envs = cfg.pop("n_envs")
-    models = {
-        k: PPO("MlpPolicy", VecNormalize(_venv(env_id, k, n_envs, observer=observer)), seed=0, device="cpu", **cfg)
-        for k in KINDS
-    }
-    per_round = cfg["n_steps"] * n_envs
+    n_envs, cfg = _setting(env_id, setting)
+    with warnings.catch_warnings():  # rl-zoo3's InvertedDoublePendulum minibatch is larger than its rollout
+        warnings.filterwarnings("ignore", message=".*mini-batch size.*")
+        models = {
+            k: PPO("MlpPolicy", VecNormalize(_venv(env_id, k, n_envs, observer=observer)), seed=0, device="cpu", **cfg)
+            for k in KINDS
+        }
+    rollout = cfg["n_steps"] * n_envs
+    per_round = rollout * -(-ROUND_STEPS // rollout)
     for m in models.values():  # warm-up: compilation, calibration caches, first allocations
         m.learn(per_round)
     wall: dict[str, list[float]] = {k: [] for k in KINDS}

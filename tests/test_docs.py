@@ -158,7 +158,7 @@ def test_benchmark_pages_are_built_from_the_results_files(site):
     rl = (site / "benchmarks" / "rl" / "index.html").read_text()
     # summary.csv: 751.0, 166.4, 590.3, 922.5 at 120k steps
     assert "751 +- 166 [590, 922] (3)" in rl and "true -&gt; auto" in rl
-    assert "InvertedDoublePendulum-v5  rl_benchmark  unwrapped" in rl  # throughput.txt, verbatim
+    assert "InvertedDoublePendulum-v5  large-batch   unwrapped" in rl  # throughput.txt, verbatim
     assert (site / "results" / "rl_benchmark" / "rl_benchmark.png").is_file()
     for html in site.rglob("*.html"):
         assert "<!-- results-" not in html.read_text()
