@@ -17,9 +17,13 @@ frozen at :math:`\sigma`, sit at :math:`s(\sigma) = -r|\sigma|^q`, :math:`q = d/
 Levant & Livne's filtering differentiator (Levant's differentiator for :math:`n_f = 0`), exact on signals with
 :math:`|f^{(n+1)}| \le L` after a finite time, with gains from :math:`(s + r)^N`; for ``d = 0`` the linear
 high-gain observer with all poles at :math:`-r`. The filter states integrate the error :math:`n_f` times, so that
-noise of small local average is rejected (Levant & Livne: accuracy :math:`O(\varepsilon^{(n_f+n+1-i)/(n_f+n+1)})`
-in :math:`z_i` under noise of magnitude :math:`\varepsilon` for ``d = -1``, and the filtering is effective even
-for large noise of small average).
+noise of small local average is rejected. Accuracy for ``d = -1``, by the homogeneity argument of Levant (2003)
+as Levant & Livne use it (weights ``n + 1 - i`` for :math:`z_i - f^{(i)}`, ``n + 1 + k`` for the k-th filter state
+from the input): noise bounded by :math:`\varepsilon` gives :math:`O(\varepsilon^{(n+1-i)/(n+1)})` in
+:math:`z_i`, as without filter; noise whose :math:`n_f`-th integral is bounded by :math:`\varepsilon` gives
+:math:`O(\varepsilon^{(n+1-i)/(n+n_f+1)})`; i.i.d. sampled noise of amplitude :math:`\varepsilon` (integrals that
+are random walks) gives a velocity error :math:`O(\varepsilon^{n/(n+3/2)}\tau^{n/(2n+3)})` for every
+:math:`n_f \ge 1`, which ``tests/test_filtering_differentiator.py`` derives and measures.
 
 Discretizations
 ---------------
