@@ -46,7 +46,7 @@ from .calibration import Calibration, bound_order, default_observer
 from .observers import Observer
 from .observers.base import reported_coefficients, reported_velocity
 from .observers.composite import PerChannel
-from .specs import parse_observer_spec
+from .specs import MODEL_OPTIONS, parse_observer_spec
 
 __all__ = [
     "CANDIDATES",
@@ -349,7 +349,7 @@ def _check_kwargs(observer_kwargs) -> dict:
         del kwargs["model"]
     unknown = sorted(set(kwargs) - {"wrap"})
     if unknown:
-        model = {"model", "mass_scale", "contact"} & set(unknown)
+        model = {"model", *MODEL_OPTIONS} & set(unknown)
         hint = (
             "mass_scale and contact are the settings of a model-based candidate's model, which "
             "EstimatedVelocity(..., observer_kwargs={'model': True, ...}) adds"
