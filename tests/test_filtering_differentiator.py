@@ -148,10 +148,10 @@ def test_white_noise_accuracy_exponent_and_step(order, filtering_order):
     :math:`\rho \propto (\varepsilon\sqrt\tau/L)^{1/(n + 3/2)}` (the k-th integral, of size
     :math:`\varepsilon\sqrt\tau\rho^{k - 1/2}` and weight ``n + 1 + k``, gives the same :math:`\rho`), and the
     velocity error :math:`L\rho^{n}` follows. Both scales bound the error; this one is the smaller whenever
-    :math:`\varepsilon > L\tau^{n+1}`, the size of the sampling error itself. Measured slopes in :math:`\varepsilon` at 0.1 ms:
-    0.397 (n = 1), 0.569 and 0.566 (n = 2, ``n_f`` = 1 and 2), 0.659 (n = 3) against 0.400, 0.571, 0.667, and for
-    Levant 0.494, 0.659, 0.723 against 0.5, 0.667, 0.75; ratio of the errors at 1 ms and at 0.1 ms: 1.59, 1.97,
-    1.95, 2.01 against 1.58, 1.93, 1.93, 2.15, and 1.01-1.03 for Levant.
+    :math:`\varepsilon > L\tau^{n+1}`, the size of the sampling error itself. Measured slopes in
+    :math:`\varepsilon` at 0.1 ms: 0.397 (n = 1), 0.569 and 0.566 (n = 2, ``n_f`` = 1 and 2), 0.659 (n = 3)
+    against 0.400, 0.571, 0.667, and for Levant 0.494, 0.659, 0.723 against 0.5, 0.667, 0.75; ratio of the errors
+    at 1 ms and at 0.1 ms: 1.59, 1.97, 1.95, 2.01 against 1.58, 1.93, 1.93, 2.15, and 1.01-1.03 for Levant.
     """
     eps = np.array([1e-5, 1e-4, 1e-3, 1e-2])
     L = 1 + 0.5 * 2 ** (order + 1)  # the bound of the (n + 1)-th derivative of the sines
