@@ -69,6 +69,10 @@ def test_every_sensing_is_one_of_smo_gym_rl(bench):
     rl = pytest.importorskip("smo_gym.rl")
     assert set(bench.RL_SENSING) == set(bench.SENSINGS)
     assert {s for s, _ in bench.RL_SENSING.values()} <= set(rl.SENSINGS)
+    from smo_gym.specs import parse_observer_spec
+
+    for _sensing, observer in bench.RL_SENSING.values():  # auto-model's spec names auto's model options
+        parse_observer_spec(observer)
 
 
 def test_zoo_hyperparameters_are_arguments_of_the_algorithms(bench):
