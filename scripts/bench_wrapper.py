@@ -186,6 +186,8 @@ def ablations(env_id: str, rate: str, observer: str = "super-twisting") -> dict:
     full, no_scratch, no_observe, no_sensing = wrapped(), wrapped(), wrapped(), wrapped()
     const = np.array(full.observation_space.sample(), dtype=np.float64)
     for env in (no_scratch, no_observe, no_sensing):
+        if env._fused.maps_observation:  # the full path runs no Python finiteness check: nor do the ablations
+            env._fused.evaluation.checks_observation = True
         env._fused.evaluation.observe_scratch = lambda *args, c=const: c  # what _observe_fused calls
         env._fused.maps_observation = False  # a selection built by the compiled call is switched off here too
 
