@@ -192,6 +192,9 @@ def test_the_vector_wrappers_refuse_a_model_based_name():
     envs = gym.make_vec("smo_gym/TwoLinkArm-v0", num_envs=2, vectorization_mode="sync")
     with pytest.raises(ValueError, match="expected a model-free observer"):
         wrappers.VectorEstimatedVelocity(envs, observer="mechanical-super-twisting")
+    # auto with a model would choose the model-based observer and then run it without the actions
+    with pytest.raises(ValueError, match="actual value: 'auto' with a model"):
+        wrappers.VectorEstimatedVelocity(envs, observer_kwargs={"model": True, "mass_scale": 1.1})
     envs.close()
 
 
@@ -228,6 +231,8 @@ def test_the_sb3_vector_wrapper_refuses_a_model_based_name():
     venv = env_util.make_vec_env("smo_gym/TwoLinkArm-v0", n_envs=2)
     with pytest.raises(ValueError, match="expected a model-free observer"):
         wrappers.VecEstimatedVelocity(venv, observer="mechanical-super-twisting")
+    with pytest.raises(ValueError, match="actual value: 'auto' with a model"):
+        wrappers.VecEstimatedVelocity(venv, observer_kwargs={"model": True})
     venv.close()
 
 

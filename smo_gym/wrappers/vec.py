@@ -141,11 +141,12 @@ class JointSensor(EstimatedVelocity):
         **kwargs,
     ):
         check_vector_rate(rate)
-        if isinstance(observer, str) and observer in MODEL_BASED_OBSERVERS:  # one batched update has no actions
+        model = isinstance(observer, str) and observer == "auto" and bool((observer_kwargs or {}).get("model"))
+        if isinstance(observer, str) and (observer in MODEL_BASED_OBSERVERS or model):  # a batched update: no u
             raise ValueError(
-                f"expected a model-free observer for a vector wrapper, actual value: {observer!r}; wrap each "
-                f"environment instead: gymnasium.make_vec(id, wrappers=[functools.partial(EstimatedVelocity, "
-                f"observer={observer!r})])"
+                f"expected a model-free observer for a vector wrapper, actual value: {observer!r}"
+                f"{' with a model' if model else ''}; wrap each environment instead: gymnasium.make_vec(id, "
+                f"wrappers=[functools.partial(EstimatedVelocity, observer={observer!r}, observer_kwargs=...)])"
             )
         super().__init__(env, sensor, observer, "env", observer_kwargs, **kwargs)
         self.config = sensing_config(sensor, observer, observer_kwargs, **kwargs)
