@@ -351,8 +351,8 @@ def _check_kwargs(observer_kwargs) -> dict:
     if unknown:
         model = {"model", *MODEL_OPTIONS} & set(unknown)
         hint = (
-            "mass_scale and contact are the settings of a model-based candidate's model, which "
-            "EstimatedVelocity(..., observer_kwargs={'model': True, ...}) adds"
+            "model, mass_scale and contact describe a model-based candidate, which needs an environment: "
+            "EstimatedVelocity(env, observer_kwargs={'model': True, ...})"
             if model
             else "name an observer to set its gains"
         )

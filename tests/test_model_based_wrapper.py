@@ -285,7 +285,9 @@ def test_auto_refuses_an_unknown_model():
 
 
 def test_auto_without_a_model_refuses_model_settings_and_takes_model_false():
-    with pytest.raises(ValueError, match=r"settings of a model-based candidate's model.*\['mass_scale'\]"):
+    with pytest.raises(
+        ValueError, match=r"describe a model-based candidate, which needs an environment.*\['mass_scale'\]"
+    ):
         wrappers.EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), observer_kwargs={"mass_scale": 1.1})
     env = wrappers.EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), observer_kwargs={"model": False})
     assert "mechanical-super-twisting" not in env.observer.selection.candidates
