@@ -39,8 +39,7 @@ import numpy as np
 
 from ._extras import require
 from .envs import make as make_by_id
-from .observers import MODEL_BASED_OBSERVERS
-from .specs import make_sensor, parse_observer_spec
+from .specs import make_sensor, needs_model, parse_observer_spec
 
 __all__ = [
     "ALGOS",
@@ -214,8 +213,7 @@ def make_vec(
     _check_sensing(sensing)
     explicit = vectorized
     if vectorized is None:  # a model-based observer needs its environment's control input: per environment
-        name, kwargs = _observer(sensing, observer, observer_kwargs)
-        model_based = name in MODEL_BASED_OBSERVERS or bool((kwargs or {}).get("model"))
+        model_based = needs_model(*_observer(sensing, observer, observer_kwargs))
         vectorized = rate == "env" and sensing in ("estimated", "finite-difference") and not model_based
     if vectorized:
         if sensing not in ("estimated", "finite-difference"):

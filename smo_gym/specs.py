@@ -38,6 +38,7 @@ __all__ = [
     "MODEL_OPTIONS",
     "SENSOR_MODELS",
     "make_sensor",
+    "needs_model",
     "parse_observer_spec",
     "parse_spec",
     "parse_value",
@@ -130,6 +131,15 @@ def _check_keys(kind: str, name: str, kwargs: dict, valid: list[str], spec: str)
 #: inertia scaled, a model mismatch; ``contact``: ``"unknown"`` or ``"measured"``), as
 #: :func:`smo_gym.wrappers.model_based.model_based_observer` reads them
 MODEL_OPTIONS = ("mass_scale", "contact")
+
+
+def needs_model(observer, options: dict | None = None) -> bool:
+    """Whether the observer ``observer`` (a name) with ``options`` runs a model of the environment: a model-based
+    name, or ``"auto"`` with ``model`` set (it may choose one). Such an observer takes the environment's control
+    input at every sample, so it runs in :class:`~smo_gym.wrappers.EstimatedVelocity` only."""
+    if not isinstance(observer, str):
+        return False
+    return observer in MODEL_BASED_OBSERVERS or (observer == "auto" and bool((options or {}).get("model")))
 
 
 def observer_options(name: str) -> list[str]:

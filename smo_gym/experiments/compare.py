@@ -38,8 +38,7 @@ from .. import _extras as extras
 from .._validation import DivergenceError
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs, mean_velocity_span
 from ..envs import make as make_by_id
-from ..observers import MODEL_BASED_OBSERVERS
-from ..specs import make_sensor, parse_observer_spec
+from ..specs import make_sensor, needs_model, parse_observer_spec
 from ..wrappers.adapters import make_adapter
 from ..wrappers.estimated_velocity import calibrated_observer, resolve_rate
 from ..wrappers.rollout import rollout, smooth_random_policy
@@ -235,7 +234,7 @@ def parse_observer_specs(observers) -> dict[str, tuple[str, dict]]:
     """
     specs = {spec: parse_observer_spec(spec) for spec in observers}
     for spec, (name, kw) in specs.items():
-        if name in MODEL_BASED_OBSERVERS or kw.get("model"):
+        if needs_model(name, kw):
             raise ValueError(
                 "expected model-free observers (they run on the recorded measurements, without the control input "
                 f"a model-based observer needs; run that one in EstimatedVelocity), actual value: {spec!r}"

@@ -59,7 +59,7 @@ import numpy as np
 from ..engine.batch import MeasurementBatch
 from ..engine.measurement import check_finite_observation
 from ..engine.scratch import INPUT_FIELDS, GatheredObservations
-from ..observers import MODEL_BASED_OBSERVERS
+from ..specs import needs_model
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
 from .sensing import check_action, check_seed
 
@@ -141,12 +141,12 @@ class JointSensor(EstimatedVelocity):
         **kwargs,
     ):
         check_vector_rate(rate)
-        model = isinstance(observer, str) and observer == "auto" and bool((observer_kwargs or {}).get("model"))
-        if isinstance(observer, str) and (observer in MODEL_BASED_OBSERVERS or model):  # a batched update: no u
+        if needs_model(observer, observer_kwargs):  # one batched update per vector step has no actions
             raise ValueError(
                 f"expected a model-free observer for a vector wrapper, actual value: {observer!r}"
-                f"{' with a model' if model else ''}; wrap each environment instead: gymnasium.make_vec(id, "
-                f"wrappers=[functools.partial(EstimatedVelocity, observer={observer!r}, observer_kwargs=...)])"
+                f"{' with a model' if observer == 'auto' else ''}; wrap each environment instead: "
+                f"gymnasium.make_vec(id, wrappers=[functools.partial(EstimatedVelocity, observer={observer!r}, "
+                "observer_kwargs=...)])"
             )
         super().__init__(env, sensor, observer, "env", observer_kwargs, **kwargs)
         self.config = sensing_config(sensor, observer, observer_kwargs, **kwargs)
