@@ -10,6 +10,7 @@ from math import comb
 
 import numpy as np
 import pytest
+from conftest import loglog_slope
 
 from smo_gym.observers import FilteringDifferentiator, Levant, _kernels
 from smo_gym.observers.differentiators import (
@@ -160,9 +161,8 @@ def test_white_noise_accuracy_exponent_and_step(order, filtering_order):
         for tau in (1e-3, 1e-4):
             make = lambda tau, nf=nf: FilteringDifferentiator(order, nf, tau, L)
             errors[nf, tau] = velocity_error_percentiles(make, tau, eps)
-    slope = lambda e: np.polyfit(np.log(eps), np.log(e), 1)[0]
-    assert slope(errors[filtering_order, 1e-4]) == pytest.approx(order / (order + 1.5), abs=0.03)
-    assert slope(errors[0, 1e-4]) == pytest.approx(order / (order + 1), abs=0.05)
+    assert loglog_slope(eps, errors[filtering_order, 1e-4]) == pytest.approx(order / (order + 1.5), abs=0.03)
+    assert loglog_slope(eps, errors[0, 1e-4]) == pytest.approx(order / (order + 1), abs=0.05)
     step_ratio = np.exp(np.mean(np.log(errors[filtering_order, 1e-3][1:] / errors[filtering_order, 1e-4][1:])))
     assert step_ratio == pytest.approx(10 ** (order / (2 * order + 3)), rel=0.12)
     assert np.exp(np.mean(np.log(errors[0, 1e-3][1:] / errors[0, 1e-4][1:]))) < 1.2
