@@ -10,7 +10,7 @@ from math import comb
 
 import numpy as np
 import pytest
-from conftest import loglog_slope
+from conftest import estimates_of, loglog_slope
 
 from smo_gym.observers import FilteringDifferentiator, Levant, _kernels
 from smo_gym.observers.differentiators import (
@@ -25,11 +25,6 @@ def sines(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.sin(t) + 0.5 * np.sin(2 * t), np.cos(t) + np.cos(2 * t)
 
 
-def estimates(obs, Y: np.ndarray) -> np.ndarray:
-    """``reset(Y[0])`` then ``run(Y[1:])``: ``(T, ..., order + 1)``."""
-    return np.concatenate([obs.reset(Y[0])[None], obs.run(Y[1:])])
-
-
 @pytest.mark.parametrize("order", [1, 2, 3, 4, 5])
 def test_without_filter_it_is_levant_matching(order, rng):
     """``filtering_order = 0`` is ``Levant(discretization="matching")``: the same compiled step with the same
@@ -41,7 +36,7 @@ def test_without_filter_it_is_levant_matching(order, rng):
         lev = Levant(order=order, dt=dt, discretization="matching", **extra)
         fil = FilteringDifferentiator(order=order, filtering_order=0, dt=dt, discretization="matching", **extra)
         assert fil._kernel is lev._kernel is _kernels.eigmap_kernel
-        np.testing.assert_allclose(estimates(fil, Y), estimates(lev, Y), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(estimates_of(fil, Y), estimates_of(lev, Y), rtol=0, atol=1e-12)
         np.testing.assert_allclose(fil.output_error, lev.output_error, rtol=0, atol=1e-12)
 
 
@@ -87,7 +82,7 @@ def test_noise_free_accuracy_orders(filtering_order, discretization):
         obs = FilteringDifferentiator(
             order=order, filtering_order=filtering_order, dt=dt, lipschitz=L, discretization=discretization
         )
-        est = estimates(obs, truth[0][:, None])[:, 0, :]
+        est = estimates_of(obs, truth[0][:, None])[:, 0, :]
         late = t > 15.0
         errors.append([np.max(np.abs(est[late, i] - truth[i, late])) for i in range(order + 1)])
     errors = np.array(errors)
@@ -117,7 +112,7 @@ def test_filtering_lowers_the_noise_in_the_derivative(discretization, rng):
     rmse = {}
     for nf in (0, 1):
         obs = FilteringDifferentiator(order=2, filtering_order=nf, dt=dt, lipschitz=5.0, discretization=discretization)
-        rmse[nf] = rmse_velocity(estimates(obs, Y), v, start)
+        rmse[nf] = rmse_velocity(estimates_of(obs, Y), v, start)
     backward = float(np.sqrt(np.mean((np.diff(Y, axis=0)[start - 1 :] / dt - v[start:, None]) ** 2)))
     assert rmse[1] < 0.6 * rmse[0] < 0.6 * 0.1 * backward, (rmse, backward)
 
@@ -128,7 +123,7 @@ def velocity_error_percentiles(make, tau: float, eps: np.ndarray, T: float = 10.
     t = np.arange(0.0, T, tau)
     y, v = sines(t)
     noise = np.random.default_rng(0).uniform(-1.0, 1.0, (t.size, reps, 1))
-    z = estimates(make(tau), (y[:, None, None] + noise * eps).reshape(t.size, -1))[..., 1]
+    z = estimates_of(make(tau), (y[:, None, None] + noise * eps).reshape(t.size, -1))[..., 1]
     err = np.abs(z.reshape(t.size, reps, eps.size) - v[:, None, None])[t >= 4.0]
     return np.percentile(err.reshape(-1, eps.size), 99, axis=0)
 
@@ -182,7 +177,7 @@ def test_degree_zero_is_a_linear_filter(discretization, filtering_order, rng):
         obs = FilteringDifferentiator(
             order=2, filtering_order=filtering_order, dt=1e-3, p1=20.0, degree=degree, discretization=discretization
         )
-        return estimates(obs, Y)
+        return estimates_of(obs, Y)
 
     combined, parts = response(0.0, a * Y1 + Y2), a * response(0.0, Y1) + response(0.0, Y2)
     np.testing.assert_allclose(combined, parts, rtol=0, atol=1e-9 * np.abs(parts).max())
@@ -256,7 +251,7 @@ def test_implicit_reports_the_derivatives_at_the_sample_time(filtering_order):
     obs = FilteringDifferentiator(order=order, filtering_order=filtering_order, dt=dt, lipschitz=5.0,
                                   discretization="implicit")  # fmt: skip
     assert obs.reports_instant
-    est = estimates(obs, y[:, None])[:, 0]
+    est = estimates_of(obs, y[:, None])[:, 0]
     np.testing.assert_allclose(est[-200:, 1], v[-200:], rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(est[-200:, 2], acc[-200:], rtol=1e-7, atol=1e-7)
     obs.reset(y[:1], derivatives=np.array([[v[0], acc[0]]]))
