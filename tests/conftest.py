@@ -11,11 +11,24 @@ so :math:`|f^{(i)}| \\le 1 + 2^{i-1}`: ``|f''| <= 3``, ``|f'''| <= 5``, ``|f''''
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import os
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+
+#: the repository root
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_script(name: str):
+    """The module of ``scripts/<name>.py``, loaded by path (the scripts are not a package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @contextlib.contextmanager

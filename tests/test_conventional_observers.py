@@ -9,11 +9,9 @@ unknown input without differentiation. The plants are simulated exactly (zero-or
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym import control as c
 from smo_gym.design import LMIInfeasibleError
@@ -30,12 +28,7 @@ DW = np.array([[0.0], [1.0], [1.0]])
 
 
 # the zero-order-hold simulation and the MuJoCo demonstration are the reproduction script's
-_spec = importlib.util.spec_from_file_location(
-    "reproduce_slides_conventional",
-    Path(__file__).resolve().parents[1] / "scripts" / "reproduce_slides_conventional.py",
-)
-examples = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(examples)
+examples = load_script("reproduce_slides_conventional")
 simulate = examples.simulate
 
 

@@ -2,13 +2,12 @@ r"""Wetzlinger et al.: the discrete-time HOSM observer (33), its Ackermann gains
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import load_script
 
 import smo_gym
 from smo_gym import calibration, cli, specs
@@ -30,11 +29,7 @@ from smo_gym.observers.discrete_hosm import (
 )
 from smo_gym.wrappers import EstimatedVelocity
 
-_spec = importlib.util.spec_from_file_location(
-    "reproduce_papers", Path(__file__).resolve().parents[1] / "scripts" / "reproduce_papers.py"
-)
-repro = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(repro)
+repro = load_script("reproduce_papers")
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -9,16 +9,14 @@ detected but reported unknown.
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym.fault_detection import FaultDiagnosis, FaultObserverBank, calibrate_threshold, diagnose
-
-ROOT = Path(__file__).resolve().parents[1]
 
 G_L, DAMP, GAIN = 9.81, 0.2, 1.0
 H = 1e-3
@@ -306,9 +304,7 @@ def test_bad_use():
 
 def test_mujoco_arm_actuator_fault_is_isolated_and_fault_free_is_quiet():
     pytest.importorskip("mujoco")
-    spec = importlib.util.spec_from_file_location("demo_fault_detection", ROOT / "scripts" / "demo_fault_detection.py")
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = load_script("demo_fault_detection")
     threshold = demo.calibrate(1, 1.2)  # calibration seed 1000, not the evaluated seed
     assert threshold.shape == (2,) and np.all(threshold > 0)
     d, _ = demo.run_episode(0, "elbow-gain", duration=1.4, fault_time=0.7, threshold=threshold)

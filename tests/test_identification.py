@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym.identification import (
     EquivalentInjectionIdentifier,
@@ -327,13 +328,7 @@ def test_mujoco_regressor_is_exact_for_mass_and_damping():
 
 def test_mujoco_payload_mass_identified_from_encoder_readings():
     """The demo's path, short: TwoLinkArm-v0 with a 1.2 kg forearm, nominal 0.8 kg, 12-bit noisy encoder, h = 10 ms."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "demo_identification.py"
-    spec = importlib.util.spec_from_file_location("demo_identification", path)
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = load_script("demo_identification")
     t, m_true, m_hat, _ = demo.run("encoder-12bit-noisy", 5, 3.0)
     assert m_true[-1] == demo.TRUE_MASS
     assert np.max(np.abs(m_hat[t > 2.0] - m_true[t > 2.0])) < 0.05 * demo.TRUE_MASS

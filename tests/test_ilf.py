@@ -8,22 +8,15 @@ implicit, stable at any step) to keep the file fast.
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
-from conftest import signal_derivatives
+from conftest import load_script, signal_derivatives
 
 from smo_gym.design import LMIInfeasibleError, block_decomposition, ilf_gains
 from smo_gym.design.ilf import ilf_degrees
 from smo_gym.observers import OBSERVERS, ILFObserver, make_observer
 
-_spec = importlib.util.spec_from_file_location(
-    "reproduce_papers", Path(__file__).resolve().parents[1] / "scripts" / "reproduce_papers.py"
-)
-repro = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(repro)
+repro = load_script("reproduce_papers")
 
 EX = repro.lopez_ramirez_example()
 A, B, C, XS = EX["A"], EX["B"], EX["C"], EX["x_star"]

@@ -2,23 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym.observers import OBSERVERS, HighGain, LowPowerHighGain, make_observer
 from smo_gym.observers.low_power import low_power_matrices
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load_compare():
-    spec = importlib.util.spec_from_file_location("compare_low_power", ROOT / "scripts" / "compare_low_power.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _max_degree_in_gain(matrices_at) -> int:
@@ -98,7 +87,7 @@ def test_peaking_bounded_for_low_power_and_growing_like_ell_power_for_high_gain(
     below 1.9 for a signal bounded by 1 with saturation levels 1.5 (measured exponents <= 0.02). The last estimate
     xhat_n = eta (Astolfi et al. 2018) is bounded too.
     """
-    compare = _load_compare()
+    compare = load_script("compare_low_power")
     res = compare.peaking_exponents(order, bound=1.5)
     n = order + 1
     hg, lp = res["high-gain"], res["low-power-high-gain"]
@@ -114,7 +103,7 @@ def test_peaking_bounded_for_low_power_and_growing_like_ell_power_for_high_gain(
 def test_auxiliary_states_peak_like_ell_not_ell_power_n_minus_1(order):
     """Astolfi et al. 2018, Introduction: with the saturations the n - 1 auxiliary states xi_(i,2) may reach values
     proportional to ell, not ell^(n-1). Measured exponents 0.99-1.11 for n = 3, 4."""
-    compare = _load_compare()
+    compare = load_script("compare_low_power")
     peaks = np.array(
         [compare.transient_peaks(LowPowerHighGain, ell, order, bounds=1.5, readout="low-power") for ell in compare.ELLS]
     )
@@ -124,7 +113,7 @@ def test_auxiliary_states_peak_like_ell_not_ell_power_n_minus_1(order):
 
 def test_without_saturation_the_low_power_estimates_peak():
     """The saturations do the work: the same observer without bounds peaks like ell in xi_(1,2)."""
-    compare = _load_compare()
+    compare = load_script("compare_low_power")
     peaks = [compare.transient_peaks(LowPowerHighGain, ell, 2, readout="low-power")[1] for ell in (10.0, 1000.0)]
     assert peaks[1] / peaks[0] > 50
 
@@ -140,7 +129,7 @@ def test_noise_sensitivity_against_high_gain_at_equal_rate(noise, capsys):
     observer is the standard one followed by a first-order filter: less noise on xhat_2, but more lag error
     (total RMS 0.039 against 0.026 at ell = 50).
     """
-    compare = _load_compare()
+    compare = load_script("compare_low_power")
     for order in (2, 3):
         res = compare.noise_errors(order, noise=noise)
         hg, lp = res["high-gain"]["noise"], res["low-power-high-gain"]["noise"]

@@ -15,11 +15,11 @@ amplitude ``eps``; the state error is the latter's, through the bounded inverse 
 from __future__ import annotations
 
 import functools
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym.nonlinear_observers import (
     HOSMInjectionObserver,
@@ -539,11 +539,7 @@ def test_mujoco_pendulum_measured_through_its_tip():
     derivative by finite differences through MuJoCo. Converges from a wrong guess; the velocity floor is first order
     in dt (measured 0.0171 rad/s at 2 ms, 0.0343 at 4 ms with L = 30; convergence in 0.02 s)."""
     pytest.importorskip("mujoco")
-    spec = importlib.util.spec_from_file_location(
-        "demo_nonlinear_observer", ROOT / "scripts" / "demo_nonlinear_observer.py"
-    )
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = load_script("demo_nonlinear_observer")
     coarse, fine = demo.run(dt=4e-3, T=1.0), demo.run(dt=2e-3, T=1.0)
     print({k: v for k, v in fine.items() if k != "errors"}, coarse["floor_v"])
     assert fine["initial_error"] > 0.5 and fine["t_conv"] < 0.2

@@ -3,23 +3,18 @@ and what spares a new process the calibration of Gymnasium's MuJoCo environments
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym import _cache
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers import estimated_velocity as ev_module
 
-_spec = importlib.util.spec_from_file_location(
-    "ship_calibrations", Path(__file__).resolve().parents[1] / "scripts" / "ship_calibrations.py"
-)
-ship = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ship)
+ship = load_script("ship_calibrations")
 
 
 @pytest.fixture

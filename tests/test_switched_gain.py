@@ -2,23 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym.observers import OBSERVERS, SwitchedGain, make_observer
 from smo_gym.observers.switched_gain import dwell_time, noise_optimal_gains, switching_schedule
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load_repro():
-    spec = importlib.util.spec_from_file_location("reproduce_efimov2017", ROOT / "scripts" / "reproduce_efimov2017.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 # ---- Section 6 ---------------------------------------------------------------------------------------------------
@@ -32,7 +21,7 @@ def test_section6_reproduction(tmp_path):
     3.18 / 11.65 (h = 0.01) and 4.44 / 13.81 (h = 0.001) for switched / fixed mu = 30 against the figures'
     ~3.2 / ~11.6 and ~4.4 / ~13.8. Each claim dict carries the paper's value and ours.
     """
-    repro = _load_repro()
+    repro = load_script("reproduce_efimov2017")
     results = repro.reproduce_efimov2017(tmp_path)
     failed = [r for r in results if not r["ok"]]
     assert not failed, failed
@@ -58,7 +47,7 @@ def test_paper_timing_is_11_as_printed():
     r"""The script's run is (11) as printed, written out here with a dense solve and the sample of the previous
     instant: :math:`\hat x_{\ell+1} = O_{\mu}^{-1}(\hat x_\ell + h\mu M^{-1}l\,y(h\ell))`, with the gain trace
     of the supervised run; without the delay the estimates differ (by one sample's worth of signal)."""
-    repro = _load_repro()
+    repro = load_script("reproduce_efimov2017")
     h, omega = 0.01, 25.0
     t = np.arange(0.0, 2.0, h)
     y = repro.signal(t, omega)[0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym.control import (
     LinearPlant,
@@ -173,13 +174,7 @@ def test_bad_arguments(record):
 
 def test_mujoco_arm_gear_switch_is_detected():
     pytest.importorskip("mujoco")
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "demo_switched.py"
-    spec = importlib.util.spec_from_file_location("demo_switched", path)
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = load_script("demo_switched")
     threshold = demo.calibrate(1, 1.0)  # calibration seed 1000, not the evaluated seed
     assert threshold > 0
     steps = 800  # 1.6 s at 2 ms: nominal, then the shoulder gear drops at 0.8 s

@@ -8,21 +8,14 @@ the identification in the sampling step and in the noise amplitude (Fridman's sl
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import load_script
 
 from smo_gym import control as c
 
 # the example plants and the open-loop harness are the reproduction script's (one definition of each)
-_spec = importlib.util.spec_from_file_location(
-    "reproduce_slides_unknown_inputs",
-    Path(__file__).resolve().parents[1] / "scripts" / "reproduce_slides_unknown_inputs.py",
-)
-examples = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(examples)
+examples = load_script("reproduce_slides_unknown_inputs")
 _w, _transformed, _OpenLoop = examples.unknown_input, examples.transformed, examples.OpenLoop
 _settling_time, _identification_error = examples.settling_time, examples.identification_error
 _detectable_plant, _functional_plant = examples.detectable_plant, examples.functional_plant
