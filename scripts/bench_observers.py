@@ -56,8 +56,8 @@ def variants(L1, L2, dt: float, noise: float = 1e-3):
     return [
         ("SuperTwisting implicit", "super-twisting", dict(lipschitz=L1)),
         ("SuperTwisting euler", "super-twisting", dict(lipschitz=L1, discretization="euler")),
-        ("Levant k=1 taylor", "levant", dict(order=1, lipschitz=L1)),
-        ("Levant k=2 taylor", "levant", dict(order=2, lipschitz=L2)),
+        ("Levant k=1 taylor", "levant", dict(order=1, lipschitz=L1, discretization="taylor")),
+        ("Levant k=2 taylor", "levant", dict(order=2, lipschitz=L2, discretization="taylor")),
         ("Levant k=2 euler", "levant", dict(order=2, lipschitz=L2, discretization="euler")),
         ("Levant k=2 semi-implicit", "levant", dict(order=2, lipschitz=L2, discretization="semi-implicit")),
         ("Levant k=2 matching", "levant", dict(order=2, lipschitz=L2, discretization="matching")),
@@ -546,7 +546,7 @@ def accuracy_rows(Y, V, dt, L1, L2, start, quick):
     scales = 10.0 ** np.arange(-4, 0.5, 0.5 if not quick else 1.0)
     for label, name, extra, Lb in [
         ("SuperTwisting euler", "super-twisting", dict(discretization="euler"), L1),
-        ("Levant k=2 taylor", "levant", dict(order=2), L2),
+        ("Levant k=2 taylor", "levant", dict(order=2, discretization="taylor"), L2),
     ]:
         cand = [run_causal(name, dt, dict(extra, lipschitz=s * Lb), Y) for s in scales]
         rows.append(

@@ -87,7 +87,7 @@ ESTIMATORS = (
     ("FD", "finite-difference", {}),
     ("KalmanCA", "kalman-ca", {}),
     ("ST", "super-twisting", {}),
-    ("Levant", "levant", {"order": 2}),
+    ("Levant", "levant", {"order": 2, "discretization": "taylor"}),
     ("Filtering", "filtering", {}),
     ("Filtering match.", "filtering", {"discretization": "matching"}),
     ("HG", "high-gain", {}),
@@ -100,7 +100,7 @@ FILTERING_ORACLE_FACTORS = 10.0 ** np.arange(-2.0, 3.5, 0.5)
 SINES_JERK_BOUND = 1.0 + 0.5 * 2**3 + 0.2 * 5**3
 #: (label, observer name, parameters, n, n_f) of the noise-exponent table
 EXPONENT_ESTIMATORS = (
-    ("Levant (taylor)", "levant", {"order": 2}, 2, 0),
+    ("Levant (taylor)", "levant", {"order": 2, "discretization": "taylor"}, 2, 0),
     ("Levant (matching)", "levant", {"order": 2, "discretization": "matching"}, 2, 0),
     ("Filtering, n_f = 1 (implicit)", "filtering", {}, 2, 1),
     ("Filtering, n_f = 1 (matching)", "filtering", {"discretization": "matching"}, 2, 1),

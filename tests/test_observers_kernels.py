@@ -65,6 +65,7 @@ def test_exp_nonpositive_is_within_one_ulp_and_underflows_to_zero():
 @pytest.mark.parametrize(
     "build",
     [
+        lambda: Levant(2, 1e-3, 5.0, discretization="taylor"),
         lambda: Levant(2, 1e-3, 5.0),
         lambda: URED(1e-3, 5.0),
         lambda: Levant(2, 1e-3, 5.0, discretization="matching"),
@@ -90,7 +91,7 @@ def test_status_codes_of_the_vectorized_loops(build):
 
 
 def test_kernels_reject_arrays_of_the_wrong_width():
-    obs = Levant(2, 1e-3, 5.0)
+    obs = Levant(2, 1e-3, 5.0, discretization="taylor")
     obs.reset(np.zeros(4))
     with pytest.raises(ValueError, match="expected state/new_state"):
         K.hosm_kernel(obs.state, np.zeros(4), obs._params, np.empty((4, 5)), np.empty((4, 3)))
@@ -139,7 +140,7 @@ def test_shared_parameter_kernels_equal_the_per_channel_kernels(case):
 
 
 def test_per_channel_parameters_keep_the_per_channel_kernel_and_rows_are_checked():
-    obs = Levant(2, 1e-2, np.array([1.0, 2.0, 3.0]))
+    obs = Levant(2, 1e-2, np.array([1.0, 2.0, 3.0]), discretization="taylor")
     obs.reset(np.zeros(3))
     kernel, params = obs._step_kernel()
     assert kernel is K.hosm_kernel and params is obs._params
@@ -148,6 +149,6 @@ def test_per_channel_parameters_keep_the_per_channel_kernel_and_rows_are_checked
         K.hosm_kernel(state, np.ones(3), obs._params[:1].copy(), np.empty_like(state), out)
     with pytest.raises(ValueError, match="one row per channel"):  # per-channel rows given to the shared variant
         K.hosm_shared_kernel(state, np.ones(3), obs._params, np.empty_like(state), out)
-    single = Levant(2, 1e-2, 1.0)
+    single = Levant(2, 1e-2, 1.0, discretization="taylor")
     single.reset(np.zeros(1))
     assert single._step_kernel()[0] is K.hosm_kernel  # one channel: nothing to share

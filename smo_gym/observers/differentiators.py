@@ -363,14 +363,18 @@ class Levant(_ImplicitOutputs, Observer):
         Sampling step.
     lipschitz : float or array_like
         ``L``, per channel if an array.
-    discretization : {"taylor", "euler", "semi-implicit", "matching", "implicit"}
-        ``"taylor"`` (default, [LL14]): accuracy ``O(L tau^(k+1-i))`` for ``z_i`` on noise-free signals, and
-        ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under noise of amplitude ``eps``. ``"euler"``: the same without the
+    discretization : {"implicit", "taylor", "euler", "semi-implicit", "matching"}
+        ``"implicit"`` (default): set-valued implicit (backward) Euler ([MBA21], [CSLD]) with the outputs of
+        [See24] (Notes); it neither chatters nor diverges with gains calibrated from data, where the explicit steps
+        do (the wrapper's accuracy tables: geometric-mean regret 1.17 against 64 for ``"taylor"``); on the smooth
+        signals of ``scripts/bench_signals.py`` it is within 6 % of ``"taylor"`` at 1 ms and up to 20x better at
+        10 ms. ``"taylor"`` ([LL14]): accuracy
+        ``O(L tau^(k+1-i))`` for ``z_i`` on noise-free signals, and ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under
+        noise of amplitude ``eps``. ``"euler"``: the same without the
         Taylor terms, hence first order (``O(tau^2)`` in ``z_0``, ``O(tau)`` in every derivative; measured in
         ``tests/test_differentiators.py``). ``"semi-implicit"`` / ``"matching"``: the discrete-time observer of
         Wetzlinger et al. with eigenvalue mapping (15) / (16); its continuous-time counterpart (11) is a Levant-type
-        differentiator with gains from ``(s + p1)^(k+1)``. ``"implicit"``: set-valued implicit (backward) Euler
-        ([MBA21], [CSLD]) with the outputs of [See24] (Notes).
+        differentiator with gains from ``(s + p1)^(k+1)``.
     p1 : float, optional
         Eigenvalue-mapping rate of Wetzlinger et al.; default ``(1.1 L)^(1/(k+1))`` so that the last gain
         ``p1^(k+1)`` equals Levant's ``lambda_0 L``.
@@ -415,7 +419,7 @@ class Levant(_ImplicitOutputs, Observer):
        arXiv:2404.02770, 2024.
     """
 
-    discretizations = ("taylor", "euler", "semi-implicit", "matching", "implicit")
+    discretizations = ("implicit", "taylor", "euler", "semi-implicit", "matching")
 
     @check_keywords
     def __init__(
