@@ -79,7 +79,9 @@ def play(run: str, observers: list[str], episodes: int, seed: int, sensor: str, 
         for spec in observers:
             estimates[spec].append(np.array(est[spec]))
         print(f"  episode {episode}: {len(true_v)} steps", file=sys.stderr, flush=True)
-    step = make(env_id).unwrapped.dt
+    step = first.unwrapped.dt
+    for env in envs.values():
+        env.close()
     return truth, estimates, step
 
 
