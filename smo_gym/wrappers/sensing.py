@@ -117,11 +117,13 @@ class SensingInfo(dict):
         block.setflags(write=False)
         s0, s1, s2, s3 = slices
         return cls(
-            qpos=block[s0],
-            qvel=block[s1],
-            qvel_estimate=block[s2],
-            qpos_measured=block[s3],
-            observation=_read_only_copy(observation),
+            {
+                "qpos": block[s0],
+                "qvel": block[s1],
+                "qvel_estimate": block[s2],
+                "qpos_measured": block[s3],
+                "observation": _read_only_copy(observation),
+            }
         )
 
     def _readonly(self, *args, **kwargs):
@@ -149,10 +151,13 @@ def _sensing_info(items: dict) -> SensingInfo:
 
 def _read_only_copy(value):
     """A read-only copy of an array, or of every array of a dict (a dict observation)."""
-    if isinstance(value, dict):
+    if type(value) is np.ndarray:  # every step's case, first: a copy and no conversion
+        value = value.copy()
+    elif isinstance(value, dict):
         return {key: _read_only_copy(item) for key, item in value.items()}
-    value = np.array(value)
-    value.flags.writeable = False
+    else:
+        value = np.array(value)
+    value.setflags(write=False)
     return value
 
 
