@@ -99,15 +99,7 @@ class SensingInfo(dict):
         observations.setflags(write=False)
         s0, s1, s2, s3 = slices
         return [
-            cls(
-                {
-                    "qpos": row[s0],
-                    "qvel": row[s1],
-                    "qvel_estimate": row[s2],
-                    "qpos_measured": row[s3],
-                    "observation": observation,
-                }
-            )
+            cls(qpos=row[s0], qvel=row[s1], qvel_estimate=row[s2], qpos_measured=row[s3], observation=observation)
             for row, observation in zip(block, observations, strict=True)
         ]
 
