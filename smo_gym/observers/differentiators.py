@@ -368,9 +368,8 @@ class Levant(_ImplicitOutputs, Observer):
         [See24] (Notes); it neither chatters nor diverges with gains calibrated from data, where the explicit steps
         do (the wrapper's accuracy tables: geometric-mean regret 1.17 against 64 for ``"taylor"``); on the smooth
         signals of ``scripts/bench_signals.py`` it is within 6 % of ``"taylor"`` at 1 ms and up to 20x better at
-        10 ms. ``"taylor"`` ([LL14]): accuracy
-        ``O(L tau^(k+1-i))`` for ``z_i`` on noise-free signals, and ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under
-        noise of amplitude ``eps``. ``"euler"``: the same without the
+        10 ms. ``"taylor"`` ([LL14]): accuracy ``O(L tau^(k+1-i))`` for ``z_i`` on noise-free signals, and
+        ``O(L^(i/(k+1)) eps^((k+1-i)/(k+1)))`` under noise of amplitude ``eps``. ``"euler"``: the same without the
         Taylor terms, hence first order (``O(tau^2)`` in ``z_0``, ``O(tau)`` in every derivative; measured in
         ``tests/test_differentiators.py``). ``"semi-implicit"`` / ``"matching"``: the discrete-time observer of
         Wetzlinger et al. with eigenvalue mapping (15) / (16); its continuous-time counterpart (11) is a Levant-type
