@@ -351,7 +351,7 @@ def _check_kwargs(observer_kwargs) -> dict:
     if unknown:
         model = {"model", *MODEL_OPTIONS} & set(unknown)
         hint = (
-            "model, mass_scale and contact describe a model-based candidate, which needs an environment: "
+            f"{', '.join(('model', *MODEL_OPTIONS))} describe a model-based candidate, which needs an environment: "
             "EstimatedVelocity(env, observer_kwargs={'model': True, ...})"
             if model
             else "name an observer to set its gains"
