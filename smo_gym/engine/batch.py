@@ -192,6 +192,7 @@ class MeasurementBatch:
         #: the MjData it was made for
         self._live = (np.zeros((n, self.nq)), np.zeros((n, self.nv)))
         self._live_copy = self._live_data = None
+        self._every, self._every_index = np.ones(n, dtype=bool), list(range(n))
 
     @staticmethod
     def supports(measurements: Sequence[JointMeasurement]) -> bool:
@@ -240,17 +241,27 @@ class MeasurementBatch:
         """
         n = len(self.measurements)
         Q, V = _as_input(Q, (n, self.nq)), _as_input(V, (n, self.nv))
+        return self._measure(Q, V, self._as_rows(rows))
+
+    def _as_rows(self, rows) -> np.ndarray:
+        """``rows`` as the boolean mask ``(n,)`` the compiled entry point takes (``ValueError`` otherwise)."""
+        n = len(self.measurements)
         rows = np.asarray(rows)
         if rows.dtype != np.bool_ or rows.shape != (n,):
             raise ValueError(f"expected a boolean mask of shape ({n},), actual value: {rows.dtype} {rows.shape}")
+        return np.ascontiguousarray(rows)
+
+    def _measure(self, Q: np.ndarray, V: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """:meth:`measure` of arrays already in the compiled entry point's layout."""
+        n = len(self.measurements)
         block = np.zeros((n, 2 * self.nq + 4 * self.nv))
-        measured = np.flatnonzero(rows).tolist()
+        measured = self._every_index if rows is self._every else np.flatnonzero(rows).tolist()
         if not measured:
             return block
         t0, reserve = self._t0, self._reserve
         for i in measured:
             t0[i] = reserve[i](1)  # never None for one sample
-        args = (np.ascontiguousarray(rows), Q, V, t0, *self.sensors, self.joints, self.previous, self.z, block)
+        args = (rows, Q, V, t0, *self.sensors, self.joints, self.previous, self.z, block)
         call = self._call
         if call is None:
             call = self._call = _compiled_entry(measure_rows, args)
@@ -262,10 +273,10 @@ class MeasurementBatch:
             load[i](views[i])
         return block
 
-    def measure_live(self, datas: Sequence[mujoco.MjData], rows: np.ndarray) -> np.ndarray:
+    def measure_live(self, datas: Sequence[mujoco.MjData], rows: np.ndarray | None = None) -> np.ndarray:
         """:meth:`measure` of the live states of ``datas`` (one ``MjData`` per environment): their ``qpos`` and
         ``qvel`` are gathered by one compiled copy (:class:`~smo_gym.engine.fused.InputCopy`, made again when an
-        environment replaced its data)."""
+        environment replaced its data); ``rows`` None measures every environment."""
         if self._live_data is None or not all(map(operator.is_, datas, self._live_data)):
             qpos, qvel = self._live
             pairs = [(qpos[i], d.qpos) for i, d in enumerate(datas)] + [(qvel[i], d.qvel) for i, d in enumerate(datas)]
@@ -273,7 +284,7 @@ class MeasurementBatch:
                 raise ValueError(f"expected {len(self.measurements)} MjData, actual value: {len(datas)}")
             self._live_copy, self._live_data = InputCopy(pairs), list(datas)
         self._live_copy()
-        return self.measure(*self._live, rows)
+        return self._measure(*self._live, self._every if rows is None else self._as_rows(rows))
 
     def _raise(self, status: int, Q: np.ndarray):
         if status <= -2:

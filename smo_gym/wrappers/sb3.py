@@ -102,24 +102,25 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
             batch = self._local_batch()
         _, rewards, dones, infos = self.venv.step_wait()
         done = np.asarray(dones, dtype=bool)
+        ended = done if done.any() else None
         if local is not None:
             # the environments that go on, measured together; the finished episodes' last samples, measured by
             # their JointSensor before the autoreset
-            block, clean = self._local_block(~done, terminal=done)
+            block, clean = self._local_block(ended, terminal=ended)
             Z = np.ascontiguousarray(block[:, batch.slices[5]])
         else:
             Z = np.array([info["smo_z"] for info in infos], dtype=np.float64)
         est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
         terminal = None
-        if done.any():
+        if ended is not None:
             terminal = est.copy()  # the masked reset below rewrites the observer's estimate in place
             reset_infos = self._reset_infos()
             Z0 = Z.copy()
             for i in np.flatnonzero(done):
                 Z0[i] = local[i].z_reset if local is not None else reset_infos[i]["smo_z"]
             est = self.observer.reset(Z0, mask=done)  # those environments' observers restart at their new first sample
-        positions = None if local is None else self._local_positions(block, ~done)
-        obs, terms = self._observe_all(est, positions, terminal, done if terminal is not None else None)
+        positions = None if local is None else self._local_positions(block, ended)
+        obs, terms = self._observe_all(est, positions, terminal, ended)
         vel = (terminal if terminal is not None else est)[..., 1]
         # the step's sample of every environment (a finished episode's last one, as terminal_observation)
         if local is not None:
@@ -128,13 +129,11 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
                 info["smo"] = sample
         else:
             for info, v in zip(infos, vel, strict=True):
-                sample = info["smo"]
-                info["smo"] = SensingInfo.of(
-                    sample["qpos"], sample["qvel"], v, sample["qpos_measured"], sample["observation"]
-                )
-        for info, term in zip(infos, terms, strict=True):
-            if term is not None:
-                info["terminal_observation"] = term
+                s = info["smo"]
+                info["smo"] = SensingInfo.of(s["qpos"], s["qvel"], v, s["qpos_measured"], s["observation"])
+        if ended is not None:
+            for i in np.flatnonzero(ended):
+                infos[i]["terminal_observation"] = terms[i]
         return obs, rewards, dones, infos
 
     # ---- pickling without the venv (SB3 VecNormalize style) -------------------------------------------------

@@ -393,10 +393,10 @@ class _Sensing:
         if self._local is not None:
             selection = self._selection()
             if selection is not None:  # every observation is the same clipped selection: one NumPy expression
-                index, bounds, _ = selection
-                state = np.concatenate((positions, vel), axis=1)
-                obs = np.minimum(np.maximum(state[:, index], bounds[0]), bounds[1])
-                return obs, self._terminal_observations(tvel, terminal_mask)
+                index, low, high = selection
+                obs = np.concatenate((positions, vel), axis=1).take(index, axis=1)
+                np.maximum(obs, low, out=obs)
+                return np.minimum(obs, high, out=obs), self._terminal_observations(tvel, terminal_mask)
             plan = self._entries_plan()
             if plan is not None:  # every observation is gathered from MjData entries: compiled calls, no _get_obs
                 return plan.observe(positions, vel), self._terminal_observations(tvel, terminal_mask)
@@ -421,7 +421,7 @@ class _Sensing:
         return terms
 
     def _selection(self):
-        """``(index, bounds, nq)`` when the in-process environments' observations are all the same clipped
+        """``(index, low, high)`` when the in-process environments' observations are all the same clipped
         selection of the measured positions and estimated velocities (the adapters'
         :attr:`~smo_gym.engine.scratch.ScratchObservation.observation_map`, ``positions="measured"``),
         else None; decided once."""
@@ -435,7 +435,7 @@ class _Sensing:
             index, bounds = maps[0]
             nqs = {s.adapter.model.nq for s in self._local}
             if len(nqs) == 1 and all(np.array_equal(m[0], index) and np.array_equal(m[1], bounds) for m in maps):
-                selection = (index, bounds, nqs.pop())
+                selection = (index, *np.array(bounds))
         self._selection_cache = selection
         return selection
 
@@ -480,15 +480,16 @@ class _Sensing:
                 s.batched = True
         return self._batch
 
-    def _local_block(self, fresh: np.ndarray, terminal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _local_block(self, stale: np.ndarray | None, terminal=None) -> tuple[np.ndarray, np.ndarray]:
         """``(block, clean)`` after a vector step: each environment's sample, a row of ``block`` (layout of
-        :func:`~smo_gym.engine.batch.block_slices`, ``qvel_estimate`` zero), and its clean observation. Rows where
-        ``fresh`` (stepped, the episode goes on) are measured now, in one call; the others by their
-        :class:`JointSensor`: the ended episode's last sample where ``terminal``, else the last (the reset's)."""
+        :func:`~smo_gym.engine.batch.block_slices`, ``qvel_estimate`` zero), and its clean observation. Rows but
+        the ``stale`` ones (a mask; None: no row) are measured now, in one call; the stale ones by their
+        :class:`JointSensor`: the ended episode's last sample where ``terminal`` (a mask), else the reset's."""
         local = self._local
-        block = self._batch.measure_live([s.adapter.data for s in local], fresh)
-        clean = [s.step_observation for s in local]
-        self._record_rows(block, clean, ~fresh, terminal)
+        datas, clean = [s.adapter.data for s in local], [s.step_observation for s in local]
+        block = self._batch.measure_live(datas, None if stale is None else ~stale)
+        if stale is not None:
+            self._record_rows(block, clean, stale, terminal)
         return block, np.array(clean)
 
     def _record_rows(self, block: np.ndarray, clean: list, rows: np.ndarray, terminal: np.ndarray | None) -> None:
@@ -502,13 +503,15 @@ class _Sensing:
             row[q], row[v], row[qm], row[zm] = sample["qpos"], sample["qvel"], sample["qpos_measured"], z
             clean[i] = sample["observation"]
 
-    def _local_positions(self, block: np.ndarray | None = None, fresh: np.ndarray | None = None) -> np.ndarray:
+    def _local_positions(self, block: np.ndarray | None = None, stale: np.ndarray | None = None) -> np.ndarray:
         """The in-process environments' measured configurations at their last sample, ``(n_envs, nq)``: from
-        ``block`` (:meth:`_local_block`) where ``fresh``, from each measurement elsewhere."""
+        ``block`` (:meth:`_local_block`, a view when no row is ``stale``), from each measurement where ``stale``."""
         if block is None:
             return np.array([s.measurement.measured_qpos() for s in self._local])
+        if stale is None:
+            return block[:, self._batch.slices[3]]
         positions = block[:, self._batch.slices[3]].copy()
-        for i in np.flatnonzero(~fresh):
+        for i in np.flatnonzero(stale):
             positions[i] = self._local[i].measurement.measured_qpos()
         return positions
 
@@ -529,12 +532,8 @@ def stack_samples(samples: list[dict], velocity: np.ndarray, mask: np.ndarray | 
         return np.stack([np.asarray(v) for v in values])
 
     merged = [{**sample, "qvel_estimate": v} for sample, v in zip(samples, velocity, strict=True)]
-    return stack(
-        [
-            {key: sample[key] for key in ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")}
-            for sample in merged
-        ]
-    )
+    keys = ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")
+    return stack([{key: sample[key] for key in keys} for sample in merged])
 
 
 def _rows(stacked: dict, i: int) -> dict:
@@ -664,8 +663,9 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
         restart = self._autoreset.copy() if next_step else np.zeros(self.num_envs, dtype=bool)
         if local is not None:  # the environments that were stepped and go on, measured together
-            fresh = ~(done | restart)
-            block, clean = self._local_block(fresh)
+            stale = done | restart
+            stale = stale if stale.any() else None
+            block, clean = self._local_block(stale)
             Z = np.ascontiguousarray(block[:, batch.slices[5]])
         else:
             Z = self._measurements(infos)
@@ -689,7 +689,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
                 est = self._update(Z)
         else:  # disabled: finished environments wait for reset(options={"reset_mask": ...})
             est = self._update(Z)
-        positions = None if local is None else self._local_positions(block, fresh)
+        positions = None if local is None else self._local_positions(block, stale)
         obs, terms = self._observe_all(est, positions, terminal, terminal_mask)
         if terminal_mask is not None:
             final_obs = infos["final_obs"]
