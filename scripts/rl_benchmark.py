@@ -264,12 +264,12 @@ def plot(summary: list[dict], rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    envs = [e for e in ENVS if any(s["env"] == e for s in summary)]
-    if not envs:
+    panels = [(e, a) for e in ENVS for a in ("PPO", "SAC") if any(s["env"] == e and s["algo"] == a for s in summary)]
+    if not panels:
         return
-    fig, axes = plt.subplots(1, len(envs), figsize=(6.5 * len(envs), 4.4), squeeze=False)
-    for ax, env in zip(axes[0], envs, strict=True):
-        sub = [s for s in summary if s["env"] == env]
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.5 * len(panels), 4.4), squeeze=False)
+    for ax, (env, algo) in zip(axes[0], panels, strict=True):
+        sub = [s for s in summary if s["env"] == env and s["algo"] == algo]
         budgets = sorted({s["steps"] for s in sub})
         pairs = list(dict.fromkeys((s["train_sensing"], s["eval_sensing"]) for s in sub))
         pairs.sort(key=lambda p: (p[0] != p[1], _order(p[0], SENSINGS), _order(p[1], SENSINGS)))
@@ -285,12 +285,12 @@ def plot(summary: list[dict], rows: list[dict], path: Path) -> None:
                 seeds = [
                     float(r["mean_return"])
                     for r in rows
-                    if r["env"] == env and int(r["steps"]) == b and r["train_sensing"] == tr and r["eval_sensing"] == ev
+                    if (r["env"], r["algo"], int(r["steps"])) == (env, algo, b)
+                    and (r["train_sensing"], r["eval_sensing"]) == (tr, ev)
                 ]
                 ax.plot([x[k]] * len(seeds), seeds, "k.", ms=3)
             ax.bar(x, means, width, yerr=stds, capsize=3, label=f"{b // 1000}k steps")
         ax.set_xticks(np.arange(len(pairs)), labels, rotation=35, ha="right", fontsize=8)
-        algo = sub[0]["algo"]
         ax.set_title(f"{env}, {algo} (rl-zoo3), {SENSOR}: mean +- std, dots: seeds", fontsize=9)
         ax.set_ylabel("return (true reward)")
         ax.legend(fontsize=8)

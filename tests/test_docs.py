@@ -172,12 +172,17 @@ def test_the_returns_table_reads_summary_csv(tmp_path):
         sys.path.pop(0)
     csv = tmp_path / "summary.csv"
     csv.write_text(
-        "env,train_sensing,eval_sensing,steps,seeds,mean,std\n"
-        "A-v5,true,true,50000,3,10.4,1.6\nA-v5,true,est,50000,3,7.5,0.5\nA-v5,est,est,50000,2,8.0,2.0\n"
+        "env,algo,train_sensing,eval_sensing,steps,seeds,mean,std\n"
+        "A-v5,PPO,true,true,50000,3,10.4,1.6\nA-v5,PPO,true,est,50000,3,7.5,0.5\nA-v5,PPO,est,est,50000,2,8.0,2.0\n"
+        "A-v5,SAC,true,true,50000,1,20.0,0.0\n"
     )
     lines = hooks._results_returns(csv).splitlines()
-    assert lines[0] == "| trained on -> evaluated on | A 50k |"
-    assert lines[2:] == ["| true | 10 +- 2 (3) |", "| est | 8 +- 2 (2) |", "| true -> est | 8 +- 0 (3) |"]
+    assert lines[0] == "| trained on -> evaluated on | A PPO 50k | A SAC 50k |"  # one column per algorithm
+    assert lines[2:] == [
+        "| true | 10 +- 2 (3) | 20 +- 0 (1) |",
+        "| est | 8 +- 2 (2) | - |",
+        "| true -> est | 8 +- 0 (3) | - |",
+    ]
     csv.write_text(
         "# scripts/rl_benchmark.py --seeds 2 (2026-01-01 00:00 UTC)\n"
         "env,algo,train_sensing,eval_sensing,steps,seeds,mean,std,min,max\n"

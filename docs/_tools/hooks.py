@@ -9,7 +9,7 @@ Markers in a page's Markdown, replaced before conversion:
 ``<!-- results-returns: PATH -->``
     ``summary.csv`` of ``scripts/rl_benchmark.py`` (its ``#`` lines skipped): mean +- standard deviation over seeds
     of the return, and the range over seeds where the file has ``min`` and ``max``, one row per sensing (trained on
-    -> evaluated on), one column per environment and budget.
+    -> evaluated on), one column per environment, algorithm and budget.
 
 After conversion (every page, the API reference included) the Sphinx roles of the docstrings are made readable:
 ``:class:`~smo_gym.observers.Levant``` -> ``Levant`` as code.
@@ -52,10 +52,10 @@ def _results_text(path: Path) -> str:
 def _results_returns(path: Path) -> str:
     with path.open() as f:
         rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
-    columns = []  # (env, steps) in file order
-    cells: dict[tuple[str, str], dict[tuple[str, int], str]] = {}
+    columns = []  # (env, algorithm, steps) in file order
+    cells: dict[tuple[str, str], dict[tuple[str, str, int], str]] = {}
     for r in rows:
-        col = (r["env"], int(r["steps"]))
+        col = (r["env"], r["algo"], int(r["steps"]))
         if col not in columns:
             columns.append(col)
         label = (r["train_sensing"], r["eval_sensing"])
@@ -69,7 +69,8 @@ def _results_returns(path: Path) -> str:
         return train if train == ev else f"{train} -> {ev}"
 
     order = sorted(cells, key=lambda lab: (lab[0] != lab[1], list(cells).index(lab)))
-    head = "| trained on -> evaluated on | " + " | ".join(f"{e.removesuffix('-v5')} {s // 1000}k" for e, s in columns)
+    titles = [f"{env.removesuffix('-v5')} {algo} {steps // 1000}k" for env, algo, steps in columns]
+    head = "| trained on -> evaluated on | " + " | ".join(titles)
     lines = [head + " |", "|---" * (len(columns) + 1) + "|"]
     for label in order:
         lines.append(f"| {name(label)} | " + " | ".join(cells[label].get(c, "-") for c in columns) + " |")
