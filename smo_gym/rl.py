@@ -44,6 +44,7 @@ from .specs import make_sensor, needs_model, parse_observer_spec
 __all__ = [
     "ALGOS",
     "SENSINGS",
+    "VECTORIZE_FROM",
     "MaskEntries",
     "SelectEntries",
     "algo_kwargs",
@@ -188,6 +189,13 @@ def make_env(
     return gym.wrappers.FlattenObservation(env)
 
 
+#: from how many environments :func:`make_vec` batches the observers by default: with fewer, per-environment
+#: wrappers cost less per step (the batched wrapper's fixed cost per vector step; with 8 Hopper environments it
+#: costs less, with 8 InvertedDoublePendulum environments about the same: ``scripts/bench_rl_throughput.py
+#: --tables in-process``)
+VECTORIZE_FROM = 8
+
+
 def make_vec(
     env_id: str,
     sensing: str = "estimated",
@@ -204,9 +212,10 @@ def make_vec(
     """A ``DummyVecEnv`` (with ``Monitor``) of :func:`make_env` environments.
 
     With ``rate="env"``, an estimating sensing (``"estimated"``, ``"finite-difference"``) and a ``Box`` observation
-    the observers run batched in :class:`~smo_gym.wrappers.VecEstimatedVelocity` (``vectorized=None`` or
-    ``True``); otherwise one :class:`~smo_gym.wrappers.EstimatedVelocity` per environment. Both give the same
-    observations. Model-based observers (and ``"auto"`` with a model) run per environment.
+    the observers run batched in :class:`~smo_gym.wrappers.VecEstimatedVelocity` (``vectorized=True``, or None
+    with at least :data:`VECTORIZE_FROM` environments); otherwise one :class:`~smo_gym.wrappers.EstimatedVelocity`
+    per environment. Both give the same observations. Model-based observers (and ``"auto"`` with a model) run per
+    environment.
     """
     make_vec_env = require("stable_baselines3.common.env_util", "rl").make_vec_env
 
@@ -214,7 +223,12 @@ def make_vec(
     explicit = vectorized
     if vectorized is None:  # a model-based observer needs its environment's control input: per environment
         model_based = needs_model(*_observer(sensing, observer, observer_kwargs))
-        vectorized = rate == "env" and sensing in ("estimated", "finite-difference") and not model_based
+        vectorized = (
+            rate == "env"
+            and sensing in ("estimated", "finite-difference")
+            and not model_based
+            and n_envs >= VECTORIZE_FROM
+        )
     if vectorized:
         if sensing not in ("estimated", "finite-difference"):
             raise ValueError(

@@ -78,6 +78,12 @@ def test_vectorized_sensing_in_training(tmp_path):
     from smo_gym.wrappers import VecEstimatedVelocity
 
     venv = rl.make_vec("InvertedDoublePendulum-v5", "estimated", n_envs=2, rate="env")
+    assert not isinstance(venv, VecEstimatedVelocity)  # per-environment wrappers cost less with few environments
+    venv.close()
+    venv = rl.make_vec("InvertedDoublePendulum-v5", "estimated", n_envs=2, rate="env", vectorized=True)
+    assert isinstance(venv, VecEstimatedVelocity)
+    venv.close()
+    venv = rl.make_vec("InvertedDoublePendulum-v5", "estimated", n_envs=rl.VECTORIZE_FROM, rate="env")
     assert isinstance(venv, VecEstimatedVelocity)
     venv.close()
     summary = rl.train(
