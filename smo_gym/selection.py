@@ -24,7 +24,11 @@ The rule (:attr:`Selection.choice`): a candidate is *safe* on a channel if in ev
 :data:`TOLERANCE` (2 %) of the better of the :data:`REFERENCES`, the backward difference and the Kalman filter,
 what a user would otherwise pick; among the safe candidates the one with the smallest worst regret (its error over
 the best candidate's, worst over the scenarios) wins. The references are never both unsafe unless each loses to the
-other in some scenario; then the smallest worst regret decides among all.
+other in some scenario; then the smallest worst regret decides among all. Where one candidate, safe on every
+channel, is within :data:`TOLERANCE` of that per-channel choice on every channel and in every scenario, it is taken
+for all channels: a mix would buy at most that much (a tie, as the safety rule counts it) and cost a composite, one
+more family to report and, in a new process, a few seconds more of compilation (Hopper-v5: the alpha-beta tracker
+on all six joints instead of the low-power high-gain observer on one of them, 1 % better there).
 
 A model-based observer estimates all channels together (its model couples them): as the last candidate of a
 :class:`Selection` with ``joint=True`` it is taken for every channel or for none (:attr:`Selection.choice`; the
@@ -187,20 +191,35 @@ class Selection:
     @property
     def choice(self) -> np.ndarray:
         """Index into :attr:`candidates` of every channel's choice, shape ``(n_channels,)``: the smallest
-        :attr:`regret` among the :attr:`safe` candidates (among all where none is), the first on a tie. A
+        :attr:`regret` among the :attr:`safe` candidates (among all where none is), the first on a tie; replaced by
+        one candidate for every channel where one is safe on every channel and within :data:`TOLERANCE` of that
+        choice on every channel and scenario (the one of smallest worst ratio, the first on a tie). A
         :attr:`joint` candidate is taken for every channel if it is safe on every channel and its worst regret
         over the channels is smaller than that of the per-channel choice among the others."""
         if not self.joint:
             regret = np.where(self.safe, self.regret, np.inf)
             none_safe = ~np.isfinite(regret).any(axis=0)
             regret[:, none_safe] = self.regret[:, none_safe]
-            return np.argmin(regret, axis=0)
+            return self._one_for_all(np.argmin(regret, axis=0))
         per_channel = Selection(self.candidates[:-1], np.asarray(self.errors)[:, :-1], self.source).choice
         regret, k = self.regret, len(self.candidates) - 1
         channels = np.arange(per_channel.size)
         if self.safe[k].all() and regret[k].max() < regret[per_channel, channels].max():
             return np.full(per_channel.size, k)
         return per_channel
+
+    def _one_for_all(self, choice: np.ndarray) -> np.ndarray:
+        """``choice``, or one candidate for every channel where one is as good (:attr:`choice`)."""
+        if np.all(choice == choice[0]):
+            return choice
+        errors = np.asarray(self.errors, dtype=float)
+        chosen = errors[:, choice, np.arange(choice.size)][:, None]  # (scenarios, 1, channels)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.where(errors == chosen, 1.0, errors / chosen)  # exact (0 / 0) ties count as ties
+        worst = np.max(ratio, axis=(0, 2))
+        worst[~self.safe.all(axis=1)] = np.inf
+        k = int(np.argmin(worst))
+        return np.full(choice.size, k) if worst[k] <= 1.0 + TOLERANCE else choice
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -217,6 +217,25 @@ def test_a_candidate_that_loses_to_the_references_somewhere_is_not_chosen():
     assert found.names == ("kalman-ca", "hg")
 
 
+def test_one_candidate_is_taken_for_all_channels_where_a_mix_buys_less_than_the_tolerance():
+    """Channel 1 alone would take "hg" (1 % better than the Kalman filter there); the Kalman filter is safe and
+    within 2 % of the per-channel choice everywhere, so it observes both channels. At 3 % better, the mix stays.
+    A candidate 1 % off the choice on one channel and safe everywhere is taken for all; once it is unsafe on that
+    channel (3 % worse than the backward difference there) it is not."""
+    candidates = ("finite-difference", "kalman-ca", "hg")
+    errors = np.array([[[2.0, 2.0], [1.0, 1.01], [1.1, 1.0]], [[2.0, 2.0], [1.0, 1.0], [1.2, 1.0]]])
+    per_channel = np.argmin(np.where(Selection(candidates, errors, "trials").safe, errors.max(axis=0), np.inf), 0)
+    assert per_channel.tolist() == [1, 2]  # what the rule without the preference gives
+    assert Selection(candidates, errors, "trials").names == ("kalman-ca", "kalman-ca")
+    wider = errors.copy()
+    wider[0, 1, 1] = 1.03
+    assert Selection(candidates, wider, "trials").names == ("kalman-ca", "hg")
+    close = np.array([[[1.0, 2.0], [1.5, 1.01], [1.01, 1.0]]])  # "hg" 1 % off on channel 0, and safe there
+    assert Selection(candidates, close, "trials").names == ("hg", "hg")
+    close[0, 2, 0] = 1.03
+    assert Selection(candidates, close, "trials").names == ("finite-difference", "hg")
+
+
 def _trials(seed: int, T: int = 3000) -> tuple[Trials, np.ndarray]:
     """Two channels: an Euler-integrated joint seen by an ideal sensor (the backward difference is exact), and a
     smooth motion seen through noise (a filter wins)."""

@@ -49,8 +49,9 @@ def _pair(env_id: str, seed: int, **kwargs):
         # free joints (quaternions): tangent coordinates and the measured/filtered configuration on the manifold
         ("Ant-v5", "super-twisting", "physics", "encoder-12bit-noisy", "filtered"),
         ("Humanoid-v5", "super-twisting", "env", "low-cost", "measured"),
-        # the default: different observers on different joints, one composite step (PerChannel)
-        ("Hopper-v5", "auto", "physics", "encoder-12bit-noisy", "measured"),
+        # the default where it mixes: the alpha-beta tracker and the Kalman filter on different joints, one
+        # composite step (PerChannel)
+        ("Walker2d-v5", "auto", "physics", "encoder-12bit-noisy", "measured"),
     ],
 )
 def test_fused_path_equals_general_path(env_id, observer, rate, sensor, positions):
