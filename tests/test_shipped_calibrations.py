@@ -36,13 +36,17 @@ def test_the_shipped_file_covers_every_environment_at_both_rates():
         assert value.ndim == 2 and np.isfinite(value).all(), key
 
 
-@pytest.mark.parametrize("rate", ["physics", "env"])
-def test_shipped_calibration_is_what_the_wrapper_computes(fresh_process, rate):
+@pytest.mark.parametrize(
+    "env_id, rate",
+    # the default environment of the demo and the benchmarks at the default rate, and a small one at both
+    [("InvertedPendulum-v5", "physics"), ("InvertedPendulum-v5", "env"), ("Hopper-v5", "physics")],
+)
+def test_shipped_calibration_is_what_the_wrapper_computes(fresh_process, env_id, rate):
     """Recomputed here (``disk_cache=False`` reads neither the user's file nor the shipped one): the same keys and
     the same numbers, up to rounding (another CPU may round the rollouts differently in the last bits). A change to
     the calibration, the trials or the candidates of ``"auto"`` fails here until ``scripts/ship_calibrations.py``
     is rerun."""
-    EstimatedVelocity(gym.make("InvertedPendulum-v5"), rate=rate, disk_cache=False)
+    EstimatedVelocity(gym.make(env_id), rate=rate, disk_cache=False)
     computed = _cache.memory_entries()
     shipped = json.loads(_cache.SHIPPED_FILE.read_text())
     assert len(computed) == 2
