@@ -476,8 +476,9 @@ def test_the_noise_estimate_never_exceeds_the_bound_and_approaches_it(pattern, r
     at most :math:`\epsilon` at every sample, on every signal with :math:`|f''| \le L` (a theorem, module notes).
     On stationary noise it comes close (window ``W = 32``, ``h = 1 ms``, ``L = 5``, :math:`\epsilon = 10^{-3}`;
     measured over 20 channels and 3000 samples): uniform noise, median 0.83, 5 % quantile 0.71 of
-    :math:`\epsilon`; random signs, median 0.997. The error then stays within the width of the intervals drawn
-    with the true bound over the lags used, :math:`2\min_{j \le \hat m_k} r_j`."""
+    :math:`\epsilon`; random signs, median 0.997. The estimate is the difference quotient over the lag
+    :math:`\hat\jmath_k` the estimated bound makes best, so its error is within that lag's bound drawn with the true
+    one, :math:`r_{\hat\jmath_k}`."""
     h, L, eps, T, W = 1e-3, 5.0, 1e-3, 3000, DEFAULT_ESTIMATION_WINDOW
     t = np.arange(T) * h
     f, df = random_sines(rng, t, 20, L)
@@ -494,11 +495,74 @@ def test_the_noise_estimate_never_exceeds_the_bound_and_approaches_it(pattern, r
         assert low > 0.65 and median > 0.8, (low, median)
     else:
         assert median > 0.99, median
-    lags = np.minimum(W, np.maximum(1, np.ceil(2.0 * np.sqrt(ratio * eps / L) / h)))
-    j = np.arange(1, W + 1) * h
-    r = 2.0 * eps / j + 0.5 * L * j
-    guarantee = 2.0 * np.min(np.where(np.arange(1, W + 1) <= lags[..., None], r, np.inf), axis=-1)
+    span = h * np.minimum(W, np.maximum(1, np.ceil(2.0 * np.sqrt(ratio * eps / L) / h)))
+    guarantee = 2.0 * eps / span + 0.5 * L * span
     assert np.all(np.abs(est[..., 1] - df[W:]) <= guarantee + ROUNDING)
+
+
+def reference_adaptive_difference(y, h, L, W):
+    r"""The unknown-noise differentiator written from its equations, sample by sample in plain Python (an
+    independent transcription): :math:`\hat\epsilon_k = \max(0, \max_{2 \le i \le w_k,\, 1 \le j < i}
+    \tfrac12(|y_{k-j} - y_k + (y_k - y_{k-i})j/i| - Lh^2 j(i-j)/2))` with :math:`w_k = \min(k, W)`, the lag
+    :math:`\hat\jmath_k = \min(w_k, \lceil 2\sqrt{\hat\epsilon_k/L}/h\rceil)` (1 where
+    :math:`\hat\epsilon_k = 0`) and the derivative :math:`(y_k - y_{k-\hat\jmath})/(\hat\jmath h)`."""
+    rates, noises = [0.0], [0.0]
+    for k in range(1, len(y)):
+        w = min(k, W)
+        noise = 0.0
+        for i in range(2, w + 1):
+            for j in range(1, i):
+                miss = y[k - j] - y[k] + (y[k] - y[k - i]) * j / i
+                noise = max(noise, 0.5 * (abs(miss) - 0.5 * L * h * h * j * (i - j)))
+        lag = 1 if noise == 0.0 else min(w, int(np.ceil(2.0 * np.sqrt(noise / L) / h)))
+        rates.append((y[k] - y[k - lag]) / (lag * h))
+        noises.append(noise)
+    return np.array(rates), np.array(noises)
+
+
+def test_the_unknown_noise_differentiator_follows_its_equations(rng):
+    """Equal to the plain transcription (to rounding) on a noisy, quantized sine with an outlier, where the lag
+    changes from sample to sample."""
+    h, L, W = 1e-3, 5.0, 24
+    t = np.arange(400) * h
+    y = np.round((np.sin(3.0 * t) + rng.uniform(-1e-3, 1e-3, t.shape)) / 5e-4) * 5e-4
+    y[200] += 0.02
+    rates, noises = reference_adaptive_difference(y, h, L, W)
+    obs = WorstCaseOptimal(h, L, window=W)
+    obs.reset(y[:1])
+    est, level = [0.0], [0.0]
+    for v in y[1:]:
+        est.append(obs.update(v[None])[0, 1])
+        level.append(obs.noise_estimate[0])
+    assert len(set(np.ceil(2.0 * np.sqrt(np.array(noises[W:]) / L) / h))) > 3  # the lag does change
+    np.testing.assert_allclose(level, noises, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(est, rates, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("h", "L", "eps"), [(1e-3, 5.0, 1e-3), (1e-3, 50.0, 1e-4), (1e-2, 5.0, 1e-2), (1e-3, 1.0, 1e-2)]
+)
+def test_the_unknown_noise_error_stays_below_the_published_worst_case(h, L, eps, rng):
+    r"""Aldana-López et al. (2025) give :math:`2\sqrt{2\epsilon L} + Lh/2` as the worst-case error without a
+    known noise bound, with the window :math:`W = \lceil\sqrt{2\epsilon/(Lh^2)} + 1\rceil` sized by a bound of
+    the noise (the bound their reference implementation draws). Checked once the window is full, on random sines
+    with :math:`|f''| \le L` under six noise patterns (uniform, random signs, alternating, random blocks, a ramp
+    over the window that no chord sees, and blocks of one window): measured at most 0.79 of it, and above the
+    known-noise optimum :math:`2\sqrt{\epsilon L}` by up to 26 %, the price of not knowing the noise."""
+    T = 3000
+    t = np.arange(T) * h
+    f, df = random_sines(rng, t, 20, L)
+    W = int(np.ceil(np.sqrt(2.0 * eps / (L * h * h)) + 1.0))
+    k = np.arange(T)[:, None]
+    patterns = noise_patterns(rng, f.shape, eps)
+    patterns["ramp"] = eps * (2.0 * (k % W) / max(W - 1, 1) - 1.0) * np.ones(f.shape)
+    patterns["window blocks"] = eps * np.where((k // W) % 2 == 0, 1.0, -1.0) * np.ones(f.shape)
+    bound = 2.0 * np.sqrt(2.0 * eps * L) + 0.5 * L * h
+    for name, eta in patterns.items():
+        obs = WorstCaseOptimal(h, L, window=W)
+        obs.reset(f[0] + eta[0])
+        err = np.abs(obs.run((f + eta)[1:])[..., 1] - df[1:])[W:]
+        assert err.max() <= bound, (name, err.max() / bound)
 
 
 def test_the_noise_estimate_is_zero_on_exact_quadratics_and_forgets_an_outlier():
