@@ -160,6 +160,7 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
         "ilf-fixed": "ILF-fix",
         "filtering": "Filtering",
         "alpha-beta": "AlphaBeta",
+        "kalman-imm": "KalmanIMM",
         "discrete-hosm": "DT-HOSM",
         "auto": "auto",
     }

@@ -78,6 +78,7 @@ CANDIDATES: tuple[str, ...] = (
     "alpha-beta",
     "low-power-high-gain",
     "levant:discretization=implicit",
+    "kalman-imm",
 )
 
 

@@ -11,12 +11,14 @@ import importlib
 import pkgutil
 
 from .._validation import DivergenceError, check_keywords, did_you_mean
+from .alpha_beta import AlphaBeta
 from .base import Observer
 from .composite import PerChannel
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .discrete_hosm import DiscreteTimeHOSM
 from .filtering import FilteringDifferentiator
 from .ilf import ILFDifferentiator, ILFFixedDifferentiator, ILFObserver
+from .imm import KalmanIMM
 from .linear import FiniteDifference, HighGain, KalmanCA
 from .low_power import LowPowerHighGain
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
@@ -44,6 +46,7 @@ __all__ = [
     "MODEL_BASED_OBSERVERS",
     "OBSERVERS",
     "URED",
+    "AlphaBeta",
     "CoordinateTransform",
     "DiscreteTimeHOSM",
     "DissipativeSuperTwisting",
@@ -57,6 +60,7 @@ __all__ = [
     "ILFFixedDifferentiator",
     "ILFObserver",
     "KalmanCA",
+    "KalmanIMM",
     "Levant",
     "LowPowerHighGain",
     "MechanicalSuperTwisting",
