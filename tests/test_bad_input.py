@@ -35,6 +35,7 @@ import smo_gym
 from smo_gym import observers, sensors
 from smo_gym.observers import (
     URED,
+    AlphaBeta,
     CoordinateTransform,
     DiscreteTimeHOSM,
     DissipativeSuperTwisting,
@@ -45,6 +46,7 @@ from smo_gym.observers import (
     ILFFixedDifferentiator,
     ILFObserver,
     KalmanCA,
+    KalmanIMM,
     Levant,
     LowPowerHighGain,
     MechanicalSuperTwisting,
@@ -720,6 +722,32 @@ OBSERVER_FAMILIES = [
         ),
     ),
     Family(
+        "KalmanIMM",
+        KalmanIMM,
+        lambda n: dict(
+            dt=positive(1e-4, 2e-2),
+            process_noise=st.one_of(positive(1e-3, 1e4), st.lists(positive(1e-3, 1e4), min_size=n, max_size=n)),
+            measurement_noise=positive(1e-8, 1.0),
+            smooth_ratio=st.one_of(positive(1e-4, 1.0), st.sampled_from([0.0, 1.5, -0.1])),
+            stay=st.one_of(positive(0.5, 0.999), st.sampled_from([1.0, 0.0, 2.0])),
+            initial_std=st.one_of(st.tuples(positive(), positive()), st.sampled_from([1.0, (1.0,), "ab"])),
+            discretization=_disc(KalmanIMM),
+        ),
+    ),
+    Family(
+        "AlphaBeta",
+        AlphaBeta,
+        lambda n: dict(
+            dt=positive(1e-4, 2e-2),
+            # mostly the calibrated form (both levels, no gains); sometimes gains, missing levels or bad gains
+            acceleration_std=st.one_of(positive(1.0, 1e3), positive_or_per_channel(n, 1.0, 1e3), st.none()),
+            noise_std=st.one_of(positive(1e-5, 1e-2), positive(1e-5, 1e-2), st.none()),
+            alpha=st.one_of(st.none(), st.none(), st.none(), positive(0.05, 1.9), st.just(2.5)),
+            beta=st.one_of(st.none(), st.none(), st.none(), positive(0.01, 3.0), st.just(-1.0)),
+            discretization=_disc(AlphaBeta),
+        ),
+    ),
+    Family(
         "SwitchedGain",
         SwitchedGain,
         lambda n: dict(
@@ -1335,6 +1363,16 @@ GOOD = {
         dt=1e-3, lipschitz=5.0, order=1, mu=0.5, alpha=2.0, gain=ILF_GAIN, discretization="implicit"
     ),
     "WorstCaseOptimal": dict(dt=1e-3, lipschitz=5.0, noise=1e-3, window=8, discretization="exact"),
+    "KalmanIMM": dict(
+        dt=1e-3,
+        process_noise=10.0,
+        measurement_noise=1e-6,
+        smooth_ratio=0.01,
+        stay=0.99,
+        initial_std=(10.0, 100.0),
+        discretization="exact",
+    ),
+    "AlphaBeta": dict(dt=1e-3, acceleration_std=50.0, noise_std=1e-4, alpha=None, beta=None, discretization="exact"),
     "MechanicalSuperTwisting": dict(
         dt=1e-3,
         lipschitz=5.0,

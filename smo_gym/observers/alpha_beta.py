@@ -145,7 +145,8 @@ class AlphaBeta(Observer):
                     f"acceleration_std={acceleration_std!r}, noise_std={noise_std!r}"
                 )
             accel = check_positive_parameter("acceleration_std", acceleration_std)
-            index = accel * self.dt**2 / check_positive_parameter("noise_std", noise_std)
+            with np.errstate(over="ignore"):  # an index beyond the float range is capped like any large one
+                index = accel * np.square(self.dt) / check_positive_parameter("noise_std", noise_std)
             alpha, beta = tracking_index_gains(np.minimum(index, MAX_TRACKING_INDEX))
         elif alpha is None or beta is None or acceleration_std is not None or noise_std is not None:
             raise ValueError(
