@@ -47,9 +47,10 @@ import math
 import numpy as np
 from numba import njit
 
-from .._validation import check_keywords, check_positive, check_positive_array, check_positive_parameter
+from .._validation import check_keywords, check_positive, check_positive_parameter
 from . import _kernels
 from .base import Observer
+from .linear import _initial_std, _kalman_rule, white_jerk_density
 from .registry import register_observer
 
 __all__ = ["KalmanIMM", "imm_ca_step"]
@@ -132,12 +133,6 @@ def imm_ca_rows(state, y, params, new_state, out, shared):
     return _kernels._check_state(new_state, out)
 
 
-def _imm_rule(cls, calibration, order, kwargs):
-    """:meth:`KalmanIMM.from_levels` per channel: the typical jerk (``order`` 3) and the measurement variance, as
-    :class:`~smo_gym.observers.KalmanCA`'s rule."""
-    return cls.from_levels(calibration.dt, calibration.rms(order), calibration.measurement_variance, **kwargs)
-
-
 _STEP = _kernels.register_step(imm_ca_rows)
 
 
@@ -145,7 +140,7 @@ _STEP = _kernels.register_step(imm_ca_rows)
     "kalman-imm",
     steps=(_STEP,),
     bound=3,
-    calibrate=_imm_rule,
+    calibrate=_kalman_rule,  # KalmanCA's: from_levels with the typical jerk and the measurement variance
     given=(("process_noise", "measurement_noise"),),
     examples=(
         dict(process_noise=50.0, measurement_noise=1e-6),
@@ -203,29 +198,14 @@ class KalmanIMM(Observer):
         self.stay = check_positive("stay", stay)
         if self.stay >= 1.0:
             raise ValueError(f"expected stay in (0, 1), actual value: {stay!r}")
-        if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:
-            raise TypeError(
-                f"expected initial_std to be a pair (velocity std, acceleration std), actual value: {initial_std!r}"
-            )
-        self.initial_std = (
-            check_positive("initial_std[0]", initial_std[0]),
-            check_positive("initial_std[1]", initial_std[1]),
-        )
+        self.initial_std = _initial_std(initial_std)
 
     @classmethod
     @check_keywords
     def from_levels(cls, dt: float, jerk_rms, measurement_variance, **kwargs) -> KalmanIMM:
         r"""The fast mode's ``q`` from the typical (RMS) jerk ``J`` at the sampling step, :math:`q = J^2\tau`, as
         :meth:`KalmanCA.from_levels <smo_gym.observers.KalmanCA.from_levels>` sets it."""
-        dt = check_positive("dt", dt)
-        jerk = check_positive_array("jerk_rms", jerk_rms)
-        with np.errstate(over="ignore"):
-            q = jerk**2 * dt
-        if not (np.all(np.isfinite(q)) and np.all(q > 0)):
-            raise ValueError(
-                f"expected jerk_rms whose square times dt is finite and positive, actual value: {jerk_rms!r}"
-            )
-        return cls(dt, q, measurement_variance, **kwargs)
+        return cls(dt, white_jerk_density(dt, jerk_rms), measurement_variance, **kwargs)
 
     @property
     def _kernel(self):

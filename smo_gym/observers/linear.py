@@ -34,12 +34,33 @@ def _high_gain_rule(cls, calibration, order, kwargs):
     return cls.from_bounds(calibration.dt, bound, noise, order=kw.pop("order", 1), **kw)
 
 
+def _initial_std(initial_std) -> tuple[float, float]:
+    """The prior standard deviations (velocity, acceleration) of a constant-acceleration filter at reset, checked."""
+    if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:
+        raise TypeError(
+            f"expected initial_std to be a pair (velocity std, acceleration std), actual value: {initial_std!r}"
+        )
+    return check_positive("initial_std[0]", initial_std[0]), check_positive("initial_std[1]", initial_std[1])
+
+
+def white_jerk_density(dt: float, jerk_rms) -> np.ndarray:
+    r"""The white-jerk density :math:`q = J^2\tau` of a typical (RMS) jerk ``J`` at the sampling step ``tau``
+    (:meth:`KalmanCA.from_levels`), per channel; a typed error unless it is finite and positive."""
+    dt = check_positive("dt", dt)
+    jerk = check_positive_array("jerk_rms", jerk_rms)
+    with np.errstate(over="ignore"):
+        q = jerk**2 * dt
+    if not (np.all(np.isfinite(q)) and np.all(q > 0)):
+        raise ValueError(f"expected jerk_rms whose square times dt is finite and positive, actual value: {jerk_rms!r}")
+    return q
+
+
 def _kalman_rule(cls, calibration, order, kwargs):
     """:meth:`KalmanCA.from_levels` per channel: the typical jerk (``order`` 3) and the measurement variance."""
     return cls.from_levels(calibration.dt, calibration.rms(order), calibration.measurement_variance, **kwargs)
 
 
-__all__ = ["FiniteDifference", "HighGain", "KalmanCA"]
+__all__ = ["FiniteDifference", "HighGain", "KalmanCA", "white_jerk_density"]
 
 
 @register_observer(
@@ -257,14 +278,7 @@ class KalmanCA(Observer):
         super().__init__(dt, 2, discretization, wrap)
         self.process_noise = check_positive_parameter("process_noise", process_noise)
         self.measurement_noise = check_positive_parameter("measurement_noise", measurement_noise)
-        if not isinstance(initial_std, (tuple, list, np.ndarray)) or len(initial_std) != 2:
-            raise TypeError(
-                f"expected initial_std to be a pair (velocity std, acceleration std), actual value: {initial_std!r}"
-            )
-        self.initial_std = (
-            check_positive("initial_std[0]", initial_std[0]),
-            check_positive("initial_std[1]", initial_std[1]),
-        )
+        self.initial_std = _initial_std(initial_std)
 
     @classmethod
     @check_keywords
@@ -276,15 +290,7 @@ class KalmanCA(Observer):
         in its place makes the filter trust the measurements about as much as a backward difference does.
         ``measurement_variance`` is ``r`` (noise variance plus :math:`\Delta^2/12` for quantization).
         """
-        dt = check_positive("dt", dt)
-        jerk = check_positive_array("jerk_rms", jerk_rms)
-        with np.errstate(over="ignore"):
-            q = jerk**2 * dt
-        if not (np.all(np.isfinite(q)) and np.all(q > 0)):
-            raise ValueError(
-                f"expected jerk_rms whose square times dt is finite and positive, actual value: {jerk_rms!r}"
-            )
-        return cls(dt, q, measurement_variance, **kwargs)
+        return cls(dt, white_jerk_density(dt, jerk_rms), measurement_variance, **kwargs)
 
     @property
     def _kernel(self):
