@@ -3,8 +3,9 @@ r"""Benchmark of the smo_gym observers: cost per update, offline throughput, acc
 
 Prints three markdown tables (the ones in the README section "Accuracy and speed"):
 
-1. **Cost of one sample.** For every observer of :data:`smo_gym.observers.OBSERVERS` (default discretization,
-   plus the notable alternatives) and 1, 8, 32, 256 channels: ``Observer.update(y)`` (validation + compiled
+1. **Cost of one sample.** For the sliding-mode differentiators, the high-gain observer, finite differences and
+   the Kalman filter (their discretizations side by side; not every registered family: each row needs a NumPy
+   reference written here) and 1, 8, 32, 256 channels: ``Observer.update(y)`` (validation + compiled
    kernel + bookkeeping), the compiled kernel call alone, and a plain vectorized NumPy implementation of the same
    recursion written here from the equations (its agreement with the kernel is checked and printed). Medians over
    repeats, all measured side by side in one run. Targets: ``update()`` <= 2 us up to 32 channels,
