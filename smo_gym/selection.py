@@ -3,8 +3,10 @@ r"""``observer="auto"``: the velocity observer of every joint chosen from the ev
 No single observer wins everywhere (the accuracy tables of the documentation): a backward difference is exact on
 an ideal encoder when the simulator integrates with Euler and every physics step is sampled, a Kalman filter tuned
 from the typical jerk wins where noise dominates a smooth motion, a high-gain filter where impacts make the jerk
-anything but white. :func:`auto_observer` chooses per channel among :data:`CANDIDATES`, each with its own calibrated
-gains (:func:`smo_gym.calibration.default_observer`), from their velocity RMSE in one or more scenarios:
+anything but white, two Kalman filters mixed by the IMM algorithm (:class:`smo_gym.observers.KalmanIMM`) where
+smooth stretches alternate with bursts of jerk. :func:`auto_observer` chooses per channel among
+:data:`CANDIDATES`, each with its own calibrated gains (:func:`smo_gym.calibration.default_observer`), from their
+velocity RMSE in one or more scenarios:
 
 * **measured on trials** when the caller has them (:class:`Trials`): the wrapper simulates its own sensor on the
   positions of the calibration rollouts of its environment (the environment's own resets, under uniform random
