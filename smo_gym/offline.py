@@ -16,7 +16,7 @@ __all__ = ["differentiate"]
 
 
 @check_keywords
-def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
+def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **params):
     r"""Estimate a sampled signal and its derivatives with an observer, causally, sample by sample.
 
     Parameters
@@ -35,6 +35,13 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
         Alias of ``observer`` (the former name of this argument); give one of them.
     axis : int, optional
         The time axis of ``y``. Default 0.
+    start : {"kalman", "measurement"}, optional
+        How the recursion starts. ``"measurement"``: at the first sample, every derivative at zero (what ``reset``
+        and ``update`` give online). ``"kalman"``: from the estimate of the constant-acceleration Kalman filter
+        calibrated from ``y`` once its prior is forgotten (see Notes). Default: ``"kalman"`` when the gains are
+        calibrated from ``y`` and the family's first estimates hinge on its initial derivatives
+        (:attr:`Observer.self_starting <smo_gym.observers.Observer.self_starting>` false: the sliding-mode,
+        high-gain and alpha-beta families), else ``"measurement"``.
     **params
         Constructor arguments of the observer (``order``, ``lipschitz``, ``discretization``, ``wrap``, ...). Gains
         that are not given are calibrated from ``y`` itself (see Notes).
@@ -43,15 +50,15 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
     -------
     ndarray, shape ``y.shape + (order + 1,)`` (``y.shape + (2,)`` for ``"auto"``)
         ``out[..., i]`` is the estimate of the ``i``-th derivative, with time along ``axis`` as in ``y``: the
-        estimate at a sample uses that sample and the earlier ones only, the same numbers ``update`` returns
-        online. With ``wrap``, the value estimate ``out[..., 0]`` of a wrapped channel is the continuous
-        (unwrapped) angle.
+        estimate at a sample uses that sample and the earlier ones only (with ``start="measurement"``, the same
+        numbers ``update`` returns online). With ``wrap``, the value estimate ``out[..., 0]`` of a wrapped channel
+        is the continuous (unwrapped) angle.
 
     Raises
     ------
     ValueError
-        An unknown observer name, an empty or non-finite ``y``, ``dt <= 0``, or an observer object with another
-        step.
+        An unknown observer name or ``start``, an empty or non-finite ``y``, ``dt <= 0``, or an observer object
+        with another step.
     TypeError
         ``y`` not numeric, both ``observer`` and ``method``, or an observer object together with ``params``.
     DivergenceError
@@ -77,6 +84,19 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
     typical jerk ``J`` and :math:`r = \hat\sigma^2` per channel for ``"kalman-ca"``. Wrapped channels are
     unwrapped (``numpy.unwrap``) for the calibration only. Given gains cost nothing: the calibration then does not
     run.
+
+    Start. A differentiator started at rest converges in a time that grows as its gain falls (Levant 2003): on a
+    slow signal, with the small bound a calibration rightly finds, its first estimates are wrong for seconds (a
+    cubic over 20 s, ``scripts/bench_signals.py``: the filtering differentiator's largest velocity error after 2 s
+    was 0.33-0.40, its RMSE 7 to 200 times the Kalman filter's). The constant-acceleration Kalman filter has no
+    such transient: its wide prior makes its first estimates least-squares fits. With ``start="kalman"`` that
+    filter, calibrated from ``y`` (:meth:`KalmanCA.from_levels <smo_gym.observers.KalmanCA.from_levels>`), gives
+    the first ``m + 1`` estimates, ``m`` the updates until its velocity's standard deviation is within a factor 2
+    of its steady state (:meth:`KalmanCA.settling_samples <smo_gym.observers.KalmanCA.settling_samples>`: 2.5 time
+    constants of the filter; the results hardly depend on the factor: on that benchmark 2, 1.1 and 1.01 gave the
+    same RMSE but where the filter is the worse estimator, and there a longer start costs); at sample ``m`` the
+    observer is reset at the filter's estimate (value, velocity and acceleration, as many as it has) and runs on
+    from there. Still causal.
 
     The result of the sliding-mode observers depends on the gains: a calibration from the data cannot know
     bounds the record does not show, and the Lipschitz bounds of the theory (Levant 2003) assume the worst case.
@@ -130,14 +150,12 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
         raise ValueError(
             f"expected y with at least one channel and no empty batch dimension, actual value: shape {y.shape}"
         )
-    obs = _build(observer, dt, y, params)
-    first = obs.reset(y[0])
-    out = np.empty((y.shape[0],) + first.shape)
-    out[0] = first
-    if "out" in inspect.signature(obs.run).parameters:
-        obs.run(y[1:], out=out[1:])  # written in place: no second copy of a possibly large result
-    else:  # an observer whose run() takes other arguments (the model-based ones) allocates its result
-        out[1:] = obs.run(y[1:])
+    if start not in (None, "kalman", "measurement"):
+        raise ValueError(f"expected start to be 'kalman' or 'measurement', actual value: {start!r}")
+    obs, found = _build(observer, dt, y, params, with_jerk=start != "measurement")
+    if start is None:
+        start = "kalman" if found is not None and not obs.self_starting else "measurement"
+    out = _run_from_kalman(obs, y, dt, found) if start == "kalman" else _run(obs, y)
     if isinstance(observer, str) and observer == "auto":  # value and velocity: what every choice estimates
         out = out[..., :2]
     if squeeze:
@@ -145,8 +163,10 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, **params):
     return np.moveaxis(out, 0, axis) if axis else out
 
 
-def _build(observer, dt: float, y: np.ndarray, params: dict) -> Observer:
-    """The observer to run on ``y`` (T, ...): a copy of an object, or a named one with calibrated gains."""
+def _build(observer, dt: float, y: np.ndarray, params: dict, with_jerk: bool) -> tuple[Observer, object]:
+    """The observer to run on ``y`` (T, ...), a copy of an object or a named one with calibrated gains, and the
+    :class:`~smo_gym.calibration.Calibration` of ``y`` its gains came from (None: nothing was calibrated); with
+    ``with_jerk`` that calibration also has the typical jerk the Kalman start needs."""
     if isinstance(observer, Observer):
         if params:
             raise TypeError(f"expected no observer parameters with an observer object, actual value: {params!r}")
@@ -154,18 +174,53 @@ def _build(observer, dt: float, y: np.ndarray, params: dict) -> Observer:
             raise ValueError(
                 f"expected an observer with dt equal to the sampling step {dt}, actual value: {observer.dt}"
             )
-        return copy.deepcopy(observer)
+        return copy.deepcopy(observer), None
     if isinstance(observer, str) and observer == "auto":
         from .selection import auto_observer, candidate_orders
 
         y = _finite_for_calibration(y)
         found = calibration.calibration_of_signal(_unwrapped(y, params.get("wrap")), dt, candidate_orders())
-        return auto_observer(found, observer_kwargs=params)
+        return auto_observer(found, observer_kwargs=params), found
     if not calibration.needs_calibration(observer, params):  # also rejects unknown names, listing the known
-        return make_observer(observer, dt=dt, **params)
+        return make_observer(observer, dt=dt, **params), None
     sample = _unwrapped(_finite_for_calibration(y), params.get("wrap"))
-    orders = (calibration.bound_order(observer, params),)
-    return calibration.default_observer(observer, calibration.calibration_of_signal(sample, dt, orders), params)
+    orders = {calibration.bound_order(observer, params)} | ({3} if with_jerk else set())
+    found = calibration.calibration_of_signal(sample, dt, sorted(orders))
+    return calibration.default_observer(observer, found, params), found
+
+
+def _run(obs: Observer, y: np.ndarray) -> np.ndarray:
+    """``obs`` reset at ``y[0]`` and run on the rest: its estimates, shape ``y.shape + (order + 1,)``."""
+    first = obs.reset(y[0])
+    out = np.empty((y.shape[0],) + first.shape)
+    out[0] = first
+    _run_into(obs, y[1:], out[1:])
+    return out
+
+
+def _run_into(obs: Observer, y: np.ndarray, out: np.ndarray) -> None:
+    """``obs.run(y)`` written into ``out``."""
+    if "out" in inspect.signature(obs.run).parameters:
+        obs.run(y, out=out)  # written in place: no second copy of a possibly large result
+    else:  # an observer whose run() takes other arguments (the model-based ones) allocates its result
+        out[:] = obs.run(y)
+
+
+def _run_from_kalman(obs: Observer, y: np.ndarray, dt: float, found) -> np.ndarray:
+    """``obs`` started from the calibrated Kalman filter's estimate once the filter's prior is forgotten
+    (:func:`differentiate`, Notes): the filter's estimates up to that sample, the observer's after it."""
+    if found is None or 3 not in found.typical:
+        found = calibration.calibration_of_signal(_unwrapped(_finite_for_calibration(y), obs.wrap), dt, (3,))
+    kalman = calibration.default_observer("kalman-ca", found, {"wrap": obs.wrap})
+    m = kalman.settling_samples(limit=y.shape[0] - 1)
+    head = _run(kalman, y[: m + 1])
+    k = min(obs.order, 2)  # the derivatives both estimate
+    first = obs.reset(head[m, ..., 0], derivatives=head[m, ..., 1 : k + 1])
+    out = np.zeros((y.shape[0],) + first.shape)
+    out[: m + 1, ..., : k + 1] = head[..., : k + 1]
+    if m + 1 < y.shape[0]:
+        _run_into(obs, y[m + 1 :], out[m + 1 :])
+    return out
 
 
 def _finite_for_calibration(y: np.ndarray) -> np.ndarray:

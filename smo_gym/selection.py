@@ -52,6 +52,7 @@ from .calibration import Calibration, bound_order, default_observer
 from .observers import Observer
 from .observers.base import reported_coefficients, reported_velocity
 from .observers.composite import PerChannel
+from .observers.linear import steady_state_covariance
 from .specs import MODEL_OPTIONS, parse_observer_spec
 
 __all__ = [
@@ -238,19 +239,10 @@ class Selection:
 
 def _kalman_ca_error(dt: float, q: float, r: float, c: np.ndarray) -> float:
     """RMS of the reported velocity ``c . x`` of the steady-state constant-acceleration Kalman filter."""
-    from scipy.linalg import solve_discrete_are
-
-    F = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-    Q = q * np.array(
-        [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]]
-    )
-    H = np.array([[1.0, 0.0, 0.0]])
     try:
-        prior = solve_discrete_are(F.T, H.T, Q, np.array([[r]]))  # the prediction's covariance
+        posterior = steady_state_covariance(dt, q, r)
     except (ValueError, np.linalg.LinAlgError):
         return np.inf
-    gain = prior @ H.T / (H @ prior @ H.T + r)
-    posterior = (np.eye(3) - gain @ H) @ prior
     v = np.concatenate([[0.0], c])
     return float(np.sqrt(max(v @ posterior @ v, 0.0)))
 

@@ -250,15 +250,17 @@ def _minimal(name):
 @pytest.mark.parametrize("name", ["super-twisting", "kalman-ca"])
 def test_differentiate_calibrated_equals_the_calibration_functions(name):
     """The calibrated observer is exactly ``default_observer`` with the ``calibration_of_signal`` of the data
-    (passing that object gives the same numbers), per channel for ``(T, 2, 3)`` data."""
+    (passing that object gives the same numbers, from either start), per channel for ``(T, 2, 3)`` data."""
     _, _, noisy = noisy_sine(T=3000, sigma=1e-4, channels=6)
     Y = noisy.reshape(3000, 2, 3)
     c = calibration.calibration_of_signal(Y, DT, (calibration.bound_order(name),))
     np.testing.assert_array_equal(c.noise, calibration.noise_std(Y))
     obs = calibration.default_observer(name, c)
-    np.testing.assert_array_equal(
-        smo_gym.differentiate(Y, DT, observer=name), smo_gym.differentiate(Y, DT, observer=obs)
-    )
+    for start in ("measurement", "kalman"):
+        np.testing.assert_array_equal(
+            smo_gym.differentiate(Y, DT, observer=name, start=start),
+            smo_gym.differentiate(Y, DT, observer=obs, start=start),
+        )
     assert obs.shape is None  # the object passed in is copied, not run
 
 

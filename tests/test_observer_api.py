@@ -169,10 +169,10 @@ def test_masked_reset_restarts_only_masked_rows(name, kwargs, mask_shape, rng):
 
 @pytest.mark.parametrize("name, kwargs", CASES)
 def test_differentiate_equals_online_updates(name, kwargs, rng):
-    """``smo_gym.differentiate`` returns exactly what ``reset`` + ``update`` return online, for ``(T, 4, 7)`` and
-    ``(T,)`` input."""
+    """``smo_gym.differentiate`` started at the measurement returns exactly what ``reset`` + ``update`` return
+    online, for ``(T, 4, 7)`` and ``(T,)`` input."""
     Y = measurements(rng)
-    params = dict(kwargs)
+    params = dict(kwargs, start="measurement")
     if name in TAKES_LIPSCHITZ:
         params["lipschitz"] = lipschitz_array()
     offline = smo_gym.differentiate(Y, DT, method=name, **params)

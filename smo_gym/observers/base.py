@@ -221,6 +221,10 @@ class Observer:
     lead: ClassVar[int] = 0
     #: whether ``update(y, u)`` and ``run(Y, U)`` take the control input (a model-based observer)
     takes_input: ClassVar[bool] = False
+    #: whether the first estimates after ``reset`` do not hinge on the initial derivatives: a finite window of
+    #: samples (the backward difference) or a prior covariance that makes them least-squares fits (the Kalman
+    #: filters); :func:`smo_gym.differentiate` starts the other families from a Kalman filter's estimate
+    self_starting: ClassVar[bool] = False
     # compiled call of update(), bound lazily (class-level defaults keep subclasses and old pickles working):
     # ``(entry point, params, measurement shape, estimate shape)``, one attribute for the hot path
     _bound = None

@@ -271,6 +271,11 @@ class PerChannel(Observer):
         self.names = tuple(names)
 
     @property
+    def self_starting(self) -> bool:
+        """Whether every part is (:attr:`Observer.self_starting <smo_gym.observers.Observer.self_starting>`)."""
+        return all(observer.self_starting for observer, _ in self.parts)
+
+    @property
     def _kernel(self):
         return composite_step([compiled_step(observer) for observer, _ in self.parts]).kernel
 

@@ -175,6 +175,7 @@ class KalmanIMM(Observer):
 
     discretizations = ("exact",)
     reports_instant = True
+    self_starting = True  # each mode starts from KalmanCA's prior
 
     @check_keywords
     def __init__(

@@ -329,6 +329,7 @@ class WorstCaseOptimal(Observer):
     """
 
     discretizations = ("exact",)
+    self_starting = True  # its estimate is a difference over the samples it holds
 
     @check_keywords
     def __init__(
