@@ -20,6 +20,8 @@ typical level of the derivative its gain rule needs, :func:`~smo_gym.calibration
 differentiators start, as ``differentiate`` starts them when it calibrates, from the calibrated Kalman filter's
 estimate once the filter's prior is forgotten (``start="kalman"``; the Kalman filter starts from its wide prior,
 the backward difference needs none). Columns: the
+default (``auto``: per channel the backward difference or the Kalman filter, chosen on the calibration's predictions,
+the Kalman filter's process noise fitted to the record, :meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`), the
 backward difference (FD), the constant-acceleration Kalman filter (its process noise from the typical jerk,
 :meth:`KalmanCA.from_levels <smo_gym.observers.KalmanCA.from_levels>`), super-twisting (implicit), Levant's
 differentiator of order 2 (``taylor``), the filtering differentiator (order 2, filtering order 1, ``d = -1``;
@@ -87,6 +89,7 @@ SENSORS = (
 )
 #: (column, observer name, parameters) of the accuracy table; every gain is calibrated from the measured signal
 ESTIMATORS = (
+    ("auto", "auto", {}),
     ("FD", "finite-difference", {}),
     ("KalmanCA", "kalman-ca", {}),
     ("ST", "super-twisting", {}),
@@ -362,6 +365,13 @@ def verdict(rows: list[dict], exp_rows: list[dict], levels: np.ndarray) -> str:
         f"{'met' if len(max_met) == len(fast) else 'not met'}: {len(max_met)} of {len(fast)} rows meet it"
         + (f"; missed on {'; '.join(missed)}." if missed else "."),
     ]
+    default = [r["auto"][0] / min(r["FD"][0], r["KalmanCA"][0]) for r in rows]
+    wins = [r["auto"][0] / min(r[c][0] for c, _, _ in ESTIMATORS if c != "auto") for r in rows]
+    lines.append(
+        f"- The default (`auto`) against the better of FD and calibrated KalmanCA, all {len(rows)} rows: ratio "
+        f"median {np.median(default):.2f}, worst {max(default):.2f}; against the best other calibrated column: "
+        f"at most that in {sum(x <= 1.0 for x in wins)} rows, median {np.median(wins):.2f}, worst {max(wins):.2f}."
+    )
     for r in exp_rows:
         off = abs(r["max_slope"] - r["theory"])
         lines.append(

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import inspect
 
 import numpy as np
 
 from . import calibration
 from ._validation import as_real_array, check_keywords, check_positive
-from .observers import Observer, make_observer
+from .observers import KalmanCA, Observer, make_observer
 from .observers.base import check_wrap
+from .observers.linear import white_jerk_density
 
 __all__ = ["differentiate"]
 
@@ -29,8 +31,9 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
         An observer name of :data:`smo_gym.observers.OBSERVERS` (``"levant"``, ``"super-twisting"``,
         ``"high-gain"``, ``"kalman-ca"``, ...; the names of the Gymnasium wrapper), or an observer object whose
         ``dt`` equals ``dt`` (a copy is run; ``params`` must then be empty). Default ``"auto"``: per channel
-        the backward difference or the constant-acceleration Kalman filter, whichever the calibration predicts
-        more accurate (:func:`smo_gym.selection.auto_observer`; it takes no parameter but ``wrap``).
+        the backward difference or the constant-acceleration Kalman filter with its process noise fitted to ``y``
+        (:meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`), whichever the calibration predicts more
+        accurate (:func:`smo_gym.selection.auto_observer`; it takes no parameter but ``wrap``).
     method : str, optional
         Alias of ``observer`` (the former name of this argument); give one of them.
     axis : int, optional
@@ -163,6 +166,11 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
     return np.moveaxis(out, 0, axis) if axis else out
 
 
+#: the shortest record whose Kalman process noise ``"auto"`` fits (:meth:`KalmanCA.fit`); shorter ones keep the
+#: level calibrated from the differences
+MIN_FIT_SAMPLES = 64
+
+
 def _build(observer, dt: float, y: np.ndarray, params: dict, with_jerk: bool) -> tuple[Observer, object]:
     """The observer to run on ``y`` (T, ...), a copy of an object or a named one with calibrated gains, and the
     :class:`~smo_gym.calibration.Calibration` of ``y`` its gains came from (None: nothing was calibrated); with
@@ -176,17 +184,33 @@ def _build(observer, dt: float, y: np.ndarray, params: dict, with_jerk: bool) ->
             )
         return copy.deepcopy(observer), None
     if isinstance(observer, str) and observer == "auto":
-        from .selection import auto_observer, candidate_orders
+        from .selection import auto_observer, candidate_orders, select
 
-        y = _finite_for_calibration(y)
-        found = calibration.calibration_of_signal(_unwrapped(y, params.get("wrap")), dt, candidate_orders())
-        return auto_observer(found, observer_kwargs=params), found
+        sample = _unwrapped(_finite_for_calibration(y), params.get("wrap"))
+        found = calibration.calibration_of_signal(sample, dt, candidate_orders())
+        # chosen on the levels' predictions (the fitted filter's own model is no guide where the fit inflates q to
+        # follow a fast signal), built with the fitted process noise where the Kalman filter is chosen
+        selection = select(found, observer_kwargs=params)
+        if "kalman-ca" in (selection.candidates[k] for k in selection.choice):
+            found = _with_fitted_jerk(found, sample)
+        return auto_observer(found, observer_kwargs=params, selection=selection), found
     if not calibration.needs_calibration(observer, params):  # also rejects unknown names, listing the known
         return make_observer(observer, dt=dt, **params), None
     sample = _unwrapped(_finite_for_calibration(y), params.get("wrap"))
     orders = {calibration.bound_order(observer, params)} | ({3} if with_jerk else set())
     found = calibration.calibration_of_signal(sample, dt, sorted(orders))
     return calibration.default_observer(observer, found, params), found
+
+
+def _with_fitted_jerk(found, y: np.ndarray):
+    """``found`` with its typical jerk replaced by the white-jerk level whose Kalman filter predicts ``y`` best
+    (:meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`): the Kalman candidate of ``"auto"`` is built from it,
+    and its predicted error is that filter's. Records too short to fit keep the level from the differences."""
+    if y.shape[0] < MIN_FIT_SAMPLES:
+        return found
+    white = white_jerk_density(found.dt, found.rms(3))
+    fitted = KalmanCA.fit(y, found.dt, found.measurement_variance, white).process_noise
+    return dataclasses.replace(found, typical={**found.typical, 3: np.sqrt(fitted / found.dt)})
 
 
 def _run(obs: Observer, y: np.ndarray) -> np.ndarray:

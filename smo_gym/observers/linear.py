@@ -6,6 +6,8 @@ References
    Automatica 98, 2018, eq. (2).
 .. [BSL01] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, *Estimation with Applications to Tracking and
    Navigation*, Wiley 2001, section 6.2.3 (continuous white-noise jerk model).
+.. [Lju99] L. Ljung, *System Identification: Theory for the User*, 2nd ed., Prentice Hall 1999, chapter 7
+   (prediction-error methods).
 """
 
 from __future__ import annotations
@@ -58,6 +60,9 @@ def white_jerk_density(dt: float, jerk_rms) -> np.ndarray:
     return q
 
 
+#: factors on a process noise among which :meth:`KalmanCA.fit` chooses (``10**-1 .. 10**3.5``)
+FIT_FACTORS = 10.0 ** np.arange(-1.0, 3.51, 0.5)
+
 #: updates per time constant of the constant-acceleration Kalman filter until its velocity's standard deviation is
 #: within a factor 2 of its steady state (:meth:`KalmanCA.settling_samples`)
 SETTLING_TIME_CONSTANTS = 2.54
@@ -97,6 +102,7 @@ def _kalman_rule(cls, calibration, order, kwargs):
 
 
 __all__ = [
+    "FIT_FACTORS",
     "SETTLING_TIME_CONSTANTS",
     "FiniteDifference",
     "HighGain",
@@ -337,6 +343,63 @@ class KalmanCA(Observer):
         ``measurement_variance`` is ``r`` (noise variance plus :math:`\Delta^2/12` for quantization).
         """
         return cls(dt, white_jerk_density(dt, jerk_rms), measurement_variance, **kwargs)
+
+    @classmethod
+    def fit(cls, y, dt: float, measurement_variance, process_noise, *, factors=FIT_FACTORS, **kwargs) -> KalmanCA:
+        r"""The filter whose process noise predicts the record ``y`` best, per channel: among ``process_noise`` times
+        each of ``factors``, the one of smallest mean squared innovation (one-step prediction error)
+        :math:`\nu_k = y_k - (\hat x_{k-1} + \tau \hat v_{k-1} + \tfrac{\tau^2}{2} \hat a_{k-1})`, after the start
+        (:meth:`settling_samples` of the smallest): the prediction-error method of system identification [Lju99],
+        which for a correctly specified model is consistent, and needs no truth.
+
+        Why: the white-jerk density of :meth:`from_levels` fits a jerk that changes from one sample to the next
+        (impacts), and is far too small for a smooth one. A jerk that stays put over the filter's memory of ``N``
+        samples moves the acceleration ``N`` times as far as white jerk of the same level, and ``N`` is 10 to 1,000
+        at fast sampling. On ``scripts/bench_signals.py``'s sums of sines, chirp and cubic the fit chooses factors
+        3 to 3,000 and reaches, on every row, the velocity RMSE of the best common factor in hindsight (0.0194
+        against 0.0539 from the levels on sines at 1 ms with noise 1e-3).
+
+        Parameters
+        ----------
+        y : array_like, shape (T, ...)
+            The record, ``T >= 3``; every trailing index is a channel.
+        dt : float
+        measurement_variance : float or array_like
+            ``r`` per channel (or one for all).
+        process_noise : float or array_like
+            The ``q`` the factors scale (:func:`white_jerk_density` of the typical jerk, say).
+        factors : array_like
+            Positive factors, one or more.
+        **kwargs
+            Constructor arguments of the filters (``initial_std``, ``wrap``: the innovations of wrapped channels
+            are taken modulo ``2 pi``).
+
+        Returns
+        -------
+        KalmanCA
+            With the chosen ``q`` per channel.
+        """
+        dt = check_positive("dt", dt)
+        y = as_real_array("y", y)
+        if y.ndim < 1 or y.shape[0] < 3 or not np.isfinite(y).all():
+            raise ValueError(f"expected a finite record y (T, ...) with T >= 3 samples, actual value: shape {y.shape}")
+        factors = check_positive_array("factors", factors).reshape(-1)
+        q0 = np.broadcast_to(check_positive_array("process_noise", process_noise), y.shape[1:])
+        wrapped = kwargs.get("wrap")
+        wrapped = None if wrapped is None else np.broadcast_to(np.asarray(wrapped, dtype=bool), y.shape[1:])
+        slowest = cls(dt, q0 * factors.min(), measurement_variance, **kwargs)  # the longest start
+        start = slowest.settling_samples(limit=(y.shape[0] - 1) // 2)
+        best_error, best_q = np.full(y.shape[1:], np.inf), q0 * factors[0]
+        for factor in factors:
+            candidate = cls(dt, q0 * factor, measurement_variance, **kwargs)
+            previous = np.concatenate([candidate.reset(y[0])[None], candidate.run(y[1:-1])])
+            innovation = y[1:] - (previous[..., 0] + dt * previous[..., 1] + dt**2 / 2 * previous[..., 2])
+            if wrapped is not None:
+                innovation = np.where(wrapped, np.mod(innovation + np.pi, 2 * np.pi) - np.pi, innovation)
+            error = np.mean(innovation[start:] ** 2, axis=0)
+            better = error < best_error
+            best_error, best_q = np.where(better, error, best_error), np.where(better, q0 * factor, best_q)
+        return cls(dt, best_q, measurement_variance, **kwargs)
 
     @property
     def _kernel(self):
