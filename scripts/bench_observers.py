@@ -10,6 +10,8 @@ Prints three markdown tables (the ones in the README section "Accuracy and speed
    recursion written here from the equations (its agreement with the kernel is checked and printed). Medians over
    repeats, all measured side by side in one run. Targets: ``update()`` <= 2 us up to 32 channels,
    compiled step <= 0.5 us.
+   A second table times ``update()`` and ``run()`` (per sample) on 8 channels for every registered family, from
+   the examples each registers (those of the contract tests), so that a new family appears by registering.
 2. **Offline throughput** of :func:`smo_gym.differentiate` on a ``(T, 8)`` array, in channel-samples per second.
    Target: >= 50 M/s for SuperTwisting on ``(1_000_000, 8)``.
 3. **Accuracy.** Velocity RMSE on a recorded HalfCheetah-v5 trajectory (smooth random policy, every physics step
@@ -18,7 +20,7 @@ Prints three markdown tables (the ones in the README section "Accuracy and speed
    offline, non-causal methods of ``pynumdiff``. A second column uses one sample per environment step.
 
 Run ``make bench`` or ``MUJOCO_GL=disable .venv/bin/python scripts/bench_observers.py`` (``--quick`` for a
-shorter run; ``--tables speed,throughput,accuracy`` to select tables).
+shorter run; ``--tables speed,registry,throughput,accuracy`` to select tables).
 """
 
 from __future__ import annotations
@@ -417,6 +419,49 @@ def table_speed(quick: bool) -> list[str]:
     return lines + notes
 
 
+def table_registry(quick: bool) -> list[str]:
+    """``update()`` per call and ``run()`` per sample on 8 channels for every registered family, from the examples
+    it registers (those of the contract tests): what each observer costs, a new family included by registering."""
+    dt, n = 1e-3, 8
+    n_rows = 250 if quick else 500
+    repeats = 10 if quick else 30
+    Y, _ = test_signal(n, n_rows, dt)
+    rows = [np.ascontiguousarray(r) for r in Y]
+    lines = [
+        "| family | example | `update()` [us], median (min) | `run()` per sample [us], median (min) |",
+        "|---|---|---:|---:|",
+    ]
+    for name, family in observers.FAMILIES.items():
+        if family.model_based:
+            continue
+        for example in family.examples:
+            obs = build(name, dt, example)
+            label = ", ".join(f"{k}={v}" for k, v in example.items()) or "defaults"
+            try:
+                obs.reset(rows[0])
+                obs.run(Y[1:3])  # compile / load the cache outside the timing
+
+                def loop_update(update=obs.update):
+                    for r in rows:
+                        update(r)
+
+                def loop_run(run=obs.run):
+                    run(Y)
+
+                t_up, t_run = [], []
+                for _ in range(repeats):  # interleaved, so that machine load affects both alike
+                    obs.reset(rows[0])
+                    t_up += _per_call(loop_update, len(rows), 1)
+                    obs.reset(rows[0])
+                    t_run += _per_call(loop_run, len(rows), 1)
+            except smo_gym.DivergenceError:  # an example's gains need not suit this signal
+                lines.append(f"| {name} | {label} | div | div |")
+                continue
+            lines.append(f"| {name} | {label} | {_fmt(t_up)} | {_fmt(t_run)} |")
+            print(f"  timed {name:28s} {label}: update {_fmt(t_up)} us", file=sys.stderr, flush=True)
+    return lines
+
+
 # ================================================================================================================
 # table 2: offline throughput
 # ================================================================================================================
@@ -703,7 +748,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats, channels and samples (~1 min)")
     parser.add_argument(
-        "--tables", default="speed,throughput,accuracy", help="comma-separated subset of speed,throughput,accuracy"
+        "--tables",
+        default="speed,registry,throughput,accuracy",
+        help="comma-separated subset of speed,registry,throughput,accuracy",
     )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
@@ -713,6 +760,9 @@ def main(argv=None) -> int:
     if "speed" in tables:
         print("### Cost of one sample: median (min) over repeats, thread CPU time, us per call\n")
         print("\n".join(table_speed(args.quick)), flush=True)
+    if "registry" in tables:
+        print("\n### Cost of every registered family: 8 channels, thread CPU time, us\n")
+        print("\n".join(table_registry(args.quick)), flush=True)
     if "throughput" in tables:
         print("\n### Offline throughput of `smo_gym.differentiate`\n")
         print("\n".join(table_throughput(args.quick)), flush=True)
