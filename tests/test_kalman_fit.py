@@ -13,7 +13,7 @@ import pytest
 
 import smo_gym
 from smo_gym.calibration import calibration_of_signal
-from smo_gym.observers import KalmanCA
+from smo_gym.observers import KalmanCA, linear
 from smo_gym.observers.linear import FIT_FACTORS, constant_acceleration_model, white_jerk_density
 
 DT = 1e-3
@@ -54,9 +54,10 @@ def test_fit_finds_the_process_noise_that_generated_the_record():
     np.testing.assert_allclose(fitted.process_noise, 1e4, rtol=1e-12)
 
 
-def test_fit_is_the_smallest_mean_squared_innovation():
+def test_fit_is_the_smallest_mean_squared_innovation(monkeypatch):
     """A transcription of the criterion: every factor's filter run from the first sample, its one-step predictions
-    compared with the next samples after the start, the smallest mean square per channel."""
+    compared with the next samples after the start, the smallest mean square per channel; the same when the
+    record is run in chunks of 7 samples (how a long one keeps memory bounded)."""
     y, _ = sines(T=4000, channels=3)
     q0, r = np.array([1.0, 10.0, 100.0]), 1e-6
     factors = np.array([0.1, 1.0, 100.0, 1e4])
@@ -67,6 +68,8 @@ def test_fit_is_the_smallest_mean_squared_innovation():
         predicted = z[:-1, :, 0] + DT * z[:-1, :, 1] + DT**2 / 2 * z[:-1, :, 2]
         scores.append(np.mean((y[1:] - predicted)[start:] ** 2, axis=0))
     expected = q0 * factors[np.argmin(scores, axis=0)]
+    np.testing.assert_array_equal(KalmanCA.fit(y, DT, r, q0, factors=factors).process_noise, expected)
+    monkeypatch.setattr(linear, "FIT_CHUNK", 7 * y.shape[1])
     np.testing.assert_array_equal(KalmanCA.fit(y, DT, r, q0, factors=factors).process_noise, expected)
 
 

@@ -63,6 +63,9 @@ def white_jerk_density(dt: float, jerk_rms) -> np.ndarray:
 #: factors on a process noise among which :meth:`KalmanCA.fit` chooses (``10**-1 .. 10**3.5``)
 FIT_FACTORS = 10.0 ** np.arange(-1.0, 3.51, 0.5)
 
+#: values per chunk of the record :meth:`KalmanCA.fit` runs a filter on (its memory stays bounded)
+FIT_CHUNK = 2**18
+
 #: updates per time constant of the constant-acceleration Kalman filter until its velocity's standard deviation is
 #: within a factor 2 of its steady state (:meth:`KalmanCA.settling_samples`)
 SETTLING_TIME_CONSTANTS = 2.54
@@ -389,14 +392,24 @@ class KalmanCA(Observer):
         wrapped = None if wrapped is None else np.broadcast_to(np.asarray(wrapped, dtype=bool), y.shape[1:])
         slowest = cls(dt, q0 * factors.min(), measurement_variance, **kwargs)  # the longest start
         start = slowest.settling_samples(limit=(y.shape[0] - 1) // 2)
+        T, chunk = y.shape[0], max(1, FIT_CHUNK // max(1, int(np.prod(y.shape[1:]))))
         best_error, best_q = np.full(y.shape[1:], np.inf), q0 * factors[0]
         for factor in factors:
             candidate = cls(dt, q0 * factor, measurement_variance, **kwargs)
-            previous = np.concatenate([candidate.reset(y[0])[None], candidate.run(y[1:-1])])
-            innovation = y[1:] - (previous[..., 0] + dt * previous[..., 1] + dt**2 / 2 * previous[..., 2])
-            if wrapped is not None:
-                innovation = np.where(wrapped, np.mod(innovation + np.pi, 2 * np.pi) - np.pi, innovation)
-            error = np.mean(innovation[start:] ** 2, axis=0)
+            last, total = candidate.reset(y[0]), np.zeros(y.shape[1:])
+            for begin in range(1, T, chunk):  # in chunks: memory bounded for any record length
+                end = min(begin + chunk, T)
+                estimates = candidate.run(y[begin:end])
+                previous = np.concatenate([last[None], estimates[:-1]])  # the estimate before each sample
+                last = estimates[-1]
+                first = max(begin, start + 1)  # innovations after the start only
+                if first < end:
+                    p = previous[first - begin :]
+                    innovation = y[first:end] - (p[..., 0] + dt * p[..., 1] + dt**2 / 2 * p[..., 2])
+                    if wrapped is not None:
+                        innovation = np.where(wrapped, np.mod(innovation + np.pi, 2 * np.pi) - np.pi, innovation)
+                    total += np.sum(innovation**2, axis=0)
+            error = total / (T - 1 - start)
             better = error < best_error
             best_error, best_q = np.where(better, error, best_error), np.where(better, q0 * factor, best_q)
         return cls(dt, best_q, measurement_variance, **kwargs)
