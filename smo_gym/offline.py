@@ -81,7 +81,8 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
     (:func:`smo_gym.calibration.bound_order`: acceleration for super-twisting, ``order + 1`` for Levant's
     differentiator) is twice the 99th percentile of a difference quotient taken at the smallest decimation at
     which it rises well above the noise (:func:`smo_gym.calibration.derivative_bound`); its typical (RMS) level
-    is the mean square of that quotient less its noise part (:func:`smo_gym.calibration.derivative_rms`). The gains
+    is the mean square of that quotient (clipped at twice its 99th percentile: rare gross errors do not make the
+    level) less its noise part (:func:`smo_gym.calibration.derivative_rms`). The gains
     then follow :func:`smo_gym.calibration.default_observer`: ``lipschitz = L`` per channel for the sliding-mode
     differentiators, :math:`\ell = (L/\hat\sigma)^{1/(order+1)}` for ``"high-gain"``, ``q = J^2 dt`` from the
     typical jerk ``J`` and :math:`r = \hat\sigma^2` per channel for ``"kalman-ca"``. Wrapped channels are
