@@ -19,13 +19,13 @@ the :class:`~smo_gym.calibration.Calibration` of the measured signal itself (noi
 typical level of the derivative its gain rule needs, :func:`~smo_gym.calibration.default_observer`), and the
 differentiators start, as ``differentiate`` starts them when it calibrates, from the calibrated Kalman filter's
 estimate once the filter's prior is forgotten (``start="kalman"``; the Kalman filter starts from its wide prior,
-the backward difference needs none). Columns: the
-default (``auto``: per channel the backward difference or the Kalman filter, chosen on the calibration's predictions,
-the Kalman filter's process noise fitted to the record, :meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`), the
-backward difference (FD), the constant-acceleration Kalman filter (its process noise from the typical jerk,
-:meth:`KalmanCA.from_levels <smo_gym.observers.KalmanCA.from_levels>`), super-twisting (implicit), Levant's
-differentiator of order 2 (``taylor``), the filtering differentiator (order 2, filtering order 1, ``d = -1``;
-``implicit``, its default, and ``matching``) and the high-gain observer. The last two columns, in italics and
+the backward difference needs none). Columns: the default (``auto``: per channel the backward difference or the
+Kalman filter, chosen on the calibration's predictions, the Kalman filter's process noise fitted to the record,
+:meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`), the backward difference (FD), the constant-acceleration
+Kalman filter (its process noise from the typical jerk, :meth:`KalmanCA.from_levels
+<smo_gym.observers.KalmanCA.from_levels>`), super-twisting (implicit), Levant's differentiator of order 2
+(``taylor``), the filtering differentiator (order 2, filtering order 1, ``d = -1``; ``implicit``, its default, and
+``matching``) and the high-gain observer. The last two columns, in italics and
 never bold, are *oracles* no user has: the Kalman filter with its process noise scaled by the factor of
 ``10**arange(-3, 3.5, 0.5)`` that gives the row's smallest RMSE, and the filtering differentiator (``implicit``,
 the same start) with its ``lipschitz`` scaled by the factor of ``10**arange(-2, 3.5, 0.5)`` that gives the row's

@@ -314,7 +314,7 @@ def _noise_per_channel(noise, y: np.ndarray) -> np.ndarray:
 #: :func:`derivative_rms` clips the difference quotients at :data:`WINSOR_FACTOR` times this quantile of them:
 #: robust to gross errors in up to 1 % of them
 WINSOR_QUANTILE = 0.99
-#: ... times that quantile (:func:`derivative_bound`'s safety factor: beyond the worst-case bound is not the signal)
+#: the factor on that quantile, :func:`derivative_bound`'s safety factor: beyond the worst-case bound is not the signal
 WINSOR_FACTOR = 2.0
 
 
