@@ -393,6 +393,7 @@ class KalmanCA(Observer):
         wrapped = None if wrapped is None else np.broadcast_to(np.asarray(wrapped, dtype=bool), y.shape[1:])
         slowest = cls(dt, q0 * factors.min(), measurement_variance, **kwargs)  # the longest start
         start = slowest.settling_samples(limit=(y.shape[0] - 1) // 2)
+        predict = constant_acceleration_model(dt, 0.0)[0][0]  # the value row of e^{tau N}: one-step prediction
         T, chunk = y.shape[0], max(1, FIT_CHUNK // max(1, int(np.prod(y.shape[1:]))))
         best_error, best_q = np.full(y.shape[1:], np.inf), q0 * factors[0]
         for factor in factors:
@@ -405,8 +406,7 @@ class KalmanCA(Observer):
                 last = estimates[-1]
                 first = max(begin, start + 1)  # innovations after the start only
                 if first < end:
-                    p = previous[first - begin :]
-                    innovation = y[first:end] - (p[..., 0] + dt * p[..., 1] + dt**2 / 2 * p[..., 2])
+                    innovation = y[first:end] - previous[first - begin :] @ predict
                     if wrapped is not None:
                         innovation = np.where(wrapped, np.mod(innovation + np.pi, 2 * np.pi) - np.pi, innovation)
                     total += np.sum(innovation**2, axis=0)
