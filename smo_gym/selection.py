@@ -4,9 +4,10 @@ No single observer wins everywhere (the accuracy tables of the documentation): a
 an ideal encoder when the simulator integrates with Euler and every physics step is sampled, a Kalman filter tuned
 from the typical jerk wins where noise dominates a smooth motion, a high-gain filter where impacts make the jerk
 anything but white, two Kalman filters mixed by the IMM algorithm (:class:`smo_gym.observers.KalmanIMM`) where
-smooth stretches alternate with bursts of jerk, the super-twisting differentiator where the sensor makes gross
-errors (its injection grows as a power below one of the output error, a linear filter's in proportion: a single
-wrong sample moves its velocity estimate far less). :func:`auto_observer` chooses per channel among
+smooth stretches alternate with bursts of jerk, and where the sensor makes gross errors the same with Huber's
+robust update (``huber=3``: a single wrong sample moves the estimate as one three standard deviations off would)
+or the super-twisting differentiator (its injection grows as a power below one of the output error, a linear
+filter's in proportion). :func:`auto_observer` chooses per channel among
 :data:`CANDIDATES`, each with its own calibrated gains (:func:`smo_gym.calibration.default_observer`), from their
 velocity RMSE in one or more scenarios:
 
@@ -84,6 +85,7 @@ CANDIDATES: tuple[str, ...] = (
     "low-power-high-gain",
     "levant:discretization=implicit",
     "kalman-imm",
+    "kalman-imm:huber=3",
     "super-twisting",
 )
 

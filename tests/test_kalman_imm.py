@@ -24,10 +24,15 @@ from smo_gym.observers import KalmanCA, make_observer
 from smo_gym.observers.imm import KalmanIMM
 
 
-def textbook_imm(y, dt, densities, r, stay, initial_std=(10.0, 100.0)):
-    """The IMM estimator (Bar-Shalom, Li and Kirubarajan 2001, chapter 11) for constant-acceleration modes of
+def textbook_imm(y, dt, densities, r, stay, initial_std=(10.0, 100.0), huber=None):
+    r"""The IMM estimator (Bar-Shalom, Li and Kirubarajan 2001, chapter 11) for constant-acceleration modes of
     white-jerk ``densities``, in plain NumPy with full matrices: returns the combined estimates ``(T, 3)`` (row 0
-    the reset) and the mode probabilities ``(T, M)``."""
+    the reset) and the mode probabilities ``(T, M)``.
+
+    With ``huber`` (``c``), each mode's update is Masreliez and Martin's (1977) with Huber's function, the
+    innovation clipped to :math:`\pm c\sqrt S`, and its likelihood that of an innovation of exactly ``c``
+    standard deviations, unless the previous step's innovation (of the predicted mixture,
+    :math:`\sum_j \bar c_j \nu_j`) was beyond that bound too (then the Kalman update and the normal density)."""
     M = len(densities)
     F = np.array([[1.0, dt, dt * dt / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
     G = np.array([[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]])
@@ -38,6 +43,7 @@ def textbook_imm(y, dt, densities, r, stay, initial_std=(10.0, 100.0)):
     P = np.array([np.diag([r, initial_std[0] ** 2, initial_std[1] ** 2])] * M)
     mu = np.full(M, 1.0 / M)
     estimates, probabilities = [mu @ x], [mu]
+    previous = 0.0
     for sample in y[1:]:
         c = switch.T @ mu
         weights = switch * mu[:, None] / c[None, :]  # weights[i, j] = mu_{i|j}
@@ -45,16 +51,23 @@ def textbook_imm(y, dt, densities, r, stay, initial_std=(10.0, 100.0)):
         P0 = np.array(
             [sum(weights[i, j] * (P[i] + np.outer(x[i] - x0[j], x[i] - x0[j])) for i in range(M)) for j in range(M)]
         )
-        likelihood = np.empty(M)
+        likelihood, innovations = np.empty(M), np.empty(M)
         for j in range(M):
             prior = F @ x0[j]
             cov = F @ P0[j] @ F.T + densities[j] * G
             S = H @ cov @ H + r
             gain = cov @ H / S
             nu = sample - H @ prior
-            x[j] = prior + gain * nu
+            innovations[j] = nu
+            used, u = nu, abs(nu) / np.sqrt(S)
+            if huber is not None and abs(previous) <= huber * np.sqrt(S):  # a suspected gross error
+                used, u = np.clip(nu, -huber * np.sqrt(S), huber * np.sqrt(S)), min(u, huber)
+            rho = 0.5 * u * u
+            x[j] = prior + gain * used
             P[j] = cov - np.outer(gain, H @ cov)
-            likelihood[j] = np.exp(-0.5 * nu * nu / S) / np.sqrt(2 * np.pi * S)
+            likelihood[j] = -rho - 0.5 * np.log(2 * np.pi * S)  # in logs: a gross error underflows exp
+        previous = c @ innovations
+        likelihood = np.exp(likelihood - likelihood.max())
         mu = likelihood * c / np.sum(likelihood * c)
         estimates.append(mu @ x)
         probabilities.append(mu)

@@ -983,10 +983,15 @@ def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
 
 
 @njit(cache=CACHE, error_model="numpy")
-def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2):
-    r"""Mean half of :func:`kalman_ca_channel_step`: :math:`x^- = F x`, :math:`x^+ = x^- + K(y - c^T x^-)`.
+def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2, r, huber, previous):
+    r"""Mean half of :func:`kalman_ca_channel_step`: :math:`x^- = F x`, :math:`x^+ = x^- + K\psi(y - c^T x^-)`.
 
-    Returns ``(x0, x1, x2, nu)`` with the innovation :math:`\nu = y - c^T x^-`.
+    :math:`\psi` is the identity for ``huber = inf`` (the Kalman filter); else Huber's function in units of the
+    innovation's standard deviation :math:`\sqrt S`, :math:`\psi(\nu) = \max(-c\sqrt S, \min(\nu, c\sqrt S))`,
+    ``c = huber``, with :math:`S = c^T P^- c + r = r / (1 - k_0)` recovered from the gain (Masreliez and Martin
+    1977), unless the ``previous`` innovation was beyond that bound too: a gross error is a single sample, two in a
+    row are a change of motion the model did not expect, which the filter must follow. Returns
+    ``(x0, x1, x2, nu)`` with the innovation :math:`\nu = y - c^T x^-` (not clipped).
     """
     h = 0.5 * dt * dt
     # x^- = F x                                                   (prior mean)
@@ -994,8 +999,13 @@ def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2):
     m1 = x1 + dt * x2
     m2 = x2
     nu = y - m0
-    # x^+ = x^- + K nu                                             (posterior mean)
-    return m0 + k0 * nu, m1 + k1 * nu, m2 + k2 * nu, nu
+    used = nu
+    if huber < math.inf:  # Huber's psi: an innovation beyond c standard deviations counts as c of them
+        limit = huber * math.sqrt(r / (1.0 - k0))
+        if abs(previous) <= limit:
+            used = max(-limit, min(nu, limit))
+    # x^+ = x^- + K psi(nu)                                        (posterior mean)
+    return m0 + k0 * used, m1 + k1 * used, m2 + k2 * used, nu
 
 
 @njit(cache=CACHE, error_model="numpy")
@@ -1007,11 +1017,11 @@ def kalman_ca_channel_step(s, y, params, s_new):
             \tau^3/6 & \tau^2/2 & \tau\end{bmatrix},\qquad
         K = P^- c / (c^T P^- c + r),\quad c = (1, 0, 0).
 
-    State row ``s``: ``[x0, x1, x2, P00, P01, P02, P11, P12, P22, ...]``; params ``[dt, q, r]``. Returns the
-    innovation.
+    State row ``s``: ``[x0, x1, x2, P00, P01, P02, P11, P12, P22, ...]``; params ``[dt, q, r, huber]``
+    (:func:`kalman_ca_mean`). Returns the innovation.
     """
     P = kalman_ca_covariance(s[3], s[4], s[5], s[6], s[7], s[8], params[0], params[1], params[2])
-    x0, x1, x2, nu = kalman_ca_mean(s[0], s[1], s[2], y, params[0], P[6], P[7], P[8])
+    x0, x1, x2, nu = kalman_ca_mean(s[0], s[1], s[2], y, params[0], P[6], P[7], P[8], params[2], params[3], s[9])
     s_new[0] = x0
     s_new[1] = x1
     s_new[2] = x2
@@ -1023,7 +1033,7 @@ def kalman_ca_channel_step(s, y, params, s_new):
 @njit(cache=CACHE, error_model="numpy")
 def kalman_ca_rows(state, y, params, new_state, out, shared):
     """:func:`kalman_ca_channel_step` on every channel (``shared``: one parameter row for every channel)."""
-    _check_widths(state, new_state, params, out, 10, 3, 3)
+    _check_widths(state, new_state, params, out, 10, 4, 3)
     # three passes (prior covariance, posterior covariance and gain, mean) so that each loop has few enough
     # strided accesses for LLVM's vectorizer; the prior waits in ``new_state``, the gain in ``out``
     for c in range(y.shape[0]):
@@ -1054,7 +1064,17 @@ def kalman_ca_rows(state, y, params, new_state, out, shared):
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
         x0, x1, x2, nu = kalman_ca_mean(
-            state[c, 0], state[c, 1], state[c, 2], y[c], params[pc, 0], out[c, 0], out[c, 1], out[c, 2]
+            state[c, 0],
+            state[c, 1],
+            state[c, 2],
+            y[c],
+            params[pc, 0],
+            out[c, 0],
+            out[c, 1],
+            out[c, 2],
+            params[pc, 2],
+            params[pc, 3],
+            state[c, 9],
         )
         new_state[c, 0] = x0
         new_state[c, 1] = x1

@@ -21,6 +21,17 @@ stays in its mode with probability :math:`p`, and each sample:
 
 With :math:`\rho = 1` both modes are the same filter and the output is :class:`KalmanCA`'s.
 
+Gross errors (``huber=c``). The Kalman update moves the estimate in proportion to the innovation, and the normal
+likelihood of a wrong sample is far larger in the fast mode: one glitch throws the estimate and the mode. With
+``huber``, each mode updates as :class:`KalmanCA` does with the same option (Huber's function: an innovation
+beyond ``c`` standard deviations counts as ``c`` of them, Masreliez and Martin 1977), and such a sample's likelihood
+in each mode is that of an innovation of exactly ``c`` standard deviations, so that it says nothing of the mode
+but through :math:`S_j`; unless the previous innovation was beyond the bound too: two in a row are a change of
+motion, taken whole. On ``scripts/bench_accuracy.py``'s ``outliers`` sensor (a noisy 12-bit encoder, one sample in
+a thousand off by ~0.1) at the physics rate it has the smallest velocity RMSE of five of six Gymnasium tasks
+(Walker2d 0.38 against 0.81 for super-twisting and 2.3 for the IMM estimator); on the clean sensors it is slower
+after impacts, and ``"auto"`` keeps it where its trials show it wins.
+
 Defaults. ``q`` is :class:`KalmanCA`'s calibration (:meth:`KalmanIMM.from_levels`: the typical jerk at the
 sampling step), the smooth mode has :math:`\rho = 0.01` of it and the chain stays with :math:`p = 0.99`: best or
 within 1 % of the best, under both motions, of the combinations tried on Hopper-v5 (12-bit encoder, env rate:
@@ -38,6 +49,8 @@ References
 .. [BSL01] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, "Estimation with Applications to Tracking and Navigation",
    Wiley, 2001: section 6.2.3 (the white-jerk model, as :class:`~smo_gym.observers.KalmanCA`) and chapter 11 (the
    IMM estimator).
+.. [MM77] C. J. Masreliez and R. D. Martin, "Robust Bayesian estimation for the linear model and robustifying the
+   Kalman filter", IEEE Transactions on Automatic Control 22(3), 1977.
 """
 
 from __future__ import annotations
@@ -50,7 +63,7 @@ from numba import njit
 from .._validation import check_keywords, check_positive, check_positive_parameter
 from . import _kernels
 from .base import Observer
-from .linear import _initial_std, _kalman_rule, white_jerk_density
+from .linear import _huber, _initial_std, _kalman_rule, white_jerk_density
 from .registry import register_observer
 
 __all__ = ["KalmanIMM", "imm_ca_step"]
@@ -59,8 +72,8 @@ __all__ = ["KalmanIMM", "imm_ca_step"]
 # upper triangle of its covariance (6), then the two mode probabilities
 _OUT, _INNOVATION, _MODES, _MU = 0, 3, 4, 22
 _WIDTH = 24
-# parameter columns: dt, q of the smooth mode, q of the other, r, the probability of staying in a mode
-_H, _Q_LOW, _Q_HIGH, _R, _STAY = range(5)
+# parameter columns: dt, q of the smooth mode, q of the other, r, the probability of staying in a mode, Huber's c
+_H, _Q_LOW, _Q_HIGH, _R, _STAY, _HUBER = range(6)
 
 
 @njit(cache=True, error_model="numpy")
@@ -81,19 +94,25 @@ def _mix(s, wa, wb, d0, d1, d2, out, o):
 
 
 @njit(cache=True, error_model="numpy")
-def _mode_update(s_new, o, y, dt, q, r):
+def _mode_update(s_new, o, y, dt, q, r, huber, previous):
     """Filter the mixed mode block ``s_new[o:o + 9]`` in place with the sample ``y`` (:class:`KalmanCA`'s
-    prediction and update with the density ``q``); returns its innovation and log-likelihood."""
+    prediction and update with the density ``q`` and Huber's threshold ``huber``); returns its innovation and
+    log-likelihood (of the normal density, or with ``huber`` of the least favourable one, Huber's)."""
     m = _kernels.kalman_ca_prior_covariance(
         s_new[o + 3], s_new[o + 4], s_new[o + 5], s_new[o + 6], s_new[o + 7], s_new[o + 8], dt, q
     )
     variance = m[0] + r
     P = _kernels.kalman_ca_posterior_covariance(m[0], m[1], m[2], m[3], m[4], m[5], r)
-    x0, x1, x2, nu = _kernels.kalman_ca_mean(s_new[o], s_new[o + 1], s_new[o + 2], y, dt, P[6], P[7], P[8])
+    x0, x1, x2, nu = _kernels.kalman_ca_mean(
+        s_new[o], s_new[o + 1], s_new[o + 2], y, dt, P[6], P[7], P[8], r, huber, previous
+    )
     s_new[o], s_new[o + 1], s_new[o + 2] = x0, x1, x2
     for i in range(6):
         s_new[o + 3 + i] = P[i]
-    return nu, -0.5 * (nu * nu / variance + math.log(variance))
+    u = abs(nu) / math.sqrt(variance)
+    if u > huber and abs(previous) <= huber * math.sqrt(variance):  # a suspected gross error tells no mode
+        u = huber
+    return nu, -0.5 * (u * u + math.log(variance))
 
 
 @njit(cache=True, error_model="numpy")
@@ -110,8 +129,9 @@ def imm_ca_step(s, y, params, s_new):
     d0, d1, d2 = s[a] - s[b], s[a + 1] - s[b + 1], s[a + 2] - s[b + 2]
     _mix(s, stay * mu_a / c_a, (1.0 - stay) * mu_b / c_a, d0, d1, d2, s_new, a)
     _mix(s, (1.0 - stay) * mu_a / c_b, stay * mu_b / c_b, d0, d1, d2, s_new, b)
-    nu_a, like_a = _mode_update(s_new, a, y, dt, params[_Q_LOW], r)
-    nu_b, like_b = _mode_update(s_new, b, y, dt, params[_Q_HIGH], r)
+    huber, previous = params[_HUBER], s[_INNOVATION]
+    nu_a, like_a = _mode_update(s_new, a, y, dt, params[_Q_LOW], r, huber, previous)
+    nu_b, like_b = _mode_update(s_new, b, y, dt, params[_Q_HIGH], r, huber, previous)
     top = max(like_a, like_b)
     w_a = c_a * math.exp(like_a - top)
     w_b = c_b * math.exp(like_b - top)
@@ -145,6 +165,7 @@ _STEP = _kernels.register_step(imm_ca_rows)
     examples=(
         dict(process_noise=50.0, measurement_noise=1e-6),
         dict(process_noise=50.0, measurement_noise=1e-6, smooth_ratio=0.1, stay=0.9),
+        dict(process_noise=50.0, measurement_noise=1e-6, huber=3.0),
     ),
 )
 class KalmanIMM(Observer):
@@ -167,6 +188,11 @@ class KalmanIMM(Observer):
     initial_std : tuple of 2 floats
         Prior standard deviations of velocity and acceleration at reset in both modes (the value's is
         ``sqrt(r)``); the modes start equally likely.
+    huber : float, optional
+        Huber's threshold ``c > 0`` for sensors with gross errors, in both modes (as
+        :class:`~smo_gym.observers.KalmanCA`'s); the modes are then weighed by Huber's least favourable density,
+        :math:`-\log p = \rho(\nu/\sqrt S) + \tfrac12\log S` with :math:`\rho` quadratic up to ``c`` and linear
+        beyond, so that one wrong sample does not throw the estimate into the fast mode. Default None.
     discretization : {"exact"}
         Both filters are the exact discretization of the constant-acceleration model.
     wrap : bool or array_like of bool, optional
@@ -187,6 +213,7 @@ class KalmanIMM(Observer):
         smooth_ratio: float = 0.01,
         stay: float = 0.99,
         initial_std: tuple[float, float] = (10.0, 100.0),
+        huber: float | None = None,
         discretization: str | None = None,
         wrap=None,
     ):
@@ -200,6 +227,7 @@ class KalmanIMM(Observer):
         if self.stay >= 1.0:
             raise ValueError(f"expected stay in (0, 1), actual value: {stay!r}")
         self.initial_std = _initial_std(initial_std)
+        self.huber = _huber(huber)
 
     @classmethod
     @check_keywords
@@ -222,7 +250,10 @@ class KalmanIMM(Observer):
         q = self._per_channel("process_noise", self.process_noise, shape)
         r = self._per_channel("measurement_noise", self.measurement_noise, shape)
         n = q.shape[0]
-        return np.column_stack([np.full(n, self.dt), self.smooth_ratio * q, q, r, np.full(n, self.stay)])
+        huber = math.inf if self.huber is None else self.huber
+        return np.column_stack(
+            [np.full(n, self.dt), self.smooth_ratio * q, q, r, np.full(n, self.stay), np.full(n, huber)]
+        )
 
     def _initial_state(self, y0, params):
         state = np.zeros((y0.shape[0], _WIDTH))
@@ -249,7 +280,8 @@ class KalmanIMM(Observer):
 
     def __repr__(self) -> str:
         wrap = "" if self.wrap is None else f", wrap={self.wrap!r}"
+        huber = "" if self.huber is None else f", huber={self.huber}"
         return (
-            f"{type(self).__name__}(dt={self.dt}, smooth_ratio={self.smooth_ratio}, stay={self.stay}, "
+            f"{type(self).__name__}(dt={self.dt}, smooth_ratio={self.smooth_ratio}, stay={self.stay}{huber}, "
             f"discretization={self.discretization!r}{wrap})"
         )
