@@ -33,7 +33,9 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
         ``dt`` equals ``dt`` (a copy is run; ``params`` must then be empty). Default ``"auto"``: per channel
         the backward difference or the constant-acceleration Kalman filter with its process noise fitted to ``y``
         (:meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`), whichever the calibration predicts more
-        accurate (:func:`smo_gym.selection.auto_observer`; it takes no parameter but ``wrap``).
+        accurate (:func:`smo_gym.selection.auto_observer`; it takes no parameter but ``wrap`` and ``huber``: for a
+        sensor that makes gross errors, ``huber=3`` gives its Kalman filter Huber's robust update,
+        :class:`KalmanCA <smo_gym.observers.KalmanCA>`'s ``huber``, in the fit as in the result).
     method : str, optional
         Alias of ``observer`` (the former name of this argument); give one of them.
     axis : int, optional
@@ -187,13 +189,16 @@ def _build(observer, dt: float, y: np.ndarray, params: dict, with_jerk: bool) ->
     if isinstance(observer, str) and observer == "auto":
         from .selection import auto_observer, candidate_orders, select
 
+        params = dict(params)
+        huber = params.pop("huber", None)
+        kalman = "kalman-ca" if huber is None else f"kalman-ca:huber={check_positive('huber', huber)!r}"
         sample = _unwrapped(_finite_for_calibration(y), params.get("wrap"))
         found = calibration.calibration_of_signal(sample, dt, candidate_orders())
         # chosen on the levels' predictions (the fitted filter's own model is no guide where the fit inflates q to
         # follow a fast signal), built with the fitted process noise where the Kalman filter is chosen
-        selection = select(found, observer_kwargs=params)
-        if "kalman-ca" in (selection.candidates[k] for k in selection.choice):
-            found = _with_fitted_jerk(found, sample)
+        selection = select(found, candidates=("finite-difference", kalman), observer_kwargs=params)
+        if kalman in (selection.candidates[k] for k in selection.choice):
+            found = _with_fitted_jerk(found, sample, huber)
         return auto_observer(found, observer_kwargs=params, selection=selection), found
     if not calibration.needs_calibration(observer, params):  # also rejects unknown names, listing the known
         return make_observer(observer, dt=dt, **params), None
@@ -203,14 +208,15 @@ def _build(observer, dt: float, y: np.ndarray, params: dict, with_jerk: bool) ->
     return calibration.default_observer(observer, found, params), found
 
 
-def _with_fitted_jerk(found, y: np.ndarray):
-    """``found`` with its typical jerk replaced by the white-jerk level whose Kalman filter predicts ``y`` best
-    (:meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`): the Kalman candidate of ``"auto"`` is built from it,
-    and its predicted error is that filter's. Records too short to fit keep the level from the differences."""
+def _with_fitted_jerk(found, y: np.ndarray, huber: float | None = None):
+    """``found`` with its typical jerk replaced by the white-jerk level whose Kalman filter (with Huber's threshold
+    ``huber``) predicts ``y`` best (:meth:`KalmanCA.fit <smo_gym.observers.KalmanCA.fit>`): the Kalman candidate of
+    ``"auto"`` is built from it, and its predicted error is that filter's. Records too short to fit keep the level
+    from the differences."""
     if y.shape[0] < MIN_FIT_SAMPLES:
         return found
     white = white_jerk_density(found.dt, found.rms(3))
-    fitted = KalmanCA.fit(y, found.dt, found.measurement_variance, white).process_noise
+    fitted = KalmanCA.fit(y, found.dt, found.measurement_variance, white, huber=huber).process_noise
     return dataclasses.replace(found, typical={**found.typical, 3: np.sqrt(fitted / found.dt)})
 
 
