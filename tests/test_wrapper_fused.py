@@ -42,6 +42,7 @@ def _pair(env_id: str, seed: int, **kwargs):
         ("Hopper-v5", "levant:discretization=taylor", "env", "encoder-12bit-noisy", "filtered"),
         ("HalfCheetah-v5", "high-gain", 5, "drifting", "measured"),
         ("Walker2d-v5", "kalman-ca", "physics", "outliers", "filtered"),
+        ("Walker2d-v5", "kalman-imm:huber=3", "physics", "outliers", "measured"),
         ("HalfCheetah-v5", "finite-difference", "env", "ideal", "measured"),
         # the observation built by the compiled call, with Hopper's clip of the velocities at +-10 (active with
         # finite differences of the outlier sensor)
