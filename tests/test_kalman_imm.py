@@ -15,6 +15,8 @@ loop, bad input) run this family on its registered examples.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from conftest import estimates_of
@@ -32,7 +34,9 @@ def textbook_imm(y, dt, densities, r, stay, initial_std=(10.0, 100.0), huber=Non
     With ``huber`` (``c``), each mode's update is Masreliez and Martin's (1977) with Huber's function, the
     innovation clipped to :math:`\pm c\sqrt S`, and its likelihood that of an innovation of exactly ``c``
     standard deviations, unless the previous step's innovation (of the predicted mixture,
-    :math:`\sum_j \bar c_j \nu_j`) was beyond that bound too (then the Kalman update and the normal density)."""
+    :math:`\sum_j \bar c_j \nu_j`) was beyond that bound too, or the share of the first mode's recent innovations
+    beyond it (an exponential average of weight 0.01) exceeds the Gaussian share, ``erfc(c / sqrt(2))``, by more
+    than 0.05: then the Kalman update and the normal density."""
     M = len(densities)
     F = np.array([[1.0, dt, dt * dt / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
     G = np.array([[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]])
@@ -43,7 +47,7 @@ def textbook_imm(y, dt, densities, r, stay, initial_std=(10.0, 100.0), huber=Non
     P = np.array([np.diag([r, initial_std[0] ** 2, initial_std[1] ** 2])] * M)
     mu = np.full(M, 1.0 / M)
     estimates, probabilities = [mu @ x], [mu]
-    previous = 0.0
+    previous, rate = 0.0, 0.0
     for sample in y[1:]:
         c = switch.T @ mu
         weights = switch * mu[:, None] / c[None, :]  # weights[i, j] = mu_{i|j}
@@ -60,13 +64,18 @@ def textbook_imm(y, dt, densities, r, stay, initial_std=(10.0, 100.0), huber=Non
             nu = sample - H @ prior
             innovations[j] = nu
             used, u = nu, abs(nu) / np.sqrt(S)
-            if huber is not None and abs(previous) <= huber * np.sqrt(S):  # a suspected gross error
+            suspended = huber is not None and rate > math.erfc(huber / math.sqrt(2)) + 0.05  # the model does not fit
+            if huber is not None and abs(previous) <= huber * np.sqrt(S) and not suspended:  # a suspected gross error
                 used, u = np.clip(nu, -huber * np.sqrt(S), huber * np.sqrt(S)), min(u, huber)
+            if huber is not None and j == 0:
+                beyond = abs(nu) > huber * np.sqrt(S)
             rho = 0.5 * u * u
             x[j] = prior + gain * used
             P[j] = cov - np.outer(gain, H @ cov)
             likelihood[j] = -rho - 0.5 * np.log(2 * np.pi * S)  # in logs: a gross error underflows exp
         previous = c @ innovations
+        if huber is not None:
+            rate += 0.01 * (beyond - rate)
         likelihood = np.exp(likelihood - likelihood.max())
         mu = likelihood * c / np.sum(likelihood * c)
         estimates.append(mu @ x)

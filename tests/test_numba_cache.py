@@ -117,3 +117,40 @@ def test_every_registered_step_and_fused_driver_is_cached_on_disk():
         for f in (step.kernel, step.shared_kernel, *drivers, *_fused.FUSED_DRIVERS[step.kernel]):
             assert f._cache._cache_file._index_path.endswith(".nbi")
             assert step.label in f.py_func.__qualname__
+
+
+_IMM_RUN = """
+import os, sys
+import numpy as np
+from smo_gym.observers import KalmanIMM, imm
+if sys.argv[1] == "compile":
+    obs = KalmanIMM(0.01, 50.0, 1e-6, huber=3.0)
+    obs.reset(np.zeros(1))
+    obs.update(np.ones(1))
+for f in (imm._mode_update, imm.imm_ca_step, imm.imm_ca_rows):
+    print(int(os.path.exists(f._cache._cache_file._index_path)), end=" ")
+"""
+
+
+def test_the_imm_helpers_are_dropped_when_the_filter_halves_change(tmp_path):
+    """The IMM step and its mode update are cached in ``imm.py`` and link the Kalman filter's halves from
+    ``_kernels.py``: a cache older than ``_kernels.py`` must be dropped for all three cached functions, not only
+    the row kernel (a stale mode update once kept an old rule of Huber's update after ``_kernels.py`` changed)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": root, "NUMBA_CACHE_DIR": str(tmp_path)}
+
+    def run(mode):
+        command = [sys.executable, "-c", _IMM_RUN, mode]
+        return subprocess.run(command, env=env, capture_output=True, text=True, check=True)
+
+    assert run("compile").stdout.split() == ["1", "1", "1"]  # compiled and cached
+    from smo_gym.observers import _kernels
+
+    past = os.path.getmtime(_kernels.__file__) - 3600.0  # the cache older than the filter halves
+    for index in tmp_path.rglob("*.nbi"):
+        os.utime(index, (past, past))
+    assert run("look").stdout.split() == ["0", "0", "0"]  # all three dropped at import

@@ -982,15 +982,46 @@ def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
     return kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r)
 
 
+#: Huber's update of the constant-acceleration filters (``huber``) is suspended while the share of the recent
+#: innovations beyond its bound exceeds what Gaussian innovations give by more than this: a sensor's rare gross
+#: errors add about their own rate (one sample in a thousand, say), and an excess this large says the model does
+#: not fit the motion (a jerk far above the calibrated one), which clipping would only make the filter lose
+HUBER_SUSPEND_EXCESS = 0.05
+#: weight of the newest sample in that share (an exponential average over about 100 samples)
+HUBER_RATE_WEIGHT = 0.01
+
+
 @njit(cache=CACHE, error_model="numpy")
-def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2, r, huber, previous):
+def huber_limit(huber, variance, previous, rate):
+    r"""The bound :math:`c\sqrt S` to which Huber's function clips this sample's innovation (``inf``: the Kalman
+    update), for the threshold ``huber`` ``c`` (``inf``: off) and the innovation variance ``variance`` ``S``.
+
+    A gross error is a single sample: if the ``previous`` innovation was beyond the bound too, two in a row are a
+    change of motion the model did not expect, taken whole; and while the exponential average ``rate`` of samples
+    beyond it exceeds the share of Gaussian innovations beyond ``c`` standard deviations,
+    :math:`\operatorname{erfc}(c/\sqrt 2)` (0.27 % at ``c = 3``), by more than :data:`HUBER_SUSPEND_EXCESS`, the
+    model does not fit the motion and clipping is suspended.
+    """
+    bound = huber * math.sqrt(variance)
+    if abs(previous) > bound or rate > math.erfc(huber / math.sqrt(2.0)) + HUBER_SUSPEND_EXCESS:
+        return math.inf
+    return bound
+
+
+@njit(cache=CACHE, error_model="numpy")
+def huber_rate(rate, nu, huber, variance):
+    """The exponential average of samples whose innovation ``nu`` is beyond ``huber`` standard deviations, updated
+    (:data:`HUBER_RATE_WEIGHT`); zero while ``huber`` is ``inf``."""
+    beyond = 1.0 if abs(nu) > huber * math.sqrt(variance) else 0.0
+    return rate + HUBER_RATE_WEIGHT * (beyond - rate)
+
+
+@njit(cache=CACHE, error_model="numpy")
+def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2, limit):
     r"""Mean half of :func:`kalman_ca_channel_step`: :math:`x^- = F x`, :math:`x^+ = x^- + K\psi(y - c^T x^-)`.
 
-    :math:`\psi` is the identity for ``huber = inf`` (the Kalman filter); else Huber's function in units of the
-    innovation's standard deviation :math:`\sqrt S`, :math:`\psi(\nu) = \max(-c\sqrt S, \min(\nu, c\sqrt S))`,
-    ``c = huber``, with :math:`S = c^T P^- c + r = r / (1 - k_0)` recovered from the gain (Masreliez and Martin
-    1977), unless the ``previous`` innovation was beyond that bound too: a gross error is a single sample, two in a
-    row are a change of motion the model did not expect, which the filter must follow. Returns
+    :math:`\psi(\nu) = \max(-\ell, \min(\nu, \ell))` is Huber's function with the bound ``limit`` ``l``
+    (:func:`huber_limit`; Masreliez and Martin 1977), the identity for ``inf`` (the Kalman filter). Returns
     ``(x0, x1, x2, nu)`` with the innovation :math:`\nu = y - c^T x^-` (not clipped).
     """
     h = 0.5 * dt * dt
@@ -999,11 +1030,7 @@ def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2, r, huber, previous):
     m1 = x1 + dt * x2
     m2 = x2
     nu = y - m0
-    used = nu
-    if huber < math.inf:  # Huber's psi: an innovation beyond c standard deviations counts as c of them
-        limit = huber * math.sqrt(r / (1.0 - k0))
-        if abs(previous) <= limit:
-            used = max(-limit, min(nu, limit))
+    used = max(-limit, min(nu, limit))  # Huber's psi: beyond the bound an innovation counts as the bound
     # x^+ = x^- + K psi(nu)                                        (posterior mean)
     return m0 + k0 * used, m1 + k1 * used, m2 + k2 * used, nu
 
@@ -1017,23 +1044,28 @@ def kalman_ca_channel_step(s, y, params, s_new):
             \tau^3/6 & \tau^2/2 & \tau\end{bmatrix},\qquad
         K = P^- c / (c^T P^- c + r),\quad c = (1, 0, 0).
 
-    State row ``s``: ``[x0, x1, x2, P00, P01, P02, P11, P12, P22, ...]``; params ``[dt, q, r, huber]``
-    (:func:`kalman_ca_mean`). Returns the innovation.
+    State row ``s``: ``[x0, x1, x2, P00, P01, P02, P11, P12, P22, nu, rate]`` (the last innovation and the share of
+    innovations beyond Huber's bound, :func:`huber_rate`); params ``[dt, q, r, huber]``. Returns the innovation.
     """
-    P = kalman_ca_covariance(s[3], s[4], s[5], s[6], s[7], s[8], params[0], params[1], params[2])
-    x0, x1, x2, nu = kalman_ca_mean(s[0], s[1], s[2], y, params[0], P[6], P[7], P[8], params[2], params[3], s[9])
+    dt, r, huber = params[0], params[2], params[3]
+    P = kalman_ca_covariance(s[3], s[4], s[5], s[6], s[7], s[8], dt, params[1], r)
+    variance = r / (1.0 - P[6])  # S = m00 + r, and k0 = m00 / S
+    limit = huber_limit(huber, variance, s[9], s[10])
+    x0, x1, x2, nu = kalman_ca_mean(s[0], s[1], s[2], y, dt, P[6], P[7], P[8], limit)
     s_new[0] = x0
     s_new[1] = x1
     s_new[2] = x2
     for i in range(6):
         s_new[3 + i] = P[i]
+    s_new[9] = nu
+    s_new[10] = huber_rate(s[10], nu, huber, variance)
     return nu
 
 
 @njit(cache=CACHE, error_model="numpy")
 def kalman_ca_rows(state, y, params, new_state, out, shared):
     """:func:`kalman_ca_channel_step` on every channel (``shared``: one parameter row for every channel)."""
-    _check_widths(state, new_state, params, out, 10, 4, 3)
+    _check_widths(state, new_state, params, out, 11, 4, 3)
     # three passes (prior covariance, posterior covariance and gain, mean) so that each loop has few enough
     # strided accesses for LLVM's vectorizer; the prior waits in ``new_state``, the gain in ``out``
     for c in range(y.shape[0]):
@@ -1063,23 +1095,17 @@ def kalman_ca_rows(state, y, params, new_state, out, shared):
         out[c, 2] = P[8]
     for c in range(y.shape[0]):
         pc = 0 if shared else c  # the parameter row of channel c
+        r, huber = params[pc, 2], params[pc, 3]
+        variance = r / (1.0 - out[c, 0])  # S = m00 + r, and k0 = m00 / S
+        limit = huber_limit(huber, variance, state[c, 9], state[c, 10])
         x0, x1, x2, nu = kalman_ca_mean(
-            state[c, 0],
-            state[c, 1],
-            state[c, 2],
-            y[c],
-            params[pc, 0],
-            out[c, 0],
-            out[c, 1],
-            out[c, 2],
-            params[pc, 2],
-            params[pc, 3],
-            state[c, 9],
+            state[c, 0], state[c, 1], state[c, 2], y[c], params[pc, 0], out[c, 0], out[c, 1], out[c, 2], limit
         )
         new_state[c, 0] = x0
         new_state[c, 1] = x1
         new_state[c, 2] = x2
         new_state[c, 9] = nu
+        new_state[c, 10] = huber_rate(state[c, 10], nu, huber, variance)
         out[c, 0] = x0
         out[c, 1] = x1
         out[c, 2] = x2

@@ -26,11 +26,14 @@ likelihood of a wrong sample is far larger in the fast mode: one glitch throws t
 ``huber``, each mode updates as :class:`KalmanCA` does with the same option (Huber's function: an innovation
 beyond ``c`` standard deviations counts as ``c`` of them, Masreliez and Martin 1977), and such a sample's likelihood
 in each mode is that of an innovation of exactly ``c`` standard deviations, so that it says nothing of the mode
-but through :math:`S_j`; unless the previous innovation was beyond the bound too: two in a row are a change of
-motion, taken whole. On ``scripts/bench_accuracy.py``'s ``outliers`` sensor (a noisy 12-bit encoder, one sample in
-a thousand off by ~0.1) at the physics rate it has the smallest velocity RMSE of five of six Gymnasium tasks
-(Walker2d 0.38 against 0.81 for super-twisting and 2.3 for the IMM estimator); on the clean sensors it is slower
-after impacts, and ``"auto"`` keeps it where its trials show it wins.
+but through :math:`S_j`; unless the previous innovation was beyond the bound too (two in a row are a change of
+motion, taken whole), or the smooth mode's recent innovations were beyond its bound far more often than Gaussian
+ones are (:class:`KalmanCA`'s Notes: the motion keeps leaving the smooth model, and clipping would keep the
+estimate from switching to the fast mode). On ``scripts/bench_accuracy.py``'s ``outliers`` sensor (a noisy 12-bit
+encoder, one sample in a thousand off by ~0.1) at the physics rate it has the smallest velocity RMSE of five of six
+Gymnasium tasks (Walker2d 0.38 against 0.81 for super-twisting and 2.3 for the IMM estimator); under uniform random
+actions with precise sensors it trails the IMM estimator (up to 4x at the physics rate), and ``"auto"`` keeps it
+where its trials show it wins.
 
 Defaults. ``q`` is :class:`KalmanCA`'s calibration (:meth:`KalmanIMM.from_levels`: the typical jerk at the
 sampling step), the smooth mode has :math:`\rho = 0.01` of it and the chain stays with :math:`p = 0.99`: best or
@@ -60,6 +63,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .._numba_cache import drop_stale
 from .._validation import check_keywords, check_positive, check_positive_parameter
 from . import _kernels
 from .base import Observer
@@ -69,9 +73,10 @@ from .registry import register_observer
 __all__ = ["KalmanIMM", "imm_ca_step"]
 
 # state columns: the output (value, velocity, acceleration), the innovation, then per mode its mean (3) and the
-# upper triangle of its covariance (6), then the two mode probabilities
-_OUT, _INNOVATION, _MODES, _MU = 0, 3, 4, 22
-_WIDTH = 24
+# upper triangle of its covariance (6), then the two mode probabilities, then the share of the fast mode's
+# innovations beyond Huber's bound (:func:`smo_gym.observers._kernels.huber_rate`)
+_OUT, _INNOVATION, _MODES, _MU, _RATE = 0, 3, 4, 22, 24
+_WIDTH = 25
 # parameter columns: dt, q of the smooth mode, q of the other, r, the probability of staying in a mode, Huber's c
 _H, _Q_LOW, _Q_HIGH, _R, _STAY, _HUBER = range(6)
 
@@ -94,25 +99,23 @@ def _mix(s, wa, wb, d0, d1, d2, out, o):
 
 
 @njit(cache=True, error_model="numpy")
-def _mode_update(s_new, o, y, dt, q, r, huber, previous):
+def _mode_update(s_new, o, y, dt, q, r, huber, previous, rate):
     """Filter the mixed mode block ``s_new[o:o + 9]`` in place with the sample ``y`` (:class:`KalmanCA`'s
-    prediction and update with the density ``q`` and Huber's threshold ``huber``); returns its innovation and
-    log-likelihood (of the normal density, or with ``huber`` of the least favourable one, Huber's)."""
+    prediction and update with the density ``q`` and Huber's threshold ``huber``, the ``previous`` innovation and
+    the ``rate`` of innovations beyond the bound deciding whether it clips); returns its innovation, its
+    log-likelihood (that of an innovation at the bound where it clips) and its innovation variance."""
     m = _kernels.kalman_ca_prior_covariance(
         s_new[o + 3], s_new[o + 4], s_new[o + 5], s_new[o + 6], s_new[o + 7], s_new[o + 8], dt, q
     )
     variance = m[0] + r
     P = _kernels.kalman_ca_posterior_covariance(m[0], m[1], m[2], m[3], m[4], m[5], r)
-    x0, x1, x2, nu = _kernels.kalman_ca_mean(
-        s_new[o], s_new[o + 1], s_new[o + 2], y, dt, P[6], P[7], P[8], r, huber, previous
-    )
+    limit = _kernels.huber_limit(huber, variance, previous, rate)
+    x0, x1, x2, nu = _kernels.kalman_ca_mean(s_new[o], s_new[o + 1], s_new[o + 2], y, dt, P[6], P[7], P[8], limit)
     s_new[o], s_new[o + 1], s_new[o + 2] = x0, x1, x2
     for i in range(6):
         s_new[o + 3 + i] = P[i]
-    u = abs(nu) / math.sqrt(variance)
-    if u > huber and abs(previous) <= huber * math.sqrt(variance):  # a suspected gross error tells no mode
-        u = huber
-    return nu, -0.5 * (u * u + math.log(variance))
+    u = min(abs(nu), limit) / math.sqrt(variance)  # a suspected gross error tells no mode
+    return nu, -0.5 * (u * u + math.log(variance)), variance
 
 
 @njit(cache=True, error_model="numpy")
@@ -129,9 +132,12 @@ def imm_ca_step(s, y, params, s_new):
     d0, d1, d2 = s[a] - s[b], s[a + 1] - s[b + 1], s[a + 2] - s[b + 2]
     _mix(s, stay * mu_a / c_a, (1.0 - stay) * mu_b / c_a, d0, d1, d2, s_new, a)
     _mix(s, (1.0 - stay) * mu_a / c_b, stay * mu_b / c_b, d0, d1, d2, s_new, b)
-    huber, previous = params[_HUBER], s[_INNOVATION]
-    nu_a, like_a = _mode_update(s_new, a, y, dt, params[_Q_LOW], r, huber, previous)
-    nu_b, like_b = _mode_update(s_new, b, y, dt, params[_Q_HIGH], r, huber, previous)
+    huber, previous, rate = params[_HUBER], s[_INNOVATION], s[_RATE]
+    nu_a, like_a, variance_a = _mode_update(s_new, a, y, dt, params[_Q_LOW], r, huber, previous, rate)
+    nu_b, like_b, _ = _mode_update(s_new, b, y, dt, params[_Q_HIGH], r, huber, previous, rate)
+    # whether the motion keeps leaving the smooth mode's model: its innovations' share beyond the bound (then
+    # clipping would keep the estimate from switching to the fast mode when it should)
+    s_new[_RATE] = _kernels.huber_rate(rate, nu_a, huber, variance_a)
     top = max(like_a, like_b)
     w_a = c_a * math.exp(like_a - top)
     w_b = c_b * math.exp(like_b - top)
@@ -153,6 +159,9 @@ def imm_ca_rows(state, y, params, new_state, out, shared):
     return _kernels._check_state(new_state, out)
 
 
+# the step and its mode update are cached here and link _kernels' filter halves: dropped when those changed
+# (register_step drops only the row kernel itself)
+drop_stale((_mode_update, imm_ca_step), [_kernels.__file__])
 _STEP = _kernels.register_step(imm_ca_rows)
 
 
