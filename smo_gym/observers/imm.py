@@ -73,7 +73,7 @@ from .registry import register_observer
 __all__ = ["KalmanIMM", "imm_ca_step"]
 
 # state columns: the output (value, velocity, acceleration), the innovation, then per mode its mean (3) and the
-# upper triangle of its covariance (6), then the two mode probabilities, then the share of the fast mode's
+# upper triangle of its covariance (6), then the two mode probabilities, then the share of the smooth mode's
 # innovations beyond Huber's bound (:func:`smo_gym.observers._kernels.huber_rate`)
 _OUT, _INNOVATION, _MODES, _MU, _RATE = 0, 3, 4, 22, 24
 _WIDTH = 25
@@ -199,9 +199,9 @@ class KalmanIMM(Observer):
         ``sqrt(r)``); the modes start equally likely.
     huber : float, optional
         Huber's threshold ``c > 0`` for sensors with gross errors, in both modes (as
-        :class:`~smo_gym.observers.KalmanCA`'s); the modes are then weighed by Huber's least favourable density,
-        :math:`-\log p = \rho(\nu/\sqrt S) + \tfrac12\log S` with :math:`\rho` quadratic up to ``c`` and linear
-        beyond, so that one wrong sample does not throw the estimate into the fast mode. Default None.
+        :class:`~smo_gym.observers.KalmanCA`'s); a sample the modes clip weighs them as an innovation of exactly
+        ``c`` standard deviations would, so that one wrong sample does not throw the estimate into the fast mode
+        (module notes). Default None.
     discretization : {"exact"}
         Both filters are the exact discretization of the constant-acceleration model.
     wrap : bool or array_like of bool, optional
