@@ -1002,6 +1002,8 @@ def huber_limit(huber, variance, previous, rate):
     :math:`\operatorname{erfc}(c/\sqrt 2)` (0.27 % at ``c = 3``), by more than :data:`HUBER_SUSPEND_EXCESS`, the
     model does not fit the motion and clipping is suspended.
     """
+    if huber == math.inf:  # the Kalman filter
+        return math.inf
     bound = huber * math.sqrt(variance)
     if abs(previous) > bound or rate > math.erfc(huber / math.sqrt(2.0)) + HUBER_SUSPEND_EXCESS:
         return math.inf
