@@ -135,7 +135,8 @@ for f in (imm._mode_update, imm.imm_ca_step, imm.imm_ca_rows):
 def test_the_imm_helpers_are_dropped_when_the_filter_halves_change(tmp_path):
     """The IMM step and its mode update are cached in ``imm.py`` and link the Kalman filter's halves from
     ``_kernels.py``: a cache older than ``_kernels.py`` must be dropped for all three cached functions, not only
-    the row kernel (a stale mode update once kept an old rule of Huber's update after ``_kernels.py`` changed)."""
+    the row kernel: ``register_step``'s ``helpers`` (a stale mode update once kept an old rule of Huber's update
+    after ``_kernels.py`` changed)."""
     import subprocess
     import sys
     from pathlib import Path

@@ -1293,7 +1293,7 @@ STEPS: dict = {}
 _DRIVERS: dict = {}
 
 
-def register_step(rows, *, allocates: bool = False, sources: Sequence[str] = ()) -> Step:
+def register_step(rows, *, allocates: bool = False, sources: Sequence[str] = (), helpers: Sequence = ()) -> Step:
     """Generate and register the batch kernels and the offline drivers of a step (idempotent).
 
     ``rows`` is a module-level ``@njit(cache=True)`` function
@@ -1303,8 +1303,10 @@ def register_step(rows, *, allocates: bool = False, sources: Sequence[str] = ())
     changes. Observer families name the returned :attr:`Step.kernel` as their ``_kernel``;
     :func:`smo_gym.observers.registry.register_observer` registers the steps a family declares. ``allocates``:
     ``rows`` creates arrays, so its batch kernels keep numba's reference counting (module notes). ``sources``: the
-    files of other modules whose functions ``rows`` calls (:attr:`Step.sources`). A :class:`Step` is returned as it
-    is.
+    files of other modules whose functions ``rows`` calls (:attr:`Step.sources`). ``helpers``: the other cached
+    functions of ``rows``'s module that it calls and that call this module's functions (a channel step): numba checks
+    their own file only, so their cache is dropped with ``rows``'s when this module changed. A :class:`Step` is
+    returned as it is.
     """
     if isinstance(rows, Step):
         return rows
@@ -1313,7 +1315,7 @@ def register_step(rows, *, allocates: bool = False, sources: Sequence[str] = ())
             return step
     label = f"{rows.py_func.__module__}.{rows.py_func.__qualname__}"
     deps = sorted({inspect.getfile(rows.py_func), __file__, *sources})
-    drop_stale([rows], [__file__])  # rows is cached in its own module and links this module's helpers
+    drop_stale([rows, *helpers], [__file__])  # cached in their own module, they link this module's functions
     options = dict(KERNEL, _nrt=True) if allocates and "_nrt" in KERNEL else KERNEL
     kernel = cached_instance(_batch_template, label, options, deps, _ROWS=rows, _SHARED=False)
     shared = cached_instance(_batch_template, label + ".shared", options, deps, _ROWS=rows, _SHARED=True)

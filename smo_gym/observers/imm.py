@@ -63,7 +63,6 @@ import math
 import numpy as np
 from numba import njit
 
-from .._numba_cache import drop_stale
 from .._validation import check_keywords, check_positive, check_positive_parameter
 from . import _kernels
 from .base import Observer
@@ -159,10 +158,8 @@ def imm_ca_rows(state, y, params, new_state, out, shared):
     return _kernels._check_state(new_state, out)
 
 
-# the step and its mode update are cached here and link _kernels' filter halves: dropped when those changed
-# (register_step drops only the row kernel itself)
-drop_stale((_mode_update, imm_ca_step), [_kernels.__file__])
-_STEP = _kernels.register_step(imm_ca_rows)
+# the step and its mode update link _kernels' filter halves: their cache goes when those change
+_STEP = _kernels.register_step(imm_ca_rows, helpers=(_mode_update, imm_ca_step))
 
 
 @register_observer(

@@ -76,7 +76,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._numba_cache import drop_stale
 from .._validation import (
     as_real_array,
     check_choice,
@@ -284,11 +283,9 @@ def low_power_rows(state, y, params, new_state, out, shared):
     return _kernels._check_state(new_state, out)
 
 
-#: the compiled step (its channel step solves linear systems: it allocates)
-low_power = _kernels.register_step(low_power_rows, allocates=True)
+#: the compiled step (its channel step solves linear systems: it allocates, and it links _kernels' functions)
+low_power = _kernels.register_step(low_power_rows, allocates=True, helpers=(low_power_channel_step,))
 low_power_kernel = low_power.kernel
-# the channel step inlines helpers of _kernels.py: drop its cached code when that changes (smo_gym._numba_cache)
-drop_stale((low_power_channel_step,), [_kernels.__file__])
 
 
 # ----------------------------------------------------------------------------------------------------------------

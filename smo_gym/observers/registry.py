@@ -13,7 +13,9 @@ and the registry then provides, with nothing else to edit:
 * what its gains need from calibration (:meth:`Family.bound_order`, :meth:`Family.needs_calibration`) and its
   gain rule (:attr:`Family.calibrate`), read by :func:`smo_gym.calibration.default_observer`;
 * the compiled code of every step it declares (:func:`smo_gym.observers._kernels.register_step`): the batch
-  kernel, its shared-parameter variant, the offline drivers and the wrapper's fused driver, all cached on disk;
+  kernel, its shared-parameter variant, the offline drivers and the wrapper's fused driver, all cached on disk (a
+  step whose own cached helpers call functions of ``_kernels.py``, a channel step, registers itself with
+  ``register_step(rows, helpers=...)``: numba checks a cached function's own file only);
 * the parameter sets on which the contract tests run (batching, masked reset, non-finite input, pickling,
   ``run`` equals a loop of ``update``), one per discretization at least.
 

@@ -56,7 +56,6 @@ import math
 import numpy as np
 from numba import njit
 
-from .._numba_cache import drop_stale
 from .._validation import as_real_array, check_bool, check_int_in_range, check_keywords, check_positive
 from . import _kernels
 from .base import Observer
@@ -285,10 +284,9 @@ def switched_gain_rows(state, y, params, new_state, out, shared):
     return _kernels._check_state(new_state, out)
 
 
-switched_gain = _kernels.register_step(switched_gain_rows)
+# the channel step links _kernels' functions: its cache goes with the row kernel's when those change
+switched_gain = _kernels.register_step(switched_gain_rows, helpers=(switched_gain_channel_step,))
 switched_gain_kernel = switched_gain.kernel
-# the channel step inlines helpers of _kernels.py: drop its cached code when that changes (smo_gym._numba_cache)
-drop_stale((switched_gain_channel_step,), [_kernels.__file__])
 
 
 # ----------------------------------------------------------------------------------------------------------------
