@@ -417,6 +417,10 @@ class Calibration:
         for a sensor model whose variance overflows).
     resolution : ndarray, shape (...)
         The quantization step (0 where there is none).
+    initial : mapping of int to ndarray, shape (...)
+        Where the signals start: ``initial[r]`` is the RMS of :math:`f^{(r)}` at the first sample of an episode (1:
+        the velocity, 2: the acceleration), over the episodes of a rollout; what a Kalman filter's prior needs
+        (:func:`default_observer`). Empty where unknown (a recorded signal).
     """
 
     dt: float
@@ -424,10 +428,11 @@ class Calibration:
     typical: Mapping[int, np.ndarray]
     noise: np.ndarray
     resolution: np.ndarray = field(default=0.0)
+    initial: Mapping[int, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self):
         object.__setattr__(self, "dt", check_positive("dt", self.dt))
-        for name in ("bounds", "typical"):
+        for name in ("bounds", "typical", "initial"):
             levels = getattr(self, name)
             if not isinstance(levels, Mapping):
                 raise TypeError(f"expected {name} as a mapping of derivative order to array, actual value: {levels!r}")
@@ -438,7 +443,7 @@ class Calibration:
         shape = noise.shape if noise.ndim or not levels else levels[0]
         object.__setattr__(self, "noise", _frozen("noise", noise, shape, infinite=True))
         object.__setattr__(self, "resolution", _frozen("resolution", self.resolution, shape))
-        for name in ("bounds", "typical"):
+        for name in ("bounds", "typical", "initial"):
             levels = getattr(self, name)
             frozen = {
                 check_int_in_range(f"{name} order", r, 1, 8): _frozen(f"{name}[{r}]", v, shape)
@@ -508,10 +513,20 @@ def calibration_from_velocities(
     :math:`f^{(r)}` for each ``r`` in ``orders``. ``bounds[r] = safety * quantile(|f^(r)|)`` and ``typical[r]`` its
     RMS, per dof. Dofs that never moved (a pushed object, a goal) get the largest value of the model: they may be
     hit later, and a tiny gain would never catch up. Every value is floored at :data:`BOUND_FLOOR`. ``noise`` and
-    ``resolution`` (per dof) are the sensor's.
+    ``resolution`` (per dof) are the sensor's. ``initial`` holds the RMS over episodes of the first velocity and
+    of the first backward difference of it (episodes of two samples or more).
     """
     dt = check_positive("dt", dt)
     bounds, typical = {}, {}
+    starts = [V for V in episodes if len(V) >= 2]
+    initial = (
+        {
+            1: np.sqrt(np.mean([V[0] ** 2 for V in starts], axis=0)),
+            2: np.sqrt(np.mean([((V[1] - V[0]) / dt) ** 2 for V in starts], axis=0)),
+        }
+        if starts
+        else {}
+    )
     for r in sorted(set(orders)):
         r = check_int_in_range("order", r, 1, 8)
         diffs = [np.diff(V, n=r - 1, axis=0) / dt ** (r - 1) for V in episodes if len(V) >= r]
@@ -526,7 +541,7 @@ def calibration_from_velocities(
             untouched = level <= 1e-6 * max(float(np.max(level)), 1e-300)
             level[untouched] = np.max(level)
             store[r] = np.maximum(level, BOUND_FLOOR)
-    return Calibration(dt, bounds, typical, noise, resolution)
+    return Calibration(dt, bounds, typical, noise, resolution, initial)
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -394,6 +394,7 @@ def _take(calibration: Calibration, channels: np.ndarray) -> Calibration:
         {r: part(v) for r, v in calibration.typical.items()},
         part(calibration.noise),
         part(calibration.resolution),
+        {r: part(v) for r, v in calibration.initial.items()},
     )
 
 

@@ -104,8 +104,19 @@ def steady_state_covariance(dt: float, process_noise: float, measurement_noise: 
     return (np.eye(3) - gain @ H) @ prior
 
 
+#: the smallest prior standard deviation of the velocity and the acceleration taken from a calibration
+PRIOR_STD_FLOOR = 1e-3
+
+
 def _kalman_rule(cls, calibration, order, kwargs):
-    """:meth:`KalmanCA.from_levels` per channel: the typical jerk (``order`` 3) and the measurement variance."""
+    """:meth:`KalmanCA.from_levels` per channel: the typical jerk (``order`` 3) and the measurement variance; the
+    prior at reset (``initial_std``, unless given) from where the calibration's episodes start
+    (:attr:`Calibration.initial <smo_gym.calibration.Calibration.initial>`: the RMS of the first velocity and
+    acceleration, the largest over channels, at least :data:`PRIOR_STD_FLOOR`), or the default where that is not
+    known (a recorded signal)."""
+    if calibration.initial and "initial_std" not in kwargs:
+        spread = (max(float(np.max(calibration.initial[r])), PRIOR_STD_FLOOR) for r in (1, 2))
+        kwargs = {**kwargs, "initial_std": tuple(spread)}
     return cls.from_levels(calibration.dt, calibration.rms(order), calibration.measurement_variance, **kwargs)
 
 
@@ -314,7 +325,8 @@ class KalmanCA(Observer):
         ``r``, the variance of the measurement noise [units^2], per channel or one for all.
     initial_std : tuple of 2 floats
         Prior standard deviations of velocity and acceleration at reset (the value's is ``sqrt(r)``), also when
-        ``reset`` is given initial derivatives (the prior mean).
+        ``reset`` is given initial derivatives (the prior mean). The calibrated gains of the wrappers set them from
+        where their episodes start (:attr:`Calibration.initial <smo_gym.calibration.Calibration.initial>`).
     huber : float, optional
         Huber's threshold ``c > 0`` for sensors with gross errors: an innovation beyond ``c`` of its standard
         deviations :math:`\sqrt S` (:math:`S = c^\top P^- c + r`) moves the estimate as one of exactly ``c`` would

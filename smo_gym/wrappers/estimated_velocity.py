@@ -214,13 +214,14 @@ def calibrate_environment(
     model = adapter.model
     orders, every = tuple(sorted({int(r) for r in np.atleast_1d(derivative)})), int(sample_every)
     settings = dict(derivative=orders, every=every, frame_skip=adapter.frame_skip, safety=float(safety))
-    settings.update(quantile=float(quantile), steps=int(steps), v=5)
+    settings.update(quantile=float(quantile), steps=int(steps), v=6)
     key = calibration_key(adapter.environment_key, model, **settings)
     dt = float(model.opt.timestep) * every
 
     def levels(episodes):
         c = calibration_from_velocities(episodes, dt, orders, noise=0.0, quantile=quantile, safety=safety)
-        return np.stack([level for r in orders for level in (c.bound(r), c.rms(r))])
+        start = [c.initial[1], c.initial[2]] if c.initial else [np.full(model.nv, np.nan)] * 2
+        return np.stack([*(level for r in orders for level in (c.bound(r), c.rms(r))), *start])
 
     def compute():
         episodes = rollout_velocities(adapter, every, int(steps))
@@ -234,8 +235,10 @@ def calibrate_environment(
         return levels(model_rollout_velocities(model, qpos0, qvel0, adapter.frame_skip, every, steps=int(steps)))
 
     found = cached_bounds(key, compute, disk=disk)
-    bounds, typical = dict(zip(orders, found[::2], strict=True)), dict(zip(orders, found[1::2], strict=True))
-    return Calibration(dt, bounds, typical, noise, resolution)
+    levels_of, start = found[: 2 * len(orders)], found[2 * len(orders) :]  # the start: velocity, acceleration
+    bounds, typical = dict(zip(orders, levels_of[::2], strict=True)), dict(zip(orders, levels_of[1::2], strict=True))
+    initial = {1: start[0], 2: start[1]} if np.isfinite(start).all() else {}
+    return Calibration(dt, bounds, typical, noise, resolution, initial)
 
 
 def sensed_trials(adapter, measurement: JointMeasurement, sample_every: int, steps: int, smoothing: float = 0.0):
