@@ -422,3 +422,25 @@ def test_auto_takes_the_robust_imm_estimator_on_a_sensor_with_gross_errors():
     robust, plain = selection.candidates.index("kalman-imm:huber=3"), selection.candidates.index("kalman-imm")
     low_passed = np.asarray(selection.errors)[1]
     assert np.all(low_passed[robust] < low_passed[plain] / 2.0)
+
+
+def test_the_trials_are_measured_again_when_the_calibration_changes(monkeypatch):
+    """The errors ``auto`` compares depend on every candidate's gains, hence on the calibration: cached under a key
+    without it, a change of the calibration (a new level, a new rule of the rollout) would keep the errors of the
+    old one. Two wrappers whose calibrations differ only in their typical levels (x 100) get different errors."""
+    real = ev_module.calibrate_environment
+    scale = {"factor": 1.0}
+
+    def scaled(*args, **kwargs):
+        found = real(*args, **kwargs)
+        typical = {r: v * scale["factor"] for r, v in found.typical.items()}
+        return Calibration(found.dt, found.bounds, typical, found.noise, found.resolution, found.initial)
+
+    monkeypatch.setattr(ev_module, "calibrate_environment", scaled)
+    errors = []
+    for factor in (1.0, 100.0):
+        scale["factor"] = factor
+        env = EstimatedVelocity(gym.make("InvertedPendulum-v5"), rate="env", disk_cache=False)
+        errors.append(np.asarray(env.observer.selection.errors))
+    kalman = list(env.observer.selection.candidates).index("kalman-ca")
+    assert not np.allclose(errors[0][:, kalman], errors[1][:, kalman])

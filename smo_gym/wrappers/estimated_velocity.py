@@ -285,6 +285,8 @@ def calibrated_observer(
     span = mean_velocity_span(adapter.model)
     candidates = CANDIDATES + (() if joint is None else (joint.observer.name,))
     settings = {k: v for k, v in how.items() if k != "disk"}  # where the result is kept is not what it depends on
+    # the errors depend on the gains, hence on the calibration itself; v on the candidates' code
+    levels = [calibration.bounds, calibration.typical, calibration.initial, calibration.noise, calibration.resolution]
     key = calibration_key(
         adapter.environment_key,
         adapter.model,
@@ -294,8 +296,9 @@ def calibrated_observer(
         every=sample_every,
         kwargs=stable_repr(kwargs),
         trial_steps=TRIAL_STEPS,
+        calibration=stable_repr(levels),
         **settings,
-        v=3,
+        v=4,
     )
 
     def compute():
