@@ -467,6 +467,22 @@ class Calibration:
             )
         return levels[order]
 
+    def as_rows(self, orders) -> np.ndarray:
+        """The levels as the rows of one array (the wrappers' cache stores it): ``bound(r)`` and ``rms(r)`` for each
+        ``r`` of ``orders``, then ``initial[1]`` and ``initial[2]`` (NaN where unknown); shape
+        ``(2 len(orders) + 2, ...)``. :meth:`from_rows` is its inverse."""
+        start = [self.initial.get(r, np.full(self.noise.shape, np.nan)) for r in (1, 2)]
+        return np.stack([*(level for r in orders for level in (self.bound(r), self.rms(r))), *start])
+
+    @classmethod
+    def from_rows(cls, rows, orders, dt: float, noise, resolution=0.0) -> Calibration:
+        """The calibration whose :meth:`as_rows` ``(orders)`` are ``rows``, with the sensor's ``noise`` and
+        ``resolution``."""
+        rows, n = np.asarray(rows, dtype=float), 2 * len(orders)
+        bounds, typical = dict(zip(orders, rows[:n:2], strict=True)), dict(zip(orders, rows[1:n:2], strict=True))
+        initial = dict(enumerate(rows[n:], 1)) if np.isfinite(rows[n:]).all() else {}
+        return cls(dt, bounds, typical, noise, resolution, initial)
+
     @property
     def noise_level(self) -> float:
         """The mean noise level over channels, floored at :data:`NOISE_FLOOR` (for formulas that divide by it)."""

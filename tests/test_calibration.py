@@ -232,6 +232,26 @@ def test_calibration_from_velocities_levels():
     np.testing.assert_allclose(c.initial[2], np.sqrt(np.mean(slopes**2, axis=0)))
 
 
+def test_calibration_rows_round_trip():
+    """``as_rows`` / ``from_rows`` (the layout of the wrappers' cache) give back the calibration, with and without
+    where the episodes start."""
+    rng = np.random.default_rng(2)
+    V = np.cumsum(rng.normal(size=(600, 3)), axis=0) * DT
+    for episodes in ([V[:300], V[300:]], [V[:1], V[1:2]]):  # one-sample episodes: no start known
+        c = (
+            calibration.calibration_from_velocities(episodes, DT, (2, 3), noise=[1e-3, 2e-3, 3e-3])
+            if len(episodes[0]) > 1
+            else calibration.Calibration(DT, {2: [1.0, 2.0, 3.0], 3: [4.0, 5.0, 6.0]}, {2: 1, 3: 2}, [1e-3] * 3)
+        )
+        back = calibration.Calibration.from_rows(c.as_rows((2, 3)), (2, 3), DT, c.noise, c.resolution)
+        for r in (2, 3):
+            np.testing.assert_array_equal(back.bound(r), c.bound(r))
+            np.testing.assert_array_equal(back.rms(r), c.rms(r))
+        assert back.initial.keys() == c.initial.keys()
+        for r in c.initial:
+            np.testing.assert_array_equal(back.initial[r], c.initial[r])
+
+
 def test_the_kalman_prior_comes_from_where_the_episodes_start():
     r"""A Kalman filter's prior is the distribution of the initial state. Episodes of 40 samples (10 ms, noise
     1e-3) of a motion at constant acceleration that start from velocities ~ N(0, 0.05^2) and accelerations ~ N(0,

@@ -219,9 +219,8 @@ def calibrate_environment(
     dt = float(model.opt.timestep) * every
 
     def levels(episodes):
-        c = calibration_from_velocities(episodes, dt, orders, noise=0.0, quantile=quantile, safety=safety)
-        start = [c.initial[1], c.initial[2]] if c.initial else [np.full(model.nv, np.nan)] * 2
-        return np.stack([*(level for r in orders for level in (c.bound(r), c.rms(r))), *start])
+        found = calibration_from_velocities(episodes, dt, orders, noise=0.0, quantile=quantile, safety=safety)
+        return found.as_rows(orders)
 
     def compute():
         episodes = rollout_velocities(adapter, every, int(steps))
@@ -234,11 +233,7 @@ def calibrate_environment(
         qvel0 = np.array(getattr(unwrapped, "init_qvel", adapter.data.qvel), dtype=float)
         return levels(model_rollout_velocities(model, qpos0, qvel0, adapter.frame_skip, every, steps=int(steps)))
 
-    found = cached_bounds(key, compute, disk=disk)
-    levels_of, start = found[: 2 * len(orders)], found[2 * len(orders) :]  # the start: velocity, acceleration
-    bounds, typical = dict(zip(orders, levels_of[::2], strict=True)), dict(zip(orders, levels_of[1::2], strict=True))
-    initial = {1: start[0], 2: start[1]} if np.isfinite(start).all() else {}
-    return Calibration(dt, bounds, typical, noise, resolution, initial)
+    return Calibration.from_rows(cached_bounds(key, compute, disk=disk), orders, dt, noise, resolution)
 
 
 def sensed_trials(adapter, measurement: JointMeasurement, sample_every: int, steps: int, smoothing: float = 0.0):
@@ -285,8 +280,6 @@ def calibrated_observer(
     span = mean_velocity_span(adapter.model)
     candidates = CANDIDATES + (() if joint is None else (joint.observer.name,))
     settings = {k: v for k, v in how.items() if k != "disk"}  # where the result is kept is not what it depends on
-    # the errors depend on the gains, hence on the calibration itself; v on the candidates' code
-    levels = [calibration.bounds, calibration.typical, calibration.initial, calibration.noise, calibration.resolution]
     key = calibration_key(
         adapter.environment_key,
         adapter.model,
@@ -296,7 +289,7 @@ def calibrated_observer(
         every=sample_every,
         kwargs=stable_repr(kwargs),
         trial_steps=TRIAL_STEPS,
-        calibration=stable_repr(levels),
+        calibration=stable_repr(vars(calibration)),  # the errors depend on the gains; v on the candidates' code
         **settings,
         v=4,
     )
