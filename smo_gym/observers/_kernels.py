@@ -969,19 +969,6 @@ def kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r):
     return (m00 - k0 * m00, m01 - k0 * m01, m02 - k0 * m02, m11 - k1 * m01, m12 - k1 * m02, m22 - k2 * m02, k0, k1, k2)
 
 
-@njit(cache=CACHE, error_model="numpy")
-def kalman_ca_covariance(p00, p01, p02, p11, p12, p22, dt, q, r):
-    r"""Covariance half of :func:`kalman_ca_channel_step`: posterior :math:`P^+` (upper triangle) and gain ``K``.
-
-    .. math::
-        P^- = F P F^T + Q,\quad K = P^- c / (c^T P^- c + r),\quad P^+ = (I - K c^T) P^-,\quad c = (1, 0, 0).
-
-    Returns ``(P00, P01, P02, P11, P12, P22, k0, k1, k2)``. It does not depend on the measurement.
-    """
-    m00, m01, m02, m11, m12, m22 = kalman_ca_prior_covariance(p00, p01, p02, p11, p12, p22, dt, q)
-    return kalman_ca_posterior_covariance(m00, m01, m02, m11, m12, m22, r)
-
-
 #: Huber's update of the constant-acceleration filters (``huber``) is suspended while the share of the recent
 #: innovations beyond its bound exceeds what Gaussian innovations give by more than this: a sensor's rare gross
 #: errors add about their own rate (one sample in a thousand, say), and an excess this large says the model does
@@ -1020,7 +1007,7 @@ def huber_rate(rate, nu, huber, variance):
 
 @njit(cache=CACHE, error_model="numpy")
 def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2, limit):
-    r"""Mean half of :func:`kalman_ca_channel_step`: :math:`x^- = F x`, :math:`x^+ = x^- + K\psi(y - c^T x^-)`.
+    r"""Mean half of :func:`kalman_ca_rows`: :math:`x^- = F x`, :math:`x^+ = x^- + K\psi(y - c^T x^-)`.
 
     :math:`\psi(\nu) = \max(-\ell, \min(\nu, \ell))` is Huber's function with the bound ``limit`` ``l``
     (:func:`huber_limit`; Masreliez and Martin 1977), the identity for ``inf`` (the Kalman filter). Returns
@@ -1038,35 +1025,20 @@ def kalman_ca_mean(x0, x1, x2, y, dt, k0, k1, k2, limit):
 
 
 @njit(cache=CACHE, error_model="numpy")
-def kalman_ca_channel_step(s, y, params, s_new):
-    r"""Predict with :math:`F = e^{\tau N}` and the white-jerk process noise, then update with ``y``.
+def kalman_ca_rows(state, y, params, new_state, out, shared):
+    r"""The constant-acceleration Kalman filter on every channel (``shared``: one parameter row for every channel):
+    predict with :math:`F = e^{\tau N}` and the white-jerk process noise, then update with ``y``,
 
     .. math::
         Q = q\begin{bmatrix} \tau^5/20 & \tau^4/8 & \tau^3/6\\ \tau^4/8 & \tau^3/3 & \tau^2/2\\
             \tau^3/6 & \tau^2/2 & \tau\end{bmatrix},\qquad
-        K = P^- c / (c^T P^- c + r),\quad c = (1, 0, 0).
+        K = P^- c / (c^T P^- c + r),\quad c = (1, 0, 0),
 
-    State row ``s``: ``[x0, x1, x2, P00, P01, P02, P11, P12, P22, nu, rate]`` (the last innovation and the share of
-    innovations beyond Huber's bound, :func:`huber_rate`); params ``[dt, q, r, huber]``. Returns the innovation.
+    the covariance half by :func:`kalman_ca_prior_covariance` and :func:`kalman_ca_posterior_covariance`
+    (independent of the measurements), the mean half by :func:`kalman_ca_mean` with
+    Huber's bound :func:`huber_limit`. State row: ``[x0, x1, x2, P00, P01, P02, P11, P12, P22, nu, rate]`` (the last
+    innovation and the share of innovations beyond Huber's bound, :func:`huber_rate`); params ``[dt, q, r, huber]``.
     """
-    dt, r, huber = params[0], params[2], params[3]
-    P = kalman_ca_covariance(s[3], s[4], s[5], s[6], s[7], s[8], dt, params[1], r)
-    variance = r / (1.0 - P[6])  # S = m00 + r, and k0 = m00 / S
-    limit = huber_limit(huber, variance, s[9], s[10])
-    x0, x1, x2, nu = kalman_ca_mean(s[0], s[1], s[2], y, dt, P[6], P[7], P[8], limit)
-    s_new[0] = x0
-    s_new[1] = x1
-    s_new[2] = x2
-    for i in range(6):
-        s_new[3 + i] = P[i]
-    s_new[9] = nu
-    s_new[10] = huber_rate(s[10], nu, huber, variance)
-    return nu
-
-
-@njit(cache=CACHE, error_model="numpy")
-def kalman_ca_rows(state, y, params, new_state, out, shared):
-    """:func:`kalman_ca_channel_step` on every channel (``shared``: one parameter row for every channel)."""
     _check_widths(state, new_state, params, out, 11, 4, 3)
     # three passes (prior covariance, posterior covariance and gain, mean) so that each loop has few enough
     # strided accesses for LLVM's vectorizer; the prior waits in ``new_state``, the gain in ``out``
