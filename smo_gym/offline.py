@@ -187,15 +187,9 @@ def _build(observer, dt: float, y: np.ndarray, params: dict, with_jerk: bool) ->
             )
         return copy.deepcopy(observer), None
     if isinstance(observer, str) and observer == "auto":
-        from .selection import auto_observer, candidate_orders, select
+        from .selection import _check_kwargs, auto_observer, candidate_orders, select
 
-        unknown = sorted(set(params) - {"wrap", "huber", "model"})  # model: the selection's own message
-        if unknown:
-            raise ValueError(
-                "expected no observer parameters but wrap and huber for observer='auto', which calibrates the gains "
-                f"of its candidates (name an observer to set its gains), actual value: {unknown}"
-            )
-        params = dict(params)
+        params = _check_kwargs(params, allowed=("wrap", "huber"))
         huber = params.pop("huber", None)
         kalman = "kalman-ca" if huber is None else f"kalman-ca:huber={check_positive('huber', huber)!r}"
         sample = _unwrapped(_finite_for_calibration(y), params.get("wrap"))

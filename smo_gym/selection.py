@@ -360,13 +360,13 @@ def select(
     return Selection(candidates, errors, source)
 
 
-def _check_kwargs(observer_kwargs) -> dict:
-    """The constructor arguments every candidate gets: ``wrap`` only (each candidate's gains are its own;
-    ``model=False``, no model-based candidate, is dropped)."""
+def _check_kwargs(observer_kwargs, allowed: tuple[str, ...] = ("wrap",)) -> dict:
+    """The constructor arguments every candidate gets: ``allowed`` only (``wrap``; each candidate's gains are its
+    own; ``model=False``, no model-based candidate, is dropped)."""
     kwargs = dict(observer_kwargs or {})
     if "model" in kwargs and not kwargs["model"]:
         del kwargs["model"]
-    unknown = sorted(set(kwargs) - {"wrap"})
+    unknown = sorted(set(kwargs) - set(allowed))
     if unknown:
         model = {"model", *MODEL_OPTIONS} & set(unknown)
         hint = (
@@ -376,8 +376,8 @@ def _check_kwargs(observer_kwargs) -> dict:
             else "name an observer to set its gains"
         )
         raise ValueError(
-            "expected no observer parameters but wrap for observer='auto', which calibrates the gains of each "
-            f"candidate ({hint}), actual value: {unknown}"
+            f"expected no observer parameters but {' and '.join(allowed)} for observer='auto', which calibrates the "
+            f"gains of each candidate ({hint}), actual value: {unknown}"
         )
     return kwargs
 
