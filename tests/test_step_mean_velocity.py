@@ -10,7 +10,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from smo_gym.engine.measurement import VelocityEstimator, mean_velocity_span, step_mean_coefficients
 from smo_gym.observers import HighGain, KalmanCA, Levant, SuperTwisting
-from smo_gym.wrappers import EstimatedVelocity, VecEstimatedVelocity
+from smo_gym.wrappers import EstimatedVelocity, VecEstimatedVelocity, VectorEstimatedVelocity
 
 
 def test_step_mean_coefficients_are_taylors_formula():
@@ -99,6 +99,23 @@ def test_halfcheetah_reports_the_euler_velocity_in_the_wrapper_and_the_vector_wr
     assert vec.estimator.coefficients is not None
     for _ in range(20):
         a = rng.uniform(-1, 1, (n,) + vec.action_space.shape)
-        o1, *_ = ref.step(a)
-        o2, *_ = vec.step(a)
+        o1, _, _, i1 = ref.step(a)
+        o2, _, _, i2 = vec.step(a)
         np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        for info, reference in zip(i2, i1, strict=True):  # info["smo"] reports the observation's velocity
+            np.testing.assert_allclose(
+                info["smo"]["qvel_estimate"], reference["smo"]["qvel_estimate"], rtol=0, atol=1e-12
+            )
+
+    from gymnasium.vector import SyncVectorEnv
+
+    ref = SyncVectorEnv([lambda: EstimatedVelocity(gym.make("HalfCheetah-v5"), rate="env", observer="kalman-ca")] * n)
+    vec = VectorEstimatedVelocity(SyncVectorEnv([lambda: gym.make("HalfCheetah-v5")] * n), observer="kalman-ca")
+    o1, i1 = ref.reset(seed=2)
+    o2, i2 = vec.reset(seed=2)
+    for _ in range(20):
+        np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(i2["smo"]["qvel_estimate"], i1["smo"]["qvel_estimate"], rtol=0, atol=1e-12)
+        a = rng.uniform(-1, 1, (n,) + vec.single_action_space.shape)
+        o1, _, _, _, i1 = ref.step(a)
+        o2, _, _, _, i2 = vec.step(a)

@@ -10,7 +10,8 @@ import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from smo_gym import sensors
-from smo_gym.engine.batch import MeasurementBatch
+from smo_gym.engine.batch import BatchedSensing, MeasurementBatch
+from smo_gym.observers import DivergenceError
 from smo_gym.wrappers import EstimatedVelocity, JointSensor, VecEstimatedVelocity, VectorEstimatedVelocity
 
 #: the keys of info["smo"], the same from every wrapper
@@ -58,6 +59,7 @@ def test_vec_equals_per_env_wrappers_with_autoresets(positions, env_id):
             n_done += 1
             np.testing.assert_allclose(i2[i]["terminal_observation"], i1[i]["terminal_observation"], rtol=0, atol=1e-12)
     assert n_done >= 5  # the comparison covered autoresets
+    assert isinstance(vec._together, BatchedSensing)  # the steps where every environment went on: one call
     assert (vec._selection() is not None) == (env_id == "Hopper-v5" and positions == "measured")
     assert (vec._entries_plan() is not None) == (env_id == ENV and positions == "measured")
 
@@ -432,3 +434,70 @@ def test_a_non_finite_measurement_in_the_batch_names_the_environment():
     with pytest.raises(ValueError, match=r"finite measurement.*of environment [01]"):
         for _ in range(10):
             vec.step(np.zeros((2, 1)))
+
+
+@pytest.mark.parametrize("api", ["sb3", "gymnasium"])
+def test_a_diverging_batched_observer_is_a_typed_error_and_keeps_its_state(api):
+    """The one-call step checks the observer's new state as ``Observer.update`` does: a high-gain observer started
+    at 1e307 overflows, the error names the channel and environment, the observer keeps the state it had."""
+    from gymnasium.vector import SyncVectorEnv
+
+    make = [lambda: gym.make(ENV) for _ in range(2)]
+    if api == "sb3":
+        vec = VecEstimatedVelocity(DummyVecEnv(make), "ideal", "high-gain")
+        vec.seed(0)
+        vec.reset()
+    else:
+        vec = VectorEstimatedVelocity(SyncVectorEnv(make), "ideal", "high-gain")
+        vec.reset(seed=0)
+    assert isinstance(vec._together, BatchedSensing)
+    vec.observer.reset(np.full(vec.observer.shape, 1e307))
+    before = vec.observer.state.copy()
+    with pytest.raises(DivergenceError, match=r"channel 0 of batch element \(0,\)"):
+        vec.step(np.zeros((2, 1)))
+    np.testing.assert_array_equal(vec.observer.state, before)
+
+
+def test_an_observer_without_a_compiled_step_takes_the_general_path():
+    """The worst-case optimal differentiator runs in Python: the vector step measures, updates and observes in three
+    moves, with the per-environment wrappers' numbers."""
+    ref = DummyVecEnv([lambda: EstimatedVelocity(gym.make(ENV), rate="env", observer="worst-case-optimal")] * 2)
+    vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV)] * 2), "encoder-12bit-noisy", "worst-case-optimal")
+    ref.seed(4)
+    vec.seed(4)
+    np.testing.assert_allclose(vec.reset(), ref.reset(), rtol=0, atol=1e-12)
+    assert vec._together is None and isinstance(vec._batch, MeasurementBatch)
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        a = rng.uniform(-1, 1, (2, 1))
+        np.testing.assert_allclose(vec.step(a)[0], ref.step(a)[0], rtol=0, atol=1e-12)
+
+
+def test_batched_sensing_is_the_measurement_then_the_update_bit_for_bit():
+    """The one-call step against its three moves on twin vector envs (same seeds): ``measure_live``, the observer's
+    ``update`` and ``velocity_of``; equal to the last bit, with the clipped selection of Hopper's observations."""
+    twins = []
+    for _ in range(2):
+        vec = VecEstimatedVelocity(DummyVecEnv([lambda: gym.make("Hopper-v5")] * 3), "encoder-12bit-noisy", "auto")
+        vec.seed(8)
+        vec.reset()
+        twins.append(vec)
+    together = twins[0]._together
+    batch, estimator = twins[1]._batch, twins[1].estimator
+    index, low, high = twins[1]._selection()
+    rng = np.random.default_rng(2)
+    for _ in range(40):
+        a = rng.uniform(-1, 1, (3, 3))
+        datas = []
+        for vec in twins:
+            for env, action in zip(vec.venv.envs, a, strict=True):
+                env.step(action)
+            datas.append([env.unwrapped.data for env in vec.venv.envs])
+        block, obs = together.step(datas[0])
+        reference = batch.measure_live(datas[1])
+        velocity = estimator.update(np.ascontiguousarray(reference[:, batch.slices[5]]))
+        reference[:, batch.slices[2]] = velocity
+        x = np.concatenate((reference[:, batch.slices[3]], velocity), axis=1)
+        np.testing.assert_array_equal(block, reference)
+        np.testing.assert_array_equal(obs, np.clip(x[:, index], low, high))
+        np.testing.assert_array_equal(twins[0].observer.estimate, twins[1].observer.estimate)

@@ -23,6 +23,7 @@ write the same rows, and each measured row is loaded into its measurement as its
 
 from __future__ import annotations
 
+import functools
 import operator
 from collections.abc import Sequence
 
@@ -31,15 +32,16 @@ import numpy as np
 from numba import njit
 
 from .. import sensors
-from .._numba_cache import drop_stale
+from .._numba_cache import cached_instance, drop_stale
+from ..observers import _kernels as K
 from ..observers.base import _compiled_entry
 from ..sensors import Sensor, SensorArrays, _chain_kernel
 from . import tangent
-from .fused import InputCopy
-from .measurement import JointMeasurement
+from .fused import InputCopy, fusable_estimator
+from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
 
-__all__ = ["MeasurementBatch", "block_slices", "measure_rows"]
+__all__ = ["BatchedSensing", "MeasurementBatch", "block_slices", "measure_rows"]
 
 
 def block_slices(nq: int, nv: int) -> tuple[slice, ...]:
@@ -258,25 +260,26 @@ class MeasurementBatch:
         measured = self._every_index if rows is self._every else np.flatnonzero(rows).tolist()
         if not measured:
             return block
-        t0, reserve = self._t0, self._reserve
-        for i in measured:
-            t0[i] = reserve[i](1)  # never None for one sample
-        args = (rows, Q, V, t0, *self.sensors, self.joints, self.previous, self.z, block)
+        args = (rows, Q, V, self.reserve(measured), *self.sensors, self.joints, self.previous, self.z, block)
         call = self._call
         if call is None:
             call = self._call = _compiled_entry(measure_rows, args)
         status = call(*args)
         if status != -1:
             self._raise(status, Q)
-        load, views = self._load, list(block)
-        for i in measured:
-            load[i](views[i])
+        self.loaded(block, measured)
         return block
 
     def measure_live(self, datas: Sequence[mujoco.MjData], rows: np.ndarray | None = None) -> np.ndarray:
         """:meth:`measure` of the live states of ``datas`` (one ``MjData`` per environment): their ``qpos`` and
         ``qvel`` are gathered by one compiled copy (:class:`~smo_gym.engine.fused.InputCopy`, made again when an
         environment replaced its data); ``rows`` None measures every environment."""
+        return self._measure(*self.gather(datas), self._every if rows is None else self._as_rows(rows))
+
+    def gather(self, datas: Sequence[mujoco.MjData]) -> tuple[np.ndarray, np.ndarray]:
+        """The live ``qpos`` and ``qvel`` of ``datas`` (one ``MjData`` per environment) in two arrays ``(n, nq)``
+        and ``(n, nv)``, the same ones at every call: one compiled copy
+        (:class:`~smo_gym.engine.fused.InputCopy`, made again when an environment replaced its data)."""
         if self._live_data is None or not all(map(operator.is_, datas, self._live_data)):
             qpos, qvel = self._live
             pairs = [(qpos[i], d.qpos) for i, d in enumerate(datas)] + [(qvel[i], d.qvel) for i, d in enumerate(datas)]
@@ -284,7 +287,21 @@ class MeasurementBatch:
                 raise ValueError(f"expected {len(self.measurements)} MjData, actual value: {len(datas)}")
             self._live_copy, self._live_data = InputCopy(pairs), list(datas)
         self._live_copy()
-        return self._measure(*self._live, self._every if rows is None else self._as_rows(rows))
+        return self._live
+
+    def reserve(self, measured: list[int]) -> np.ndarray:
+        """Reserve the next random row of the sensors of the environments ``measured``; returns each sensor's row
+        (``(n,)``, the compiled measurement's ``t0``)."""
+        t0, reserve = self._t0, self._reserve
+        for i in measured:
+            t0[i] = reserve[i](1)  # never None for one sample
+        return t0
+
+    def loaded(self, block: np.ndarray, measured: list[int]) -> None:
+        """Make the rows ``measured`` of ``block`` their measurements' last samples."""
+        load, views = self._load, list(block)
+        for i in measured:
+            load[i](views[i])
 
     def _raise(self, status: int, Q: np.ndarray):
         if status <= -2:
@@ -299,3 +316,138 @@ class MeasurementBatch:
             f"produced by the sensor model {self.measurements[i].sensor!r}; a non-finite measurement is never "
             "passed on"
         )
+
+
+# the global of the template below, bound per registered observer step by cached_instance: the step's rows function
+_ROWS = None
+
+
+def _sense_rows_template(
+    rows, Q, V, t0, kinds, params, state, ring, ring_pos, rand, joints, previous, z, block,
+    observer_state, observer_params, scratch, Z, estimate, velocity, obs_index, obs_bounds, obs,
+):  # fmt: skip
+    r"""One vector step of the in-process environments: :func:`measure_rows`, the batched observer's step on the
+    measurements of every environment, the reported velocities and the observations, in one compiled call.
+
+    The arguments up to ``block`` are :func:`measure_rows`'s. Then the observer's state ``(N, S)`` and per-channel
+    parameters ``(N, P)`` (``N = n nv``; the environments' channels in order), ``scratch`` ``(N, S)`` and ``Z``
+    ``(N,)`` work space, ``estimate`` ``(N, m)`` receives the new estimate, ``velocity`` the coefficients of the
+    reported velocity (:func:`~smo_gym.observers._kernels.reported_sum`), written into the ``qvel_estimate``
+    columns of ``block``. Last, for observations that are a clipped selection of the sensed state (``obs_index``
+    ``(k,)`` into ``[qpos_measured, qvel_estimate]``, ``obs_bounds`` ``(2, k)``; ``k = 0``: none), the
+    observations ``obs`` ``(n, k)``, clipped in ``np.clip``'s order.
+
+    Returns ``(stage, status)``: ``(-1, -1)`` on success; ``(0, status)`` a status of :func:`measure_rows`
+    (nothing estimated); ``(1, status)`` the observer's step failed (its state unchanged).
+    """
+    status = measure_rows(rows, Q, V, t0, kinds, params, state, ring, ring_pos, rand, joints, previous, z, block)
+    if status != -1:
+        return 0, status
+    n, nv = V.shape
+    nq = Q.shape[1]
+    o_vhat, o_qmeas, o_zm = nq + nv, nq + 2 * nv, 2 * nq + 3 * nv
+    for i in range(n):
+        for c in range(nv):
+            Z[i * nv + c] = block[i, o_zm + c]
+    N, S = observer_state.shape
+    K._check_rows(observer_params, N, False)
+    status = _ROWS(observer_state, Z, observer_params, scratch, estimate, False)
+    if status != -1:
+        return 1, status
+    for c in range(N):
+        for j in range(S):
+            observer_state[c, j] = scratch[c, j]
+    for i in range(n):
+        out = block[i]
+        for c in range(nv):
+            out[o_vhat + c] = K.reported_sum(velocity, estimate[i * nv + c])  # VelocityEstimator.velocity_of
+        for k in range(obs_index.shape[0]):
+            j = obs_index[k]
+            v = out[o_qmeas + j] if j < nq else out[o_vhat + j - nq]
+            v = max(v, obs_bounds[0, k])
+            obs[i, k] = min(v, obs_bounds[1, k])
+    return -1, -1
+
+
+@functools.cache
+def _sense_rows(kernel):
+    """:func:`_sense_rows_template` bound to the registered step of the observer ``kernel``, cached on disk."""
+    step = K.STEPS[kernel]
+    deps = [*step.sources, K.__file__, sensors.__file__, tangent.__file__]
+    return cached_instance(
+        _sense_rows_template, step.label, dict(cache=True, error_model="numpy"), deps, _ROWS=step.rows
+    )
+
+
+class BatchedSensing:
+    r"""The in-process vector wrappers' common step in one compiled call: measure every environment
+    (:class:`MeasurementBatch`), advance the batched observer and build the observations
+    (:func:`_sense_rows_template`).
+
+    The numbers are those of :meth:`MeasurementBatch.measure_live` followed by ``estimator.update`` and
+    ``estimator.velocity_of`` (tested bit for bit): the same compiled measurement and the observer's own step.
+
+    Parameters
+    ----------
+    batch : MeasurementBatch
+        The environments' measurements.
+    estimator : VelocityEstimator
+        The batched observer's estimator, observer of shape ``(n, nv)``; :meth:`supports` must hold.
+    selection : tuple of ndarray, optional
+        ``(index, low, high)`` when every observation is the same clipped selection of ``[qpos_measured,
+        qvel_estimate]``, ``np.clip(x[index], low, high)`` (:attr:`ScratchObservation.observation_map
+        <smo_gym.engine.scratch.ScratchObservation.observation_map>`): the call builds the observations too.
+    """
+
+    def __init__(self, batch: MeasurementBatch, estimator: VelocityEstimator, selection=None):
+        if not self.supports(estimator):
+            raise ValueError(f"expected an estimator of a compiled observer step, actual value: {estimator.observer}")
+        self.batch, self.observer = batch, estimator.observer
+        self._velocity = np.array([1.0] if estimator.coefficients is None else estimator.coefficients, dtype=float)
+        self.maps_observation = selection is not None
+        index, low, high = selection if selection is not None else (np.zeros(0, dtype=np.int64), (), ())
+        self._index = np.ascontiguousarray(index, dtype=np.int64)
+        self._bounds = np.array([low, high], dtype=np.float64).reshape(2, len(self._index))
+        self._driver = _sense_rows(self.observer._kernel)
+        self._call = self._scratch = None
+
+    supports = staticmethod(fusable_estimator)
+
+    def step(self, datas: Sequence[mujoco.MjData]) -> tuple[np.ndarray, np.ndarray | None]:
+        """Measure the live states of ``datas`` and advance the observer by one sample.
+
+        Returns ``(block, observations)``: the block of :meth:`MeasurementBatch.measure`, its ``qvel_estimate``
+        columns filled, and the observations ``(n, k)`` with a ``selection`` (None otherwise). The observer's
+        estimate is a new array (:meth:`~smo_gym.observers.Observer.advanced`).
+
+        Raises
+        ------
+        ValueError
+            As :meth:`MeasurementBatch.measure_live` (nothing estimated).
+        smo_gym.observers.DivergenceError
+            The observer's state would become non-finite (its state unchanged; the measurements were taken).
+        """
+        batch, observer = self.batch, self.observer
+        Q, V = batch.gather(datas)
+        n = len(batch.measurements)
+        state, params = observer.arrays
+        scratch = self._scratch
+        if scratch is None or scratch[0].shape != state.shape:
+            scratch = self._scratch = (np.empty_like(state), np.empty(state.shape[0]))
+        estimate = np.empty((state.shape[0], observer.order + 1))
+        block = np.empty((n, 2 * batch.nq + 4 * batch.nv))
+        obs = np.empty((n, len(self._index)))
+        measured = batch._every_index
+        args = (batch._every, Q, V, batch.reserve(measured), *batch.sensors, batch.joints, batch.previous, batch.z)
+        args += (block, state, params, *scratch, estimate, self._velocity, self._index, self._bounds, obs)
+        call = self._call
+        if call is None:
+            call = self._call = _compiled_entry(self._driver, args)
+        stage, status = call(*args)
+        if stage == 0:
+            batch._raise(status, Q)
+        batch.loaded(block, measured)
+        if stage == 1:
+            observer._raise_status(status, scratch[1].reshape(observer.shape))
+        observer.advanced(estimate.reshape(observer.estimate.shape), 1)
+        return block, obs if self.maps_observation else None

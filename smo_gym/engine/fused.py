@@ -64,6 +64,7 @@ __all__ = [
     "copy_entries",
     "entry_functions_match_numpy",
     "fusable",
+    "fusable_estimator",
     "gather_entries",
 ]
 
@@ -363,6 +364,16 @@ def fusable(observer) -> bool:
     return compiled_step(observer) is not None
 
 
+def fusable_estimator(estimator: VelocityEstimator) -> bool:
+    """Whether a compiled caller of the observer's step computes exactly what ``estimator`` would: a plain
+    :class:`VelocityEstimator` around a :func:`fusable` observer of order >= 1 without wrapped channels (the
+    drivers call the kernels directly, without unwrapping)."""
+    observer = estimator.observer
+    return (
+        type(estimator) is VelocityEstimator and fusable(observer) and not np.any(observer.wrap) and observer.order >= 1
+    )
+
+
 class FusedSensing:
     r"""The wrapper's hot path: one compiled call per control period (:mod:`smo_gym.engine.fused`).
 
@@ -427,14 +438,7 @@ class FusedSensing:
     @staticmethod
     def supports(measurement: JointMeasurement, estimator: VelocityEstimator, adapter) -> bool:
         """Whether the fused path computes exactly what the general path would (see the class docstring)."""
-        observer = estimator.observer
-        return (
-            type(estimator) is VelocityEstimator
-            and fusable(observer)
-            and not np.any(observer.wrap)  # the drivers call the kernels directly, without unwrapping
-            and observer.order >= 1
-            and adapter.evaluation is not None
-        )
+        return fusable_estimator(estimator) and adapter.evaluation is not None
 
     def _bind(self, Q: np.ndarray, qvel_true: np.ndarray) -> None:
         """Resolve the driver's compiled entry point (once: the arguments keep their types across resets).

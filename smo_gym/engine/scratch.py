@@ -55,7 +55,15 @@ from .fused import (
     entry_functions_match_numpy,
 )
 
-__all__ = ["CONTACT_FORCES", "INPUT_FIELDS", "GatheredObservations", "ScratchObservation"]
+__all__ = [
+    "CONTACT_FORCES",
+    "INPUT_FIELDS",
+    "OBSERVED_FIELDS",
+    "GatheredObservations",
+    "ScratchObservation",
+    "copy_observed_fields",
+    "shared_selection",
+]
 
 #: sources of the contact forces (``cfrc_ext``) in a sensed observation: see :class:`ScratchObservation`
 CONTACT_FORCES = ("sensor", "estimated", "zero")
@@ -622,6 +630,37 @@ class ScratchObservation:
             self.contact_forces = mode
 
 
+#: MjData fields an observation may read from the live data: the state, the controller inputs the scratch evaluation
+#: copies (:data:`INPUT_FIELDS`, but ``time``, a scalar), ``userdata`` and the contact forces
+#: (``contact_forces="sensor"``)
+OBSERVED_FIELDS = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "time"), "userdata", "cfrc_ext")
+
+
+def copy_observed_fields(data: mujoco.MjData, into: mujoco.MjData) -> mujoco.MjData:
+    """Copy ``time`` and the :data:`OBSERVED_FIELDS` of ``data`` into ``into`` (an ``MjData`` of the same model) and
+    return it: what an observation of the state needs after the live data moved on (a vector env's terminal
+    observation, rebuilt after the autoreset); a full ``copy.copy(MjData)`` costs ~100x more."""
+    into.time = data.time
+    for name in OBSERVED_FIELDS:
+        dst = getattr(into, name, None)
+        if isinstance(dst, np.ndarray) and dst.size:
+            dst[...] = getattr(data, name)
+    return into
+
+
+def shared_selection(evaluations) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``(index, low, high)`` when the observations of ``evaluations`` (one :class:`ScratchObservation` or None per
+    environment) are all the same clipped selection ``np.clip(x[index], low, high)`` of the sensed state ``x = [qpos,
+    qvel]`` (:attr:`ScratchObservation.observation_map`, models of one size), else None."""
+    maps = [None if e is None else e.observation_map for e in evaluations]
+    if not maps or any(m is None for m in maps) or len({e.model.nq for e in evaluations}) != 1:
+        return None
+    index, bounds = maps[0]
+    if not all(np.array_equal(m[0], index) and np.array_equal(m[1], bounds) for m in maps):
+        return None
+    return index, *np.array(bounds)
+
+
 class GatheredObservations:
     """Several environments' observations at given states, when each is gathered from ``MjData`` entries
     (:attr:`ScratchObservation.observation_entries`): what :meth:`ScratchObservation.observation` does
@@ -642,6 +681,16 @@ class GatheredObservations:
     ValueError
         Observations of different sizes.
     """
+
+    @staticmethod
+    def supports(evaluations) -> bool:
+        """Whether every one of ``evaluations`` (a :class:`ScratchObservation` or None per environment) is gathered
+        from ``MjData`` entries (:attr:`~ScratchObservation.gather`), on models of one size."""
+        return (
+            bool(evaluations)
+            and all(e is not None and e.gather is not None for e in evaluations)
+            and len({(e.model.nq, e.model.nv) for e in evaluations}) == 1
+        )
 
     def __init__(self, evaluations):
         self.evaluations = evaluations = tuple(evaluations)

@@ -103,25 +103,29 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         _, rewards, dones, infos = self.venv.step_wait()
         done = np.asarray(dones, dtype=bool)
         ended = done if done.any() else None
-        if local is not None:
-            # the environments that go on, measured together; the finished episodes' last samples, measured by
-            # their JointSensor before the autoreset
-            block, clean = self._local_block(ended, terminal=ended)
-            Z = np.ascontiguousarray(block[:, batch.slices[5]])
-        else:
-            Z = np.array([info["smo_z"] for info in infos], dtype=np.float64)
-        est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
+        together = self._step_together() if ended is None else None
         terminal = None
-        if ended is not None:
-            terminal = est.copy()  # the masked reset below rewrites the observer's estimate in place
-            reset_infos = self._reset_infos()
-            Z0 = Z.copy()
-            for i in np.flatnonzero(done):
-                Z0[i] = local[i].z_reset if local is not None else reset_infos[i]["smo_z"]
-            est = self.observer.reset(Z0, mask=done)  # those environments' observers restart at their new first sample
-        positions = None if local is None else self._local_positions(block, ended)
-        obs, terms = self._observe_all(est, positions, terminal, ended)
-        vel = (terminal if terminal is not None else est)[..., 1]
+        if together is not None:  # every environment goes on: one compiled call
+            block, clean, est, obs = together
+        else:
+            if local is not None:
+                # the environments that go on, measured together; the finished episodes' last samples, measured by
+                # their JointSensor before the autoreset
+                block, clean = self._local_block(ended, terminal=ended)
+                Z = np.ascontiguousarray(block[:, batch.slices[5]])
+            else:
+                Z = np.array([info["smo_z"] for info in infos], dtype=np.float64)
+            est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
+            if ended is not None:
+                terminal = est.copy()  # the masked reset below rewrites the observer's estimate in place
+                reset_infos = self._reset_infos()
+                Z0 = Z.copy()
+                for i in np.flatnonzero(done):
+                    Z0[i] = local[i].z_reset if local is not None else reset_infos[i]["smo_z"]
+                est = self.observer.reset(Z0, mask=done)  # their observers restart at their new first sample
+            positions = None if local is None else self._local_positions(block, ended)
+            obs, terms = self._observe_all(est, positions, terminal, ended)
+        vel = self.estimator.velocity_of(terminal if terminal is not None else est)
         # the step's sample of every environment (a finished episode's last one, as terminal_observation)
         if local is not None:
             block[:, batch.slices[2]] = vel
@@ -139,7 +143,7 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
     # ---- pickling without the venv (SB3 VecNormalize style) -------------------------------------------------
     def __getstate__(self):
         state = self.__dict__.copy()
-        for key in ("venv", "class_attributes", "_local", "_index", "_plan_cache", "_batch"):
+        for key in ("venv", "class_attributes", "_local", "_index", "_plan_cache", "_batch", "_together"):
             state.pop(key, None)
         return state
 

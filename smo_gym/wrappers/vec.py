@@ -56,19 +56,14 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from ..engine.batch import MeasurementBatch
+from ..engine.batch import BatchedSensing, MeasurementBatch
 from ..engine.measurement import check_finite_observation
-from ..engine.scratch import INPUT_FIELDS, GatheredObservations
+from ..engine.scratch import GatheredObservations, copy_observed_fields, shared_selection
 from ..specs import needs_model
 from .estimated_velocity import _SEED_SALT, EstimatedVelocity
 from .sensing import check_action, check_seed
 
 __all__ = ["JointSensor", "VectorEstimatedVelocity", "check_vector_rate", "sensing_config", "stack_samples"]
-
-#: MjData fields a terminal observation may read from the live data: the state, the controller inputs the
-#: scratch evaluation copies (:data:`~smo_gym.engine.scratch.INPUT_FIELDS`, but ``time``, a scalar), ``userdata``
-#: and the contact forces (``contact_forces="sensor"``)
-_SNAPSHOT = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "time"), "userdata", "cfrc_ext")
 
 
 def sensing_config(
@@ -223,17 +218,11 @@ class JointSensor(EstimatedVelocity):
         return obs, reward, terminated, truncated, info
 
     def _snapshot(self, data):
-        """Copy into a preallocated ``MjData`` the fields an observation reads from the live data (``_SNAPSHOT``):
-        a full ``copy.copy(MjData)`` costs ~100x more, paid at every episode end."""
-        snap = getattr(self, "_snap", None)
-        if snap is None:
-            snap = self._snap = mujoco.MjData(self.adapter.model)
-        snap.time = data.time
-        for name in _SNAPSHOT:
-            dst = getattr(snap, name, None)
-            if isinstance(dst, np.ndarray) and dst.size:
-                dst[...] = getattr(data, name)
-        return snap
+        """The fields an observation reads from the live data, copied into a preallocated ``MjData``
+        (:func:`~smo_gym.engine.scratch.copy_observed_fields`)."""
+        if getattr(self, "_snap", None) is None:
+            self._snap = mujoco.MjData(self.adapter.model)
+        return copy_observed_fields(data, self._snap)
 
     # ---- observations ---------------------------------------------------------------------------------------
     def _positions(self, q_meas, z_meas, filtered) -> np.ndarray:
@@ -324,7 +313,7 @@ class _Sensing:
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state.pop("_plan_cache", None)  # compiled entry points and this process's addresses: made again when used
-        state["_batch"] = None  # shares arrays with the sensors, which pickle their own: made again when used
+        state["_batch"] = state["_together"] = None  # share the sensors' arrays (pickled with them): made again
         return state
 
     def _call_envs(self, name: str, *args) -> list:  # pragma: no cover - provided by the vector wrappers
@@ -346,8 +335,9 @@ class _Sensing:
         ):
             sensors = None
         self._local = sensors
-        #: the in-process environments' MeasurementBatch, made at the first reset (:meth:`_local_batch`)
-        self._batch = None
+        #: the in-process environments' MeasurementBatch and their BatchedSensing (None where it does not serve
+        #: the observer), made at the first reset (:meth:`_local_batch`)
+        self._batch = self._together = None
         self.__dict__.pop("_selection_cache", None)
         self.__dict__.pop("_plan_cache", None)
         if sensors is not None:
@@ -421,46 +411,30 @@ class _Sensing:
         return terms
 
     def _selection(self):
-        """``(index, low, high)`` when the in-process environments' observations are all the same clipped
-        selection of the measured positions and estimated velocities (the adapters'
-        :attr:`~smo_gym.engine.scratch.ScratchObservation.observation_map`, ``positions="measured"``),
-        else None; decided once."""
-        try:
-            return self._selection_cache
-        except AttributeError:
-            pass
-        maps = [s.adapter.evaluation.observation_map if s.adapter.evaluation else None for s in self._local]
-        selection = None
-        if self.positions == "measured" and maps and all(m is not None for m in maps):
-            index, bounds = maps[0]
-            nqs = {s.adapter.model.nq for s in self._local}
-            if len(nqs) == 1 and all(np.array_equal(m[0], index) and np.array_equal(m[1], bounds) for m in maps):
-                selection = (index, *np.array(bounds))
-        self._selection_cache = selection
-        return selection
+        """``(index, low, high)`` when the in-process environments' observations are all the same clipped selection
+        of the measured positions and estimated velocities (:func:`~smo_gym.engine.scratch.shared_selection`,
+        ``positions="measured"``), else None; decided once."""
+        if "_selection_cache" not in self.__dict__:
+            evaluations = [s.adapter.evaluation for s in self._local]
+            self._selection_cache = shared_selection(evaluations) if self.positions == "measured" else None
+        return self._selection_cache
 
     def _entries_plan(self) -> GatheredObservations | None:
         """The batched evaluation of the in-process environments' observations when each is gathered from MjData
-        entries (the adapters' :attr:`~smo_gym.engine.scratch.ScratchObservation.observation_entries`,
-        ``positions="measured"``, joint coordinates equal to ``qpos``, one model size), else None; decided once,
-        made again if an environment replaced its ``MjData``."""
+        entries (:meth:`GatheredObservations.supports <smo_gym.engine.scratch.GatheredObservations.supports>`,
+        ``positions="measured"``, joint coordinates equal to ``qpos``), else None; decided once, made again if an
+        environment replaced its ``MjData``."""
         plan = self.__dict__.get("_plan_cache", False)
         if plan is None or (plan and plan.current()):
             return plan
-        local = self._local
+        evaluations = [s.adapter.evaluation for s in self._local]
         plan = None
         if (
             self.positions == "measured"
-            and len({(s.adapter.model.nq, s.adapter.model.nv) for s in local}) == 1
-            and all(
-                s.adapter.evaluation is not None
-                and s.adapter.evaluation.gather is not None
-                and s.adapter.unflatten is None
-                and not s.measurement.tangent.manifold
-                for s in local
-            )
+            and GatheredObservations.supports(evaluations)
+            and all(s.adapter.unflatten is None and not s.measurement.tangent.manifold for s in self._local)
         ):
-            plan = GatheredObservations([s.adapter.evaluation for s in local])
+            plan = GatheredObservations(evaluations)
         self._plan_cache = plan
         return plan
 
@@ -478,7 +452,21 @@ class _Sensing:
             self._batch = MeasurementBatch([s.measurement for s in self._local])
             for s in self._local:
                 s.batched = True
+            if BatchedSensing.supports(self.estimator):
+                self._together = BatchedSensing(self._batch, self.estimator, self._selection())
         return self._batch
+
+    def _step_together(self) -> tuple | None:
+        """A step where every in-process environment went on: ``(block, clean, estimate, observations)`` from one
+        compiled call (:class:`~smo_gym.engine.batch.BatchedSensing`), or None where it does not serve the observer."""
+        together, local = self._together, self._local
+        if together is None:
+            return None
+        block, obs = together.step([s.adapter.data for s in local])
+        est = self.observer.estimate
+        if obs is None:
+            obs, _ = self._observe_all(est, block[:, self._batch.slices[3]])
+        return block, np.array([s.step_observation for s in local]), est, obs
 
     def _local_block(self, stale: np.ndarray | None, terminal=None) -> tuple[np.ndarray, np.ndarray]:
         """``(block, clean)`` after a vector step: each environment's sample, a row of ``block`` (layout of
@@ -627,7 +615,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             self._autoreset[mask] = False
         if self._local is None:
             obs, _ = self._observe_all(est)
-            infos["smo"] = stack_samples(self._samples(infos), est[..., 1])
+            infos["smo"] = stack_samples(self._samples(infos), self.estimator.velocity_of(est))
         else:
             obs, _ = self._observe_all(est, self._local_positions())
             self._local_batch()  # the sensors have their streams now
@@ -639,7 +627,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
                 rows, block, clean = np.ones(n, bool), np.zeros((n, self._batch.slices[-1].stop)), [None] * n
             self._record_rows(block, clean, rows, None)
             self._last_sample = (block, np.array(clean))
-            infos["smo"] = self._stacked_info(*self._last_sample, est[..., 1])
+            infos["smo"] = self._stacked_info(*self._last_sample, self.estimator.velocity_of(est))
         infos["_smo"] = np.ones(self.num_envs, bool)
         return obs, infos
 
@@ -651,8 +639,6 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         return np.array([s.z_reset for s in self._local], dtype=np.float64)
 
     def step(self, actions):
-        from gymnasium.vector import AutoresetMode
-
         if self.observer.shape is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
         local = self._local
@@ -660,57 +646,68 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             batch = self._local_batch()
         _, rewards, terminated, truncated, infos = self.env.step(actions)
         done = np.logical_or(terminated, truncated)
-        next_step = self.autoreset_mode == AutoresetMode.NEXT_STEP
-        restart = self._autoreset.copy() if next_step else np.zeros(self.num_envs, dtype=bool)
-        if local is not None:  # the environments that were stepped and go on, measured together
-            stale = done | restart
-            stale = stale if stale.any() else None
-            block, clean = self._local_block(stale)
-            Z = np.ascontiguousarray(block[:, batch.slices[5]])
-        else:
-            Z = self._measurements(infos)
+        restart = self._autoreset.copy()  # environments that ended at the last step (autoreset mode next-step only)
+        stale = done | restart
+        stale = stale if stale.any() else None
+        together = self._step_together() if stale is None else None
         terminal = terminal_mask = None
-        if next_step:
-            est = self._update(np.where(restart[:, None], self.observer.estimate[..., 0], Z))
-            if restart.any():
-                self.observer.reset(Z, mask=restart)
-                est = self.observer.estimate
-            self._autoreset = done
-        elif self.autoreset_mode == AutoresetMode.SAME_STEP:
-            if done.any():
-                Zt = Z.copy()
-                for i in np.flatnonzero(done):
-                    Zt[i] = local[i].z_step if local is not None else infos["final_info"]["smo_z"][i]
-                terminal = self._update(Zt).copy()
-                terminal_mask = done
-                self.observer.reset(Z, mask=done)
-                est = self.observer.estimate
+        if together is not None:  # every environment went on: one compiled call
+            block, clean, est, obs = together
+        else:
+            if local is not None:  # the environments that were stepped and go on, measured together
+                block, clean = self._local_block(stale)
+                Z = np.ascontiguousarray(block[:, batch.slices[5]])
             else:
-                est = self._update(Z)
-        else:  # disabled: finished environments wait for reset(options={"reset_mask": ...})
-            est = self._update(Z)
-        positions = None if local is None else self._local_positions(block, stale)
-        obs, terms = self._observe_all(est, positions, terminal, terminal_mask)
-        if terminal_mask is not None:
-            final_obs = infos["final_obs"]
-            for i in np.flatnonzero(terminal_mask):
-                final_obs[i] = terms[i]
+                Z = self._measurements(infos)
+            est, terminal, terminal_mask = self._advance(Z, done, restart, infos)
+            positions = None if local is None else self._local_positions(block, stale)
+            obs, terms = self._observe_all(est, positions, terminal, terminal_mask)
+            if terminal_mask is not None:
+                final_obs = infos["final_obs"]
+                for i in np.flatnonzero(terminal_mask):
+                    final_obs[i] = terms[i]
         if local is not None:
-            infos["smo"] = self._stacked_info(block, clean, est[..., 1])
+            infos["smo"] = self._stacked_info(block, clean, self.estimator.velocity_of(est))
             self._last_sample = (block, clean)  # for a masked reset (autoreset mode "disabled")
         else:
-            infos["smo"] = stack_samples(self._samples(infos), est[..., 1])
+            infos["smo"] = stack_samples(self._samples(infos), self.estimator.velocity_of(est))
         infos["_smo"] = np.ones(self.num_envs, bool)
         if terminal_mask is not None:  # Gymnasium's same-step convention: the finished episodes' in final_info
             final = infos["final_info"]
             if local is not None:
                 block, clean = block.copy(), list(clean)
                 self._record_rows(block, clean, terminal_mask, terminal_mask)
-                final["smo"] = self._stacked_info(block, np.array(clean), terminal[..., 1], terminal_mask)
+                final["smo"] = self._stacked_info(
+                    block, np.array(clean), self.estimator.velocity_of(terminal), terminal_mask
+                )
             else:
-                final["smo"] = stack_samples(self._samples(infos, terminal_mask), terminal[..., 1], terminal_mask)
+                final["smo"] = stack_samples(
+                    self._samples(infos, terminal_mask), self.estimator.velocity_of(terminal), terminal_mask
+                )
             final["_smo"] = terminal_mask.copy()
         return obs, rewards, terminated, truncated, infos
+
+    def _advance(self, Z: np.ndarray, done: np.ndarray, restart: np.ndarray, infos: dict) -> tuple:
+        """The observer's step on ``Z`` in the autoreset mode: ``(estimate, terminal estimate, finished)`` (None, None
+        but where same-step autoresets end episodes)."""
+        from gymnasium.vector import AutoresetMode
+
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            est = self._update(np.where(restart[:, None], self.observer.estimate[..., 0], Z))
+            if restart.any():
+                self.observer.reset(Z, mask=restart)
+                est = self.observer.estimate
+            self._autoreset = done
+        elif self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
+            Zt = Z.copy()
+            for i in np.flatnonzero(done):
+                Zt[i] = self._local[i].z_step if self._local is not None else infos["final_info"]["smo_z"][i]
+            terminal = self._update(Zt).copy()
+            self.observer.reset(Z, mask=done)
+            return self.observer.estimate, terminal, done
+        else:  # disabled: finished environments wait for reset(options={"reset_mask": ...})
+            est = self._update(Z)
+        return est, None, None
 
     def _stacked_info(self, block: np.ndarray, clean: np.ndarray, velocity: np.ndarray, mask=None) -> dict:
         """:func:`stack_samples` of the samples in ``block`` and ``clean`` (:meth:`_local_block`), with the velocity
