@@ -75,6 +75,23 @@ def test_per_channel_batch_run_and_masked_reset():
     np.testing.assert_array_equal(twin.update(Y[5]), composite.update(Y[5]))
 
 
+def test_per_channel_restart_equals_a_fresh_reset():
+    """A new episode restarts every part's channels from the parts' own fresh states (with and without
+    derivatives, in a batch): then it runs as a composite reset from scratch, to the last bit."""
+    Y = _signal(batch=(2,))
+    composite = PerChannel(_parts())
+    composite.reset(Y[0])
+    composite.run(Y[1:50])
+    d = np.random.default_rng(1).standard_normal((2, 4, 1))
+    for derivatives in (None, d):
+        fresh = PerChannel(_parts())
+        np.testing.assert_array_equal(
+            composite.restart(Y[50], derivatives=derivatives), fresh.reset(Y[50], derivatives=derivatives)
+        )
+        np.testing.assert_array_equal(composite.state, fresh.state)
+        np.testing.assert_array_equal(composite.run(Y[51:90]), fresh.run(Y[51:90]))
+
+
 def test_per_channel_is_all_or_nothing():
     """A sample one part rejects is rejected for every part: the composite keeps the state it had, and the error
     names the composite's channel (the difference part observes channel 1 only)."""
