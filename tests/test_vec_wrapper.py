@@ -391,6 +391,7 @@ def test_free_joint_environments_measured_together_equal_per_env_wrappers():
     o2, _ = vec.reset(seed=3)
     np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)
     assert isinstance(vec._batch, MeasurementBatch) and vec._batch.previous.shape == (2, 15)
+    assert isinstance(vec._together, BatchedSensing)  # the tangent arithmetic inside the one-call step too
     rng = np.random.default_rng(5)
     for _ in range(40):
         a = rng.uniform(-1, 1, (2, 8))
