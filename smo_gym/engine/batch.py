@@ -1,4 +1,4 @@
-r"""The joint measurements of several environments, measured together: one compiled call per vector step.
+r"""Several environments measured (and estimated) together: one compiled call per vector step.
 
 An in-process vector env (Gymnasium's ``SyncVectorEnv``, Stable-Baselines3's ``DummyVecEnv``) steps ``n``
 environments of one model in lock step, each with its own :class:`~smo_gym.engine.measurement.JointMeasurement`:
@@ -19,6 +19,10 @@ so the stream does not depend on batching) and the measured configuration
 usable one by one (a reset, the last sample of an episode, :meth:`~JointMeasurement.measured_qpos`): they read and
 write the same rows, and each measured row is loaded into its measurement as its last sample
 (:meth:`JointMeasurement.load_block <smo_gym.engine.measurement.JointMeasurement.load_block>`).
+
+A vector step where every environment goes on needs more than the measurements: :class:`BatchedSensing` runs
+:func:`measure_rows`, the batched observer's registered step on all the environments' channels and, for
+observations that are a clipped selection of the state, the observations, in one compiled call as well.
 """
 
 from __future__ import annotations
