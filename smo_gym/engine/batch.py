@@ -36,12 +36,12 @@ import numpy as np
 from numba import njit
 
 from .. import sensors
-from .._numba_cache import cached_instance, drop_stale
+from .._numba_cache import drop_stale
 from ..observers import _kernels as K
 from ..observers.base import _compiled_entry
 from ..sensors import Sensor, SensorArrays, _chain_kernel
 from . import tangent
-from .fused import InputCopy, fusable_estimator
+from .fused import InputCopy, bound_to_step, fusable_estimator
 from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
 
@@ -376,11 +376,7 @@ def _sense_rows_template(
 @functools.cache
 def _sense_rows(kernel):
     """:func:`_sense_rows_template` bound to the registered step of the observer ``kernel``, cached on disk."""
-    step = K.STEPS[kernel]
-    deps = [*step.sources, K.__file__, sensors.__file__, tangent.__file__]
-    return cached_instance(
-        _sense_rows_template, step.label, dict(cache=True, error_model="numpy"), deps, _ROWS=step.rows
-    )
+    return bound_to_step(_sense_rows_template, K.STEPS[kernel])
 
 
 class BatchedSensing:

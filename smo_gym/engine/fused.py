@@ -61,6 +61,7 @@ __all__ = [
     "FusedSensing",
     "InputCopy",
     "address",
+    "bound_to_step",
     "copy_entries",
     "entry_functions_match_numpy",
     "fusable",
@@ -333,16 +334,9 @@ class _FusedDrivers(Mapping):
         driver = self._drivers.get(kernel)
         if driver is None:
             step = K.STEPS[kernel]  # KeyError: not a registered kernel
-            from .. import sensors
-            from . import tangent
-
-            deps = [*step.sources, K.__file__, sensors.__file__, tangent.__file__]
-            options = dict(cache=True, error_model="numpy")
             driver = self._drivers[kernel] = FusedDriver(
-                flat=cached_instance(_sense_template, step.label, options, deps, _ROWS=step.rows, _MANIFOLD=False),
-                manifold=cached_instance(
-                    _sense_template, step.label + ".manifold", options, deps, _ROWS=step.rows, _MANIFOLD=True
-                ),
+                flat=bound_to_step(_sense_template, step, _MANIFOLD=False),
+                manifold=bound_to_step(_sense_template, step, ".manifold", _MANIFOLD=True),
             )
         return driver
 
@@ -351,6 +345,19 @@ class _FusedDrivers(Mapping):
 
     def __len__(self) -> int:
         return len(K.STEPS)
+
+
+def bound_to_step(template, step: K.Step, suffix: str = "", **constants):
+    """A compiled caller of an observer's step: ``template`` with its global ``_ROWS`` bound to ``step.rows`` (and
+    ``constants`` to theirs), cached on disk under the step's label plus ``suffix``
+    (:func:`smo_gym._numba_cache.cached_instance`). Its cached code is dropped when the step's modules, the kernels of
+    :mod:`smo_gym.observers._kernels`, the sensor chain or the tangent arithmetic change (it contains theirs)."""
+    from .. import sensors
+    from . import tangent
+
+    deps = [*step.sources, K.__file__, sensors.__file__, tangent.__file__]
+    options = dict(cache=True, error_model="numpy")
+    return cached_instance(template, step.label + suffix, options, deps, _ROWS=step.rows, **constants)
 
 
 #: observer kernel -> its fused driver (every registered step has one, generated on first use)
