@@ -14,7 +14,9 @@ the Wiener filter of the record, truncated to ``L`` taps; Wiener 1949). Three fi
 
 * **hindsight**: on the evaluated rollout itself. It knows the truth it is scored on, so no causal LTI filter of
   ``L`` taps per channel has a smaller RMSE on that rollout: the limit of the linear filters (Kalman filters,
-  alpha-beta trackers and high-gain observers in steady state are such filters, with more taps);
+  alpha-beta trackers and high-gain observers in steady state are linear time-invariant filters of infinite
+  impulse response; with 120 taps instead of 40 the hindsight RMSE is 0.5-3 % lower on InvertedDoublePendulum
+  and Hopper, so a longer memory buys little);
 * **same policy**: on another rollout (another seed) of the evaluated policy: what a filter tuned to the policy's
   motion reaches out of sample;
 * **both policies**: on that rollout and one under uniform random actions, the two motions ``auto``'s trials score
@@ -46,7 +48,7 @@ from smo_gym.experiments.compare import compare_observers, record_rollout
 
 ENVS = ("InvertedPendulum-v5", "InvertedDoublePendulum-v5", "Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5")
 SENSORS = ("encoder-12bit", "encoder-12bit-noisy", "low-cost")
-#: taps per channel (10 reach within 2-10 % of 40 on these rows: longer filters add little)
+#: taps per channel: in hindsight 10 are 1-13 % above 40 and 120 at most 3 % below (and overfit out of sample)
 TAPS = 40
 
 
