@@ -41,7 +41,7 @@ from ..observers import _kernels as K
 from ..observers.base import _compiled_entry
 from ..sensors import Sensor, SensorArrays, _chain_kernel
 from . import tangent
-from .fused import InputCopy, bound_to_step, fusable_estimator
+from .fused import InputCopy, bound_to_step, clipped_selection, fusable_estimator
 from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
 
@@ -365,11 +365,7 @@ def _sense_rows_template(
         out = block[i]
         for c in range(nv):
             out[o_vhat + c] = K.reported_sum(velocity, estimate[i * nv + c])  # VelocityEstimator.velocity_of
-        for k in range(obs_index.shape[0]):
-            j = obs_index[k]
-            v = out[o_qmeas + j] if j < nq else out[o_vhat + j - nq]
-            v = max(v, obs_bounds[0, k])
-            obs[i, k] = min(v, obs_bounds[1, k])
+        clipped_selection(out[o_qmeas : o_qmeas + nq], out[o_vhat : o_vhat + nv], obs_index, obs_bounds, obs[i])
     return -1, -1
 
 

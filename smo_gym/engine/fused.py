@@ -62,6 +62,7 @@ __all__ = [
     "InputCopy",
     "address",
     "bound_to_step",
+    "clipped_selection",
     "copy_entries",
     "entry_functions_match_numpy",
     "fusable",
@@ -207,12 +208,21 @@ def _sense_template(Q, qvel_true, t0, est, info, Zm, obs, table):
         for c in range(n):
             info[o_qmeas + c] = zm[c]
             scratch_qpos[c] = est[c, 0] if filtered else zm[c]
-    for i in range(obs.shape[0]):  # np.clip's order: the lower bound first
-        k = obs_index[i]
-        v = scratch_qpos[k] if k < nq else scratch_qvel[k - nq]
-        v = max(v, obs_bounds[0, i])
-        obs[i] = min(v, obs_bounds[1, i])
+    clipped_selection(scratch_qpos, scratch_qvel, obs_index, obs_bounds, obs)
     return -1
+
+
+@njit(cache=True, error_model="numpy")
+def clipped_selection(qpos, qvel, index, bounds, obs):
+    """``obs[i] = np.clip(x[index[i]], bounds[0, i], bounds[1, i])`` with ``x = [qpos, qvel]``, in ``np.clip``'s
+    order (the lower bound first): the observation of :attr:`ScratchObservation.observation_map
+    <smo_gym.engine.scratch.ScratchObservation.observation_map>` at a sensed state."""
+    nq = qpos.shape[0]
+    for i in range(obs.shape[0]):
+        k = index[i]
+        v = qpos[k] if k < nq else qvel[k - nq]
+        v = max(v, bounds[0, i])
+        obs[i] = min(v, bounds[1, i])
 
 
 @intrinsic
@@ -351,11 +361,12 @@ def bound_to_step(template, step: K.Step, suffix: str = "", **constants):
     """A compiled caller of an observer's step: ``template`` with its global ``_ROWS`` bound to ``step.rows`` (and
     ``constants`` to theirs), cached on disk under the step's label plus ``suffix``
     (:func:`smo_gym._numba_cache.cached_instance`). Its cached code is dropped when the step's modules, the kernels of
-    :mod:`smo_gym.observers._kernels`, the sensor chain or the tangent arithmetic change (it contains theirs)."""
+    :mod:`smo_gym.observers._kernels`, the sensor chain, the tangent arithmetic or this module's helpers
+    (:func:`clipped_selection`) change (it contains theirs)."""
     from .. import sensors
     from . import tangent
 
-    deps = [*step.sources, K.__file__, sensors.__file__, tangent.__file__]
+    deps = [*step.sources, K.__file__, sensors.__file__, tangent.__file__, __file__]
     options = dict(cache=True, error_model="numpy")
     return cached_instance(template, step.label + suffix, options, deps, _ROWS=step.rows, **constants)
 
