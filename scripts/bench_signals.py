@@ -41,10 +41,15 @@ noisy 12-bit encoder with one sample in a thousand off by a Gaussian error of st
 oracles: what a glitching sensor does to each estimator and to the calibration.
 
 **Noise-exponent table.** On the ``sines`` signal with ``lipschitz = 30`` (its exact bound of :math:`|f'''|`),
-uniform noise of bound :math:`\varepsilon = 10^{-5}, 10^{-4.5}, \ldots, 10^{-2}`, i.i.d. per sample, is added; the
+uniform noise of bound :math:`\varepsilon = 10^{-5}, 10^{-4.5}, \ldots, 10^{-1}`, i.i.d. per sample, is added; the
 slope of :math:`\log(\text{error})` against :math:`\log\varepsilon` (least squares) of the largest velocity error
 after 2 s (the RMSE's slope beside it) is printed next to the theory, at 1 ms and at 0.1 ms, with the largest error
-on the noise-free signal (the discretization's floor). The theory, by the homogeneity argument of Levant (2003)
+on the noise-free signal (the discretization's floor). The theory bounds the error by a noise term, whose exponent
+is tested, plus the sampling's floor, which does not depend on :math:`\varepsilon` (Levant 2003: the accuracy of
+the sampled differentiator is set by the larger of the two); the verdict therefore fits the slope over the levels
+whose largest error is at least :data:`NOISE_DOMINATES` times the noise-free one, at least three of them, and the
+levels reach :math:`10^{-1}` so that the step with the highest floor has them. The slope over all levels is
+printed beside it. The theory, by the homogeneity argument of Levant (2003)
 that Levant & Livne (2020) apply to filterable noise (derived in full in
 ``tests/test_filtering_differentiator.py::test_white_noise_accuracy_exponent_and_step``): for Levant's
 differentiator of order ``n`` (``n_f = 0``) bounded noise gives a velocity error
@@ -403,12 +408,11 @@ def verdict(rows: list[dict], exp_rows: list[dict], levels: np.ndarray) -> str:
         f"at most that in {sum(x <= 1.0 for x in wins)} rows, median {np.median(wins):.2f}, worst {max(wins):.2f}."
     )
     for r in exp_rows:
-        off = abs(r["max_slope"] - r["theory"])
+        met = abs(r["dominated_slope"] - r["theory"]) <= EXPONENT_TOLERANCE  # False where too few levels (NaN)
         lines.append(
-            f"- Noise exponent of {r['label']} at {r['dt'] * 1e3:g} ms within {EXPONENT_TOLERANCE} of theory: "
-            f"{'met' if off <= EXPONENT_TOLERANCE else 'not met'} ({r['max_slope']:.3f} against {r['theory']:.3f}"
-            + ("" if off <= EXPONENT_TOLERANCE else f"; {_dominated(r)}")
-            + ")."
+            f"- Noise exponent of {r['label']} at {r['dt'] * 1e3:g} ms within {EXPONENT_TOLERANCE} of theory where "
+            f"the noise dominates: {'met' if met else 'not met'} ({_dominated(r)}, against {r['theory']:.3f}; "
+            f"over all levels {r['max_slope']:.3f})."
         )
     by_label = {}
     for r in exp_rows:
@@ -440,10 +444,10 @@ def main(argv=None) -> int:
     parser.add_argument("--markdown", metavar="FILE", help="also write the tables to FILE")
     args = parser.parse_args(argv)
     sensor_labels = [label for label, _ in SENSORS]
-    exp_duration, exp_steps, levels = 10.0, (1e-3, 1e-4), 10.0 ** np.arange(-5.0, -1.75, 0.5)
+    exp_duration, exp_steps, levels = 10.0, (1e-3, 1e-4), 10.0 ** np.arange(-5.0, -0.75, 0.5)
     if args.quick:
         args.duration, sensor_labels = 6.0, ["Gaussian 1e-3", "12-bit"]
-        exp_duration, exp_steps, levels = 4.0, (1e-3,), 10.0 ** np.arange(-5.0, -1.5, 1.0)
+        exp_duration, exp_steps, levels = 4.0, (1e-3,), 10.0 ** np.arange(-5.0, -0.5, 1.0)
     if args.duration <= TRANSIENT:
         parser.error(f"expected --duration > {TRANSIENT} (the transient left out), actual value: {args.duration}")
     t0 = time.perf_counter()
