@@ -7,11 +7,12 @@ For each environment x sensor preset (:data:`smo_gym.sensors.PRESETS`: ``ideal``
 once per environment step), one rollout under a seeded smooth random policy is recorded with
 :func:`smo_gym.experiments.compare.record_rollout` (the wrapper's own substep hook and
 :class:`~smo_gym.engine.measurement.JointMeasurement`), and every observer of :data:`smo_gym.observers.OBSERVERS`
-(all of them differentiate the measured joint coordinates; the model-based observers are not in it) runs on
-those same measurements through :func:`smo_gym.experiments.compare.compare_observers`, with the wrapper's default
-gains (:func:`~smo_gym.calibration.default_observer` from the wrapper's calibration). ``FiniteDifference`` (the
-backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter, ``from_levels``) are in the registry
-and so appear in every row as the references.
+(all of them differentiate the measured joint coordinates), and the two of :data:`TOLD_THE_ACTIONS` (the IMM
+estimator told the recorded control input, :class:`~smo_gym.observers.KalmanIMMInput`, and ``auto`` with it as a
+candidate), run on those same measurements through :func:`smo_gym.experiments.compare.compare_observers`, with the
+wrapper's default gains (:func:`~smo_gym.calibration.default_observer` from the wrapper's calibration).
+``FiniteDifference`` (the backward difference) and ``KalmanCA`` (constant-acceleration Kalman filter,
+``from_levels``) are in the registry and so appear in every row as the references.
 
 The number is ``compare_observers``' ``rmse``: the velocity RMSE over all dofs and estimates, i.e. every sample
 but the first of each episode, where observers restart from the first measurement with zero velocity, as in the
@@ -58,11 +59,17 @@ def default_observer_name() -> str:
     return inspect.signature(EstimatedVelocity.__init__).parameters["observer"].default
 
 
+#: the columns told the control input (the recordings keep it): the IMM estimator with the input's jumps, and
+#: ``auto`` with it as its candidate for all joints
+TOLD_THE_ACTIONS = ("auto:model=kalman-imm-input", "kalman-imm-input")
+
+
 def observer_names() -> list[str]:
-    """Every registered observer, the wrapper's default first and the two references last."""
+    """Every registered observer, the wrapper's default first, then those told the control input, and the two
+    references last."""
     default = default_observer_name()
     middle = [n for n in OBSERVERS if n != default and n not in REFERENCES]
-    return [default, *middle, *REFERENCES]
+    return [default, *TOLD_THE_ACTIONS, *middle, *REFERENCES]
 
 
 def winners(rmse: dict[str, float], scale: float) -> list[str]:
@@ -115,6 +122,7 @@ def run(envs, sensors, rates, steps: int, seed: int, names: list[str], smoothing
                         scale=scale,
                         rmse=rmse,
                         max_error={r.name: (r.max_error if r.diverged_at is None else float("inf")) for r in results},
+                        observed={r.name: r.rmse_observed for r in results},
                         bound=worst_case_lower_bound(rec),
                         diverged={r.name for r in results if r.diverged_at is not None},
                         winners=winners(rmse, scale),
@@ -224,15 +232,25 @@ def auto_table(rows: list[dict]) -> str:
         "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     ratios, physics_fd, oracle = [], [], []
+    told = [n for n in TOLD_THE_ACTIONS if all(n in row["rmse"] for row in rows)]
+    told_fd, told_ratio = {n: [] for n in told}, {n: [] for n in told}
+    seen_fd = {n: [] for n in ("auto", *told)}  # the same ratio at the samples a policy sees
     for row in rows:
         rm, mx = row["rmse"], row["max_error"]
         best = min(rm["finite-difference"], rm["kalman-ca"])
         floor = TIE_SCALE * row["scale"]  # round-off-exact rows: both at machine precision
         ratio = (rm["auto"] + floor) / (best + floor)
         ratios.append(ratio)
+        for n in told:
+            told_ratio[n].append((rm[n] + floor) / (best + floor))
         if row["sensor"] != "ideal" and row["rate"] == "physics" and not row["env"].startswith("dm_control/"):
             physics_fd.append(rm["auto"] / rm["finite-difference"])
-            oracle.append(min(v for v in rm.values() if math.isfinite(v)) / rm["finite-difference"])
+            free = [v for k, v in rm.items() if k not in TOLD_THE_ACTIONS and math.isfinite(v)]
+            oracle.append(min(free) / rm["finite-difference"])
+            for n in told:
+                told_fd[n].append(rm[n] / rm["finite-difference"])
+            for n, found in seen_fd.items():
+                found.append(row["observed"][n] / row["observed"]["finite-difference"])
         env = row["env"].replace("-v5", "").replace("dm_control/", "").replace("-v0", "")
         rate = "physics = env" if row["frame_skip"] == 1 else row["rate"]
         cells = [f"{rm[n]:.3g}" for n in ("auto", "finite-difference", "kalman-ca")]
@@ -250,7 +268,26 @@ def auto_table(rows: list[dict]) -> str:
         out.append(
             f"auto / FD, geometric mean over the {len(physics_fd)} rows with a non-ideal sensor at "
             f'rate="physics": {float(np.exp(np.mean(np.log(physics_fd)))):.3g}; the best observer of each of those '
-            f"rows, chosen with hindsight (an oracle over every column): {float(np.exp(np.mean(np.log(oracle)))):.3g}."
+            f"rows, chosen with hindsight (an oracle over every column not told the actions): "
+            f"{float(np.exp(np.mean(np.log(oracle)))):.3g}."
+        )
+    if physics_fd:
+        out.append(
+            "The same geometric mean over the samples the wrapper returns (the last of each environment step: what "
+            "a policy sees): "
+            + ", ".join(f"{n} {float(np.exp(np.mean(np.log(found)))):.3g}" for n, found in seen_fd.items())
+            + "."
+        )
+    for n in told:  # the same summaries for the columns told the control input
+        r = told_ratio[n]
+        out.append(
+            f"{n} / better of FD and KalmanCA: worst {max(r):.3g}, {sum(x > 1.02 for x in r)} of {len(r)} rows "
+            "above 1.02"
+            + (
+                f"; / FD, geometric mean over the same rows: {float(np.exp(np.mean(np.log(told_fd[n])))):.3g}."
+                if told_fd[n]
+                else "."
+            )
         )
     out.append(f"auto diverged on {sum('auto' in row['diverged'] for row in rows)} rows.")
     return "\n".join(out)

@@ -147,14 +147,19 @@ def observer_options(name: str) -> list[str]:
     (:attr:`Family.parameters <smo_gym.observers.Family.parameters>`: the constructor's, ``dt`` excepted since the
     rate sets it); for a model-based observer ``lipschitz`` (the bound of its model miss, which the dissipative
     observer's gains are designed from), its constructor's other scalar options and :data:`MODEL_OPTIONS` (the
-    dynamics are built from the environment); for ``"auto"`` (:mod:`smo_gym.selection`) ``model`` (a model-based
+    dynamics are built from the environment), or for one without a model (``"kalman-ca-input"``) the options of its
+    constructor that are not fitted; for ``"auto"`` (:mod:`smo_gym.selection`) ``model`` (a model-based
     candidate: ``true`` or its name) and :data:`MODEL_OPTIONS`."""
     _check_name("an observer name", name, ["auto", *OBSERVERS, *MODEL_BASED_OBSERVERS])
     if name == "auto":
         return ["model", *MODEL_OPTIONS]
     if name in MODEL_BASED_OBSERVERS:
+        cls = MODEL_BASED_OBSERVERS[name]
+        if "dynamics" not in inspect.signature(cls).parameters:  # fitted from the environment's runs, no model
+            fitted = ("self", "dt", "process_noise", "measurement_noise", "input_gain", "jump_noise")
+            return _options([cls], skip=fitted)
         built = ("self", "dt", "dynamics", "transform", "gains")  # from the environment's model
-        options = _options([MODEL_BASED_OBSERVERS[name]], skip=built)
+        options = _options([cls], skip=built)
         return [*dict.fromkeys(["lipschitz", *options]), *MODEL_OPTIONS]
     return list(FAMILIES[name].parameters)
 

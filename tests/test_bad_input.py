@@ -46,7 +46,9 @@ from smo_gym.observers import (
     ILFFixedDifferentiator,
     ILFObserver,
     KalmanCA,
+    KalmanCAInput,
     KalmanIMM,
+    KalmanIMMInput,
     Levant,
     LowPowerHighGain,
     MechanicalSuperTwisting,
@@ -735,6 +737,35 @@ OBSERVER_FAMILIES = [
         ),
     ),
     Family(
+        "KalmanCAInput",
+        KalmanCAInput,
+        lambda n: dict(
+            dt=positive(1e-4, 2e-2),
+            process_noise=positive(1e-3, 1e4),
+            measurement_noise=positive(1e-8, 1.0),
+            input_gain=st.one_of(
+                st.just(np.ones((n, 1))), st.just(np.ones((n, 2))), st.sampled_from([np.ones(n), [[np.nan]] * n])
+            ),
+            jump_noise=st.one_of(positive(0.0, 1e3), positive_or_per_channel(n, 0.0, 1e3), st.just(-1.0)),
+            discretization=_disc(KalmanCAInput),
+        ),
+    ),
+    Family(
+        "KalmanIMMInput",
+        KalmanIMMInput,
+        lambda n: dict(
+            dt=positive(1e-4, 2e-2),
+            process_noise=positive(1e-3, 1e4),
+            measurement_noise=positive(1e-8, 1.0),
+            input_gain=st.one_of(
+                st.just(np.ones((n, 1))), st.just(np.ones((n, 2))), st.sampled_from([np.ones((n + 1, 1)), "ab"])
+            ),
+            jump_noise=st.one_of(positive(0.0, 1e3), positive_or_per_channel(n, 0.0, 1e3)),
+            smooth_ratio=st.one_of(positive(1e-4, 1.0), positive(1e-4, 1.0), st.sampled_from([0.0, 1.5])),
+            discretization=_disc(KalmanIMMInput),
+        ),
+    ),
+    Family(
         "AlphaBeta",
         AlphaBeta,
         lambda n: dict(
@@ -1370,6 +1401,23 @@ GOOD = {
         smooth_ratio=0.01,
         stay=0.99,
         initial_std=(10.0, 100.0),
+        discretization="exact",
+    ),
+    "KalmanCAInput": dict(
+        dt=1e-3,
+        process_noise=10.0,
+        measurement_noise=1e-6,
+        input_gain=np.ones((2, 1)),
+        jump_noise=1.0,
+        discretization="exact",
+    ),
+    "KalmanIMMInput": dict(
+        dt=1e-3,
+        process_noise=10.0,
+        measurement_noise=1e-6,
+        input_gain=np.ones((2, 1)),
+        jump_noise=1.0,
+        smooth_ratio=0.01,
         discretization="exact",
     ),
     "AlphaBeta": dict(dt=1e-3, acceleration_std=50.0, noise_std=1e-4, alpha=None, beta=None, discretization="exact"),

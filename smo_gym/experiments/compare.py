@@ -6,7 +6,10 @@ configuration is sampled at the chosen rate with the wrapper's own substep hook
 :class:`~smo_gym.engine.measurement.JointMeasurement`, and every observer (built as the wrapper builds it,
 :func:`~smo_gym.wrappers.estimated_velocity.calibrated_observer`, ``"auto"`` included) processes those same
 measurements through :class:`~smo_gym.engine.measurement.VelocityEstimator`, i.e. exactly what
-:class:`~smo_gym.wrappers.EstimatedVelocity` would feed it.
+:class:`~smo_gym.wrappers.EstimatedVelocity` would feed it. The recording keeps the ``ctrl`` of every sample, so
+the observers that take the control input (:data:`~smo_gym.observers.MODEL_BASED_OBSERVERS`, and ``"auto"`` with
+a ``model``) run on it too, built as the wrapper builds them
+(:func:`~smo_gym.wrappers.model_based.model_based_observer`).
 
 Metrics (per observer) are over every estimate (:func:`estimate_errors`): every sample except the first of each
 episode, where the observer is initialized, as the wrapper does, at the first measurement with zero velocity.
@@ -17,6 +20,9 @@ Transients after it are part of the errors (they are not timed separately).
     translational ones, pooled);
 ``max_error``
     the largest absolute velocity error of any dof and estimate (same units);
+``rmse_observed``
+    the RMSE over the samples the wrapper puts in the observation (:func:`observed`: at the physics rate the
+    last of each environment step, the sample a policy sees);
 ``cost_us``
     median wall time of one online ``update`` (one sample, all dofs) in microseconds (the median leaves out the
     compilation at the first call and scheduler hiccups).
@@ -41,6 +47,7 @@ from ..envs import make as make_by_id
 from ..specs import make_sensor, needs_model, parse_observer_spec
 from ..wrappers.adapters import make_adapter
 from ..wrappers.estimated_velocity import calibrated_observer, resolve_rate
+from ..wrappers.model_based import joint_candidate, model_based_observer
 from ..wrappers.rollout import rollout, smooth_random_policy
 
 __all__ = [
@@ -51,6 +58,7 @@ __all__ = [
     "env_dof_names",
     "estimate_errors",
     "format_table",
+    "observed",
     "parse_observer_specs",
     "plot_velocities",
     "record_rollout",
@@ -98,6 +106,9 @@ class Recording:
         The sensor's random error per dof.
     resolution : ndarray, shape (nv,)
         The sensor's quantization step per dof (0: none).
+    inputs : ndarray, shape (T, nu), optional
+        The ``ctrl`` that acted over the interval ending at each sample (row of an episode's first sample: after
+        its reset).
     """
 
     env_id: str
@@ -111,6 +122,7 @@ class Recording:
     names: list[str]
     noise_std: np.ndarray
     resolution: np.ndarray
+    inputs: np.ndarray | None = None
     context: dict = field(default_factory=dict, repr=False)
 
 
@@ -175,6 +187,7 @@ def record_rollout(
         names=dof_names(model),
         noise_std=measurement.noise_std(),
         resolution=measurement.quantization_step(),
+        inputs=np.concatenate([episode.ctrl for episode in episodes]),
         context={
             "unwrapped": env.unwrapped,
             "adapter": adapter,
@@ -198,6 +211,20 @@ class ObserverResult:
     observer: object = field(repr=False, default=None)
     #: time [s] at which the observer's state became non-finite (DivergenceError), or None
     diverged_at: float | None = None
+    #: velocity RMSE over the samples the wrapper returns, the last of each environment step (:func:`observed`)
+    rmse_observed: float = float("nan")
+
+
+def observed(rec: Recording) -> np.ndarray:
+    """Mask of the samples :class:`~smo_gym.wrappers.EstimatedVelocity` puts in the observation, shape (T,): the last
+    sample of each environment step (every sample at ``rate="env"``; at the physics rate every ``frame_skip``-th
+    after the episode's reset), the reset's own excepted."""
+    per_step = rec.context["adapter"].frame_skip // rec.context["sample_every"]
+    mask = np.zeros(len(rec.qvel), dtype=bool)
+    starts = [*rec.episode_starts, len(rec.qvel)]
+    for a, b in zip(starts[:-1], starts[1:], strict=True):
+        mask[a + per_step : b : per_step] = True
+    return mask
 
 
 def estimate_errors(rec: Recording, velocity: np.ndarray) -> np.ndarray:
@@ -222,24 +249,38 @@ DEFAULT_OBSERVERS = (
 )
 
 
-def parse_observer_specs(observers) -> dict[str, tuple[str, dict]]:
-    """``{spec: (name, options)}`` of model-free observer specs (:func:`smo_gym.specs.parse_observer_spec`).
+def parse_observer_specs(observers, *, inputs: bool = False) -> dict[str, tuple[str, dict]]:
+    """``{spec: (name, options)}`` of observer specs (:func:`smo_gym.specs.parse_observer_spec`); with ``inputs``
+    (a recording that has its control inputs) also of those that take the input.
 
     Raises
     ------
     ValueError
-        A spec is not valid, or names a model-based observer (or ``auto`` with a model): those need the control
-        input at every sample, which a recording does not replay; they run in
-        :class:`~smo_gym.wrappers.EstimatedVelocity`.
+        A spec is not valid, or, without ``inputs``, names a model-based observer (or ``auto`` with a model): those
+        need the control input at every sample; they run in :class:`~smo_gym.wrappers.EstimatedVelocity` or on a
+        :class:`Recording` with its ``inputs``.
     """
     specs = {spec: parse_observer_spec(spec) for spec in observers}
     for spec, (name, kw) in specs.items():
-        if needs_model(name, kw):
+        if needs_model(name, kw) and not inputs:
             raise ValueError(
                 "expected model-free observers (they run on the recorded measurements, without the control input "
                 f"a model-based observer needs; run that one in EstimatedVelocity), actual value: {spec!r}"
             )
     return specs
+
+
+def _built_observer(name: str, kw: dict, ctx: dict, safety: float):
+    """The observer ``name`` with options ``kw`` as :class:`~smo_gym.wrappers.EstimatedVelocity` builds it on the
+    recording's environment (``ctx``: :attr:`Recording.context`)."""
+    adapter, measurement, joint = ctx["adapter"], ctx["measurement"], None
+    how = (2000, 0.99, safety)  # the wrapper's default calibration steps and quantile
+    if name != "auto" and needs_model(name, kw):
+        return model_based_observer(name, adapter, measurement, kw, *how).observer
+    if needs_model(name, kw):
+        joint, _, kw = joint_candidate(adapter, measurement, kw, *how)
+    args = (ctx["unwrapped"], adapter, measurement, ctx["sample_every"], kw)
+    return calibrated_observer(name, *args, safety=safety, joint=joint)[0]
 
 
 def compare_observers(
@@ -252,12 +293,12 @@ def compare_observers(
 ) -> list[ObserverResult]:
     """Run every observer on the recorded measurements.
 
-    ``observers`` are names or specs ``"name:key=value:..."`` of model-free observers
-    (:func:`parse_observer_specs`);
-    ``observer_kwargs`` maps a spec to further overrides. The reported name is the spec.
+    ``observers`` are names or specs ``"name:key=value:..."`` (:func:`parse_observer_specs`: those that take the
+    control input where the recording has its ``inputs``); ``observer_kwargs`` maps a spec to further overrides.
+    The reported name is the spec.
     """
     names = list(observers)
-    specs = parse_observer_specs(names)
+    specs = parse_observer_specs(names, inputs=rec.inputs is not None)
     ctx = rec.context
     starts = list(rec.episode_starts) + [len(rec.z_measured)]
     results = []
@@ -267,9 +308,17 @@ def compare_observers(
     for spec in iterator:
         name, kw = specs[spec]
         kw = {**kw, **((observer_kwargs or {}).get(spec) or {})}
-        args = (ctx["unwrapped"], ctx["adapter"], ctx["measurement"], ctx["sample_every"], kw)
-        observer, _ = calibrated_observer(name, *args, safety=calibration_safety)
+        observer = _built_observer(name, kw, ctx, calibration_safety)
         estimator = VelocityEstimator(observer, mean_over=mean_velocity_span(ctx["adapter"].model))
+        if observer.takes_input:  # as the wrapper's InputAwareEstimator, with the recorded ctrl
+
+            def advance(i, estimator=estimator, observer=observer):
+                return estimator.velocity_of(observer.update(rec.z_measured[i], rec.inputs[i]))
+        else:
+
+            def advance(i, estimator=estimator):
+                return estimator.update(rec.z_measured[i])
+
         V = np.full_like(rec.qvel, np.nan)
         timings = []
         clock = time.perf_counter
@@ -279,7 +328,7 @@ def compare_observers(
             try:
                 for i in range(a + 1, b):
                     t0 = clock()
-                    V[i] = estimator.update(rec.z_measured[i])
+                    V[i] = advance(i)
                     timings.append(clock() - t0)
             except DivergenceError:
                 diverged = i * rec.dt
@@ -300,6 +349,7 @@ def compare_observers(
             )
             continue
         err = estimate_errors(rec, V)
+        seen = (V - rec.qvel)[observed(rec)]
         results.append(
             ObserverResult(
                 name=spec,
@@ -309,6 +359,7 @@ def compare_observers(
                 cost_us=cost,
                 rmse_per_dof=np.sqrt(np.mean(err**2, axis=0)),
                 observer=estimator.observer,
+                rmse_observed=float(np.sqrt(np.mean(seen**2))) if seen.size else float("nan"),
             )
         )
     return results

@@ -19,6 +19,7 @@ from .discrete_hosm import DiscreteTimeHOSM
 from .filtering import FilteringDifferentiator
 from .ilf import ILFDifferentiator, ILFFixedDifferentiator, ILFObserver
 from .imm import KalmanIMM
+from .input_kalman import KalmanCAInput, KalmanIMMInput, fit_input_jumps
 from .linear import FiniteDifference, HighGain, KalmanCA
 from .low_power import LowPowerHighGain
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting
@@ -36,7 +37,7 @@ def make_observer(name: str, **params) -> Observer:
     if not isinstance(name, str) or name not in OBSERVERS:
         hint = did_you_mean(name, OBSERVERS)
         if isinstance(name, str) and name in MODEL_BASED_OBSERVERS:
-            hint = " (a model-based observer: build it with its class and a dynamics object)"
+            hint = " (a model-based observer: build it with its class and a model or an input gain)"
         raise ValueError(f"expected an observer name in {', '.join(sorted(OBSERVERS))}, actual value: {name!r}{hint}")
     return OBSERVERS[name](**params)
 
@@ -60,7 +61,9 @@ __all__ = [
     "ILFFixedDifferentiator",
     "ILFObserver",
     "KalmanCA",
+    "KalmanCAInput",
     "KalmanIMM",
+    "KalmanIMMInput",
     "Levant",
     "LowPowerHighGain",
     "MechanicalSuperTwisting",
@@ -71,6 +74,7 @@ __all__ = [
     "UniformLevant",
     "WorstCaseOptimal",
     "family_of",
+    "fit_input_jumps",
     "make_observer",
     "register_observer",
 ]

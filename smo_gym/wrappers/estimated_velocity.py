@@ -95,16 +95,10 @@ def random_episodes(adapter, sample_every: int, steps: int, seed: int = 0, smoot
 
 #: wrappers that return the observation of the environment beneath them unchanged (exactly these classes)
 _PASS_THROUGH = (
-    gym.wrappers.TimeLimit,
-    gym.wrappers.OrderEnforcing,
-    gym.wrappers.PassiveEnvChecker,
-    gym.wrappers.RecordEpisodeStatistics,
-    gym.wrappers.NormalizeReward,
-    gym.wrappers.StickyAction,
-    gym.wrappers.RecordVideo,
-    gym.wrappers.RenderCollection,
-    gym.wrappers.HumanRendering,
-)
+    gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker,
+    gym.wrappers.RecordEpisodeStatistics, gym.wrappers.NormalizeReward, gym.wrappers.StickyAction,
+    gym.wrappers.RecordVideo, gym.wrappers.RenderCollection, gym.wrappers.HumanRendering,
+)  # fmt: skip
 #: the same, named by module and class (not imported here: importing Stable-Baselines3 imports torch); SB3's
 #: ``make_vec_env`` puts its ``Monitor`` between the environment and ``wrapper_class``
 _PASS_THROUGH_BY_NAME = {("stable_baselines3.common.monitor", "Monitor")}
@@ -284,7 +278,7 @@ def calibrated_observer(
         adapter.environment_key,
         adapter.model,
         auto=candidates,
-        joint=stable_repr(None if joint is None else joint.settings),
+        joint=stable_repr(None if joint is None else (joint.settings, vars(joint.observer))),
         sensor=stable_repr(measurement.sensor),
         every=sample_every,
         kwargs=stable_repr(kwargs),
@@ -300,7 +294,7 @@ def calibrated_observer(
         scenes = [trials for trials in scenes if trials is not None]
         errors = select(calibration, scenes or None, mean_over=span, observer_kwargs=kwargs).errors
         if joint is not None:  # no trials, no evidence for the model: it is not chosen
-            found = [trial_errors(joint.observer, trials) for trials in scenes] or [np.full(errors.shape[-1], np.inf)]
+            found = [trial_errors(joint.observer, t, span) for t in scenes] or [np.full(errors.shape[-1], np.inf)]
             errors = np.concatenate([errors, np.stack(found)[:, None]], axis=1)
         return np.vstack([errors.reshape(-1, errors.shape[-1]), np.full(errors.shape[-1], len(scenes))])
 
@@ -462,28 +456,16 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.model_miss_bound = self.mass_scale_range = None
         model_based = isinstance(observer, str) and observer in MODEL_BASED_OBSERVERS
         joint = None  # observer="auto" with a model: the model-based candidate for all joints together
+        how = (calibration_steps, calibration_quantile, calibration_safety)
         if isinstance(observer, str) and observer == "auto" and (observer_kwargs or {}).get("model"):
-            from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
+            from .model_based import InputAwareEstimator, joint_candidate  # it imports this module
 
-            observer_kwargs = dict(observer_kwargs)
-            name = observer_kwargs.pop("model")
-            name = "mechanical-super-twisting" if name is True else name
-            settings = {k: observer_kwargs.pop(k) for k in ("mass_scale", "contact") if k in observer_kwargs}
-            how = (calibration_steps, calibration_quantile, calibration_safety)
-            built = model_based_observer(name, self.adapter, self.sample_every, settings, *how)
-            joint = JointCandidate(built.observer, (name, settings))
+            joint, built, observer_kwargs = joint_candidate(self.adapter, self.measurement, observer_kwargs, *how)
         if model_based:
             from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
 
-            observer, self.model_miss_bound, self.mass_scale_range = model_based_observer(
-                observer,
-                self.adapter,
-                self.sample_every,
-                observer_kwargs,
-                calibration_steps,
-                calibration_quantile,
-                calibration_safety,
-            )
+            built = model_based_observer(observer, self.adapter, self.measurement, observer_kwargs, *how)
+            observer, self.model_miss_bound, self.mass_scale_range = built
         if isinstance(observer, Observer):
             if self.measurement.wraps and not np.array_equal(
                 np.broadcast_to(np.asarray(observer.wrap, dtype=bool), self.measurement.angular.shape),

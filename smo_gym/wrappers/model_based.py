@@ -1,13 +1,14 @@
-r"""Wrapper integration of the model-based observers: the dynamics are built from the environment's own model.
+r"""Wrapper integration of the observers that take the control input, built from the environment's model or runs.
 
-:class:`smo_gym.wrappers.EstimatedVelocity` with ``observer="mechanical-super-twisting"``
-(:class:`smo_gym.observers.MechanicalSuperTwisting`) or ``"dissipative-super-twisting"``
-(:class:`smo_gym.observers.DissipativeSuperTwisting`) builds the observer here (:func:`model_based_observer`): its
-dynamics object is a :class:`smo_gym.mechanics.MujocoDynamics` on a private copy of the environment's model
-(optionally with a deliberate mass mismatch, fixed or drawn per episode), and its input at each sample is the
-``ctrl`` that acted over the sample interval (read from the simulation, i.e. the action). External forces
-(``qfrc_applied``, ``xfrc_applied``) are not given to the observer: they are what its disturbance estimate
-(``wrapper.observer.external_torque``) recovers.
+With ``observer="mechanical-super-twisting"`` (:class:`~smo_gym.observers.MechanicalSuperTwisting`),
+``"dissipative-super-twisting"`` (:class:`~smo_gym.observers.DissipativeSuperTwisting`) or ``"kalman-ca-input"``
+(:class:`~smo_gym.observers.KalmanCAInput`), :class:`smo_gym.wrappers.EstimatedVelocity` builds the observer here
+(:func:`model_based_observer`); its input at each sample is the ``ctrl`` that acted over the sample interval (the
+action). The first two run a :class:`smo_gym.mechanics.MujocoDynamics` on a private copy of the environment's model
+(optionally with a deliberate mass mismatch, fixed or drawn per episode); external forces (``qfrc_applied``,
+``xfrc_applied``) are what their disturbance estimate (``observer.external_torque``) recovers. The Kalman filter's
+input gain is fitted (:func:`~smo_gym.observers.fit_input_jumps`) on episodes of a copy of the environment under the
+uniform and the low-passed random actions of ``"auto"``'s trials.
 
 Default gains: the disturbance bound ``L`` of each joint is ``safety * quantile(|dv/dt - f(q, v, u)|)`` per physics
 step over random-action episodes of a copy of the environment, with its resets and terminations (what the model
@@ -28,29 +29,28 @@ from typing import NamedTuple
 import numpy as np
 
 from .._validation import check_positive_range
-from ..engine.measurement import VelocityEstimator
+from ..calibration import NOISE_FLOOR
+from ..engine.measurement import VelocityEstimator, mean_velocity_span
 from ..mechanics import MujocoDynamics, calibrate_model_miss, default_transform, dissipative_gains
-from ..observers import DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
-from .estimated_velocity import random_episodes
+from ..observers import DissipativeSuperTwisting, KalmanCAInput, KalmanIMMInput, MechanicalSuperTwisting, Observer
+from ..specs import MODEL_OPTIONS
+from .estimated_velocity import TRIAL_SMOOTHING, JointCandidate, random_episodes
 
-__all__ = [
-    "InputAwareEstimator",
-    "ModelBasedObserver",
-    "model_based_observer",
-]
+__all__ = ["InputAwareEstimator", "ModelBasedObserver", "joint_candidate", "model_based_observer"]
 
-NAMES = ("mechanical-super-twisting", "dissipative-super-twisting")
+INPUT_FILTERS = {"kalman-ca-input": KalmanCAInput, "kalman-imm-input": KalmanIMMInput}
+NAMES = ("mechanical-super-twisting", "dissipative-super-twisting", *INPUT_FILTERS)
 
 
 class InputAwareEstimator(VelocityEstimator):
     """A :class:`VelocityEstimator` that passes the simulation's current ``ctrl`` to ``observer.update(z, u)``."""
 
     def __init__(self, observer, adapter):
-        super().__init__(observer)
+        super().__init__(observer, mean_over=mean_velocity_span(adapter.model))
         self.adapter = adapter
 
     def update(self, z: np.ndarray) -> np.ndarray:
-        return self.observer.update(z, self.adapter.data.ctrl.copy())[..., 1]
+        return self.velocity_of(self.observer.update(z, self.adapter.data.ctrl.copy()))
 
 
 class ModelBasedObserver(NamedTuple):
@@ -65,28 +65,28 @@ class ModelBasedObserver(NamedTuple):
 def model_based_observer(
     name: str,
     adapter,
-    sample_every: int,
+    measurement,
     observer_kwargs: dict | None = None,
     calibration_steps: int = 2000,
     calibration_quantile: float = 0.99,
     calibration_safety: float = 2.0,
 ) -> ModelBasedObserver:
-    r"""A model-based observer on a private copy of the environment's model, with calibrated default gains.
+    r"""An observer that takes the input, with a private copy of the environment's model or a fitted input gain.
 
     Parameters
     ----------
-    name : {"mechanical-super-twisting", "dissipative-super-twisting"}
+    name : {"mechanical-super-twisting", "dissipative-super-twisting", "kalman-ca-input"}
     adapter : smo_gym.wrappers.adapters.MujocoAdapter
         The environment's adapter (its model is copied, never modified).
-    sample_every : int
-        Physics steps per sample.
+    measurement : smo_gym.engine.measurement.JointMeasurement
+        The wrapper's: its step (physics steps per sample) and, for ``"kalman-ca-input"``, its noise.
     observer_kwargs : dict, optional
         The observer's model settings, ``mass_scale`` (a number: every mass and inertia scaled; a pair
         ``(low, high)``: a scale drawn per episode by the wrapper, the model starting at the midpoint) and
         ``contact`` (``"unknown"`` or ``"measured"``, see :mod:`smo_gym.mechanics.dynamics`); and constructor
         arguments of the observer overriding the calibrated defaults (``lipschitz``, ``accel_bound``,
         ``model_substeps``, ``disturbance_time_constant``, ...; for the dissipative observer ``transform`` and
-        ``gains``).
+        ``gains``); for ``"kalman-ca-input"`` constructor arguments only (``huber``, ``initial_std``, ...).
     calibration_steps, calibration_quantile, calibration_safety :
         Default gains (module notes).
 
@@ -98,6 +98,13 @@ def model_based_observer(
     if name not in NAMES:
         raise ValueError(f"expected observer in {', '.join(NAMES)}, actual value: {name!r}")
     model, kwargs = adapter.model, dict(observer_kwargs or {})
+    sample_every, dt = round(measurement.dt / model.opt.timestep), measurement.dt
+    if name in INPUT_FILTERS:  # the input gain from the two scenarios of auto's trials
+        found = [random_episodes(adapter, sample_every, calibration_steps, 0, s) or () for s in TRIAL_SMOOTHING]
+        episodes = [e for scene in found for e in scene if len(e.qvel) > 2 and np.isfinite(e.qvel).all()]
+        r = np.maximum(measurement.noise_std() ** 2 + measurement.quantization_step() ** 2 / 12, NOISE_FLOOR**2)
+        velocity, inputs = [e.qvel for e in episodes], [e.ctrl for e in episodes]
+        return ModelBasedObserver(INPUT_FILTERS[name].from_episodes(dt, velocity, inputs, r, **kwargs), None, None)
     low, high = check_positive_range("mass_scale", kwargs.pop("mass_scale", 1.0))
     dyn = MujocoDynamics(model, mass_scale=0.5 * (low + high), contact=kwargs.pop("contact", "unknown"))
     if dyn.n != model.nv:
@@ -105,7 +112,6 @@ def model_based_observer(
             f"expected a model without joint-equality couplings (every dof measured), actual value: {dyn.n} "
             f"independent coordinates for nv={model.nv}; use the observers directly on such models"
         )
-    dt = float(model.opt.timestep) * sample_every
     needs_bounds = "lipschitz" not in kwargs and not ("k1" in kwargs and "k2" in kwargs)
     miss_bound = None
     if needs_bounds or "accel_bound" not in kwargs:
@@ -128,6 +134,18 @@ def model_based_observer(
         kwargs.pop("lipschitz", None)
         obs = DissipativeSuperTwisting(dt, dyn, transform, gains, **kwargs)
     return ModelBasedObserver(obs, miss_bound, None if low == high else (low, high))
+
+
+def joint_candidate(adapter, measurement, observer_kwargs: dict, *how) -> tuple:
+    """``observer="auto"`` with ``observer_kwargs["model"]`` (True: ``"mechanical-super-twisting"``, or a name of
+    :data:`NAMES`): ``(JointCandidate, ModelBasedObserver, the other kwargs)``, built by
+    :func:`model_based_observer` (``how``: its calibration arguments) with the model settings among the kwargs."""
+    kwargs = dict(observer_kwargs)
+    name = kwargs.pop("model")
+    name = "mechanical-super-twisting" if name is True else name
+    settings = {k: kwargs.pop(k) for k in MODEL_OPTIONS if k in kwargs}
+    built = model_based_observer(name, adapter, measurement, settings, *how)
+    return JointCandidate(built.observer, (name, settings)), built, kwargs
 
 
 def _model_miss(adapter, dyn: MujocoDynamics, scales, steps: int, quantile: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,329 @@
+r"""The constant-acceleration Kalman filter told when, and by how much, the control input changed.
+
+A joint's acceleration jumps when its actuators' command does: at the first sample of every control period of a
+stochastic policy (uniform random exploration, PPO's Gaussian actions), hardly at all under a smooth one. A filter
+blind to the input has to choose between its constant-acceleration model, good on smooth motion and many samples
+late after each jump, and trusting the measurements, a noisy backward difference; which choice was right depends
+on the policy, which the filter does not know (the accuracy page measures that conflict). With the command known
+the jump is predicted: to first order in the change of command :math:`\Delta u_k` at the start of the sample
+interval ending at :math:`t_k`,
+
+.. math::
+    a(t_{k-1}^+) - a(t_{k-1}^-) \approx G\,\Delta u_k,\qquad G = M(q)^{-1}\,\partial\tau/\partial u,
+
+the inverse inertia times the actuators' moment arms, which varies slowly with the configuration.
+:class:`KalmanCAInput` is :class:`~smo_gym.observers.KalmanCA` (white jerk of density ``q``, measurement variance
+``r``) whose acceleration estimate moves by the predicted jump :math:`G\Delta u_k` before each prediction, with its
+variance widened by what the prediction misses, :math:`s\,\|\Delta u_k\|^2`:
+
+.. math::
+    \hat a_{k-1} \leftarrow \hat a_{k-1} + G\Delta u_k,\qquad P_{aa} \leftarrow P_{aa} + s\,\|\Delta u_k\|^2,
+
+then the Kalman filter's prediction and update: a known input and an input-dependent process noise, the
+textbook extension of the Kalman filter (Bar-Shalom, Li and Kirubarajan 2001, ch. 5). Where the command is
+constant the filter is :class:`~smo_gym.observers.KalmanCA`; where it changes a little (a smooth policy) the jump
+is small and so is the added variance.
+
+:func:`fit_input_jumps` estimates ``G``, ``s`` and ``q`` from recorded episodes with their true velocities and
+inputs (the calibration rollouts of :class:`~smo_gym.wrappers.EstimatedVelocity`): no model of the robot, only the
+actions the wrapper sees anyway.
+
+References
+----------
+.. [BSL01] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, *Estimation with Applications to Tracking and Navigation*,
+   Wiley, 2001.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from .._validation import as_real_array, check_keywords
+from .base import checked_input
+from .imm import _MODES, KalmanIMM
+from .linear import KalmanCA
+from .registry import register_observer
+
+__all__ = ["InputJumps", "KalmanCAInput", "KalmanIMMInput", "fit_input_jumps"]
+
+
+class InputJumps(NamedTuple):
+    """What :func:`fit_input_jumps` estimates (``n`` channels, ``m`` inputs)."""
+
+    input_gain: np.ndarray
+    """``G``, shape ``(n, m)``: the acceleration jump per unit change of each input."""
+    jump_noise: np.ndarray
+    """``s``, shape ``(n,)``: the variance of what ``G`` misses, per unit of :math:`\\|\\Delta u\\|^2`."""
+    process_noise: np.ndarray
+    """``q``, shape ``(n,)``: the white-jerk density of the acceleration's change where the input is constant."""
+
+
+def fit_input_jumps(velocity: Sequence, inputs: Sequence, dt: float) -> InputJumps:
+    r"""Least-squares estimates of the input jump model of :class:`KalmanCAInput` from recorded episodes.
+
+    The acceleration change between consecutive sample intervals,
+    :math:`\Delta a_k = (v_k - 2v_{k-1} + v_{k-2})/\tau`, is regressed on the change of input at the start of the
+    later one, :math:`\Delta u_k = u_k - u_{k-1}`: :math:`\Delta a_k = G\Delta u_k + e_k`. The residual's variance is
+    modelled as white jerk plus a share that grows with the change of input,
+    :math:`\mathrm E\,e_k^2 = q\tau + s\|\Delta u_k\|^2`, fitted per channel by least squares on :math:`e_k^2`
+    weighted by the inverse square of the modelled variance (iterated), both coefficients kept non-negative.
+
+    Parameters
+    ----------
+    velocity : sequence of array_like, shape (T_i, n)
+        True velocities at the samples of each episode.
+    inputs : sequence of array_like, shape (T_i, m)
+        Row ``k``: the input that acted over the interval ending at sample ``k``.
+    dt : float
+        The sampling step.
+
+    Returns
+    -------
+    InputJumps
+
+    Raises
+    ------
+    ValueError
+        Episodes of unequal lengths or widths, non-finite entries, or fewer than two changes of input in all.
+    """
+    dt = float(dt)
+    if not dt > 0:
+        raise ValueError(f"expected dt > 0, actual value: {dt!r}")
+    da, du = [], []
+    for i, (v, u) in enumerate(zip(velocity, inputs, strict=True)):
+        v, u = as_real_array("velocity", v), as_real_array("inputs", u)
+        if v.ndim != 2 or u.ndim != 2 or len(v) != len(u) or not (np.isfinite(v).all() and np.isfinite(u).all()):
+            raise ValueError(
+                f"expected finite episodes (T, n) of velocities and (T, m) of inputs, actual value: shapes {v.shape} "
+                f"and {u.shape} in episode {i}"
+            )
+        if len(v) >= 3:
+            da.append(np.diff(v, n=2, axis=0) / dt)
+            du.append(np.diff(u[1:], axis=0))
+    changes = np.concatenate(du) if du else np.zeros((0, 0))
+    if len(changes) == 0 or np.count_nonzero(np.any(changes != 0, axis=1)) < 2:
+        raise ValueError("expected episodes in which the input changes at least twice, actual value: fewer changes")
+    jumps = np.concatenate(da)
+    gain = np.linalg.lstsq(changes, jumps, rcond=None)[0].T  # (n, m)
+    residual2 = (jumps - changes @ gain.T) ** 2
+    size2 = np.sum(changes**2, axis=1)
+    design = np.column_stack([np.ones_like(size2), size2])
+    coef = np.column_stack([_variance_model(design, residual2[:, j]) for j in range(residual2.shape[1])])
+    return InputJumps(gain, coef[1], np.maximum(coef[0] / dt, np.finfo(float).tiny))
+
+
+def _variance_model(design: np.ndarray, residual2: np.ndarray, iterations: int = 4) -> np.ndarray:
+    r"""Non-negative ``(a, s)`` of :math:`\mathrm E\,e^2 = a + s x` from squared residuals, by least squares weighted
+    with the inverse square of the modelled variance (the variance of :math:`e^2` for Gaussian :math:`e`), iterated
+    from equal weights: unweighted, the few large residuals of big input changes dominate the estimate of ``a``."""
+    weights = np.ones(len(residual2))
+    coef = np.zeros(2)
+    for _ in range(iterations):
+        w = np.sqrt(weights)
+        coef = np.linalg.lstsq(design * w[:, None], residual2 * w, rcond=None)[0]
+        if (coef < 0).any():  # the non-negative solution: the better fit with one coefficient at zero
+            fits = []
+            for k in (0, 1):
+                x = design[:, k] * w
+                c = max(x @ (residual2 * w), 0.0) / max(x @ x, np.finfo(float).tiny)
+                fits.append((np.sum((residual2 * w - c * x) ** 2), k, c))
+            _, k, c = min(fits)
+            coef = np.zeros(2)
+            coef[k] = c
+        weights = 1.0 / np.maximum(design @ coef, np.finfo(float).tiny) ** 2
+        weights /= weights.max()
+    return coef
+
+
+class _InputJumps:
+    """What the input-aware filters add to their Kalman filter: the jump of the acceleration estimate(s) at each
+    change of input (module notes). A subclass names the state columns of each acceleration and its variance."""
+
+    takes_input = True
+    #: ``(acceleration, its variance)`` state columns of each constant-acceleration filter of the state row
+    _jump_columns: tuple[tuple[int, int], ...] = ()
+
+    def _set_input_model(self, input_gain, jump_noise) -> None:
+        gain = as_real_array("input_gain", input_gain)
+        if gain.ndim != 2 or 0 in gain.shape or not np.isfinite(gain).all():
+            raise ValueError(f"expected a finite input_gain of shape (n, m), actual value: shape {gain.shape}")
+        noise = as_real_array("jump_noise", jump_noise)
+        if noise.ndim > 1 or noise.size not in (1, gain.shape[0]) or not (np.isfinite(noise) & (noise >= 0)).all():
+            raise ValueError(
+                f"expected jump_noise >= 0, one or one per channel ({gain.shape[0]}), actual value: {jump_noise!r}"
+            )
+        self.input_gain = gain
+        self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).copy()
+        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
+
+    def _channel_params(self, shape):
+        if shape[-1] != self.input_gain.shape[0]:
+            raise ValueError(
+                f"expected measurements with {self.input_gain.shape[0]} channels (input_gain's rows), actual value: "
+                f"shape {shape}"
+            )
+        return super()._channel_params(shape)
+
+    @check_keywords
+    def reset(self, y0, mask=None, *, derivatives=None) -> np.ndarray:
+        """As :meth:`Observer.reset <smo_gym.observers.Observer.reset>`; the restarted rows forget their last input."""
+        out = super().reset(y0, mask, derivatives=derivatives)
+        if mask is None or self._u_prev is None:
+            self._u_prev = np.full(self._shape[:-1] + self.input_gain.shape[1:], np.nan)
+        else:
+            mask = np.asarray(mask, dtype=bool)
+            self._u_prev[mask if mask.shape == self._shape[:-1] else mask.any(axis=-1)] = np.nan
+        return out
+
+    def update(self, y, u=None) -> np.ndarray:
+        """Process one sample ``y`` ``(..., n)`` with the input ``u`` ``(..., m)`` that acted over the interval
+        ending at it; returns the estimate ``(..., n, 3)``. The state is unchanged if either is rejected."""
+        if self._state is None:
+            raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
+        u = checked_input(u)
+        if u is None:
+            self._u_prev[...] = np.nan
+            return super().update(y)
+        if u.shape != self._u_prev.shape:
+            raise ValueError(f"expected u with shape {self._u_prev.shape}, actual value: {u.shape}")
+        change = np.nan_to_num(u - self._u_prev)  # unknown previous input: no jump predicted
+        jump = (change @ self.input_gain.T).reshape(-1)
+        spread = (np.sum(change**2, axis=-1, keepdims=True) * self.jump_noise).reshape(-1)
+        state, columns = self._state, [c for pair in self._jump_columns for c in pair]
+        saved = state[:, columns].copy()
+        for acceleration, variance in self._jump_columns:
+            state[:, acceleration] += jump
+            state[:, variance] += spread
+        try:
+            out = super().update(y)
+        except BaseException:
+            state[:, columns] = saved
+            raise
+        self._u_prev[...] = u
+        return out
+
+    @check_keywords
+    def run(self, Y, U=None, *, out: np.ndarray | None = None) -> np.ndarray:
+        """Process a recorded block ``Y`` ``(T, ..., n)`` with inputs ``U`` ``(T, ..., m)`` sample by sample; all or
+        nothing, as :meth:`Observer.run <smo_gym.observers.Observer.run>`."""
+        self._require_reset()
+        Y = as_real_array("Y", Y)
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
+            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        if U is not None:
+            U = as_real_array("U", U)
+            if U.shape != Y.shape[:1] + self._u_prev.shape:
+                raise ValueError(f"expected U with shape {Y.shape[:1] + self._u_prev.shape}, actual value: {U.shape}")
+        out = self._output_array(out, Y.shape + (3,))
+        saved = (self._state.copy(), self._u_prev.copy(), self._estimate, self.n_updates)
+        try:
+            for t in range(Y.shape[0]):
+                out[t] = self.update(Y[t], None if U is None else U[t])
+        except BaseException:
+            state, u_prev, self._estimate, self.n_updates = saved
+            self._state[...] = state
+            self._u_prev[...] = u_prev
+            raise
+        return out
+
+    def step(self, state, y):
+        raise NotImplementedError(
+            "expected update(y, u) for an observer that takes the control input, actual value: step(state, y)"
+        )
+
+    @classmethod
+    def from_episodes(cls, dt: float, velocity, inputs, measurement_variance, **kwargs):
+        """The filter with ``G``, ``s`` and ``q`` from :func:`fit_input_jumps` of recorded episodes, and the
+        measurement variance ``r`` (noise variance plus :math:`\\Delta^2/12` for quantization)."""
+        jumps = fit_input_jumps(velocity, inputs, dt)
+        return cls(dt, jumps.process_noise, measurement_variance, jumps.input_gain, jumps.jump_noise, **kwargs)
+
+
+@register_observer("kalman-ca-input", bound=3, model_based=True)
+class KalmanCAInput(_InputJumps, KalmanCA):
+    r"""Constant-acceleration Kalman filter with the predicted acceleration jump of each change of input.
+
+    Per channel :class:`~smo_gym.observers.KalmanCA` (module notes), whose acceleration estimate moves by
+    :math:`G\Delta u_k` and whose acceleration variance grows by :math:`s\|\Delta u_k\|^2` before each prediction
+    (:math:`\Delta u_k = u_k - u_{k-1}`, the change of the input that acts over the interval ending at sample
+    ``k``). Shapes: measurements ``(..., n)``, inputs ``(..., m)`` with the same leading (batch) shape, estimates
+    ``(..., n, 3)``.
+
+    Parameters
+    ----------
+    dt, process_noise, measurement_noise, initial_std, huber, wrap :
+        As :class:`~smo_gym.observers.KalmanCA`.
+    input_gain : array_like, shape (n, m)
+        ``G``: acceleration jump per unit change of each input (:func:`fit_input_jumps`).
+    jump_noise : float or array_like, shape (n,)
+        ``s`` >= 0: variance of the jump's prediction error per unit of :math:`\|\Delta u\|^2`.
+
+    Notes
+    -----
+    The input before the first update after a reset is unknown (a reset is given measurements only), so the first
+    update predicts no jump; the prior covariance (``initial_std``) covers it. ``update(y)`` without an input, or
+    ``run(Y)``, is :class:`~smo_gym.observers.KalmanCA` and forgets the last input.
+    """
+
+    _jump_columns = ((2, 8),)
+
+    @check_keywords
+    def __init__(
+        self,
+        dt: float,
+        process_noise,
+        measurement_noise,
+        input_gain,
+        jump_noise=0.0,
+        *,
+        initial_std: tuple[float, float] = (10.0, 100.0),
+        huber: float | None = None,
+        discretization: str | None = None,
+        wrap=None,
+    ):
+        super().__init__(
+            dt, process_noise, measurement_noise, initial_std=initial_std, huber=huber,
+            discretization=discretization, wrap=wrap,
+        )  # fmt: skip
+        self._set_input_model(input_gain, jump_noise)
+
+
+@register_observer("kalman-imm-input", bound=3, model_based=True)
+class KalmanIMMInput(_InputJumps, KalmanIMM):
+    r"""The IMM estimator of two constant-acceleration Kalman filters (:class:`~smo_gym.observers.KalmanIMM`), each
+    with the predicted acceleration jump of each change of input (as :class:`KalmanCAInput`).
+
+    Parameters
+    ----------
+    dt, process_noise, measurement_noise, smooth_ratio, stay, initial_std, huber, wrap :
+        As :class:`~smo_gym.observers.KalmanIMM` (``process_noise``: the fast mode's density).
+    input_gain, jump_noise :
+        As :class:`KalmanCAInput`.
+    """
+
+    _jump_columns = tuple((o + 2, o + 8) for o in (_MODES, _MODES + 9))
+
+    @check_keywords
+    def __init__(
+        self,
+        dt: float,
+        process_noise,
+        measurement_noise,
+        input_gain,
+        jump_noise=0.0,
+        *,
+        smooth_ratio: float = 0.01,
+        stay: float = 0.99,
+        initial_std: tuple[float, float] = (10.0, 100.0),
+        huber: float | None = None,
+        discretization: str | None = None,
+        wrap=None,
+    ):
+        super().__init__(
+            dt, process_noise, measurement_noise, smooth_ratio=smooth_ratio, stay=stay, initial_std=initial_std,
+            huber=huber, discretization=discretization, wrap=wrap,
+        )  # fmt: skip
+        self._set_input_model(input_gain, jump_noise)

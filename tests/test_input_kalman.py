@@ -1,0 +1,155 @@
+"""The Kalman filters told the control input (``KalmanCAInput``, ``KalmanIMMInput``) and the fit of their input
+model (``fit_input_jumps``): what the jump model computes, against independent constructions."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from smo_gym.observers import KalmanCA, KalmanCAInput, KalmanIMM, KalmanIMMInput, fit_input_jumps
+
+DT = 1e-3
+#: acceleration jump per unit change of each of two inputs, for three channels
+GAIN = np.array([[40.0, 0.0], [-70.0, 5.0], [0.0, 60.0]])
+
+
+def piecewise_run(rng, T=3000, period=5, gain=GAIN, jerk=0.0, miss=0.0):
+    """Positions and velocities (T, 3) and inputs (T, 2) of a motion whose acceleration is constant over each
+    sample interval but for white jerk of density ``jerk`` and jumps ``gain @ du`` (plus a miss of standard
+    deviation ``miss * |du|``) where the input changes, every ``period`` samples: exactly the filters' model.
+    Row ``k`` of the inputs acts over the interval ending at sample ``k``."""
+    m = gain.shape[1]
+    u = np.repeat(rng.uniform(-1, 1, (T // period + 1, m)), period, axis=0)[:T]
+    u[0] = u[1]  # the input of the first interval is the reset's
+    a = np.zeros(3)
+    q, v = np.zeros((T, 3)), np.zeros((T, 3))
+    for k in range(1, T):
+        du = u[k] - u[k - 1]
+        a = (
+            a
+            + gain @ du
+            + miss * np.linalg.norm(du) * rng.standard_normal(3)
+            + np.sqrt(jerk * DT) * rng.standard_normal(3)
+        )
+        q[k] = q[k - 1] + DT * v[k - 1] + DT**2 / 2 * a
+        v[k] = v[k - 1] + DT * a
+    return q, v, u
+
+
+def test_the_fit_recovers_the_jump_model_it_was_generated_with():
+    rng = np.random.default_rng(0)
+    runs = [piecewise_run(rng, jerk=100.0, miss=2.0) for _ in range(4)]
+    found = fit_input_jumps([v for _, v, _ in runs], [u for _, _, u in runs], DT)
+    np.testing.assert_allclose(found.input_gain, GAIN, atol=0.3)  # ~6 standard errors; |G| up to 70
+    # the residual's variance: q dt from the white jerk (every sample), s |du|^2 from the miss (at each change)
+    np.testing.assert_allclose(found.process_noise, 100.0, rtol=0.15)
+    np.testing.assert_allclose(found.jump_noise, 4.0, rtol=0.15)
+
+
+def test_with_the_exact_jumps_the_estimate_is_exact_where_the_blind_filter_lags():
+    """Noise-free positions of piecewise-constant acceleration, the exact gain, no miss: the model is exact, so
+    after the prior is forgotten the posterior follows the truth (to round-off of the tiny measurement variance),
+    while the same filter without the input lags each jump by many samples."""
+    q, v, u = piecewise_run(np.random.default_rng(1))
+    told = KalmanCAInput(DT, 1e-6, 1e-14, GAIN, 0.0, initial_std=(1.0, 100.0))
+    blind = KalmanCA(DT, 1e-6, 1e-14, initial_std=(1.0, 100.0))
+    told.reset(q[0])
+    blind.reset(q[0])
+    e_told = told.run(q[1:], u[1:])[..., 1] - v[1:]
+    e_blind = blind.run(q[1:])[..., 1] - v[1:]
+    late = slice(500, None)
+    assert np.max(np.abs(e_told[late])) < 1e-6 * np.max(np.abs(v))
+    assert np.max(np.abs(e_blind[late])) > 1e-3 * np.max(np.abs(v))
+
+
+@pytest.mark.parametrize("cls, plain", [(KalmanCAInput, KalmanCA), (KalmanIMMInput, KalmanIMM)])
+def test_without_an_input_change_it_is_the_filter_it_extends(cls, plain):
+    rng = np.random.default_rng(2)
+    y = np.cumsum(rng.normal(size=(200, 3)), axis=0) * 1e-3
+    u = np.ones((200, 2))
+    a, b = cls(DT, 50.0, 1e-6, GAIN, 3.0), plain(DT, 50.0, 1e-6)
+    a.reset(y[0])
+    b.reset(y[0])
+    np.testing.assert_array_equal(a.run(y[1:], u[1:]), b.run(y[1:]))  # constant input: no jump, bit for bit
+    np.testing.assert_array_equal(a.update(y[0]), b.update(y[0]))  # no input: the plain filter
+
+
+@pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
+def test_a_batch_is_a_loop_over_its_elements_and_a_masked_reset_restarts_one(cls):
+    """To round-off: the jumps of a batch are one matrix product, those of one element a vector product."""
+    rng = np.random.default_rng(3)
+    runs = [piecewise_run(rng, T=400, jerk=10.0) for _ in range(2)]
+    Y = np.stack([q + 1e-4 * rng.standard_normal(q.shape) for q, _, _ in runs], axis=1)  # (T, 2, 3)
+    U = np.stack([u for _, _, u in runs], axis=1)  # (T, 2, 2)
+    batch = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+    batch.reset(Y[0])
+    together = batch.run(Y[1:301], U[1:301])
+    for i in range(2):
+        alone = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+        alone.reset(Y[0, i])
+        np.testing.assert_allclose(alone.run(Y[1:301, i], U[1:301, i]), together[:, i], rtol=1e-9, atol=1e-9)
+    # environment 1 restarts at its sample 300 (as a vector env's does, after the step): environment 0 goes on as
+    # if nothing happened, and 1 as a fresh filter (whose first update predicts no jump: its input is forgotten)
+    batch.reset(Y[300], mask=np.array([False, True]))
+    after = batch.run(Y[301:], U[301:])
+    alone = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+    alone.reset(Y[0, 0])
+    np.testing.assert_allclose(alone.run(Y[1:, 0], U[1:, 0])[300:], after[:, 0], rtol=1e-9, atol=1e-9)
+    fresh = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+    fresh.reset(Y[300, 1])
+    np.testing.assert_allclose(fresh.run(Y[301:, 1], U[301:, 1]), after[:, 1], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
+def test_a_rejected_sample_or_input_leaves_the_state_as_it_was(cls):
+    obs = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+    obs.reset(np.zeros(3))
+    obs.update(np.full(3, 1e-4), np.zeros(2))
+    state, estimate = obs.state.copy(), obs.estimate.copy()
+    for y, u, error in [
+        (np.array([np.nan, 0, 0]), np.ones(2), ValueError),  # the jump was applied before the sample was refused
+        (np.zeros(3), np.array([np.inf, 0.0]), ValueError),
+        (np.zeros(3), np.ones(3), ValueError),  # one input too many
+        (np.zeros(3), "ab", TypeError),
+        (np.zeros(2), np.ones(2), ValueError),
+    ]:
+        with pytest.raises(error):
+            obs.update(y, u)
+        np.testing.assert_array_equal(obs.state, state)
+        np.testing.assert_array_equal(obs.estimate, estimate)
+    Y, U = np.full((5, 3), 1e-4), np.ones((5, 2))
+    Y[3, 1] = np.nan
+    with pytest.raises(ValueError):
+        obs.run(Y, U)  # all or nothing
+    np.testing.assert_array_equal(obs.state, state)
+    with pytest.raises(ValueError, match="U with shape"):
+        obs.run(Y[:2], U[:3])
+    with pytest.raises(NotImplementedError, match="update"):
+        obs.step(obs.state, np.zeros(3))
+
+
+def test_bad_input_models_are_refused_with_what_was_expected():
+    with pytest.raises(ValueError, match="input_gain of shape"):
+        KalmanCAInput(DT, 1.0, 1e-6, np.ones(3))
+    with pytest.raises(ValueError, match="jump_noise >= 0"):
+        KalmanCAInput(DT, 1.0, 1e-6, GAIN, -1.0)
+    with pytest.raises(ValueError, match="jump_noise"):
+        KalmanCAInput(DT, 1.0, 1e-6, GAIN, np.ones(2))
+    with pytest.raises(ValueError, match="3 channels"):
+        KalmanCAInput(DT, 1.0, 1e-6, GAIN).reset(np.zeros(2))
+    with pytest.raises(ValueError, match="changes at least twice"):
+        fit_input_jumps([np.zeros((10, 3))], [np.ones((10, 2))], DT)
+    with pytest.raises(ValueError, match="finite episodes"):
+        fit_input_jumps([np.zeros((10, 3))], [np.ones((9, 2))], DT)
+
+
+@pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
+def test_a_pickled_filter_goes_on_as_the_original(cls):
+    q, _, u = piecewise_run(np.random.default_rng(4), T=200, jerk=10.0)
+    obs = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+    obs.reset(q[0])
+    obs.run(q[1:100], u[1:100])
+    copy = pickle.loads(pickle.dumps(obs))
+    np.testing.assert_array_equal(copy.run(q[100:], u[100:]), obs.run(q[100:], u[100:]))
