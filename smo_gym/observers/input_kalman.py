@@ -36,10 +36,12 @@ References
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from .._validation import as_real_array, check_keywords
 from .base import checked_input
@@ -138,6 +140,32 @@ def _variance_model(design: np.ndarray, residual2: np.ndarray, iterations: int =
     return coef
 
 
+@njit(cache=True, error_model="numpy")
+def _apply_jumps(state, u, u_prev, gain, noise, columns, saved):
+    """Add the predicted jump ``gain @ du`` to every acceleration column and ``noise * |du|^2`` to every variance
+    column (``columns``: pairs) of the state rows, ``du = u - u_prev`` per batch element (rows ``b n .. b n + n``;
+    zero where the previous input is unknown, NaN); the previous values go to ``saved``."""
+    n, m = gain.shape
+    for b in range(u.shape[0]):
+        known = True
+        for j in range(m):
+            known = known and not math.isnan(u_prev[b, j])
+        size2 = 0.0
+        for j in range(m):
+            size2 += (u[b, j] - u_prev[b, j]) ** 2 if known else 0.0
+        for c in range(n):
+            jump = 0.0
+            if known:
+                for j in range(m):
+                    jump += gain[c, j] * (u[b, j] - u_prev[b, j])
+            row = b * n + c
+            for k in range(columns.shape[0]):
+                saved[row, 2 * k] = state[row, columns[k, 0]]
+                saved[row, 2 * k + 1] = state[row, columns[k, 1]]
+                state[row, columns[k, 0]] += jump
+                state[row, columns[k, 1]] += size2 * noise[c]
+
+
 class _InputJumps:
     """What the input-aware filters add to their Kalman filter: the jump of the acceleration estimate(s) at each
     change of input (module notes). A subclass names the state columns of each acceleration and its variance."""
@@ -155,8 +183,9 @@ class _InputJumps:
             raise ValueError(
                 f"expected jump_noise >= 0, one or one per channel ({gain.shape[0]}), actual value: {jump_noise!r}"
             )
-        self.input_gain = gain
-        self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).copy()
+        self.input_gain = np.ascontiguousarray(gain, dtype=np.float64)
+        self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
+        self._columns = np.array(self._jump_columns, dtype=np.int64)
         self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
 
     def _channel_params(self, shape):
@@ -189,18 +218,14 @@ class _InputJumps:
             return super().update(y)
         if u.shape != self._u_prev.shape:
             raise ValueError(f"expected u with shape {self._u_prev.shape}, actual value: {u.shape}")
-        change = np.nan_to_num(u - self._u_prev)  # unknown previous input: no jump predicted
-        jump = (change @ self.input_gain.T).reshape(-1)
-        spread = (np.sum(change**2, axis=-1, keepdims=True) * self.jump_noise).reshape(-1)
-        state, columns = self._state, [c for pair in self._jump_columns for c in pair]
-        saved = state[:, columns].copy()
-        for acceleration, variance in self._jump_columns:
-            state[:, acceleration] += jump
-            state[:, variance] += spread
+        state, columns = self._state, self._columns
+        saved = np.empty((state.shape[0], columns.size))
+        _apply_jumps(state, u.reshape(-1, u.shape[-1]), self._u_prev.reshape(-1, u.shape[-1]), self.input_gain,
+                     self.jump_noise, columns, saved)  # fmt: skip
         try:
             out = super().update(y)
         except BaseException:
-            state[:, columns] = saved
+            state[:, columns.reshape(-1)] = saved
             raise
         self._u_prev[...] = u
         return out
