@@ -125,7 +125,7 @@ def run(envs, sensors, rates, steps: int, seed: int, names: list[str], smoothing
                         observed={r.name: r.rmse_observed for r in results},
                         bound=worst_case_lower_bound(rec),
                         diverged={r.name for r in results if r.diverged_at is not None},
-                        winners=winners(rmse, scale),
+                        winners=winners({k: v for k, v in rmse.items() if k not in TOLD_THE_ACTIONS}, scale),
                     )
                 )
                 print(
@@ -138,10 +138,11 @@ def run(envs, sensors, rates, steps: int, seed: int, names: list[str], smoothing
 
 
 def regret_table(rows: list[dict], names: list[str]) -> dict[str, tuple[float, float]]:
-    """Per observer: geometric mean and maximum over rows of ``rmse / max(best, REGRET_FLOOR * vel. RMS)``."""
+    """Per observer: geometric mean and maximum over rows of ``rmse / max(best, REGRET_FLOOR * vel. RMS)``, the best
+    among the observers not told the actions."""
     ratios = {n: [] for n in names}
     for row in rows:
-        finite = [v for v in row["rmse"].values() if math.isfinite(v)]
+        finite = [v for k, v in row["rmse"].items() if math.isfinite(v) and k not in TOLD_THE_ACTIONS]
         best = max(min(finite), REGRET_FLOOR * row["scale"]) if finite else float("nan")
         for n in names:
             ratios[n].append(row["rmse"][n] / best)
@@ -199,7 +200,8 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     regrets = regret_table(rows, names)
-    for n in sorted(names, key=lambda n: -sum(n in r["winners"] for r in rows)):
+    free = [n for n in names if n not in TOLD_THE_ACTIONS]
+    for n in sorted(free, key=lambda n: -sum(n in r["winners"] for r in rows)):
         wins = [r for r in rows if n in r["winners"]]
         g, worst = regrets[n]
         out.append(
@@ -207,7 +209,17 @@ def format_tables(rows: list[dict], names: list[str]) -> str:
             f"{sum(r['rate'] == 'env' for r in wins)} | {sum(r['sensor'] != 'ideal' for r in wins)} | "
             f"{g:.3g} | {worst:.3g} | {sum(n in r['diverged'] for r in rows)} |"
         )
-    counts = {n: sum(n in r["winners"] for r in rows) for n in names}
+    told = [n for n in names if n in TOLD_THE_ACTIONS]
+    if told:
+        out += ["", "Told the actions (not in the wins above: the best of a row is among the observers without them):"]
+        for n in told:
+            g, worst = regrets[n]
+            below = sum(r["rmse"][n] <= min(r["rmse"][w] for w in r["winners"]) * (1.0 + TIE_RELATIVE) for r in rows)
+            out.append(
+                f"- `{n}`: at or below the row's best in {below} of {len(rows)} rows; regret against it {g:.3g} "
+                f"(geometric mean), worst {worst:.3g}."
+            )
+    counts = {n: sum(n in r["winners"] for r in rows) for n in free}
     if default not in counts:  # a subset without the default (--observers): no verdict on it
         return "\n".join(out)
     top = max(counts.values())
@@ -354,7 +366,7 @@ def main(argv=None) -> int:
         f"Velocity RMSE (rad/s or m/s, all dofs, every sample but each episode's first), {args.steps} env steps "
         f"per rollout, seed {args.seed}, "
         + (f"smooth random policy (smoothing {args.smoothing:g})" if args.smoothing else "uniform random actions")
-        + "; bold = best of the row (ties within 1 %)\n"
+        + "; bold = best of the row (ties within 1 %) among the observers not told the actions\n"
     )
     print(header)
     print(text)
