@@ -278,13 +278,13 @@ def predicted_errors(calibration: Calibration, candidates: Sequence[str], mean_o
 
 def trial_errors(observer: Observer, trials: Trials, mean_over: float | None = None) -> np.ndarray:
     """Velocity RMSE per channel of ``observer`` on ``trials``, over every sample but each episode's first; ``inf``
-    where it diverged. An observer that :attr:`~smo_gym.observers.Observer.takes_input` (a model-based one) gets
-    the trials' ``inputs`` and reports its velocity as it is; any other reports the mean over ``mean_over`` seconds
-    (:func:`~smo_gym.observers.base.reported_coefficients`). Shape ``(n,)``."""
+    where it diverged. An observer that :attr:`~smo_gym.observers.Observer.takes_input` gets the trials' ``inputs``;
+    each reports the mean over ``mean_over`` seconds where it estimates the acceleration at the sample time
+    (:func:`~smo_gym.observers.base.reported_coefficients`), as the wrappers report it. Shape ``(n,)``."""
     n = trials.measured[0].shape[1]
     if observer.takes_input and trials.inputs is None:
         raise ValueError("expected trials with the inputs a model-based observer needs, actual value: inputs=None")
-    c = None if observer.takes_input else reported_coefficients(observer, mean_over)  # None: the velocity as it is
+    c = reported_coefficients(observer, mean_over)  # None: the velocity as it is
     inputs = trials.inputs if observer.takes_input else (None,) * len(trials.measured)
     total, count = np.zeros(n), 0
     try:
