@@ -192,7 +192,7 @@ def compare(args: argparse.Namespace) -> int:
     observers = [name.strip() for name in args.observers.split(",") if name.strip()]
     if not observers:
         raise ValueError(f"expected at least one observer in --observers, actual value: {args.observers!r}")
-    lib.parse_observer_specs(observers)
+    lib.parse_observer_specs(observers, inputs=True)  # the rollout records its ctrl
     check_output_file(args.out)
     joints = [j.strip() for j in args.joints.split(",") if j.strip()]
     if joints:

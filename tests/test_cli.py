@@ -296,3 +296,11 @@ def test_version():
 
     result = _run_module("--version")
     assert result.returncode == 0 and result.stdout.strip() == f"smo-gym {smo_gym.__version__}"
+
+
+def test_compare_runs_an_observer_told_the_actions(tmp_path, capsys):
+    """The rollout records its ``ctrl``: ``--observers`` takes the names that need the input."""
+    out = tmp_path / "cmp.png"
+    argv = ["compare", "--env", "InvertedPendulum-v5", "--steps", "30", "--no-progress", "--out", str(out)]
+    assert cli.main([*argv, "--observers", "kalman-ca-input,finite-difference"]) == 0
+    assert "kalman-ca-input" in capsys.readouterr().out

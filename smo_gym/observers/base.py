@@ -676,6 +676,22 @@ class Observer:
         self.n_updates += T
         return out
 
+    def _run_updates(self, Y: np.ndarray, U, out: np.ndarray, kept: tuple) -> np.ndarray:
+        """``update(Y[t], U[t])`` for every row into ``out``, for the observers that take an input (no compiled
+        driver): all or nothing, as :meth:`run`; a rejected sample restores the state, the estimate, ``n_updates``
+        and the arrays ``kept`` that ``update`` changes in place (the last measurement or input)."""
+        saved = (self._state.copy(), [a.copy() for a in kept], self._estimate, self.n_updates)
+        try:
+            for t in range(Y.shape[0]):
+                out[t] = self.update(Y[t], None if U is None else U[t])
+        except BaseException:
+            state, arrays, self._estimate, self.n_updates = saved
+            self._state[...] = state  # in place: a bound entry point keeps its arrays
+            for array, old in zip(kept, arrays, strict=True):
+                array[...] = old
+            raise
+        return out
+
     @staticmethod
     def _output_array(out, shape: tuple[int, ...]) -> np.ndarray:
         """The ``out`` argument of :meth:`run` after checking it, or a new array of ``shape``."""

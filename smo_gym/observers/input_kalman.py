@@ -242,17 +242,7 @@ class _InputJumps:
             U = as_real_array("U", U)
             if U.shape != Y.shape[:1] + self._u_prev.shape:
                 raise ValueError(f"expected U with shape {Y.shape[:1] + self._u_prev.shape}, actual value: {U.shape}")
-        out = self._output_array(out, Y.shape + (3,))
-        saved = (self._state.copy(), self._u_prev.copy(), self._estimate, self.n_updates)
-        try:
-            for t in range(Y.shape[0]):
-                out[t] = self.update(Y[t], None if U is None else U[t])
-        except BaseException:
-            state, u_prev, self._estimate, self.n_updates = saved
-            self._state[...] = state
-            self._u_prev[...] = u_prev
-            raise
-        return out
+        return self._run_updates(Y, U, self._output_array(out, Y.shape + (3,)), (self._u_prev,))
 
     def step(self, state, y):
         raise NotImplementedError(

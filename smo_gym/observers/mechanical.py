@@ -340,17 +340,7 @@ class _ModelBasedSuperTwisting(Observer):
                 raise ValueError(
                     f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape {U.shape}"
                 )
-        saved = (self._state.copy(), self._y_prev.copy(), self._estimate, self.n_updates)
-        out = np.empty((Y.shape[0],) + self._shape + (2,))
-        try:
-            for t in range(Y.shape[0]):
-                out[t] = self.update(Y[t], None if U is None else U[t])
-        except BaseException:
-            state, y_prev, self._estimate, self.n_updates = saved
-            self._state[...] = state  # in place: a bound entry point keeps its arrays
-            self._y_prev[...] = y_prev
-            raise
-        return out
+        return self._run_updates(Y, U, np.empty((Y.shape[0],) + self._shape + (2,)), (self._y_prev,))
 
     def step(self, state, y):
         raise NotImplementedError(
