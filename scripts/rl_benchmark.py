@@ -8,6 +8,8 @@ noisy encoder (``encoder-12bit-noisy``) except the true state:
     auto               measured positions, velocities of EstimatedVelocity(observer="auto"), rate="physics"
     auto-model         as auto, with a model-based observer as one more candidate, its model 10 % heavier than
                        the environment's (observer "auto:model=true:mass_scale=1.1"; run on request)
+    auto-told          as auto, with the IMM estimator told the actions as one more candidate (observer
+                       "auto:model=kalman-imm-input"; run on request)
     estimated          measured positions, velocities of the super-twisting observer (smo_gym.rl's "estimated"
                        default), rate="physics"
     finite-difference  measured positions, backward differences of consecutive samples (same rate)
@@ -44,14 +46,18 @@ from pathlib import Path
 import numpy as np
 
 ENVS = ("InvertedDoublePendulum-v5", "Hopper-v5")
-SENSINGS = ("true", "auto", "auto-model", "estimated", "finite-difference", "no-velocity", "stacked-positions")
-#: sensings run by default ("estimated", super-twisting, the former default, and "auto-model" are run on request)
+SENSINGS = (
+    "true", "auto", "auto-model", "auto-told", "estimated", "finite-difference", "no-velocity", "stacked-positions"
+)  # fmt: skip
+#: sensings run by default ("estimated", super-twisting, the former default, "auto-model" and "auto-told" are run on
+#: request)
 DEFAULT_SENSINGS = ("true", "auto", "finite-difference", "no-velocity", "stacked-positions")
 #: benchmark sensing -> (smo_gym.rl sensing, observer spec)
 RL_SENSING = {
     "true": ("true", "super-twisting"),
     "auto": ("estimated", "auto"),
     "auto-model": ("estimated", "auto:model=true:mass_scale=1.1"),
+    "auto-told": ("estimated", "auto:model=kalman-imm-input"),
     "estimated": ("estimated", "super-twisting"),
     "finite-difference": ("finite-difference", "super-twisting"),
     "no-velocity": ("no-velocity", "super-twisting"),
