@@ -51,7 +51,8 @@ __all__ = [
 FAMILIES: dict[str, Family] = {}
 #: name -> class of the model-free families (built by name alone), for the wrapper, the CLI and ``differentiate``
 OBSERVERS: dict[str, type] = {}
-#: name -> class of the model-based families (built with a dynamics object, updated with ``update(y, u)``)
+#: name -> class of the families that take the control input (built with a dynamics object or a fitted input model,
+#: updated with ``update(y, u)``)
 MODEL_BASED_OBSERVERS: dict[str, type] = {}
 
 
@@ -84,8 +85,8 @@ class Family:
     examples : tuple of dict
         Constructor arguments (without ``dt``) for the contract tests, covering every discretization.
     model_based : bool
-        Built with a dynamics object and updated with ``update(y, u)``: not built by name, no offline or fused
-        drivers.
+        Built with a dynamics object or a fitted input model and updated with ``update(y, u)``: not built by name,
+        no offline or fused drivers.
     order_from : callable or None
         ``order_from(kwargs) -> int``: the number of derivatives estimated, from the constructor arguments (given
         ones over the defaults), for a family whose constructor does not call it ``order``; ``None``: the
