@@ -264,8 +264,8 @@ def parse_observer_specs(observers, *, inputs: bool = False) -> dict[str, tuple[
     for spec, (name, kw) in specs.items():
         if needs_model(name, kw) and not inputs:
             raise ValueError(
-                "expected model-free observers (they run on the recorded measurements, without the control input "
-                f"a model-based observer needs; run that one in EstimatedVelocity), actual value: {spec!r}"
+                "expected model-free observers (a recording without its inputs cannot give the control input an "
+                f"observer that takes it needs; run that one in EstimatedVelocity), actual value: {spec!r}"
             )
     return specs
 
