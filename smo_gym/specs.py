@@ -33,6 +33,7 @@ import re
 from . import sensors
 from ._validation import did_you_mean
 from .observers import FAMILIES, MODEL_BASED_OBSERVERS, OBSERVERS
+from .observers.input_kalman import InputJumpFilter
 
 __all__ = [
     "MODEL_OPTIONS",
@@ -155,7 +156,7 @@ def observer_options(name: str) -> list[str]:
         return ["model", *MODEL_OPTIONS]
     if name in MODEL_BASED_OBSERVERS:
         cls = MODEL_BASED_OBSERVERS[name]
-        if "dynamics" not in inspect.signature(cls).parameters:  # fitted from the environment's runs, no model
+        if issubclass(cls, InputJumpFilter):  # fitted from the environment's runs, no model
             fitted = ("self", "dt", "process_noise", "measurement_noise", "input_gain", "jump_noise")
             return _options([cls], skip=fitted)
         built = ("self", "dt", "dynamics", "transform", "gains")  # from the environment's model

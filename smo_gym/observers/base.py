@@ -676,10 +676,23 @@ class Observer:
         self.n_updates += T
         return out
 
-    def _run_updates(self, Y: np.ndarray, U, out: np.ndarray, kept: tuple) -> np.ndarray:
-        """``update(Y[t], U[t])`` for every row into ``out``, for the observers that take an input (no compiled
-        driver): all or nothing, as :meth:`run`; a rejected sample restores the state, the estimate, ``n_updates``
-        and the arrays ``kept`` that ``update`` changes in place (the last measurement or input)."""
+    def _run_updates(self, Y, U, kept: tuple, out: np.ndarray | None = None) -> np.ndarray:
+        """``update(Y[t], U[t])`` for every row of ``Y`` ``(T, ...)`` and ``U`` ``(T, ...)`` (or None), for the
+        observers that take an input (no compiled driver): all or nothing, as :meth:`run`; a rejected sample restores
+        the state, the estimate, ``n_updates`` and the arrays ``kept`` that ``update`` changes in place (the last
+        measurement or input). ``out``: as :meth:`run`'s."""
+        self._require_reset()
+        Y = as_real_array("Y", Y)
+        if Y.ndim == 0 or Y.shape[1:] != self._shape:
+            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
+        if U is not None:
+            U = as_real_array("U", U)
+            if U.ndim == 0 or U.shape[0] != Y.shape[0]:
+                raise ValueError(
+                    f"expected U with shape (T, ...), one row per sample of Y ({Y.shape[0]}), actual value: shape "
+                    f"{U.shape}"
+                )
+        out = self._output_array(out, Y.shape + (self.order + 1,))
         saved = (self._state.copy(), [a.copy() for a in kept], self._estimate, self.n_updates)
         try:
             for t in range(Y.shape[0]):

@@ -49,7 +49,7 @@ from .imm import _MODES, KalmanIMM
 from .linear import KalmanCA
 from .registry import register_observer
 
-__all__ = ["InputJumps", "KalmanCAInput", "KalmanIMMInput", "fit_input_jumps"]
+__all__ = ["InputJumpFilter", "InputJumps", "KalmanCAInput", "KalmanIMMInput", "fit_input_jumps"]
 
 
 class InputJumps(NamedTuple):
@@ -166,13 +166,15 @@ def _apply_jumps(state, u, u_prev, gain, noise, columns, saved):
                 state[row, columns[k, 1]] += size2 * noise[c]
 
 
-class _InputJumps:
+class InputJumpFilter:
     """What the input-aware filters add to their Kalman filter: the jump of the acceleration estimate(s) at each
-    change of input (module notes). A subclass names the state columns of each acceleration and its variance."""
+    change of input (module notes). A subclass names the state columns of each acceleration and its variance; the
+    wrapper builds every registered subclass from its calibration episodes (:meth:`from_episodes`)."""
 
     takes_input = True
-    #: ``(acceleration, its variance)`` state columns of each constant-acceleration filter of the state row
-    _jump_columns: tuple[tuple[int, int], ...] = ()
+    #: ``(acceleration, its variance)`` state columns of each constant-acceleration filter of the state row, one
+    #: row per filter (int64: the compiled jump reads it)
+    _jump_columns = np.zeros((0, 2), dtype=np.int64)
 
     def _set_input_model(self, input_gain, jump_noise) -> None:
         gain = as_real_array("input_gain", input_gain)
@@ -185,7 +187,6 @@ class _InputJumps:
             )
         self.input_gain = np.ascontiguousarray(gain, dtype=np.float64)
         self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
-        self._columns = np.array(self._jump_columns, dtype=np.int64)
         self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
 
     def _channel_params(self, shape):
@@ -218,7 +219,7 @@ class _InputJumps:
             return super().update(y)
         if u.shape != self._u_prev.shape:
             raise ValueError(f"expected u with shape {self._u_prev.shape}, actual value: {u.shape}")
-        state, columns = self._state, self._columns
+        state, columns = self._state, self._jump_columns
         saved = np.empty((state.shape[0], columns.size))
         _apply_jumps(state, u.reshape(-1, u.shape[-1]), self._u_prev.reshape(-1, u.shape[-1]), self.input_gain,
                      self.jump_noise, columns, saved)  # fmt: skip
@@ -234,15 +235,7 @@ class _InputJumps:
     def run(self, Y, U=None, *, out: np.ndarray | None = None) -> np.ndarray:
         """Process a recorded block ``Y`` ``(T, ..., n)`` with inputs ``U`` ``(T, ..., m)`` sample by sample; all or
         nothing, as :meth:`Observer.run <smo_gym.observers.Observer.run>`."""
-        self._require_reset()
-        Y = as_real_array("Y", Y)
-        if Y.ndim == 0 or Y.shape[1:] != self._shape:
-            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
-        if U is not None:
-            U = as_real_array("U", U)
-            if U.shape != Y.shape[:1] + self._u_prev.shape:
-                raise ValueError(f"expected U with shape {Y.shape[:1] + self._u_prev.shape}, actual value: {U.shape}")
-        return self._run_updates(Y, U, self._output_array(out, Y.shape + (3,)), (self._u_prev,))
+        return self._run_updates(Y, U, (self._u_prev,), out)
 
     def step(self, state, y):
         raise NotImplementedError(
@@ -258,7 +251,7 @@ class _InputJumps:
 
 
 @register_observer("kalman-ca-input", bound=3, model_based=True)
-class KalmanCAInput(_InputJumps, KalmanCA):
+class KalmanCAInput(InputJumpFilter, KalmanCA):
     r"""Constant-acceleration Kalman filter with the predicted acceleration jump of each change of input.
 
     Per channel :class:`~smo_gym.observers.KalmanCA` (module notes), whose acceleration estimate moves by
@@ -283,7 +276,7 @@ class KalmanCAInput(_InputJumps, KalmanCA):
     ``run(Y)``, is :class:`~smo_gym.observers.KalmanCA` and forgets the last input.
     """
 
-    _jump_columns = ((2, 8),)
+    _jump_columns = np.array([[2, 8]], dtype=np.int64)
 
     @check_keywords
     def __init__(
@@ -307,7 +300,7 @@ class KalmanCAInput(_InputJumps, KalmanCA):
 
 
 @register_observer("kalman-imm-input", bound=3, model_based=True)
-class KalmanIMMInput(_InputJumps, KalmanIMM):
+class KalmanIMMInput(InputJumpFilter, KalmanIMM):
     r"""The IMM estimator of two constant-acceleration Kalman filters (:class:`~smo_gym.observers.KalmanIMM`), each
     with the predicted acceleration jump of each change of input (as :class:`KalmanCAInput`).
 
@@ -319,7 +312,7 @@ class KalmanIMMInput(_InputJumps, KalmanIMM):
         As :class:`KalmanCAInput`.
     """
 
-    _jump_columns = tuple((o + 2, o + 8) for o in (_MODES, _MODES + 9))
+    _jump_columns = np.array([[o + 2, o + 8] for o in (_MODES, _MODES + 9)], dtype=np.int64)
 
     @check_keywords
     def __init__(

@@ -330,17 +330,7 @@ class _ModelBasedSuperTwisting(Observer):
         All or nothing, as :meth:`Observer.run`: if a sample is rejected (non-finite ``Y`` or ``U``, a diverging
         state), the observer keeps the state it had before the call.
         """
-        self._require_reset()
-        Y = as_real_array("Y", Y)
-        if Y.ndim == 0 or Y.shape[1:] != self._shape:
-            raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
-        if U is not None:
-            U = as_real_array("U", U)
-            if U.ndim == 0 or U.shape[0] != Y.shape[0]:
-                raise ValueError(
-                    f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: shape {U.shape}"
-                )
-        return self._run_updates(Y, U, np.empty((Y.shape[0],) + self._shape + (2,)), (self._y_prev,))
+        return self._run_updates(Y, U, (self._y_prev,))
 
     def step(self, state, y):
         raise NotImplementedError(

@@ -32,13 +32,14 @@ from .._validation import check_positive_range
 from ..calibration import NOISE_FLOOR
 from ..engine.measurement import VelocityEstimator, mean_velocity_span
 from ..mechanics import MujocoDynamics, calibrate_model_miss, default_transform, dissipative_gains
-from ..observers import DissipativeSuperTwisting, KalmanCAInput, KalmanIMMInput, MechanicalSuperTwisting, Observer
+from ..observers import MODEL_BASED_OBSERVERS, DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
+from ..observers.input_kalman import InputJumpFilter
 from ..specs import MODEL_OPTIONS
 from .estimated_velocity import TRIAL_SMOOTHING, JointCandidate, random_episodes
 
 __all__ = ["InputAwareEstimator", "ModelBasedObserver", "joint_candidate", "model_based_observer"]
 
-INPUT_FILTERS = {"kalman-ca-input": KalmanCAInput, "kalman-imm-input": KalmanIMMInput}
+INPUT_FILTERS = {n: cls for n, cls in MODEL_BASED_OBSERVERS.items() if issubclass(cls, InputJumpFilter)}
 NAMES = ("mechanical-super-twisting", "dissipative-super-twisting", *INPUT_FILTERS)
 
 
@@ -75,7 +76,7 @@ def model_based_observer(
 
     Parameters
     ----------
-    name : {"mechanical-super-twisting", "dissipative-super-twisting", "kalman-ca-input"}
+    name : {"mechanical-super-twisting", "dissipative-super-twisting"} or a name of :data:`INPUT_FILTERS`
     adapter : smo_gym.wrappers.adapters.MujocoAdapter
         The environment's adapter (its model is copied, never modified).
     measurement : smo_gym.engine.measurement.JointMeasurement
