@@ -18,6 +18,7 @@ from smo_gym.observers import DivergenceError, FiniteDifference, KalmanCA, Levan
 from smo_gym.selection import Selection, Trials, auto_observer, predicted_errors, select
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers import estimated_velocity as ev_module
+from smo_gym.wrappers.adapters import make_adapter
 
 DT = 1e-3
 
@@ -376,6 +377,19 @@ def test_the_wrapper_defaults_to_auto_chosen_on_its_own_trials(monkeypatch):
         np.testing.assert_array_equal(o1, o2)
         for a in actions:
             np.testing.assert_array_equal(env.step(a)[0], twin.step(a)[0])
+
+
+def test_the_trials_never_replay_an_evaluation_seed():
+    """The calibration's and the trials' episodes have a seed stream of their own: the seeds users and the
+    benchmarks evaluate on start elsewhere and draw other actions (seed 0 once replayed the first trial, so the
+    accuracy tables scored the choice on its own data)."""
+    adapter = make_adapter(gym.make("InvertedPendulum-v5").unwrapped)
+    for smoothing in ev_module.TRIAL_SMOOTHING:
+        (trial, *_) = ev_module.random_episodes(adapter, 1, 40, smoothing=smoothing)
+        for seed in range(10):
+            (evaluated, *_) = ev_module.random_episodes(adapter, 1, 40, seed, smoothing)
+            assert not np.allclose(evaluated.qpos[:3], trial.qpos[:3]), seed
+            assert not np.allclose(evaluated.ctrl[:3], trial.ctrl[:3]), seed
 
 
 def test_a_joint_candidate_is_taken_for_all_channels_or_for_none():

@@ -101,7 +101,7 @@ def model_based_observer(
     model, kwargs = adapter.model, dict(observer_kwargs or {})
     sample_every, dt = round(measurement.dt / model.opt.timestep), measurement.dt
     if name in INPUT_FILTERS:  # the input gain from the two scenarios of auto's trials
-        found = [random_episodes(adapter, sample_every, calibration_steps, 0, s) or () for s in TRIAL_SMOOTHING]
+        found = [random_episodes(adapter, sample_every, calibration_steps, smoothing=s) or () for s in TRIAL_SMOOTHING]
         episodes = [e for scene in found for e in scene if len(e.qvel) > 2 and np.isfinite(e.qvel).all()]
         r = np.maximum(measurement.noise_std() ** 2 + measurement.quantization_step() ** 2 / 12, NOISE_FLOOR**2)
         velocity, inputs = [e.qvel for e in episodes], [e.ctrl for e in episodes]
