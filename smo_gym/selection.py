@@ -26,14 +26,21 @@ velocity RMSE in one or more scenarios:
   2001) gives :math:`e_{KF}^2 = c^\top P c` for the reported combination ``c`` of its derivative estimates.
 
 The rule (:attr:`Selection.choice`): a candidate is *safe* on a channel if in every scenario it is within
-:data:`TOLERANCE` (2 %) of the better of the :data:`REFERENCES`, the backward difference and the Kalman filter,
-what a user would otherwise pick; among the safe candidates the one with the smallest worst regret (its error over
-the best candidate's, worst over the scenarios) wins. The references are never both unsafe unless each loses to the
-other in some scenario; then the smallest worst regret decides among all. Where one candidate, safe on every
-channel, is within :data:`TOLERANCE` of that per-channel choice on every channel and in every scenario, it is taken
-for all channels: a mix would buy at most that much (a tie, as the safety rule counts it) and cost a composite, one
-more family to report and, in a new process, a few seconds more of compilation (Hopper-v5 at the physics rate: 8.2 s
-cold with the IMM estimator and the alpha-beta tracker mixed, 4.5 s when one observed all joints).
+:data:`TOLERANCE` (2 %) of the better of the :data:`REFERENCES`, the backward difference and the Kalman filter, what
+a user would otherwise pick, and *proven* if its gain is more than the trials can explain by chance: at the upper
+bound of its ratio to the better reference (:func:`ratio_bound`, a bootstrap over blocks of the trials' episodes,
+worst over the scenarios) it loses less than the safe reference of smallest worst regret is measured to lose to the
+best candidate. The ratio of two close candidates moves by several percent from one set of episodes to the next
+(``scripts/bench_trial_spread.py``), so a gain of a few percent leaves the channel to the reference, while a robust
+filter's large gain on a sensor with rare gross errors stands, though a stretch without them could make it a little
+worse than the reference. Among the safe and proven candidates the one with the smallest worst regret (its error
+over the best candidate's, worst over the scenarios) wins. The references are never both unsafe unless each loses to
+the other in some scenario; then the smallest worst regret decides among all. Where one candidate, safe and proven
+on every channel, is within :data:`TOLERANCE` of that per-channel choice on every channel and in every scenario, it
+is taken for all channels: a mix would buy at most that much (a tie, as the safety rule counts it) and cost a
+composite, one more family to report and, in a new process, a few seconds more of compilation (Hopper-v5 at the
+physics rate: 8.2 s cold with the IMM estimator and the alpha-beta tracker mixed, 4.5 s when one observed all
+joints).
 
 A model-based observer estimates all channels together (its model couples them): as the last candidate of a
 :class:`Selection` with ``joint=True`` it is taken for every channel or for none (:attr:`Selection.choice`; the
@@ -47,6 +54,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,14 +67,20 @@ from .observers.linear import steady_state_covariance
 from .specs import MODEL_OPTIONS, parse_observer_spec
 
 __all__ = [
+    "BLOCK",
     "CANDIDATES",
+    "CONFIDENCE",
     "REFERENCES",
+    "RESAMPLES",
     "TOLERANCE",
     "Selection",
+    "TrialErrors",
     "Trials",
     "auto_observer",
     "candidate_orders",
+    "measure_on_trials",
     "predicted_errors",
+    "ratio_bound",
     "select",
     "trial_errors",
 ]
@@ -76,6 +90,14 @@ __all__ = [
 REFERENCES: tuple[str, ...] = ("finite-difference", "kalman-ca")
 #: how much worse than the better reference a candidate may be and still count as safe
 TOLERANCE = 0.02
+#: the one-sided level of the bootstrap bound (:func:`ratio_bound`) of a candidate's ratio to the better reference
+#: that :attr:`Selection.proven` weighs against the reference's measured regret
+CONFIDENCE = 0.975
+#: bootstrap resamples of :func:`ratio_bound` (its quantile then moves by well under 1 % between seeds)
+RESAMPLES = 1000
+#: the most samples of an episode in one block of :class:`TrialErrors` (0.4 s at 2 ms): far longer than an
+#: estimation error stays correlated, short enough that an episode which never ends gives dozens of blocks
+BLOCK = 200
 #: the observers ``"auto"`` chooses among, as specs (:func:`smo_gym.specs.parse_observer_spec`); on a tie the first
 #: wins, so the simplest come first
 CANDIDATES: tuple[str, ...] = (
@@ -168,12 +190,16 @@ class Selection:
     joint : bool
         Whether the last candidate estimates all channels together (a model-based observer, which cannot be split
         over channels): :attr:`choice` then takes it for every channel or for none.
+    bound : ndarray, shape (n_scenarios, n_candidates, n_channels), optional
+        Upper confidence bound of each candidate's RMSE over the better reference's, from the trials' blocks
+        (:func:`ratio_bound`); None: the errors are taken as exact (a prediction).
     """
 
     candidates: tuple
     errors: np.ndarray
     source: str
     joint: bool = False
+    bound: np.ndarray | None = None
 
     @property
     def regret(self) -> np.ndarray:
@@ -200,22 +226,42 @@ class Selection:
     @property
     def choice(self) -> np.ndarray:
         """Index into :attr:`candidates` of every channel's choice, shape ``(n_channels,)``: the smallest
-        :attr:`regret` among the :attr:`safe` candidates (among all where none is), the first on a tie; replaced by
-        one candidate for every channel where one is safe on every channel and within :data:`TOLERANCE` of that
-        choice on every channel and scenario (the one of smallest worst ratio, the first on a tie). A
-        :attr:`joint` candidate is taken for every channel if it is safe on every channel and its worst regret
-        over the channels is smaller than that of the per-channel choice among the others."""
+        :attr:`regret` among the candidates :attr:`safe` and :attr:`proven` there (among all where none is), the
+        first on a tie; replaced by one candidate for every channel where one is safe and proven on every channel
+        and within :data:`TOLERANCE` of that choice on every channel and scenario (the one of smallest worst ratio,
+        the first on a tie). A :attr:`joint` candidate is taken for every channel if it is safe and proven on every
+        channel and its worst regret over the channels is smaller than that of the per-channel choice among the
+        others."""
         if not self.joint:
-            regret = np.where(self.safe, self.regret, np.inf)
+            regret = np.where(self.safe & self.proven, self.regret, np.inf)
             none_safe = ~np.isfinite(regret).any(axis=0)
             regret[:, none_safe] = self.regret[:, none_safe]
             return self._one_for_all(np.argmin(regret, axis=0))
-        per_channel = Selection(self.candidates[:-1], np.asarray(self.errors)[:, :-1], self.source).choice
+        bound = None if self.bound is None else np.asarray(self.bound)[:, :-1]
+        others = Selection(self.candidates[:-1], np.asarray(self.errors)[:, :-1], self.source, bound=bound)
+        per_channel = others.choice
         regret, k = self.regret, len(self.candidates) - 1
         channels = np.arange(per_channel.size)
-        if self.safe[k].all() and regret[k].max() < regret[per_channel, channels].max():
+        if (self.safe & self.proven)[k].all() and regret[k].max() < regret[per_channel, channels].max():
             return np.full(per_channel.size, k)
         return per_channel
+
+    @property
+    def proven(self) -> np.ndarray:
+        """Whether each candidate's gain over the references is more than the trials' spread can explain, shape
+        ``(n_candidates, n_channels)``: a reference always; another candidate if, at its :attr:`bound` (the most it
+        could lose to the better reference), it loses less than the safe reference of smallest worst regret is
+        measured to lose to the best candidate. All True without bounds (a prediction) or references."""
+        refs = [k for k, spec in enumerate(self.candidates) if spec in REFERENCES]
+        proven = np.ones(np.shape(self.errors)[1:], dtype=bool)
+        if self.bound is None or not refs:
+            return proven
+        regret = np.where(self.safe, self.regret, np.inf)[refs]  # the references' worst regret, where safe
+        ref_regret = np.min(regret, axis=0)
+        doubt = np.max(np.asarray(self.bound, dtype=float), axis=0)  # (C, n): the worst bound over scenarios
+        proven = doubt <= ref_regret
+        proven[refs] = True
+        return proven
 
     def _one_for_all(self, choice: np.ndarray) -> np.ndarray:
         """``choice``, or one candidate for every channel where one is as good (:attr:`choice`)."""
@@ -226,7 +272,7 @@ class Selection:
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = np.where(errors == chosen, 1.0, errors / chosen)  # exact (0 / 0) ties count as ties
         worst = np.max(ratio, axis=(0, 2))
-        worst[~self.safe.all(axis=1)] = np.inf
+        worst[~(self.safe & self.proven).all(axis=1)] = np.inf
         k = int(np.argmin(worst))
         return np.full(choice.size, k) if worst[k] <= 1.0 + TOLERANCE else choice
 
@@ -276,34 +322,97 @@ def predicted_errors(calibration: Calibration, candidates: Sequence[str], mean_o
     return errors
 
 
-def trial_errors(observer: Observer, trials: Trials, mean_over: float | None = None) -> np.ndarray:
-    """Velocity RMSE per channel of ``observer`` on ``trials``, over every sample but each episode's first; ``inf``
-    where it diverged. An observer that :attr:`~smo_gym.observers.Observer.takes_input` gets the trials' ``inputs``;
-    each reports the mean over ``mean_over`` seconds where it estimates the acceleration at the sample time
-    (:func:`~smo_gym.observers.base.reported_coefficients`), as the wrappers report it. Shape ``(n,)``."""
+class TrialErrors(NamedTuple):
+    """An observer's errors on :class:`Trials`, per channel: ``rmse`` (n,) over every sample but each episode's
+    first, and ``blocks`` (B, n), the sums of squared errors over consecutive blocks of at most :data:`BLOCK` of
+    those samples of each episode (the units :func:`ratio_bound` resamples; an episode that never ends is many of
+    them). ``inf`` where the observer diverged."""
+
+    rmse: np.ndarray
+    blocks: np.ndarray
+
+
+def measure_on_trials(observer: Observer, trials: Trials, mean_over: float | None = None) -> TrialErrors:
+    """The :class:`TrialErrors` of ``observer`` on ``trials``. An observer that
+    :attr:`~smo_gym.observers.Observer.takes_input` gets the trials' ``inputs``; each reports the mean over
+    ``mean_over`` seconds where it estimates the acceleration at the sample time
+    (:func:`~smo_gym.observers.base.reported_coefficients`), as the wrappers report it."""
     n = trials.measured[0].shape[1]
     if observer.takes_input and trials.inputs is None:
         raise ValueError("expected trials with the inputs a model-based observer needs, actual value: inputs=None")
     c = reported_coefficients(observer, mean_over)  # None: the velocity as it is
     inputs = trials.inputs if observer.takes_input else (None,) * len(trials.measured)
-    total, count = np.zeros(n), 0
+    total, count, blocks = np.zeros(n), 0, []
     try:
         for Z, V, U in zip(trials.measured, trials.velocity, inputs, strict=True):
             observer.reset(Z[0])
             estimate = observer.run(Z[1:]) if U is None else observer.run(Z[1:], U[1:])
-            total += np.sum((reported_velocity(estimate, c) - V[1:]) ** 2, axis=0)
+            squared = (reported_velocity(estimate, c) - V[1:]) ** 2
+            total += np.sum(squared, axis=0)
             count += len(Z) - 1
+            blocks.append(np.add.reduceat(squared, np.arange(0, len(squared), BLOCK), axis=0))
     except DivergenceError:
-        return np.full(n, np.inf)
-    return np.sqrt(total / count)
+        size = sum(-(-(len(Z) - 1) // BLOCK) for Z in trials.measured)
+        return TrialErrors(np.full(n, np.inf), np.full((size, n), np.inf))
+    return TrialErrors(np.sqrt(total / count), np.concatenate(blocks))
 
 
-def _trial_errors(calibration: Calibration, trials: Trials, candidates, mean_over, kwargs) -> np.ndarray:  # (C, n)
-    """:func:`trial_errors` of every candidate, each with its calibrated gains."""
-    observers = (
+def trial_errors(observer: Observer, trials: Trials, mean_over: float | None = None) -> np.ndarray:
+    """Velocity RMSE per channel of ``observer`` on ``trials`` (:func:`measure_on_trials`); ``inf`` where it
+    diverged. Shape ``(n,)``."""
+    return measure_on_trials(observer, trials, mean_over).rmse
+
+
+def ratio_bound(squared: np.ndarray, refs: Sequence[int], level: float = CONFIDENCE) -> np.ndarray:
+    r"""Upper confidence bound of each candidate's RMSE over the better reference's, from blocks of squared errors.
+
+    The blocks are resampled with replacement (:data:`RESAMPLES` times, a fixed seed: the bound is a function of
+    the data), and each resample's ratio :math:`\sqrt{\sum_e w_e a_e / \sum_e w_e b_e}` (:math:`a_e`,
+    :math:`b_e`: the candidate's and the better reference's sums of squared errors in block :math:`e`, the better
+    reference chosen on all blocks) gives the bootstrap distribution; the bound is its ``level`` quantile (the
+    percentile bootstrap; Efron and Tibshirani 1993, ch. 13). A symmetric interval from the standard error would
+    not do: where the reference makes rare large errors (a sensor's gross errors) the ratio has a long tail
+    towards small values only, and its standard error then says a large gain is uncertain in both directions.
+
+    Parameters
+    ----------
+    squared : ndarray, shape (C, B, n)
+        :attr:`TrialErrors.blocks` of every candidate.
+    refs : sequence of int
+        The candidates that are references.
+    level : float
+        One-sided level in (0, 1).
+
+    Returns
+    -------
+    ndarray, shape (C, n)
+        1 for the better reference itself and where both sums are 0; ``inf`` where a candidate diverged; the
+        ratio itself without references.
+    """
+    squared = np.asarray(squared, dtype=float)
+    totals = squared.sum(axis=1)  # (C, n)
+    if not len(refs):
+        return np.ones(totals.shape)
+    best = np.asarray(refs)[np.argmin(totals[list(refs)], axis=0)]  # the better reference of each channel
+    b = np.take_along_axis(squared, best[None, None, :], axis=0)[0]  # (B, n)
+    blocks = squared.shape[1]
+    weights = np.random.default_rng(0).multinomial(blocks, np.full(blocks, 1.0 / blocks), size=RESAMPLES)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.sqrt(np.einsum("rb,cbn->rcn", weights, squared) / np.einsum("rb,bn->rn", weights, b)[:, None])
+        ratio = np.where(np.isnan(ratio), 1.0, ratio)  # 0 / 0: both exact in that resample
+        bound = np.quantile(ratio, level, axis=0)
+    bound[best, np.arange(best.size)] = 1.0
+    return bound
+
+
+def _trial_errors(calibration: Calibration, trials: Trials, candidates, mean_over, kwargs, joint) -> TrialErrors:
+    """:func:`measure_on_trials` of every candidate, each with its calibrated gains, and of ``joint``, stacked:
+    ``rmse`` (C, n), ``blocks`` (C, B, n)."""
+    observers = [
         default_observer(name, calibration, {**kwargs, **kw}) for name, kw in map(parse_observer_spec, candidates)
-    )
-    return np.stack([trial_errors(observer, trials, mean_over) for observer in observers])
+    ]
+    found = [measure_on_trials(observer, trials, mean_over) for observer in observers + joint]
+    return TrialErrors(np.stack([f.rmse for f in found]), np.stack([f.blocks for f in found]))
 
 
 def select(
@@ -313,6 +422,7 @@ def select(
     candidates: Sequence[str] = CANDIDATES,
     mean_over: float | None = None,
     observer_kwargs: dict | None = None,
+    joint: Observer | None = None,
 ) -> Selection:
     """Compare ``candidates`` on every channel: measured on ``trials`` if given, else predicted (module notes).
 
@@ -331,6 +441,10 @@ def select(
         :func:`smo_gym.engine.measurement.mean_velocity_span`); None: the instantaneous one.
     observer_kwargs : dict, optional
         Constructor arguments every candidate gets (``wrap``, say).
+    joint : Observer, optional
+        An observer of all channels together (a model-based one), compared as the last candidate
+        (:attr:`Selection.joint`) under the name ``joint.name``; without trials its error is ``inf`` (no
+        evidence, not chosen).
     """
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, actual value: {calibration!r:.80}")
@@ -340,9 +454,15 @@ def select(
         raise ValueError("expected at least one candidate observer, actual value: none")
     if mean_over is not None:
         mean_over = check_positive("mean_over", mean_over)
+    if joint is not None and not isinstance(joint, Observer):
+        raise TypeError(f"expected joint to be an Observer or None, actual value: {joint!r:.80}")
+    extra = [] if joint is None else [joint]
+    refs = [k for k, spec in enumerate(candidates) if spec in REFERENCES]
     if trials is None:
         errors = predicted_errors(calibration, candidates, mean_over)[None]
-        source = "prediction"
+        if joint is not None:
+            errors = np.concatenate([errors, np.full((1, 1, errors.shape[2]), np.inf)], axis=1)
+        bound, source = ratio_bound(errors[0][:, None] ** 2, refs)[None], "prediction"  # one block: the ratio
     else:
         scenes = [trials] if isinstance(trials, Trials) else list(trials)
         if not scenes or not all(isinstance(t, Trials) for t in scenes):
@@ -353,11 +473,14 @@ def select(
                     f"expected trials of the calibration's {calibration.noise.size} channels, actual value: "
                     f"{t.measured[0].shape[1]}"
                 )
-        errors = np.stack([_trial_errors(calibration, t, candidates, mean_over, observer_kwargs) for t in scenes])
+        found = [_trial_errors(calibration, t, candidates, mean_over, observer_kwargs, extra) for t in scenes]
+        errors = np.stack([f.rmse for f in found])
+        bound = np.stack([ratio_bound(f.blocks, refs) for f in found])
         source = "trials"
     if not np.isfinite(errors.min(axis=1)).all():
         raise ValueError(f"expected a candidate with a finite error on every channel, actual value: {errors!r}")
-    return Selection(candidates, errors, source)
+    names = candidates + tuple(observer.name for observer in extra)
+    return Selection(names, errors, source, joint=joint is not None, bound=bound)
 
 
 def _check_kwargs(observer_kwargs, allowed: tuple[str, ...] = ("wrap",)) -> dict:

@@ -14,7 +14,7 @@ from ..calibration import Calibration, bound_order, calibration_from_velocities,
 from ..engine.fused import FusedSensing
 from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation, mean_velocity_span
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
-from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select, trial_errors
+from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
 from .rollout import rollout, smooth_random_policy
@@ -285,22 +285,22 @@ def calibrated_observer(
         trial_steps=TRIAL_STEPS,
         calibration=stable_repr(vars(calibration)),  # the errors depend on the gains; v on the candidates' code
         **settings,
-        v=5,
+        v=8,
     )
+
+    observer = None if joint is None else joint.observer  # compared as the last candidate, for all joints or none
 
     def compute():
         steps = TRIAL_STEPS * how.get("steps", 2000)
         scenes = [sensed_trials(adapter, measurement, sample_every, steps, s) for s in TRIAL_SMOOTHING]
         scenes = [trials for trials in scenes if trials is not None]
-        errors = select(calibration, scenes or None, mean_over=span, observer_kwargs=kwargs).errors
-        if joint is not None:  # no trials, no evidence for the model: it is not chosen
-            found = [trial_errors(joint.observer, t, span) for t in scenes] or [np.full(errors.shape[-1], np.inf)]
-            errors = np.concatenate([errors, np.stack(found)[:, None]], axis=1)
-        return np.vstack([errors.reshape(-1, errors.shape[-1]), np.full(errors.shape[-1], len(scenes))])
+        found = select(calibration, scenes or None, mean_over=span, observer_kwargs=kwargs, joint=observer)
+        rows = np.concatenate([found.errors, found.bound]).reshape(-1, found.errors.shape[-1])
+        return np.vstack([rows, np.full(rows.shape[-1], len(scenes))])
 
     stored = cached_bounds(key, compute, disk=how.get("disk", True))
-    errors = stored[:-1].reshape(-1, len(candidates), stored.shape[1])
-    found = Selection(candidates, errors, "trials" if stored[-1, 0] else "prediction", joint=joint is not None)
+    errors, bound = stored[:-1].reshape(2, -1, len(candidates), stored.shape[1])  # the last row: scenarios
+    found = Selection(candidates, errors, "trials" if stored[-1, 0] else "prediction", joint=bool(joint), bound=bound)
     if joint is not None and found.choice[0] == len(CANDIDATES):
         joint.observer.selection = found
         return joint.observer, calibration
