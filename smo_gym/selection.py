@@ -386,9 +386,11 @@ def ratio_bound(squared: np.ndarray, refs: Sequence[int], level: float = CONFIDE
     Returns
     -------
     ndarray, shape (C, n)
-        1 for the better reference itself and where both sums are 0; ``inf`` where a candidate diverged; the
-        ratio itself without references.
+        1 for the better reference itself, where both sums are 0 and everywhere without references; ``inf``
+        where a candidate diverged.
     """
+    if isinstance(level, bool) or not isinstance(level, (int, float, np.number)) or not 0.0 < level < 1.0:
+        raise ValueError(f"expected level in (0, 1), actual value: {level!r}")
     squared = np.asarray(squared, dtype=float)
     totals = squared.sum(axis=1)  # (C, n)
     if not len(refs):

@@ -251,6 +251,10 @@ def test_ratio_bound_covers_the_true_ratio():
     assert 0.9 <= np.mean(covered) <= 1.0
     scaled = np.stack([np.ones((5, 1)), 4.0 * np.ones((5, 1))])
     np.testing.assert_allclose(selection.ratio_bound(scaled, refs=[0]), [[1.0], [2.0]])
+    np.testing.assert_array_equal(selection.ratio_bound(scaled, refs=[]), np.ones((2, 1)))
+    for level in (0.0, 1.0, True, "0.9"):
+        with pytest.raises(ValueError, match="level in"):
+            selection.ratio_bound(scaled, refs=[0], level=level)
 
 
 def test_ratio_bound_of_a_robust_candidate_against_a_reference_with_rare_gross_errors():
