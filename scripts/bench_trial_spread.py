@@ -18,7 +18,6 @@ the IMM estimator over KalmanCA under the low-passed policy; seconds once the wr
 from __future__ import annotations
 
 import argparse
-import copy
 import os
 import sys
 
@@ -27,25 +26,18 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 import gymnasium as gym
 import numpy as np
 
-from smo_gym.engine.measurement import JointMeasurement, mean_velocity_span
+from smo_gym.engine.measurement import mean_velocity_span
 from smo_gym.selection import Trials, default_observer, trial_errors
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers import estimated_velocity as ev
 
 
 def trials(env: EstimatedVelocity, seed: int, smoothing: float) -> Trials:
-    """The episodes ``sensed_trials`` measures, from the seed stream ``seed`` instead of the calibration's."""
-    adapter, measurement = env.adapter, env.measurement
-    every = round(measurement.dt / adapter.model.opt.timestep)
+    """The trials ``auto`` scores on (:func:`~smo_gym.wrappers.estimated_velocity.sensed_trials`, as long), from the
+    seed stream ``seed``."""
+    every = round(env.measurement.dt / env.adapter.model.opt.timestep)
     steps = ev.TRIAL_STEPS * 2000  # the wrapper's default calibration steps
-    sensed = JointMeasurement(adapter.model, copy.deepcopy(measurement.sensor), measurement.dt)
-    rng, measured, velocity = np.random.default_rng([seed, ev._SEED_SALT]), [], []
-    for episode in ev.random_episodes(adapter, every, steps, seed, smoothing) or ():
-        if len(episode.qpos) > 1 and np.isfinite(episode.qvel).all():
-            sensed.reset(episode.qpos[0], rng)
-            measured.append(np.vstack([sensed.z_measured, sensed.measure_block(episode.qpos[1:])]))
-            velocity.append(episode.qvel)
-    return Trials(tuple(measured), tuple(velocity))
+    return ev.sensed_trials(env.adapter, env.measurement, every, steps, smoothing, seed)
 
 
 def main(argv=None) -> int:

@@ -174,6 +174,11 @@ class Trials:
         object.__setattr__(self, "velocity", velocity)
 
 
+def _reference_indices(candidates: Sequence[str]) -> list[int]:
+    """Where the :data:`REFERENCES` are among ``candidates``."""
+    return [k for k, spec in enumerate(candidates) if spec in REFERENCES]
+
+
 @dataclass(frozen=True)
 class Selection:
     """What ``"auto"`` chose, and the evidence.
@@ -217,7 +222,7 @@ class Selection:
         :data:`REFERENCES` present among the candidates (what a user would otherwise pick), shape
         ``(n_candidates, n_channels)``; all True without references."""
         errors = np.asarray(self.errors, dtype=float)
-        refs = [k for k, spec in enumerate(self.candidates) if spec in REFERENCES]
+        refs = _reference_indices(self.candidates)
         if not refs:
             return np.ones(errors.shape[1:], dtype=bool)
         best = np.min(errors[:, refs], axis=1, keepdims=True)
@@ -252,7 +257,7 @@ class Selection:
         ``(n_candidates, n_channels)``: a reference always; another candidate if, at its :attr:`bound` (the most it
         could lose to the better reference), it loses less than the safe reference of smallest worst regret is
         measured to lose to the best candidate. All True without bounds (a prediction) or references."""
-        refs = [k for k, spec in enumerate(self.candidates) if spec in REFERENCES]
+        refs = _reference_indices(self.candidates)
         proven = np.ones(np.shape(self.errors)[1:], dtype=bool)
         if self.bound is None or not refs:
             return proven
@@ -459,7 +464,7 @@ def select(
     if joint is not None and not isinstance(joint, Observer):
         raise TypeError(f"expected joint to be an Observer or None, actual value: {joint!r:.80}")
     extra = [] if joint is None else [joint]
-    refs = [k for k, spec in enumerate(candidates) if spec in REFERENCES]
+    refs = _reference_indices(candidates)
     if trials is None:
         errors = predicted_errors(calibration, candidates, mean_over)[None]
         if joint is not None:

@@ -230,12 +230,12 @@ def calibrate_environment(
     return Calibration.from_rows(cached_bounds(key, compute, disk=disk), orders, dt, noise, resolution)
 
 
-def sensed_trials(adapter, measurement: JointMeasurement, sample_every: int, steps: int, smoothing: float = 0.0):
-    """The episodes of :func:`random_episodes` (with ``smoothing`` 0: those the calibration reads) measured by a copy
-    of the sensor of ``measurement``: :class:`~smo_gym.selection.Trials` for ``observer="auto"``, or None."""
+def sensed_trials(adapter, measurement, sample_every: int, steps: int, smoothing: float = 0.0, seed=CALIBRATION_SEED):
+    """The episodes of :func:`random_episodes` (``seed``: theirs and the sensor noise's) measured by a copy of the
+    :class:`JointMeasurement` ``measurement``'s sensor: :class:`~smo_gym.selection.Trials` for ``"auto"``, or None."""
     sensed = JointMeasurement(adapter.model, copy.deepcopy(measurement.sensor), measurement.dt)
-    rng, measured, velocity, inputs = np.random.default_rng([CALIBRATION_SEED, _SEED_SALT]), [], [], []
-    for episode in random_episodes(adapter, sample_every, steps, smoothing=smoothing) or ():
+    rng, measured, velocity, inputs = np.random.default_rng([seed, _SEED_SALT]), [], [], []
+    for episode in random_episodes(adapter, sample_every, steps, seed, smoothing) or ():
         if len(episode.qpos) > 1 and np.isfinite(episode.qvel).all():
             sensed.reset(episode.qpos[0], rng)
             measured.append(np.vstack([sensed.z_measured, sensed.measure_block(episode.qpos[1:])]))
