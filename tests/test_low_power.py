@@ -60,22 +60,26 @@ def test_default_coefficients_put_every_pole_at_minus_ell(n):
 
 
 def test_estimates_converge_without_noise():
-    """Linear regime (inside the bounds): the estimates converge with a lag error O(1 / ell) (halves when ell
-    doubles), largest on the last derivative (about (2n - 1) |f^(n)| / ell through the cascade of poles)."""
-    h = 1e-4
-    t = np.arange(0.0, 3.0, h)
+    r"""Linear regime (inside the bounds), every pole at ``-ell``: the estimate of the ``i``-th derivative lags by
+    :math:`O(|f^{(4)}| / \ell^{4 - i})` for ``order=3``, so doubling ``ell`` divides the error of the value by 16,
+    of the second derivative by 4 and of the last by 2 (measured 15.99, 3.99 and 2.00), the last being the largest
+    (about ``(2n - 1) |f^(n)| / ell`` through the cascade of poles). The step is small enough (10 us) that the
+    discretization's own lag (``h |f^{(i+1)}| / 2``) stays below these; the velocity's error is at that level
+    already (a few 1e-5 to 2e-4, no clean power of ``ell``), so only its size is checked."""
+    h = 1e-5
+    t = np.arange(0.0, 1.0, h)
     f = np.stack([np.sin(2 * t + k * np.pi / 2) * 2.0**k for k in range(5)], axis=-1)
     errs = []
     for ell in (200.0, 400.0):
         obs = LowPowerHighGain(dt=h, gain=ell, order=3, bounds=[3.0, 5.0, 9.0])
         obs.reset(f[0, :1])
         z = obs.run(f[1:, :1])[:, 0]
-        errs.append(np.abs(z[-5000:] - f[1:][-5000:, :4]).max(axis=0))
+        errs.append(np.abs(z[-50000:] - f[1:][-50000:, :4]).max(axis=0))
     errs = np.array(errs)
-    assert errs[0, -1] < 7 * 16 / 200.0
-    assert np.all(errs[0, :-1] < [1e-6, 1e-3, 1e-2])
-    ratio = errs[0, 2:] / errs[1, 2:]
-    assert np.all((ratio > 1.7) & (ratio < 4.5)), ratio
+    assert errs[0, -1] == pytest.approx(7 * 16 / 200.0, rel=0.02)  # measured 0.5600
+    assert errs[0, 1] < 1e-3
+    ratio = errs[0] / errs[1]
+    np.testing.assert_allclose(ratio[[0, 2, 3]], [16.0, 4.0, 2.0], rtol=0.03)
 
 
 # ---- peaking -------------------------------------------------------------------------------------------------------

@@ -249,16 +249,17 @@ def _convergence_time(t, err, tol):
 
 
 def test_exact_after_finite_time_on_an_unstable_plant():
-    t, X, Xh, _, _ = run(4e-3)
+    r"""From an error above 0.1 the estimate is within 1e-3 in finite time (measured 1.19 s) and stays there while
+    the plant grows 13.6-fold; from 1.5 s on the error is that of the order-3 differentiator, of order
+    :math:`L\tau^3` (Levant 2003; measured 3.9 :math:`L\tau^3`, 7.4e-6, and eight times less at half the step)."""
+    tau = 4e-3
+    t, X, Xh, _, _ = run(tau)
     err = np.linalg.norm(Xh - X, axis=1)
     growth = np.linalg.norm(X[-1]) / np.linalg.norm(X[0])
     assert growth > 10  # the plant is unstable (13.6 over 2.5 s)
-    t_conv = _convergence_time(t, err / np.maximum(np.linalg.norm(X, axis=1), 1.0), 1e-6)
-    print(f"relative error < 1e-6 from t = {t_conv:.3f} s; max error after: {err[t >= t_conv].max():.2e}")
-    assert t_conv < 2.0
     assert err[0] > 0.1  # the estimate did start wrong
-    # theory: O(L tau^3) = 2e-6 for the order-3 differentiator
-    assert err[t >= t_conv].max() < 2e-5
+    assert _convergence_time(t, err, 1e-3) < 1.5
+    assert err[t >= 1.5].max() < 5 * LIPSCHITZ * tau**3
 
 
 def test_unknown_input_identification_order():

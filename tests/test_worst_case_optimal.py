@@ -193,12 +193,16 @@ def test_the_worst_case_tends_to_the_continuous_optimum_as_h_shrinks():
     r"""With :math:`\epsilon = 10^{-4}`, ``L = 10`` (:math:`2\sqrt{\epsilon L} = 0.0632`, best lag 6.3 ms) the
     attained worst-case error over the optimum :math:`2\sqrt{\epsilon L}` is 1.107 at ``h = 10 ms`` (one lag: the
     backward difference, :math:`2\epsilon/h + Lh/2`), 1.0014 at 1 ms and 1.000008 at 0.1 ms: never below 1 (no
-    differentiator beats the optimum), down to it as ``h`` shrinks."""
+    differentiator beats the optimum), down to it as ``h`` shrinks. Each is the best difference over a multiple of
+    the step, :math:`\min_j (2\epsilon/(jh) + Ljh/2)`: the lag the continuous optimum wants, rounded to the grid."""
     eps, L = 1e-4, 10.0
     optimum = 2.0 * np.sqrt(eps * L)
-    ratios = [adversarial_error(h, L, eps)[0] / optimum for h in (1e-2, 1e-3, 1e-4)]
-    np.testing.assert_allclose(ratios, [1.1068, 1.00139, 1.0000076], rtol=1e-4)
-    assert ratios[0] == pytest.approx((2 * eps / 1e-2 + L * 1e-2 / 2) / optimum)
+    steps = (1e-2, 1e-3, 1e-4)
+    ratios = [adversarial_error(h, L, eps)[0] / optimum for h in steps]
+    lags = np.arange(1, 1000)
+    on_the_grid = [np.min(2 * eps / (lags * h) + L * lags * h / 2) / optimum for h in steps]
+    np.testing.assert_allclose(ratios, on_the_grid, rtol=1e-6)
+    assert np.all(np.diff(ratios) < 0) and ratios[-1] < 1.0 + 1e-5
 
 
 def sampled_optimum(h, L, eps, n_samples, substeps=40):

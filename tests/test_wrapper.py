@@ -1,14 +1,16 @@
 """EstimatedVelocity on every Gymnasium MuJoCo v5 environment, and the sensing core under it.
 
-Accuracy claim tested (ideal sensor, ``rate="physics"``): the implicit super-twisting differentiator, inside its
-sliding set, is a backward difference of its own estimate (``SuperTwisting`` notes), so its sampled accuracy is
-of order ``tau * |q''|``, the order of the ideal backward difference ``(z_k - z_{k-1}) / tau`` on the same
-samples; outside it (impacts where ``|q''|`` exceeds the calibrated bound) it needs a few samples to re-enter. We
-therefore require its RMS velocity error to be within 1.5x that of finite differences run on the same
-measurements (a twin environment with the same seed and actions) on the median sample, and in RMS up to a
-tenth of the velocity RMS for those re-entries, and far below the velocity scale. On the
-environments integrated with MuJoCo's Euler scheme the backward difference is exact (``q_{k+1} = q_k +
-h v_{k+1}``), so there the bound is tight at round-off level.
+Accuracy claims tested (ideal sensor, ``rate="physics"``, against the backward difference run on the same
+measurements in a twin environment with the same seed and actions):
+
+- the implicit super-twisting differentiator, inside its sliding set, *is* a backward difference of its own
+  estimate (``SuperTwisting`` notes): on the median sample its error is the backward difference's (within 5 %;
+  measured equal but on the Euler environments, where both are at round-off); outside it (impacts where
+  ``|q''|`` exceeds the calibrated bound) it needs a few samples to re-enter, which costs RMS error up to a tenth
+  of the velocity RMS (measured 0.05 against 0.77 on Pusher's joint-limit hits, 0 elsewhere);
+- the default, ``auto``, is never less accurate than the backward difference, on the median sample and in RMS
+  (measured 0.02-0.5 times its RMS error, equal on the Euler environments where the backward difference is exact:
+  ``q_{k+1} = q_k + h v_{k+1}``).
 """
 
 from __future__ import annotations
@@ -82,34 +84,36 @@ def test_every_v5_env(env_id):
     steps = 200
     actions = smooth_actions(raw.action_space, steps, seed=1)
     ref = rollout(raw, actions, seed=5, until_done=False)
-    sta = rollout(
-        EstimatedVelocity(gym.make(env_id), sensor="ideal", rate="physics"), actions, seed=5, until_done=False
-    )
-    fd = rollout(
-        EstimatedVelocity(gym.make(env_id), sensor="ideal", observer="finite-difference", rate="physics"),
-        actions,
-        seed=5,
-        until_done=False,
-    )
+    runs = {
+        observer: rollout(
+            EstimatedVelocity(gym.make(env_id), sensor="ideal", observer=observer, rate="physics"),
+            actions,
+            seed=5,
+            until_done=False,
+        )
+        for observer in ("auto", "super-twisting", "finite-difference")
+    }
+    sta = runs["super-twisting"]
     # stepping the physics ourselves (to sample inside frame_skip) changes nothing of the simulation
-    assert sta["reward"] == ref["reward"] and sta["terminated"] == ref["terminated"]
-    assert all(wrapped.observation_space.contains(o) for o in sta["obs"])
+    for run in runs.values():
+        assert run["reward"] == ref["reward"] and run["terminated"] == ref["terminated"]
+    assert all(wrapped.observation_space.contains(o) for o in runs["auto"]["obs"])
     assert len(sta["reward"]) == steps
     # the observers start at zero velocity: skip 3 control periods after every reset (convergence)
     keep = np.array(sta["since_reset"]) > 3
     true = np.array([s["qvel"] for s in sta["smo"]])[keep]
-    np.testing.assert_array_equal(true, np.array([s["qvel"] for s in fd["smo"]])[keep])
-    e_sta = np.array([s["qvel_estimate"] for s in sta["smo"]])[keep] - true
-    e_fd = np.array([s["qvel_estimate"] for s in fd["smo"]])[keep] - true
+    errors = {}
+    for observer, run in runs.items():
+        np.testing.assert_array_equal(np.array([s["qvel"] for s in run["smo"]])[keep], true)
+        errors[observer] = np.array([s["qvel_estimate"] for s in run["smo"]])[keep] - true
     scale = np.sqrt(np.mean(true**2))
-    # typical sample: the default (auto) is as accurate as the backward difference (round-off on Euler envs)
-    med_sta, med_fd = np.median(np.abs(e_sta).max(axis=1)), np.median(np.abs(e_fd).max(axis=1))
-    assert med_sta <= 1.5 * med_fd + 1e-9 * scale, (med_sta, med_fd, scale)
-    # RMS: the same, plus the re-entry after impacts (joint limits, contacts) where |q''| exceeds the calibrated
-    # bound; measured 0.05 against a velocity RMS of 0.77 on Pusher (joint-limit hits), 0 elsewhere
-    err_sta, err_fd = np.sqrt(np.mean(e_sta**2)), np.sqrt(np.mean(e_fd**2))
-    assert err_sta <= 1.5 * err_fd + 0.1 * scale, (err_sta, err_fd, scale)
-    assert err_sta <= 0.35 * scale, (err_sta, scale)
+    median = {k: np.median(np.abs(e).max(axis=1)) for k, e in errors.items()}
+    rms = {k: np.sqrt(np.mean(e**2)) for k, e in errors.items()}
+    fd = "finite-difference"
+    assert median["super-twisting"] <= 1.05 * median[fd] + 1e-9 * scale, (median, scale)
+    assert rms["super-twisting"] <= rms[fd] + 0.1 * scale, (rms, scale)
+    assert median["auto"] <= median[fd] + 1e-9 * scale, (median, scale)
+    assert rms["auto"] <= rms[fd] + 1e-9 * scale, (rms, scale)
     # with the ideal sensor the measured configuration is the true one
     np.testing.assert_allclose(sta["smo"][-1]["qpos_measured"], sta["smo"][-1]["qpos"], atol=1e-12)
 
