@@ -5,7 +5,7 @@ configuration through a sensor on the configuration manifold and feeds an observ
 :mod:`~smo_gym.engine.fused` runs a control period of samples through sensor, tangent coordinates and observer in
 one compiled call; :mod:`~smo_gym.engine.batch` measures the environments of an in-process vector env in one
 compiled call; :mod:`~smo_gym.engine.tangent` is the compiled tangent-coordinate arithmetic (MuJoCo's, bit for
-bit) they share.
+bit) they share; :mod:`~smo_gym.engine.rollout` rolls out a bare model for the calibration.
 """
 
 from __future__ import annotations

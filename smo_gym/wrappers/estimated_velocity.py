@@ -13,12 +13,13 @@ from .._validation import check_int_in_range, check_positive, check_real_in_rang
 from ..calibration import Calibration, bound_order, calibration_from_velocities, default_observer
 from ..engine.fused import FusedSensing
 from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation, mean_velocity_span
+from ..engine.rollout import model_rollout_velocities
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
 from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select
 from ..sensors import Sensor, make_sensor
 from .adapters import SubstepRecording, make_adapter
 from .rollout import rollout, smooth_random_policy
-from .sensing import SensingInfo, check_action, check_seed, model_rollout_velocities
+from .sensing import SensingInfo, check_action, check_seed
 
 __all__ = [
     "EstimatedVelocity",
@@ -201,7 +202,7 @@ def calibrate_environment(
     a tuple), sampled every ``sample_every`` physics steps: :func:`~smo_gym.calibration.calibration_from_velocities`
     of the velocities of :func:`rollout_velocities` (a copy of the environment itself: its resets, random actions,
     terminations), or, if the environment cannot be copied, of
-    :func:`~smo_gym.wrappers.sensing.model_rollout_velocities` on the bare model from its initial state. The
+    :func:`~smo_gym.engine.rollout.model_rollout_velocities` on the bare model from its initial state. The
     levels are cached per environment id (the adapter's ``environment_key``) in memory and, with ``disk``, on disk;
     ``noise`` and ``resolution`` are the sensor's, per dof.
     """
