@@ -86,13 +86,12 @@ MAX_SAMPLES = 2**17
 
 
 def _time_series(y, name: str = "y") -> np.ndarray:
-    """``y`` as a float64 array of shape ``(T, ...)`` with ``T >= 1`` and finite entries."""
-    try:
-        arr = np.asarray(y, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"expected {name} to be an array of real numbers, actual value: {y!r}") from None
-    if arr.ndim == 0 or arr.shape[0] == 0:
-        raise ValueError(f"expected {name} with shape (T, ...) and T >= 1, actual value: shape {arr.shape}")
+    """``y`` as a float64 array of shape ``(T, ...)`` with ``T >= 1``, at least one channel and finite entries."""
+    arr = as_real_array(name, y)  # complex, bool or date values are refused, not converted
+    if arr.ndim == 0 or arr.shape[0] == 0 or arr.size == 0:
+        raise ValueError(
+            f"expected {name} with shape (T, ...), T >= 1 and at least one channel, actual value: shape {arr.shape}"
+        )
     if not np.isfinite(arr).all():
         index = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
         raise ValueError(f"expected finite values in {name}, actual value: {arr[index]!r} at index {index}")
@@ -216,7 +215,7 @@ def quantization_step(y, *, tolerance: float = 1e-6, share: float = 0.99, minimu
     ndarray, shape (...)
     """
     y = _time_series(y)
-    d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, -1)
+    d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, y[0].size)  # (T - 1, channels), T = 1 too
     step = np.zeros(d.shape[1])
     for c in range(d.shape[1]):
         moves = d[d[:, c] > 0.0, c]

@@ -307,10 +307,12 @@ def predicted_errors(calibration: Calibration, candidates: Sequence[str], mean_o
     r"""Predicted velocity RMSE of every candidate on every channel, shape ``(n_candidates, n_channels)`` (module
     notes): closed forms for ``"finite-difference"`` and ``"kalman-ca"`` (given gains in the spec are used), ``inf``
     for the others. ``mean_over``: the span the reported velocity is a mean over (None: instantaneous)."""
+    if not isinstance(calibration, Calibration):
+        raise TypeError(f"expected a Calibration, actual value: {calibration!r:.80}")
+    span = 0.0 if mean_over is None else check_positive("mean_over", mean_over)
     dt = calibration.dt
     r = calibration.noise.reshape(-1) ** 2  # unfloored: an ideal sensor makes the difference exact
     n = r.size
-    span = 0.0 if mean_over is None else float(mean_over)
     errors = np.full((len(candidates), n), np.inf)
     for k, spec in enumerate(candidates):
         name, kw = parse_observer_spec(spec)
@@ -396,7 +398,11 @@ def ratio_bound(squared: np.ndarray, refs: Sequence[int], level: float = CONFIDE
     """
     if isinstance(level, bool) or not isinstance(level, (int, float, np.number)) or not 0.0 < level < 1.0:
         raise ValueError(f"expected level in (0, 1), actual value: {level!r}")
-    squared = np.asarray(squared, dtype=float)
+    squared = as_real_array("squared", squared)
+    if squared.ndim != 3 or 0 in squared.shape[:2]:
+        raise ValueError(f"expected squared of shape (C, B, n) with C, B >= 1, actual value: shape {squared.shape}")
+    if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < len(squared) for i in refs):
+        raise ValueError(f"expected refs among the {len(squared)} candidates' indices, actual value: {list(refs)!r}")
     totals = squared.sum(axis=1)  # (C, n)
     if not len(refs):
         return np.ones(totals.shape)
@@ -471,7 +477,7 @@ def select(
             errors = np.concatenate([errors, np.full((1, 1, errors.shape[2]), np.inf)], axis=1)
         bound, source = ratio_bound(errors[0][:, None] ** 2, refs)[None], "prediction"  # one block: the ratio
     else:
-        scenes = [trials] if isinstance(trials, Trials) else list(trials)
+        scenes = [trials] if isinstance(trials, Trials) else list(trials) if isinstance(trials, Sequence) else []
         if not scenes or not all(isinstance(t, Trials) for t in scenes):
             raise TypeError(f"expected Trials, a non-empty sequence of them, or None, actual value: {trials!r:.80}")
         for t in scenes:

@@ -523,7 +523,18 @@ class Sensor:
         Returns None, reserving nothing, when the rows would straddle the end of the block: the caller then
         measures through :meth:`run`, which splits the samples at the refill (so the random stream does not
         depend on how samples are batched). A block used up is refilled in place (the :attr:`arrays` stay valid).
+
+        Raises
+        ------
+        TypeError, ValueError
+            ``n_samples`` is not an integer in ``[1, BLOCK]`` (the compiled caller would read past the block).
+        RuntimeError
+            The sensor was never reset.
         """
+        if type(n_samples) is not int or not 0 < n_samples <= BLOCK:  # the hot path is one comparison
+            n_samples = check_int_in_range("n_samples", n_samples, 1, BLOCK)
+        if self._kinds is None:
+            raise RuntimeError("expected reset(y0) before reserving random rows, actual value: never reset")
         t0 = self._t
         if t0 + n_samples > BLOCK:
             if t0 < BLOCK:

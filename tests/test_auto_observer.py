@@ -403,6 +403,16 @@ def test_bad_selection_input():
     trials, _ = _trials(0)
     with pytest.raises(ValueError, match="calibration's 1 channels, actual value: 2"):
         select(_calibration(1e-3), trials)
+    with pytest.raises(TypeError, match="expected Trials, a non-empty sequence of them"):
+        select(_calibration(1e-3), 3)
+    for bad in (np.nan, -1.0, 0.0):  # an error of inf for a span that is not one
+        with pytest.raises(ValueError, match="mean_over"):
+            predicted_errors(_calibration(1e-3), ["levant"], mean_over=bad)
+    with pytest.raises(TypeError, match="Calibration"):
+        predicted_errors(None, ["levant"])
+    for squared, refs in ((np.ones((2, 5)), [0]), (np.ones((2, 0, 1)), [0]), (np.ones((2, 5, 1)), [2])):
+        with pytest.raises(ValueError, match=r"expected (squared|refs)"):
+            selection.ratio_bound(squared, refs)
 
 
 # ---- the default everywhere -----------------------------------------------------------------------------------------

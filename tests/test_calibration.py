@@ -177,6 +177,31 @@ def test_calibration_bad_input(kwargs, error, match):
         calibration.Calibration(**{**fields, **kwargs})
 
 
+@pytest.mark.parametrize(
+    "function",
+    [
+        calibration.noise_std,
+        calibration.quantization_step,
+        lambda y: calibration.derivative_bound(y, DT, 2),
+        lambda y: calibration.derivative_rms(y, DT, 2),
+        lambda y: calibration.calibration_of_signal(y, DT, [2]),
+    ],
+)
+def test_signal_calibration_refuses_what_is_not_a_real_record(function):
+    """Complex samples lost their imaginary part with a warning, booleans and dates were taken as numbers, and a
+    record without channels gave an empty answer: each is refused with what was expected."""
+    t = np.arange(200.0)
+    for bad in (np.exp(1j * t)[:, None], (t > 50)[:, None], np.arange(200).astype("datetime64[s]")[:, None]):
+        with pytest.raises(TypeError, match="expected y to be an array of real numbers"):
+            function(bad)
+    with pytest.raises(ValueError, match="at least one channel"):
+        function(np.zeros((200, 0)))
+
+
+def test_quantization_step_of_a_single_sample_is_not_known():
+    np.testing.assert_array_equal(calibration.quantization_step(np.ones((1, 3))), np.zeros(3))
+
+
 def test_calibration_arrays_are_read_only():
     c = _calibration(2, [4.0], [1.0], [1e-3])
     with pytest.raises(ValueError, match="read-only"):

@@ -104,12 +104,14 @@ def test_a_batch_is_a_loop_over_its_elements_and_a_masked_reset_restarts_one(cls
 
 @pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
 def test_a_rejected_sample_or_input_leaves_the_state_as_it_was(cls):
-    obs = cls(DT, 100.0, 1e-8, GAIN, 1.0)
-    obs.reset(np.zeros(3))
-    obs.update(np.full(3, 1e-4), np.zeros(2))
+    obs, twin = cls(DT, 100.0, 1e-8, GAIN, 1.0), cls(DT, 100.0, 1e-8, GAIN, 1.0)
+    for o in (obs, twin):
+        o.reset(np.zeros(3))
+        o.update(np.full(3, 1e-4), np.ones(2))
     state, estimate = obs.state.copy(), obs.estimate.copy()
     for y, u, error in [
         (np.array([np.nan, 0, 0]), np.ones(2), ValueError),  # the jump was applied before the sample was refused
+        (np.array([np.nan, 0, 0]), None, ValueError),  # the last input is not forgotten for a refused sample
         (np.zeros(3), np.array([np.inf, 0.0]), ValueError),
         (np.zeros(3), np.ones(3), ValueError),  # one input too many
         (np.zeros(3), "ab", TypeError),
@@ -119,6 +121,11 @@ def test_a_rejected_sample_or_input_leaves_the_state_as_it_was(cls):
             obs.update(y, u)
         np.testing.assert_array_equal(obs.state, state)
         np.testing.assert_array_equal(obs.estimate, estimate)
+    # and it goes on as if nothing had been refused: the next input's jump is measured from the last one taken
+    np.testing.assert_array_equal(
+        obs.update(np.full(3, 2e-4), 3 * np.ones(2)), twin.update(np.full(3, 2e-4), 3 * np.ones(2))
+    )
+    state = obs.state.copy()
     Y, U = np.full((5, 3), 1e-4), np.ones((5, 2))
     Y[3, 1] = np.nan
     with pytest.raises(ValueError):

@@ -203,6 +203,27 @@ def test_run_equals_repeated_update(name, kwargs, rng):
 
 
 @pytest.mark.parametrize("name, kwargs", CASES)
+def test_run_into_out_and_never_over_its_own_samples(name, kwargs, rng):
+    """``run(Y, out=buffer)`` writes what ``run(Y)`` returns; an ``out`` that shares memory with ``Y`` is refused
+    before anything runs (the estimates would overwrite samples not yet read: wrong numbers, silently)."""
+    Y = measurements(rng, T=40)
+    obs = build(name, kwargs)
+    obs.reset(Y[0])
+    twin = copy.deepcopy(obs)
+    expected = twin.run(Y[1:])
+    buffer = np.full(expected.shape, np.nan)
+    assert obs.run(Y[1:], out=buffer) is buffer
+    np.testing.assert_array_equal(buffer, expected)
+    state = obs.state.copy()
+    shared = np.empty(expected.size)
+    samples = shared[: Y[1:].size].reshape(Y[1:].shape)
+    samples[...] = Y[1:]
+    with pytest.raises(ValueError, match="share memory"):
+        obs.run(samples, out=shared.reshape(expected.shape))
+    np.testing.assert_array_equal(obs.state, state)
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
 def test_update_accepts_any_array_like(name, kwargs, rng):
     """Lists, float32, Fortran-ordered and strided views give the same estimates as C-contiguous float64 (the
     fast path of ``update`` must not skip a conversion); returned arrays are fresh, not views of the state."""

@@ -306,6 +306,23 @@ def test_sensor_reset_arguments_are_checked(call):
     assert sensor._kinds is None  # nothing was set up by the rejected reset
 
 
+def test_reserving_random_rows_takes_a_count_within_one_block():
+    """A compiled caller reads the reserved rows of the random block: a count outside ``[1, BLOCK]`` would make it
+    read outside it (a negative one crashed the interpreter), so it is refused, and nothing is reserved."""
+    sensor = GaussianNoise(1e-3)
+    with pytest.raises(RuntimeError, match="never reset"):
+        sensor.reserve_random_rows(1)
+    sensor.reset(np.zeros(3), seed=0)
+    before = sensor.reserve_random_rows(1)
+    for bad, error in ((-10**7, ValueError), (0, ValueError), (sensors.BLOCK + 1, ValueError), (2.5, TypeError),
+                       ("a", TypeError), (True, TypeError)):  # fmt: skip
+        with pytest.raises(error) as excinfo:
+            sensor.reserve_random_rows(bad)
+        assert_worded(excinfo)
+    assert sensor.reserve_random_rows(np.int64(2)) == before + 1  # the refused calls reserved nothing
+    assert np.isfinite(sensor.measure(np.zeros(3))).all()
+
+
 def test_sensor_measure_rejects_converted_dtypes():
     sensor = GaussianNoise(1e-3)
     sensor.reset(np.zeros(2), seed=0)

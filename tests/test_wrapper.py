@@ -15,6 +15,7 @@ measurements in a twin environment with the same seed and actions):
 
 from __future__ import annotations
 
+import copy
 import pickle
 import warnings
 
@@ -276,6 +277,25 @@ def test_pickle_round_trip():
         o1, *_ = env.step(a)
         o2, *_ = clone.step(a)
         np.testing.assert_array_equal(o1, o2)
+
+
+def test_a_copy_mid_episode_needs_a_reset_unless_its_simulation_came_with_it():
+    """A copy of Gymnasium's MuJoCo env is a fresh simulation (EzPickle), which the copied sensor and observer do
+    not describe: stepping it would estimate a jump that never happened, so it asks for a reset. Where the copy's
+    simulation is the original's (here: no reset noise, a copy right after the reset) it goes on as the original."""
+    env = EstimatedVelocity(gym.make("Hopper-v5"), sensor="ideal")
+    env.reset(seed=0)
+    env.step(np.full(3, 0.5))
+    for clone in (copy.deepcopy(env), pickle.loads(pickle.dumps(env))):
+        with pytest.raises(RuntimeError, match=r"expected reset.*rebuilt from its constructor"):
+            clone.step(np.zeros(3))
+        np.testing.assert_array_equal(clone.reset(seed=3)[0], env.reset(seed=3)[0])
+        np.testing.assert_array_equal(clone.step(np.full(3, 0.5))[0], env.step(np.full(3, 0.5))[0])
+    still = EstimatedVelocity(gym.make("Hopper-v5", reset_noise_scale=0.0))
+    still.reset(seed=0)
+    twin = pickle.loads(pickle.dumps(still))
+    for action in (np.full(3, 0.5), np.full(3, -0.5)):
+        np.testing.assert_array_equal(twin.step(action)[0], still.step(action)[0])
 
 
 def test_rates_set_the_sampling_step():

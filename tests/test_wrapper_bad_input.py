@@ -163,6 +163,13 @@ def test_method_sweep(sensed, seed, actions):
     assert np.all(np.isfinite(obs))
 
 
+def test_numpy_integer_seeds_are_the_same_seeds(sensed):
+    """Gymnasium refuses NumPy integers as seeds; the wrapper takes them as the Python int they are."""
+    first = sensed.reset(seed=5)[0]
+    for seed in (np.int64(5), np.uint64(5), np.int32(5)):
+        np.testing.assert_array_equal(sensed.reset(seed=seed)[0], first)
+
+
 def test_the_sweeps_ran():
     """Runs after the sweeps (file order): the number of inputs they tried."""
     print(

@@ -47,7 +47,7 @@ from .._numba_cache import cached_instance
 from ..observers import _kernels as K
 from ..observers.base import _compiled_entry
 from ..observers.composite import compiled_step
-from ..sensors import _chain_block
+from ..sensors import BLOCK, _chain_block
 from .measurement import JointMeasurement, VelocityEstimator
 from .tangent import integrate_pos, tangent_advance
 
@@ -573,7 +573,9 @@ class FusedSensing:
         """
         sensor, observer = self.sensor, self.observer
         T = Q.shape[0]
-        t0 = sensor.reserve_random_rows(T)  # a used-up block is refilled in place: the prepared arrays stay valid
+        # a used-up block is refilled in place (the prepared arrays stay valid); more samples than a block holds
+        # (frame_skip above BLOCK) take the general path, which splits them
+        t0 = sensor.reserve_random_rows(T) if T <= BLOCK else None
         if t0 is None:
             return None
         call = self._call

@@ -662,7 +662,7 @@ class Observer:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
         T = Y.shape[0]
         m = self.order + 1
-        out = self._output_array(out, (T,) + self._estimate.shape)
+        out = self._output_array(out, (T,) + self._estimate.shape, Y)
         if T == 0:
             return out
         # all or nothing, like update(): the kernel loop advances a copy, committed only if every sample passed
@@ -692,7 +692,7 @@ class Observer:
                     f"expected U with shape (T, ...), one row per sample of Y ({Y.shape[0]}), actual value: shape "
                     f"{U.shape}"
                 )
-        out = self._output_array(out, Y.shape + (self.order + 1,))
+        out = self._output_array(out, Y.shape + (self.order + 1,), Y)
         saved = (self._state.copy(), [a.copy() for a in kept], self._estimate, self.n_updates)
         try:
             for t in range(Y.shape[0]):
@@ -706,10 +706,16 @@ class Observer:
         return out
 
     @staticmethod
-    def _output_array(out, shape: tuple[int, ...]) -> np.ndarray:
-        """The ``out`` argument of :meth:`run` after checking it, or a new array of ``shape``."""
+    def _output_array(out, shape: tuple[int, ...], Y: np.ndarray) -> np.ndarray:
+        """The ``out`` argument of :meth:`run` after checking it, or a new array of ``shape``. An ``out`` that shares
+        memory with the samples ``Y`` is refused: the estimates would overwrite samples not yet read."""
         if out is None:
             return np.empty(shape)
+        if isinstance(out, np.ndarray) and np.shares_memory(out, Y):
+            raise ValueError(
+                "expected out not to share memory with the samples Y (the estimates would overwrite samples not yet "
+                "read), actual value: overlapping arrays"
+            )
         if not (
             isinstance(out, np.ndarray)
             and out.shape == shape

@@ -657,7 +657,7 @@ class DiscreteTimeHOSM(Observer):
             return super().run(Y, out=out)
         if Y.ndim == 0 or Y.shape[1:] != self._shape:
             raise ValueError(f"expected Y with shape (T, *{self._shape}), actual value: {Y.shape}")
-        result = self._output_array(out, (Y.shape[0],) + self._estimate.shape)
+        result = self._output_array(out, (Y.shape[0],) + self._estimate.shape, Y)
         saved = (self._state, self._estimate, self.n_updates)
         try:
             for t in range(Y.shape[0]):

@@ -214,9 +214,10 @@ class InputJumpFilter:
         if self._state is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
         u = checked_input(u)
-        if u is None:
+        if u is None:  # no input this sample: the next one cannot tell a jump (forgotten once y is taken)
+            out = super().update(y)
             self._u_prev[...] = np.nan
-            return super().update(y)
+            return out
         if u.shape != self._u_prev.shape:
             raise ValueError(f"expected u with shape {self._u_prev.shape}, actual value: {u.shape}")
         state, columns = self._state, self._jump_columns

@@ -520,6 +520,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     #: whether observation wrappers beneath are replayed on the sensed observation (:func:`observation_wrappers`)
     _replays_observation_wrappers = True
+    #: why step() needs a reset first (a copy says it is one)
+    _unreset = "the wrapper was never reset"
 
     @property
     def sensor(self) -> Sensor:
@@ -572,11 +574,25 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         state["_substep_hook"] = None  # holds closures over the live simulation; made again on first use
         state["_live"] = None
         state["_fused"] = None  # bound to this instance's arrays; chosen again at the next reset
+        if self._rng is not None:  # mid-episode: the state the copy's simulation must be in to go on
+            data = self.adapter.data
+            state["_simulation"] = (data.qpos.copy(), data.qvel.copy())
         return state
+
+    def __setstate__(self, state):
+        simulation = state.pop("_simulation", None)
+        self.__dict__.update(state)
+        data = self.adapter.data
+        if simulation is not None and not (
+            np.array_equal(simulation[0], data.qpos) and np.array_equal(simulation[1], data.qvel)
+        ):  # Gymnasium's MuJoCo envs copy by their constructor arguments: a fresh simulation, which the sensor's
+            # and the observer's state do not describe; going on would estimate a jump that never happened
+            self._rng = None
+            self._unreset = "a copy whose environment was rebuilt from its constructor (its simulation is new)"
 
     # ---- Gymnasium API --------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        check_seed(seed)
+        seed = check_seed(seed)
         clean, info = self.env.reset(seed=seed, options=options)
         if seed is not None:
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
@@ -612,7 +628,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         right after the physics step, and a small model's whole step is ~30 us.
         """
         if self._rng is None:
-            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+            raise RuntimeError(f"expected reset() before step(), actual value: {self._unreset}")
         check_action(action, self._action_shape)
         data = self.adapter.data
         live = self._live

@@ -36,14 +36,15 @@ def check_action(action, shape: tuple[int, ...]) -> None:
         raise ValueError(f"expected a finite action, actual value: {flat[bad[0]]!r} at entry {int(bad[0])}")
 
 
-def check_seed(seed) -> None:
-    """``reset(seed=...)`` takes None or an integer >= 0 (a typed error instead of Gymnasium's own ``Error``)."""
+def check_seed(seed) -> int | None:
+    """``reset(seed=...)``'s None or integer >= 0, as a Python int (Gymnasium refuses NumPy ones), or a typed error."""
     if seed is None:
-        return
+        return None
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise TypeError(f"expected seed to be None or an integer >= 0, actual value: {seed!r:.80}")
     if seed < 0:
         raise ValueError(f"expected seed to be None or an integer >= 0, actual value: {seed!r}")
+    return int(seed)
 
 
 class SensingInfo(dict):

@@ -177,7 +177,7 @@ class JointSensor(EstimatedVelocity):
         return smo
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        check_seed(seed)
+        seed = check_seed(seed)
         obs, info = self.env.reset(seed=seed, options=options)
         if seed is not None:  # the same stream as EstimatedVelocity's
             self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
