@@ -532,6 +532,20 @@ def calibration_from_velocities(
     of the first backward difference of it (episodes of two samples or more).
     """
     dt = check_positive("dt", dt)
+    if not isinstance(episodes, (list, tuple)):
+        raise TypeError(f"expected episodes to be a list of arrays (T_i, nv), actual value: {episodes!r:.80}")
+    episodes = [as_real_array("episodes", V) for V in episodes]
+    shapes = {V.shape[1:] for V in episodes}
+    if (
+        not episodes
+        or any(V.ndim != 2 for V in episodes)
+        or len(shapes) != 1
+        or not np.isfinite(np.concatenate(episodes)).all()
+    ):
+        raise ValueError(
+            "expected episodes to be finite arrays (T_i, nv) of the same nv, actual value: shapes "
+            f"{[V.shape for V in episodes][:5]}"
+        )
     bounds, typical = {}, {}
     starts = [V for V in episodes if len(V) >= 2]
     initial = (

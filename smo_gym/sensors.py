@@ -560,7 +560,8 @@ class Sensor:
             )
         raise ValueError(
             f"expected a finite measurement, actual value: {out[channel]!r} at {where}, produced by the sensor model "
-            f"{self!r}; a non-finite measurement is never passed on"
+            f"{self!r}; a non-finite measurement is never passed on (the sensor's stream has moved past the sample: "
+            "its random numbers and stage states, as for a sample taken)"
         )
 
     def _check_ready(self, y, name: str = "y") -> np.ndarray:

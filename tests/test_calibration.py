@@ -198,6 +198,21 @@ def test_signal_calibration_refuses_what_is_not_a_real_record(function):
         function(np.zeros((200, 0)))
 
 
+def test_calibration_from_velocities_refuses_what_are_not_episodes():
+    good = np.zeros((10, 2))
+    for bad, error in (
+        (np.float64(1.0), TypeError),  # not a list of episodes
+        (good, TypeError),  # one array: its rows would be taken for episodes
+        ([good, np.zeros((10, 3))], ValueError),  # different numbers of dofs
+        ([np.zeros(10)], ValueError),  # an episode without the dof axis
+        ([good, np.full((10, 2), np.nan)], ValueError),
+        ([good.astype(bool)], TypeError),
+        ([], ValueError),
+    ):
+        with pytest.raises(error, match="expected episodes"):
+            calibration.calibration_from_velocities(bad, DT, (2,), noise=0.0)
+
+
 def test_quantization_step_of_a_single_sample_is_not_known():
     np.testing.assert_array_equal(calibration.quantization_step(np.ones((1, 3))), np.zeros(3))
 

@@ -614,6 +614,14 @@ def test_an_overflowing_estimate_is_a_divergence():
 DERIVATIVE_CASES = [c for c in CASES if c.values[0] != "ilf-fixed"]
 
 
+def test_derivatives_of_booleans_are_refused_as_measurements_of_them_are():
+    obs = Levant(2, DT, 5.0)
+    with pytest.raises(TypeError, match="expected derivatives to be an array of real numbers"):
+        obs.reset(np.zeros(3), derivatives=np.ones((3, 1), dtype=bool))
+    with pytest.raises(TypeError, match="expected alpha"):
+        smo_gym.observers.ILFDifferentiator(DT, 20.0, alpha="not a number")  # the finite-time kind ignores it
+
+
 def test_derivative_cases_cover_the_registry():
     assert {p.values[0] for p in DERIVATIVE_CASES} == set(OBSERVERS) - {"ilf-fixed"}  # the class of ilf-finite
 

@@ -385,7 +385,7 @@ class Observer:
             return None
         try:
             d = np.asarray(derivatives)
-            if d.dtype.kind not in "biuf":  # complex, strings, objects
+            if d.dtype.kind not in "iuf":  # bools, complex, strings, objects
                 raise TypeError
             d = d.astype(np.float64, copy=False)
         except (TypeError, ValueError):

@@ -751,7 +751,8 @@ class ILFDifferentiator(Observer):
                 f"expected 0 < mu {'<=' if self.kind == 'finite' else '<'} 1 for the {self.kind}-time "
                 f"observer, actual value: {mu!r}"
             )
-        self.alpha = None if self.kind == "finite" else (2.0 if alpha is None else check_positive("alpha", alpha))
+        alpha = None if alpha is None else check_positive("alpha", alpha)  # checked even where the kind ignores it
+        self.alpha = None if self.kind == "finite" else (2.0 if alpha is None else alpha)
         if lipschitz is None and rate is None:
             raise ValueError("expected lipschitz > 0 or rate > 0, actual value: both None")
         for name, value in (("lipschitz", lipschitz), ("rate", rate)):
