@@ -55,7 +55,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from math import comb
+from math import comb, log
 
 import numpy as np
 
@@ -96,6 +96,15 @@ def _time_series(y, name: str = "y") -> np.ndarray:
         index = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
         raise ValueError(f"expected finite values in {name}, actual value: {arr[index]!r} at index {index}")
     return arr
+
+
+def _check_step(dt: float, T: int, r: int) -> None:
+    """The lag quotients divide by ``(s dt)^r`` for lags ``s`` from 1 to the record's length ``T``: refuse a ``dt``
+    for which that power leaves the float range (it would overflow, or divide by zero)."""
+    if not (r * log(dt) > -700.0 and r * log(T * dt) < 700.0):
+        raise ValueError(
+            f"expected dt for which (lag dt)^{r} is a float for every lag of the {T} samples, actual value: {dt!r}"
+        )
 
 
 def _lag_difference(y: np.ndarray, order: int, lag: int) -> np.ndarray:
@@ -276,6 +285,7 @@ def derivative_bound(
     T = y.shape[0]
     if r >= T:
         raise ValueError(f"expected more than derivative = {r} samples, actual value: {T}")
+    _check_step(dt, T, r)
     sigma = _noise_per_channel(noise, y)
     gain = 3.0 * np.sqrt(comb(2 * r, r))  # the noise part of D_s, about three of its standard deviations
 
@@ -359,6 +369,7 @@ def derivative_rms(y, dt: float, derivative: int, *, noise=None, floor: float = 
     T = y.shape[0]
     if r >= T:
         raise ValueError(f"expected more than derivative = {r} samples, actual value: {T}")
+    _check_step(dt, T, 2 * r)  # the mean square divides by (s dt)^(2r)
     sigma = _noise_per_channel(noise, y)
     noise_factor = sigma**2 * comb(2 * r, r)
 

@@ -497,6 +497,11 @@ class Sensor:
             An array of another type, layout, dtype or shape.
         """
         current = self.arrays
+        if not isinstance(arrays, tuple) or len(arrays) != len(SensorArrays._fields):
+            raise TypeError(
+                f"expected SensorArrays (a tuple of the {len(SensorArrays._fields)} arrays "
+                f"{', '.join(SensorArrays._fields)}), actual value: {arrays!r:.80}"
+            )
         arrays = SensorArrays(*arrays)
         for name, new, old in zip(SensorArrays._fields, arrays, current, strict=True):
             if not (

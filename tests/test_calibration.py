@@ -213,6 +213,25 @@ def test_calibration_from_velocities_refuses_what_are_not_episodes():
             calibration.calibration_from_velocities(bad, DT, (2,), noise=0.0)
 
 
+@pytest.mark.parametrize("dt", [1e300, 1e80, 1e-300])
+def test_a_step_whose_powers_leave_the_float_range_is_refused(dt):
+    """The lag quotients divide by ``(s dt)^r`` (``^2r`` for the mean square): an OverflowError, or a division by
+    zero with a warning, before; a typed error now, also through :func:`smo_gym.differentiate`."""
+    import warnings
+
+    import smo_gym
+
+    y = np.sin(np.arange(200) * 0.01)[:, None]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        calls = [lambda: calibration.derivative_rms(y, dt, 3), lambda: smo_gym.differentiate(y, dt, "kalman-ca")]
+        if dt != 1e80:  # (200 dt)^3 is a float, (200 dt)^6 is not
+            calls.append(lambda: calibration.derivative_bound(y, dt, 3))
+        for call in calls:
+            with pytest.raises(ValueError, match=r"expected dt for which \(lag dt\)\^"):
+                call()
+
+
 def test_quantization_step_of_a_single_sample_is_not_known():
     np.testing.assert_array_equal(calibration.quantization_step(np.ones((1, 3))), np.zeros(3))
 

@@ -228,6 +228,9 @@ def test_use_arrays_rejects_what_does_not_fit():
         sensor.use_arrays(arrays._replace(ring_pos=np.zeros(arrays.ring_pos.shape)))
     with pytest.raises(TypeError, match=r"params as a writeable"):
         sensor.use_arrays(arrays._replace(params=np.zeros(arrays.params.shape[::-1]).T))
+    for bad in ((1, 2, 3), None, tuple(arrays)[:-1]):
+        with pytest.raises(TypeError, match=r"expected SensorArrays \(a tuple of the 6 arrays"):
+            sensor.use_arrays(bad)
 
 
 def test_tangent_coordinates_in_given_arrays():

@@ -217,6 +217,8 @@ def test_nan_names_the_channel_and_state_is_kept():
         (dict(dt=1e-3, noise=0.1), ValueError),
         (dict(dt=1e-3, supervise="yes"), TypeError),
         (dict(dt=1e-3, kappa="1"), TypeError),
+        (dict(dt=1e-3, rho_d=1e300), ValueError),  # the LMI squares it: an OverflowError before
+        (dict(dt=1e-3, rho_v=1e300), ValueError),
     ],
 )
 def test_bad_parameters_raise_typed_errors(kwargs, exc):

@@ -56,7 +56,14 @@ import math
 import numpy as np
 from numba import njit
 
-from .._validation import as_real_array, check_bool, check_int_in_range, check_keywords, check_positive
+from .._validation import (
+    as_real_array,
+    check_bool,
+    check_int_in_range,
+    check_keywords,
+    check_positive,
+    check_real_in_range,
+)
 from . import _kernels
 from .base import Observer
 from .registry import register_observer
@@ -392,8 +399,9 @@ class SwitchedGain(Observer):
         super().__init__(dt, order, discretization, wrap)
         n = order + 1
         self.kappa = check_positive("kappa", kappa)
-        self.rho_d = check_positive("rho_d", rho_d)
-        self.rho_v = check_positive("rho_v", rho_v)
+        # weights of the LMI's disturbance and noise rows, which square them: their squares must be floats
+        self.rho_d = check_real_in_range("rho_d", rho_d, 0.0, 1e150, low_open=True)
+        self.rho_v = check_real_in_range("rho_v", rho_v, 0.0, 1e150, low_open=True)
         self.q = check_positive("q", q)
         if self.q <= 1.0:
             raise ValueError(f"expected q > 1, actual value: {q!r}")
