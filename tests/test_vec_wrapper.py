@@ -146,13 +146,64 @@ def test_pickles_without_venv():
     vec.reset()
     clone = pickle.loads(pickle.dumps(vec))
     assert clone.venv is None
+    for call in (clone.reset, lambda: clone.step(np.zeros((2, 1))), lambda: clone.seed(0)):
+        with pytest.raises(RuntimeError, match="attach one with set_venv"):
+            call()
     with pytest.raises(ValueError, match="expected a venv with observation shape"):
         clone.set_venv(DummyVecEnv([lambda: gym.make("Hopper-v5")]))
-    clone.venv = None
+    with pytest.raises(TypeError, match="expected a stable_baselines3 VecEnv"):
+        clone.set_venv(gym.make(ENV))
+    other = dict(sensor="ideal", observer="finite-difference")
+    with pytest.raises(ValueError, match="expected the sub-environments' JointSensor"):
+        clone.set_venv(DummyVecEnv([lambda: JointSensor(gym.make(ENV), **other) for _ in range(2)]))
+    assert clone.venv is None  # refused: still without a venv, and a good one is taken
     clone.set_venv(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]))
     assert clone.reset().shape == (2, 9)
     with pytest.raises(ValueError, match="without a venv"):
         clone.set_venv(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]))
+
+
+@pytest.mark.parametrize("api", ["sb3", "gymnasium"])
+def test_a_refused_batch_steps_and_resets_no_environment(api):
+    """Actions and seeds are checked for the whole batch before any environment is stepped or reset: a refused
+    last row used to leave the rows before it stepped (an episode could even end and restart unseen)."""
+    if api == "sb3":
+        vec, twin = (VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(N)])) for _ in range(2))
+        for v in (vec, twin):
+            v.seed(0)
+            v.reset()
+        step = vec.step
+    else:
+        make = lambda: gym.make_vec(ENV, num_envs=N, vectorization_mode="sync")
+        vec, twin = VectorEstimatedVelocity(make()), VectorEstimatedVelocity(make())
+        for v in (vec, twin):
+            v.reset(seed=0)
+        step = vec.step
+    qpos = [s.adapter.data.qpos.copy() for s in vec._local]
+    for bad, error in (
+        (np.array([[0.1], [0.1], [np.nan]]), "at entry \\(2, 0\\)"),
+        (np.zeros((N - 1, 1)), "shape"),
+        (np.zeros((N + 1, 1)), "shape"),
+        (np.zeros(N), "shape"),
+    ):
+        with pytest.raises(ValueError, match=error):
+            step(bad)
+        for s, q in zip(vec._local, qpos, strict=True):
+            np.testing.assert_array_equal(s.adapter.data.qpos, q)
+    if api == "gymnasium":
+        for seed, error in (([0, 1], ValueError), ([0, 1, -1], ValueError), (True, TypeError), (2.5, TypeError)):
+            with pytest.raises(error, match="seed"):
+                vec.reset(seed=seed)
+        with pytest.raises(TypeError, match="expected options to be None or a dict"):
+            vec.reset(options="x")
+        assert vec.reset(seed=np.int64(0))[0].shape == (N, 9)
+        twin.reset(seed=0)
+    else:
+        for seed in (-1, 2.5):
+            with pytest.raises((TypeError, ValueError), match="seed"):
+                vec.seed(seed)
+    action = np.full((N, 1), 0.2)
+    np.testing.assert_array_equal(step(action)[0], twin.step(action)[0])
 
 
 def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():
@@ -303,6 +354,11 @@ def test_gymnasium_vector_wrapper_matches_per_env(mode):
             if done.any():
                 _assert_same_smo(i1["final_info"], i2["final_info"])
         if mode == "Disabled" and done.any():
+            qpos = [s.adapter.data.qpos.copy() for s in vec._local]
+            with pytest.raises(RuntimeError, match="reset_mask"):  # Gymnasium stepped the others, then asserted
+                vec.step(a)
+            for s, q in zip(vec._local, qpos, strict=True):
+                np.testing.assert_array_equal(s.adapter.data.qpos, q)
             o1, _ = ref.reset(options={"reset_mask": done.copy()})
             o2, _ = vec.reset(options={"reset_mask": done.copy()})
             np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)

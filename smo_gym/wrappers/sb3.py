@@ -13,13 +13,13 @@ import gymnasium as gym
 import numpy as np
 
 from .._extras import require
-from .sensing import SensingInfo
+from .sensing import SensingInfo, check_seed
 from .vec import _Sensing, attach_sensors, check_vector_rate, sensing_config
 
 __all__ = ["VecEstimatedVelocity"]
 
 _vec_env = require("stable_baselines3.common.vec_env", "rl")
-DummyVecEnv, VecEnvWrapper = _vec_env.DummyVecEnv, _vec_env.VecEnvWrapper
+DummyVecEnv, VecEnv, VecEnvWrapper = _vec_env.DummyVecEnv, _vec_env.VecEnv, _vec_env.VecEnvWrapper
 
 
 class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
@@ -79,6 +79,7 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         return self.venv.unwrapped.reset_infos
 
     def reset(self):
+        self._require_venv()
         self.venv.reset()
         positions = None
         if self._local is not None:
@@ -91,8 +92,20 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         obs, _ = self._observe_all(est, positions)
         return obs
 
+    def _require_venv(self):
+        if self.venv is None:
+            raise RuntimeError("expected a venv, actual value: none (unpickled or loaded: attach one with set_venv)")
+
     def step_async(self, actions: np.ndarray) -> None:
+        self._require_venv()
+        self._check_batch(actions, self.venv.action_space.shape)
         self.venv.step_async(actions)
+
+    def seed(self, seed: int | None = None):
+        """The environments' seeds at the next reset, ``seed + i`` (SB3's convention), checked now: a bad one would
+        make every later reset fail."""
+        self._require_venv()
+        return self.venv.seed(check_seed(seed))
 
     def step_wait(self):
         if self.observer.shape is None:
@@ -155,17 +168,21 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         """Attach a vector env after unpickling/loading (its observation space must match); then ``reset()``."""
         if self.venv is not None:
             raise ValueError("expected a wrapper without a venv (unpickled or loaded), actual value: it has one")
+        if not isinstance(venv, VecEnv):
+            raise TypeError(f"expected a stable_baselines3 VecEnv, actual value: {venv!r:.80}")
         if venv.observation_space.shape != self.observation_space.shape:
             raise ValueError(
                 f"expected a venv with observation shape {self.observation_space.shape}, actual value: "
                 f"{venv.observation_space.shape}"
             )
-        self.venv = venv
-        self.num_envs = venv.num_envs
-        self.class_attributes = dict(inspect.getmembers(self.__class__))
-        self.render_mode = venv.render_mode
-        self._requested = self.config
-        self._attach(venv)
+        try:
+            self.venv, self.num_envs, self.render_mode = venv, venv.num_envs, venv.render_mode
+            self.class_attributes = dict(inspect.getmembers(self.__class__))
+            self._requested = self.config
+            self._attach(venv)
+        except BaseException:  # refused (another sensing, say): without a venv, as before
+            self.venv = None
+            raise
 
     def save(self, path) -> None:
         """Pickle the wrapper (sensing options and observer, no venv) to ``path``."""

@@ -32,8 +32,9 @@ def check_action(action, shape: tuple[int, ...]) -> None:
         raise ValueError(f"expected an action with shape {shape}, actual value: shape {arr.shape}")
     flat = arr.reshape(-1)
     bad = np.flatnonzero(~np.isfinite(flat.astype(np.float64)))
-    if bad.size:
-        raise ValueError(f"expected a finite action, actual value: {flat[bad[0]]!r} at entry {int(bad[0])}")
+    if bad.size:  # a vector env's batch: (environment, entry)
+        at = tuple(int(i) for i in np.unravel_index(bad[0], shape)) if len(shape) > 1 else int(bad[0])
+        raise ValueError(f"expected a finite action, actual value: {flat[bad[0]]!r} at entry {at}")
 
 
 def check_seed(seed) -> int | None:

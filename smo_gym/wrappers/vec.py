@@ -316,6 +316,11 @@ class _Sensing:
         state["_batch"] = state["_together"] = None  # share the sensors' arrays (pickled with them): made again
         return state
 
+    def _check_batch(self, actions, action_shape: tuple[int, ...]) -> None:
+        """Every environment's action, checked before any environment steps (a refused row would otherwise leave
+        the ones before it stepped, unknown to the observer)."""
+        check_action(actions, (self.n_envs, *action_shape))
+
     def _call_envs(self, name: str, *args) -> list:  # pragma: no cover - provided by the vector wrappers
         """``getattr(env_i, name)(*args)`` for every sub-environment, in order."""
         raise NotImplementedError
@@ -602,6 +607,11 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
         return rows
 
     def reset(self, *, seed=None, options=None):
+        if options is not None and not isinstance(options, dict):
+            raise TypeError(f"expected options to be None or a dict, actual value: {options!r:.80}")
+        if isinstance(seed, (list, tuple)) and len(seed) != self.num_envs:  # all checked before any is reset
+            raise ValueError(f"expected {self.num_envs} seeds, one per environment, actual value: {seed!r:.80}")
+        seed = [check_seed(s) for s in seed] if isinstance(seed, (list, tuple)) else check_seed(seed)
         mask = None if options is None else options.get("reset_mask")
         _, infos = self.env.reset(seed=seed, options=options)
         Z = self._measurements(infos)
@@ -641,6 +651,12 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
     def step(self, actions):
         if self.observer.shape is None:
             raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+        self._check_batch(actions, self.env.single_action_space.shape)
+        if self.autoreset_mode is gym.vector.AutoresetMode.DISABLED and self._autoreset.any():  # else some would step
+            raise RuntimeError(
+                "expected reset(options={'reset_mask': ...}) of the finished environments before step() (autoreset "
+                f"mode disabled), actual value: environments {np.flatnonzero(self._autoreset).tolist()} finished"
+            )
         local = self._local
         if local is not None:
             batch = self._local_batch()
@@ -707,6 +723,7 @@ class VectorEstimatedVelocity(_Sensing, gym.vector.VectorWrapper):
             return self.observer.estimate, terminal, done
         else:  # disabled: finished environments wait for reset(options={"reset_mask": ...})
             est = self._update(Z)
+            self._autoreset = self._autoreset | done
         return est, None, None
 
     def _stacked_info(self, block: np.ndarray, clean: np.ndarray, velocity: np.ndarray, mask=None) -> dict:
