@@ -184,3 +184,27 @@ def test_direct_construction_has_its_own_calibration_key():
     assert a.adapter.environment_key != b.adapter.environment_key
     assert "cartpole" in a.adapter.environment_key and "acrobot" in b.adapter.environment_key
     assert not np.array_equal(a.calibration.bound(2), b.calibration.bound(2))
+
+
+def test_a_step_after_the_episode_ended_asks_for_a_reset():
+    """dm_env starts a new episode when stepped after its last time step, which the observer would take for a jump
+    of the joints (estimates of tens of rad/s where the cart is at rest): the wrapper asks for ``reset()`` instead.
+    Gymnasium's MuJoCo environments simulate on after an episode's end, and so does the wrapper there."""
+    env = EstimatedVelocity(gym.make("dm_control/cartpole-swingup-v0"), rate="env")
+    env.reset(seed=0)
+    steps, ended = 0, False
+    while not ended:  # the task's own time limit: 1000 steps
+        *_, terminated, truncated, _ = env.step(np.zeros(1))
+        steps, ended = steps + 1, terminated or truncated
+    assert steps == 1000
+    with pytest.raises(RuntimeError, match="expected reset\\(\\) after the episode ended"):
+        env.step(np.zeros(1))
+    env.reset(seed=1)
+    assert np.isfinite(env.step(np.zeros(1))[0]["velocity"]).all()
+    gym_env = EstimatedVelocity(gym.make("InvertedPendulum-v5"), rate="env")
+    gym_env.reset(seed=0)
+    ended = False
+    for _ in range(200):
+        *_, terminated, truncated, _ = gym_env.step(np.ones(1))
+        ended |= terminated or truncated
+    assert ended  # and every step after the end went on

@@ -61,6 +61,8 @@ class MujocoAdapter(Protocol):
     :meth:`observation` always returns a flat float array, which the wrapper checks and then unflattens."""
     checks_observation: bool
     """:meth:`observation` raises ``ValueError`` on a non-finite result itself (the wrapper does not check again)."""
+    restarts_when_stepped_after_end: bool
+    """A step after the episode's end starts a new one (dm_env; Gymnasium's MuJoCo envs simulate on): reset first."""
 
     @property
     def data(self) -> mujoco.MjData:
@@ -123,6 +125,8 @@ class GymnasiumMujocoAdapter:
 
     #: Gymnasium observations are flat arrays already
     unflatten = None
+    #: Gymnasium's MuJoCo envs simulate on when stepped after an episode's end
+    restarts_when_stepped_after_end = False
 
     def __init__(self, env, contact_forces: str = "sensor"):
         missing = _missing_mujoco_parts(env)

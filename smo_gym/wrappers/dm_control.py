@@ -155,6 +155,9 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         A composer environment (observations through observables, not ``task.get_observation``).
     """
 
+    #: dm_env starts a new episode when stepped after the last time step
+    restarts_when_stepped_after_end = True
+
     def __init__(self, env, contact_forces: str = "sensor"):
         control = require("dm_control.rl.control", "dm_control")
 

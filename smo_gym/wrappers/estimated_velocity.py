@@ -522,6 +522,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     _replays_observation_wrappers = True
     #: why step() needs a reset first (a copy says it is one)
     _unreset = "the wrapper was never reset"
+    #: whether the last step ended the episode
+    _ended = False
 
     @property
     def sensor(self) -> Sensor:
@@ -605,6 +607,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self._model_rng = np.random.default_rng()
             self.observer.dynamics.set_mass_scale(self._model_rng.uniform(*self.mass_scale_range))
         self.measurement.reset(self.adapter.data.qpos, self._rng)
+        self._ended = False
         self.estimator.reset(self.measurement.z_measured)
         self._substep_hook = None  # a reset may rebuild the simulation's objects (dm_control's physics)
         data = self.adapter.data
@@ -629,6 +632,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """
         if self._rng is None:
             raise RuntimeError(f"expected reset() before step(), actual value: {self._unreset}")
+        if self._ended and self.adapter.restarts_when_stepped_after_end:
+            raise RuntimeError("expected reset() after the episode ended, actual value: step() (the environment would "
+                               "start a new episode the observer takes for a jump)")  # fmt: skip
         check_action(action, self._action_shape)
         data = self.adapter.data
         live = self._live
@@ -653,6 +659,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             clean, reward, terminated, truncated, info = self.env.step(action)
             samples = live[1]
+        self._ended = terminated or truncated
         fused = self._fused
         if fused is not None:
             block = fused.sample(samples, live[2])
