@@ -16,6 +16,8 @@ import os
 import sys
 from pathlib import Path
 
+from gymnasium.error import Error as GymnasiumError
+
 from ._extras import MissingExtraError, require
 
 __all__ = ["DEFAULT_OBSERVERS", "HelpFormatter", "build_parser", "check_env_id", "check_output_file", "main"]
@@ -231,8 +233,10 @@ def main(argv: list[str] | None = None) -> int:
             from .experiments.control import cli as control
 
             return control(args)
-    except (ValueError, TypeError, MissingExtraError) as exc:
-        message = " ".join(str(exc).split())  # one line
+    except (ValueError, TypeError, MissingExtraError, OSError, ArithmeticError, GymnasiumError) as exc:
+        # bad arguments, files that cannot be written or read, an expression that divides by zero, an id or seed
+        # Gymnasium refuses: one error line and exit status 2, as argparse's own errors, never a traceback
+        message = " ".join(str(exc).split()) or type(exc).__name__  # one line
         print(f"smo-gym {args.command}: error: {message}", file=sys.stderr)
         return 2
     return 1  # pragma: no cover - argparse enforces the subcommand

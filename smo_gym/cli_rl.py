@@ -151,6 +151,7 @@ def train(args: argparse.Namespace) -> int:
 
     # every argument is checked before anything is made
     check_env_id(args.env)
+    _check_seed(args.seed)
     _check_specs(args.sensor, args.observer)
     zoo = rl.load_hyperparams(args.hyperparams, args.env, args.algo) if args.hyperparams else {}
     steps = args.steps if args.steps is not None else zoo.get("n_timesteps", DEFAULT_STEPS)
@@ -206,6 +207,7 @@ def evaluate(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"expected --episodes >= 1, actual value: {args.episodes}")
+    _check_seed(args.seed)
     rl.run_files(args.model)
     if args.env is not None:
         check_env_id(args.env)
@@ -228,6 +230,11 @@ def evaluate(args: argparse.Namespace) -> int:
             f"{res['std']:.1f} over {len(res['returns'])} episodes"
         )
     return 0
+
+
+def _check_seed(seed: int) -> None:
+    if seed < 0:
+        raise ValueError(f"expected --seed >= 0, actual value: {seed}")
 
 
 def run(args: argparse.Namespace) -> int:

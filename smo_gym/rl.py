@@ -865,6 +865,11 @@ def load_run(path: str | os.PathLike):
     (:func:`run_files`)."""
     files = run_files(path)
     run = json.loads(files["run"].read_text()) if files["run"] else {}
+    if not isinstance(run, dict) or not all(isinstance(run.get(key, ""), str) for key in ("env", "algo", "sensing")):
+        raise ValueError(
+            f"expected run.json to hold an object with the run's env, algo and sensing names, actual value: "
+            f"{json.dumps(run)[:120]} in {str(files['run'])!r}"
+        )
     return _algo_class(run.get("algo", "PPO")).load(files["model"], device="cpu"), run
 
 
@@ -905,13 +910,14 @@ def evaluate(
         raise ValueError(f"expected episodes >= 1, actual value: {episodes}")
     files = run_files(model)
     agent, run = load_run(model)
-    if not run and (env_id is None or sensing is None):
-        raise ValueError(
-            f"expected the run.json of {str(files['model'])!r} beside it or in the folder above (it "
-            "names the environment and the sensing), actual value: none; give env_id and sensing"
-        )
     env_id = env_id or run.get("env")
     sensing = sensing or run.get("sensing")
+    if env_id is None or sensing is None:
+        raise ValueError(
+            f"expected the run.json of {str(files['model'])!r} beside it or in the folder above, naming the "
+            f"environment and the sensing, actual value: {'none' if not run else 'a run.json without them'}; "
+            "give env_id and sensing"
+        )
     _check_sensing(sensing)
     if run.get("normalize") and files["vecnormalize"] is None:
         raise ValueError(

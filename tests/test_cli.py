@@ -120,6 +120,14 @@ def test_bad_input_exit_codes(capsys):
         (["train", "--env", "Hopper-v5", "--out", "{file}/run"], "is a file"),
         (["train", "--env", "Hopper-v5", "--observer", "levnat"], "did you mean 'levant'?"),
         (["evaluate", "{tmp}/missing"], "expected a run folder, model.zip or checkpoint"),
+        (["train", "--env", "Hopper-v5", "--seed", "-1"], "expected --seed >= 0"),
+        (["evaluate", "{tmp}/missing", "--seed", "-1"], "expected --seed >= 0"),
+        (["control", "--env", "NoSuch-v0"], "expected a registered Gymnasium environment id"),
+        (["control", "--frame-skip", "0"], "expected --frame-skip >= 1"),
+        (["control", "--seeds", "0"], "expected --seeds >= 1"),
+        (["control", "--seconds", "0"], "expected --seconds > 0"),
+        (["control", "--controller", ",,"], "expected at least one controller"),
+        (["control", "--out", "{file}"], "is a file"),
     ],
 )
 def test_bad_arguments_are_refused_before_any_work_with_one_line(argv, message, tmp_path, capsys, monkeypatch):
@@ -130,8 +138,11 @@ def test_bad_arguments_are_refused_before_any_work_with_one_line(argv, message, 
     def no_work(*args, **kwargs):
         raise AssertionError("work started before the arguments were checked")
 
+    from smo_gym.experiments import closed_loop
+
     monkeypatch.setattr(lib, "record_rollout", no_work)
     monkeypatch.setattr(rl, "make_vec", no_work)
+    monkeypatch.setattr(closed_loop, "compare_controllers", no_work)
     (tmp_path / "file").write_text("not a folder")
     argv = [a.format(file=tmp_path / "file", tmp=tmp_path) for a in argv]
     assert cli.main(argv) == 2

@@ -199,6 +199,11 @@ def test_evaluating_a_checkpoint_uses_the_runs_sensing_and_that_checkpoints_stat
     norm.unlink()
     with pytest.raises(ValueError, match="normalization statistics"):
         rl.evaluate(ckpt, episodes=1)
+    # a run.json that is not the run's object, or one without the names, is refused with what was expected
+    for broken in ("[1, 2]", '{"algo": "PPO"}', '{"env": 3}'):
+        (out / "run.json").write_text(broken)
+        with pytest.raises(ValueError, match=r"run.json"):
+            rl.evaluate(out / "model.zip", episodes=1)
     # a model without a run.json needs its environment and sensing
     (out / "run.json").unlink()
     with pytest.raises(ValueError, match=r"run.json"):

@@ -717,9 +717,22 @@ def cli(args) -> int:
     if args.reproduce:
         run_all(args.out, quick=args.quick, plots=not args.no_plots)
         return 0
+    from ..cli import check_env_id
     from .closed_loop import compare_controllers, plot_closed_loop, summarize
 
+    # every argument checked before the runs
+    check_env_id(args.env)
     names = [c.strip() for c in args.controller.split(",") if c.strip()]
+    if not names:
+        raise ValueError(f"expected at least one controller in --controller, actual value: {args.controller!r}")
+    if args.seeds < 1:
+        raise ValueError(f"expected --seeds >= 1, actual value: {args.seeds}")
+    if args.frame_skip is not None and args.frame_skip < 1:
+        raise ValueError(f"expected --frame-skip >= 1, actual value: {args.frame_skip}")
+    if not args.seconds > 0:
+        raise ValueError(f"expected --seconds > 0, actual value: {args.seconds}")
+    if not args.no_plots and Path(args.out).exists() and not Path(args.out).is_dir():
+        raise ValueError(f"expected --out to be a folder for the plots, actual value: {args.out!r} is a file")
     disturbance = None if args.disturbance.strip().lower() == "none" else args.disturbance
     env_kwargs = {} if args.frame_skip is None else {"frame_skip": args.frame_skip}
     design_kwargs = {}

@@ -35,6 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from .._validation import check_int_in_range
 from . import _kernels
 
 __all__ = [
@@ -120,11 +121,16 @@ class Family:
     def order(self, kwargs: dict | None = None) -> int:
         """The number of derivatives estimated with these constructor arguments (``order``, else its default, or
         what :attr:`order_from` says)."""
+        if kwargs is not None and not isinstance(kwargs, dict):
+            raise TypeError(f"expected observer options as a dict, actual value: {kwargs!r:.80}")
         if self.order_from is not None:
             defaults = {k: v for k, v in self.parameters.items() if v is not inspect.Parameter.empty}
-            return int(self.order_from({**defaults, **(kwargs or {})}))
-        default = self.parameters.get("order", 1)
-        return int((kwargs or {}).get("order", 1 if default is inspect.Parameter.empty else default))
+            order = self.order_from({**defaults, **(kwargs or {})})
+        else:
+            default = self.parameters.get("order", 1)
+            order = (kwargs or {}).get("order", 1 if default is inspect.Parameter.empty else default)
+        # the constructor checks the order's range; here only that it is one (its type, before int() of it)
+        return check_int_in_range("order", order, 0, 2**31)
 
     def bound_order(self, kwargs: dict | None = None) -> int:
         """The order of the derivative the gains bound: :attr:`bound`, or ``order + 1``."""
