@@ -17,11 +17,12 @@ def check_action(action, shape: tuple[int, ...]) -> None:
     MuJoCo would otherwise zero a NaN or infinite control with a warning printed to stdout, and cast a complex
     one to its real part, silently. One compiled call for the float32 and float64 actions of RL libraries.
     """
-    if type(action) is np.ndarray and action.shape == shape and action.dtype in _FAST_DTYPES and action.ndim == 1:
-        bad = first_nonfinite_entry(action.dtype)(action)
-        if bad == -1:
-            return
-        raise ValueError(f"expected a finite action, actual value: {action[bad]!r} at entry {bad}")
+    if type(action) is np.ndarray and action.shape == shape and action.dtype in _FAST_DTYPES:
+        if action.ndim == 1:
+            if first_nonfinite_entry(action.dtype)(action) == -1:
+                return
+        elif action.flags.c_contiguous and first_nonfinite_entry(action.dtype)(action.reshape(-1)) == -1:
+            return  # a vector env's batch; a refused one is reported below, with its (environment, entry)
     try:
         arr = np.asarray(action)
     except (TypeError, ValueError):
