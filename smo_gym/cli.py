@@ -185,6 +185,8 @@ def compare(args: argparse.Namespace) -> int:
     from .specs import make_sensor
 
     # every argument is checked before the rollout
+    if args.seed < 0:
+        raise ValueError(f"expected --seed >= 0, actual value: {args.seed}")
     if args.steps < 1:
         raise ValueError(f"expected --steps >= 1, actual value: {args.steps}")
     if not args.plot_seconds > 0:

@@ -864,7 +864,10 @@ def load_run(path: str | os.PathLike):
     """``(model, run)``: the SB3 model and ``run.json`` (``{}`` if none) of a run folder, model or checkpoint
     (:func:`run_files`)."""
     files = run_files(path)
-    run = json.loads(files["run"].read_text()) if files["run"] else {}
+    try:
+        run = json.loads(files["run"].read_text()) if files["run"] else {}
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"expected run.json to be JSON, actual value: {str(files['run'])!r} is not ({exc})") from exc
     if not isinstance(run, dict) or not all(isinstance(run.get(key, ""), str) for key in ("env", "algo", "sensing")):
         raise ValueError(
             f"expected run.json to hold an object with the run's env, algo and sensing names, actual value: "
@@ -945,7 +948,14 @@ def evaluate(
             f"{venv.observation_space.shape} under sensing {sensing!r}"
         )
     if files["vecnormalize"] is not None:
-        venv = VecNormalize.load(str(files["vecnormalize"]), venv)
+        try:
+            venv = VecNormalize.load(str(files["vecnormalize"]), venv)
+        except Exception as exc:  # a truncated or foreign file: pickle's own messages name neither
+            venv.close()
+            raise ValueError(
+                f"expected the normalization statistics SB3's VecNormalize.save wrote, actual value: "
+                f"{str(files['vecnormalize'])!r} cannot be read ({type(exc).__name__}: {exc})"
+            ) from exc
         venv.training = False
         venv.norm_reward = False
     evaluate_policy = require("stable_baselines3.common.evaluation", "rl").evaluate_policy

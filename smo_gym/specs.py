@@ -140,7 +140,9 @@ def needs_model(observer, options: dict | None = None) -> bool:
     input at every sample, so it runs in :class:`~smo_gym.wrappers.EstimatedVelocity` only."""
     if not isinstance(observer, str):
         return False
-    return observer in MODEL_BASED_OBSERVERS or (observer == "auto" and bool((options or {}).get("model")))
+    return observer in MODEL_BASED_OBSERVERS or (
+        observer == "auto" and isinstance(options, dict) and bool(options.get("model"))
+    )
 
 
 def observer_options(name: str) -> list[str]:

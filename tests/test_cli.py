@@ -120,6 +120,7 @@ def test_bad_input_exit_codes(capsys):
         (["train", "--env", "Hopper-v5", "--out", "{file}/run"], "is a file"),
         (["train", "--env", "Hopper-v5", "--observer", "levnat"], "did you mean 'levant'?"),
         (["evaluate", "{tmp}/missing"], "expected a run folder, model.zip or checkpoint"),
+        (["compare", "--seed", "-1"], "expected --seed >= 0, actual value: -1"),
         (["train", "--env", "Hopper-v5", "--seed", "-1"], "expected --seed >= 0"),
         (["evaluate", "{tmp}/missing", "--seed", "-1"], "expected --seed >= 0"),
         (["control", "--env", "NoSuch-v0"], "expected a registered Gymnasium environment id"),

@@ -195,12 +195,18 @@ def test_evaluating_a_checkpoint_uses_the_runs_sensing_and_that_checkpoints_stat
     assert main(["evaluate", str(ckpt), "--episodes", "1", "--sensing", "true"]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert f"{IP} under true: return" in line and "sensor" not in line
+    # statistics that cannot be read say which file, not pickle's own message
+    saved = norm.read_bytes()
+    norm.write_bytes(b"garbage\n")
+    with pytest.raises(ValueError, match="normalization statistics SB3's VecNormalize"):
+        rl.evaluate(ckpt, episodes=1)
+    norm.write_bytes(saved)
     # a checkpoint whose statistics are gone is refused, not played unnormalized
     norm.unlink()
     with pytest.raises(ValueError, match="normalization statistics"):
         rl.evaluate(ckpt, episodes=1)
     # a run.json that is not the run's object, or one without the names, is refused with what was expected
-    for broken in ("[1, 2]", '{"algo": "PPO"}', '{"env": 3}'):
+    for broken in ("[1, 2]", '{"algo": "PPO"}', '{"env": 3}', "{not json"):
         (out / "run.json").write_text(broken)
         with pytest.raises(ValueError, match=r"run.json"):
             rl.evaluate(out / "model.zip", episodes=1)

@@ -206,6 +206,19 @@ def test_a_refused_batch_steps_and_resets_no_environment(api):
     np.testing.assert_array_equal(step(action)[0], twin.step(action)[0])
 
 
+def test_joint_sensor_observes_only_a_real_velocity_of_its_dofs():
+    """``observe`` broadcast a one-entry velocity to every dof and dropped the imaginary part of a complex one."""
+    with pytest.raises(TypeError, match="expected observer_kwargs to be a dict"):
+        JointSensor(gym.make("InvertedPendulum-v5"), observer_kwargs="x")
+    sensor = JointSensor(gym.make("InvertedPendulum-v5"))
+    sensor.reset(seed=0)
+    for bad, error in ((np.zeros(1), ValueError), (np.zeros(3), ValueError), (np.zeros(2, complex), TypeError),
+                       (None, TypeError)):  # fmt: skip
+        with pytest.raises(error, match="expected q"):
+            sensor.observe(bad)
+    assert np.isfinite(sensor.observe(np.zeros(2))).all()
+
+
 def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv

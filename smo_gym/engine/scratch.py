@@ -46,6 +46,7 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
+from .._validation import as_real_array
 from .fused import (
     ENTRY_COS,
     ENTRY_IDENTITY,
@@ -334,6 +335,12 @@ class ScratchObservation:
 
     def observation(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """The environment's observation at ``(qpos, qvel)``, evaluated on scratch data (see module docstring)."""
+        qpos, qvel = as_real_array("qpos", qpos), as_real_array("qvel", qvel)
+        if qpos.shape != self._scratch_qpos.shape or qvel.shape != self._scratch_qvel.shape:
+            raise ValueError(
+                f"expected qpos of shape {self._scratch_qpos.shape} and qvel of shape {self._scratch_qvel.shape}, "
+                f"actual value: shapes {qpos.shape} and {qvel.shape}"
+            )
         self._scratch_qpos[:] = qpos
         self._scratch_qvel[:] = qvel
         return self.observe_scratch()
