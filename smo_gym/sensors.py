@@ -468,7 +468,9 @@ class Sensor:
         """The stream's arrays (not copies), for a compiled caller that runs the chain in place.
 
         A reset may replace them with new arrays: read them again after each. The caller reserves the random
-        rows it uses with :meth:`reserve_random_rows`.
+        rows it uses with :meth:`reserve_random_rows`. The compiled chain trusts these arrays as the sensor wrote
+        them: a caller writes only what a measurement writes (a delay ring's position out of range, say, would make
+        it read outside the ring).
         """
         arrays = self._arrays
         if arrays is None or arrays.state is not self._state or arrays.rand is not self._rand:

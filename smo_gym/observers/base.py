@@ -768,7 +768,9 @@ class Observer:
         """The state and parameter arrays (not copies) the kernel reads, for a compiled caller that advances the
         observer in place (the wrapper's one-call path); report what it did with :meth:`advanced`.
 
-        ``update`` and ``run`` replace the state array: read the arrays again after either.
+        ``update`` and ``run`` replace the state array: read the arrays again after either. The compiled kernels
+        trust these arrays (layout, indices, gains) as the observer wrote them: a caller writes only what a step
+        writes; anything else (a negative gain, an index out of range) can make them read outside the arrays.
         """
         arrays = self._arrays
         if arrays is None or arrays.state is not self._state or arrays.params is not self._params:
