@@ -131,7 +131,7 @@ def test_linearize_mujoco_pendulum_matches_the_analytic_model():
 # ---------------------------------------------------------------------------------------------------------------
 # cascaded HOSM observer: identification accuracy
 # ---------------------------------------------------------------------------------------------------------------
-def _identification_errors(plant, alpha, dt, lipschitz, noise_std=0.0):
+def _identification_errors(plant, alpha, dt, lipschitz, noise_bound=0.0):
     obs = c.CascadedHOSMObserver(plant, dt, lipschitz, alpha=alpha)
     res = c.simulate(
         plant,
@@ -139,7 +139,7 @@ def _identification_errors(plant, alpha, dt, lipschitz, noise_std=0.0):
         t_final=3.5,
         w=c.furuta_disturbance,
         x0=[0.0, 0.05, 0.0, 0.0],
-        noise_std=noise_std,
+        noise_bound=noise_bound,
     )
     sel = res.after(2.0)
     return np.abs(res.w_hat - res.w)[sel].max(), np.abs(res.x_hat - res.x)[sel].max(), obs
@@ -160,12 +160,16 @@ def test_identification_converges_with_the_theoretical_order(furuta, alpha, lips
     assert abs(c.fit_order(steps, errs[:, 1]) - (alpha + 1)) <= 0.3
 
 
-def test_identification_error_grows_with_noise(furuta):
-    etas = [1e-4, 1e-3, 1e-2]  # rad, Gaussian; above the sampling error at tau = 1 ms (~0.02)
-    errs = [_identification_errors(furuta, 1, 1e-3, 300.0, eta)[0] for eta in etas]
-    assert errs[0] < errs[1] < errs[2]
-    # the growth is sub-linear (theory: eta^(alpha/(k+1)) = eta^(1/3) once noise dominates)
-    assert c.fit_order(etas, errs) < 1.0
+def test_identification_error_grows_with_noise_as_the_theory_says(furuta):
+    """Bounded noise ``|eta| <= e`` (uniform): the identification reads ``w`` from the differentiator's second
+    derivative (order k = 2), whose error is of order ``e^((k + 1 - i)/(k + 1))`` with ``i = 2`` (Levant 2003):
+    ``e^(1/3)``. Over the noise-dominated levels, the error above the noise-free one (the sampling floor, 0.020)
+    grows with exponent 0.31 (measured; 0.25 without subtracting the floor)."""
+    etas = [1e-4, 1e-3, 1e-2]  # rad; the noise-free error at tau = 1 ms is ~0.02
+    floor = _identification_errors(furuta, 1, 1e-3, 300.0)[0]
+    errs = np.array([_identification_errors(furuta, 1, 1e-3, 300.0, eta)[0] for eta in etas])
+    assert floor < errs[0] < errs[1] < errs[2]
+    assert abs(c.fit_order(etas, errs - floor) - 1 / 3) <= 0.1
 
 
 def test_cascade_needs_reset_and_checks_its_order(furuta):
@@ -375,7 +379,7 @@ def test_held_injection_loses_the_orders_the_sampled_one_keeps(furuta):
             furuta, c.StateFeedback(obs, Q=FURUTA_Q), t_final=3.5, w=c.furuta_disturbance, x0=[0.0, 0.05, 0.0, 0.0]
         )
         ev.append(np.abs(res.x_hat - res.x)[res.after(2.0)][:, 2:].max())
-    assert c.fit_order(steps, ev) < 1.5  # the sampled injection gives 3.0 (test above)
+    assert abs(c.fit_order(steps, ev) - 1.0) <= 0.3  # measured 1.03; the sampled injection gives 3.0 (test above)
 
 
 @pytest.mark.parametrize("make", ["luenberger", "cascade"])

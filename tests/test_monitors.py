@@ -360,8 +360,12 @@ def test_mode_monitor_is_the_bank_run_online():
 
 
 def test_mode_monitor_in_info_through_the_monitored_wrapper():
-    """The arm held at rest by its equilibrium torque, modes linearized there (actuator gears 1 and 0.4): the
-    record reaches info['mode'] at every step, and the nominal mode stands."""
+    """The arm excited around its equilibrium torque (sines of 1.3, 2.2 and 3.1 Hz, amplitude 1: the linear regime;
+    at 3 the nominal mode is left before any change), modes linearized there (shoulder gears 1 and 0.4). The
+    record reaches info['mode'] at every step; the nominal mode stands while the simulation's gear is 1, and once
+    it drops to 0.4 mid-episode the monitor switches to "shoulder-low", once, and stays (measured 0.68 s after the
+    change; the residuals of the two modes differ by what the excitation makes of the gear, so the delay is the
+    excitation's, bounded here by the 1 s left in the episode)."""
     from smo_gym import control
     from smo_gym.monitors import ModeMonitor
 
@@ -381,10 +385,19 @@ def test_mode_monitor_in_info_through_the_monitored_wrapper():
     monitored = wrappers.Monitored(sensed, ModeMonitor(bank, qpos_offset=op.qpos, ctrl_offset=op.ctrl), key="mode")
     _, info = monitored.reset(seed=0)
     assert info["mode"]["mode"] == 0 and info["mode"]["time"] == 0.0
-    for _ in range(200):
-        *_, info = monitored.step(op.ctrl)
-        assert info["mode"]["mode_name"] == "nominal" and np.isfinite(info["mode"]["residual_norms"]).all()
-    assert info["mode"]["switches"] == 0 and info["mode"]["time"] == pytest.approx(0.4)
+    names = []
+    for k in range(1000):
+        t = 2e-3 * k
+        if k == 500:  # the fault: the shoulder's actuator loses 60 % of its gear
+            model.actuator_gear[0, 0] = 0.4
+        wiggle = [np.sin(2 * np.pi * 1.3 * t) + 0.5 * np.sin(2 * np.pi * 3.1 * t), 0.7 * np.sin(2 * np.pi * 2.2 * t)]
+        *_, info = monitored.step(op.ctrl + np.array(wiggle))
+        assert np.isfinite(info["mode"]["residual_norms"]).all()
+        names.append(info["mode"]["mode_name"])
+    assert set(names[:500]) == {"nominal"}
+    detected = names.index("shoulder-low")
+    assert detected > 500 and set(names[detected:]) == {"shoulder-low"}
+    assert info["mode"]["switches"] == 1 and info["mode"]["time"] == pytest.approx(2.0)
 
 
 def test_the_guide_mode_monitor_example_runs_as_printed(capsys):

@@ -79,11 +79,20 @@ def test_known_mode_restart_is_exact_in_finite_time_after_each_switch(record):
 
 
 def test_known_mode_continuation_stays_exact_across_switches(record):
-    system, sigma, u, X, Y = record
+    """With an unknown input acting (``w = 0.5 sin 3t + 0.3``, which the modes' model does not know, so the sliding
+    correction must work), the slides' reset equations carry the estimate across each switch with no transient:
+    the error stays at the sampled floor (measured 6.8e-4 everywhere, 6.1e-4 and 6.6e-4 in the 300 samples after
+    the switches). Restarted at each switch from the output alone instead, the same observer has a transient there
+    (measured 0.80 and 6.98): the state is continuous, so continuing is what keeps finite-time exactness."""
+    system, sigma, u, _, _ = record
+    t = np.arange(len(sigma)) * DT
+    X, Y = system.simulate([1.0, 2.0], sigma, DT, u=u, w=(0.5 * np.sin(3 * t) + 0.3)[:, None])
     obs = SwitchedHOSMObserver(system, DT, L)  # on_switch="continue": the slides' reset equations
-    X_hat = obs.run(Y, sigma, U=u, x_hat0=X[0])
-    err = np.abs(X_hat - X).max(axis=1)
+    err = np.abs(obs.run(Y, sigma, U=u, x_hat0=X[0]) - X).max(axis=1)
     assert err.max() < 2e-3  # no transient at the switches
+    restarted = SwitchedHOSMObserver(system, DT, L, on_switch="restart").run(Y, sigma, U=u, x_hat0=X[0])
+    jump = np.abs(restarted - X).max(axis=1)
+    assert all(jump[k : k + 300].max() > 0.1 for k in (SEGMENT, 2 * SEGMENT))
     # the same observer without the mode change would be wrong: the model matters
     wrong = SwitchedHOSMObserver(system, DT, L).run(Y, np.zeros_like(sigma), U=u, x_hat0=X[0])
     assert np.abs(wrong - X).max() > 10 * err.max()

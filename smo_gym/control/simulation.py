@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_positive
+from .._validation import check_nonnegative, check_positive
 from .plants import LinearPlant
 
 __all__ = ["SimulationResult", "fit_order", "simulate", "steady_state_error", "total_variation_rate"]
@@ -86,6 +86,7 @@ def simulate(
     w=None,
     x0=None,
     noise_std: float = 0.0,
+    noise_bound: float = 0.0,
     resolution: float = 0.0,
     actuator_tau: float = 0.0,
     w_step: float = 1e-3,
@@ -108,6 +109,9 @@ def simulate(
         Initial state (default zero).
     noise_std : float
         Standard deviation of Gaussian measurement noise.
+    noise_bound : float
+        Bound of uniform measurement noise in ``[-noise_bound, noise_bound]`` (the bounded noise the sliding-mode
+        differentiators' accuracy is stated for: Levant 2003); 0 for none.
     resolution : float
         Quantization step of the measurement (an encoder's ``2 pi / counts``); 0 for none.
     actuator_tau : float
@@ -121,6 +125,7 @@ def simulate(
     """
     dt = check_positive("dt", controller.dt)
     t_final = check_positive("t_final", t_final)
+    noise_bound = check_nonnegative("noise_bound", noise_bound)
     n, q, m = plant.n, plant.n_inputs, plant.n_unknown
     A, B, D = plant.augmented(actuator_tau)
     na = A.shape[0]
@@ -149,6 +154,8 @@ def simulate(
         y = plant.C @ x
         if noise_std > 0:
             y = y + noise_std * rng.standard_normal(p)
+        if noise_bound > 0:
+            y = y + rng.uniform(-noise_bound, noise_bound, p)
         if resolution > 0:
             y = resolution * np.round(y / resolution)
         return y
