@@ -336,3 +336,12 @@ def test_external_force_on_a_joint_outside_the_environments_own_input():
     _, _, _, _, info = env.step(np.zeros(1))
     np.testing.assert_allclose(env.unwrapped.data.qfrc_applied, [0.01, -0.002])
     np.testing.assert_allclose(info["disturbance"], [0.01, -0.002])
+
+
+def test_a_comparison_too_short_for_its_steady_window_is_refused():
+    """The metrics are taken over the second half of the run: with less than two control steps in it every entry was
+    inf or nan, printed as a table. Refused before any run."""
+    from smo_gym.experiments.closed_loop import compare_controllers
+
+    with pytest.raises(ValueError, match="two control steps"):
+        compare_controllers("InvertedPendulum-v5", ["lqr-kalman"], t_final=0.1, seeds=[0], show_progress=False)

@@ -73,6 +73,12 @@ def compare_controllers(
     from ..control.policies import design
 
     t_steady = t_final / 2 if t_steady is None else t_steady
+    dt = gym.make(env_id, **(env_kwargs or {})).unwrapped.dt
+    if not t_steady + 2 * dt <= t_final:  # the metrics are over the steady window: two control steps at least
+        raise ValueError(
+            f"expected a run with two control steps ({dt:g} s) in its steady window [{t_steady:g}, {t_final:g}] s, "
+            f"actual value: t_final={t_final:g}"
+        )
     force = None if disturbance is None else parse_disturbance(disturbance)
     events = () if payload is None else ((payload[0], scale_body_mass(payload[1], payload[2])),)
     results: dict[str, list] = {name: [] for name in controllers}
