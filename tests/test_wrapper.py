@@ -9,7 +9,7 @@ measurements in a twin environment with the same seed and actions):
   ``|q''|`` exceeds the calibrated bound) it needs a few samples to re-enter, which costs RMS error up to a tenth
   of the velocity RMS (measured 0.05 against 0.77 on Pusher's joint-limit hits, 0 elsewhere);
 - the default, ``auto``, is never less accurate than the backward difference, on the median sample and in RMS
-  (measured 0.02-0.5 times its RMS error, equal on the Euler environments where the backward difference is exact:
+  (measured 0.03-0.72 times its RMS error, equal on the Euler environments where the backward difference is exact:
   ``q_{k+1} = q_k + h v_{k+1}``).
 """
 
