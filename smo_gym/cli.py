@@ -20,7 +20,15 @@ from gymnasium.error import Error as GymnasiumError
 
 from ._extras import MissingExtraError, require
 
-__all__ = ["DEFAULT_OBSERVERS", "HelpFormatter", "build_parser", "check_env_id", "check_output_file", "main"]
+__all__ = [
+    "DEFAULT_OBSERVERS",
+    "HelpFormatter",
+    "build_parser",
+    "check_env_id",
+    "check_output_file",
+    "check_seed_argument",
+    "main",
+]
 
 DEFAULT_OBSERVERS = (
     "auto,super-twisting,levant:discretization=implicit,low-power-high-gain,alpha-beta,kalman-ca,finite-difference"
@@ -159,6 +167,13 @@ def check_env_id(env_id: str) -> str:
     raise ValueError(f"expected a registered Gymnasium environment id, actual value: {env_id!r}{hint}")
 
 
+def check_seed_argument(seed: int) -> int:
+    """``--seed`` after checking it is >= 0 (Gymnasium refuses a negative one only once the work has started)."""
+    if seed < 0:
+        raise ValueError(f"expected --seed >= 0, actual value: {seed}")
+    return seed
+
+
 def check_output_file(path: str) -> Path:
     """``path`` after checking that a plot can be written there: a format matplotlib writes, not a folder, and
     the nearest existing folder above it writable (folders in between are created)."""
@@ -185,8 +200,7 @@ def compare(args: argparse.Namespace) -> int:
     from .specs import make_sensor
 
     # every argument is checked before the rollout
-    if args.seed < 0:
-        raise ValueError(f"expected --seed >= 0, actual value: {args.seed}")
+    check_seed_argument(args.seed)
     if args.steps < 1:
         raise ValueError(f"expected --steps >= 1, actual value: {args.steps}")
     if not args.plot_seconds > 0:

@@ -147,11 +147,11 @@ def _check_specs(sensor, observer) -> None:
 
 def train(args: argparse.Namespace) -> int:
     from . import rl
-    from .cli import check_env_id
+    from .cli import check_env_id, check_seed_argument
 
     # every argument is checked before anything is made
     check_env_id(args.env)
-    _check_seed(args.seed)
+    check_seed_argument(args.seed)
     _check_specs(args.sensor, args.observer)
     zoo = rl.load_hyperparams(args.hyperparams, args.env, args.algo) if args.hyperparams else {}
     steps = args.steps if args.steps is not None else zoo.get("n_timesteps", DEFAULT_STEPS)
@@ -203,11 +203,11 @@ def train(args: argparse.Namespace) -> int:
 
 def evaluate(args: argparse.Namespace) -> int:
     from . import rl
-    from .cli import check_env_id
+    from .cli import check_env_id, check_seed_argument
 
     if args.episodes < 1:
         raise ValueError(f"expected --episodes >= 1, actual value: {args.episodes}")
-    _check_seed(args.seed)
+    check_seed_argument(args.seed)
     rl.run_files(args.model)
     if args.env is not None:
         check_env_id(args.env)
@@ -230,11 +230,6 @@ def evaluate(args: argparse.Namespace) -> int:
             f"{res['std']:.1f} over {len(res['returns'])} episodes"
         )
     return 0
-
-
-def _check_seed(seed: int) -> None:
-    if seed < 0:
-        raise ValueError(f"expected --seed >= 0, actual value: {seed}")
 
 
 def run(args: argparse.Namespace) -> int:
