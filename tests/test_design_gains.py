@@ -158,6 +158,23 @@ def test_ackermann_rejects_unobservable_and_bad_input():
         ackermann_observer_gain(np.eye(2, k=1), [1.0, 0.0], [-1 + 1j, -2.0])
     with pytest.raises(ValueError, match="expected"):
         ackermann_observer_gain(np.eye(3), [1.0, 0.0], [-1.0, -2.0])
+    for A, c, poles in ((None, [1.0], [-1.0]), (np.eye(2, k=1), [1.0, 0.0], [True, False])):
+        with pytest.raises(TypeError, match="expected"):
+            ackermann_observer_gain(A, c, poles)
+    with pytest.raises(ValueError, match="finite"):
+        ackermann_observer_gain(np.eye(2, k=1), [1.0, 0.0], [np.nan, -1.0])
+
+
+def test_ackermann_refuses_a_gain_that_does_not_place_the_poles(rng):
+    """An observable but nearly unobservable pair (three modes 1e-6 apart, condition number ~1e13): the formula
+    in floating point returned a gain with eigenvalues near +-3.5e5 instead of -1, -2, -3, without a word."""
+    A = np.diag([1.0, 1.0 + 1e-6, 1.0 + 2e-6])
+    with pytest.raises(ValueError, match="places the eigenvalues"):
+        ackermann_observer_gain(A, [1.0, 1.0, 1.0], [-1.0, -2.0, -3.0])
+    # the check passes what the formula does place, repeated poles included (their eigenvalues are ill-conditioned,
+    # the characteristic polynomial is not)
+    l = ackermann_observer_gain(np.eye(3, k=1), [1.0, 0.0, 0.0], [-2.0, -2.0, -2.0])
+    np.testing.assert_allclose(np.poly(np.eye(3, k=1) - np.outer(l, [1.0, 0.0, 0.0])), np.poly([-2.0] * 3))
 
 
 def independent_ackermann_repeated(A, z):

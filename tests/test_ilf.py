@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import load_script, signal_derivatives
 
-from smo_gym.design import LMIInfeasibleError, block_decomposition, ilf_gains
+from smo_gym.design import LMIInfeasibleError, block_decomposition, certify_ilf, ilf_gains
 from smo_gym.design.ilf import ilf_degrees
 from smo_gym.observers import OBSERVERS, ILFObserver, make_observer
 
@@ -114,10 +114,37 @@ def test_finite_design_is_certified_and_rechecked(finite_design):
 
 
 def test_fixed_design_is_certified_with_the_paper_time_bound(fixed_design):
-    """mu = 0.5, alpha = 32/7 (section V.B): certified, T_max = 1.75, gains of the paper's order of magnitude."""
+    r"""mu = 0.5, alpha = 32/7 (section V.B): the returned gain satisfies Theorem 10 when re-checked here from
+    ``P``, ``L``, ``Z_1``, ``Z_2`` with the weights of (19) and the matrices of (20) written out (not the design
+    module's functions): :math:`\tilde A + L\tilde C` Hurwitz, (21) with :math:`Y = PL`, (22), (23), and (24) on
+    4000 random :math:`(\lambda, \gamma) \in (0, \delta^{-1/2}] \times (0, 1]` (not the solver's grid);
+    :math:`T_{\max} = 2(1 + (m-1)\mu)/(\alpha\mu) = 1.75`; gains of the paper's order of magnitude."""
     d = fixed_design
-    assert d.certificate.ok and d.certificate.hurwitz_abscissa < 0
-    assert d.settling_time_bound == pytest.approx(1.75)
+    assert d.certificate.ok
+    dec, P, L, mu, alpha, delta = d.decomposition, d.P, d.L, d.mu, d.alpha, d.delta
+    At, Ct, m = dec.A_tilde, dec.C_tilde, dec.m
+    r = np.repeat(np.arange(1, m + 1) * mu / (1 + (m - 1) * mu), dec.block_sizes)  # (8)
+    H = {i: np.diag((-1) ** i * r + 1 + (-1) ** (i + 1) * mu / (1 + (m - 1) * mu)) for i in (1, 2)}  # (19)
+    Y = P @ L
+    assert np.max(np.linalg.eigvals(At + L @ Ct).real) < 0
+    assert np.min(np.linalg.eigvalsh(P)) > 0
+    k = Ct.shape[0]
+    assert np.min(np.linalg.eigvalsh(np.block([[alpha * np.eye(k), Y.T], [Y, P]]))) >= -1e-7  # (22)
+    E1 = Ct.T @ Ct
+    assert np.min(np.linalg.eigvalsh(P - delta * E1 @ P @ E1)) >= -1e-7  # (23), second part
+    rng = np.random.default_rng(7)
+    lam, gam = rng.uniform(0.0, delta**-0.5, 4000), rng.uniform(0.0, 1.0, 4000)
+    for i in (1, 2):
+        Z = d.variables[f"Z{i}"]
+        M11 = P @ At + At.T @ P + Ct.T @ Y.T + Y @ Ct + alpha * (P + P @ H[i] + H[i] @ P)
+        assert np.max(np.linalg.eigvalsh(np.block([[M11, P], [P, -Z]]))) <= 1e-7  # (21)
+        assert np.min(np.linalg.eigvalsh(P @ H[i] + H[i] @ P)) > 0 and np.min(np.linalg.eigvalsh(Z)) > 0  # (23), (24)
+        worst = -np.inf
+        for x, g in zip(lam, gam, strict=True):  # (20): (x/2)(D_r(g^(i-1)/x) + D_r(x/g^(i-2)) - 2I)
+            xi = np.diag(0.5 * x * ((g ** (i - 1) / x) ** r + (x * g ** (2 - i)) ** r) - x)
+            worst = max(worst, np.max(np.linalg.eigvalsh(xi @ Z @ xi - P)))
+        assert worst <= 1e-7  # (24)
+    assert d.settling_time_bound == pytest.approx(2 * (1 + (m - 1) * mu) / (alpha * mu)) == pytest.approx(1.75)
     ratio = np.abs(d.L).max() / np.abs(EX["L_fixed"]).max()
     assert 0.5 < ratio < 2.0
 
@@ -159,6 +186,26 @@ def test_design_rejects_bad_arguments():
         ilf_gains(A, C, 0.5, delta=1.5)
     with pytest.raises(TypeError):
         ilf_gains(A, C, "fast")
+    with pytest.raises(ValueError, match="dense_points"):
+        ilf_gains(A, C, 1.0, "finite", dense_points=1)
+
+
+def test_certificate_rejects_what_it_cannot_check(finite_design):
+    """``delta = -1`` made the parametric grid complex (cast to real: a check that always passed, ``ok=True``)."""
+    d = finite_design
+    args = dict(dec=d.decomposition, L=d.L, values={**d.variables, "P": d.P}, kind="finite", mu=1.0)
+    args |= dict(delta=d.delta, alpha=None, beta=None, lgrid=d.grid, ggrid=None, eps=1e-6, proposition=False)
+    assert certify_ilf(**args).ok
+    for change, error in (
+        (dict(delta=-1.0), ValueError),
+        (dict(kind="bogus"), ValueError),
+        (dict(values={"P": d.P}), ValueError),
+        (dict(L=d.L[:1]), ValueError),
+        (dict(L=d.L * 1j), TypeError),
+        (dict(tol=np.nan), ValueError),
+    ):
+        with pytest.raises(error, match="expected"):
+            certify_ilf(**(args | change))
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -190,20 +237,27 @@ def test_fixed_time_settling_in_continuous_time(continuous_fixed_time):
     steps = np.diff(T)  # growth per two decades of initial error: shrinking towards a finite supremum
     assert np.all(steps > 0) and np.all(np.diff(steps) < 0) and steps[-1] < 0.03 and T.max() < 2.5
     assert T[0] < 1.75 < T[1]
-    assert fine[1]["at_query"] == pytest.approx(0.0822, rel=1e-2)
+    assert fine[1]["at_query"] > 2e-4  # the paper's bound at 1.75 s, missed (the value: the scipy test below)
+
+
+def error_equation_18(e, A_tilde, C_tilde, L, r):
+    r"""(18) of Lopez-Ramirez et al. 2016 written out here: :math:`\dot e = (\tilde A + \tfrac12\{D_{\tilde r}
+    (\|\tilde Ce\|^{-1}) + D_{\tilde r}(\|\tilde Ce\|)\}L\tilde C)e`, with :math:`D_{\tilde r}(s) =
+    \mathrm{diag}(s^{\tilde r_i})`."""
+    rho = np.linalg.norm(C_tilde @ e)
+    D = np.diag(0.5 * (rho ** (-r) + rho**r))
+    return (A_tilde + D @ L @ C_tilde) @ e
 
 
 def test_continuous_integrator_matches_scipy(paper_decomposition, continuous_fixed_time):
-    """The compiled integrator agrees with scipy's DOP853 on the NumPy right-hand side ``error_rhs`` (an
-    independent implementation of (18)): ||x - xhat|| at 1.75 s from 1e4 x*."""
+    """The compiled integrator agrees with scipy's DOP853 on (18) written out in this test: ||x - xhat|| at
+    1.75 s from 1e4 x* (measured 0.0822, where the paper claims at most 2e-4)."""
     from scipy.integrate import solve_ivp
 
-    from smo_gym.design.ilf import ilf_degrees
-
     d = paper_decomposition
-    r = np.repeat(ilf_degrees(d.m, 0.5), d.block_sizes)
+    r = np.repeat(np.arange(1, d.m + 1) * 0.5 / (1 + (d.m - 1) * 0.5), d.block_sizes)  # (8) at mu = 0.5
     sol = solve_ivp(
-        lambda t, e: repro.error_rhs(e, d.A_tilde, d.C_tilde, EX["L_fixed"], r, "fixed"),
+        lambda t, e: error_equation_18(e, d.A_tilde, d.C_tilde, EX["L_fixed"], r),
         (0.0, 1.75),
         d.Phi @ (1e4 * XS),
         method="DOP853",
@@ -212,21 +266,47 @@ def test_continuous_integrator_matches_scipy(paper_decomposition, continuous_fix
     )
     ref = np.linalg.norm(np.linalg.solve(d.Phi, sol.y[:, -1]))
     assert continuous_fixed_time[1e-10][1]["at_query"] == pytest.approx(ref, rel=1e-5)
+    assert ref > 2e-4
 
 
-@pytest.mark.slow  # 3500 implicit steps with a root finder each (~8 s on 2 loaded cores)
-def test_coarse_sampled_step_meets_the_bound_only_by_numerical_damping(paper_decomposition, continuous_fixed_time):
-    """At h = 5 ms (the step the test of this claim used) the sampled observer's ||e(1.75)|| from 1e4 x* is 7e-20,
-    far below 2e-4, while the continuous error is 0.082: the step's numerical damping, not the observer, meets the
-    bound. At h = 0.5 ms the sampled error (6.2e-2) is within a factor 1.5 of the continuous one and above the bound
-    (the implicit step is first order: the sampled error converges to the continuous one as h -> 0)."""
-    e = {}
-    for h in (5e-3, 5e-4):
+def test_sampled_observer_converges_to_the_continuous_one_at_first_order(paper_decomposition):
+    """The sampled fixed-time observer is the implicit Euler step of (18) up to an O(h^2) factor: from x* the
+    distance of its ||x - xhat|| at 0.5 s from the continuous one (scipy DOP853 on (18) written out in this test)
+    halves with h (measured orders 1.03, 1.10, 1.13 from h = 1 ms to 0.125 ms)."""
+    from scipy.integrate import solve_ivp
+
+    d = paper_decomposition
+    r = np.repeat(np.arange(1, d.m + 1) * 0.5 / (1 + (d.m - 1) * 0.5), d.block_sizes)
+    sol = solve_ivp(
+        lambda t, e: error_equation_18(e, d.A_tilde, d.C_tilde, EX["L_fixed"], r),
+        (0.0, 0.5),
+        d.Phi @ XS,
+        method="DOP853",
+        rtol=1e-11,
+        atol=1e-15,
+    )
+    cont = np.linalg.norm(np.linalg.solve(d.Phi, sol.y[:, -1]))
+    gaps = []
+    for h in (1e-3, 5e-4, 2.5e-4, 1.25e-4):
+        obs = ILFObserver(A, C, EX["L_fixed"], 0.5, "fixed", dt=h, B=B, decomposition=d)
+        t, norms = repro.run_ilf_errors(obs, XS[None], 0.5)
+        assert t[-1] == pytest.approx(0.5)
+        gaps.append(abs(norms[-1, 0] - cont))
+    orders = np.log2(np.array(gaps[:-1]) / gaps[1:])
+    assert np.all((orders > 0.8) & (orders < 1.4)), orders
+
+
+@pytest.mark.slow  # 20,000 implicit steps with a root finder each (~10 s)
+def test_fine_sampled_steps_miss_the_printed_bound_like_the_continuous_observer(paper_decomposition):
+    """The paper's claim ||e(1.75)|| <= 2e-4 from 1e4 x*, sampled at steps fine enough to follow the observer
+    (0.5, 0.25 and 0.125 ms): missed, as in continuous time (0.082). Measured 0.062, 0.062, 0.092: from this
+    initial error the injection gains times h stay far above 1 for most of the interval, so the sampled values
+    at 1.75 s are not yet in the first-order regime of the test above. At 1-5 ms the implicit step's damping drives
+    the error below 1e-16 by 1.75 s (measured): that, not the observer, is how a coarse simulation meets the bound."""
+    for h in (5e-4, 2.5e-4, 1.25e-4):
         obs = ILFObserver(A, C, EX["L_fixed"], 0.5, "fixed", dt=h, B=B, decomposition=paper_decomposition)
-        e[h] = repro.run_ilf_errors(obs, 1e4 * XS[None], 1.75)[1][-1, 0]
-    cont = continuous_fixed_time[1e-10][1]["at_query"]
-    assert e[5e-3] < 1e-15 and cont > 2e-4
-    assert 2e-4 < e[5e-4] < cont < 1.5 * e[5e-4]
+        e = repro.run_ilf_errors(obs, 1e4 * XS[None], 1.75)[1][-1, 0]
+        assert 2e-4 < 0.5 * 0.0822 < e < 2 * 0.0822
 
 
 def test_finite_time_convergence_grows_with_initial_conditions(paper_decomposition):

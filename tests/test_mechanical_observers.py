@@ -283,25 +283,30 @@ def test_saturation_prevents_escape(variable_inertia):
 
 
 # ---- gain design ----------------------------------------------------------------------------------------------------
+def lemma_matrix(g, lipschitz, q, s, r, upsilon_max):
+    """The gain lemma's matrix at the certificate of ``g``, written out from its statement (Apaza-Perez, Moreno
+    and Fridman 2018, with the sign and the constant ``c_2 = (mu_1^2 / (2 d_2))^2`` the design module derives):
+    independent of the design module's own matrix, so an error there cannot hide in both."""
+    A = np.array([[-g.k1, 1.0], [-g.k2, 0.0]])
+    B = np.array([0.0, 1.0])
+    E = np.array([g.k3, 1.0])
+    H_E = ((abs(s) + np.sqrt(s**2 - q * r)) / (np.sqrt(-q) * g.mu2)) ** 2 * np.outer(E, E)
+    H_C = lipschitz**2 * np.diag([1.0, 0.0])
+    c2 = (g.mu1**2 / (2.0 * upsilon_max)) ** 2
+    M = np.zeros((4, 4))
+    M[:2, :2] = A.T @ g.P + g.P @ A + g.theta1 * H_E + g.theta2 * H_C + g.epsilon * np.eye(2)
+    M[:2, 2] = M[:2, 3] = M[2, :2] = M[3, :2] = g.P @ B
+    M[2, 2], M[3, 3] = g.theta1 * q, -g.theta2 * c2
+    return M
+
+
 def test_apaza_gains_certificate_verifies_independently():
     g = design.apaza_gains(5.0, q=-1.0, s=-0.5, r=0.0, upsilon_max=4.5)
-    M = design.apaza_lmi_matrix(
-        g.P,
-        g.theta1,
-        g.theta2,
-        g.epsilon,
-        k1=g.k1,
-        k2=g.k2,
-        k3=g.k3,
-        mu1=g.mu1,
-        mu2=g.mu2,
-        lipschitz=5.0,
-        q=-1.0,
-        s=-0.5,
-        r=0.0,
-        upsilon_max=4.5,
+    M = lemma_matrix(g, 5.0, q=-1.0, s=-0.5, r=0.0, upsilon_max=4.5)
+    args = dict(k1=g.k1, k2=g.k2, k3=g.k3, mu1=g.mu1, mu2=g.mu2, lipschitz=5.0, q=-1.0, s=-0.5, r=0.0)
+    np.testing.assert_allclose(
+        design.apaza_lmi_matrix(g.P, g.theta1, g.theta2, g.epsilon, upsilon_max=4.5, **args), M, rtol=1e-12
     )
-    assert np.allclose(M, M.T)
     assert np.linalg.eigvalsh(M).max() < 0
     assert np.linalg.eigvalsh(g.P).min() > 0
     assert g.theta1 > 0 and g.theta2 > 0

@@ -93,7 +93,7 @@ def test_set_mass_scale_is_the_constructor_s_mismatch_from_the_nominal_model(arm
     dyn.set_mass_scale(1.0, inertia_scale=2.0)
     np.testing.assert_array_equal(dyn.model.body_mass, arm.model.body_mass)
     np.testing.assert_array_equal(dyn.model.body_inertia, 2.0 * arm.model.body_inertia)
-    with pytest.raises(ValueError, match="mass_scale >= 0"):
+    with pytest.raises(ValueError, match="mass_scale > 0"):
         dyn.set_mass_scale(-1.0)
 
 
@@ -166,6 +166,23 @@ def test_rejects_free_joints_and_bad_arguments(arm):
     dyn = MujocoDynamics(arm.model)
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 2\)"):
         dyn.acceleration(np.zeros(3), np.zeros(3))
+    # each accepted before and answered with plausible numbers: a zero mass (a singular inertia, acceleration 0
+    # under gravity), a joint named twice (its two positions, last one wins), a NaN or 1e11 control (which
+    # mj_forward replaces by 0: the same acceleration as no input)
+    with pytest.raises(ValueError, match="mass_scale > 0"):
+        MujocoDynamics(arm.model, mass_scale=0.0)
+    with pytest.raises(ValueError, match="each joint once"):
+        MujocoDynamics(arm.model, joints=["shoulder", "shoulder", "elbow"])
+    with pytest.raises(TypeError, match="joint names"):
+        MujocoDynamics(arm.model, joints="shoulder")
+    for u in (np.array([np.nan, 0.0]), np.array([1e11, 0.0]), [np.inf, 0.0]):
+        with pytest.raises(ValueError, match="expected u finite and within"):
+            dyn.acceleration(np.zeros(2), np.zeros(2), u)
+    with pytest.raises(TypeError, match="expected q"):
+        dyn.acceleration(np.zeros(2, complex), np.zeros(2))
+    for step in (0.0, 1e300):
+        with pytest.raises(ValueError, match="expected step"):
+            dyn.self_quadratic_coefficient(np.zeros(2), step=step)
 
 
 def test_copies_evaluate_on_their_own_data(arm):

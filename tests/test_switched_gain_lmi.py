@@ -76,6 +76,28 @@ def test_printed_rounded_values_fail_the_strict_check():
         certify_switched_gain(l, P, 1.0, 1.0, 1.0)
 
 
+def test_certificate_scales_with_p_and_checks_lemma_3():
+    """A gain that is not even stable (eigenvalues 1.618 and -0.618) was certified with ``P = 1e-9 I``: every
+    block that carries the decay condition is linear in ``P``, so an absolute tolerance passed it. And
+    a negative ``kappa`` or a NaN tolerance passed anything."""
+    l, P = np.array([-1.0, -1.0]), 1e-9 * np.eye(2)
+    assert np.linalg.eigvals(np.eye(2, k=1) - np.outer(l, [1.0, 0.0])).real.max() > 1.6
+    with pytest.raises(LMIInfeasibleError, match="max eig"):
+        certify_switched_gain(l, P, 1.0, 1.0, 1.0)
+    l, P, cert = switched_gain_lmi(2, 1.0, 1.0, 1.0)  # the solver's design still passes, Lemma 3 included
+    assert cert.observer_eigenvalues.real.max() < -0.5
+    with pytest.raises(ValueError, match="kappa"):
+        certify_switched_gain(l, P, -10.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="tol"):
+        certify_switched_gain([-5.0, -5.0], np.eye(2), 1.0, 1.0, 1.0, tol=np.nan)
+    with pytest.raises(TypeError, match="expected P"):
+        certify_switched_gain(l, P * (1 + 1j), 1.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="expected l with 2 entries"):
+        certify_switched_gain([1.0, 2.0, 3.0], P, 1.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match=r"rho_d in \[1e-150"):
+        switched_gain_lmi(2, 1.0, 1e300, 1.0)
+
+
 @pytest.mark.parametrize(
     "kwargs, exc",
     [

@@ -50,12 +50,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._extras import require
-from .._validation import check_positive
+from .._validation import as_real_array, check_int_in_range, check_real_in_range
 
 #: solver-side margin so that the NumPy re-check sees a strictly negative matrix despite solver tolerances
 _MARGIN = 1e-6
 
 __all__ = ["ApazaGains", "InfeasibleGainsError", "apaza_gains", "apaza_lmi_matrix"]
+
+#: the range of the magnitudes the design takes (their squares and products stay finite)
+_SMALL, _BIG = 1e-50, 1e50
 
 
 class InfeasibleGainsError(ValueError):
@@ -112,12 +115,34 @@ def _constants(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max):
     return A, B, H_E, H_C, c2
 
 
+def _check_lemma_data(lipschitz, q, s, r, upsilon_max, k1, k2, k3, epsilon) -> tuple[float, ...]:
+    """The lemma's numbers as floats, checked: magnitudes within 1e-50 .. 1e50 (the matrix holds their squares
+    and products, which must stay finite), ``q < 0`` and ``s^2 - q r >= 0`` (assumption A-3)."""
+    lipschitz = check_real_in_range("lipschitz", lipschitz, 0.0, _BIG)
+    q = check_real_in_range("q (assumption A-3: q < 0)", q, -_BIG, 0.0, high_open=True)
+    s, r = check_real_in_range("s", s, -_BIG, _BIG), check_real_in_range("r", r, -_BIG, _BIG)
+    if s * s - q * r < 0:
+        raise ValueError(f"expected s, r with s^2 - q r >= 0, actual value: s={s!r}, r={r!r}")
+    upsilon_max, k1, k2, epsilon = (
+        check_real_in_range(name, value, _SMALL, _BIG)
+        for name, value in (("upsilon_max", upsilon_max), ("k1", k1), ("k2", k2), ("epsilon", epsilon))
+    )
+    return lipschitz, q, s, r, upsilon_max, k1, k2, check_real_in_range("k3", k3, -_BIG, _BIG), epsilon
+
+
 def apaza_lmi_matrix(
     P, theta1, theta2, epsilon, *, k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max
 ) -> np.ndarray:
     r"""The lemma's ``(4, 4)`` matrix (module docstring) at given multipliers, in NumPy (symmetrised)."""
+    lipschitz, q, s, r, upsilon_max, k1, k2, k3, epsilon = _check_lemma_data(
+        lipschitz, q, s, r, upsilon_max, k1, k2, k3, epsilon
+    )
+    mu1, mu2 = check_real_in_range("mu1", mu1, _SMALL, _BIG), check_real_in_range("mu2", mu2, _SMALL, _BIG)
+    theta1, theta2 = check_real_in_range("theta1", theta1, 0.0, _BIG), check_real_in_range("theta2", theta2, 0.0, _BIG)
+    P = as_real_array("P", P)
+    if P.shape != (2, 2) or not np.isfinite(P).all():
+        raise ValueError(f"expected a finite P of shape (2, 2), actual value: {P!r:.80}")
     A, B, H_E, H_C, c2 = _constants(k1, k2, k3, mu1, mu2, lipschitz, q, s, r, upsilon_max)
-    P = np.asarray(P, dtype=float)
     top = A.T @ P + P @ A + theta1 * H_E + theta2 * H_C + epsilon * np.eye(2)
     PB = P @ B
     Mx = np.block(
@@ -229,18 +254,11 @@ def apaza_gains(
         (a ``ValueError``) if the inequality has no verified solution at the given ``mu1, mu2``, or up to
         ``max_scale``.
     """
-    lipschitz = float(lipschitz)
-    if not np.isfinite(lipschitz) or lipschitz < 0:
-        raise ValueError(f"expected lipschitz >= 0, actual value: {lipschitz!r}")
-    q, s, r = float(q), float(s), float(r)
-    if not q < 0:
-        raise ValueError(f"expected q < 0 (assumption A-3), actual value: {q!r}")
-    if not np.isfinite(s) or not np.isfinite(r) or s * s - q * r < 0:
-        raise ValueError(f"expected finite s, r with s^2 - q r >= 0, actual value: s={s!r}, r={r!r}")
-    upsilon_max = check_positive("upsilon_max", upsilon_max)
-    k1, k2 = check_positive("k1", k1), check_positive("k2", k2)
-    k3 = float(k3)
-    epsilon = check_positive("epsilon", epsilon)
+    lipschitz, q, s, r, upsilon_max, k1, k2, k3, epsilon = _check_lemma_data(
+        lipschitz, q, s, r, upsilon_max, k1, k2, k3, epsilon
+    )
+    max_scale = check_real_in_range("max_scale", max_scale, 1.0, _BIG)
+    iterations = check_int_in_range("iterations", iterations, 0, 1000)
     data = {"lipschitz": lipschitz, "q": q, "s": s, "r": r, "upsilon_max": upsilon_max}
 
     def attempt(m1, m2):
@@ -251,7 +269,7 @@ def apaza_gains(
         return ApazaGains(k1, k2, k3, float(m1), float(m2), Pv, th1, th2, epsilon, lmax, pmin, data)
 
     if mu1 is not None and mu2 is not None:
-        m1, m2 = check_positive("mu1", mu1), check_positive("mu2", mu2)
+        m1, m2 = check_real_in_range("mu1", mu1, _SMALL, _BIG), check_real_in_range("mu2", mu2, _SMALL, _BIG)
         sol = attempt(m1, m2)
         if sol is None:
             raise InfeasibleGainsError(
@@ -260,7 +278,7 @@ def apaza_gains(
                 f"upsilon_max={upsilon_max}; increase mu1 and mu2 or omit them to search"
             )
         return result(m1, m2, sol)
-    ratio = check_positive("mu_ratio", mu_ratio)
+    ratio = check_real_in_range("mu_ratio", mu_ratio, _SMALL, _BIG)
     hi = 1.0
     sol_hi = attempt(hi, ratio * hi)
     while sol_hi is None:

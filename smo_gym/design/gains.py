@@ -18,7 +18,7 @@ from math import comb
 
 import numpy as np
 
-from .._validation import check_int_in_range, check_positive, check_positive_array
+from .._validation import as_real_array, check_int_in_range, check_positive, check_positive_array
 
 __all__ = [
     "LEVANT_LAMBDAS",
@@ -166,17 +166,26 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
 
     Raises
     ------
+    TypeError
+        ``A`` or ``c`` not real, or ``poles`` not numbers.
     ValueError
-        If ``(A, c)`` is not observable or shapes disagree.
+        If shapes disagree, an entry is not finite, ``(A, c)`` is not observable, or the computed gain does not
+        place the eigenvalues (an observability matrix too ill-conditioned for the formula in floating point:
+        the characteristic polynomial of ``A - l c^T`` is checked against ``p``).
     """
-    A = np.asarray(A, dtype=np.float64)
-    c = np.asarray(c, dtype=np.float64).reshape(-1)
-    poles = np.asarray(poles).reshape(-1)
-    n = A.shape[0]
-    if A.shape != (n, n) or c.shape != (n,) or poles.shape != (n,):
+    A = as_real_array("A", A)
+    c = as_real_array("c", c).reshape(-1)
+    poles = np.asarray(poles)
+    if poles.dtype.kind not in "iufc":
+        raise TypeError(f"expected poles to be real or complex numbers, actual value: {poles!r:.80}")
+    poles = poles.reshape(-1)
+    n = A.shape[0] if A.ndim == 2 else -1
+    if A.shape != (n, n) or n < 1 or c.shape != (n,) or poles.shape != (n,):
         raise ValueError(
             f"expected A (n, n), c (n,) and poles (n,), actual value: A {A.shape}, c {c.shape}, poles {poles.shape}"
         )
+    if not (np.isfinite(A).all() and np.isfinite(c).all() and np.isfinite(poles).all()):
+        raise ValueError("expected finite A, c and poles, actual value: a NaN or infinite entry")
     obs = np.vstack([c @ np.linalg.matrix_power(A, i) for i in range(n)])
     if np.linalg.matrix_rank(obs) < n:
         raise ValueError(
@@ -188,4 +197,16 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
     p_of_A = sum(a * np.linalg.matrix_power(A, n - i) for i, a in enumerate(coeffs))
     e_n = np.zeros(n)
     e_n[-1] = 1.0
-    return p_of_A @ np.linalg.solve(obs, e_n)
+    l = p_of_A @ np.linalg.solve(obs, e_n)
+    # the formula is exact in exact arithmetic only: compare the placed characteristic polynomial with p, each
+    # coefficient a_i relative to rho^i (rho bounds the eigenvalues' scale), as a backward-error test
+    rho = max(1.0, float(np.abs(poles).max()), float(np.linalg.norm(A, 2)))
+    placed = np.real_if_close(np.poly(A - np.outer(l, c)))
+    error = float(np.max(np.abs(placed - coeffs) / rho ** np.arange(n + 1)))
+    if not np.isfinite(error) or error > 1e-6:
+        raise ValueError(
+            "expected a gain that places the eigenvalues of A - l c^T at the poles, actual value: a relative error "
+            f"{error:.1e} of its characteristic polynomial (observability matrix condition number "
+            f"{np.linalg.cond(obs):.1e}); use a better conditioned realization, or scipy.signal.place_poles"
+        )
+    return l

@@ -31,7 +31,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._extras import require
-from .._validation import check_choice, check_int_in_range, check_positive
+from .._validation import (
+    as_real_array,
+    check_choice,
+    check_int_in_range,
+    check_nonnegative,
+    check_positive,
+    check_real_in_range,
+)
 from .lmi import LMIInfeasibleError  # shared with the switched-gain design of Efimov et al. 2017
 
 __all__ = [
@@ -107,10 +114,7 @@ class BlockDecomposition:
 
 
 def _as_matrix(name: str, value, shape=None) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"expected {name} to be a real matrix, actual value: {value!r}") from None
+    arr = np.array(as_real_array(name, value))
     if arr.ndim == 1 and shape is not None and len(shape) == 2 and shape[0] == 1:
         arr = arr[None, :]
     if arr.ndim != 2:
@@ -651,6 +655,7 @@ def ilf_gains(
     if delta >= 1.0:
         raise ValueError(f"expected 0 < delta < 1, actual value: {delta!r}")
     eps = check_positive("eps", eps)
+    dense_points = check_int_in_range("dense_points", dense_points, 2, 100_000)
     max_refinements = check_int_in_range("max_refinements", max_refinements, 0, 12)
     if kind == "fixed":
         if alpha is None:
@@ -765,8 +770,20 @@ def certify_ilf(
     margin ``<= tol`` means the strict inequality holds with at least ``eps - tol`` to spare; (14) / (24) is
     checked on ``dense_points`` points per axis, independently of the solver's grid.
     """
-    vals = dict(values)
-    vals["Y"] = vals["P"] @ np.asarray(L)
+    kind = check_choice("kind", kind, ("finite", "fixed"))
+    if not isinstance(dec, BlockDecomposition):
+        raise TypeError(f"expected a BlockDecomposition, actual value: {type(dec).__name__}")
+    delta = check_real_in_range("delta", delta, 0.0, 1.0, low_open=True, high_open=True)
+    mu, eps, tol = check_positive("mu", mu), check_positive("eps", eps), check_nonnegative("tol", tol)
+    dense_points = check_int_in_range("dense_points", dense_points, 2, 100_000)
+    names = ("P", "Z") if kind == "finite" else ("P", "Z1", "Z2")
+    if not isinstance(values, dict) or any(name not in values for name in names):
+        raise ValueError(
+            f"expected values with the matrices {names} of a {kind}-time design, actual value: {values!r:.80}"
+        )
+    vals = dict(values) | {name: _as_matrix(name, values[name]) for name in names}
+    L = _as_matrix("L", L, (dec.n, dec.C0.shape[0]))
+    vals["Y"] = vals["P"] @ L
     if kind == "finite":
         Hr = ilf_homogeneity_matrices(dec.m, mu, dec.block_sizes)["H_r"]
         mats = _finite_constraints(vals, dec, Hr, lgrid, delta, eps, numeric=True, proposition=proposition)

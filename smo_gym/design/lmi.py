@@ -19,7 +19,7 @@ from functools import lru_cache
 import numpy as np
 
 from .._extras import require
-from .._validation import check_int_in_range, check_positive
+from .._validation import as_real_array, check_int_in_range, check_nonnegative, check_positive, check_real_in_range
 
 __all__ = [
     "LMIInfeasibleError",
@@ -66,6 +66,19 @@ class SwitchedGainCertificate:
     status: str
 
 
+def _check_spec(kappa, rho_d, rho_v, gamma) -> tuple[float, float, float, float]:
+    """``(kappa, rho_d, rho_v, gamma)`` as floats: positive (``gamma`` also 0) and within ``[1e-150, 1e150]``, so
+    that the squares and the inverse square of the block matrix are finite."""
+    kappa, rho_d, rho_v = (
+        check_real_in_range(name, value, 1e-150, 1e150)
+        for name, value in (("kappa", kappa), ("rho_d", rho_d), ("rho_v", rho_v))
+    )
+    gamma = check_nonnegative("gamma", gamma)
+    if gamma != 0.0:
+        gamma = check_real_in_range("gamma (when not 0)", gamma, 1e-150, 1e150)
+    return kappa, rho_d, rho_v, gamma
+
+
 def _canonical(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``A`` (shift), ``b = e_n`` and ``c = e_1`` of the canonical form (2), as ``(n, n), (n, 1), (n, 1)``."""
     A = np.eye(n, k=1)
@@ -95,9 +108,13 @@ def switched_gain_lmi_matrix(P, w, kappa: float, rho_d: float, rho_v: float, gam
     -------
     ndarray, shape (n + 2, n + 2) or (n + 3, n + 3), symmetric.
     """
-    P = np.asarray(P, dtype=float)
-    n = P.shape[0]
-    w = np.asarray(w, dtype=float).reshape(n, 1)
+    P = as_real_array("P", P)
+    n = P.shape[0] if P.ndim == 2 else -1
+    w = as_real_array("w", w)
+    if P.shape != (n, n) or n < 1 or w.size != n:
+        raise ValueError(f"expected P (n, n) and w (n,), actual value: P {P.shape}, w {w.shape}")
+    kappa, rho_d, rho_v, gamma = _check_spec(kappa, rho_d, rho_v, gamma)
+    w = w.reshape(n, 1)
     A, b, c = _canonical(n)
     S = A.T @ P + P @ A - c @ w.T - w @ c.T + kappa * P
     z = np.zeros((1, 1))
@@ -172,11 +189,8 @@ def switched_gain_lmi(
     matrices violate the LMI by about ``3e-3``).
     """
     n = check_int_in_range("n", n, 2, 10)
-    kappa = check_positive("kappa", kappa)
-    rho_d = check_positive("rho_d", rho_d)
-    rho_v = check_positive("rho_v", rho_v)
-    if isinstance(gamma, bool) or not isinstance(gamma, (int, float, np.number)) or not np.isfinite(gamma) or gamma < 0:
-        raise ValueError(f"expected gamma >= 0 (a finite real number), actual value: {gamma!r}")
+    kappa, rho_d, rho_v, gamma = _check_spec(kappa, rho_d, rho_v, gamma)
+    eps = check_positive("eps", eps)
     l, P, status = _solve_cached(n, kappa, rho_d, rho_v, float(gamma), float(eps))
     if status != "optimal":
         raise LMIInfeasibleError(
@@ -192,19 +206,46 @@ def switched_gain_lmi(
 def certify_switched_gain(
     l, P, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0, *, tol: float = 1e-7, status: str = "optimal"
 ) -> SwitchedGainCertificate:
-    """Re-verify Assumption 1 of Efimov et al. 2017 for given ``(l, P)`` with NumPy eigenvalues; raise if it fails."""
-    P = 0.5 * (np.asarray(P, dtype=float) + np.asarray(P, dtype=float).T)
-    l = np.asarray(l, dtype=float).ravel()
-    n = P.shape[0]
+    r"""Re-verify Assumption 1 of Efimov et al. 2017 for given ``(l, P)`` with NumPy eigenvalues; raise if it fails.
+
+    Checks :math:`P \succ 0`, the block matrix of :func:`switched_gain_lmi_matrix` at ``(P, P l)`` below ``tol``
+    relative to the scale of ``P`` (the blocks that carry the decay condition are linear in ``P``: an absolute
+    tolerance would pass any gain with a small enough ``P``), and what Lemma 3 derives from it, every eigenvalue
+    of :math:`A - l c^T` with real part below :math:`-\kappa/2`.
+
+    Raises
+    ------
+    TypeError, ValueError
+        Arguments of another type, shape or range (``P`` square of size 2 to 10, ``l`` of its size).
+    LMIInfeasibleError
+        The re-verification fails.
+    """
+    P = as_real_array("P", P)
+    n = P.shape[0] if P.ndim == 2 else -1
+    if P.shape != (n, n) or not 2 <= n <= 10:
+        raise ValueError(f"expected P of shape (n, n) with 2 <= n <= 10, actual value: shape {P.shape}")
+    l = as_real_array("l", l).ravel()
+    if l.shape != (n,):
+        raise ValueError(f"expected l with {n} entries (the size of P), actual value: shape {l.shape}")
+    if not (np.isfinite(P).all() and np.isfinite(l).all()):
+        raise ValueError("expected finite l and P, actual value: a NaN or infinite entry")
+    kappa, rho_d, rho_v, gamma = _check_spec(kappa, rho_d, rho_v, gamma)
+    tol = check_nonnegative("tol", tol)
+    P = 0.5 * (P + P.T)
     eig_P = np.linalg.eigvalsh(P)
     M = switched_gain_lmi_matrix(P, P @ l, kappa, rho_d, rho_v, gamma)
     eig_M = np.linalg.eigvalsh(M)
     A, _, c = _canonical(n)
     obs = np.linalg.eigvals(A - np.outer(l, c.ravel()))
-    if eig_P[0] <= 0.0 or eig_M[-1] > tol:
+    if eig_P[0] <= 0.0 or eig_M[-1] > tol * min(1.0, eig_P[-1]):
         raise LMIInfeasibleError(
             "expected P > 0 and the Assumption 1 matrix <= 0 in the NumPy re-verification, actual value: "
-            f"min eig(P) = {eig_P[0]:.3e}, max eig(LMI) = {eig_M[-1]:.3e}"
+            f"min eig(P) = {eig_P[0]:.3e}, max eig(LMI) = {eig_M[-1]:.3e} (tolerance {tol:.1e} x min(1, max eig(P)))"
+        )
+    if obs.real.max() > -kappa / 2 + 1e-6 * max(1.0, kappa):
+        raise LMIInfeasibleError(
+            f"expected the eigenvalues of A - l c^T with real parts below -kappa/2 = {-kappa / 2:.6g} (Lemma 3), "
+            f"actual value: {obs.real.max():.6g}"
         )
     return SwitchedGainCertificate(
         min_eig_P=float(eig_P[0]),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import check_nonnegative_array
 from ..design import apaza_gains
 from ..observers import CoordinateTransform
 from .dynamics import MujocoDynamics
@@ -35,7 +36,19 @@ def dissipative_gains(dyn: MujocoDynamics, transform: CoordinateTransform, lipsc
     the joint's range, the other joints at ``qpos0``), and :math:`\Upsilon_{max}` the largest of the transform's
     grid (at least 1).
     """
-    lipschitz = np.broadcast_to(np.asarray(lipschitz, dtype=float), (dyn.n,))
+    if not isinstance(dyn, MujocoDynamics) or not isinstance(transform, CoordinateTransform):
+        raise TypeError(
+            "expected a MujocoDynamics and a CoordinateTransform, actual value: "
+            f"{type(dyn).__name__} and {type(transform).__name__}"
+        )
+    if transform.grid_y.shape[1] != dyn.n:
+        raise ValueError(
+            f"expected a transform of the {dyn.n} joints of the dynamics, actual value: {transform.grid_y.shape[1]}"
+        )
+    lipschitz = check_nonnegative_array("lipschitz", lipschitz)
+    if lipschitz.shape not in ((), (1,), (dyn.n,)):
+        raise ValueError(f"expected lipschitz scalar or of shape ({dyn.n},), actual value: shape {lipschitz.shape}")
+    lipschitz = np.broadcast_to(lipschitz, (dyn.n,))
     ref = dyn.model.qpos0[dyn.dof].copy()
     rows = []
     for i in range(dyn.n):

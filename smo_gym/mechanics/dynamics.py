@@ -48,19 +48,26 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+from .._validation import as_real_array, check_int_at_least, check_real_in_range
+
 __all__ = ["MujocoDynamics", "calibrate_model_miss"]
 
+#: MuJoCo's mjMAXVAL: ``mj_forward`` replaces a larger or non-finite control by 0 (with a warning only)
+_MAX_U = 1e10
+_F64 = np.dtype(np.float64)
 _HINGE_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
 
-def _scale(name: str, value, size: int) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
+def _scale(name: str, value, size: int, *, positive: bool = False) -> np.ndarray:
+    """A scale factor, one number or one per entry: finite and ``>= 0`` (``> 0`` if ``positive``: a zero mass
+    leaves a singular inertia)."""
+    arr = as_real_array(name, value)
     try:
         arr = np.broadcast_to(arr, (size,))
     except ValueError:
         raise ValueError(f"expected {name} scalar or of shape ({size},), actual value: shape {arr.shape}") from None
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise ValueError(f"expected {name} >= 0 and finite, actual value: {value!r}")
+    if not np.all(np.isfinite(arr)) or np.any(arr <= 0 if positive else arr < 0):
+        raise ValueError(f"expected {name} {'>' if positive else '>='} 0 and finite, actual value: {value!r}")
     return arr
 
 
@@ -75,7 +82,7 @@ class MujocoDynamics:
         Names of the measured joints (hinge or slide), in the order of the observer's channels. Default: every
         joint that is not the dependent side of an active joint equality constraint.
     mass_scale : float or array_like, shape (nbody,)
-        Multiplies ``body_mass`` of the copy (model mismatch). ``inertia_scale`` defaults to the same value, so
+        Multiplies ``body_mass`` of the copy (model mismatch; ``> 0``). ``inertia_scale`` defaults to the same value, so
         the bodies keep their radii of gyration.
     inertia_scale : float or array_like, optional
     damping_scale : float
@@ -150,10 +157,14 @@ class MujocoDynamics:
             jids = [j for j in range(m.njnt) if j not in self._couplings]
         else:
             jids = []
+            if isinstance(joints, str) or not all(isinstance(name, str) for name in joints):
+                raise TypeError(f"expected joints to be a sequence of joint names, actual value: {joints!r:.80}")
             for name in joints:
                 j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
                 if j < 0:
                     raise ValueError(f"expected a joint name of the model, actual value: {name!r}")
+                if j in jids:
+                    raise ValueError(f"expected each joint once, actual value: {name!r} twice in {list(joints)}")
                 jids.append(j)
         covered = set(jids) | set(self._couplings)
         missing = [j for j in range(m.njnt) if j not in covered]
@@ -190,8 +201,8 @@ class MujocoDynamics:
         ``mass_scale`` and ``inertia_scale`` (same meaning; ``inertia_scale`` defaults to ``mass_scale``), e.g. a
         new one per episode. Sets :attr:`mass_scale` and :attr:`inertia_scale`."""
         m = self.model
-        ms = _scale("mass_scale", mass_scale, m.nbody)
-        isc = ms if inertia_scale is None else _scale("inertia_scale", inertia_scale, m.nbody)
+        ms = _scale("mass_scale", mass_scale, m.nbody, positive=True)
+        isc = ms if inertia_scale is None else _scale("inertia_scale", inertia_scale, m.nbody, positive=True)
         m.body_mass[:] = self._nominal_mass * ms
         m.body_inertia[:] = self._nominal_inertia * isc[:, None]
         self.mass_scale = float(ms[0]) if np.ndim(mass_scale) == 0 else ms.copy()
@@ -257,7 +268,7 @@ class MujocoDynamics:
 
     # ---- protocol -------------------------------------------------------------------------------------------
     def _check(self, name, arr, width):
-        arr = np.asarray(arr, dtype=np.float64)
+        arr = as_real_array(name, arr)
         if arr.ndim == 0 or arr.shape[-1] != width:
             raise ValueError(f"expected {name} with shape (..., {width}), actual value: {arr.shape}")
         return arr
@@ -292,8 +303,10 @@ class MujocoDynamics:
             self._fast
             and type(q) is np.ndarray
             and type(v) is np.ndarray
+            and q.dtype is _F64
+            and v.dtype is _F64
             and q.shape == v.shape == (self.n,)
-            and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,)))
+            and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,) and np.abs(u).max() <= _MAX_U))
         ):
             # hot path (one environment, all joints measured in model order): no index arithmetic
             self._qpos[:] = q
@@ -308,6 +321,8 @@ class MujocoDynamics:
             u = np.zeros(q.shape[:-1] + (width,))
         else:
             u = self._check("u", u, width)
+            if not (np.abs(u) <= _MAX_U).all():  # MuJoCo would replace it by 0 without an error
+                raise ValueError(f"expected u finite and within +-{_MAX_U:g} (MuJoCo's bound), actual value: {u!r:.80}")
         if q.ndim == 1 and v.ndim == 1 and u.ndim == 1:
             return self._accel_one(q, v, u)
         shape = np.broadcast_shapes(q.shape[:-1], v.shape[:-1], u.shape[:-1])
@@ -369,6 +384,7 @@ class MujocoDynamics:
         this is :math:`\alpha = -M'(q)/(2M(q))`, the term Apaza et al.'s transform removes.
         """
         q = self._check("q", q, self.n)
+        step = check_real_in_range("step", step, 1e-12, 1.0)
         flat = q.reshape(-1, self.n)
         out = np.empty_like(flat)
         for b, qb in enumerate(flat):
@@ -393,7 +409,8 @@ class MujocoDynamics:
         the model's ``qpos0``), see :class:`smo_gym.observers.DissipativeSuperTwisting` for what that leaves in
         the model term.
         """
-        ref = self.model.qpos0[self._qadr].copy() if reference is None else np.array(reference, dtype=float)
+        ref = self.model.qpos0[self._qadr].copy() if reference is None else as_real_array("reference", reference)
+        step = check_real_in_range("step", step, 1e-12, 1.0)
         if ref.shape != (self.n,):
             raise ValueError(f"expected reference with shape ({self.n},), actual value: {ref.shape}")
 
@@ -422,6 +439,14 @@ def calibrate_model_miss(
     uniform random controls held for ``frame_skip`` steps; restarts when the state becomes non-finite. The default
     gains of the wrapper's model-based observers come from them (:mod:`smo_gym.wrappers.model_based`).
     """
+    if not isinstance(model, mujoco.MjModel) or not isinstance(dynamics, MujocoDynamics):
+        raise TypeError(
+            "expected a mujoco.MjModel and a MujocoDynamics, actual value: "
+            f"{type(model).__name__} and {type(dynamics).__name__}"
+        )
+    frame_skip = check_int_at_least("frame_skip", frame_skip, 1)
+    steps = check_int_at_least("steps", steps, 1)
+    quantile = check_real_in_range("quantile", quantile, 0.0, 1.0)
     data = mujoco.MjData(model)
     rng = np.random.default_rng(seed)
     lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
