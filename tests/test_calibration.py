@@ -391,7 +391,7 @@ def test_differentiate_calibrated_equals_the_calibration_functions(name):
     _, _, noisy = noisy_sine(T=3000, sigma=1e-4, channels=6)
     Y = noisy.reshape(3000, 2, 3)
     c = calibration.calibration_of_signal(Y, DT, (calibration.bound_order(name),))
-    np.testing.assert_array_equal(c.noise, calibration.noise_std(Y))
+    np.testing.assert_allclose(c.noise, 1e-4, rtol=0.25)  # the data's noise level, per channel
     obs = calibration.default_observer(name, c)
     for start in ("measurement", "kalman"):
         np.testing.assert_array_equal(
