@@ -207,7 +207,8 @@ def test_a_refused_batch_steps_and_resets_no_environment(api):
 
 
 def test_joint_sensor_observes_only_a_real_velocity_of_its_dofs():
-    """``observe`` broadcast a one-entry velocity to every dof and dropped the imaginary part of a complex one."""
+    """``observe`` broadcast a one-entry velocity to every dof and dropped the imaginary part of a complex one;
+    ``observe_rows`` with an index that lacks the sensor's token was a bare KeyError."""
     with pytest.raises(TypeError, match="expected observer_kwargs to be a dict"):
         JointSensor(gym.make("InvertedPendulum-v5"), observer_kwargs="x")
     sensor = JointSensor(gym.make("InvertedPendulum-v5"))
@@ -217,6 +218,12 @@ def test_joint_sensor_observes_only_a_real_velocity_of_its_dofs():
         with pytest.raises(error, match="expected q"):
             sensor.observe(bad)
     assert np.isfinite(sensor.observe(np.zeros(2))).all()
+    rows = np.zeros((1, 2))
+    np.testing.assert_array_equal(
+        sensor.observe_rows({sensor.token: 0}, rows, None, None, None, None)[0], sensor.observe(rows[0])
+    )
+    with pytest.raises(ValueError, match="expected an index with this sensor's token"):
+        sensor.observe_rows({"another": 0}, rows, None, None, None, None)
 
 
 def test_subproc_vec_env_matches_dummy_and_needs_joint_sensor():

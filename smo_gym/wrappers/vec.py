@@ -262,11 +262,10 @@ class JointSensor(EstimatedVelocity):
         return obs
 
     def observe_rows(self, index: dict, velocity, filtered, terminal_velocity, terminal_filtered, terminal_mask):
-        """Broadcast form of :meth:`observe` for vector envs: pick this environment's row (``index[token]``).
-
-        Returns ``(observation, terminal_observation or None)``.
-        """
-        i = index[self.token]
+        """Broadcast form of :meth:`observe` for vector envs: ``(observation, terminal_observation or None)`` of
+        this environment's row, ``index[token]``."""
+        if (i := index.get(self.token)) is None:
+            raise ValueError(f"expected an index with this sensor's token {self.token!r}, actual value: {index!r:.80}")
         f = None if filtered is None else filtered[i]
         obs = self.observe(velocity[i], f)
         term = None
