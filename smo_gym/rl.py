@@ -38,6 +38,7 @@ import gymnasium as gym
 import numpy as np
 
 from ._extras import require
+from ._validation import check_int_at_least, check_int_in_range
 from .envs import make as make_by_id
 from .specs import make_sensor, needs_model, parse_observer_spec
 
@@ -64,6 +65,9 @@ __all__ = [
 
 #: what the policy observes (see the module docstring)
 SENSINGS = ("true", "estimated", "finite-difference", "no-velocity", "stacked-positions")
+#: the largest seed :func:`train` takes: its evaluation environments are seeded ``10_000 + 100 seed + k``, and
+#: SB3 seeds NumPy's legacy generator, which takes seeds below 2**32
+MAX_TRAIN_SEED = (2**32 - 10_100) // 100
 #: the Stable-Baselines3 algorithms :func:`train` runs
 ALGOS = ("PPO", "SAC")
 
@@ -131,6 +135,17 @@ class SelectEntries(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 def _check_sensing(sensing: str) -> None:
     if sensing not in SENSINGS:
         raise ValueError(f"expected sensing in {', '.join(SENSINGS)}, actual value: {sensing!r}")
+
+
+def _check_interchangeable(trained: str, other: str) -> None:
+    """A policy trained under ``trained`` can be played under ``other``: stacked positions (two frames of the
+    positions) are another observation than the state the other sensings give, even where the shapes agree."""
+    _check_sensing(other)
+    if (trained == "stacked-positions") != (other == "stacked-positions"):
+        raise ValueError(
+            f"expected a sensing interchangeable with {trained!r} (true, estimated, finite-difference and "
+            f"no-velocity are; stacked-positions only with itself), actual value: {other!r}"
+        )
 
 
 def sensing_settings(sensing: str) -> tuple[str, ...]:
@@ -220,6 +235,7 @@ def make_vec(
     make_vec_env = require("stable_baselines3.common.env_util", "rl").make_vec_env
 
     _check_sensing(sensing)
+    n_envs = check_int_at_least("n_envs", n_envs, 1)
     explicit = vectorized
     if vectorized is None:  # a model-based observer needs its environment's control input: per environment
         model_based = needs_model(*_observer(sensing, observer, observer_kwargs))
@@ -376,9 +392,17 @@ def algo_kwargs(algo: str, hyperparams: dict | None) -> dict:
     import inspect
 
     cls = _algo_class(algo)
+    if hyperparams is not None and not isinstance(hyperparams, dict):
+        raise TypeError(f"expected hyperparams to be a dict (or None), actual value: {hyperparams!r:.80}")
     valid = [p for p in inspect.signature(cls.__init__).parameters if p not in _OWN_ARGS]
     out = {}
     for key, value in (hyperparams or {}).items():
+        if key in RUN_KEYS:
+            own = "steps" if key == "n_timesteps" else key
+            raise ValueError(
+                f"expected hyperparameters of {algo}, actual value: {key!r} (an rl-zoo3 key that is train's own "
+                f"argument {own}=; load_hyperparams separates them)"
+            )
         if key in UNSUPPORTED_KEYS:
             raise ValueError(
                 f"expected hyperparameters smo-gym train supports, actual value: {key!r} ({UNSUPPORTED_KEYS[key]})"
@@ -459,9 +483,12 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") ->
     yaml = require("yaml", "rl")
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"expected a hyperparameter file (rl-zoo3 yaml), actual value: {str(path)!r} does not exist")
+        what = "is not a file" if path.exists() else "does not exist"
+        raise ValueError(f"expected a hyperparameter file (rl-zoo3 yaml), actual value: {str(path)!r} {what}")
     try:
-        content = yaml.safe_load(path.read_text())
+        content = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"expected a yaml text file (UTF-8), actual value: {str(path)!r} is not text") from None
     except yaml.YAMLError as exc:
         raise ValueError(f"expected a yaml file, actual value: {str(path)!r} ({str(exc).splitlines()[0]})") from None
     if not isinstance(content, dict):
@@ -618,7 +645,13 @@ def _frozen_normalization(train_venv, eval_venv):
     if not isinstance(train_venv, VecNormalize):
         return eval_venv
     norm = VecNormalize(
-        eval_venv, training=False, norm_obs=train_venv.norm_obs, norm_reward=False, clip_obs=train_venv.clip_obs
+        eval_venv,
+        training=False,
+        norm_obs=train_venv.norm_obs,
+        norm_reward=False,
+        clip_obs=train_venv.clip_obs,
+        epsilon=train_venv.epsilon,
+        norm_obs_keys=train_venv.norm_obs_keys,
     )
     norm.obs_rms = copy.deepcopy(train_venv.obs_rms)
     return norm
@@ -672,6 +705,9 @@ def train(
     algo : {"PPO", "SAC"}
     steps : int
         Environment steps (summed over the ``n_envs`` environments).
+    seed : int
+        Seed of the training environments (``seed + i``), of the algorithm and, through ``10_000 + 100 seed + k``,
+        of the evaluations; in ``[0, MAX_TRAIN_SEED]``.
     out : path
         The run folder. One that holds a run already (:func:`holds_run`) is refused unless ``overwrite``, which
         replaces that run's files (:data:`RUN_FILES`) and nothing else. If training fails before its first
@@ -688,8 +724,9 @@ def train(
     checkpoint_every : int
         Save a checkpoint (model and normalization) every so many steps; 0: none.
     evaluate_at : sequence of int
-        Budgets (steps) at which the current policy is evaluated on ``eval_episodes`` episodes for each of
-        ``eval_sensings`` (default: the training sensing), with the normalization statistics of that moment.
+        Budgets (steps, each in ``[1, steps]``) at which the current policy is evaluated on ``eval_episodes``
+        episodes for each of ``eval_sensings`` (default: the training sensing; each interchangeable with it, see
+        :func:`evaluate`), with the normalization statistics of that moment.
     progress_bar : bool
         SB3's progress bar (a tqdm bar when ``rich`` is missing).
 
@@ -706,10 +743,25 @@ def train(
     BaseCallback, CheckpointCallback = callbacks.BaseCallback, callbacks.CheckpointCallback
     VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
+    # every argument is checked before anything is made: a bad one found later would cost the training done
     _check_sensing(sensing)
     cls = _algo_class(algo)
-    if steps < 1 or n_envs < 1:
-        raise ValueError(f"expected steps >= 1 and n_envs >= 1, actual value: steps={steps}, n_envs={n_envs}")
+    steps, n_envs = check_int_at_least("steps", steps, 1), check_int_at_least("n_envs", n_envs, 1)
+    seed = check_int_in_range("seed", seed, 0, MAX_TRAIN_SEED)
+    checkpoint_every = check_int_at_least("checkpoint_every", checkpoint_every, 0)
+    if isinstance(evaluate_at, (str, bytes)) or not hasattr(evaluate_at, "__iter__"):
+        raise TypeError(f"expected evaluate_at to be a sequence of budgets (steps), actual value: {evaluate_at!r}")
+    budgets = sorted(check_int_in_range("a budget of evaluate_at", b, 1, steps) for b in evaluate_at)
+    eval_episodes = check_int_at_least("eval_episodes", eval_episodes, 1 if budgets else 0)
+    if isinstance(eval_sensings, str):
+        raise TypeError(f"expected eval_sensings to be a sequence of sensings, actual value: {eval_sensings!r}")
+    eval_sensings = list(eval_sensings or [sensing])
+    for other in eval_sensings:
+        _check_interchangeable(sensing, other)
+    if not isinstance(policy, (str, type)):
+        raise TypeError(f"expected policy to be an SB3 policy name or class, actual value: {policy!r:.80}")
+    if not isinstance(out, (str, os.PathLike)) or not str(out):
+        raise TypeError(f"expected out to be a folder path, actual value: {out!r}")
     make_sensor(sensor)  # check the specs before anything is made
     _observer(sensing, observer, observer_kwargs)
     normalize = (algo == "PPO") if normalize is None else _normalize_option(normalize)
@@ -740,22 +792,27 @@ def train(
         settings=list(sensing_settings(sensing)),
         status="training",
     )
-    venv = None
+    venv, writing = None, False
     try:
         venv = make_vec(
             env_id, sensing, n_envs=n_envs, seed=seed, vectorized=vectorized, env_kwargs=env_kwargs, **sense
         )
         if normalize:
             venv = VecNormalize(venv, **(normalize if isinstance(normalize, dict) else {}))
-        model = cls(policy, venv, seed=seed, verbose=verbose, device="cpu", **params)
+        try:
+            model = cls(policy, venv, seed=seed, verbose=verbose, device="cpu", **params)
+        except (AssertionError, TypeError, ValueError, KeyError) as exc:  # SB3's checks of its arguments
+            raise ValueError(
+                f"expected {algo} arguments SB3 accepts, actual value: policy {policy!r} with {raw_params!r:.200} "
+                f"({type(exc).__name__}: {exc})"
+            ) from exc
         if overwrite:
             _remove_run(out)
+        writing = True  # from here on the run's files are this call's
         out.mkdir(parents=True, exist_ok=True)
         (out / "run.json").write_text(json.dumps(summary, indent=1, default=str))
         model.set_logger(_logger(out, verbose))
         evaluations: list[dict] = []
-        budgets = sorted(int(b) for b in evaluate_at)
-        eval_sensings = list(eval_sensings or [sensing])
 
         class Budgets(BaseCallback):
             # checked between rollouts (after the policy update) and at the end, so a budget's policy has been
@@ -811,7 +868,7 @@ def train(
         if not any((out / "checkpoints").glob("*.zip")):  # nothing worth keeping: leave no half-made run behind
             if created is not None and created.exists():
                 shutil.rmtree(created)
-            elif out.exists():
+            elif writing:  # not an old run that overwrite=True was to replace: it is kept until then
                 _remove_run(out)
         raise
     model.save(out / "model.zip")
@@ -868,12 +925,25 @@ def load_run(path: str | os.PathLike):
         run = json.loads(files["run"].read_text()) if files["run"] else {}
     except json.JSONDecodeError as exc:
         raise ValueError(f"expected run.json to be JSON, actual value: {str(files['run'])!r} is not ({exc})") from exc
-    if not isinstance(run, dict) or not all(isinstance(run.get(key, ""), str) for key in ("env", "algo", "sensing")):
+    if (
+        not isinstance(run, dict)
+        or not all(isinstance(run.get(key, ""), str) for key in ("env", "algo", "sensing"))
+        or not all(isinstance(run.get(key) or {}, dict) for key in ("env_kwargs", "observer_kwargs"))
+    ):
         raise ValueError(
-            f"expected run.json to hold an object with the run's env, algo and sensing names, actual value: "
-            f"{json.dumps(run)[:120]} in {str(files['run'])!r}"
+            f"expected run.json to hold an object with the run's env, algo and sensing names (and env_kwargs, "
+            f"observer_kwargs as objects), actual value: {json.dumps(run)[:120]} in {str(files['run'])!r}"
         )
-    return _algo_class(run.get("algo", "PPO")).load(files["model"], device="cpu"), run
+    algo = run.get("algo", "PPO")
+    if algo not in ALGOS:
+        raise ValueError(f"expected algo in {', '.join(ALGOS)} in {str(files['run'])!r}, actual value: {algo!r}")
+    try:
+        return _algo_class(algo).load(files["model"], device="cpu"), run
+    except Exception as exc:  # a truncated, foreign or other-algorithm file: SB3's messages name none of these
+        raise ValueError(
+            f"expected a {algo} model SB3 saved (the algorithm run.json names), actual value: "
+            f"{str(files['model'])!r} cannot be read as one ({type(exc).__name__}: {exc})"
+        ) from exc
 
 
 def evaluate(
@@ -909,8 +979,8 @@ def evaluate(
     """
     VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
-    if episodes < 1:
-        raise ValueError(f"expected episodes >= 1, actual value: {episodes}")
+    episodes = check_int_at_least("episodes", episodes, 1)
+    seed = check_int_in_range("seed", seed, 0, 2**32 - 1)
     files = run_files(model)
     agent, run = load_run(model)
     env_id = env_id or run.get("env")
@@ -922,6 +992,8 @@ def evaluate(
             "give env_id and sensing"
         )
     _check_sensing(sensing)
+    if run.get("sensing"):
+        _check_interchangeable(run["sensing"], sensing)
     if run.get("normalize") and files["vecnormalize"] is None:
         raise ValueError(
             f"expected the normalization statistics saved with {str(files['model'])!r} (the run trained "
@@ -937,7 +1009,7 @@ def evaluate(
         sensing,
         n_envs=1,
         seed=seed,
-        env_kwargs=run.get("env_kwargs"),
+        env_kwargs=run.get("env_kwargs") if env_id == run.get("env") else None,  # arguments of the run's env
         observer_kwargs=run.get("observer_kwargs") if sensing == "estimated" and observer is None else None,
         **sense,
     )

@@ -70,8 +70,11 @@ def test_train_evaluate_cross_sensing(tmp_path):
         res = rl.evaluate(out, sensing=sensing, episodes=2)
         assert res["sensing"] == sensing and len(res["returns"]) == 2
         assert np.all(np.isfinite(res["returns"])) and min(res["returns"]) > 0
-    with pytest.raises(ValueError, match="observation shape"):
+    # stacked positions are another observation, even where the shapes agree (InvertedPendulum: both (4,))
+    with pytest.raises(ValueError, match="interchangeable with 'true'"):
         rl.evaluate(out, sensing="stacked-positions", episodes=1)
+    with pytest.raises(ValueError, match="observation shape"):
+        rl.evaluate(out, env_id="InvertedPendulum-v5", episodes=1)
 
 
 def test_vectorized_sensing_in_training(tmp_path):
@@ -96,6 +99,16 @@ def test_vectorized_sensing_in_training(tmp_path):
         hyperparams=TINY_PPO,
     )
     assert summary["trained_steps"] >= 128
+
+
+def test_training_time_evaluation_is_what_evaluate_gives(tmp_path):
+    """The evaluation at the last budget plays the saved model with the saved statistics, seeded as ``evaluate``
+    seeds: the same returns. The frozen copy of the statistics lost VecNormalize's ``epsilon`` (returns
+    30, 20, 34 against 31, 21, 26 with ``epsilon=10``)."""
+    out = tmp_path / "run"
+    summary = rl.train(IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, normalize={"epsilon": 10.0},
+                       evaluate_at=[128], eval_episodes=3)  # fmt: skip
+    assert summary["evaluations"][0]["returns"] == rl.evaluate(out, episodes=3)["returns"]
 
 
 def test_sac_learns_briefly(tmp_path):
@@ -292,24 +305,74 @@ def test_an_existing_run_is_refused_unless_forced(tmp_path, capsys):
         rl.train(IP, sensing="true", steps=64, out=out, hyperparams=TINY_PPO)
 
 
-def test_a_failed_start_removes_what_it_created(tmp_path):
+def test_a_failed_start_removes_what_it_created(tmp_path, monkeypatch):
     out = tmp_path / "new" / "deeper" / "run"
     with pytest.raises(ValueError, match="divisor"):  # Hopper's frame_skip is 4: rate 3 fails building the env
         rl.train("Hopper-v5", sensing="estimated", rate=3, steps=64, out=out, hyperparams=TINY_PPO)
     assert not (tmp_path / "new").exists()
-    # a failure during training (an evaluation under an unknown sensing), before any checkpoint
-    with pytest.raises(ValueError, match="expected sensing"):
-        rl.train(
-            IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64], eval_sensings=["psychic"]
-        )
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("an evaluation failed")
+
+    # a failure during training (in the evaluation at a budget), before any checkpoint
+    monkeypatch.setattr(rl, "_returns", broken)
+    with pytest.raises(RuntimeError, match="evaluation failed"):
+        rl.train(IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64])
     assert not (tmp_path / "new").exists()
     # an existing (empty) folder stays, without the files of the failed run
     out.mkdir(parents=True)
-    with pytest.raises(ValueError, match="expected sensing"):
-        rl.train(
-            IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64], eval_sensings=["psychic"]
-        )
+    with pytest.raises(RuntimeError, match="evaluation failed"):
+        rl.train(IP, sensing="true", steps=128, out=out, hyperparams=TINY_PPO, evaluate_at=[64])
     assert out.is_dir() and not any(out.iterdir())
+
+
+def test_a_failed_forced_retrain_keeps_the_old_run(tmp_path, capsys):
+    """``overwrite=True`` replaces a run once the new model exists; a retrain that failed before (an unknown env,
+    arguments SB3 refuses) deleted the old run's files all the same."""
+    from smo_gym.cli import main
+
+    out = tmp_path / "run"
+    rl.train(IP, sensing="true", steps=64, out=out, hyperparams=TINY_PPO)
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    with pytest.raises(gym.error.Error):
+        rl.train("NoSuchEnv-v1", sensing="true", steps=64, out=out, hyperparams=TINY_PPO, overwrite=True)
+    with pytest.raises(ValueError, match=r"SB3 accepts.*batch_size"):
+        rl.train(IP, sensing="true", steps=64, out=out, hyperparams=TINY_PPO | {"batch_size": 0}, overwrite=True)
+    zoo = tmp_path / "zoo.yml"
+    zoo.write_text(f"{IP}:\n  n_steps: 64\n  batch_size: 0\n")
+    assert main(["train", "--env", IP, "--sensing", "true", "--steps", "64", "--no-progress", "--force",
+                 "--hyperparams", str(zoo), "--out", str(out)]) == 2  # fmt: skip
+    assert "batch_size" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+
+
+@pytest.mark.parametrize(
+    "change, error, message",
+    [
+        (dict(eval_sensings=["psychic"]), ValueError, "expected sensing"),
+        (dict(eval_sensings=["stacked-positions"]), ValueError, "interchangeable"),
+        (dict(eval_sensings="true"), TypeError, "sequence of sensings"),
+        (dict(evaluate_at=[10**9]), ValueError, r"evaluate_at in \[1, 128\]"),
+        (dict(evaluate_at=[-5]), ValueError, "evaluate_at"),
+        (dict(evaluate_at=100), TypeError, "sequence of budgets"),
+        (dict(eval_episodes=0), ValueError, "eval_episodes >= 1"),
+        (dict(checkpoint_every=-3), ValueError, "checkpoint_every >= 0"),
+        (dict(steps=True), TypeError, "steps"),
+        (dict(n_envs=2.5), TypeError, "n_envs"),
+        (dict(seed=2**32), ValueError, "seed in"),
+        (dict(policy=5), TypeError, "policy"),
+        (dict(hyperparams={"n_timesteps": 100}), ValueError, "train's own argument steps="),
+        (dict(out=""), TypeError, "folder path"),
+    ],
+)
+def test_bad_training_arguments_are_refused_before_training(change, error, message, tmp_path):
+    """Each was found late (after the training it was to evaluate: the run then deleted), ignored (a budget
+    beyond ``steps``), or taken as something else (``steps=True`` trained 64 steps; ``eval_sensings="true"``
+    was read letter by letter)."""
+    args = dict(sensing="true", steps=128, out=tmp_path / "run", hyperparams=TINY_PPO, evaluate_at=[64]) | change
+    with pytest.raises(error, match=message):
+        rl.train(IP, **args)
+    assert not (tmp_path / "run").exists()
 
 
 ZOO_YAML = """
@@ -424,6 +487,14 @@ def test_bad_hyperparameter_files_are_refused_before_training(entry, message, tm
     file.write_text("Hopper-v5:\n  n_envs: 2\n")
     assert main(["train", "--env", "Hopper-v4", "--hyperparams", str(file), "--out", str(tmp_path / "r")]) == 2
     assert "did you mean 'Hopper-v5'?" in capsys.readouterr().err
+
+
+def test_hyperparameter_paths_that_are_not_yaml_text(tmp_path):
+    with pytest.raises(ValueError, match="is not a file"):
+        rl.load_hyperparams(tmp_path, IP)  # a folder: it exists
+    (tmp_path / "binary.yml").write_bytes(b"\xff\xfe\x00 not text")
+    with pytest.raises(ValueError, match="is not text"):
+        rl.load_hyperparams(tmp_path / "binary.yml", IP)
 
 
 def test_policy_kwargs_are_evaluated_safely():
