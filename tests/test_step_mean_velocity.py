@@ -119,3 +119,5 @@ def test_halfcheetah_reports_the_euler_velocity_in_the_wrapper_and_the_vector_wr
         a = rng.uniform(-1, 1, (n,) + vec.single_action_space.shape)
         o1, _, _, _, i1 = ref.step(a)
         o2, _, _, _, i2 = vec.step(a)
+    np.testing.assert_allclose(o2, o1, rtol=0, atol=1e-12)  # and the last step's
+    np.testing.assert_allclose(i2["smo"]["qvel_estimate"], i1["smo"]["qvel_estimate"], rtol=0, atol=1e-12)

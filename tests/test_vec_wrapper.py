@@ -112,7 +112,7 @@ def test_autoreset_terminal_observation_and_restart():
         assert np.any(new_obs[i, :, 1] != 0.0)
 
 
-def test_ppo_learns_on_vec_stack_and_save_load(tmp_path):
+def test_ppo_trains_on_vec_stack_and_save_load(tmp_path):
     from stable_baselines3 import PPO
 
     venv = VecNormalize(VecEstimatedVelocity(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)])))

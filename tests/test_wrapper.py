@@ -126,8 +126,9 @@ def test_euler_envs_estimate_exactly():
         env = EstimatedVelocity(gym.make("HalfCheetah-v5"), sensor="ideal", observer=observer, rate="physics")
         assert env.adapter.model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
         res = rollout(env, smooth_actions(env.action_space, 50, 0), seed=0)
-        s = res["smo"][-1]
-        np.testing.assert_allclose(s["qvel_estimate"], s["qvel"], atol=1e-9 * (1 + np.abs(s["qvel"]).max()))
+        for s in res["smo"][1:]:  # every step, the first included (at the reset the velocity is not measured)
+            np.testing.assert_allclose(s["qvel_estimate"], s["qvel"], atol=1e-9 * (1 + np.abs(s["qvel"]).max()))
+        assert np.abs(res["smo"][-1]["qvel"]).max() > 0.1  # and the joints moved
 
 
 def test_observation_is_built_from_measurements_and_estimates():
@@ -140,8 +141,22 @@ def test_observation_is_built_from_measurements_and_estimates():
     np.testing.assert_array_equal(obs[:5], s["qpos_measured"][1:])
     np.testing.assert_array_equal(obs[5:], np.clip(s["qvel_estimate"], -10, 10))
     assert not np.allclose(s["qpos_measured"], s["qpos"])  # the sensor did something
+    assert not np.allclose(s["qvel_estimate"], s["qvel"])  # and the estimate is not the true velocity
     res = 2 * np.pi / 4096
     assert np.max(np.abs(s["qpos_measured"] - s["qpos"])) < 6e-3 + res
+    # the velocities are estimated from those measurements (an estimate equal to the true velocity passes the
+    # checks above): the backward difference's are the measured positions' differences over the step
+    fd = EstimatedVelocity(
+        gym.make("Hopper-v5"), sensor="encoder-12bit-noisy", observer="finite-difference", rate="env"
+    )
+    _, info = fd.reset(seed=0)
+    for a in smooth_actions(fd.action_space, 10, 0):
+        previous = info["smo"]["qpos_measured"]
+        obs, *_, info = fd.step(a)
+        s = info["smo"]
+        np.testing.assert_allclose(s["qvel_estimate"], (s["qpos_measured"] - previous) / fd.unwrapped.dt, rtol=1e-12)
+        np.testing.assert_array_equal(obs[5:], np.clip(s["qvel_estimate"], -10, 10))
+        assert np.abs(s["qvel_estimate"] - s["qvel"]).max() > 1e-3
 
 
 @pytest.mark.parametrize("env_id", ENVS)
@@ -234,13 +249,29 @@ def test_vector_env_gives_each_env_its_own_noise(mode):
         vectorization_mode=mode,
         wrappers=[lambda e: EstimatedVelocity(e, sensor="encoder-12bit-noisy")],
     )
-    try:
+    alone = [EstimatedVelocity(gym.make("Hopper-v5"), sensor="encoder-12bit-noisy") for _ in range(2)]
+    try:  # environment i is seeded seed + i: its measurements are those of a wrapper of its own with that seed
         obs, info = envs.reset(seed=0)
-        for _ in range(5):
-            obs, _r, _term, _trunc, info = envs.step(envs.action_space.sample())
-        e0, e1 = _noise(info["smo"], 0), _noise(info["smo"], 1)
-        assert np.any(e0 != 0) and np.any(e1 != 0) and not np.allclose(e0, e1)
+        for i, env in enumerate(alone):
+            env.reset(seed=i)
+        actions = np.random.default_rng(0).uniform(-1, 1, (5, 2, 3))
+        for action in actions:
+            obs, _r, _term, _trunc, info = envs.step(action)
+            for i, env in enumerate(alone):
+                own, *_, own_info = env.step(action[i])
+                np.testing.assert_array_equal(info["smo"]["qpos_measured"][i], own_info["smo"]["qpos_measured"])
+                np.testing.assert_array_equal(obs[i], own)
         assert obs.shape == (2,) + gym.make("Hopper-v5").observation_space.shape
+    finally:
+        envs.close()
+    # additive noise alone does not depend on the state: two environments sharing one stream would see the same
+    envs = gym.make_vec("Hopper-v5", num_envs=2, vectorization_mode=mode,
+                        wrappers=[lambda e: EstimatedVelocity(e, sensor=sensors.GaussianNoise(1e-3))])  # fmt: skip
+    try:
+        envs.reset(seed=0)
+        _obs, _r, _term, _trunc, info = envs.step(np.zeros((2, 3)))
+        e0, e1 = _noise(info["smo"], 0), _noise(info["smo"], 1)
+        assert np.all(e0 != 0) and np.all(e1 != 0) and np.all(np.abs(e0 - e1) > 1e-9)
     finally:
         envs.close()
 

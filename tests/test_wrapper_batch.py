@@ -25,6 +25,10 @@ def test_batched_run_equals_per_sample_updates(env_id, observer):
     single.estimator = PerSample(single.estimator.observer, mean_over=single.estimator.mean_over)
     a, _ = batched.reset(seed=1)
     b, _ = single.reset(seed=1)
+    batched._fused = None  # the general path, whose batched call this is (the compiled one has its own tests)
+    runs = []
+    run = batched.observer.run
+    batched.observer.run = lambda Y, **kw: runs.append(len(Y)) or run(Y, **kw)
     rng = np.random.default_rng(0)
     for _ in range(25):
         action = rng.uniform(-1, 1, batched.action_space.shape).astype(batched.action_space.dtype)
@@ -33,3 +37,4 @@ def test_batched_run_equals_per_sample_updates(env_id, observer):
         np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(ia["smo"]["qvel_estimate"], ib["smo"]["qvel_estimate"])
     assert batched.observer.n_updates == single.observer.n_updates == 25 * batched.adapter.frame_skip
+    assert runs == [batched.adapter.frame_skip] * 25  # one batched call per control period

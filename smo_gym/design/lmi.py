@@ -167,7 +167,8 @@ def switched_gain_lmi(
     eps : float
         Margin replacing the strict inequalities.
     tol : float
-        Tolerance of the NumPy re-verification (eigenvalues of the block matrix must be ``<= tol``).
+        Tolerance of the NumPy re-verification (eigenvalues of the block matrix must be ``<= tol`` times
+        ``min(1, lambda_max(P))``: :func:`certify_switched_gain`).
 
     Returns
     -------
