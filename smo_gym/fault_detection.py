@@ -176,6 +176,9 @@ def diagnose(
             f"expected residual_norms with shape (T, ..., q + 1), T >= 1 and q >= 1 fault models, actual value: "
             f"shape {rho.shape}"
         )
+    if np.isnan(rho).any():  # a NaN compares as in the band: it would read as "no fault"
+        t = int(np.flatnonzero(np.isnan(rho).reshape(rho.shape[0], -1).any(axis=1))[0])
+        raise ValueError(f"expected residual norms without NaN, actual value: NaN at sample {t}")
     dt = check_positive("dt", dt)
     dwell = check_positive("dwell", dwell)
     settle_time = check_nonnegative("settle_time", settle_time)
@@ -375,6 +378,7 @@ class FaultObserverBank:
             for model in models
         ]
         self._history: list[np.ndarray] | None = None
+        self._unreset = "the bank was never reset"
 
     @property
     def q(self) -> int:
@@ -399,9 +403,15 @@ class FaultObserverBank:
         r"""Process one sample ``y`` (shape ``(..., n)``) with the input ``u`` that acted over the interval ending at
         it; return the normalized residuals :math:`\rho` of the ``q + 1`` models, shape ``(..., q + 1)``."""
         if self._history is None:
-            raise RuntimeError("expected reset(y0) before update(y), actual value: the bank was never reset")
-        for obs in self.observers:
-            obs.update(y, u)
+            raise RuntimeError(f"expected reset(y0) before update(y), actual value: {self._unreset}")
+        for i, obs in enumerate(self.observers):
+            try:
+                obs.update(y, u)
+            except Exception:
+                if i:  # the models before it took the sample: the bank no longer describes one instant
+                    self._history = None
+                    self._unreset = f"model {i} refused a sample the models before it had taken"
+                raise
         rho = np.max(np.abs(self.residuals) / self.threshold, axis=-1)
         self._history.append(rho)
         return rho

@@ -331,8 +331,15 @@ class LeastSquaresIdentifier:
             raise ValueError(f"expected z with shape {Phi.shape[:-1]} (Phi's rows), actual value: {z.shape}")
         if not (np.isfinite(Phi).all() and np.isfinite(z).all()):
             raise ValueError("expected finite Phi and z, actual value: non-finite entries")
-        self._Q, self._b = least_squares_step(self._Q, self._b, Phi, z, self._E, self._S)
-        self._estimate = np.linalg.solve(self._Q, self._b[..., None])[..., 0]
+        with np.errstate(all="ignore"):  # an overflow is refused below, with the state as it was
+            Q, b = least_squares_step(self._Q, self._b, Phi, z, self._E, self._S)
+            estimate = np.linalg.solve(Q, b[..., None])[..., 0] if np.isfinite(Q).all() else Q[..., 0]
+        if not (np.isfinite(Q).all() and np.isfinite(b).all() and np.isfinite(estimate).all()):
+            raise ValueError(
+                "expected a regressor and injection whose information stays finite, actual value: the update "
+                f"overflows (largest |Phi| {np.abs(Phi).max():.3g}, |z| {np.abs(z).max():.3g}); the state was kept"
+            )
+        self._Q, self._b, self._estimate = Q, b, estimate
         return self._estimate.copy()
 
     @property
@@ -500,13 +507,22 @@ class EquivalentInjectionIdentifier:
         """One sample: the measurement ``y`` (shape ``(..., n)``) and the input ``u`` that acted over the sample
         ending at ``y``. Returns :attr:`theta`."""
         if self._state is None:
-            raise RuntimeError("expected reset(y0) before update(y), actual value: the identifier was never reset")
+            raise RuntimeError(
+                "expected reset(y0) before update(y), actual value: the identifier was never reset, or its least "
+                "squares refused a sample its observer had taken"
+            )
         Phi = self._call_regressor(u)  # at the previous sample, where the observer evaluates its model term
+        if not np.isfinite(Phi).all():  # before anything steps: a refused sample changes nothing
+            raise ValueError(f"expected a finite regressor at t = {self._t!r}, actual value: {Phi!r:.120}")
         self._model.t = self._t
         xhat = self.observer.update(y, u)
         self.z_eq = self.observer.disturbance
         self.regressor_filtered = self.regressor_filtered + self._beta * (Phi - self.regressor_filtered)
-        self.least_squares.update(self.regressor_filtered, self.z_eq)
+        try:
+            self.least_squares.update(self.regressor_filtered, self.z_eq)
+        except ValueError:  # the observer took the sample the least squares refused: no longer one instant
+            self._state = None
+            raise
         self._t += self.dt
         self._y_prev = np.array(y, dtype=np.float64)
         self._v_prev = xhat[..., 1].copy()

@@ -401,6 +401,8 @@ def ratio_bound(squared: np.ndarray, refs: Sequence[int], level: float = CONFIDE
     squared = as_real_array("squared", squared)
     if squared.ndim != 3 or 0 in squared.shape[:2]:
         raise ValueError(f"expected squared of shape (C, B, n) with C, B >= 1, actual value: shape {squared.shape}")
+    if not (squared >= 0).all():  # a NaN or a negative sum would read as a ratio of 1 or less
+        raise ValueError("expected squared errors >= 0 (inf for a diverged candidate), actual value: NaN or negative")
     if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < len(squared) for i in refs):
         raise ValueError(f"expected refs among the {len(squared)} candidates' indices, actual value: {list(refs)!r}")
     totals = squared.sum(axis=1)  # (C, n)

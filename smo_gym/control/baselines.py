@@ -35,7 +35,7 @@ import scipy.linalg as sla
 
 from .._validation import as_real_array, check_int_in_range, check_nonnegative, check_positive
 from .controllers import StateFeedback, lqr
-from .estimators import LuenbergerObserver
+from .estimators import LuenbergerObserver, _output_sample
 from .plants import LinearPlant
 
 __all__ = [
@@ -332,16 +332,12 @@ class FiniteDifferenceState:
         """Zero the integral; the previous sample is ``y0`` (zero velocity), or ``y0 - tau v0`` for the velocity
         ``v0`` of ``x_hat0`` so that the first update with ``y0`` returns ``x_hat0``'s velocity."""
         p = self.plant.n_outputs
-        y0 = as_real_array("y0", y0)
-        if y0.shape != (p,):
-            raise ValueError(f"expected y0 with shape ({p},), actual value: shape {y0.shape}")
+        y0 = _output_sample("y0", y0, p)
         if x_hat0 is None:
             self._y_prev = y0.copy()
             self.x_hat = np.concatenate([y0, np.zeros(p)])
         else:
-            x_hat0 = as_real_array("x_hat0", x_hat0, copy=True)
-            if x_hat0.shape != (2 * p,):
-                raise ValueError(f"expected x_hat0 with shape ({2 * p},), actual value: shape {x_hat0.shape}")
+            x_hat0 = _output_sample("x_hat0", x_hat0, 2 * p, "state").copy()
             self._y_prev = y0 - self.dt * x_hat0[p:]
             self.x_hat = x_hat0
         self.integral = np.zeros(self.integral_outputs.size)
@@ -354,9 +350,7 @@ class FiniteDifferenceState:
     def update(self, y) -> np.ndarray:
         """Backward difference and integral with the sample ``y_k``; return :math:`\\hat x_k`."""
         self._require()
-        y = as_real_array("y", y)
-        if y.shape != self._y_prev.shape:
-            raise ValueError(f"expected y with shape {self._y_prev.shape}, actual value: shape {y.shape}")
+        y = _output_sample("y", y, self._y_prev.size)  # a NaN would stay in the integral for good
         p = y.size
         v = self.x_hat[p:] + self._a * ((y - self._y_prev) / self.dt - self.x_hat[p:])
         self.x_hat = np.concatenate([y, v])
@@ -368,7 +362,7 @@ class FiniteDifferenceState:
         """Back-calculation with the control ``u`` actually applied over the next interval."""
         self._require()
         u_cmd = -self.K @ self.augmented
-        excess = np.atleast_1d(np.asarray(u, dtype=float)) - u_cmd
+        excess = _output_sample("u", u, self.plant.n_inputs, "input") - u_cmd
         self.integral = self.integral - (self.dt / self.tracking_time) * (self._Ki_pinv @ excess)
 
 

@@ -20,6 +20,7 @@ import gymnasium as gym
 import numpy as np
 
 from .._validation import check_positive
+from ..envs.base import SmoMujocoEnv
 
 __all__ = [
     "ClosedLoopRun",
@@ -85,14 +86,26 @@ def parse_disturbance(expr: str) -> Callable[[float], np.ndarray]:
             raise ValueError(f"expected names t, {sorted(_CONSTANTS)} or functions, actual value: {node.id!r}")
         if isinstance(node, ast.Call) and not (isinstance(node.func, ast.Name) and node.func.id in _FUNCTIONS):
             raise ValueError(f"expected calls of {sorted(_FUNCTIONS)} only, actual value: {ast.unparse(node)!r}")
-        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
-            raise ValueError(f"expected numbers only, actual value: {node.value!r} in {expr!r}")
+        if isinstance(node, ast.Constant):
+            if type(node.value) not in (int, float):
+                raise ValueError(f"expected numbers only, actual value: {node.value!r} in {expr!r}")
+            node.value = float(node.value)  # float arithmetic: 9**9**9 overflows instead of running for minutes
     code = compile(tree, "<disturbance>", "eval")
     scope = {"__builtins__": {}, **_FUNCTIONS, **_CONSTANTS}
 
     def disturbance(t: float) -> np.ndarray:
-        return np.array(eval(code, scope, {"t": float(t)}), dtype=float)  # the tree was checked above
+        try:
+            with np.errstate(all="ignore"):  # a non-finite value is reported below, with the time
+                value = np.array(eval(code, scope, {"t": float(t)}), dtype=float)  # the tree was checked above
+        except (ArithmeticError, TypeError, ValueError) as exc:
+            raise ValueError(
+                f"expected {expr!r} to evaluate at t = {float(t)!r}, actual value: {type(exc).__name__}: {exc}"
+            ) from None
+        if value.ndim != 1 or not np.isfinite(value).all():
+            raise ValueError(f"expected {expr!r} finite numbers at t = {float(t)!r}, actual value: {value!r}")
+        return value
 
+    disturbance(0.0)  # wrong arguments of a function, nested tuples: refused now, not in the middle of a run
     disturbance.expression = expr  # for tables and plots
     return disturbance
 
@@ -125,12 +138,11 @@ class ExternalForce(gym.Wrapper):
         nv = self.env.unwrapped.model.nv
         if self.dofs.size == 0 or self.dofs.min() < 0 or self.dofs.max() >= nv:
             raise ValueError(f"expected qvel addresses in [0, {nv}), actual value: {self.dofs.tolist()}")
-        own = getattr(self.env.unwrapped, "disturbance_dofs", None)
-        own = [] if own is None or not callable(getattr(self.env.unwrapped, "set_disturbance", None)) else list(own)
+        unwrapped = self.env.unwrapped
+        own = [int(d) for d in unwrapped.disturbance_dofs] if isinstance(unwrapped, SmoMujocoEnv) else []
         # the environment writes its own channels at every step: forces on them go through its input
         self._own_slot = np.array([own.index(int(d)) for d in self.dofs if int(d) in own], dtype=int)
         self._own_mask = np.array([int(d) in own for d in self.dofs], dtype=bool)
-        self._own_value = np.zeros(len(own))
 
     def _value(self) -> np.ndarray:
         w = np.broadcast_to(np.asarray(self.force(float(self.env.unwrapped.data.time)), dtype=float), self.dofs.shape)
@@ -141,11 +153,19 @@ class ExternalForce(gym.Wrapper):
     def step(self, action):
         w = self._value()
         u = self.env.unwrapped
-        if self._own_mask.any():
-            self._own_value[self._own_slot] = w[self._own_mask]
-            u.set_disturbance(self._own_value)
-        u.data.qfrc_applied[self.dofs[~self._own_mask]] = w[~self._own_mask]
-        obs, reward, terminated, truncated, info = self.env.step(action)
+        if not self._own_mask.any():
+            u.data.qfrc_applied[self.dofs] = w
+            obs, reward, terminated, truncated, info = self.env.step(action)
+        else:  # added to the environment's own constant for this step, which is then restored as it was
+            constant = u.constant_disturbance
+            total = constant.copy()
+            total[self._own_slot] += w[self._own_mask]
+            u.set_disturbance(total)
+            u.data.qfrc_applied[self.dofs[~self._own_mask]] = w[~self._own_mask]
+            try:
+                obs, reward, terminated, truncated, info = self.env.step(action)
+            finally:
+                u.set_disturbance(constant)
         info["disturbance"] = w.copy()
         return obs, reward, terminated, truncated, info
 

@@ -186,9 +186,17 @@ class StateFeedback:
         actuator's range first: the observer predicts with, and the laws' memories (:attr:`u`) hold, the command
         actually applied.
         """
+        if limits is not None:  # checked before the observer takes the sample
+            q = self.plant.n_inputs
+            try:
+                low, high = (np.broadcast_to(np.asarray(v, dtype=float), (q,)) for v in limits)
+            except (TypeError, ValueError):
+                raise ValueError(f"expected limits (low, high) of shape ({q},), actual value: {limits!r:.80}") from None
+            if np.isnan(low).any() or np.isnan(high).any() or (low > high).any():
+                raise ValueError(f"expected limits with low <= high and no NaN, actual value: {limits!r:.80}")
         self.observer.update(y)
         u = np.atleast_1d(self.law(t))
-        self.u = u if limits is None else np.clip(u, limits[0], limits[1])
+        self.u = u if limits is None else np.clip(u, low, high)
         self.observer.advance(self.u)
         return self.u
 

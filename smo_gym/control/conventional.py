@@ -197,12 +197,15 @@ class _SampledObserver:
         if self._batch is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
 
-    def _y(self, y) -> np.ndarray:
+    def _y(self, y, batch=None) -> np.ndarray:
         y = as_real_array("y", y)
+        batch = self._batch if batch is None else batch
         if y.ndim == 0 or y.shape[-1] != self.p:
             raise ValueError(f"expected y of shape (..., {self.p}), actual value: shape {y.shape}")
-        if self._batch is not None and y.shape[:-1] != self._batch:
-            raise ValueError(f"expected y of shape {self._batch + (self.p,)}, actual value: shape {y.shape}")
+        if batch is not None and y.shape[:-1] != batch:
+            raise ValueError(f"expected y of shape {batch + (self.p,)}, actual value: shape {y.shape}")
+        if not np.isfinite(y).all():
+            raise ValueError(f"expected finite measurements y, actual value: {y!r:.80}; the state was kept")
         return y
 
     def _u(self, u) -> np.ndarray:
@@ -211,7 +214,12 @@ class _SampledObserver:
         u = as_real_array("u", u)
         if u.ndim == 0 or u.shape[-1] != self.q:
             raise ValueError(f"expected u of shape (..., {self.q}), actual value: shape {u.shape}")
-        return np.broadcast_to(u, self._batch + (self.q,))
+        if not np.isfinite(u).all():
+            raise ValueError(f"expected finite inputs u, actual value: {u!r:.80}; the state was kept")
+        try:
+            return np.broadcast_to(u, self._batch + (self.q,))
+        except ValueError:
+            raise ValueError(f"expected u of shape {self._batch + (self.q,)}, actual value: {u.shape}") from None
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start from ``x_hat0`` (default: the least-squares state matching ``y0``); returns the estimate.
@@ -221,16 +229,20 @@ class _SampledObserver:
         y0 : array_like, shape (..., p)
         x_hat0 : array_like, shape (..., n), optional
         """
-        self._batch = None
-        y0 = self._y(y0)
-        self._batch = y0.shape[:-1]
+        y0 = as_real_array("y0", y0)
+        y0 = self._y(y0, y0.shape[:-1])  # any batch shape; checked before the previous reset is given up
+        batch = y0.shape[:-1]
         if x_hat0 is None:
             x0 = y0 @ np.linalg.pinv(self.C).T
         else:
             x0 = as_real_array("x_hat0", x_hat0)
-            if x0.shape[-1:] != (self.n,):
-                raise ValueError(f"expected x_hat0 of shape (..., {self.n}), actual value: shape {x0.shape}")
-            x0 = np.broadcast_to(x0, self._batch + (self.n,)).copy()
+            if x0.shape[-1:] != (self.n,) or not np.isfinite(x0).all():
+                raise ValueError(f"expected a finite x_hat0 of shape (..., {self.n}), actual value: {x0!r:.80}")
+            try:
+                x0 = np.broadcast_to(x0, batch + (self.n,)).copy()
+            except ValueError:
+                raise ValueError(f"expected x_hat0 of shape {batch + (self.n,)}, actual value: {x0.shape}") from None
+        self._batch = batch
         self._reset(x0, y0)
         return self.x_hat
 

@@ -64,13 +64,13 @@ from .plants import LinearPlant, molinari_decoupling
 __all__ = ["CascadedHOSMObserver", "LuenbergerObserver", "output_error_lipschitz", "sampled_observer_gain"]
 
 
-def _output_sample(name: str, y, p: int) -> np.ndarray:
-    """``y`` as a finite float vector of the ``p`` outputs (a typed error otherwise: a wrong length would broadcast
-    silently against ``C x``)."""
+def _output_sample(name: str, y, p: int, what: str = "output") -> np.ndarray:
+    """``y`` as a finite float vector of the ``p`` outputs (inputs, states: ``what``), or a typed error: a wrong
+    length would broadcast silently against ``C x``, a NaN would stay in the estimate."""
     arr = as_real_array(name, y)
     arr = arr.reshape(-1) if arr.ndim <= 1 else arr
     if arr.shape != (p,):
-        raise ValueError(f"expected {name} with shape ({p},) (one value per output), actual value: shape {np.shape(y)}")
+        raise ValueError(f"expected {name} with shape ({p},) (one value per {what}), actual value: shape {np.shape(y)}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"expected a finite {name}, actual value: {arr!r}")
     return arr
@@ -173,7 +173,10 @@ class LuenbergerObserver:
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start from ``x_hat0`` (default: the least-squares state matching ``y0``, zero elsewhere)."""
         y0 = _output_sample("y0", y0, self.plant.n_outputs)
-        self._prior = np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else np.array(x_hat0, dtype=float)
+        n = self.plant.n
+        self._prior = (
+            np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else _output_sample("x_hat0", x_hat0, n, "state")
+        )
         self.x_hat = self._prior.copy()
         return self.x_hat
 
@@ -191,7 +194,7 @@ class LuenbergerObserver:
     def advance(self, u) -> None:
         """Predict to the next sample with the control ``u`` held over the interval."""
         self._require()
-        self._prior = self.Phi @ self.x_hat + self.Gamma @ np.atleast_1d(np.asarray(u, dtype=float))
+        self._prior = self.Phi @ self.x_hat + self.Gamma @ _output_sample("u", u, self.plant.n_inputs, "input")
 
 
 class CascadedHOSMObserver:
@@ -314,7 +317,7 @@ class CascadedHOSMObserver:
         self._jump = np.vstack(
             [plant.C @ np.linalg.matrix_power(plant.A, j) @ self.Phi for j in range(self.order + 1)]
         )  # ((k+1) p, n), derivative-major
-        self._prior = self._posterior = None
+        self._prior = self._posterior = self._y_last = None
         self._dstate = None
         self.x_hat = self.e_hat = self.e_hat_derivatives = None
         self.w_hat = np.zeros(plant.n_unknown)
@@ -348,7 +351,11 @@ class CascadedHOSMObserver:
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start the Luenberger stage at ``x_hat0`` (default ``C^+ y0``) and the differentiator at its output error."""
         y0 = _output_sample("y0", y0, self.plant.n_outputs)
-        self._prior = np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else np.array(x_hat0, dtype=float)
+        n = self.plant.n
+        self._prior = (
+            np.linalg.pinv(self.plant.C) @ y0 if x_hat0 is None else _output_sample("x_hat0", x_hat0, n, "state")
+        )
+        self._y_last = None
         ye0 = y0 - self.plant.C @ self._prior
         self.differentiator.reset(ye0)
         self._dstate = self.differentiator.state
@@ -386,8 +393,10 @@ class CascadedHOSMObserver:
         """Predict the Luenberger stage to the next sample with the control ``u`` held over the interval."""
         if self._prior is None:
             raise RuntimeError("expected reset(y0) before advance(u), actual value: the observer was never reset")
-        u = np.atleast_1d(np.asarray(u, dtype=float))
+        u = _output_sample("u", u, self.plant.n_inputs, "input")
         if self.injection == "held":
+            if self._y_last is None:
+                raise RuntimeError("expected update(y) before advance(u), actual value: no sample since the reset")
             Phi_h, Gam_u, Gam_y = self._held
             self._prior = Phi_h @ self._prior + Gam_u @ u + Gam_y @ self._y_last
             return

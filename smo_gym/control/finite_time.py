@@ -312,8 +312,13 @@ def settling_time(t, err, tol) -> np.ndarray:
     -------
     ndarray, shape (...)
     """
-    t = np.asarray(t, dtype=float)
-    bad = np.asarray(err, dtype=float) > tol
+    t, err = as_real_array("t", t), as_real_array("err", err)
+    if t.ndim != 1 or t.size == 0 or err.shape[:1] != t.shape:
+        raise ValueError(f"expected t (T,) with T >= 1 and err (T, ...), actual value: shapes {t.shape}, {err.shape}")
+    tol = as_real_array("tol", tol)
+    if np.isnan(tol).any():
+        raise ValueError(f"expected tol without NaN, actual value: {tol!r}")
+    bad = ~(err <= tol)  # a NaN error is not settled
     out = np.full(bad.shape[1:], np.inf)
     ever = ~bad[-1]
     last_bad = bad.shape[0] - 1 - np.argmax(bad[::-1], axis=0)  # index of the last violation

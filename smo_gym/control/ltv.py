@@ -997,20 +997,21 @@ class CascadedLTVObserver:
         k2 = A1 @ (h / 2 * k1) + B1 @ u
         k3 = A1 @ (h / 2 * k2) + B1 @ u
         k4 = A2 @ (h * k3) + B2 @ u
-        self.z = self._Phi @ self._posterior + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        z = self._Phi @ self._posterior + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         P = self.P
         p1 = self._pdot(t, P)
         p2 = self._pdot(t + h / 2, P + h / 2 * p1)
         p3 = self._pdot(t + h / 2, P + h / 2 * p2)
         p4 = self._pdot(t + h, P + h * p3)
         P = P + h / 6 * (p1 + 2 * p2 + 2 * p3 + p4)
-        self.P = (P + P.T) / 2
-        if not np.all(np.isfinite(self.P)) or np.linalg.eigvalsh(self.P).min() <= 0:
+        P = (P + P.T) / 2
+        if not np.all(np.isfinite(P)) or np.linalg.eigvalsh(P).min() <= 0:  # refused before anything changes
             raise RuntimeError(
                 f"expected P(t) positive definite (slides eq. (17)), actual value: eigenvalues "
-                f"{np.linalg.eigvalsh(self.P)} at t={t + h:.6g}; choose P0, Q and forgetting so that P stays "
-                "positive definite and bounded"
+                f"{np.linalg.eigvalsh(P) if np.isfinite(P).all() else P} at t={t + h:.6g}; choose P0, Q and "
+                "forgetting so that P stays positive definite and bounded (the observer is still at t)"
             )
+        self.z, self.P = z, P
         self._posterior = None
         self.t = t + h
         self._step_mats = {self.t: self._step_mats[t + h]}

@@ -17,7 +17,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
-from .._validation import check_choice, check_int_in_range, check_nonnegative, check_positive
+from .._validation import as_real_array, check_choice, check_int_in_range, check_nonnegative, check_positive
 
 __all__ = [
     "ControlDiagnostics",
@@ -602,15 +602,18 @@ def design(
     controller = check_choice("controller", controller, choices)
     dt = check_positive("env.unwrapped.dt", float(unwrapped.dt))
     if controller == "computed-torque":
+        from ..mechanics import MujocoDynamics
         from .computed_torque import ComputedTorquePolicy
 
-        target = model.qpos0 if operating_point is None else operating_point
-        bound = (
+        # the target of the joints the policy measures: a joint coupled to another by an equality has none
+        dofs = MujocoDynamics(model).dof
+        target = model.qpos0[dofs] if operating_point is None else as_real_array("operating_point", operating_point)
+        options = (
             {}
             if disturbance_bound is None
             else {"disturbance_bound": check_positive("disturbance_bound", disturbance_bound)}
         )
-        return ComputedTorquePolicy.from_env(env, sensor=sensor, target=np.asarray(target, dtype=float), **bound)
+        return ComputedTorquePolicy.from_env(env, sensor=sensor, target=target, **options)
     alpha = check_int_in_range("alpha", alpha, 1, 4)
     op = equilibrium(model, operating_point)
     joints, out_adr, out_dofs = _joint_dofs(model, None if measured == "positions" else measured)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_nonnegative, check_positive
+from .._validation import as_real_array, check_nonnegative, check_positive
 from .plants import LinearPlant
 
 __all__ = ["SimulationResult", "fit_order", "simulate", "steady_state_error", "total_variation_rate"]
@@ -200,5 +200,11 @@ def total_variation_rate(u: np.ndarray, t: np.ndarray) -> float:
 
 def fit_order(steps, errors) -> float:
     """Slope of ``log(error)`` against ``log(step)`` by least squares: the fitted accuracy order."""
-    steps, errors = np.asarray(steps, float), np.asarray(errors, float)
+    steps, errors = as_real_array("steps", steps).reshape(-1), as_real_array("errors", errors).reshape(-1)
+    if steps.shape != errors.shape or steps.size < 2 or np.unique(steps).size < 2:
+        raise ValueError(
+            f"expected steps and errors of one length with two steps or more, actual value: {steps!r}, {errors!r}"
+        )
+    if not (np.all(steps > 0) and np.all(errors > 0) and np.isfinite(steps).all() and np.isfinite(errors).all()):
+        raise ValueError(f"expected finite steps and errors > 0 (logarithms), actual value: {steps!r}, {errors!r}")
     return float(np.polyfit(np.log(steps), np.log(errors), 1)[0])

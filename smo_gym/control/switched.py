@@ -447,10 +447,10 @@ class SwitchedHOSMObserver:
 
     def reset(self, y0, mode: int, x_hat0=None) -> np.ndarray:
         """Start in ``mode`` at the sample ``y0`` (estimate ``x_hat0``, default ``C^+ y0``); return the estimate."""
-        self.mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
-        self.observers[self.mode].reset(y0, x_hat0)
-        self.x_hat = self.observers[self.mode].update(y0)
-        self.switch_samples, self._k, self._carry = [], 0, None
+        mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
+        self.observers[mode].reset(y0, x_hat0)
+        self.x_hat = self.observers[mode].update(y0)
+        self.mode, self.switch_samples, self._k, self._carry = mode, [], 0, None  # once the sample was taken
         return self.x_hat
 
     def update(self, y, mode: int) -> np.ndarray:
@@ -461,12 +461,13 @@ class SwitchedHOSMObserver:
         if self._carry is None:
             raise RuntimeError("expected advance(u) after each update, actual value: update called twice in a row")
         mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
+        if mode != self.mode:  # the new mode's observer starts here; it is the active one once it took the sample
+            self.observers[mode].reset(y, self._carry if self.on_switch == "continue" else None)
+        self.x_hat = self.observers[mode].update(y)
         self._k += 1
         if mode != self.mode:
-            self.observers[mode].reset(y, self._carry if self.on_switch == "continue" else None)
             self.switch_samples.append(self._k)
             self.mode = mode
-        self.x_hat = self.observers[self.mode].update(y)
         self._carry = None
         return self.x_hat
 

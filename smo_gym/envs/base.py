@@ -20,6 +20,8 @@ from gymnasium import utils
 from gymnasium.envs.mujoco import MujocoEnv
 from gymnasium.spaces import Box
 
+from .._validation import as_real_array, check_int_at_least, check_nonnegative
+
 __all__ = ["ASSETS", "SmoMujocoEnv", "asset_path"]
 
 #: directory of the packaged MJCF models
@@ -58,7 +60,8 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
             render_mode=render_mode,
             **kwargs,
         )
-        self._reset_noise_scale = float(reset_noise_scale)
+        frame_skip = check_int_at_least("frame_skip", frame_skip, 1)
+        self._reset_noise_scale = check_nonnegative("reset_noise_scale", reset_noise_scale)
         path = asset_path(self.xml_file)
         model = mujoco.MjModel.from_xml_path(path)
         n_obs = model.nq + model.nv
@@ -86,7 +89,7 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
     # ---- disturbance input ---------------------------------------------------------------------------------
     def set_disturbance(self, torque) -> None:
         """Apply a constant generalized force on ``disturbance_joints`` from now on (added to ``disturbance=``)."""
-        torque = np.asarray(torque, dtype=np.float64)
+        torque = as_real_array("torque", torque)
         if torque.shape not in ((), self._disturbance_const.shape):
             raise ValueError(
                 f"expected a disturbance of shape {self._disturbance_const.shape}, actual value: {torque.shape}"
@@ -95,10 +98,21 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
             raise ValueError(f"expected a finite disturbance, actual value: {torque!r}")
         self._disturbance_const = np.broadcast_to(torque, self._disturbance_const.shape).copy()
 
+    @property
+    def constant_disturbance(self) -> np.ndarray:
+        """The constant generalized force :meth:`set_disturbance` applies on ``disturbance_joints`` (a copy)."""
+        return self._disturbance_const.copy()
+
     def _disturbance_at(self, t: float) -> np.ndarray:
         d = self._disturbance_const
         if self._disturbance_fn is not None:
-            d = d + np.broadcast_to(np.asarray(self._disturbance_fn(t), dtype=np.float64), d.shape)
+            value = as_real_array("disturbance(t)", self._disturbance_fn(t))
+            try:
+                d = d + np.broadcast_to(value, d.shape)
+            except ValueError:
+                raise ValueError(f"expected disturbance(t) of shape {d.shape}, actual value: {value.shape}") from None
+        if not np.isfinite(d).all():  # MuJoCo would reset the simulation, silently
+            raise ValueError(f"expected a finite disturbance at t = {t!r}, actual value: {d!r}")
         return d
 
     # ---- gymnasium API -------------------------------------------------------------------------------------
@@ -115,15 +129,18 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
         return qpos, qvel
 
     def step(self, action):
-        action = np.asarray(action, dtype=np.float64)
+        action = as_real_array("action", action)
+        if not np.isfinite(action).all():  # MuJoCo would replace it by 0, silently
+            raise ValueError(f"expected a finite action, actual value: {action!r}")
         d = self._disturbance_at(self.data.time)
         # only its own channels: forces another wrapper applies to other joints stay (a reset clears them all)
         self.data.qfrc_applied[self.disturbance_dofs] = d
         self._last_disturbance = d
+        t0 = self.data.time
         self.do_simulation(action, self.frame_skip)
         obs = self._get_obs()
         reward, terminated = self._reward_terminated(obs, action)
-        if not np.all(np.isfinite(obs)):
+        if not np.all(np.isfinite(obs)) or self.data.time < t0:  # MuJoCo resets a diverging simulation itself
             terminated = True
         info = {"disturbance": self._last_disturbance.copy(), "time": float(self.data.time)}
         if self.render_mode == "human":
