@@ -243,3 +243,30 @@ def test_computed_torque_design_defaults_to_the_measured_joints_target():
     """With a joint coupled by an equality (VariableInertia's bead) the default target had every joint's qpos0."""
     policy = c.design(gym.make("smo_gym/VariableInertia-v0"), "computed-torque")
     np.testing.assert_array_equal(policy.target, [0.0])
+
+
+def test_options_that_were_ignored_or_inverted_are_refused():
+    """``cancel_drift="no"`` and ``feedforward="False"`` became True, a NaN ``t_start`` switched compensation off
+    for good, negative noise levels and time constants were ignored, a negative ``dt`` gave matrices."""
+    plant = oscillator(1.0)
+    hosm = c.CascadedHOSMObserver(plant, 0.01, 100.0)
+    cases = [
+        (lambda: c.CompensationController(hosm, Q=np.eye(2), R=np.eye(1), t_start=np.nan), ValueError, "t_start"),
+        (lambda: c.UnmatchedCompensationController(hosm, feedforward="False"), TypeError, "feedforward"),
+        (lambda: c.FiniteTimeStabilizer(hosm, alpha=1.0, cancel_drift="no"), TypeError, "cancel_drift"),
+        (lambda: plant.discretize(-0.01), ValueError, "dt > 0"),
+        (lambda: plant.discretize(0.01, actuator_tau=-1.0), ValueError, "actuator_tau"),
+        (lambda: c.sampled_observer_gain(plant.A, plant.C, -0.01), ValueError, "dt > 0"),
+        (lambda: c.output_error_lipschitz(plant, 2, e_bound=-1.0), ValueError, "e_bound"),
+        (
+            lambda: c.simulate_chain(lambda z, t: 0 * z[..., 0], [1.0, 0.0], 0.01, 0.1, substeps=0),
+            ValueError,
+            "substeps",
+        ),
+    ]
+    feedback = c.StateFeedback(c.LuenbergerObserver(plant, 0.01), Q=np.eye(2), R=np.eye(1))
+    for option in (dict(noise_std=-1.0), dict(noise_std=np.nan), dict(resolution=np.nan), dict(w_step=-1.0)):
+        cases.append((lambda option=option: c.simulate(plant, feedback, t_final=0.1, **option), ValueError, "expected"))
+    for make, error, message in cases:
+        with pytest.raises(error, match=message):
+            make()

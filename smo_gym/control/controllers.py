@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_choice, check_positive
+from .._validation import check_bool, check_choice, check_nonnegative, check_positive
 from .plants import LinearPlant, left_annihilator
 
 __all__ = [
@@ -227,7 +227,7 @@ class CompensationController(StateFeedback):
                 f"actual value: ||B B^+ D - D|| = {np.linalg.norm(P.B @ self.Bw - P.D):.3g}; use "
                 "UnmatchedCompensationController"
             )
-        self.t_start = float(t_start)
+        self.t_start = check_nonnegative("t_start", t_start)
 
     def law(self, t: float) -> np.ndarray:
         u = self.nominal()
@@ -283,7 +283,7 @@ class IntegralSlidingModeController(StateFeedback):
         self.switch = _Discontinuous(discontinuity, rho, k1, k2, observer.dt, self.plant.n_inputs)
         self.Phi, self.Gamma = self.plant.discretize(observer.dt)
         self.Bpinv = np.linalg.pinv(self.plant.B)
-        self.t_start = float(t_start)
+        self.t_start = check_nonnegative("t_start", t_start)
         self._reset_law()
 
     def _reset_law(self) -> None:
@@ -403,9 +403,9 @@ class UnmatchedCompensationController(StateFeedback):
                 f"derivatives up to order {self.J}), actual value: {observer.n_w_derivatives}"
             )
         self.G = -self.Gam[0] if self.J == 0 else None
-        self.feedforward = bool(feedforward)
+        self.feedforward = check_bool("feedforward", feedforward)
         self.switch = _Discontinuous(discontinuity, rho, k1, k2, observer.dt, q)
-        self.t_start = float(t_start)
+        self.t_start = check_nonnegative("t_start", t_start)
         self.K = None
         self.u = np.zeros(q)
         self.s = np.zeros(q)

@@ -56,7 +56,14 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import as_real_array, check_choice, check_int_in_range, check_positive
+from .._validation import (
+    as_real_array,
+    check_choice,
+    check_int_in_range,
+    check_nonnegative,
+    check_nonnegative_array,
+    check_positive,
+)
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
 from .plants import LinearPlant, molinari_decoupling
@@ -101,6 +108,7 @@ def sampled_observer_gain(A, C, dt: float, poles=None) -> np.ndarray:
     ndarray, shape (n, p)
     """
     A, C = np.asarray(A, float), np.asarray(C, float)
+    dt = check_positive("dt", dt)
     poles = _default_poles(A) if poles is None else np.asarray(poles, dtype=complex)
     if poles.shape != (A.shape[0],) or np.any(poles.real >= 0):
         raise ValueError(
@@ -130,8 +138,9 @@ def output_error_lipschitz(plant: LinearPlant, order: int, *, e_bound: float = 0
     ndarray, shape (p,)
     """
     A, C, D = plant.A, plant.C, plant.D
-    wb = list(w_bounds)
-    L = np.linalg.norm(C @ np.linalg.matrix_power(A, order + 1), axis=1) * float(e_bound)
+    order = check_int_in_range("order", order, 0, 64)
+    wb = list(check_nonnegative_array("w_bounds", w_bounds).reshape(-1))
+    L = np.linalg.norm(C @ np.linalg.matrix_power(A, order + 1), axis=1) * check_nonnegative("e_bound", e_bound)
     for i in range(order + 1):
         wi = wb[min(i, len(wb) - 1)]
         L = L + np.linalg.norm(C @ np.linalg.matrix_power(A, order - i) @ D, axis=1) * wi

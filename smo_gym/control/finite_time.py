@@ -46,7 +46,9 @@ import numpy as np
 
 from .._validation import (
     as_real_array,
+    check_bool,
     check_choice,
+    check_int_in_range,
     check_nonnegative,
     check_nonnegative_array,
     check_positive,
@@ -268,7 +270,7 @@ def simulate_chain(control, z0, dt: float, t_final: float, *, disturbance=None, 
     t_final = check_positive("t_final", t_final)
     z = np.array(as_real_array("z0", z0), dtype=float)
     r = z.shape[-1]
-    n_sub = max(1, int(substeps))
+    n_sub = check_int_in_range("substeps", substeps, 1, 10_000)
     h = dt / n_sub
 
     def chain_maps(step):
@@ -558,8 +560,8 @@ class FiniteTimeStabilizer(StateFeedback):
         self.k2 = per_output("k2", k2, check_positive_array)
         self.kind = check_choice("kind", kind, KINDS)
         self.betas = [_betas(betas, int(r)) for r in self.sliding.degrees]
-        self.cancel_drift = bool(cancel_drift)
-        self.t_start = float(t_start)
+        self.cancel_drift = check_bool("cancel_drift", cancel_drift)
+        self.t_start = check_nonnegative("t_start", t_start)
         self._Ginv = np.linalg.inv(self.sliding.G)
         self.K = None
         self.u = np.zeros(m)

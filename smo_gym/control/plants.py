@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_positive
+from .._validation import check_nonnegative, check_positive
 
 __all__ = [
     "LinearPlant",
@@ -534,6 +534,7 @@ class LinearPlant:
 
         With ``actuator_tau = mu > 0`` the state is ``[x; u_a]`` and :math:`\mu \dot u_a = u - u_a`.
         """
+        dt = check_positive("dt", dt)
         A, B = self.augmented(actuator_tau)[:2]
         n, q = A.shape[0], B.shape[1]
         M = np.zeros((n + q, n + q))
@@ -543,7 +544,8 @@ class LinearPlant:
 
     def augmented(self, actuator_tau: float = 0.0):
         """``(A, B, D)`` of the plant with a first-order actuator of time constant ``actuator_tau`` (0: none)."""
-        if actuator_tau <= 0.0:
+        actuator_tau = check_nonnegative("actuator_tau", actuator_tau)
+        if actuator_tau == 0.0:
             return self.A, self.B, self.D
         n, q = self.n, self.n_inputs
         A = np.block([[self.A, self.B], [np.zeros((q, n)), -np.eye(q) / actuator_tau]])

@@ -126,6 +126,8 @@ def simulate(
     dt = check_positive("dt", controller.dt)
     t_final = check_positive("t_final", t_final)
     noise_bound = check_nonnegative("noise_bound", noise_bound)
+    noise_std, resolution = check_nonnegative("noise_std", noise_std), check_nonnegative("resolution", resolution)
+    w_step = check_positive("w_step", w_step)
     n, q, m = plant.n, plant.n_inputs, plant.n_unknown
     A, B, D = plant.augmented(actuator_tau)
     na = A.shape[0]
