@@ -270,3 +270,20 @@ def test_options_that_were_ignored_or_inverted_are_refused():
     for make, error, message in cases:
         with pytest.raises(error, match=message):
             make()
+
+
+def test_shapes_and_types_give_typed_errors_not_index_errors():
+    plant = oscillator(1.0)
+    utkin = c.UtkinObserver(plant.A, plant.B, plant.C, 0.01, 5.0)
+    cases = [
+        (lambda: c.left_annihilator([[1.0], [np.nan]]), ValueError),
+        (lambda: c.left_annihilator([1.0, 2.0]), ValueError),
+        (lambda: c.default_integral_outputs(np.eye(2)), TypeError),
+        (lambda: c.simulate_chain(lambda z, t: 0 * z[..., 0], 1.0, 0.01, 0.1), ValueError),
+        (lambda: c.total_variation_rate([], []), ValueError),
+        (lambda: utkin.run(np.zeros((5, 1)), u=np.zeros((2, 1))), ValueError),
+        (lambda: c.PIDController(plant, 0.01, integral_outputs=[7]), ValueError),
+    ]
+    for make, error in cases:
+        with pytest.raises(error, match="expected"):
+            make()

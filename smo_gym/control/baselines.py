@@ -313,7 +313,15 @@ class FiniteDifferenceState:
         self.dt = check_positive("dt", dt)
         self.derivative_filter = check_nonnegative("derivative_filter", derivative_filter)
         self._a = self.dt / (self.derivative_filter + self.dt)
-        self.integral_outputs = np.asarray(integral_outputs, dtype=int)
+        outputs = np.asarray(integral_outputs).reshape(-1)
+        p = plant.n_outputs
+        if (
+            outputs.dtype.kind not in "iu"
+            or np.unique(outputs).size != outputs.size
+            or not np.all((outputs >= 0) & (outputs < p))
+        ):
+            raise ValueError(f"expected distinct output indices in [0, {p}), actual value: {integral_outputs!r}")
+        self.integral_outputs = outputs.astype(int)
         self.K = np.asarray(K, dtype=float)
         n_i = self.integral_outputs.size
         self.tracking_time = check_positive("tracking_time", tracking_time)
@@ -394,6 +402,8 @@ def default_integral_outputs(plant: LinearPlant) -> np.ndarray:
     this picks the arm angle (``|c A B| = 46.75`` against 13.20, and the pendulum angle's transfer from the motor
     has a zero at the origin anyway).
     """
+    if not isinstance(plant, LinearPlant):
+        raise TypeError(f"expected a LinearPlant, actual value: {type(plant).__name__}")
     A, B, C = plant.A, plant.B, plant.C
     p, q = plant.n_outputs, plant.n_inputs
     if q >= p:

@@ -266,6 +266,10 @@ class _SampledObserver:
         y = as_real_array("y", y)
         if y.ndim < 2:
             raise ValueError(f"expected y of shape (T, ..., {self.p}), actual value: shape {y.shape}")
+        if u is not None:
+            u = as_real_array("u", u)
+            if u.ndim == 0 or len(u) < len(y) - 1:
+                raise ValueError(f"expected u with a row per sample of y ({len(y)}), actual value: shape {u.shape}")
         out = np.empty(y.shape[:-1] + (self.n,))
         rec: dict[str, list] = {}
         self.reset(y[0], x_hat0)

@@ -269,6 +269,8 @@ def simulate_chain(control, z0, dt: float, t_final: float, *, disturbance=None, 
     dt = check_positive("dt", dt)
     t_final = check_positive("t_final", t_final)
     z = np.array(as_real_array("z0", z0), dtype=float)
+    if z.ndim == 0 or z.shape[-1] == 0 or not np.isfinite(z).all():
+        raise ValueError(f"expected a finite z0 of shape (..., r) with r >= 1, actual value: {z!r:.80}")
     r = z.shape[-1]
     n_sub = check_int_in_range("substeps", substeps, 1, 10_000)
     h = dt / n_sub

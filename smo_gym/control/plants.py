@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_nonnegative, check_positive
+from .._validation import as_real_array, check_nonnegative, check_positive
 
 __all__ = [
     "LinearPlant",
@@ -106,6 +106,9 @@ def left_annihilator(M: np.ndarray) -> np.ndarray:
 
     ``M`` of shape ``(r, c)`` gives shape ``(r - rank M, r)``; ``M = 0`` gives the identity.
     """
+    M = as_real_array("M", M)
+    if M.ndim != 2 or not np.isfinite(M).all():
+        raise ValueError(f"expected a finite matrix M (r, c), actual value: {M!r:.80}")
     if M.size == 0 or np.all(M == 0):
         return np.eye(M.shape[0])
     U, s, _ = np.linalg.svd(M)

@@ -185,6 +185,8 @@ def steady_state_error(result: SimulationResult, t0: float, indices=None) -> flo
     """``max_k |x_i(t_k)|`` over ``t_k >= t0`` and the state entries ``indices`` (default the measured ones)."""
     sel = result.after(t0)
     x = result.x[sel] if indices is None else result.x[sel][:, indices]
+    if x.size == 0:
+        raise ValueError(f"expected samples at t >= t0, actual value: t0 = {t0!r} after the record's end")
     return float(np.abs(x).max())
 
 
@@ -194,9 +196,11 @@ def total_variation_rate(u: np.ndarray, t: np.ndarray) -> float:
     Chattering in numbers: a continuous control has a variation set by the signal it tracks; a switching control
     of amplitude ``rho`` at step ``tau`` reaches ``~ 2 rho / tau``.
     """
-    u = np.asarray(u, dtype=float)
+    u, t = as_real_array("u", u), as_real_array("t", t)
     if u.ndim == 1:
         u = u[:, None]
+    if t.ndim != 1 or t.size < 2 or u.shape[0] != t.size or not t[-1] > t[0]:
+        raise ValueError(f"expected u (T, ...) and increasing t (T,) with T >= 2, actual value: {u.shape}, {t.shape}")
     return float(np.abs(np.diff(u, axis=0)).sum() / (t[-1] - t[0]))
 
 
