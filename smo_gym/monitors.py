@@ -45,7 +45,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._validation import as_real_array
+from ._validation import as_real_array, check_int_at_least
 from .fault_detection import UNKNOWN, FaultObserverBank, diagnose
 from .identification import EquivalentInjectionIdentifier
 
@@ -130,7 +130,7 @@ class ParameterMonitor:
         self.names = tuple(f"theta{i}" for i in range(identifier.p)) if names is None else tuple(map(str, names))
         if len(self.names) != identifier.p:
             raise ValueError(f"expected {identifier.p} parameter names, actual value: {len(self.names)}")
-        self.n_ctrl = None if n_ctrl is None else int(n_ctrl)
+        self.n_ctrl = None if n_ctrl is None else check_int_at_least("n_ctrl", n_ctrl, 0)
         self._started = False
 
     @classmethod

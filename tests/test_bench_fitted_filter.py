@@ -37,6 +37,22 @@ def test_fit_recovers_the_filter_that_generated_the_velocities(script):
     assert script.rmse_of_taps(rec, found, taps=5) < 1e-10
     # the backward difference is the one-tap filter 1/h: its RMSE is the record's backward-difference error
     fd = [np.array([1 / rec.dt, 0.0, 0.0, 0.0, 0.0])] * 2
-    mask = script.scored(rec)
-    expected = np.sqrt(np.mean((X[:, :, 0].T[mask] / rec.dt - qvel[mask]) ** 2))
+    errors = np.delete(X[:, :, 0].T / rec.dt - qvel, starts, axis=0)  # every sample but each episode's first
+    expected = np.sqrt(np.mean(errors**2))
     assert script.rmse_of_taps(rec, fd, taps=5) == pytest.approx(expected, rel=1e-12)
+    assert np.flatnonzero(~script.scored(rec)).tolist() == starts
+
+
+def test_fit_weighs_each_recording_by_its_backward_difference_error(script):
+    """Two recordings of one filter at scales 1 and 100: weighted by their backward-difference errors, the same
+    taps fit both; a mis-specified third tap is fitted as the relative errors say, not as the faster record does."""
+    rng = np.random.default_rng(1)
+    recs = []
+    for scale, third in ((1.0, 0.1), (100.0, -0.1)):
+        z = scale * np.cumsum(rng.normal(size=(300, 1)), axis=0)
+        X = script.differences(z, [0], taps=3)
+        qvel = (X[0] @ np.array([0.8, 0.0, third]))[:, None]
+        recs.append(SimpleNamespace(z_measured=z, qvel=qvel, episode_starts=np.array([0]), dt=0.01))
+    (w,) = script.fit_taps(recs, taps=3)
+    # unweighted, the record at scale 100 would decide alone (its squared errors are 1e4 times larger): -0.1
+    assert abs(w[2]) < 0.05, w

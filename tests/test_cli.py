@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import gymnasium as gym
@@ -16,6 +17,11 @@ from smo_gym.wrappers import EstimatedVelocity
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("SMO_GYM_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def _row(text: str, name: str) -> list[str]:
+    """The RMSE and max-error cells of the table row of observer ``name`` (the timing column left out)."""
+    return next(line.split()[1:3] for line in text.splitlines() if line.split()[:1] == [name])
 
 
 def test_compare_prints_table_and_writes_png(tmp_path, capsys):
@@ -58,6 +64,12 @@ def test_compare_prints_table_and_writes_png(tmp_path, capsys):
         assert word in text
     assert re.search(r"^auto: .* on (slider|hinge)", text, re.MULTILINE)  # what auto chose, by joint name
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the run the options ask for: the library's recording with them gives the header and the rows printed
+    rec = lib.record_rollout("InvertedPendulum-v5", sensor="low-cost", rate=1, steps=60, seed=1)
+    (fd,) = lib.compare_observers(rec, ["finite-difference"])
+    table = lib.format_table(rec, [fd])
+    assert table.splitlines()[0] in text
+    assert _row(text, "finite-difference") == _row(table, "finite-difference")  # RMSE and max error
 
 
 def test_finite_difference_row_is_the_backward_difference_of_the_measurements():
@@ -315,4 +327,11 @@ def test_compare_runs_an_observer_told_the_actions(tmp_path, capsys):
     out = tmp_path / "cmp.png"
     argv = ["compare", "--env", "InvertedPendulum-v5", "--steps", "30", "--no-progress", "--out", str(out)]
     assert cli.main([*argv, "--observers", "kalman-ca-input,finite-difference"]) == 0
-    assert "kalman-ca-input" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    rec = lib.record_rollout("InvertedPendulum-v5", steps=30)
+    results = lib.compare_observers(rec, ["kalman-ca-input", "finite-difference"])
+    assert _row(text, "kalman-ca-input") == _row(lib.format_table(rec, results), "kalman-ca-input")
+    told = results[0]
+    # and the input is the recorded one: without it (zeros) the filter's estimates are others
+    blind = lib.compare_observers(dataclasses.replace(rec, inputs=np.zeros_like(rec.inputs)), ["kalman-ca-input"])[0]
+    assert not np.allclose(blind.velocity, told.velocity)

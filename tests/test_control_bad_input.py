@@ -287,3 +287,17 @@ def test_shapes_and_types_give_typed_errors_not_index_errors():
     for make, error in cases:
         with pytest.raises(error, match="expected"):
             make()
+
+
+def test_indices_names_and_counts_are_not_coerced():
+    """``ExternalForce(dofs=[0.9])`` pushed dof 0, an unknown body's mass event raised a bare KeyError in the
+    middle of a run, string matrices were converted."""
+    env = gym.make("smo_gym/TwoLinkArm-v0")
+    with pytest.raises(TypeError, match="integer qvel addresses"):
+        ExternalForce(env, lambda t: [0.2], dofs=[0.9])
+    with pytest.raises(ValueError, match="expected a body of the model"):
+        c.scale_body_mass("nobody", 2.0)(env)
+    with pytest.raises(TypeError, match="LinearPlant"):
+        c.default_integral_outputs("plant")
+    with pytest.raises(TypeError, match="A to be an array of real numbers"):
+        c.LinearPlant([["1", "0"], ["0", "1"]], [[0], [1]], [[1, 0]], [[0], [1]])

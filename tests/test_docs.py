@@ -14,6 +14,7 @@ import os
 import re
 import subprocess
 import sys
+from html import unescape
 from pathlib import Path
 
 import pytest
@@ -144,17 +145,19 @@ def test_benchmark_pages_are_built_from_the_results_files(site):
     }
     for page, files in pages.items():
         html = (site / page / "index.html").read_text()
+        rendered = [  # the cells of every table row on the page, as text
+            [
+                unescape(re.sub(r"<[^>]+>", "", cell)).strip()
+                for cell in re.findall(r"<t[dh][^>]*>(.*?)</t[dh]>", tr, re.S)
+            ]
+            for tr in re.findall(r"<tr>(.*?)</tr>", html, re.S)
+        ]
         for rel in files:
-            row = next(
-                line
-                for line in (ROOT / rel).read_text().splitlines()
-                if line.startswith("| ")
-                and "---" not in line
-                and not line.startswith("| environment |")
-                and not line.startswith("| observer |")
-            )
-            first_cell = row.split("|")[1].strip().strip("*`")
-            assert first_cell in html, (page, rel, first_cell)
+            lines = (ROOT / rel).read_text().splitlines()
+            # the first data row of the file's first table (the line after its header's separator), every cell
+            row = next(lines[i + 1] for i, line in enumerate(lines) if line.startswith("|---") and i + 1 < len(lines))
+            cells = [cell.strip().replace("**", "").replace("`", "") for cell in row.strip().strip("|").split("|")]
+            assert cells in rendered, (page, rel, cells)
     rl = (site / "benchmarks" / "rl" / "index.html").read_text()
     # summary.csv: 751.0, 166.4, 590.3, 922.5 at 120k steps
     assert "751 +- 166 [590, 922] (3)" in rl and "true -&gt; auto" in rl

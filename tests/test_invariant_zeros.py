@@ -251,7 +251,7 @@ def test_bad_arguments_give_typed_errors():
         c.invariant_zeros(A[:, :2], C, D)
     with pytest.raises(ValueError, match="expected finite entries in D"):
         c.invariant_zeros(A, C, np.full((3, 2), np.nan))
-    with pytest.raises(TypeError, match="expected A to be a real matrix"):
+    with pytest.raises(TypeError, match="expected A to be an array of real numbers"):
         c.strong_observability([["a", "b"], ["c", "d"]], C, D)
     with pytest.raises(ValueError, match=r"expected tol > 0, actual value: -1"):
         c.invariant_zeros(plant, tol=-1)

@@ -66,10 +66,12 @@ def test_train_evaluate_cross_sensing(tmp_path):
     assert (out / "model.zip").exists() and (out / "vecnormalize.pkl").exists()
     assert (out / "progress.csv").exists() and list((out / "checkpoints").glob("*.zip"))
     assert json.loads((out / "run.json").read_text())["sensing"] == "true"
+    true = rl.evaluate(out, episodes=2)["returns"]
     for sensing in ("estimated", "finite-difference", "no-velocity"):
         res = rl.evaluate(out, sensing=sensing, episodes=2)
         assert res["sensing"] == sensing and len(res["returns"]) == 2
         assert np.all(np.isfinite(res["returns"])) and min(res["returns"]) > 0
+        assert res["returns"] != true  # played under that sensing (same seeds, other observations)
     # stacked positions are another observation, even where the shapes agree (InvertedPendulum: both (4,))
     with pytest.raises(ValueError, match="interchangeable with 'true'"):
         rl.evaluate(out, sensing="stacked-positions", episodes=1)
@@ -208,6 +210,8 @@ def test_evaluating_a_checkpoint_uses_the_runs_sensing_and_that_checkpoints_stat
     assert main(["evaluate", str(ckpt), "--episodes", "1", "--sensing", "true"]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert f"{IP} under true: return" in line and "sensor" not in line
+    # (the override itself is told apart by returns in test_train_evaluate_cross_sensing: here they coincide)
+    assert rl.evaluate(ckpt, sensing="true", episodes=2, seed=7)["returns"] == _by_hand(ckpt, norm, "true", seed=7)
     # statistics that cannot be read say which file, not pickle's own message
     saved = norm.read_bytes()
     norm.write_bytes(b"garbage\n")
@@ -268,7 +272,8 @@ def test_default_run_folders_name_observer_sensor_and_rate(tmp_path, capsys, mon
         "InvertedPendulum-v5-estimated-finite-difference-ideal-rate-env-PPO-s0",
         "InvertedPendulum-v5-estimated-high-gain-ideal-rate-env-PPO-s0",
     ]
-    assert json.loads((tmp_path / "outputs" / "runs" / runs[1] / "run.json").read_text())["observer"] == "high-gain"
+    run = json.loads((tmp_path / "outputs" / "runs" / runs[1] / "run.json").read_text())
+    assert (run["observer"], run["sensor"], run["rate"]) == ("high-gain", "ideal", "env")  # trained as named
 
 
 def test_an_existing_run_is_refused_unless_forced(tmp_path, capsys):

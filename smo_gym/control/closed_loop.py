@@ -134,7 +134,10 @@ class ExternalForce(gym.Wrapper):
         if not callable(force):
             raise TypeError(f"expected force to be a callable f(t) -> array, actual value: {force!r}")
         self.force = force
-        self.dofs = np.asarray(dofs, dtype=int).reshape(-1)
+        dofs = np.asarray(dofs).reshape(-1)
+        if dofs.dtype.kind not in "iu":  # 0.9 was taken as dof 0
+            raise TypeError(f"expected dofs to be integer qvel addresses, actual value: {dofs!r}")
+        self.dofs = dofs.astype(int)
         nv = self.env.unwrapped.model.nv
         if self.dofs.size == 0 or self.dofs.min() < 0 or self.dofs.max() >= nv:
             raise ValueError(f"expected qvel addresses in [0, {nv}), actual value: {self.dofs.tolist()}")
@@ -176,7 +179,11 @@ def scale_body_mass(body: str, factor: float) -> Callable[[gym.Env], None]:
 
     def event(env: gym.Env) -> None:
         model = env.unwrapped.model
-        b = model.body(body).id
+        try:
+            b = model.body(body).id
+        except KeyError:
+            names = [model.body(i).name for i in range(model.nbody)]
+            raise ValueError(f"expected a body of the model ({', '.join(names)}), actual value: {body!r}") from None
         model.body_mass[b] *= factor
         model.body_inertia[b] *= factor
 

@@ -55,10 +55,7 @@ class NotStronglyObservableError(ValueError):
 
 
 def _matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"expected {name} to be a real matrix, actual value: {value!r}") from None
+    arr = np.array(as_real_array(name, value))  # bool, string and complex entries refused
     if arr.ndim == 1 and shape[1] in (1, None):  # a vector is one column
         arr = arr[:, None]
     if arr.ndim != 2 or any(s is not None and s != a for s, a in zip(shape, arr.shape, strict=False)):
