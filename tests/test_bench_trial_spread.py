@@ -23,3 +23,19 @@ def test_the_calibration_row_is_the_ratio_auto_chose_on():
     other = script.trials(env, 0, ev.TRIAL_SMOOTHING[1])  # another stream: other episodes
     assert not np.array_equal(other.measured[0][:3], trials.measured[0][:3])
     env.close()
+
+
+def test_the_printed_calibration_row_is_the_ratio_of_the_selection(capsys):
+    """``main`` prints, for the calibration stream, the first candidate's RMSE over the second's per joint: the
+    ratio of the errors the selection itself recorded (not upside down, not of another scenario)."""
+    script = load_script("bench_trial_spread")
+    smoothing = ev.TRIAL_SMOOTHING[-1]
+    argv = ["--env", "InvertedPendulum-v5", "--sensor", "encoder-12bit-noisy", "--rate", "env"]
+    assert script.main([*argv, "--smoothing", str(smoothing), "--seeds", "0,1"]) == 0
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| calibration |"))
+    env = EstimatedVelocity(gym.make("InvertedPendulum-v5"), sensor="encoder-12bit-noisy", rate="env")
+    found = env.observer.selection
+    scenario = len(ev.TRIAL_SMOOTHING) - 1
+    imm, ca = (found.errors[scenario, found.candidates.index(name)] for name in ("kalman-imm", "kalman-ca"))
+    assert row.split("|")[3:-1] == [f" {r:.3f} " for r in imm / ca]
+    env.close()
