@@ -602,12 +602,10 @@ def design(
     controller = check_choice("controller", controller, choices)
     dt = check_positive("env.unwrapped.dt", float(unwrapped.dt))
     if controller == "computed-torque":
-        from ..mechanics import MujocoDynamics
         from .computed_torque import ComputedTorquePolicy
 
-        # the target of the joints the policy measures: a joint coupled to another by an equality has none
-        dofs = MujocoDynamics(model).dof
-        target = model.qpos0[dofs] if operating_point is None else as_real_array("operating_point", operating_point)
+        # None: the policy's own default, qpos0 of the joints it measures (a joint coupled by an equality has none)
+        target = None if operating_point is None else as_real_array("operating_point", operating_point)
         options = (
             {}
             if disturbance_bound is None
