@@ -306,7 +306,8 @@ class MujocoDynamics:
             and q.dtype is _F64
             and v.dtype is _F64
             and q.shape == v.shape == (self.n,)
-            and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,) and np.abs(u).max() <= _MAX_U))
+            # |u|_2 <= 1e10 in one dot product (NaN and inf fail it); the general path checks entry by entry
+            and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,) and u @ u <= _MAX_U * _MAX_U))
         ):
             # hot path (one environment, all joints measured in model order): no index arithmetic
             self._qpos[:] = q
