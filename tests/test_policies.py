@@ -345,3 +345,14 @@ def test_a_comparison_too_short_for_its_steady_window_is_refused():
 
     with pytest.raises(ValueError, match="two control steps"):
         compare_controllers("InvertedPendulum-v5", ["lqr-kalman"], t_final=0.1, seeds=[0], show_progress=False)
+
+
+def test_kalman_baseline_with_an_exact_sensor_is_refused_in_designs_terms():
+    """The Kalman baseline weighs samples by the sensor's error variance; an ideal sensor has none. The refusal came
+    from KalmanObserver, naming ``noise_std``, an argument the caller of design never gave; it now names the
+    sensor, the joints it measures exactly and what to use instead, and every other controller still designs."""
+    env = gym.make("smo_gym/TwoLinkArm-v0", frame_skip=1)
+    with pytest.raises(ValueError, match=r"sensor 'ideal' measures \['shoulder', 'elbow'\] exactly.*lqr-luenberger"):
+        design(env, "lqr-kalman", sensor="ideal")
+    assert design(env, "lqr-luenberger", sensor="ideal").name == "lqr-luenberger"
+    assert design(env, "lqr-kalman", sensor="encoder-12bit").name == "lqr-kalman"  # quantization: Delta^2/12

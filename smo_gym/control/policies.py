@@ -638,6 +638,14 @@ def design(
     R = Rd if R is None else np.atleast_2d(np.asarray(R, dtype=float))
     K = sampled_lqr(plant, dt, Q, R)
     noise = sensor_noise(sensor, model, out_dofs)
+    if controller == "lqr-kalman" and not np.all(noise > 0):
+        # checked here, before any gain: KalmanObserver's own refusal names an argument design's caller never gave
+        exact = [name for name, level in zip(joints, noise, strict=True) if not level > 0]
+        raise ValueError(
+            "expected a sensor with a random error on every measured joint for controller='lqr-kalman' (the "
+            "Kalman gain weighs the samples by that error's variance, and an exact sample has none), actual "
+            f"value: sensor {sensor!r} measures {exact} exactly; use a noisy sensor or 'lqr-luenberger'"
+        )
     t_start = max(0.05, 5 * dt) if t_start is None else check_nonnegative("t_start", t_start)
     lipschitz = None
     if controller in HOSM_CONTROLLERS:
