@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import functools
 import inspect
+import math
 import numbers
 from collections.abc import Callable, Iterable
 
@@ -68,32 +69,39 @@ def _is_real_scalar(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, _NOT_NUMBERS)
 
 
-def check_real(name: str, value) -> float:
-    """Return ``value`` as a float after checking that it is a finite real number (not a bool or a string)."""
+def _as_float(name: str, value, expected: str) -> float:
+    """``value`` as a float if it is a real number; a TypeError if not, a ValueError saying ``expected`` if it is an
+    integer beyond the range of a float (``float(10**400)`` raises OverflowError)."""
     if not _is_real_scalar(value):
         raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
-    value = float(value)
-    if not np.isfinite(value):
+    try:
+        return float(value)
+    except OverflowError:
+        raise ValueError(
+            f"expected {name} {expected}, actual value: {_short(value, 40)} (beyond a float's range)"
+        ) from None
+
+
+def check_real(name: str, value) -> float:
+    """Return ``value`` as a float after checking that it is a finite real number (not a bool or a string)."""
+    value = _as_float(name, value, "to be finite")
+    if not math.isfinite(value):
         raise ValueError(f"expected {name} to be finite, actual value: {value!r}")
     return value
 
 
 def check_positive(name: str, value) -> float:
     """Return ``value`` as a float after checking that it is a finite number ``> 0``."""
-    if not _is_real_scalar(value):
-        raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
-    value = float(value)
-    if not np.isfinite(value) or value <= 0.0:
+    value = _as_float(name, value, "> 0 and finite")
+    if not math.isfinite(value) or value <= 0.0:
         raise ValueError(f"expected {name} > 0, actual value: {value!r}")
     return value
 
 
 def check_nonnegative(name: str, value) -> float:
     """Return ``value`` as a float after checking that it is a finite number ``>= 0``."""
-    if not _is_real_scalar(value):
-        raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
-    value = float(value)
-    if not np.isfinite(value) or value < 0.0:
+    value = _as_float(name, value, ">= 0 and finite")
+    if not math.isfinite(value) or value < 0.0:
         raise ValueError(f"expected {name} >= 0, actual value: {value!r}")
     return value
 
@@ -174,10 +182,8 @@ def check_real_in_range(
 ) -> float:
     """Return ``value`` as a float after checking it is a real number (not a bool) in the interval from ``low`` to
     ``high``, each end closed unless ``low_open``/``high_open``."""
-    if not _is_real_scalar(value):
-        raise TypeError(f"expected {name} to be a real number, actual value: {_short(value)}")
-    value = float(value)
     interval = f"{'(' if low_open else '['}{low}, {high}{')' if high_open else ']'}"
+    value = _as_float(name, value, f"in {interval}")
     inside = (low < value if low_open else low <= value) and (value < high if high_open else value <= high)
     if not inside:
         raise ValueError(f"expected {name} in {interval}, actual value: {value!r}")
@@ -189,7 +195,7 @@ def check_int_in_range(name: str, value, low: int, high: int) -> int:
     if isinstance(value, _NOT_NUMBERS) or not isinstance(value, (int, np.integer)):
         raise TypeError(f"expected {name} to be an integer in [{low}, {high}], actual value: {_short(value)}")
     if not low <= int(value) <= high:
-        raise ValueError(f"expected {name} in [{low}, {high}], actual value: {value!r}")
+        raise ValueError(f"expected {name} in [{low}, {high}], actual value: {_short(value, 40)}")
     return int(value)
 
 
@@ -198,7 +204,7 @@ def check_int_at_least(name: str, value, low: int) -> int:
     if isinstance(value, _NOT_NUMBERS) or not isinstance(value, (int, np.integer)):
         raise TypeError(f"expected {name} to be an integer >= {low}, actual value: {_short(value)}")
     if int(value) < low:
-        raise ValueError(f"expected {name} >= {low}, actual value: {value!r}")
+        raise ValueError(f"expected {name} >= {low}, actual value: {_short(value, 40)}")
     return int(value)
 
 

@@ -1495,7 +1495,7 @@ def smoke(family: Family, obj) -> None:
 
 
 #: out-of-range numbers, in addition to :data:`BAD_VALUES`
-BAD_NUMBERS = [-1.0, 0.0, -1e300, 1e300, 1e-300, 2**70]
+BAD_NUMBERS = [-1.0, 0.0, -1e300, 1e300, 1e-300, 2**70, 10**400]  # the last: float() raises OverflowError
 
 
 @pytest.mark.parametrize(
