@@ -53,6 +53,7 @@ References
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from math import comb, log
@@ -650,12 +651,13 @@ def default_observer(name: str, calibration: Calibration, observer_kwargs: dict 
                 f"unknown parameter {key!r} of {family.cls.__name__}: expected one of {', '.join(valid)}, "
                 f"actual value: {key}={kw[key]!r}{did_you_mean(key, valid)}"
             )
-    try:
-        if family.needs_calibration(kw):
-            return family.calibrate(family.cls, calibration, family.bound_order(kw), kw)
-        return family.cls(dt=calibration.dt, **kw)
+    if family.needs_calibration(kw):
+        return family.calibrate(family.cls, calibration, family.bound_order(kw), kw)
+    try:  # only a missing argument is this message's case: a refused value keeps its own error
+        inspect.signature(family.cls).bind(dt=calibration.dt, **kw)
     except TypeError as exc:
         raise ValueError(
             f"expected observer_kwargs completing the parameters of {family.cls.__name__} (no default gains are known "
             f"for it), actual value: {observer_kwargs!r} ({exc})"
         ) from None
+    return family.cls(dt=calibration.dt, **kw)

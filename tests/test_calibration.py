@@ -513,3 +513,28 @@ def test_quantization_step_refuses_what_is_not_a_lattice():
     still = np.zeros(t.size)  # never moves: no step to see
     few = np.where(t < 0.01, 0.0, 0.01)  # one move: too little evidence
     np.testing.assert_array_equal(quantization_step(np.column_stack([noisy, still, few])), 0.0)
+
+
+@pytest.mark.parametrize("name", ["kalman-ca", "kalman-imm"])
+def test_a_kalman_filter_given_one_noise_calibrates_the_other(name):
+    """``differentiate(y, dt, "kalman-ca", process_noise=1.0)`` was refused ("no default gains are known ... given by
+    position and by keyword"): the rule passed both noises by position and the given one again by keyword. The
+    given one is kept, the other comes from the calibration as when neither is given."""
+    dt = 0.01
+    y = np.sin(np.arange(400) * dt)[:, None] + 1e-3 * np.random.default_rng(0).standard_normal((400, 1))
+    cal = calibration.calibration_of_signal(y, dt, (3,))
+    both = calibration.default_observer(name, cal)
+    q_only = calibration.default_observer(name, cal, {"process_noise": 2.0})
+    r_only = calibration.default_observer(name, cal, {"measurement_noise": 1e-4})
+    np.testing.assert_array_equal(q_only.process_noise, 2.0)
+    np.testing.assert_array_equal(q_only.measurement_noise, both.measurement_noise)
+    np.testing.assert_array_equal(r_only.process_noise, both.process_noise)
+    np.testing.assert_array_equal(r_only.measurement_noise, 1e-4)
+    assert np.all(np.isfinite(smo_gym.differentiate(y, dt, name, process_noise=2.0)))
+
+
+def test_a_refused_gain_value_keeps_its_own_error():
+    """A gain of the wrong type is the validator's TypeError, not "no default gains are known" (the rule calibrates
+    the other gains; only a missing argument of a family without a rule is that message's case)."""
+    with pytest.raises(TypeError, match="expected filtering_order to be an integer"):
+        smo_gym.differentiate(np.sin(np.arange(400) * 0.01), 0.01, "filtering", filtering_order=1.0)

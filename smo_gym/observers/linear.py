@@ -113,11 +113,16 @@ def _kalman_rule(cls, calibration, order, kwargs):
     prior at reset (``initial_std``, unless given) from where the calibration's episodes start
     (:attr:`Calibration.initial <smo_gym.calibration.Calibration.initial>`: the RMS of the first velocity and
     acceleration, the largest over channels, at least :data:`PRIOR_STD_FLOOR`), or the default where that is not
-    known (a recorded signal)."""
+    known (a recorded signal). A ``process_noise`` or ``measurement_noise`` given is kept, the other calibrated."""
+    kwargs = dict(kwargs)
     if calibration.initial and "initial_std" not in kwargs:
         spread = (max(float(np.max(calibration.initial[r])), PRIOR_STD_FLOOR) for r in (1, 2))
-        kwargs = {**kwargs, "initial_std": tuple(spread)}
-    return cls.from_levels(calibration.dt, calibration.rms(order), calibration.measurement_variance, **kwargs)
+        kwargs["initial_std"] = tuple(spread)
+    q = kwargs.pop("process_noise", None)
+    r = kwargs.pop("measurement_noise", None)
+    if q is None:
+        q = white_jerk_density(calibration.dt, calibration.rms(order))
+    return cls(calibration.dt, q, calibration.measurement_variance if r is None else r, **kwargs)
 
 
 __all__ = [
