@@ -60,7 +60,15 @@ from math import comb, log
 
 import numpy as np
 
-from ._validation import as_real_array, check_int_in_range, check_positive, did_you_mean
+from ._validation import (
+    as_real_array,
+    check_int_at_least,
+    check_int_in_range,
+    check_nonnegative,
+    check_positive,
+    check_real_in_range,
+    did_you_mean,
+)
 from .observers import FAMILIES, OBSERVERS, Observer, make_observer
 
 __all__ = [
@@ -123,8 +131,14 @@ def _lag_difference(y: np.ndarray, order: int, lag: int) -> np.ndarray:
         parts = [np.take(y, rows + j * lag, axis=0) for j in range(order + 1)]
     else:
         parts = [y[j * lag : j * lag + n] for j in range(order + 1)]
-    for _ in range(order):
-        parts = [b - a for a, b in zip(parts[:-1], parts[1:], strict=True)]
+    with np.errstate(over="ignore", invalid="ignore"):
+        for _ in range(order):
+            parts = [b - a for a, b in zip(parts[:-1], parts[1:], strict=True)]
+    if not np.isfinite(parts[0]).all():  # finite samples near the float limit: their differences overflow
+        raise ValueError(
+            f"expected samples whose differences of order {order} are finite, actual value: largest |y| "
+            f"{np.max(np.abs(y)):.3g}; rescale the signal"
+        )
     return parts[0]
 
 
@@ -224,8 +238,15 @@ def quantization_step(y, *, tolerance: float = 1e-6, share: float = 0.99, minimu
     -------
     ndarray, shape (...)
     """
+    tolerance = check_nonnegative("tolerance", tolerance)
+    share = check_real_in_range("share", share, 0.0, 1.0, low_open=True)
+    minimum = check_int_at_least("minimum", minimum, 1)
     y = _time_series(y)
-    d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, y[0].size)  # (T - 1, channels), T = 1 too
+    with np.errstate(over="ignore"):
+        d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, y[0].size)  # (T - 1, channels), T = 1 too
+    if not np.isfinite(d).all():
+        raise ValueError(f"expected samples whose differences are finite, actual value: largest |y| "
+                         f"{np.max(np.abs(y)):.3g}; rescale the signal")  # fmt: skip
     step = np.zeros(d.shape[1])
     for c in range(d.shape[1]):
         moves = d[d[:, c] > 0.0, c]
@@ -310,7 +331,7 @@ def _noise_per_channel(noise, y: np.ndarray) -> np.ndarray:
     """``noise`` (default :func:`noise_std` of ``y``) checked and broadcast to the channel shape of ``y``."""
     if noise is None:
         return noise_std(y) if y.shape[0] > 4 else np.zeros(y.shape[1:])  # four samples cannot show the noise
-    sigma = np.asarray(noise, dtype=np.float64)
+    sigma = as_real_array("noise", noise)
     if not np.all(np.isfinite(sigma) & (sigma >= 0.0)):
         raise ValueError(f"expected noise >= 0 and finite everywhere, actual value: {noise!r}")
     try:
@@ -544,6 +565,8 @@ def calibration_from_velocities(
     of the first backward difference of it (episodes of two samples or more).
     """
     dt = check_positive("dt", dt)
+    safety = check_positive("safety", safety)
+    quantile = check_real_in_range("quantile", quantile, 0.0, 1.0, low_open=True)
     if not isinstance(episodes, (list, tuple)):
         raise TypeError(f"expected episodes to be a list of arrays (T_i, nv), actual value: {episodes!r:.80}")
     episodes = [as_real_array("episodes", V) for V in episodes]

@@ -520,9 +520,12 @@ class EquivalentInjectionIdentifier:
         self.regressor_filtered = self.regressor_filtered + self._beta * (Phi - self.regressor_filtered)
         try:
             self.least_squares.update(self.regressor_filtered, self.z_eq)
-        except ValueError:  # the observer took the sample the least squares refused: no longer one instant
+        except ValueError as exc:  # the observer took the sample the least squares refused: no longer one instant
             self._state = None
-            raise
+            message = str(exc).removesuffix("; the state was kept")  # the least squares' state, not this one's
+            raise ValueError(
+                f"{message}; the observer had already taken the sample: reset(y0) before the next update"
+            ) from None
         self._t += self.dt
         self._y_prev = np.array(y, dtype=np.float64)
         self._v_prev = xhat[..., 1].copy()

@@ -45,7 +45,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._validation import as_real_array, check_int_at_least
+from ._validation import DivergenceError, _short, as_real_array, check_int_at_least
 from .fault_detection import UNKNOWN, FaultObserverBank, diagnose
 from .identification import EquivalentInjectionIdentifier
 
@@ -84,6 +84,23 @@ def _vector(name: str, value, n: int) -> np.ndarray:
     if arr.shape != (n,) or not np.isfinite(arr).all():
         raise ValueError(f"expected a finite {name} of shape ({n},), actual value: {arr!r}")
     return arr
+
+
+def _broadcast(name: str, value, n: int) -> np.ndarray:
+    """A real scalar or array broadcast to ``(n,)`` (a worded error otherwise)."""
+    arr = as_real_array(name, value)
+    try:
+        return np.broadcast_to(arr, (n,))
+    except ValueError:
+        raise ValueError(f"expected {name} of shape () or ({n},), actual value: shape {arr.shape}") from None
+
+
+def _indices(name: str, value, n: int) -> np.ndarray:
+    """``n`` non-negative integer indices (not bools, not floats)."""
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iu" or arr.ndim != 1 or arr.shape != (n,) or np.any(arr < 0):
+        raise ValueError(f"expected {n} non-negative integer indices as {name}, actual value: {_short(value)}")
+    return arr.astype(np.intp)
 
 
 class _TimeInvariant:
@@ -334,11 +351,9 @@ class ModeMonitor:
             raise TypeError(f"expected a SwitchedObserverBank, actual value: {type(bank).__name__}")
         self.bank = bank
         p, m = bank.system.n_outputs, bank.system.n_inputs
-        self.outputs = np.arange(p) if outputs is None else np.asarray(outputs, dtype=int).reshape(-1)
-        if self.outputs.shape != (p,) or np.any(self.outputs < 0):
-            raise ValueError(f"expected {p} non-negative qpos indices as outputs, actual value: {outputs!r}")
-        self.qpos_offset = _vector("qpos_offset", np.broadcast_to(np.asarray(qpos_offset, dtype=float), (p,)), p)
-        self.ctrl_offset = _vector("ctrl_offset", np.broadcast_to(np.asarray(ctrl_offset, dtype=float), (m,)), m)
+        self.outputs = np.arange(p) if outputs is None else _indices("outputs", outputs, p)
+        self.qpos_offset = _vector("qpos_offset", _broadcast("qpos_offset", qpos_offset, p), p)
+        self.ctrl_offset = _vector("ctrl_offset", _broadcast("ctrl_offset", ctrl_offset, m), m)
         self._k = None
 
     def _outputs(self, q_measured) -> np.ndarray:
@@ -361,8 +376,16 @@ class ModeMonitor:
             raise RuntimeError("expected reset(q_measured) before update(...), actual value: never reset")
         y = self._outputs(q_measured)
         u = _vector("ctrl", ctrl, self.ctrl_offset.size)
-        self.bank.advance(u - self.ctrl_offset)
-        self.bank.update(y)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported below, as an error
+            self.bank.advance(u - self.ctrl_offset)
+            x = self.bank.update(y)
+        if not (np.isfinite(x).all() and np.isfinite(self.bank.residual_norms).all()):
+            self._k = None  # the observers took the sample: there is no state to go back to
+            raise DivergenceError(
+                f"expected finite estimates and residuals, actual value: non-finite after q_measured = "
+                f"{_short(np.asarray(q_measured))}, ctrl = {_short(np.asarray(ctrl))}; reset(q_measured) before the "
+                "next update"
+            )
         self._k += 1
         return self._record()
 

@@ -104,12 +104,22 @@ References
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._validation import as_real_array, check_int_at_least, check_keywords, check_positive
+from ._validation import (
+    DivergenceError,
+    _short,
+    as_real_array,
+    check_int_at_least,
+    check_int_in_range,
+    check_keywords,
+    check_positive,
+    check_real,
+)
 from .design.gains import levant_nonrecursive
 from .observers.differentiators import Levant, _levant_sequence
 
@@ -159,6 +169,34 @@ def default_fd_step(max_nesting: int) -> float:
     r"""The relative finite-difference step :math:`\delta = \epsilon^{1/(q+2)}` for ``q`` nested central
     differences: truncation :math:`O(\delta^2)` and rounding :math:`O(\epsilon/\delta^q)` balance there."""
     return float(_EPS ** (1.0 / (check_int_at_least("max_nesting", max_nesting, 1) + 2)))
+
+
+#: the most nested central differences (a Lie derivative of order ``q`` costs ``2**q`` evaluations, and its error
+#: :math:`O(\delta^2)` with :math:`\delta = \epsilon^{1/(q+2)}` is already ~3e-3 relative at ``q = 10``)
+MAX_NESTING = 10
+
+
+def _sample(name: str, y) -> float:
+    """One finite measurement (a scalar or a one-entry array)."""
+    value = as_real_array(name, y)
+    if value.size != 1 or not np.isfinite(value).all():
+        raise ValueError(f"expected {name} to be one finite measurement, actual value: {_short(value)}")
+    return float(value.reshape(-1)[0])
+
+
+def _point(name: str, x) -> np.ndarray:
+    """``x`` as a finite, non-empty state ``(n,)`` (a worded ``ValueError`` otherwise)."""
+    x = as_real_array(name, x)
+    if x.ndim != 1 or x.size == 0 or not np.isfinite(x).all():
+        raise ValueError(f"expected {name} to be a finite state with shape (n,), n >= 1, actual value: {_short(x)}")
+    return x
+
+
+def _finite(name: str, value: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``value`` if finite; else a ``ValueError`` naming what was evaluated (``f``, ``h``, ...) and the point."""
+    if not np.isfinite(value).all():
+        raise ValueError(f"expected {name} finite at x = {x.tolist()}, actual value: {_short(value)}")
+    return value
 
 
 def _check_callable(name: str, func) -> None:
@@ -262,23 +300,27 @@ def lie_derivatives(f: Callable, h: Callable, x, order: int, *, step: float | No
     """
     _check_callable("f", f)
     _check_callable("h", h)
-    x = as_real_array("x", x)
-    if x.ndim != 1:
-        raise ValueError(f"expected x with shape (n,), actual value: shape {x.shape}")
+    x = _point("x", x)
     n = x.size
-    order = check_int_at_least("order", order, 0)
+    order = check_int_in_range("order", order, 0, MAX_NESTING)
     step = default_fd_step(max(order, 1)) if step is None else check_positive("step", step)
-    p = np.atleast_1d(as_real_array("h(x)", h(x))).size
-    _eval("f", f, x, (n,))
+    p = np.atleast_1d(_finite("h(x)", as_real_array("h(x)", h(x)), x)).size
+    _finite("f(x)", _eval("f", f, x, (n,)), x)
     funcs = [lambda z: np.atleast_1d(_eval("h", h, z, (p,)))]
     for _ in range(order):
         funcs.append(lambda z, prev=funcs[-1]: _directional(prev, z, _eval("f", f, z, (n,)), step))
-    return np.array([fn(x) for fn in funcs]).reshape(order + 1, p)
+    return _finite("the Lie derivatives of h along f", np.array([fn(x) for fn in funcs]).reshape(order + 1, p), x)
 
 
 def _fd_map(f: Callable, h: Callable, n: int, indices: tuple[int, ...], step: float) -> Callable:
     """:math:`\\Phi` by nested central differences (one call of :func:`lie_derivatives` per point)."""
     r_max = max(indices)
+    if r_max - 1 > MAX_NESTING:
+        raise ValueError(
+            f"expected observability indices of at most {MAX_NESTING + 1} for finite differences (nested central "
+            f"differences of order r - 1 lose all accuracy beyond that), actual value: {indices!r}; pass the exact "
+            "phi_jacobian or phi"
+        )
 
     def phi(x):
         L = lie_derivatives(f, h, x, r_max - 1, step=step)
@@ -293,9 +335,7 @@ def observability_map(f: Callable, h: Callable, x, indices=None, *, step: float 
     ``indices``: the observability indices :math:`(r_1, \ldots, r_p)`, summing to ``n``; default ``(n,)`` for a
     single output. The entries are :math:`h_1, \ldots, L_f^{r_1-1}h_1, h_2, \ldots`.
     """
-    x = as_real_array("x", x)
-    if x.ndim != 1:
-        raise ValueError(f"expected x with shape (n,), actual value: shape {x.shape}")
+    x = _point("x", x)
     r = _check_indices(x.size if indices is None else indices, x.size)
     step = default_fd_step(max(r)) if step is None else check_positive("step", step)
     return _fd_map(f, h, x.size, r, step)(x)
@@ -316,9 +356,7 @@ def _jacobian(phi: Callable, x: np.ndarray, step: float) -> np.ndarray:
 def observability_jacobian(f: Callable, h: Callable, x, indices=None, *, step: float | None = None) -> np.ndarray:
     r""":math:`\partial\Phi/\partial x`, shape ``(n, n)``, by finite differences of :func:`observability_map`
     (row ``j`` is :math:`dL_f^{j}h`, the matrix ``M(z)`` of Davila et al. 2009 for one output)."""
-    x = as_real_array("x", x)
-    if x.ndim != 1:
-        raise ValueError(f"expected x with shape (n,), actual value: shape {x.shape}")
+    x = _point("x", x)
     r = _check_indices(x.size if indices is None else indices, x.size)
     step = default_fd_step(max(r)) if step is None else check_positive("step", step)
     return _jacobian(_fd_map(f, h, x.size, r, step), x, step)
@@ -407,15 +445,16 @@ def check_observability(
     r = _check_indices(n if indices is None else indices, n)
     rtol = check_positive("rtol", rtol)
     step = default_fd_step(max(r)) if step is None else check_positive("step", step)
-    fd_phi = _fd_map(f, h, n, r, step)
+    fd_phi = _fd_map(f, h, n, r, step) if phi_jacobian is None else None
     rows_below = [sum(r[:i]) + j for i, ri in enumerate(r) for j in range(ri - 1)]
     sv, coupling = [], []
     for x in P:
         J = _jacobian(fd_phi, x, step) if phi_jacobian is None else _eval("phi_jacobian", phi_jacobian, x, (n, n))
+        _finite("dPhi/dx" if phi_jacobian is None else "phi_jacobian(x)", J, x)
         sv.append(np.linalg.svd(J, compute_uv=False))
         c = 0.0
         if g is not None and rows_below:
-            G = np.asarray(as_real_array("g(x)", g(x)))
+            G = _finite("g(x)", np.asarray(as_real_array("g(x)", g(x))), x)
             G = G.reshape(n, -1) if G.shape[:1] == (n,) else None
             if G is None:
                 raise ValueError(f"expected g(x) with shape (n,) or (n, m), n = {n}, actual value: {g(x)!r}")
@@ -704,11 +743,20 @@ class NonlinearHOSMObserver:
         if self.state is None:
             raise RuntimeError("expected reset(y0, x0) before update(y), actual value: the observer was never reset")
         y = self._y(y)
-        estimates = [None if d is None else d.update(y[i : i + 1])[0] for i, d in enumerate(self._diffs)]
-        self.derivatives = self._xi(estimates, y)
-        self.state = self.invert(self.derivatives, self.state)
+        saved = [None if d is None else d.checkpoint() for d in self._diffs]
+        try:
+            estimates = [None if d is None else d.update(y[i : i + 1])[0] for i, d in enumerate(self._diffs)]
+            derivatives = self._xi(estimates, y)
+            state = self.invert(derivatives, self.state)
+            input_estimate = None if self._d is None else self._input(estimates, state)
+        except BaseException:  # the inversion or the input's reconstruction failed: the sample was not taken
+            for d, checkpoint in zip(self._diffs, saved, strict=True):
+                if d is not None:
+                    d.restore(checkpoint)
+            raise
+        self.derivatives, self.state = derivatives, state
         if self._d is not None:
-            self.input_estimate = self._input(estimates, self.state)
+            self.input_estimate = input_estimate
         return self.state.copy()
 
     def run(self, Y, x0, *, inputs: bool = False):
@@ -866,16 +914,16 @@ class HOSMInjectionObserver:
             raise ValueError(f"expected one finite measurement y, actual value: {y!r}")
         return float(y.reshape(()))
 
-    def _error(self, y: float) -> float:
-        return y - float(_eval("h", self.h, self.state, (1,))[0])
+    def _error(self, y: float, x: np.ndarray) -> float:
+        return y - float(_eval("h", self.h, x, (1,))[0])
 
     def reset(self, y0, x0) -> np.ndarray:
         """Start at the measurement ``y0`` with the guess ``x0`` (shape ``(n,)``); returns :math:`\\hat x = x_0`."""
         x0 = as_real_array("x0", x0)
         if x0.shape != (self.n,) or not np.isfinite(x0).all():
             raise ValueError(f"expected a finite x0 with shape ({self.n},), actual value: {x0!r}")
-        self.state = x0.copy()
-        self.output_error = self._error(self._y(y0))
+        error = _finite("the output error y0 - h(x0)", np.float64(self._error(self._y(y0), x0)), x0)
+        self.state, self.output_error = x0.copy(), float(error)  # only once both are known: a refusal changes nothing
         return self.state.copy()
 
     def update(self, y) -> np.ndarray:
@@ -886,13 +934,22 @@ class HOSMInjectionObserver:
         y = self._y(y)
         x = self.state
         M = self.jacobian(x)
+        if not np.isfinite(M).all():
+            raise DivergenceError(f"expected a finite dPhi/dx at the estimate {x.tolist()}, actual value: {_short(M)}")
         sv = np.linalg.svd(M, compute_uv=False)
         if not sv[-1] > self.rtol * sv[0]:
             check_observability(self.f, self.h, x, g=self._d, phi_jacobian=lambda z: M, rtol=self.rtol)
         e = self.output_error
-        self.injection = self._gains * np.abs(e) ** self._powers * np.sign(e)
-        self.state = x + self.dt * (_eval("f", self.f, x, (self.n,)) + np.linalg.solve(M, self.injection))
-        self.output_error = self._error(y)
+        injection = self._gains * np.abs(e) ** self._powers * np.sign(e)
+        with np.errstate(over="ignore", invalid="ignore"):
+            state = x + self.dt * (_eval("f", self.f, x, (self.n,)) + np.linalg.solve(M, injection))
+            error = self._error(y, state) if np.isfinite(state).all() else np.nan
+        if not (np.isfinite(state).all() and np.isfinite(error)):
+            raise DivergenceError(
+                f"expected a finite estimate and output error after the step, actual value: {_short(state)} and "
+                f"{error!r} (from {x.tolist()}); the previous state was kept (a smaller dt or smaller gains)"
+            )
+        self.state, self.injection, self.output_error = state, injection, error
         return self.state.copy()
 
     def run(self, Y, x0) -> np.ndarray:
@@ -926,13 +983,34 @@ def dissipativity_constant(q: float, S, R) -> float:
 
     the gain :math:`|\Psi(x, h)| \le \varrho_\psi\|h\|` that the dissipation inequality implies for :math:`q < 0`.
     """
-    q = float(q)
+    q, S, R = _supply_rate(q, S, R)
     if not q < 0:
         raise ValueError(f"expected q < 0 (the dissipativity of the assumption), actual value: {q!r}")
-    S = np.atleast_2d(np.asarray(S, dtype=float))
-    R = np.atleast_2d(np.asarray(R, dtype=float))
     sts = float(np.linalg.eigvalsh(S.T @ S).max())
-    return (np.sqrt(-float(np.linalg.eigvalsh(R).max()) * q + sts) + np.sqrt(sts)) / np.sqrt(-q)
+    radicand = -float(np.linalg.eigvalsh(R).max()) * q + sts
+    if radicand < 0:  # then q Psi^2 + 2 Psi S h + h'Rh < 0 for every Psi and h != 0: no nonlinearity satisfies it
+        raise ValueError(
+            "expected a supply rate some nonlinearity satisfies, -lambda_max(R) q + lambda_max(S'S) >= 0, actual "
+            f"value: {radicand!r} (q = {q!r}, lambda_max(R) = {float(np.linalg.eigvalsh(R).max())!r})"
+        )
+    value = (np.sqrt(radicand) + np.sqrt(sts)) / np.sqrt(-q)
+    if not np.isfinite(value):
+        raise ValueError(f"expected q, S and R of moderate magnitude, actual value: rho_psi = {value!r}")
+    return float(value)
+
+
+def _supply_rate(q, S, R, m: int | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+    """``q`` (a finite real), ``S`` ``(1, m)`` and ``R`` ``(m, m)`` (finite, ``m`` from ``R`` unless given), checked."""
+    q = check_real("q", q)
+    R = np.atleast_2d(as_real_array("R", R))
+    m = R.shape[0] if m is None else m
+    S = np.atleast_2d(as_real_array("S", S))
+    if R.shape != (m, m) or S.size != m or m == 0:
+        raise ValueError(f"expected S of {m} entries and R of shape ({m}, {m}), m >= 1, actual value: shapes "
+                         f"{S.shape} and {R.shape}")  # fmt: skip
+    if not (np.isfinite(S).all() and np.isfinite(R).all()):
+        raise ValueError(f"expected finite S and R, actual value: S = {_short(S)}, R = {_short(R)}")
+    return q, S.reshape(1, m), R
 
 
 def check_dissipativity(psi: Callable, q: float, S, R, points, *, h_scale: float = 1.0, samples: int = 64,
@@ -958,22 +1036,36 @@ def check_dissipativity(psi: Callable, q: float, S, R, points, *, h_scale: float
     """
     _check_callable("psi", psi)
     points = as_real_array("points", points)
-    if points.ndim != 2 or points.shape[1] < 2:
-        raise ValueError(f"expected points of shape (P, n >= 2), actual value: shape {points.shape}")
+    if points.ndim != 2 or points.shape[0] == 0 or points.shape[1] < 2 or not np.isfinite(points).all():
+        raise ValueError(f"expected finite points of shape (P >= 1, n >= 2), actual value: {_short(points)}")
     n = points.shape[1]
-    S = np.atleast_2d(np.asarray(S, dtype=float)).reshape(1, n - 1)
-    R = np.atleast_2d(np.asarray(R, dtype=float)).reshape(n - 1, n - 1)
+    q, S, R = _supply_rate(q, S, R, n - 1)
+    h_scale = check_positive("h_scale", h_scale)
+    samples = check_int_at_least("samples", samples, 0)
     rng = np.random.default_rng(seed)
     unit = np.vstack([np.eye(n - 1), -np.eye(n - 1)]) * h_scale
     worst, where = np.inf, (points[0], unit[0])
     for x in points:
-        base = float(np.asarray(psi(x), dtype=float).reshape(-1)[0])
+        base = _psi_value(psi, x)
         for h in np.vstack([unit, h_scale * rng.standard_normal((samples, n - 1))]):
-            Psi = float(np.asarray(psi(x + np.r_[0.0, h]), dtype=float).reshape(-1)[0]) - base
-            value = (float(q) * Psi * Psi + 2.0 * Psi * (S @ h).item() + h @ R @ h) / max(h @ h, 1e-300)
+            Psi = _psi_value(psi, x + np.r_[0.0, h]) - base
+            value = (q * Psi * Psi + 2.0 * Psi * (S @ h).item() + h @ R @ h) / max(h @ h, 1e-300)
+            if not np.isfinite(value):  # a comparison with NaN is False: the test would pass unseen
+                raise ValueError(
+                    f"expected a finite dissipation form, actual value: {value!r} at x = {x.tolist()}, "
+                    f"h = {h.tolist()} (Psi = {Psi!r})"
+                )
             if value < worst:
                 worst, where = value, (x, h)
     return bool(worst >= -1e-12), float(worst), np.array(where[0]), np.array(where[1])
+
+
+def _psi_value(psi: Callable, x: np.ndarray) -> float:
+    """``psi(x)`` as a finite float (a scalar or a one-entry array)."""
+    value = as_real_array("psi(x)", psi(x))
+    if value.size != 1 or not np.isfinite(value).all():
+        raise ValueError(f"expected psi(x) to be one finite number at x = {x.tolist()}, actual value: {_short(value)}")
+    return float(value.reshape(-1)[0])
 
 
 @dataclass(frozen=True)
@@ -1022,15 +1114,24 @@ def design_global_observer(n: int, q: float, S, R, *, poles=None, N=None, epsilo
 
     n = check_int_at_least("n", n, 2)
     A, B, C = _chain(n)
-    poles = -(1.0 + 0.5 * np.arange(n)) if poles is None else np.asarray(poles, dtype=float)
-    if poles.shape != (n,) or np.any(poles >= 0):
-        raise ValueError(f"expected {n} negative poles, actual value: {poles!r}")
-    K = -place_poles(A.T, C[:, None], poles).gain_matrix.reshape(-1)  # A + K C has the poles
+    poles = -(1.0 + 0.5 * np.arange(n)) if poles is None else as_real_array("poles", poles)
+    if poles.shape != (n,) or not np.all(poles < 0):  # NaN is not negative either
+        raise ValueError(f"expected {n} negative poles, actual value: {_short(poles)}")
+    q, S, R = _supply_rate(q, S, R, n - 1)
     rho = dissipativity_constant(q, S, R)
-    S = np.atleast_2d(np.asarray(S, dtype=float)).reshape(1, n - 1)
-    R = np.atleast_2d(np.asarray(R, dtype=float)).reshape(n - 1, n - 1)
-    Nt = np.zeros(n - 1) if N is None else np.asarray(N, dtype=float).reshape(-1)[1:]
+    Nt = np.zeros(n) if N is None else as_real_array("N", N).reshape(-1)
+    if Nt.shape != (n,) or not np.isfinite(Nt).all():
+        raise ValueError(f"expected a finite N with shape ({n},), actual value: {_short(Nt)}")
+    Nt = Nt[1:]
     epsilon = check_positive("epsilon", epsilon)
+    l_max = check_positive("l_max", l_max)
+    if l_max < 1.0 or 2 * n * math.log2(l_max) >= 1000:  # l runs 1, 2, 4, ... and enters as l^(2n)
+        raise ValueError(
+            f"expected 1 <= l_max with l_max^(2n) within a float's range (n = {n}), actual value: l_max = {l_max!r}"
+        )
+    K = -place_poles(A.T, C[:, None], poles).gain_matrix.reshape(-1)  # A + K C has the poles
+    if not np.allclose(np.sort_complex(np.linalg.eigvals(A + np.outer(K, C))), np.sort_complex(poles), rtol=1e-6):
+        raise ValueError(f"expected poles the gain can place accurately, actual value: {_short(poles)}")
     AK = A + np.outer(K, C)
     Lam = np.diag(rho / (n - np.arange(n)) ** 2)
     P = solve_continuous_lyapunov(AK.T, -(epsilon * np.eye(n) + Lam + np.eye(n)))
@@ -1156,7 +1257,7 @@ class GlobalHOSMObserver:
     def reset(self, y0, x0) -> np.ndarray:
         """Start the copy at the guess ``x0`` (its first entry replaced by ``y0``); the first :meth:`update`, with
         the sample ``y0``, starts the differentiator. Returns :math:`\\hat x`."""
-        y = float(as_real_array("y0", y0).reshape(-1)[0])
+        y = _sample("y0", y0)
         x0 = as_real_array("x0", x0, copy=True).reshape(-1)
         if x0.shape != (self.n,) or not np.isfinite(x0).all():
             raise ValueError(f"expected a finite x0 with shape ({self.n},), actual value: {x0!r}")
@@ -1171,37 +1272,55 @@ class GlobalHOSMObserver:
         ``u`` held over :math:`[t_k, t_{k+1})`."""
         if self.state is None:
             raise RuntimeError("expected reset(y0, x0) before update(y), actual value: the observer was never reset")
-        y = float(as_real_array("y", y).reshape(-1)[0])
-        if not np.isfinite(y):
-            raise ValueError(f"expected a finite measurement y, actual value: {y!r}")
+        y = _sample("y", y)
         e = np.array([self._C @ self.copy - y])
-        z = (self._diff.reset(e) if self._fresh else self._diff.update(e))[0]
+        saved = None if self._fresh else self._diff.checkpoint()
+        try:
+            z = (self._diff.reset(e) if self._fresh else self._diff.update(e))[0]
+            state = self.copy - self._O_inv @ z
+            v = self._next_copy(state, u)
+        except BaseException:  # psi, phi or the step failed: the sample was not taken
+            if saved is not None:
+                self._diff.restore(saved)
+            raise
         self._fresh = False
-        self.state = self.copy - self._O_inv @ z
-        # the copy over the next interval, y read as the Taylor polynomial of the estimate
+        self.state, self.copy = state, v
+        return self.state.copy()
+
+    def _next_copy(self, state: np.ndarray, u) -> np.ndarray:
+        """The copy over the next interval (Runge-Kutta 4, :attr:`substeps` steps), ``y`` read as the Taylor polynomial
+        of the estimate ``state``."""
         h = self.dt / self.substeps
         v, s = self.copy.copy(), 0.0
-        taylor = self.state * self._fact
+        taylor = state * self._fact
 
         def y_at(t):
             return float(np.polyval(taylor[::-1], t))
 
-        for _ in range(self.substeps):
-            k1 = self._rhs(v, y_at(s), u)
-            k2 = self._rhs(v + h / 2 * k1, y_at(s + h / 2), u)
-            k3 = self._rhs(v + h / 2 * k2, y_at(s + h / 2), u)
-            k4 = self._rhs(v + h * k3, y_at(s + h), u)
-            v = v + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            s += h
-        if not np.all(np.isfinite(v)):
-            raise FloatingPointError("expected a finite copy v, actual value: non-finite after the step; lower dt or l")
-        self.copy = v
-        return self.state.copy()
+        with np.errstate(over="ignore", invalid="ignore"):
+            for _ in range(self.substeps):
+                k1 = self._rhs(v, y_at(s), u)
+                k2 = self._rhs(v + h / 2 * k1, y_at(s + h / 2), u)
+                k3 = self._rhs(v + h / 2 * k2, y_at(s + h / 2), u)
+                k4 = self._rhs(v + h * k3, y_at(s + h), u)
+                v = v + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+                s += h
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(state))):
+            raise DivergenceError(
+                "expected a finite estimate and copy after the step, actual value: non-finite; the previous state "
+                "was kept (a smaller dt or l)"
+            )
+        return v
 
     def run(self, Y, x0, U=None) -> np.ndarray:
         """Reset at ``Y[0]`` with the guess ``x0`` and process ``Y`` (shape ``(T,)``), ``U[k]`` held over
         ``[t_k, t_{k+1})``; returns the estimates, shape ``(T, n)``."""
         Y = as_real_array("Y", Y).reshape(-1)
+        if Y.size == 0 or (U is not None and len(U) < Y.size):
+            raise ValueError(
+                f"expected Y with shape (T,), T >= 1, and U with T rows, actual value: T = {Y.size}, "
+                f"{'no U' if U is None else f'{len(U)} rows of U'}"
+            )
         out = np.empty((Y.size, self.n))
         self.reset(Y[0], x0)
         for k in range(Y.size):

@@ -538,3 +538,28 @@ def test_a_refused_gain_value_keeps_its_own_error():
     the other gains; only a missing argument of a family without a rule is that message's case)."""
     with pytest.raises(TypeError, match="expected filtering_order to be an integer"):
         smo_gym.differentiate(np.sin(np.arange(400) * 0.01), 0.01, "filtering", filtering_order=1.0)
+
+
+def test_samples_near_the_float_limit_and_bad_options_are_refused():
+    """Finite samples of +-1e308 overflowed in their differences: ``noise_std`` returned NaN and ``derivative_bound``
+    the floor (a lag whose difference is 0 'settled'). Options were converted without a check (``share=nan`` found
+    no step in a quantized signal, ``minimum=-5``, ``safety=-1`` gave floor bounds)."""
+    y = np.array([-1e308, 1e308] * 50)
+    for call in (
+        lambda: calibration.noise_std(y),
+        lambda: calibration.derivative_bound(y, 0.01, 1, noise=0.0),
+        lambda: calibration.quantization_step(y),
+        lambda: smo_gym.differentiate(y, 0.01),
+    ):
+        with pytest.raises(ValueError, match="rescale the signal"):
+            call()
+    ramp = np.arange(100.0) * 0.01
+    for kwargs in ({"share": np.nan}, {"minimum": -5}, {"tolerance": -1.0}):
+        with pytest.raises(ValueError, match="expected"):
+            calibration.quantization_step(ramp, **kwargs)
+    for kwargs in ({"safety": -1.0}, {"quantile": 2.0}):
+        with pytest.raises(ValueError, match="expected"):
+            calibration.calibration_from_velocities([np.ones((10, 2))], 0.01, (2,), noise=0.0, **kwargs)
+    for noise in (10**400, True, "abc"):
+        with pytest.raises(TypeError, match="expected noise"):
+            calibration.derivative_bound(np.sin(ramp), 0.01, 2, noise=noise)

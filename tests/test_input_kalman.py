@@ -160,3 +160,12 @@ def test_a_pickled_filter_goes_on_as_the_original(cls):
     obs.run(q[1:100], u[1:100])
     copy = pickle.loads(pickle.dumps(obs))
     np.testing.assert_array_equal(copy.run(q[100:], u[100:]), obs.run(q[100:], u[100:]))
+
+
+def test_a_checkpoint_would_miss_the_last_input_so_it_is_refused():
+    """``Observer.checkpoint`` copies the state, the estimate and the count; the told filters also keep the last
+    input, which a restore would not bring back: they refuse instead of restoring half their memory."""
+    told = KalmanCAInput(DT, 1e-6, 1e-14, GAIN, 0.0)
+    told.reset(np.zeros(GAIN.shape[0]))
+    with pytest.raises(TypeError, match="takes one"):
+        told.checkpoint()

@@ -409,3 +409,52 @@ def test_the_guide_mode_monitor_example_runs_as_printed(capsys):
     source = section.split("```python\n", 1)[1].split("```", 1)[0]
     exec(compile(source, str(guide), "exec"), {"__name__": "__guide__"})
     assert capsys.readouterr().out.startswith("nominal 0 ")
+
+
+def test_mode_monitor_asks_for_a_reset_after_its_observers_diverge():
+    """One huge but finite sample overflowed the bank's residuals (inf), and every later record held NaN without an
+    error. The monitor now raises a DivergenceError and asks for a reset; indices of ``outputs`` must be integers
+    (0.7 was truncated to 0, True read as 1)."""
+    from smo_gym import DivergenceError
+    from smo_gym.control import SwitchedLinearSystem
+    from smo_gym.monitors import ModeMonitor
+
+    system = SwitchedLinearSystem([_oscillator(1, 1), _oscillator(9, 1)], names=["a", "b"])
+    monitor = ModeMonitor(_bank(system))
+    monitor.reset([0.0])
+    monitor.update([0.001], [0.0])
+    with pytest.raises(DivergenceError, match="reset"):
+        monitor.update([1e300], [0.0])
+    with pytest.raises(RuntimeError, match="expected reset"):
+        monitor.update([0.0], [0.0])
+    record = monitor.reset([0.0])
+    assert np.isfinite(record["residual_norms"]).all()
+    for outputs in ([0.7], [True], [2**70]):
+        with pytest.raises(ValueError, match="integer indices"):
+            ModeMonitor(_bank(system), outputs=outputs)
+    with pytest.raises(TypeError):
+        ModeMonitor(_bank(system), ctrl_offset=None)
+
+
+def test_parameter_monitor_says_when_a_refused_sample_cost_the_identifier_its_state():
+    """After a huge control, the least squares refused the next sample "with the state kept", but the identifier's
+    observer had taken it: the identifier cannot go on (every later call asks for a reset). The message says so."""
+    from smo_gym.identification import EquivalentInjectionIdentifier
+
+    def nominal(t, x1, x2, u):
+        return -x1 - 0.1 * x2 + u
+
+    def regressor(t, x1, x2, u):
+        return np.asarray(x2)[..., None]
+
+    monitor = ParameterMonitor(EquivalentInjectionIdentifier(1e-3, nominal, regressor, [0.5], n=1, lipschitz=50.0),
+                               n_ctrl=1)  # fmt: skip
+    monitor.reset([0.1])
+    monitor.update([0.1001], [0.0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        monitor.update([0.1002], [1e308])
+        with pytest.raises(ValueError) as refused:
+            monitor.update([0.1003], [0.0])
+    assert "the state was kept" not in str(refused.value) and "reset(y0) before the next update" in str(refused.value)
+    with pytest.raises(RuntimeError, match="reset"):
+        monitor.update([0.1003], [0.0])

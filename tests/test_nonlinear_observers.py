@@ -728,3 +728,126 @@ def test_global_observer_bad_input():
     observer.reset(0.0, [0.0, 0.0])
     with pytest.raises(ValueError, match="finite scalar"):
         observer.update(0.0)
+
+
+# ---- bad input, refusals and divergence ------------------------------------------------------------------------------
+def test_the_dissipativity_check_refuses_what_it_cannot_evaluate():
+    """``check_dissipativity`` compared the form with ``<``, which is False for NaN: a NaN point, ``q`` or ``psi``
+    value left the worst case at +inf and the assumption "held" ((True, inf)); the same nonlinearity at finite
+    points fails it (-3). Each is refused now, and the supply rate of ``dissipativity_constant`` is checked."""
+    from smo_gym.nonlinear_observers import check_dissipativity, dissipativity_constant
+
+    psi = lambda x: 2.0 * x[1]
+    ok, worst, _, _ = check_dissipativity(psi, -1.0, [0.0], [[1.0]], [[0.0, 0.0]])
+    assert not ok and worst == pytest.approx(-3.0)  # q Psi^2 + h^2 = -4 h^2 + h^2 over h^2
+    for args in [
+        (psi, -1.0, [0.0], [[1.0]], [[0.0, np.nan]]),
+        (psi, np.nan, [0.0], [[1.0]], [[0.0, 0.0]]),
+        (lambda x: np.nan * x[1], -1.0, [0.0], [[1.0]], [[0.0, 0.0]]),
+        (psi, -1.0, [0.0], [[1.0]], np.zeros((0, 2))),
+    ]:
+        with pytest.raises(ValueError, match="expected"):
+            check_dissipativity(*args)
+    assert dissipativity_constant(-1.0, [0.0], [[1.0]]) == pytest.approx(1.0)  # (sqrt(1) + 0) / sqrt(1)
+    for q, S, R in [
+        (-1.0, [0.0], [[-2.0]]),
+        (-np.inf, [0.0], [[1.0]]),
+        (-1.0, [np.nan], [[1.0]]),
+        (-(10**400), [0.0], [[1.0]]),
+    ]:
+        with pytest.raises(ValueError, match="expected"):
+            dissipativity_constant(q, S, R)
+
+
+def test_lie_derivatives_refuse_non_finite_points_and_values_and_a_depth_beyond_accuracy():
+    """NaN passed through all three maps; ``order`` had no bound although each level doubles the evaluations (order
+    30: about 2**30 of them, hours)."""
+    from smo_gym.nonlinear_observers import MAX_NESTING
+
+    with pytest.raises(ValueError, match="finite state"):
+        lie_derivatives(f, h, [np.nan, 0.2], 2)
+    with pytest.raises(ValueError, match="finite state"):
+        observability_map(f, h, [])
+    with pytest.raises(ValueError, match=r"order in \[0, 10\]"):
+        lie_derivatives(f, h, [0.1, 0.2], MAX_NESTING + 1)
+    with pytest.raises(ValueError, match="expected f"):
+        lie_derivatives(lambda x: np.array([np.nan, x[0]]), h, [0.1, 0.2], 1)
+    with pytest.raises(ValueError, match="phi_jacobian"):
+        check_observability(f, h, [[0.1, 0.2]], phi_jacobian=lambda x: np.full((2, 2), np.nan))
+
+
+def test_injection_observer_refusals_and_divergence_keep_its_state():
+    """A refused reset set the state first (then the next update returned NaN); a step that overflowed returned
+    NaN without an error. Both keep the previous state now; the divergence is a DivergenceError."""
+    from smo_gym import DivergenceError
+
+    obs = HOSMInjectionObserver(f, h, 2, 1e-3, L)
+    obs.reset(h(np.array(X0)), GUESS)
+    before = obs.state.copy()
+    with pytest.raises(ValueError, match="one finite measurement"):
+        obs.reset(np.nan, [9.0, 9.0])
+    np.testing.assert_array_equal(obs.state, before)
+    fast = HOSMInjectionObserver(lambda x: np.array([x[1], -x[0]]), lambda x: x[0], 2, 1.0, 1e308,
+                                 phi_jacobian=lambda x: np.eye(2))  # fmt: skip
+    fast.reset(0.0, [1.0, 0.0])
+    with pytest.raises(DivergenceError):
+        for _ in range(5):
+            kept = fast.state.copy()
+            fast.update(0.0)
+    assert np.isfinite(fast.state).all()
+    np.testing.assert_array_equal(fast.state, kept)
+
+
+def test_a_refused_update_leaves_the_differentiators_where_they_were():
+    """The differentiators took the sample before the input's reconstruction refused it; the observer then kept the
+    new derivatives and state. A refused update now leaves the observer as a twin that never saw the sample: the
+    same refusal, and the same estimate afterwards."""
+    make = lambda: NonlinearHOSMObserver(f, h, 2, 1e-2, 500.0, unknown_input=[0.0, 1.0], rtol=0.99)
+    refused, twin = make(), make()
+    for obs in (refused, twin):
+        obs.reset(np.sin(0.5), [0.5, 0.0])
+    samples = [0.6, 0.8, 0.95, 0.99]
+    for y in samples:
+        try:
+            refused.update(y)
+        except InputReconstructionError:
+            break
+        twin.update(y)
+    else:
+        pytest.fail("expected the reconstruction to refuse a sample")
+    np.testing.assert_array_equal(refused.state, twin.state)
+    np.testing.assert_array_equal(refused.derivatives, twin.derivatives)
+    with pytest.raises(InputReconstructionError):
+        twin.update(y)
+    np.testing.assert_array_equal(refused.state, twin.state)
+
+
+def test_global_observer_refuses_bad_samples_and_keeps_its_state_on_divergence():
+    from smo_gym import DivergenceError
+    from smo_gym.nonlinear_observers import GlobalHOSMObserver, design_global_observer
+
+    design = design_global_observer(2, -1.0, [0.0], [[1.0]])
+    obs = GlobalHOSMObserver(lambda x: 0.5 * x[0] + np.sin(x[1]), 2, 1e-3, K=design.K, l=design.l, lipschitz=200.0)
+    for call in (lambda: obs.reset(np.nan, [1.0, 2.0]), lambda: obs.reset([1.0, 2.0], [1.0, 2.0])):
+        with pytest.raises(ValueError, match="one finite measurement"):
+            call()
+    obs.reset(0.0, [0.0, 0.0])
+    obs.update(0.0)
+    with pytest.raises(ValueError, match="one finite measurement"):
+        obs.update([1.0, 99.0])  # the first entry was used, the second ignored
+    with pytest.raises(ValueError, match="T >= 1"):
+        obs.run([], [0.0, 0.0])
+    with pytest.raises(ValueError, match="rows of U"):
+        obs.run([0.0, 0.0, 0.0], [0.0, 0.0], U=[0.0])
+    wild = GlobalHOSMObserver(lambda x: 0.0, 2, 0.1, K=[-2.5, -1.5], l=1e100, lipschitz=1.0)
+    wild.reset(0.0, [0.0, 0.0])
+    with pytest.raises(DivergenceError):
+        wild.update(1.0)  # was a FloatingPointError, with the state already moved to [1, 2.5e100]
+    np.testing.assert_array_equal(wild.state, [0.0, 0.0])
+    twin = GlobalHOSMObserver(lambda x: 0.0, 2, 0.1, K=[-2.5, -1.5], l=1e100, lipschitz=1.0)
+    twin.reset(0.0, [0.0, 0.0])
+    np.testing.assert_array_equal(wild.update(0.0), twin.update(0.0))
+    with pytest.raises(ValueError, match="l_max"):
+        design_global_observer(2, -1.0, [0.0], [[1.0]], l_max=0.5)  # was UnboundLocalError
+    with pytest.raises(ValueError, match="negative poles"):
+        design_global_observer(2, -1.0, [0.0], [[1.0]], poles=[np.nan, -1.0])

@@ -29,6 +29,7 @@ from smo_gym.observers import (
     UniformLevant,
     make_observer,
 )
+from smo_gym.observers.base import ObserverCheckpoint
 
 DT = 1e-3
 BATCH = (4, 7)
@@ -138,6 +139,26 @@ def test_restart_equals_a_fresh_reset_in_place(name, kwargs, rng):
     bad[1, 3] = np.nan
     with pytest.raises(ValueError, match="channel 3"):
         obs.restart(bad)
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
+def test_restore_returns_to_the_checkpoint(name, kwargs, rng):
+    """After ``restore(checkpoint())`` the observer continues exactly as a twin that never took the samples in
+    between (a caller undoing a step it cannot complete), with its state array kept; a checkpoint of another shape
+    is refused."""
+    Y = measurements(rng)
+    obs, twin = build(name, kwargs), build(name, kwargs)
+    update_loop(obs, Y[:50])
+    update_loop(twin, Y[:50])
+    saved = obs.checkpoint()
+    obs.run(Y[50:60] + 1.0)
+    state_array = obs._state
+    obs.restore(saved)
+    assert obs._state is state_array and obs.n_updates == twin.n_updates
+    np.testing.assert_array_equal(obs.estimate, twin.estimate)
+    np.testing.assert_array_equal(obs.run(Y[50:]), twin.run(Y[50:]))
+    with pytest.raises(ValueError, match="checkpoint of this observer"):
+        obs.restore(ObserverCheckpoint(saved.state[:1], saved.estimate[:1], 0))
 
 
 @pytest.mark.parametrize("mask_shape", [(4,), (4, 7)])

@@ -176,6 +176,16 @@ class ObserverArrays(NamedTuple):
     """Per-channel parameter rows, shape ``(N, P)``."""
 
 
+class ObserverCheckpoint(NamedTuple):
+    """What :meth:`Observer.update` changes, copied (:meth:`Observer.checkpoint`)."""
+
+    state: np.ndarray
+    """The recursion's state, shape ``(N, S)``."""
+    estimate: np.ndarray
+    """The estimate, shape ``(..., n_channels, order + 1)``."""
+    n_updates: int
+
+
 class Observer:
     r"""Base class of the signal observers (differentiators).
 
@@ -788,6 +798,31 @@ class Observer:
             )
         self._estimate = estimate
         self.n_updates += n_samples
+
+    def checkpoint(self) -> ObserverCheckpoint:
+        """A copy of what :meth:`update` changes (the state, the estimate, ``n_updates``), for :meth:`restore`: a
+        caller that must undo a step it cannot complete (a nonlinear observer whose inversion fails after its
+        differentiators took the sample). Observers that take an input also keep the last one, which this does not
+        cover: they refuse."""
+        if self.takes_input:
+            raise TypeError(f"expected an observer without an input, actual value: {type(self).__name__} takes one")
+        self._require_reset()
+        return ObserverCheckpoint(self._state.copy(), self._estimate.copy(), self.n_updates)
+
+    def restore(self, checkpoint: ObserverCheckpoint) -> None:
+        """Return to a :meth:`checkpoint` taken since the last full reset (the state is written in place, so a
+        compiled caller holding :attr:`arrays` stays valid)."""
+        if not isinstance(checkpoint, ObserverCheckpoint):
+            raise TypeError(f"expected an ObserverCheckpoint, actual value: {type(checkpoint).__name__}")
+        self._require_reset()
+        if checkpoint.state.shape != self._state.shape or checkpoint.estimate.shape != self._estimate.shape:
+            raise ValueError(
+                f"expected a checkpoint of this observer since its last full reset (state {self._state.shape}), "
+                f"actual value: state {checkpoint.state.shape}"
+            )
+        self._state[...] = checkpoint.state
+        self._estimate = checkpoint.estimate.copy()
+        self.n_updates = checkpoint.n_updates
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
