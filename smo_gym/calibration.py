@@ -543,6 +543,7 @@ def calibration_of_signal(
     if resolution is None:
         resolution = quantization_step(y) if y.shape[0] > 1 else 0.0
     bounds, typical = {}, {}
+    orders = [_bound_order(r) for r in orders]
     for r in sorted(set(orders)):
         if y.shape[0] > r:
             bounds[r] = derivative_bound(y, dt, r, noise=sigma, quantile=quantile, safety=safety)
@@ -550,6 +551,17 @@ def calibration_of_signal(
         else:
             bounds[r] = typical[r] = np.full(y.shape[1:], BOUND_FLOOR)
     return Calibration(dt, bounds, typical, sigma, resolution)
+
+
+def _bound_order(r) -> int:
+    """A derivative order a calibration can bound, 1 to 8 (an observer of order ``n`` needs ``n + 1`` of them)."""
+    try:
+        return check_int_in_range("order", r, 1, 8)
+    except ValueError:
+        raise ValueError(
+            f"expected derivative orders in [1, 8] to bound (the gains of an observer of order n bound the "
+            f"derivative n + 1, so n <= 7), actual value: {r!r}"
+        ) from None
 
 
 def calibration_from_velocities(
@@ -592,7 +604,7 @@ def calibration_from_velocities(
         else {}
     )
     for r in sorted(set(orders)):
-        r = check_int_in_range("order", r, 1, 8)
+        r = _bound_order(r)
         diffs = [np.diff(V, n=r - 1, axis=0) / dt ** (r - 1) for V in episodes if len(V) >= r]
         if not diffs:
             raise ValueError(

@@ -156,7 +156,7 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
         raise ValueError(
             f"expected y with at least one channel and no empty batch dimension, actual value: shape {y.shape}"
         )
-    if start not in (None, "kalman", "measurement"):
+    if not (start is None or (isinstance(start, str) and start in ("kalman", "measurement"))):
         raise ValueError(f"expected start to be 'kalman' or 'measurement', actual value: {start!r}")
     obs, found = _build(observer, dt, y, params, with_jerk=start != "measurement")
     if start is None:

@@ -65,6 +65,8 @@ _CHAIN_SPLIT = re.compile(r"\+(?=[A-Za-z])")
 
 def parse_value(text: str) -> bool | int | float | str | None:
     """A spec value: ``true``/``false`` -> bool, ``none`` -> None, then int, then float, else the string itself."""
+    if not isinstance(text, str):
+        raise TypeError(f"expected a spec value as a string, actual value: {type(text).__name__} {text!r:.80}")
     lowered = text.strip().lower()
     if lowered in ("true", "false"):
         return lowered == "true"
@@ -197,8 +199,8 @@ def _sensor_part(spec: str, whole: str) -> sensors.Sensor:
         return sensors.make_sensor(name)
     cls = SENSOR_MODELS[name]
     _check_keys("sensor model", name, kwargs, _options([cls]), whole)
-    try:
-        return cls(**kwargs)
+    try:  # only a missing option is this message's case: a refused value keeps its own error
+        inspect.signature(cls).bind(**kwargs)
     except TypeError as exc:
         required = [
             p.name
@@ -208,6 +210,7 @@ def _sensor_part(spec: str, whole: str) -> sensors.Sensor:
         raise ValueError(
             f"expected the options {', '.join(required)} of sensor model {name!r}, actual value: {whole!r} ({exc})"
         ) from None
+    return cls(**kwargs)
 
 
 def make_sensor(spec: str | sensors.Sensor) -> sensors.Sensor:

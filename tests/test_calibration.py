@@ -563,3 +563,22 @@ def test_samples_near_the_float_limit_and_bad_options_are_refused():
     for noise in (10**400, True, "abc"):
         with pytest.raises(TypeError, match="expected noise"):
             calibration.derivative_bound(np.sin(ramp), 0.01, 2, noise=noise)
+
+
+def test_messages_name_what_the_caller_gave():
+    """A sensor option of the wrong type was reported as a missing option; ``parse_value`` of a non-string raised
+    AttributeError; an observer order beyond what a calibration can bound was "derivative 101"; an array ``start``
+    raised NumPy's ambiguous truth value."""
+    from smo_gym import specs
+
+    with pytest.raises(TypeError, match="expected samples to be an integer"):
+        specs.make_sensor("delay:samples=2.5")
+    with pytest.raises(ValueError, match="expected the options samples"):
+        specs.make_sensor("delay")
+    with pytest.raises(TypeError, match="as a string"):
+        specs.parse_value(None)
+    y = np.sin(np.arange(400) * 0.01)
+    with pytest.raises(ValueError, match=r"observer of order n bound the derivative n \+ 1.*101"):
+        smo_gym.differentiate(y, 0.01, "levant", order=100)
+    with pytest.raises(ValueError, match="expected start"):
+        smo_gym.differentiate(y, 0.01, start=np.array([1, 2]))
