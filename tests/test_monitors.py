@@ -291,8 +291,8 @@ def test_bad_input_raises_typed_errors():
             wrappers.Monitored(sensed, monitor, key=key)
     with pytest.raises(TypeError, match="key"):
         wrappers.Monitored(sensed, monitor, key=3)
-    with pytest.raises(ValueError, match=r"qpos_measured"):  # nothing sensed below: no measured positions
-        wrappers.Monitored(gym.make(ENV_ID), monitor).reset(seed=0)
+    with pytest.raises(ValueError, match=r"EstimatedVelocity in its stack"):  # nothing sensed below
+        wrappers.Monitored(gym.make(ENV_ID), monitor)  # was refused only at reset, after the simulation moved
     with pytest.raises(RuntimeError, match="reset"):
         parameter_monitor(model, 0.01).update(np.zeros(2), np.zeros(2))
     with pytest.raises(RuntimeError, match="reset"):
