@@ -231,8 +231,7 @@ class GymnasiumMujocoAdapter:
         def step_recording(ctrl, n_frames):
             data = env.data
             data.ctrl[:] = ctrl
-            # the recording loop written out: a Python call per physics step costs about as much as a small
-            # model's physics step
+            # the recording loop written out: a Python call per physics step costs what a small model's step does
             pairs = recording.destinations(data, n_frames)
             every, count, n = recording.every, recording.count, recording.n
             for _ in range(n_frames):

@@ -23,13 +23,8 @@ class Monitored(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.utils.RecordConstructorArgs.__init__(self, monitor=monitor, key=key, _disable_deepcopy=True)
         gym.Wrapper.__init__(self, env)  # ctrl: from the simulation adapter of the EstimatedVelocity below, per step
         self.monitor, self.key = check_monitor(monitor, key), key
-        try:  # refused here rather than after the first reset or step has already moved the simulation
-            self.get_wrapper_attr("adapter")
-        except AttributeError:
-            raise ValueError(
-                f"expected an environment with an EstimatedVelocity in its stack (the measured positions and the "
-                f"applied ctrl), actual value: {env}"
-            ) from None
+        if not self.has_wrapper_attr("adapter"):  # refused before a reset or a step moves the simulation
+            raise ValueError(f"expected an environment with an EstimatedVelocity in its stack, actual value: {env}")
 
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
