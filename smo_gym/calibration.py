@@ -510,7 +510,12 @@ class Calibration:
     def from_rows(cls, rows, orders, dt: float, noise, resolution=0.0) -> Calibration:
         """The calibration whose :meth:`as_rows` ``(orders)`` are ``rows``, with the sensor's ``noise`` and
         ``resolution``."""
-        rows, n = np.asarray(rows, dtype=float), 2 * len(orders)
+        rows, n = as_real_array("rows", rows), 2 * len(orders)
+        if rows.ndim != 2 or rows.shape[0] not in (n, n + 2):  # + the two rows of initial levels, when known
+            raise ValueError(
+                f"expected rows of shape ({n} or {n + 2}, channels) for orders {list(orders)}, actual value: shape "
+                f"{rows.shape}"
+            )
         bounds, typical = dict(zip(orders, rows[:n:2], strict=True)), dict(zip(orders, rows[1:n:2], strict=True))
         initial = dict(enumerate(rows[n:], 1)) if np.isfinite(rows[n:]).all() else {}
         return cls(dt, bounds, typical, noise, resolution, initial)

@@ -582,3 +582,15 @@ def test_messages_name_what_the_caller_gave():
         smo_gym.differentiate(y, 0.01, "levant", order=100)
     with pytest.raises(ValueError, match="expected start"):
         smo_gym.differentiate(y, 0.01, start=np.array([1, 2]))
+
+
+def test_rows_of_another_layout_are_refused():
+    """``Calibration.from_rows`` read rows of any count (too few raised zip's bare message, too many were dropped)."""
+    cal = calibration.calibration_of_signal(np.sin(np.arange(400) * 0.01)[:, None], 0.01, (2, 3))
+    rows = cal.as_rows((2, 3))
+    np.testing.assert_array_equal(
+        calibration.Calibration.from_rows(rows, (2, 3), 0.01, cal.noise).bound(3), cal.bound(3)
+    )
+    for bad in (rows[:3], np.vstack([rows, rows[:1]]), rows[:, 0]):
+        with pytest.raises(ValueError, match="expected rows of shape"):
+            calibration.Calibration.from_rows(bad, (2, 3), 0.01, cal.noise)
