@@ -356,3 +356,42 @@ def test_kalman_baseline_with_an_exact_sensor_is_refused_in_designs_terms():
         design(env, "lqr-kalman", sensor="ideal")
     assert design(env, "lqr-luenberger", sensor="ideal").name == "lqr-luenberger"
     assert design(env, "lqr-kalman", sensor="encoder-12bit").name == "lqr-kalman"  # quantization: Delta^2/12
+
+
+def test_a_run_that_mujoco_reset_is_a_failed_run():
+    """A disturbance of 1e300 N made MuJoCo reset the simulation at every step (a printed warning only), and the
+    comparison reported a steady band *better* than without it (0.0017 against 0.0074). Such a run fell."""
+    from smo_gym.experiments.closed_loop import compare_controllers
+
+    rows, _ = compare_controllers("InvertedPendulum-v5", ["lqr-luenberger"], t_final=0.4, disturbance="1e300")
+    assert rows[0]["fell"] == "1/1" and rows[0]["steady band"] == np.inf
+    rows, _ = compare_controllers("InvertedPendulum-v5", ["lqr-luenberger"], t_final=0.4)
+    assert rows[0]["fell"] == "0/1" and np.isfinite(rows[0]["steady band"])
+
+
+def test_comparison_arguments_are_checked_before_any_run():
+    """A NaN payload time was never reached (the run was the undisturbed one), empty seeds gave a row of inf, a
+    controller name as a string was read letter by letter, and summarize divided by a baseline's zero band."""
+    from smo_gym.experiments.closed_loop import compare_controllers, summarize
+
+    cases = [
+        (dict(payload=(float("nan"), "pole", 100.0)), ValueError, "event time"),
+        (dict(payload=(0.1,)), ValueError, "payload"),
+        (dict(seeds=[]), ValueError, "seed"),
+        (dict(t_final=10**400), ValueError, "t_final"),
+    ]
+    for kwargs, error, match in cases:
+        with pytest.raises(error, match=match):
+            compare_controllers("InvertedPendulum-v5", ["lqr-luenberger"], **{"t_final": 0.4, **kwargs})
+    with pytest.raises(TypeError, match="sequence of names"):
+        compare_controllers("InvertedPendulum-v5", "pid", t_final=0.4)
+    rows = [
+        {"controller": "lqr-luenberger", "steady band": 0.0, "effort RMS": 0.0},
+        {"controller": "ism", "steady band": 0.1, "effort RMS": 1.0},
+    ]
+    assert summarize(rows)[0]["band / best baseline"] == np.inf
+    f = parse_disturbance("t")
+    with pytest.raises(ValueError, match="t to be finite"):
+        f(10**400)
+    with pytest.raises(ValueError, match="nested less deeply"):
+        parse_disturbance("+".join(["t"] * 100000))

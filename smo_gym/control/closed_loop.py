@@ -17,9 +17,10 @@ from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
-from .._validation import check_positive
+from .._validation import check_nonnegative, check_positive, check_real
 from ..envs.base import SmoMujocoEnv
 
 __all__ = [
@@ -76,6 +77,8 @@ def parse_disturbance(expr: str) -> Callable[[float], np.ndarray]:
         tree = ast.parse(f"({expr.strip()},)", mode="eval")
     except SyntaxError as exc:
         raise ValueError(f"expected a valid expression of t, actual value: {expr!r} ({exc.msg})") from None
+    except (RecursionError, MemoryError):  # nesting deeper than the parser's stack
+        raise ValueError(f"expected an expression of t nested less deeply, actual value: {expr!r:.80}") from None
     for node in ast.walk(tree):
         if not isinstance(node, _NODES):
             raise ValueError(
@@ -90,19 +93,23 @@ def parse_disturbance(expr: str) -> Callable[[float], np.ndarray]:
             if type(node.value) not in (int, float):
                 raise ValueError(f"expected numbers only, actual value: {node.value!r} in {expr!r}")
             node.value = float(node.value)  # float arithmetic: 9**9**9 overflows instead of running for minutes
-    code = compile(tree, "<disturbance>", "eval")
+    try:
+        code = compile(tree, "<disturbance>", "eval")
+    except (RecursionError, MemoryError):
+        raise ValueError(f"expected an expression of t nested less deeply, actual value: {expr!r:.80}") from None
     scope = {"__builtins__": {}, **_FUNCTIONS, **_CONSTANTS}
 
     def disturbance(t: float) -> np.ndarray:
+        t = check_real("t", t)
         try:
             with np.errstate(all="ignore"):  # a non-finite value is reported below, with the time
-                value = np.array(eval(code, scope, {"t": float(t)}), dtype=float)  # the tree was checked above
-        except (ArithmeticError, TypeError, ValueError) as exc:
+                value = np.array(eval(code, scope, {"t": t}), dtype=float)  # the tree was checked above
+        except (ArithmeticError, TypeError, ValueError, RecursionError) as exc:
             raise ValueError(
-                f"expected {expr!r} to evaluate at t = {float(t)!r}, actual value: {type(exc).__name__}: {exc}"
+                f"expected {expr!r:.80} to evaluate at t = {t!r}, actual value: {type(exc).__name__}: {exc}"
             ) from None
         if value.ndim != 1 or not np.isfinite(value).all():
-            raise ValueError(f"expected {expr!r} finite numbers at t = {float(t)!r}, actual value: {value!r}")
+            raise ValueError(f"expected {expr!r:.80} finite numbers at t = {t!r}, actual value: {value!r:.200}")
         return value
 
     disturbance(0.0)  # wrong arguments of a function, nested tuples: refused now, not in the middle of a run
@@ -288,8 +295,10 @@ def run_closed_loop(
         op = getattr(getattr(policy, "design", None), "operating_point", None)
         target = getattr(policy, "target", None) if op is None else op.qpos
     target = model.qpos0.copy() if target is None else np.asarray(target, dtype=float)
-    pending = sorted(events, key=lambda e: e[0])
+    pending = sorted(_checked_events(events), key=lambda e: e[0])
     _, info = sensed.reset(seed=seed)
+    data = env.unwrapped.data
+    unstable = _instability_warnings(data)
     policy.reset(info["smo"]["qpos_measured"])
     n = int(round(t_final / dt))
     rows: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "qm", "ctrl", "w", "diag")}
@@ -308,6 +317,8 @@ def run_closed_loop(
         rows["diag"].append(policy.diagnostics)
         _, _, terminated, _truncated, info = sensed.step(u)
         rows["w"].append(np.atleast_1d(info.get("disturbance", np.zeros(0))).copy())
+        if _instability_warnings(env.unwrapped.data) > unstable:  # MuJoCo reset the simulation: the run failed
+            terminated = True
         if terminated:
             break
     sensed.close()
@@ -325,6 +336,23 @@ def run_closed_loop(
     )
 
 
+def _instability_warnings(data) -> int:
+    """How often MuJoCo found a non-finite or huge position, velocity, acceleration or control in ``data`` (it then
+    resets the simulation, or zeroes the control, with only a printed warning)."""
+    kinds = ("mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC", "mjWARN_BADCTRL")
+    return sum(int(data.warning[int(getattr(mujoco.mjtWarning, k))].number) for k in kinds)
+
+
+def _checked_events(events) -> list:
+    """``(time, event)`` pairs with a finite time >= 0 and a callable (a NaN time was never reached, silently)."""
+    checked = []
+    for event in events:
+        if not (isinstance(event, tuple) and len(event) == 2 and callable(event[1])):
+            raise TypeError(f"expected events as (time, callable) pairs, actual value: {event!r:.80}")
+        checked.append((check_nonnegative("event time", event[0]), event[1]))
+    return checked
+
+
 def closed_loop_metrics(run: ClosedLoopRun, t_steady: float) -> dict[str, float]:
     r"""The table's numbers for one run.
 
@@ -337,8 +365,16 @@ def closed_loop_metrics(run: ClosedLoopRun, t_steady: float) -> dict[str, float]
     """
     from .simulation import total_variation_rate
 
+    if not isinstance(run, ClosedLoopRun):
+        raise TypeError(f"expected a ClosedLoopRun, actual value: {type(run).__name__}")
+    t_steady = check_real("t_steady", t_steady)
     out = {"fell": float(run.terminated)}
     sel = run.t >= t_steady
+    if not run.terminated and sel.sum() == 1:
+        raise ValueError(
+            f"expected a steady window of two samples or more, actual value: one, from t_steady = {t_steady!r} "
+            f"(the run ends at {run.t[-1]!r})"
+        )
     if run.terminated or not sel.any():
         return {**out, "error RMS": np.inf, "steady band": np.inf, "effort RMS": np.nan, "TV(u)/s": np.nan,
                 "ident. RMS": np.nan, "converged [s]": np.nan}  # fmt: skip

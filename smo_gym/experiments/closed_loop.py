@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .._validation import check_positive, check_real
 from ..control.closed_loop import closed_loop_metrics, parse_disturbance, run_closed_loop, scale_body_mass
 
 __all__ = ["BASELINES", "DEFAULT_CONTROLLERS", "compare_controllers", "plot_closed_loop", "summarize"]
@@ -72,7 +73,15 @@ def compare_controllers(
     from .._extras import progress
     from ..control.policies import design
 
-    t_steady = t_final / 2 if t_steady is None else t_steady
+    controllers, seeds = _names("controllers", controllers), list(seeds)
+    if not seeds or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) for s in seeds):
+        raise ValueError(f"expected one integer seed or more, actual value: {seeds!r:.80}")
+    if payload is not None and not (
+        isinstance(payload, tuple) and len(payload) == 3 and isinstance(payload[1], str)
+    ):  # the time and the factor are checked by run_closed_loop and scale_body_mass
+        raise ValueError(f"expected payload as (time, body name, mass factor), actual value: {payload!r:.80}")
+    t_final = check_positive("t_final", t_final)
+    t_steady = t_final / 2 if t_steady is None else check_real("t_steady", t_steady)
     dt = gym.make(env_id, **(env_kwargs or {})).unwrapped.dt
     if not t_steady + 2 * dt <= t_final:  # the metrics are over the steady window: two control steps at least
         raise ValueError(
@@ -106,6 +115,13 @@ def compare_controllers(
 BASELINES = ("lqr-luenberger", "lqr-kalman", "pid")
 
 
+def _names(what: str, names) -> list[str]:
+    """A sequence of names; a single string is refused (it would be read letter by letter)."""
+    if isinstance(names, str) or not all(isinstance(n, str) for n in names):
+        raise TypeError(f"expected {what} as a sequence of names, e.g. [{names!r:.40}], actual value: {names!r:.80}")
+    return list(names)
+
+
 def summarize(rows: list[dict]) -> list[dict]:
     """For each controller that is not a baseline (:data:`BASELINES`): its steady band and effort divided by those of
     the best baseline (the one with the smallest steady band among those that did not fall); below 1 is better."""
@@ -113,12 +129,16 @@ def summarize(rows: list[dict]) -> list[dict]:
     if not base:
         return []
     best = min(base, key=lambda b: b["steady band"])
+
+    def ratio(a: float, b: float) -> float:  # a baseline that holds exactly (0) makes any other band infinitely worse
+        return a / b if b != 0 else (1.0 if a == 0 else np.inf)
+
     return [
         {
             "controller": r["controller"],
             "best baseline": best["controller"],
-            "band / best baseline": r["steady band"] / best["steady band"],
-            "effort / its effort": r["effort RMS"] / best["effort RMS"],
+            "band / best baseline": ratio(r["steady band"], best["steady band"]),
+            "effort / its effort": ratio(r["effort RMS"], best["effort RMS"]),
         }
         for r in rows
         if r["controller"] not in BASELINES
