@@ -683,8 +683,14 @@ class NonlinearHOSMObserver:
                 dx = 0.5 * dx
             else:
                 break  # no descent along the Newton direction: keep x
+            decrease = err - err_new
             x, res, err = x_new, res_new, err_new
-            self.converged = bool(err <= self.tol * scale or np.abs(dx).max() <= self.tol * (1.0 + np.abs(x).max()))
+            # a vanishing step converges only where it still lowers the residual: a singular Jacobian's
+            # minimum-norm step can be zero with the residual where it was (that is a stall, not a solution)
+            small_step = np.abs(dx).max() <= self.tol * (1.0 + np.abs(x).max())
+            self.converged = bool(err <= self.tol * scale or (small_step and decrease > 0))
+            if small_step and not self.converged:
+                break
         self.iterations, self.residual = k, float(err)
         return x
 
@@ -977,11 +983,19 @@ def _chain(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def dissipativity_constant(q: float, S, R) -> float:
     r""":math:`\varrho_\psi` of a :math:`\{q, S, R\}`-dissipative nonlinearity (Apaza-Perez, Fridman and Moreno 2018):
+    the gain :math:`|\Psi(x, h)| \le \varrho_\psi\|h\|` that the dissipation inequality implies for :math:`q < 0`,
 
-    .. math:: \varrho_\psi = \frac{1}{\sqrt{-q}}\Big(\sqrt{-\lambda_{max}(R)\,q + \lambda_{max}(S^TS)}
-              + \lambda_{max}(S^TS)^{1/2}\Big),
+    .. math:: \varrho_\psi = \frac{1}{-q}\Big(\sqrt{-\lambda_{max}(R)\,q + \lambda_{max}(S^TS)}
+              + \lambda_{max}(S^TS)^{1/2}\Big).
 
-    the gain :math:`|\Psi(x, h)| \le \varrho_\psi\|h\|` that the dissipation inequality implies for :math:`q < 0`.
+    Notes
+    -----
+    :math:`q\Psi^2 + 2\Psi Sh + h^TRh \ge 0` is a quadratic in :math:`\Psi` opening downwards, so :math:`|\Psi|` is at
+    most its larger root, :math:`(|Sh| + \sqrt{(Sh)^2 - q\,h^TRh})/(-q)`, and :math:`|Sh| \le
+    \lambda_{max}(S^TS)^{1/2}\|h\|`, :math:`h^TRh \le \lambda_{max}(R)\|h\|^2` give the formula. Fridman's slides
+    print the factor :math:`1/\sqrt{-q}`, which agrees with it only at :math:`q = -1` and is too small for
+    :math:`|q| < 1`: :math:`\psi = 2x_2` is :math:`\{-1/4, 0, 1\}`-dissipative (the form is :math:`-\Psi^2/4 + h^2 =
+    0`) and its gain is 2, where the slides' factor gives 1.
     """
     q, S, R = _supply_rate(q, S, R)
     if not q < 0:
@@ -993,7 +1007,7 @@ def dissipativity_constant(q: float, S, R) -> float:
             "expected a supply rate some nonlinearity satisfies, -lambda_max(R) q + lambda_max(S'S) >= 0, actual "
             f"value: {radicand!r} (q = {q!r}, lambda_max(R) = {float(np.linalg.eigvalsh(R).max())!r})"
         )
-    value = (np.sqrt(radicand) + np.sqrt(sts)) / np.sqrt(-q)
+    value = (np.sqrt(radicand) + np.sqrt(sts)) / -q
     if not np.isfinite(value):
         raise ValueError(f"expected q, S and R of moderate magnitude, actual value: rho_psi = {value!r}")
     return float(value)

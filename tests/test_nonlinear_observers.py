@@ -851,3 +851,34 @@ def test_global_observer_refuses_bad_samples_and_keeps_its_state_on_divergence()
         design_global_observer(2, -1.0, [0.0], [[1.0]], l_max=0.5)  # was UnboundLocalError
     with pytest.raises(ValueError, match="negative poles"):
         design_global_observer(2, -1.0, [0.0], [[1.0]], poles=[np.nan, -1.0])
+
+
+def test_newton_does_not_call_a_stall_convergence():
+    """At an exactly singular Jacobian the minimum-norm step is zero with the residual unchanged; the step-size test
+    called that converged (residual 1.0). From a regular start the same map is solved exactly."""
+    obs = NonlinearHOSMObserver(
+        lambda x: np.array([x[1], 0.0]), lambda x: x[0] ** 3, 2, 1e-3, 5.0,
+        phi=lambda x: np.array([x[0] ** 3, x[1]]), phi_jacobian=lambda x: np.array([[3 * x[0] ** 2, 0.0], [0.0, 1.0]]),
+        tol=1e-10,
+    )  # fmt: skip
+    x = obs.invert(np.array([1.0, 2.0]), [0.0, 0.0])
+    assert not obs.converged and obs.residual == 1.0
+    np.testing.assert_array_equal(x, [0.0, 2.0])  # the x2 the minimum-norm step reaches; x1 cannot move from 0
+    x = obs.invert(np.array([1.0, 2.0]), [0.5, 0.0])
+    assert obs.converged and obs.residual <= 1e-10
+    np.testing.assert_allclose(x, [1.0, 2.0], atol=1e-10)
+
+
+def test_the_dissipation_gain_follows_from_the_inequality_for_every_q():
+    """The slides' factor 1/sqrt(-q) agrees with the inequality's bound only at q = -1: psi = 2 x2 satisfies the
+    {-1/4, 0, 1} inequality (the form is -Psi^2/4 + h^2 = 0) and its gain is 2, where that factor gave 1. With S:
+    (|S| + sqrt(|S|^2 - q R)) / -q, here (0.5 + sqrt(1.25)) / 1, and the sign of S counts in the check's form."""
+    from smo_gym.nonlinear_observers import check_dissipativity, dissipativity_constant
+
+    points = [[0.0, 0.0], [1.0, 2.0], [-0.5, 0.3]]
+    assert check_dissipativity(lambda x: 2.0 * x[1], -0.25, [0.0], [[1.0]], points)[0]
+    assert dissipativity_constant(-0.25, [0.0], [[1.0]]) == pytest.approx(2.0)
+    assert dissipativity_constant(-4.0, [0.0], [[1.0]]) == pytest.approx(0.5)  # sqrt(4) / 4
+    assert dissipativity_constant(-1.0, [0.5], [[1.0]]) == pytest.approx(0.5 + np.sqrt(1.25))
+    ok, worst, _, _ = check_dissipativity(lambda x: 2.0 * x[1], -1.0, [0.5], [[1.0]], points)
+    assert not ok and worst == pytest.approx(-1.0)  # -4 h^2 + 2 (2h)(0.5 h) + h^2 over h^2
