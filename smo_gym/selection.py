@@ -115,6 +115,8 @@ CANDIDATES: tuple[str, ...] = (
 def candidate_orders(candidates: Sequence[str] = CANDIDATES) -> tuple[int, ...]:
     """The derivative orders a calibration needs for the gains of ``candidates``
     (:func:`smo_gym.calibration.bound_order` of each, and 2, the acceleration, for the predictions)."""
+    if isinstance(candidates, str):
+        raise TypeError(f"expected candidates as a sequence of specs, e.g. [{candidates!r}], actual value: a string")
     orders = {2}
     for spec in candidates:
         name, kw = parse_observer_spec(spec)
@@ -205,6 +207,18 @@ class Selection:
     source: str
     joint: bool = False
     bound: np.ndarray | None = None
+
+    def __post_init__(self):
+        errors, shape = np.asarray(self.errors), (len(self.candidates),)
+        if errors.ndim != 3 or errors.shape[1:2] != shape or not (errors >= 0).all():  # NaN would win a channel
+            raise ValueError(
+                f"expected errors >= 0 (inf: none) of shape (scenarios, {len(self.candidates)} candidates, channels), "
+                f"actual value: shape {errors.shape}, {np.count_nonzero(~(errors >= 0))} NaN or negative"
+            )
+        if self.source not in ("trials", "prediction"):
+            raise ValueError(f"expected source 'trials' or 'prediction', actual value: {self.source!r}")
+        if self.bound is not None and np.shape(self.bound) != errors.shape:
+            raise ValueError(f"expected bound of shape {errors.shape}, actual value: {np.shape(self.bound)}")
 
     @property
     def regret(self) -> np.ndarray:
@@ -344,6 +358,11 @@ def measure_on_trials(observer: Observer, trials: Trials, mean_over: float | Non
     :attr:`~smo_gym.observers.Observer.takes_input` gets the trials' ``inputs``; each reports the mean over
     ``mean_over`` seconds where it estimates the acceleration at the sample time
     (:func:`~smo_gym.observers.base.reported_coefficients`), as the wrappers report it."""
+    if not isinstance(observer, Observer) or not isinstance(trials, Trials):
+        raise TypeError(
+            f"expected an Observer and Trials, actual value: {type(observer).__name__} and {type(trials).__name__}"
+        )
+    mean_over = None if mean_over is None else check_positive("mean_over", mean_over)
     n = trials.measured[0].shape[1]
     if observer.takes_input and trials.inputs is None:
         raise ValueError("expected trials with the inputs a model-based observer needs, actual value: inputs=None")
@@ -416,6 +435,7 @@ def ratio_bound(squared: np.ndarray, refs: Sequence[int], level: float = CONFIDE
         ratio = np.sqrt(np.einsum("rb,cbn->rcn", weights, squared) / np.einsum("rb,bn->rn", weights, b)[:, None])
         ratio = np.where(np.isnan(ratio), 1.0, ratio)  # 0 / 0: both exact in that resample
         bound = np.quantile(ratio, level, axis=0)
+    bound = np.where(np.isnan(bound), np.inf, bound)  # the quantile between two infinite ratios is inf - inf
     bound[best, np.arange(best.size)] = 1.0
     return bound
 
@@ -464,6 +484,8 @@ def select(
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, actual value: {calibration!r:.80}")
     observer_kwargs = _check_kwargs(observer_kwargs)
+    if isinstance(candidates, str):
+        raise TypeError(f"expected candidates as a sequence of specs, e.g. [{candidates!r}], actual value: a string")
     candidates = tuple(candidates)
     if not candidates:
         raise ValueError("expected at least one candidate observer, actual value: none")
@@ -557,9 +579,16 @@ def auto_observer(
         selection = select(
             calibration, trials, candidates=candidates, mean_over=mean_over, observer_kwargs=observer_kwargs
         )
+    if not isinstance(selection, Selection):
+        raise TypeError(f"expected a Selection, actual value: {type(selection).__name__}")
     kwargs = _check_kwargs(observer_kwargs)
     wrap = kwargs.pop("wrap", None)
     choice = selection.choice
+    if choice.size != calibration.noise.size:  # a selection made for other channels (a stale cache entry)
+        raise ValueError(
+            f"expected a selection over the calibration's {calibration.noise.size} channels, actual value: "
+            f"{choice.size} channels"
+        )
     parts = []
     for k in np.unique(choice):
         channels = np.flatnonzero(choice == k)

@@ -354,7 +354,7 @@ def test_trials_choose_per_channel_and_the_choice_holds_on_new_data():
         auto_err = np.sqrt(np.mean((auto - fresh.velocity[0][1:]) ** 2, axis=0))
         assert np.all(auto_err <= 1.02 * err), (spec, auto_err, err)
     assert not isinstance(
-        auto_observer(calibration, selection=Selection(("kalman-ca",), np.ones((1, 1, 2)), "x")), PerChannel
+        auto_observer(calibration, selection=Selection(("kalman-ca",), np.ones((1, 1, 2)), "trials")), PerChannel
     )  # one winner everywhere: that observer itself (the wrapper's one-call path)
 
 
@@ -554,3 +554,24 @@ def test_the_trials_are_measured_again_when_the_calibration_changes(monkeypatch)
         errors.append(np.asarray(env.observer.selection.errors))
     kalman = list(env.observer.selection.candidates).index("kalman-ca")
     assert not np.allclose(errors[0][:, kalman], errors[1][:, kalman])
+
+
+def test_selection_inputs_that_would_choose_wrongly_are_refused():
+    """A NaN error won its channel (NaN <= x is False for every other candidate), a selection of five channels was
+    applied to a calibration of two, a NaN ``mean_over`` gave NaN errors, a spec string was read letter by letter,
+    and a bound between two infinite ratios came out NaN (read as 'not proven' only by accident)."""
+    calibration = Calibration(DT, {2: [20.0, 8.0], 3: [400.0, 16.0]}, {2: [5.0, 2.8], 3: [100.0, 5.7]}, [0.0, 1e-3])
+    with pytest.raises(ValueError, match="NaN or negative"):
+        Selection(("finite-difference", "kalman-ca"), np.array([[[np.nan], [1.0]]]), "trials")
+    with pytest.raises(ValueError, match="calibration's 2 channels"):
+        auto_observer(calibration, selection=Selection(("finite-difference",), np.ones((1, 1, 5)), "trials"))
+    trials, _ = _trials(0, T=300)
+    observer = selection.default_observer("kalman-ca", calibration)
+    for bad in (np.nan, -1.0, True):
+        with pytest.raises((TypeError, ValueError), match="mean_over"):
+            selection.measure_on_trials(observer, trials, mean_over=bad)
+    for call in (lambda: select(calibration, trials, candidates="kalman-ca"), lambda: selection.candidate_orders("x")):
+        with pytest.raises(TypeError, match="sequence of specs"):
+            call()
+    squared = np.array([[[1.0], [1.0]], [[np.inf], [np.inf]]])
+    np.testing.assert_array_equal(selection.ratio_bound(squared, [0]), [[1.0], [np.inf]])

@@ -335,3 +335,25 @@ def test_compare_runs_an_observer_told_the_actions(tmp_path, capsys):
     # and the input is the recorded one: without it (zeros) the filter's estimates are others
     blind = lib.compare_observers(dataclasses.replace(rec, inputs=np.zeros_like(rec.inputs)), ["kalman-ca-input"])[0]
     assert not np.allclose(blind.velocity, told.velocity)
+
+
+def test_the_comparison_refuses_what_it_would_misread():
+    """An unstable ``smoothing`` (2: the actions grow to inf) gave a recording with infinite inputs; a misspelled
+    spec in ``observer_kwargs`` was dropped; a spec string was read letter by letter; an empty comparison crashed
+    ``format_table``; ``plot_limits`` returned NaN or inverted limits; a bool was dof index 1."""
+    with pytest.raises(ValueError, match="smoothing"):
+        lib.record_rollout("InvertedPendulum-v5", steps=5, smoothing=2.0)
+    rec = lib.record_rollout("InvertedPendulum-v5", steps=20)
+    with pytest.raises(ValueError, match="keyed by specs"):
+        lib.compare_observers(rec, ["alpha-beta"], observer_kwargs={"alpha-bta": {"alpha": 0.5}})
+    with pytest.raises(TypeError, match="sequence of specs"):
+        lib.compare_observers(rec, "kalman-ca")
+    assert "observer" in lib.format_table(rec, lib.compare_observers(rec, []))
+    for velocity, kwargs in (([np.nan, 1.0], {}), ([0.0, 1.0], {"margin": -5.0}), ([-1e308, 1e308], {})):
+        with pytest.raises(ValueError, match="expected"):
+            lib.plot_limits(velocity, **kwargs)
+    assert lib.plot_limits([0.0, 1.0]) == (-1.0, 2.0)
+    with pytest.raises(TypeError, match="integer index"):
+        lib.resolve_joints(["a", "b", "c"], [True])
+    with pytest.raises(ValueError, match=r"shape \(T, 3\)"):
+        lib.resolve_joints(["a", "b", "c"], None, np.ones((5, 2)))

@@ -233,3 +233,16 @@ def test_update_before_reset_and_wrong_shape():
     obs.reset(np.zeros(2))
     with pytest.raises(ValueError, match="expected y with shape"):
         obs.update(np.zeros(3))
+
+
+def test_the_gain_schedule_bounds_are_consistent():
+    """``mu_min = 10 > mu_max = 2`` was accepted and the schedule climbed to 10, above its cap; ``mu0`` was taken
+    unchecked (negative, NaN); bounds too far apart leaked SciPy's root-bracketing message."""
+    for kwargs in (dict(mu_min=10.0, mu_max=2.0), dict(mu0=5.0, mu_max=2.0)):
+        with pytest.raises(ValueError, match="mu_max"):
+            SwitchedGain(0.01, **kwargs)
+    for mu0 in (-1.0, np.nan):
+        with pytest.raises(ValueError, match="mu0"):
+            SwitchedGain(0.01, mu0=mu0)
+    with pytest.raises(ValueError, match="disturbance and noise bounds"):
+        SwitchedGain(0.01, disturbance=1e300, noise=1e-300)

@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from .. import _extras as extras
-from .._validation import DivergenceError
+from .._validation import DivergenceError, as_real_array, check_nonnegative, check_positive, check_real_in_range
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs, mean_velocity_span
 from ..envs import make as make_by_id
 from ..specs import make_sensor, needs_model, parse_observer_spec
@@ -144,6 +144,7 @@ def record_rollout(
     seeded from ``seed``. Samples are taken every ``rate`` physics steps inside ``frame_skip`` exactly as the
     wrapper takes them.
     """
+    smoothing = check_real_in_range("smoothing", smoothing, 0.0, 1.0, high_open=True)  # a_k+1 = s a_k + (1 - s) u_k
     env = make_by_id(env_id, **(env_kwargs or {}))
     adapter = make_adapter(env)
     k = resolve_rate(rate, adapter.frame_skip)
@@ -297,8 +298,18 @@ def compare_observers(
     control input where the recording has its ``inputs``); ``observer_kwargs`` maps a spec to further overrides.
     The reported name is the spec.
     """
+    if not isinstance(rec, Recording):
+        raise TypeError(f"expected a Recording (record_rollout), actual value: {type(rec).__name__}")
+    if isinstance(observers, str):
+        raise TypeError(f"expected observers as a sequence of specs, e.g. [{observers!r}], actual value: a string")
     names = list(observers)
     specs = parse_observer_specs(names, inputs=rec.inputs is not None)
+    if observer_kwargs is not None and (
+        not isinstance(observer_kwargs, dict) or not set(observer_kwargs) <= set(names)
+    ):  # a misspelled spec's overrides were dropped silently
+        raise ValueError(
+            f"expected observer_kwargs keyed by specs among {names}, actual value: {observer_kwargs!r:.120}"
+        )
     ctx = rec.context
     starts = list(rec.episode_starts) + [len(rec.z_measured)]
     results = []
@@ -375,7 +386,7 @@ TABLE_COLUMNS = {
 
 
 def _table(cols, rows) -> list[str]:
-    widths = [max(len(c), *(len(row[i]) for row in rows)) for i, c in enumerate(cols)]
+    widths = [max([len(c), *(len(row[i]) for row in rows)]) for i, c in enumerate(cols)]
 
     def line(cells):
         return "  ".join(
@@ -430,13 +441,22 @@ def resolve_joints(names: list[str], joints, qvel: np.ndarray | None = None, roo
     if not joints:
         if qvel is None:
             raise ValueError("expected joints or the velocities to choose them from, actual value: neither")
+        qvel = as_real_array("qvel", qvel)
+        if qvel.ndim != 2 or qvel.shape[1] != len(names):
+            raise ValueError(f"expected qvel of shape (T, {len(names)}), actual value: shape {qvel.shape}")
         rms = np.sqrt(np.mean(qvel**2, axis=0))
         root = np.zeros(len(names), dtype=bool) if root is None else np.asarray(root, dtype=bool)
+        if root.shape != (len(names),):
+            raise ValueError(f"expected root of shape ({len(names)},), actual value: shape {root.shape}")
         order = [d for d in np.argsort(-rms) if not root[d]] or list(np.argsort(-rms))
         return [int(d) for d in order[:2]]
     out = []
     for j in joints:
-        if isinstance(j, (int, np.integer)) or (isinstance(j, str) and j.lstrip("-").isdigit()):
+        if isinstance(j, bool):
+            raise TypeError(f"expected a dof name or an integer index, actual value: {j!r}")
+        if isinstance(j, (int, np.integer)) or (
+            isinstance(j, str) and j.lstrip("-").isascii() and j.lstrip("-").isdigit()
+        ):
             d = int(j)
             if not 0 <= d < len(names):
                 raise ValueError(f"expected a dof index in [0, {len(names) - 1}], actual value: {j!r}")
@@ -459,9 +479,17 @@ def _root_dofs(rec: Recording) -> np.ndarray:
 def plot_limits(true_velocity: np.ndarray, margin: float = 1.0, floor: float = 1e-3) -> tuple[float, float]:
     """y-limits of a velocity plot from the *true* velocity alone: its range widened by ``margin`` times its span
     on both sides (span at least ``floor``), so that a chattering or diverged estimate cannot rescale the axis."""
-    lo, hi = float(np.min(true_velocity)), float(np.max(true_velocity))
-    span = max(hi - lo, floor, 0.1 * max(abs(lo), abs(hi)))
-    return lo - margin * span, hi + margin * span
+    v = as_real_array("true_velocity", true_velocity)
+    margin, floor = check_nonnegative("margin", margin), check_positive("floor", floor)
+    if v.size == 0 or not np.isfinite(v).all():
+        raise ValueError(f"expected finite true velocities, actual value: {v.size} values, some not finite or none")
+    lo, hi = float(np.min(v)), float(np.max(v))
+    with np.errstate(over="ignore"):
+        span = max(hi - lo, floor, 0.1 * max(abs(lo), abs(hi)))
+        limits = lo - margin * span, hi + margin * span
+    if not np.isfinite(limits).all():
+        raise ValueError(f"expected velocities whose plot range is finite, actual value: from {lo:.3g} to {hi:.3g}")
+    return limits
 
 
 def velocity_figure(rec: Recording, results: list[ObserverResult], joints, *, seconds: float = 1.0):

@@ -166,11 +166,17 @@ def noise_optimal_gains(
 
     target = r(mu_ref)
     hi = mu_min * 2.0
-    while r(hi) < target:
+    while r(hi) < target and np.isfinite(hi):
         hi *= 2.0
     from scipy.optimize import brentq  # lazy: scipy.optimize costs ~0.4 s of `import smo_gym`
 
-    mu_max = brentq(lambda mu: r(mu) - target, mu_min, hi, xtol=1e-12, rtol=1e-14)
+    try:
+        mu_max = brentq(lambda mu: r(mu) - target, mu_min, hi, xtol=1e-12, rtol=1e-14)
+    except ValueError:  # r at the ends has no sign change left in floating point: the bounds' ratio is extreme
+        raise ValueError(
+            f"expected disturbance and noise bounds whose gains are floats, actual value: rho_d*D = {a!r}, "
+            f"rho_v*V = {b!r} (mu_min = {mu_min!r})"
+        ) from None
     return float(mu_min), float(mu_max)
 
 
@@ -450,7 +456,7 @@ class SwitchedGain(Observer):
             computed = noise_optimal_gains(n, self.rho_d, self.rho_v, self.disturbance, self.noise)
         elif (disturbance is None) != (noise is None):
             raise ValueError("expected both disturbance and noise, or neither, actual value: only one given")
-        self.mu0 = float(mu0) if mu0 is not None else computed[0] if computed[0] is not None else 1.0
+        self.mu0 = check_positive("mu0", mu0) if mu0 is not None else computed[0] if computed[0] is not None else 1.0
         self.mu_min = (
             check_positive("mu_min", mu_min)
             if mu_min is not None
@@ -465,6 +471,11 @@ class SwitchedGain(Observer):
             if computed[1] is not None
             else np.inf
         )
+        if not self.mu_min <= self.mu_max or not self.mu0 <= self.mu_max:  # the schedule would climb past mu_max
+            raise ValueError(
+                f"expected mu_min and mu0 <= mu_max, actual value: mu_min={self.mu_min!r}, mu0={self.mu0!r}, "
+                f"mu_max={self.mu_max!r}"
+            )
         self.T_min = 3.0 * self.dt if T_min is None else check_positive("T_min", T_min)
         self.restart_threshold = (
             np.inf if restart_threshold is None else check_positive("restart_threshold", restart_threshold)
