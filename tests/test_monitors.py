@@ -458,3 +458,21 @@ def test_parameter_monitor_says_when_a_refused_sample_cost_the_identifier_its_st
     assert "the state was kept" not in str(refused.value) and "reset(y0) before the next update" in str(refused.value)
     with pytest.raises(RuntimeError, match="reset"):
         monitor.update([0.1003], [0.0])
+
+
+def test_mode_monitor_reads_the_qpos_entries_it_is_given():
+    """``outputs`` picks the bank's outputs out of the measured qpos: a monitor reading entry 1 of (junk, y) keeps
+    the same records as one reading y alone (reading the first entries instead passed every other test)."""
+    from smo_gym.control import SwitchedLinearSystem
+    from smo_gym.monitors import ModeMonitor
+
+    system = SwitchedLinearSystem([_oscillator(1, 1), _oscillator(9, 1)], names=["a", "b"])
+    picked, alone = ModeMonitor(_bank(system), outputs=[1]), ModeMonitor(_bank(system))
+    t = np.arange(300) * 1e-3
+    y = 0.1 * np.sin(3 * t)
+    picked.reset([5.0, y[0]])
+    alone.reset([y[0]])
+    for k in range(1, t.size):
+        a, b = picked.update([5.0 + k, y[k]], [0.0]), alone.update([y[k]], [0.0])
+        np.testing.assert_array_equal(a["residual_norms"], b["residual_norms"])
+    assert a["mode"] == b["mode"]

@@ -708,7 +708,7 @@ def test_dissipativity_holds_for_the_example_and_fails_for_a_steeper_nonlinearit
 
     points = np.random.default_rng(1).uniform(-5, 5, (20, 2))
     ok, worst, _, _ = check_dissipativity(_unbounded_psi, -1.0, [0.0], [[1.0]], points)
-    assert ok and worst >= -1e-12
+    assert ok and 0.0 <= worst < 1.0  # the form over h^2 is 1 - (Psi / h)^2, in [0, 1] for a 1-Lipschitz Psi
     ok, worst, _, h = check_dissipativity(lambda x: 2.0 * x[1], -1.0, [0.0], [[1.0]], points)
     assert not ok and worst == pytest.approx(-3.0) and h.shape == (1,)
     with pytest.raises(ValueError, match="points of shape"):
@@ -882,3 +882,38 @@ def test_the_dissipation_gain_follows_from_the_inequality_for_every_q():
     assert dissipativity_constant(-1.0, [0.5], [[1.0]]) == pytest.approx(0.5 + np.sqrt(1.25))
     ok, worst, _, _ = check_dissipativity(lambda x: 2.0 * x[1], -1.0, [0.5], [[1.0]], points)
     assert not ok and worst == pytest.approx(-1.0)  # -4 h^2 + 2 (2h)(0.5 h) + h^2 over h^2
+
+
+@pytest.mark.parametrize("s, nu", [(2.0, 3.0), (2.0, 0.3)])  # l = 16 and 32; without the N term 32, without S 16
+def test_global_observer_design_with_the_s_and_n_terms_written_out(s, nu):
+    """The design test above has S = 0 and N = (-1, 0), where the theorem's S T_l / l^(2n-1) and l N~ C terms vanish
+    (dropping either passed). With S = [s] and N = (-1, nu), n = 2: T_l = [[nu l, l^2]], and the matrix is written
+    out here from the slides' inequality; each case's first l changes when one of the terms is dropped."""
+    from smo_gym.nonlinear_observers import design_global_observer
+
+    d = design_global_observer(2, -1.0, [s], [[1.0]], N=[-1.0, nu])
+    A, C = np.eye(2, k=1), np.array([1.0, 0.0])
+    AK = A + np.outer(d.K, C)
+
+    def largest_eigenvalue(l):
+        T = np.array([[nu * l, l * l]])
+        top = d.P @ AK + AK.T @ d.P + np.eye(2) + T.T @ T / l**4
+        off = d.P[1] + s * T[0] / l**3
+        return np.linalg.eigvalsh(np.block([[top, off[:, None]], [off[None, :], np.array([[-l]])]])).max()
+
+    assert largest_eigenvalue(d.l) <= 0 < largest_eigenvalue(d.l / 2)
+    assert d.rho_psi == pytest.approx(s + np.sqrt(1.0 + s * s))
+
+
+def test_relative_degree_and_rank_conditions_on_their_own():
+    """An input reaching the output below its relative degree makes the system unobservable in the sense of the
+    theorem (``observable`` is False, with the coupling 1 for g = e1 here), also one level down a chain of three (an
+    input into x2 with y = x1); the rank test is relative to the largest singular value (an output scaled by 1e-8 is
+    still observable)."""
+    report = check_observability(f, h, [[0.2, 0.1]], g=lambda x: np.array([1.0, 0.0]), raise_error=False)
+    assert not report.observable[0] and report.input_coupling[0] == pytest.approx(1.0)
+    chain = lambda x: np.array([x[1], x[2], -x[0]])
+    with pytest.raises(ObservabilityError, match="relative degree"):
+        check_observability(chain, lambda x: x[0], [[0.1, 0.2, 0.3]], g=lambda x: np.array([0.0, 1.0, 0.0]))
+    check_observability(chain, lambda x: x[0], [[0.1, 0.2, 0.3]], g=lambda x: np.array([0.0, 0.0, 1.0]))
+    assert check_observability(f, lambda x: 1e-8 * np.sin(x[0]), [[0.2, 0.1]], raise_error=False).observable[0]
