@@ -917,3 +917,51 @@ def test_relative_degree_and_rank_conditions_on_their_own():
         check_observability(chain, lambda x: x[0], [[0.1, 0.2, 0.3]], g=lambda x: np.array([0.0, 1.0, 0.0]))
     check_observability(chain, lambda x: x[0], [[0.1, 0.2, 0.3]], g=lambda x: np.array([0.0, 0.0, 1.0]))
     assert check_observability(f, lambda x: 1e-8 * np.sin(x[0]), [[0.2, 0.1]], raise_error=False).observable[0]
+
+
+def test_newton_backtracks_where_the_full_step_overshoots():
+    """Phi = (atan x1, x2) from x1 = 3: the full Newton step of atan overshoots and diverges (to ~1e292 without the
+    backtracking, which also reported converged); damped, it reaches the root."""
+    obs = NonlinearHOSMObserver(
+        lambda x: np.array([x[1], 0.0]), lambda x: np.arctan(x[0]), 2, 1e-3, 5.0,
+        phi=lambda x: np.array([np.arctan(x[0]), x[1]]),
+        phi_jacobian=lambda x: np.array([[1.0 / (1.0 + x[0] ** 2), 0.0], [0.0, 1.0]]),
+        tol=1e-12,
+    )  # fmt: skip
+    x = obs.invert(np.zeros(2), [3.0, 1.0])
+    assert obs.converged and obs.residual <= 1e-12
+    np.testing.assert_allclose(x, [0.0, 0.0], atol=1e-12)
+
+
+def test_the_input_estimate_is_zero_where_the_guess_is_the_state():
+    """Started at the true state, the input differentiator's top derivative starts at L_f^r h(x0), so the
+    reconstructed unknown input is 0 at the reset (starting it at 0 instead gave the drift's L_f^2 h over L_d
+    L_f h)."""
+    x0 = np.array([0.6, -0.4])
+    obs = NonlinearHOSMObserver(f, h, 2, 1e-3, 50.0, unknown_input=[0.0, 1.0])
+    obs.reset(h(x0), x0)
+    np.testing.assert_allclose(obs.state, x0, atol=1e-9)
+    np.testing.assert_allclose(obs.derivatives, phi(x0), atol=1e-9)
+    np.testing.assert_allclose(obs.input_estimate, 0.0, atol=1e-6)
+
+
+def test_the_global_observer_feeds_psi_the_measured_first_coordinate():
+    """psi is evaluated at v + N (Cv - y) with N = (-1, 0, ...): its first coordinate is the output (here the Taylor
+    polynomial of the estimate at each Runge-Kutta stage, the estimate itself at the stage at the sample), not the
+    copy's own v1 (which a mutation left every other test blind to)."""
+    from smo_gym.nonlinear_observers import GlobalHOSMObserver, design_global_observer
+
+    seen = []
+
+    def psi(x):
+        seen.append(np.array(x))
+        return 0.5 * x[0] + np.sin(x[1])
+
+    d = design_global_observer(2, -1.0, [0.0], [[1.0]])
+    obs = GlobalHOSMObserver(psi, 2, 1e-2, K=d.K, l=d.l, lipschitz=200.0)
+    obs.reset(1.0, [1.0, 0.0])
+    obs.update(1.0)
+    copy_before = obs.copy.copy()
+    seen.clear()
+    estimate = obs.update(1.05)
+    assert seen[0][0] == pytest.approx(estimate[0], abs=1e-12) and abs(seen[0][0] - copy_before[0]) > 1e-6
