@@ -245,8 +245,10 @@ def quantization_step(y, *, tolerance: float = 1e-6, share: float = 0.99, minimu
     with np.errstate(over="ignore"):
         d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, y[0].size)  # (T - 1, channels), T = 1 too
     if not np.isfinite(d).all():
-        raise ValueError(f"expected samples whose differences are finite, actual value: largest |y| "
-                         f"{np.max(np.abs(y)):.3g}; rescale the signal")  # fmt: skip
+        raise ValueError(
+            f"expected samples whose differences are finite, actual value: largest |y| {np.max(np.abs(y)):.3g}; "
+            "rescale the signal"
+        )
     step = np.zeros(d.shape[1])
     for c in range(d.shape[1]):
         moves = d[d[:, c] > 0.0, c]

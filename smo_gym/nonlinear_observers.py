@@ -1020,8 +1020,9 @@ def _supply_rate(q, S, R, m: int | None = None) -> tuple[float, np.ndarray, np.n
     m = R.shape[0] if m is None else m
     S = np.atleast_2d(as_real_array("S", S))
     if R.shape != (m, m) or S.size != m or m == 0:
-        raise ValueError(f"expected S of {m} entries and R of shape ({m}, {m}), m >= 1, actual value: shapes "
-                         f"{S.shape} and {R.shape}")  # fmt: skip
+        raise ValueError(
+            f"expected S of {m} entries and R of shape ({m}, {m}), m >= 1, actual value: shapes {S.shape} and {R.shape}"
+        )
     if not (np.isfinite(S).all() and np.isfinite(R).all()):
         raise ValueError(f"expected finite S and R, actual value: S = {_short(S)}, R = {_short(R)}")
     return q, S.reshape(1, m), R
