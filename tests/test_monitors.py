@@ -476,3 +476,17 @@ def test_mode_monitor_reads_the_qpos_entries_it_is_given():
         a, b = picked.update([5.0 + k, y[k]], [0.0]), alone.update([y[k]], [0.0])
         np.testing.assert_array_equal(a["residual_norms"], b["residual_norms"])
     assert a["mode"] == b["mode"]
+
+
+def test_detection_starts_exactly_at_the_settle_time():
+    """The nominal residual above its band from the first sample: the first sample that counts is the one at
+    ``settle_time`` (0.03 s at dt = 0.01 s), as ``diagnose`` decides it; the random runs above never fell on that
+    boundary (a detection one sample later passed them)."""
+    dt, T = 0.01, 10
+    rows = np.column_stack([np.full(T, 2.0), np.full(T, 0.5)])
+    monitor = FaultMonitor(ScriptedBank(rows, dt))
+    monitor.reset(np.zeros(1))
+    for _ in range(T):
+        record = monitor.update(np.zeros(1), np.zeros(1))
+    d = diagnose(np.vstack([np.zeros((1, 2)), rows]), dt, dwell=0.05, settle_time=0.03)
+    assert record["detection_time"] == pytest.approx(0.03) == pytest.approx(d.detection_time)
