@@ -82,6 +82,13 @@ def _as_float(name: str, value, expected: str) -> float:
         ) from None
 
 
+def check_names(name: str, value, kind: str = "names") -> list[str]:
+    """``value`` as a list of strings; a single string is refused (iterating it would read it letter by letter)."""
+    if isinstance(value, str) or not all(isinstance(item, str) for item in value):
+        raise TypeError(f"expected {name} as a sequence of {kind}, e.g. [{value!r:.40}], actual value: {value!r:.80}")
+    return list(value)
+
+
 def check_real(name: str, value) -> float:
     """Return ``value`` as a float after checking that it is a finite real number (not a bool or a string)."""
     value = _as_float(name, value, "to be finite")

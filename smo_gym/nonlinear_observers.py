@@ -915,10 +915,7 @@ class HOSMInjectionObserver:
         return _jacobian(self._phi, x, self.step)
 
     def _y(self, y) -> float:
-        y = as_real_array("y", y)
-        if y.size != 1 or not np.isfinite(y).all():
-            raise ValueError(f"expected one finite measurement y, actual value: {y!r}")
-        return float(y.reshape(()))
+        return _sample("y", y)
 
     def _error(self, y: float, x: np.ndarray) -> float:
         return y - float(_eval("h", self.h, x, (1,))[0])
@@ -1079,7 +1076,9 @@ def _psi_value(psi: Callable, x: np.ndarray) -> float:
     """``psi(x)`` as a finite float (a scalar or a one-entry array)."""
     value = as_real_array("psi(x)", psi(x))
     if value.size != 1 or not np.isfinite(value).all():
-        raise ValueError(f"expected psi(x) to be one finite number at x = {x.tolist()}, actual value: {_short(value)}")
+        raise ValueError(
+            f"expected psi(x) to return a finite scalar at x = {x.tolist()}, actual value: {_short(value)}"
+        )
     return float(value.reshape(-1)[0])
 
 
@@ -1257,10 +1256,7 @@ class GlobalHOSMObserver:
         self.copy: np.ndarray | None = None
 
     def _psi(self, x) -> float:
-        value = np.asarray(self.psi(x), dtype=float)
-        if value.size != 1 or not np.isfinite(value).all():
-            raise ValueError(f"expected psi(x) to return a finite scalar, actual value: {value!r}")
-        return float(value.reshape(-1)[0])
+        return _psi_value(self.psi, x)
 
     def _rhs(self, v, y: float, u) -> np.ndarray:
         e = self._C @ v - y

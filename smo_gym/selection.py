@@ -58,7 +58,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._validation import DivergenceError, as_real_array, check_positive
+from ._validation import DivergenceError, as_real_array, check_names, check_positive
 from .calibration import Calibration, bound_order, default_observer
 from .observers import Observer
 from .observers.base import reported_coefficients, reported_velocity
@@ -115,10 +115,8 @@ CANDIDATES: tuple[str, ...] = (
 def candidate_orders(candidates: Sequence[str] = CANDIDATES) -> tuple[int, ...]:
     """The derivative orders a calibration needs for the gains of ``candidates``
     (:func:`smo_gym.calibration.bound_order` of each, and 2, the acceleration, for the predictions)."""
-    if isinstance(candidates, str):
-        raise TypeError(f"expected candidates as a sequence of specs, e.g. [{candidates!r}], actual value: a string")
     orders = {2}
-    for spec in candidates:
+    for spec in check_names("candidates", candidates, "specs"):
         name, kw = parse_observer_spec(spec)
         orders.add(bound_order(name, kw))
     return tuple(sorted(orders))
@@ -484,9 +482,7 @@ def select(
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, actual value: {calibration!r:.80}")
     observer_kwargs = _check_kwargs(observer_kwargs)
-    if isinstance(candidates, str):
-        raise TypeError(f"expected candidates as a sequence of specs, e.g. [{candidates!r}], actual value: a string")
-    candidates = tuple(candidates)
+    candidates = tuple(check_names("candidates", candidates, "specs"))
     if not candidates:
         raise ValueError("expected at least one candidate observer, actual value: none")
     if mean_over is not None:

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._validation import check_positive, check_real
+from .._validation import check_names, check_positive, check_real
 from ..control.closed_loop import closed_loop_metrics, parse_disturbance, run_closed_loop, scale_body_mass
 
 __all__ = ["BASELINES", "DEFAULT_CONTROLLERS", "compare_controllers", "plot_closed_loop", "summarize"]
@@ -73,7 +73,7 @@ def compare_controllers(
     from .._extras import progress
     from ..control.policies import design
 
-    controllers, seeds = _names("controllers", controllers), list(seeds)
+    controllers, seeds = check_names("controllers", controllers), list(seeds)
     if not seeds or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) for s in seeds):
         raise ValueError(f"expected one integer seed or more, actual value: {seeds!r:.80}")
     if payload is not None and not (
@@ -113,13 +113,6 @@ def compare_controllers(
 
 #: the controllers a control engineer would otherwise use
 BASELINES = ("lqr-luenberger", "lqr-kalman", "pid")
-
-
-def _names(what: str, names) -> list[str]:
-    """A sequence of names; a single string is refused (it would be read letter by letter)."""
-    if isinstance(names, str) or not all(isinstance(n, str) for n in names):
-        raise TypeError(f"expected {what} as a sequence of names, e.g. [{names!r:.40}], actual value: {names!r:.80}")
-    return list(names)
 
 
 def summarize(rows: list[dict]) -> list[dict]:

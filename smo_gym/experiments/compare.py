@@ -41,7 +41,14 @@ import mujoco
 import numpy as np
 
 from .. import _extras as extras
-from .._validation import DivergenceError, as_real_array, check_nonnegative, check_positive, check_real_in_range
+from .._validation import (
+    DivergenceError,
+    as_real_array,
+    check_names,
+    check_nonnegative,
+    check_positive,
+    check_real_in_range,
+)
 from ..engine.measurement import JointMeasurement, VelocityEstimator, angular_dofs, mean_velocity_span
 from ..envs import make as make_by_id
 from ..specs import make_sensor, needs_model, parse_observer_spec
@@ -300,9 +307,7 @@ def compare_observers(
     """
     if not isinstance(rec, Recording):
         raise TypeError(f"expected a Recording (record_rollout), actual value: {type(rec).__name__}")
-    if isinstance(observers, str):
-        raise TypeError(f"expected observers as a sequence of specs, e.g. [{observers!r}], actual value: a string")
-    names = list(observers)
+    names = check_names("observers", observers, "specs")
     specs = parse_observer_specs(names, inputs=rec.inputs is not None)
     if observer_kwargs is not None and (
         not isinstance(observer_kwargs, dict) or not set(observer_kwargs) <= set(names)
