@@ -104,6 +104,8 @@ SETTINGS = {
     "sb3-default": dict(n_envs=1, n_steps=2048, batch_size=64),
     "rl-zoo3": None,
 }
+#: what the script can measure (``--tables``)
+TABLES = ("ppo", "subproc", "in-process")
 #: environment steps per timed round, at least (whole rollouts)
 ROUND_STEPS = 2048
 
@@ -127,6 +129,7 @@ def training(
     """Steps per wall-clock second and per CPU second of this process, per configuration and round."""
     import torch
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
     torch.set_num_threads(1)
@@ -139,6 +142,8 @@ def training(
         }
     rollout = cfg["n_steps"] * n_envs
     per_round = rollout * -(-ROUND_STEPS // rollout)
+    for m in models.values():  # without a logger of its own every learn() makes a new empty /tmp/SB3-<time> folder
+        m.set_logger(Logger(folder=None, output_formats=[]))
     for m in models.values():  # warm-up: compilation, calibration caches, first allocations
         m.learn(per_round)
     wall: dict[str, list[float]] = {k: [] for k in KINDS}
@@ -288,12 +293,15 @@ def main(argv=None) -> int:
     p.add_argument("--rounds", type=int, default=7)
     p.add_argument("--settings", default=",".join(SETTINGS), help=f"PPO settings among {', '.join(SETTINGS)}")
     p.add_argument("--no-subproc", action="store_true", help="the same as leaving subproc out of --tables")
-    p.add_argument("--tables", default="ppo,subproc", help="among ppo, subproc, in-process")
+    p.add_argument("--tables", default="ppo,subproc", help=f"among {', '.join(TABLES)}")
     p.add_argument("--n-envs", default="8,32", help="environments per vector env of the in-process table")
     p.add_argument("--steps", type=int, default=200, help="vector steps per round of the in-process table")
     p.add_argument("--observer", default="auto", help="the wrappers' observer in the PPO table (default: auto)")
     args = p.parse_args(argv)
     tables = set(args.tables.split(","))
+    for option, given, known in (("--tables", tables, TABLES), ("--settings", args.settings.split(","), SETTINGS)):
+        if not set(given) <= set(known):
+            p.error(f"{option}: expected names among {', '.join(known)}, actual value: {','.join(given)}")
     if args.no_subproc:
         tables.discard("subproc")
     if "in-process" in tables:

@@ -357,3 +357,13 @@ def test_the_comparison_refuses_what_it_would_misread():
         lib.resolve_joints(["a", "b", "c"], [True])
     with pytest.raises(ValueError, match=r"shape \(T, 3\)"):
         lib.resolve_joints(["a", "b", "c"], None, np.ones((5, 2)))
+
+
+def test_estimate_errors_refuse_a_velocity_of_another_shape():
+    """A column of one dof's estimates broadcast against every dof's true velocity: errors of samples it does not
+    hold, with no error raised."""
+    rec = lib.record_rollout("InvertedPendulum-v5", steps=10)
+    assert rec.qvel.shape[1] == 2
+    np.testing.assert_array_equal(lib.estimate_errors(rec, rec.qvel), 0.0)
+    with pytest.raises(ValueError, match=r"recording's shape"):
+        lib.estimate_errors(rec, rec.qvel[:, :1])

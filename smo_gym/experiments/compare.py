@@ -240,7 +240,18 @@ def estimate_errors(rec: Recording, velocity: np.ndarray) -> np.ndarray:
 
     The first sample of each episode is left out: there the observer is initialized (zero velocity by
     construction), it has not estimated anything yet.
+
+    Raises
+    ------
+    ValueError
+        ``velocity`` is not of the recording's shape ``(T, nv)`` (a column or a row would broadcast against the
+        true velocities into errors of samples it does not hold).
     """
+    velocity = as_real_array("velocity", velocity)
+    if velocity.shape != rec.qvel.shape:
+        raise ValueError(
+            f"expected velocity of the recording's shape {rec.qvel.shape}, actual value: shape {velocity.shape}"
+        )
     estimated = np.ones(len(velocity), dtype=bool)
     estimated[rec.episode_starts] = False
     return (velocity - rec.qvel)[estimated]
