@@ -19,6 +19,7 @@ from pathlib import Path
 from gymnasium.error import Error as GymnasiumError
 
 from ._extras import MissingExtraError, require
+from .envs import check_env_id
 
 __all__ = [
     "DEFAULT_OBSERVERS",
@@ -146,27 +147,6 @@ def build_parser() -> argparse.ArgumentParser:
 # ----------------------------------------------------------------------------------------------------------------
 # checks shared by the subcommands (before any work)
 # ----------------------------------------------------------------------------------------------------------------
-def check_env_id(env_id: str) -> str:
-    """``env_id`` after checking that Gymnasium knows it (smo_gym's and dm_control's ids registered first).
-
-    Raises
-    ------
-    ValueError
-        An unknown id, with the closest registered one.
-    """
-    import difflib
-
-    import gymnasium as gym
-
-    if env_id.startswith("dm_control/"):
-        require("shimmy", "dm_control")  # registers dm_control/...
-    if env_id in gym.registry:
-        return env_id
-    match = difflib.get_close_matches(env_id, list(gym.registry), n=1, cutoff=0.6)
-    hint = f" (did you mean {match[0]!r}?)" if match else ""
-    raise ValueError(f"expected a registered Gymnasium environment id, actual value: {env_id!r}{hint}")
-
-
 def check_seed_argument(seed: int) -> int:
     """``--seed`` after checking it is >= 0 (Gymnasium refuses a negative one only once the work has started)."""
     if seed < 0:
@@ -203,8 +183,8 @@ def compare(args: argparse.Namespace) -> int:
     check_seed_argument(args.seed)
     if args.steps < 1:
         raise ValueError(f"expected --steps >= 1, actual value: {args.steps}")
-    if not args.plot_seconds > 0:
-        raise ValueError(f"expected --plot-seconds > 0, actual value: {args.plot_seconds}")
+    if not 0 < args.plot_seconds < float("inf"):
+        raise ValueError(f"expected a finite --plot-seconds > 0, actual value: {args.plot_seconds}")
     check_env_id(args.env)
     make_sensor(args.sensor)
     observers = [name.strip() for name in args.observers.split(",") if name.strip()]

@@ -163,8 +163,12 @@ def train(args: argparse.Namespace) -> int:
             f"expected --checkpoint-every >= 0 and --eval-episodes >= 0, actual value: "
             f"{args.checkpoint_every}, {args.eval_episodes}"
         )
-    out = args.out or rl.default_run_folder(
-        args.env, args.sensing, args.algo, args.seed, sensor=args.sensor, observer=args.observer, rate=args.rate
+    out = (
+        args.out
+        if args.out is not None
+        else rl.default_run_folder(
+            args.env, args.sensing, args.algo, args.seed, sensor=args.sensor, observer=args.observer, rate=args.rate
+        )
     )
     rl.check_run_folder(out, overwrite=args.force)
     summary = rl.train(

@@ -28,6 +28,7 @@ from __future__ import annotations
 import copy
 import importlib.util
 import json
+import math
 import os
 import re
 import shutil
@@ -38,7 +39,8 @@ import gymnasium as gym
 import numpy as np
 
 from ._extras import require
-from ._validation import check_int_at_least, check_int_in_range
+from ._validation import check_bool, check_int_at_least, check_int_in_range, check_real
+from .envs import check_env_id
 from .envs import make as make_by_id
 from .specs import make_sensor, needs_model, parse_observer_spec
 
@@ -68,6 +70,8 @@ SENSINGS = ("true", "estimated", "finite-difference", "no-velocity", "stacked-po
 #: the largest seed :func:`train` takes: its evaluation environments are seeded ``10_000 + 100 seed + k``, and
 #: SB3 seeds NumPy's legacy generator, which takes seeds below 2**32
 MAX_TRAIN_SEED = (2**32 - 10_100) // 100
+#: the most episodes an evaluation takes (SB3 counts them in a NumPy int64 array)
+MAX_EPISODES = 2**63 - 1
 #: the Stable-Baselines3 algorithms :func:`train` runs
 ALGOS = ("PPO", "SAC")
 
@@ -90,6 +94,8 @@ def velocity_entries(env: gym.Env, trials: int = 3, seed: int = 0) -> np.ndarray
     """
     from .wrappers.adapters import make_adapter
 
+    trials = check_int_at_least("trials", trials, 1)  # none would find no velocity entry: nothing masked
+    seed = check_int_in_range("seed", seed, 0, 2**63 - 1)
     adapter = make_adapter(env)
     rng = np.random.default_rng(seed)
     qpos = np.array(adapter.data.qpos)
@@ -101,13 +107,28 @@ def velocity_entries(env: gym.Env, trials: int = 3, seed: int = 0) -> np.ndarray
     return np.flatnonzero(changed.reshape(-1))
 
 
+def _entry_indices(env: gym.Env, indices) -> np.ndarray:
+    """``indices`` of a flat ``Box`` observation of ``env``, checked: integers (a bool or a float would be read as
+    another entry) within its size."""
+    space = env.observation_space
+    if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
+        raise ValueError(f"expected an environment with a flat Box observation, actual value: {space}")
+    index = np.asarray(indices)
+    if index.ndim != 1 or (index.size and index.dtype.kind not in "iu"):
+        raise TypeError(f"expected indices to be a sequence of integers, actual value: {indices!r:.80}")
+    size = space.shape[0]
+    if index.size and not (index.min() >= -size and index.max() < size):
+        raise ValueError(f"expected indices of entries in [0, {size}), actual value: {index.tolist()!r:.80}")
+    return index.astype(np.intp) % max(size, 1)
+
+
 class MaskEntries(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
-    """Set the observation entries ``indices`` to zero (the observation space is unchanged)."""
+    """Set the observation entries ``indices`` (integers) to zero (the observation space is unchanged)."""
 
     def __init__(self, env: gym.Env, indices):
         gym.utils.RecordConstructorArgs.__init__(self, indices=indices)
         gym.ObservationWrapper.__init__(self, env)
-        self.indices = np.asarray(indices, dtype=int)
+        self.indices = _entry_indices(env, indices)
 
     def observation(self, observation):
         observation = np.array(observation, copy=True)
@@ -116,12 +137,12 @@ class MaskEntries(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
 
 class SelectEntries(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
-    """Keep only the observation entries ``indices`` (a Box of the selected bounds)."""
+    """Keep only the observation entries ``indices`` (integers; a Box of the selected bounds)."""
 
     def __init__(self, env: gym.Env, indices):
         gym.utils.RecordConstructorArgs.__init__(self, indices=indices)
         gym.ObservationWrapper.__init__(self, env)
-        self.indices = np.asarray(indices, dtype=int)
+        self.indices = _entry_indices(env, indices)
         space = env.observation_space
         self.observation_space = gym.spaces.Box(space.low[self.indices], space.high[self.indices], dtype=space.dtype)
 
@@ -236,7 +257,8 @@ def make_vec(
 
     _check_sensing(sensing)
     n_envs = check_int_at_least("n_envs", n_envs, 1)
-    explicit = vectorized
+    seed = None if seed is None else check_int_in_range("seed", seed, 0, 2**32 - n_envs)  # SB3 seeds seed + i
+    explicit = vectorized = None if vectorized is None else check_bool("vectorized", vectorized)
     if vectorized is None:  # a model-based observer needs its environment's control input: per environment
         model_based = needs_model(*_observer(sensing, observer, observer_kwargs))
         vectorized = (
@@ -251,7 +273,9 @@ def make_vec(
                 f"expected sensing 'estimated' or 'finite-difference' for vectorized sensing, actual value: {sensing!r}"
             )
         from .wrappers import VecEstimatedVelocity, sensing_config
+        from .wrappers.vec import check_vector_rate
 
+        check_vector_rate(rate)  # the batched wrapper samples once per environment step
         name, kwargs = _observer(sensing, observer, observer_kwargs)
         venv = make_vec_env(lambda: make_by_id(env_id, **(env_kwargs or {})), n_envs=n_envs, seed=seed)
         if isinstance(venv.observation_space, gym.spaces.Box):
@@ -298,13 +322,16 @@ SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 #: what ``policy_kwargs`` may name besides literals and ``dict(...)`` (torch.nn activations and optimizers)
 _ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Softplus", "Identity")
 _OPTIMIZERS = ("Adam", "AdamW", "RMSprop", "SGD")
+#: SB3 arguments that count (samples per rollout, minibatch size, epochs, replay buffer size): SB3 takes zero or a
+#: negative count and fails inside ``learn`` (``n_epochs=0``: an ``UnboundLocalError`` after the first rollout)
+_COUNT_KEYS = ("n_steps", "batch_size", "n_epochs", "buffer_size")
 #: SB3 constructor arguments :func:`train` sets itself
 _OWN_ARGS = ("self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "_init_setup_model")
 
 
 def linear_schedule(initial_value: float):
     r"""rl-zoo3's ``lin_<value>`` schedule: :math:`v(p) = p\,v_0` with ``p`` the progress remaining (1 -> 0)."""
-    initial_value = float(initial_value)
+    initial_value = check_real("the initial value of a linear schedule", initial_value)
 
     def schedule(progress_remaining: float) -> float:
         return progress_remaining * initial_value
@@ -383,10 +410,16 @@ def algo_kwargs(algo: str, hyperparams: dict | None) -> dict:
     """SB3 constructor arguments from hyperparameters written as in rl-zoo3: ``lin_<v>`` schedules
     (:data:`SCHEDULE_KEYS`), a ``policy_kwargs`` string (:func:`parse_policy_kwargs`), everything else as is.
 
+    Values are copied (SB3 writes into a ``policy_kwargs`` dict it is given).
+
     Raises
     ------
+    TypeError
+        A key that is not a string.
     ValueError
-        A key that is not an argument of the algorithm (the closest is suggested), or a malformed value.
+        A key that is not an argument of the algorithm (the closest is suggested), or a malformed value: a
+        non-finite number (a NaN ``clip_range`` trains on NaN losses to the end), a count (``n_steps``,
+        ``batch_size``, ``n_epochs``, ``buffer_size``) below 1.
     """
     import difflib
     import inspect
@@ -397,6 +430,8 @@ def algo_kwargs(algo: str, hyperparams: dict | None) -> dict:
     valid = [p for p in inspect.signature(cls.__init__).parameters if p not in _OWN_ARGS]
     out = {}
     for key, value in (hyperparams or {}).items():
+        if not isinstance(key, str):
+            raise TypeError(f"expected hyperparameter names (str), actual value: {key!r:.80}")
         if key in RUN_KEYS:
             own = "steps" if key == "n_timesteps" else key
             raise ValueError(
@@ -422,7 +457,11 @@ def algo_kwargs(algo: str, hyperparams: dict | None) -> dict:
                 raise ValueError(f"expected {key} as a number or lin_<number>, actual value: {value!r}") from None
         elif key == "policy_kwargs" and isinstance(value, str):
             value = parse_policy_kwargs(value)
-        out[key] = value
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"expected {key} to be finite, actual value: {value!r}")
+        if key in _COUNT_KEYS:  # an integral float, as yaml reads 1e6, is the count SB3 needs
+            value = check_int_at_least(key, int(value) if isinstance(value, float) and value.is_integer() else value, 1)
+        out[key] = copy.deepcopy(value)
     return out
 
 
@@ -507,7 +546,7 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") ->
     out: dict = {}
     if "n_timesteps" in entry:
         n = entry.pop("n_timesteps")
-        if isinstance(n, bool) or not isinstance(n, (int, float)) or n < 1 or n != int(n):
+        if isinstance(n, bool) or not isinstance(n, (int, float)) or not math.isfinite(n) or n < 1 or n != int(n):
             raise ValueError(f"expected n_timesteps to be a positive integer, actual value: {n!r}")
         out["n_timesteps"] = int(n)
     if "n_envs" in entry:
@@ -573,6 +612,9 @@ def check_run_folder(out: str | os.PathLike, overwrite: bool = False) -> Path:
         ``out`` or a folder above it is a file, the nearest existing folder is not writable, or ``out`` holds a
         run already and ``overwrite`` is false.
     """
+    overwrite = check_bool("overwrite", overwrite)  # "False" would replace a run
+    if not isinstance(out, (str, os.PathLike)) or not str(out):
+        raise TypeError(f"expected out to be a folder path, actual value: {out!r}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"expected a run folder, actual value: {str(out)!r} is a file")
@@ -751,17 +793,22 @@ def train(
     checkpoint_every = check_int_at_least("checkpoint_every", checkpoint_every, 0)
     if isinstance(evaluate_at, (str, bytes)) or not hasattr(evaluate_at, "__iter__"):
         raise TypeError(f"expected evaluate_at to be a sequence of budgets (steps), actual value: {evaluate_at!r}")
-    budgets = sorted(check_int_in_range("a budget of evaluate_at", b, 1, steps) for b in evaluate_at)
-    eval_episodes = check_int_at_least("eval_episodes", eval_episodes, 1 if budgets else 0)
-    if isinstance(eval_sensings, str):
+    budgets = sorted({check_int_in_range("a budget of evaluate_at", b, 1, steps) for b in evaluate_at})
+    # SB3 counts episodes in a NumPy int64 array, after the training it would otherwise throw away
+    eval_episodes = check_int_in_range("eval_episodes", eval_episodes, 1 if budgets else 0, MAX_EPISODES)
+    if isinstance(eval_sensings, str) or not (eval_sensings is None or hasattr(eval_sensings, "__iter__")):
         raise TypeError(f"expected eval_sensings to be a sequence of sensings, actual value: {eval_sensings!r}")
+    for name, value in (("observer_kwargs", observer_kwargs), ("env_kwargs", env_kwargs)):
+        if value is not None and not isinstance(value, dict):
+            raise TypeError(f"expected {name} to be a dict (or None), actual value: {value!r:.80}")
     eval_sensings = list(eval_sensings or [sensing])
     for other in eval_sensings:
         _check_interchangeable(sensing, other)
     if not isinstance(policy, (str, type)):
         raise TypeError(f"expected policy to be an SB3 policy name or class, actual value: {policy!r:.80}")
-    if not isinstance(out, (str, os.PathLike)) or not str(out):
-        raise TypeError(f"expected out to be a folder path, actual value: {out!r}")
+    check_env_id(env_id)
+    progress_bar = check_bool("progress_bar", progress_bar)
+    verbose = check_int_in_range("verbose", verbose, 0, 2)
     make_sensor(sensor)  # check the specs before anything is made
     _observer(sensing, observer, observer_kwargs)
     normalize = (algo == "PPO") if normalize is None else _normalize_option(normalize)
@@ -801,7 +848,8 @@ def train(
             venv = VecNormalize(venv, **(normalize if isinstance(normalize, dict) else {}))
         try:
             model = cls(policy, venv, seed=seed, verbose=verbose, device="cpu", **params)
-        except (AssertionError, TypeError, ValueError, KeyError) as exc:  # SB3's checks of its arguments
+        # SB3's checks of its arguments, and torch's of the network they describe (a negative layer width)
+        except (AssertionError, TypeError, ValueError, KeyError, RuntimeError) as exc:
             raise ValueError(
                 f"expected {algo} arguments SB3 accepts, actual value: policy {policy!r} with {raw_params!r:.200} "
                 f"({type(exc).__name__}: {exc})"
@@ -979,8 +1027,14 @@ def evaluate(
     """
     VecNormalize = require("stable_baselines3.common.vec_env", "rl").VecNormalize
 
-    episodes = check_int_at_least("episodes", episodes, 1)
+    episodes = check_int_in_range("episodes", episodes, 1, MAX_EPISODES)
     seed = check_int_in_range("seed", seed, 0, 2**32 - 1)
+    deterministic = check_bool("deterministic", deterministic)
+    for name, value in (("env_id", env_id), ("sensing", sensing), ("sensor", sensor), ("observer", observer)):
+        if isinstance(value, str) and not value:  # None is the run's own setting; "" is not a setting
+            raise ValueError(f"expected {name} to be None (the run's) or a name, actual value: ''")
+    if env_id is not None:
+        check_env_id(env_id)
     files = run_files(model)
     agent, run = load_run(model)
     env_id = env_id or run.get("env")

@@ -77,6 +77,16 @@ def test_train_evaluate_cross_sensing(tmp_path):
         rl.evaluate(out, sensing="stacked-positions", episodes=1)
     with pytest.raises(ValueError, match="observation shape"):
         rl.evaluate(out, env_id="InvertedPendulum-v5", episodes=1)
+    # checked before the model is loaded: "" fell back on the run's setting, "no" played deterministically, a
+    # count beyond SB3's int64 failed after the environments were made (and left them open)
+    for bad, error in (
+        (dict(sensing=""), ValueError),
+        (dict(env_id="NoSuchEnv-v0"), ValueError),
+        (dict(deterministic="no"), TypeError),
+        (dict(episodes=2**63), ValueError),
+    ):
+        with pytest.raises(error, match="expected"):
+            rl.evaluate(out, **({"episodes": 1} | bad))
 
 
 def test_vectorized_sensing_in_training(tmp_path):
@@ -339,12 +349,12 @@ def test_a_failed_forced_retrain_keeps_the_old_run(tmp_path, capsys):
     out = tmp_path / "run"
     rl.train(IP, sensing="true", steps=64, out=out, hyperparams=TINY_PPO)
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
-    with pytest.raises(gym.error.Error):
+    with pytest.raises(ValueError, match="registered Gymnasium environment id"):
         rl.train("NoSuchEnv-v1", sensing="true", steps=64, out=out, hyperparams=TINY_PPO, overwrite=True)
-    with pytest.raises(ValueError, match=r"SB3 accepts.*batch_size"):
-        rl.train(IP, sensing="true", steps=64, out=out, hyperparams=TINY_PPO | {"batch_size": 0}, overwrite=True)
+    with pytest.raises(ValueError, match=r"SB3 accepts.*batch_size"):  # PPO asserts batch_size > 1
+        rl.train(IP, sensing="true", steps=64, out=out, hyperparams=TINY_PPO | {"batch_size": 1}, overwrite=True)
     zoo = tmp_path / "zoo.yml"
-    zoo.write_text(f"{IP}:\n  n_steps: 64\n  batch_size: 0\n")
+    zoo.write_text(f"{IP}:\n  n_steps: 64\n  batch_size: 1\n")
     assert main(["train", "--env", IP, "--sensing", "true", "--steps", "64", "--no-progress", "--force",
                  "--hyperparams", str(zoo), "--out", str(out)]) == 2  # fmt: skip
     assert "batch_size" in capsys.readouterr().err
@@ -360,7 +370,8 @@ def test_a_failed_forced_retrain_keeps_the_old_run(tmp_path, capsys):
         (dict(evaluate_at=[10**9]), ValueError, r"evaluate_at in \[1, 128\]"),
         (dict(evaluate_at=[-5]), ValueError, "evaluate_at"),
         (dict(evaluate_at=100), TypeError, "sequence of budgets"),
-        (dict(eval_episodes=0), ValueError, "eval_episodes >= 1"),
+        (dict(eval_episodes=0), ValueError, r"eval_episodes in \[1, "),
+        (dict(eval_episodes=10**400), ValueError, r"eval_episodes in \[1, "),
         (dict(checkpoint_every=-3), ValueError, "checkpoint_every >= 0"),
         (dict(steps=True), TypeError, "steps"),
         (dict(n_envs=2.5), TypeError, "n_envs"),
@@ -368,6 +379,15 @@ def test_a_failed_forced_retrain_keeps_the_old_run(tmp_path, capsys):
         (dict(policy=5), TypeError, "policy"),
         (dict(hyperparams={"n_timesteps": 100}), ValueError, "train's own argument steps="),
         (dict(out=""), TypeError, "folder path"),
+        (dict(overwrite="False"), TypeError, "overwrite to be True or False"),
+        (dict(verbose=-3), ValueError, "verbose in"),
+        (dict(observer_kwargs="abc"), TypeError, "observer_kwargs to be a dict"),
+        (dict(env_kwargs=[1]), TypeError, "env_kwargs to be a dict"),
+        (dict(hyperparams=TINY_PPO | {"clip_range": float("nan")}), ValueError, "clip_range to be finite"),
+        (dict(hyperparams=TINY_PPO | {"clip_range": "lin_nan"}), ValueError, "lin_<number>"),
+        (dict(hyperparams=TINY_PPO | {"n_epochs": 0}), ValueError, "n_epochs >= 1"),
+        (dict(hyperparams={1: 2}), TypeError, "hyperparameter names"),
+        (dict(hyperparams=TINY_PPO | {"policy_kwargs": "dict(net_arch=[-64])"}), ValueError, "SB3 accepts"),
     ],
 )
 def test_bad_training_arguments_are_refused_before_training(change, error, message, tmp_path):
@@ -477,6 +497,8 @@ def test_train_reads_rl_zoo3_hyperparameters(tmp_path, capsys):
         ("policy_kwargs: \"dict(net_arch=__import__('os').system('echo hi'))\"", "expected policy_kwargs made of"),
         ("normalize: \"{'norm_ob': True}\"", "expected normalize options"),
         ("n_timesteps: -3", "positive integer"),
+        ("n_timesteps: .inf", "positive integer"),
+        ("n_timesteps: .nan", "positive integer"),
     ],
 )
 def test_bad_hyperparameter_files_are_refused_before_training(entry, message, tmp_path, capsys, monkeypatch):
@@ -492,6 +514,34 @@ def test_bad_hyperparameter_files_are_refused_before_training(entry, message, tm
     file.write_text("Hopper-v5:\n  n_envs: 2\n")
     assert main(["train", "--env", "Hopper-v4", "--hyperparams", str(file), "--out", str(tmp_path / "r")]) == 2
     assert "did you mean 'Hopper-v5'?" in capsys.readouterr().err
+
+
+def test_what_was_read_as_something_else_is_refused(tmp_path):
+    """Each gave a result: ``vectorized=True`` batched at the environment rate whatever ``rate`` said (and the run
+    recorded ``"physics"``); bools and floats were indices (``[False, False, True, True]`` masked entries 0, 0, 1,
+    1); no trial found no velocity entry; an unknown id or an empty name fell through to Gymnasium's own errors or
+    to the run's settings; SB3 wrote into the caller's ``policy_kwargs``."""
+    with pytest.raises(ValueError, match="rate='env' for a vector wrapper"):
+        rl.make_vec(IP, "estimated", vectorized=True, rate="physics")
+    with pytest.raises(TypeError, match="vectorized to be True or False"):
+        rl.make_vec(IP, "estimated", vectorized="no")
+    with pytest.raises(ValueError, match="seed in"):
+        rl.make_vec(IP, "true", seed=-1)
+    with pytest.raises(ValueError, match="did you mean 'InvertedPendulum-v5'"):
+        rl.make_env("InvertedPendulm-v5", "true")
+    env = gym.make(IP)
+    for indices, error in (([False, False, True, True], TypeError), ([2.7], TypeError), ([7], ValueError)):
+        for wrapper in (rl.MaskEntries, rl.SelectEntries):
+            with pytest.raises(error, match="indices"):
+                wrapper(env, indices)
+    np.testing.assert_array_equal(rl.MaskEntries(env, [2, -1]).observation(np.arange(1.0, 5.0)), [1, 2, 0, 0])
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="trials >= 1"):
+        rl.velocity_entries(env, trials=0)
+    kwargs = {"net_arch": [8]}
+    assert rl.algo_kwargs("SAC", {"policy_kwargs": kwargs, "buffer_size": 1e3})["buffer_size"] == 1000
+    rl.algo_kwargs("SAC", {"policy_kwargs": kwargs})["policy_kwargs"]["use_sde"] = False  # what SB3 does
+    assert kwargs == {"net_arch": [8]}
 
 
 def test_hyperparameter_paths_that_are_not_yaml_text(tmp_path):

@@ -28,17 +28,41 @@ __all__ = [
     "TwoLinkArmEnv",
     "VariableInertiaEnv",
     "asset_path",
+    "check_env_id",
     "make",
     "register_envs",
 ]
 
 
-def make(env_id: str, **kwargs) -> gym.Env:
-    """``gymnasium.make(env_id, **kwargs)`` with the namespaces smo_gym works with registered first: its own
-    environments (this module) and dm_control's suite, ``dm_control/<domain>-<task>-v0``, which shimmy registers
-    when imported (Gymnasium 1.x has no plugin entry points, so ``gymnasium.make`` alone does not find them)."""
+def check_env_id(env_id: str) -> str:
+    """``env_id`` after checking that Gymnasium knows it, with the namespaces smo_gym works with registered first
+    (its own environments and dm_control's suite, which shimmy registers when imported). An id that names a module
+    to import first (``"module:Env-v0"``) is left to ``gymnasium.make``.
+
+    Raises
+    ------
+    TypeError
+        ``env_id`` is not a string.
+    ValueError
+        An unknown id, with the closest registered one.
+    """
+    import difflib
+
+    if not isinstance(env_id, str):
+        raise TypeError(f"expected env_id to be a Gymnasium environment id (a str), actual value: {env_id!r:.80}")
     if env_id.startswith("dm_control/"):
         from .._extras import require
 
         require("shimmy", "dm_control")  # registers the dm_control/... ids
-    return gym.make(env_id, **kwargs)
+    if ":" in env_id or env_id in gym.registry:
+        return env_id
+    match = difflib.get_close_matches(env_id, list(gym.registry), n=1, cutoff=0.6)
+    hint = f" (did you mean {match[0]!r}?)" if match else ""
+    raise ValueError(f"expected a registered Gymnasium environment id, actual value: {env_id!r}{hint}")
+
+
+def make(env_id: str, **kwargs) -> gym.Env:
+    """``gymnasium.make(env_id, **kwargs)`` after :func:`check_env_id`, which registers the namespaces smo_gym works
+    with first: its own environments (this module) and dm_control's suite, ``dm_control/<domain>-<task>-v0``
+    (Gymnasium 1.x has no plugin entry points, so ``gymnasium.make`` alone does not find them)."""
+    return gym.make(check_env_id(env_id), **kwargs)
