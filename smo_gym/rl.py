@@ -39,7 +39,7 @@ import gymnasium as gym
 import numpy as np
 
 from ._extras import require
-from ._validation import check_bool, check_int_at_least, check_int_in_range, check_real
+from ._validation import _short, check_bool, check_int_at_least, check_int_in_range, check_real
 from .envs import check_env_id
 from .envs import make as make_by_id
 from .specs import make_sensor, needs_model, parse_observer_spec
@@ -363,6 +363,8 @@ def _policy_kwargs_node(node, text: str):
     if isinstance(node, ast.Dict):
         if any(k is None for k in node.keys):
             raise bad("'**' unpacking")
+        if not all(isinstance(k, ast.Constant) and isinstance(k.value, str) for k in node.keys):
+            raise bad("a key that is not a string")
         return {
             _policy_kwargs_node(k, text): _policy_kwargs_node(v, text)
             for k, v in zip(node.keys, node.values, strict=True)
@@ -520,6 +522,10 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") ->
     import difflib
 
     yaml = require("yaml", "rl")
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"expected a path to a hyperparameter file, actual value: {path!r:.80}")
+    if not isinstance(env_id, str):
+        raise TypeError(f"expected env_id to be a Gymnasium environment id (a str), actual value: {env_id!r:.80}")
     path = Path(path)
     if not path.is_file():
         what = "is not a file" if path.exists() else "does not exist"
@@ -542,7 +548,13 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") ->
             f"expected an entry for {env_id!r} in {str(path)!r}, actual value: entries "
             f"{', '.join(map(str, content)) or '(none)'}{hint}"
         )
-    entry = dict(content[env_id] or {})
+    entry = content[env_id] or {}
+    if not isinstance(entry, dict) or not all(isinstance(key, str) for key in entry):
+        raise ValueError(
+            f"expected the entry of {env_id!r} to map hyperparameter names to values, actual value: "
+            f"{_short(entry, 80)} in {str(path)!r}"
+        )
+    entry = dict(entry)
     out: dict = {}
     if "n_timesteps" in entry:
         n = entry.pop("n_timesteps")
@@ -555,7 +567,10 @@ def load_hyperparams(path: str | os.PathLike, env_id: str, algo: str = "PPO") ->
             raise ValueError(f"expected n_envs to be a positive integer, actual value: {n!r}")
         out["n_envs"] = n
     if "policy" in entry:
-        out["policy"] = str(entry.pop("policy"))
+        policy = entry.pop("policy")
+        if not isinstance(policy, str):  # yaml's null would be the policy "None"
+            raise ValueError(f"expected policy to be an SB3 policy name, actual value: {policy!r}")
+        out["policy"] = policy
     if "normalize" in entry:
         out["normalize"] = _normalize_option(entry.pop("normalize"))
     if "env_kwargs" in entry:
@@ -947,6 +962,8 @@ def run_files(path: str | os.PathLike) -> dict:
     a checkpoint ``.../checkpoints/model_<N>_steps.zip``, whose statistics are ``model_vecnormalize_<N>_steps.pkl``
     beside it (SB3's ``CheckpointCallback`` names) and whose ``run.json`` is in the run folder above.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"expected a run folder, model.zip or checkpoint path, actual value: {path!r:.80}")
     path = Path(path)
     if path.is_dir():
         folder, model = path, path / "model.zip"
@@ -970,8 +987,8 @@ def load_run(path: str | os.PathLike):
     (:func:`run_files`)."""
     files = run_files(path)
     try:
-        run = json.loads(files["run"].read_text()) if files["run"] else {}
-    except json.JSONDecodeError as exc:
+        run = json.loads(files["run"].read_text(encoding="utf-8")) if files["run"] else {}
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"expected run.json to be JSON, actual value: {str(files['run'])!r} is not ({exc})") from exc
     if (
         not isinstance(run, dict)

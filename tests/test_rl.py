@@ -499,6 +499,8 @@ def test_train_reads_rl_zoo3_hyperparameters(tmp_path, capsys):
         ("n_timesteps: -3", "positive integer"),
         ("n_timesteps: .inf", "positive integer"),
         ("n_timesteps: .nan", "positive integer"),
+        ("policy: null", "expected policy to be an SB3 policy name"),
+        ("1: 2", "to map hyperparameter names to values"),
     ],
 )
 def test_bad_hyperparameter_files_are_refused_before_training(entry, message, tmp_path, capsys, monkeypatch):
@@ -542,6 +544,28 @@ def test_what_was_read_as_something_else_is_refused(tmp_path):
     assert rl.algo_kwargs("SAC", {"policy_kwargs": kwargs, "buffer_size": 1e3})["buffer_size"] == 1000
     rl.algo_kwargs("SAC", {"policy_kwargs": kwargs})["policy_kwargs"]["use_sde"] = False  # what SB3 does
     assert kwargs == {"net_arch": [8]}
+
+
+def test_entries_and_paths_of_the_wrong_type_are_named(tmp_path):
+    """Python's own messages ('int' object is not iterable, unhashable type: 'list', expected str, bytes or
+    os.PathLike object) named nothing the caller wrote."""
+    file = tmp_path / "h.yml"
+    for text in (f"{IP}: 5", f"{IP}:\n  - a"):
+        file.write_text(text)
+        with pytest.raises(ValueError, match="to map hyperparameter names to values"):
+            rl.load_hyperparams(file, IP)
+    with pytest.raises(TypeError, match="expected env_id"):
+        rl.load_hyperparams(file, None)
+    with pytest.raises(ValueError, match="a key that is not a string"):
+        rl.parse_policy_kwargs("{[1]: 2}")
+    for call in (rl.run_files, rl.evaluate, rl.check_run_folder):
+        with pytest.raises(TypeError, match="expected"):
+            call(5)
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "model.zip").write_bytes(b"")
+    (tmp_path / "run" / "run.json").write_bytes(b"\xff\xfe")
+    with pytest.raises(ValueError, match=r"expected run\.json to be JSON"):
+        rl.load_run(tmp_path / "run")
 
 
 def test_hyperparameter_paths_that_are_not_yaml_text(tmp_path):
