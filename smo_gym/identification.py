@@ -89,7 +89,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ._validation import as_real_array, check_int_in_range, check_keywords, check_positive, check_real
+from ._validation import (
+    as_real_array,
+    check_bool,
+    check_int_at_least,
+    check_int_in_range,
+    check_keywords,
+    check_positive,
+    check_real,
+)
 from .observers.mechanical import MechanicalSuperTwisting
 
 __all__ = [
@@ -211,6 +219,8 @@ def regressor_matrix(phi, n: int) -> np.ndarray:
     n = check_int_in_range("n", n, 1, 100_000)
     if phi.ndim == 0:
         raise ValueError(f"expected phi with shape (..., l), actual value: shape {phi.shape}")
+    if not np.isfinite(phi).all():
+        raise ValueError(f"expected a finite phi, actual value: {phi!r:.120}")
     l = phi.shape[-1]
     out = np.zeros(phi.shape[:-1] + (n, n * l))
     for i in range(n):
@@ -240,7 +250,28 @@ def least_squares_step(Q, b, Phi, z, E, S) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     Q, b : the new arrays (the inputs are not modified).
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not fit together (NumPy would broadcast a ``z`` of the wrong length into the result).
     """
+    Q, b, Phi, z = as_real_array("Q", Q), as_real_array("b", b), as_real_array("Phi", Phi), as_real_array("z", z)
+    E, S = as_real_array("E", E), as_real_array("S", S)
+    p = b.shape[-1] if b.ndim else 0
+    if (
+        b.ndim < 1
+        or Q.shape != b.shape + (p,)
+        or Phi.ndim < 2
+        or Phi.shape[-1] != p
+        or z.shape != Phi.shape[:-1]
+        or E.shape != (p, p)
+        or S.shape != (p, p)
+    ):
+        raise ValueError(
+            "expected Q (..., p, p), b (..., p), Phi (..., n, p), z (..., n) and E, S (p, p), actual value: shapes "
+            f"{Q.shape}, {b.shape}, {Phi.shape}, {z.shape}, {E.shape}, {S.shape}"
+        )
     info = np.einsum("...ki,...kj->...ij", Phi, Phi)
     corr = np.einsum("...ki,...k->...i", Phi, z)
     Q_new = E @ Q + S @ info
@@ -287,6 +318,8 @@ class LeastSquaresIdentifier:
         self.n_params = check_int_in_range("n_params", n_params, 1, 100_000)
         self.dt = check_positive("dt", dt)
         self.gamma0 = check_positive("gamma0", gamma0)
+        if not np.isfinite(1.0 / self.gamma0):  # the initial information I / gamma0 would be inf
+            raise ValueError(f"expected gamma0 whose inverse is finite, actual value: {self.gamma0!r}")
         self.forgetting = None if forgetting is None else check_forgetting_factor(forgetting, self.n_params)
         self._E, self._S = forgetting_transition(self.forgetting, self.dt, self.n_params)
         self._Q = None
@@ -296,7 +329,8 @@ class LeastSquaresIdentifier:
     def reset(self, batch_shape=(), theta0=None) -> np.ndarray:
         """Start from ``theta0`` (shape ``(..., p)``, default zero) with :math:`\\Gamma = \\gamma_0 I` for a batch
         of shape ``batch_shape``; returns the estimate."""
-        batch_shape = tuple(int(s) for s in np.atleast_1d(np.asarray(batch_shape, dtype=int))) if batch_shape else ()
+        sizes = tuple(batch_shape) if isinstance(batch_shape, (tuple, list, np.ndarray)) else (batch_shape,)
+        batch_shape = tuple(check_int_at_least("a batch_shape entry", s, 0) for s in sizes)
         p = self.n_params
         th = np.zeros(batch_shape + (p,))
         if theta0 is not None:
@@ -333,7 +367,14 @@ class LeastSquaresIdentifier:
             raise ValueError("expected finite Phi and z, actual value: non-finite entries")
         with np.errstate(all="ignore"):  # an overflow is refused below, with the state as it was
             Q, b = least_squares_step(self._Q, self._b, Phi, z, self._E, self._S)
-            estimate = np.linalg.solve(Q, b[..., None])[..., 0] if np.isfinite(Q).all() else Q[..., 0]
+            try:
+                estimate = np.linalg.solve(Q, b[..., None])[..., 0] if np.isfinite(Q).all() else Q[..., 0]
+            except np.linalg.LinAlgError:  # the prior gamma0 I is lost next to the information of the samples
+                raise ValueError(
+                    f"expected an information matrix that stays invertible, actual value: singular after this sample "
+                    f"(gamma0 = {self.gamma0:g} is too large a prior next to |Phi| {np.abs(Phi).max():.3g}); the "
+                    "state was kept"
+                ) from None
         if not (np.isfinite(Q).all() and np.isfinite(b).all() and np.isfinite(estimate).all()):
             raise ValueError(
                 "expected a regressor and injection whose information stays finite, actual value: the update "
@@ -461,7 +502,7 @@ class EquivalentInjectionIdentifier:
         self.filter_time_constant = check_positive("filter_time_constant", filter_time_constant)
         self._regressor = regressor
         self._nominal = nominal
-        self.uses_acceleration = bool(uses_acceleration)
+        self.uses_acceleration = check_bool("uses_acceleration", uses_acceleration)
         self._model = _NominalModel(nominal, self.n)
         self.observer = MechanicalSuperTwisting(
             dt,
@@ -545,4 +586,6 @@ class EquivalentInjectionIdentifier:
     @property
     def time(self) -> float:
         """Time of the last sample [s]."""
+        if self._state is None:
+            raise RuntimeError("expected reset(y0) before reading time, actual value: the identifier was never reset")
         return self._t

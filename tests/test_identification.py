@@ -253,6 +253,7 @@ def test_forgetting_factor_conditions(R, condition):
         ({"n_params": 2, "dt": 1e-3, "gamma0": 0.0}, ValueError),
         ({"n_params": 2, "dt": 1e-3, "gamma0": -1.0}, ValueError),
         ({"n_params": 2, "dt": "x"}, TypeError),
+        ({"n_params": 2, "dt": 1e-3, "gamma0": 1e-310}, ValueError),  # the initial information I / gamma0 is inf
     ],
 )
 def test_least_squares_rejects_bad_parameters(kwargs, error):
@@ -271,6 +272,30 @@ def test_least_squares_rejects_bad_shapes_and_use_before_reset():
         ls.update(np.zeros((1, 2)), np.zeros(2))
     with pytest.raises(ValueError, match="finite"):
         ls.update(np.full((1, 2), np.nan), np.zeros(1))
+    for batch_shape in ((2.7,), True):  # were read as (2,) and (1,)
+        with pytest.raises(TypeError, match="batch_shape entry"):
+            ls.reset(batch_shape)
+    assert ls.reset(np.array([3])).shape == ls.reset(3).shape == (3, 2)
+
+
+def test_the_pure_steps_refuse_what_numpy_would_broadcast():
+    """A ``z`` of three entries for one row of ``Phi`` gave ``b = [3, 3]``; a NaN ``phi`` a NaN regressor."""
+    eye = np.eye(2)
+    with pytest.raises(ValueError, match=r"z \(\.\.\., n\)"):
+        least_squares_step(eye, np.zeros(2), np.ones((1, 2)), np.ones(3), eye, eye)
+    with pytest.raises(ValueError, match="finite phi"):
+        regressor_matrix([np.nan, 1.0], 2)
+
+
+def test_a_prior_lost_next_to_the_information_is_refused_with_the_state_kept():
+    """gamma0 = 1e20: after one sample of a rank-one regressor the information matrix is singular in floating
+    point; ``numpy.linalg.LinAlgError`` escaped."""
+    ls = LeastSquaresIdentifier(2, 1e-3, gamma0=1e20)
+    ls.reset()
+    before = ls.information
+    with pytest.raises(ValueError, match="stays invertible"):
+        ls.update([[1.0, 0.5]], [1.0])
+    np.testing.assert_array_equal(ls.information, before)
 
 
 def test_identifier_rejects_bad_input():
@@ -290,6 +315,10 @@ def test_identifier_rejects_bad_input():
     ident = EquivalentInjectionIdentifier(1e-3, nominal, regressor, np.zeros(3), **kw)  # regressor has 2 columns
     with pytest.raises(RuntimeError, match="reset"):
         ident.update(np.zeros(1), np.zeros(1))
+    with pytest.raises(RuntimeError, match="reset"):
+        _ = ident.time  # an AttributeError
+    with pytest.raises(TypeError, match="uses_acceleration"):
+        EquivalentInjectionIdentifier(1e-3, nominal, regressor, THETA_BAR, uses_acceleration="no", **kw)
     ident.reset(np.zeros(1))
     with pytest.raises(ValueError, match=r"regressor to return shape \(1, 3\)"):
         ident.update(np.zeros(1), np.zeros(1))
