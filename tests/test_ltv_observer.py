@@ -9,6 +9,7 @@ from functools import cache
 import numpy as np
 import pytest
 
+from smo_gym import DivergenceError
 from smo_gym.control import (
     CascadedLTVObserver,
     LTVPlant,
@@ -357,3 +358,116 @@ def test_wrong_shapes_and_values_are_typed_errors():
     obs.reset(np.zeros(2))
     with pytest.raises(ValueError, match=r"expected y\(t\) with shape \(2,\)"):
         obs.update(np.zeros(3))
+
+
+def test_rank_test_does_not_depend_on_the_scale_of_C():
+    """Multiplying C by a constant changes no rank: the unobservable x2 stays unobservable with C = 1e10 [1, 0],
+    and the double integrator stays strongly observable with C = 1e-10 [1, 0]."""
+    for scale in (1.0, 1e10):
+        unobs = LTVPlant(np.diag([1.0, -1.0]), None, [[scale, 0.0]], [[1.0], [0.0]])
+        rep = ltv_strong_observability(unobs, 0.0)
+        assert not rep.ok and rep.condition == "observability", (scale, rep)
+    for scale in (1.0, 1e-10):
+        rep = ltv_strong_observability(LTVPlant([[0.0, 1.0], [0.0, 0.0]], None, [[scale, 0.0]], [[0.0], [1.0]]), 0.0)
+        assert rep.ok and rep.blocks == 2, (scale, rep)
+
+
+def _blind_at_half_pi():
+    """y = cos(t) x1 on a double integrator: not observable at t = pi/2, the 51st sample with dt = pi/100."""
+    pl = LTVPlant([[0.0, 1.0], [0.0, 0.0]], None, lambda t: np.array([[np.cos(t), 0.0]]), [[0.0], [1.0]])
+    return CascadedLTVObserver(pl, np.pi / 100, 1.0)
+
+
+def _steps(obs, count, start=0):
+    for k in range(start, start + count):
+        obs.update([np.cos(k * np.pi / 100)])
+        obs.advance()
+
+
+def test_refused_reset_leaves_the_observer_as_it_was():
+    a, b = _blind_at_half_pi(), _blind_at_half_pi()
+    for obs in (a, b):
+        obs.reset([1.0])
+        _steps(obs, 3)
+    with pytest.raises(ValueError, match=r"expected finite y0.*actual value"):
+        a.reset([np.nan])
+    with pytest.raises(ValueError, match=r"expected finite z0.*actual value"):
+        a.reset([1.0], z0=[np.inf, 0.0])
+    with pytest.raises(ValueError, match="expected P0 symmetric positive definite"):
+        a.reset([1.0], P0=-np.eye(2))
+    assert a.t == b.t
+    for k in range(3, 6):
+        np.testing.assert_array_equal(a.update([np.cos(k * np.pi / 100)]), b.update([np.cos(k * np.pi / 100)]))
+        a.advance()
+        b.advance()
+    np.testing.assert_array_equal(a.z, b.z)
+    np.testing.assert_array_equal(a.P, b.P)
+    fresh = _blind_at_half_pi()
+    with pytest.raises(ValueError, match="expected finite y0"):
+        fresh.reset([np.nan])
+    with pytest.raises(RuntimeError, match="expected reset"):
+        fresh.update([1.0])
+
+
+def test_refused_update_leaves_the_observer_as_it_was():
+    """The state map is refused at t + dt = pi/2 while preparing the next sample: the update is undone whole."""
+    a, b = _blind_at_half_pi(), _blind_at_half_pi()
+    for obs in (a, b):
+        obs.reset([1.0])
+        _steps(obs, 49)
+    x_hat, e_hat, output_error = a.x_hat.copy(), a.e_hat.copy(), a.output_error.copy()
+    for _ in range(2):  # the retry is refused for the same reason, not as a second update
+        with pytest.raises(NotStronglyObservableError, match=r"t=1.5708"):
+            a.update([np.cos(49 * np.pi / 100)])
+    np.testing.assert_array_equal(a.x_hat, x_hat)
+    np.testing.assert_array_equal(a.e_hat, e_hat)
+    np.testing.assert_array_equal(a.output_error, output_error)
+    np.testing.assert_array_equal(a.differentiator.state, b.differentiator.state)
+    np.testing.assert_array_equal(a._dstate, b._dstate)
+    with pytest.raises(ValueError, match="expected finite y"):
+        a.update([np.nan])
+    np.testing.assert_array_equal(a.output_error, output_error)
+    c, d = _blind_at_half_pi(), _blind_at_half_pi()
+    for obs in (c, d):
+        obs.reset([1.0])
+        _steps(obs, 2)
+    with pytest.raises(ValueError, match="expected finite y"):
+        c.update([np.inf])
+    _steps(c, 3, start=2)
+    _steps(d, 3, start=2)
+    np.testing.assert_array_equal(c.x_hat, d.x_hat)
+
+
+def test_run_and_lipschitz_refuse_bad_shapes():
+    with pytest.raises(ValueError, match=r"expected y with at least one sample.*actual value: shape \(0, 1\)"):
+        _blind_at_half_pi().run(np.zeros((0, 1)))
+    with pytest.raises(ValueError, match=r"expected lipschitz a number or one per output \(2\).*shape \(3,\)"):
+        CascadedLTVObserver(plant(), 1e-3, [1.0, 2.0, 3.0])
+
+
+def test_simulation_refuses_non_finite_inputs_and_a_diverging_trajectory():
+    pl, _w, x0 = ltv_example()
+    with pytest.raises(ValueError, match=r"expected finite x0.*actual value"):
+        simulate_ltv(pl, [np.nan, 0.0, 0.0], 0.1, 0.01)
+    with pytest.raises(ValueError, match=r"expected finite w\(t\).*actual value"):
+        simulate_ltv(pl, x0, 0.1, 0.01, w=lambda t: [np.nan])
+    with pytest.raises(TypeError, match=r"expected w\(t\) to be an array of real numbers.*None"):
+        simulate_ltv(pl, x0, 0.1, 0.01, w=lambda t: None)
+    with pytest.raises(DivergenceError, match=r"expected a finite state.*actual value"):
+        simulate_ltv(LTVPlant([[50.0]], None, [[1.0]], [[1.0]]), [1.0], 20.0, 0.5)
+
+
+def test_plant_refuses_no_state_non_finite_derivatives_and_a_non_dict():
+    with pytest.raises(ValueError, match=r"expected A\(t\) with at least one state.*shape \(0, 0\)"):
+        LTVPlant(np.zeros((0, 0)), None, np.zeros((1, 0)), np.zeros((0, 1)))
+    nan_derivs = LTVPlant(
+        [[0.0, 1.0], [0.0, 0.0]],
+        None,
+        lambda t: np.array([[1.0, 0.0]]),
+        [[0.0], [1.0]],
+        derivatives={"C": lambda t, k: np.full((k + 1, 1, 2), np.nan)},
+    )
+    with pytest.raises(ValueError, match=r"expected finite entries in derivatives\['C'\]"):
+        ltv_strong_observability(nan_derivs, 0.0)
+    with pytest.raises(TypeError, match=r"expected derivatives a dict.*actual value: \[1, 2\]"):
+        LTVPlant([[1.0]], None, [[1.0]], [[1.0]], derivatives=[1, 2])

@@ -40,7 +40,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_bool, check_choice, check_int_in_range, check_nonnegative, check_positive, check_real
+from .._validation import (
+    DivergenceError,
+    as_real_array,
+    check_bool,
+    check_choice,
+    check_int_in_range,
+    check_nonnegative,
+    check_positive,
+    check_real,
+)
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
 from .estimators import _highest_block
@@ -227,6 +236,8 @@ class LTVPlant:
         n = A0.shape[0]
         if A0.shape != (n, n):
             raise ValueError(f"expected A(t) square, actual value: shape {A0.shape} at t={self.t0}")
+        if n == 0:
+            raise ValueError(f"expected A(t) with at least one state, actual value: shape {A0.shape} at t={self.t0}")
         C0 = self._as_matrix("C", np.atleast_2d(self._funcs["C"](self.t0)), None)
         D0 = self._as_matrix("D", self._funcs["D"](self.t0), None)
         if "B" not in self._funcs:
@@ -240,6 +251,11 @@ class LTVPlant:
                     f"expected {name}(t) with shape {self._shape_text(name)} (n={n} from A), actual value: shape "
                     f"{val.shape} at t={self.t0}"
                 )
+        if derivatives is not None and not isinstance(derivatives, dict):
+            raise TypeError(
+                f"expected derivatives a dict {{'A': f, ...}} of callables (t, k) -> stack, actual value: "
+                f"{derivatives!r:.80}"
+            )
         self._derivs = {}
         for name, f in (derivatives or {}).items():
             if name not in ("A", "C", "D", "B"):
@@ -329,6 +345,11 @@ class LTVPlant:
                 raise ValueError(
                     f"expected derivatives[{name!r}](t, {order}) with shape {(order + 1, *shape)}, actual value: "
                     f"shape {stack.shape}"
+                )
+            if not np.all(np.isfinite(stack)):  # the SVDs of the rank test would fail on them, unexplained
+                raise ValueError(
+                    f"expected finite entries in derivatives[{name!r}](t, {order}) at t={t!r}, actual value: "
+                    f"{stack!r:.120}"
                 )
             return stack / np.array([math.factorial(k) for k in range(order + 1)])[:, None, None]
         if self.method == "complex":
@@ -443,14 +464,28 @@ class LTVStrongObservabilityReport:
     margin: np.ndarray
 
 
+def _scaled_rank(M: np.ndarray, scale: float | None = None) -> int:
+    """Rank of ``M`` counting singular values above ``RANK_TOL * scale`` (default: ``M``'s largest one).
+
+    Relative to the matrix's own scale, so that multiplying ``C`` by a constant changes no rank decision (an
+    absolute floor would call a tiny ``C`` blind and hide a unit identity block next to a huge ``C``).
+    """
+    if M.size == 0:
+        return 0
+    s = np.linalg.svd(M, compute_uv=False)
+    return int(np.sum(s > RANK_TOL * (s[0] if scale is None else scale)))
+
+
 def _ranks(O: np.ndarray, J: np.ndarray) -> tuple[int, int, float]:
     n = O.shape[1]
     S = np.hstack([O, J])
-    S_star = np.vstack([np.hstack([np.eye(n), np.zeros((n, J.shape[1]))]), S])
+    # rank S* = n + rank J exactly; stacking I_n on S would judge the identity on the scale of O and J
+    scale = np.linalg.svd(S, compute_uv=False)[0] if S.size else 0.0
+    rank_S, rank_S_star = _scaled_rank(S, scale), n + _scaled_rank(J, scale)
     KO = _state_map_from(O, J)[2]
     s = np.linalg.svd(KO, compute_uv=False) if KO.size else np.zeros(1)
     margin = float(s[-1] / s[0]) if s.size >= n and s[0] > 0 else 0.0
-    return _rank(S), _rank(S_star), margin
+    return rank_S, rank_S_star, margin
 
 
 def ltv_strong_observability(plant: LTVPlant, t, *, blocks=None, max_blocks=None) -> LTVStrongObservabilityReport:
@@ -504,7 +539,7 @@ def ltv_strong_observability(plant: LTVPlant, t, *, blocks=None, max_blocks=None
     # Rugh's observability index (the O_l part only)
     obs_index = None
     for lo in range(1, top + 1):
-        if all(_rank(kratz_liebscher_matrices(*s, lo)[0]) == n for s in series):
+        if all(_scaled_rank(kratz_liebscher_matrices(*s, lo)[0]) == n for s in series):
             obs_index = lo
             break
     candidates = [blocks] if blocks is not None else list(range(1, max_blocks + 1))
@@ -520,10 +555,10 @@ def ltv_strong_observability(plant: LTVPlant, t, *, blocks=None, max_blocks=None
         return LTVStrongObservabilityReport(True, "", "", times, lo, obs_index, rS, rSs, margin)
     i = int(bad[0])
     O_i = kratz_liebscher_matrices(*series[i], lo)[0]
-    if _rank(O_i) < n:
+    if _scaled_rank(O_i) < n:
         condition = "observability"
         reason = (
-            f"(A(t), C(t)) is not observable at t={times[i]:.6g}: rank O_{lo}(t) = {_rank(O_i)} < n = {n} "
+            f"(A(t), C(t)) is not observable at t={times[i]:.6g}: rank O_{lo}(t) = {_scaled_rank(O_i)} < n = {n} "
             f"(Rugh's rank condition, l up to {lo})"
         )
     else:
@@ -574,9 +609,11 @@ def ltv_state_map(plant: LTVPlant, t: float, blocks: int) -> np.ndarray:
 
 # ---- simulation ------------------------------------------------------------------------------------------------
 def _vector(name: str, value, size: int, t: float) -> np.ndarray:
-    arr = np.atleast_1d(np.asarray(value, dtype=float)).reshape(-1)
+    arr = np.atleast_1d(as_real_array(f"{name}(t)", value)).reshape(-1)
     if arr.shape != (size,):
         raise ValueError(f"expected {name}(t) with shape ({size},) at t={t}, actual value: shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):  # a NaN would spread silently through the estimate or the trajectory
+        raise ValueError(f"expected finite {name}(t) at t={t}, actual value: {arr!r:.120}")
     return arr
 
 
@@ -601,6 +638,13 @@ def simulate_ltv(plant: LTVPlant, x0, t_final: float, dt: float, *, w=None, u=No
     y : ndarray, shape (T, p)
     u : ndarray, shape (T, q)
         The held controls.
+
+    Raises
+    ------
+    ValueError
+        When ``x0``, ``w(t)`` or ``u(t)`` has a non-finite entry.
+    DivergenceError
+        When the state becomes non-finite (an unstable plant over a long horizon).
     """
     dt = check_positive("dt", dt)
     t_final = check_positive("t_final", t_final)
@@ -626,11 +670,17 @@ def simulate_ltv(plant: LTVPlant, x0, t_final: float, dt: float, *, w=None, u=No
             def f(s, x, k=k):
                 return plant.A(s) @ x + plant.B(s) @ U[k] + plant.D(s) @ wv(s)
 
-            k1 = f(s, x)
-            k2 = f(s + h / 2, x + h / 2 * k1)
-            k3 = f(s + h / 2, x + h / 2 * k2)
-            k4 = f(s + h, x + h * k3)
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported just below
+                k1 = f(s, x)
+                k2 = f(s + h / 2, x + h / 2 * k1)
+                k3 = f(s + h / 2, x + h / 2 * k2)
+                k4 = f(s + h, x + h * k3)
+                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            if not np.all(np.isfinite(x)):
+                raise DivergenceError(
+                    f"expected a finite state, actual value: {x!r:.120} at t={s + h:.6g} (the plant's state left "
+                    "the range of a float; shorten t_final)"
+                )
     return t, X, Y, U
 
 
@@ -694,6 +744,14 @@ def ltv_example() -> tuple[LTVPlant, callable, np.ndarray]:
 
 
 # ---- the observer ------------------------------------------------------------------------------------------------
+def _symmetric_positive_definite(name: str, value, n: int) -> np.ndarray:
+    """``value`` as a finite symmetric positive definite ``(n, n)`` matrix (symmetrized)."""
+    M = LTVPlant._as_matrix(name, value, (n, n))
+    if not np.allclose(M, M.T) or np.linalg.eigvalsh((M + M.T) / 2).min() <= 0:
+        raise ValueError(f"expected {name} symmetric positive definite, actual value: {M!r}")
+    return (M + M.T) / 2
+
+
 class CascadedLTVObserver:
     r"""Cascaded HOSM observer for strongly observable LTV systems (Galvan-Guerra, Fridman and Davila 2017).
 
@@ -834,10 +892,7 @@ class CascadedLTVObserver:
                 "expected Q(t) positive definite or forgetting > 0 (slides eq. (17)), actual value: forgetting=0 "
                 f"and eig(Q(t0)) min {np.linalg.eigvalsh((Qt0 + Qt0.T) / 2).min():.3g}"
             )
-        P0 = np.eye(n) if P0 is None else LTVPlant._as_matrix("P0", P0, (n, n))
-        if not np.allclose(P0, P0.T) or np.linalg.eigvalsh((P0 + P0.T) / 2).min() <= 0:
-            raise ValueError(f"expected P0 symmetric positive definite, actual value: {P0!r}")
-        self._P0 = (P0 + P0.T) / 2
+        self._P0 = np.eye(n) if P0 is None else _symmetric_positive_definite("P0", P0, n)
         self.identify = check_bool("identify", identify)
         if self.identify:
             if alpha < 1:
@@ -852,7 +907,12 @@ class CascadedLTVObserver:
                     f"t={self.t0} with l={self.blocks}"
                 )
         self.w_hat = None
-        self.lipschitz = np.broadcast_to(np.asarray(lipschitz, dtype=float), (p,)).copy()
+        lipschitz = as_real_array("lipschitz", lipschitz)
+        if lipschitz.shape not in ((), (1,), (p,)):
+            raise ValueError(
+                f"expected lipschitz a number or one per output ({p}), actual value: shape {lipschitz.shape}"
+            )
+        self.lipschitz = np.broadcast_to(lipschitz, (p,)).copy()
         self.differentiator = Levant(self.order, self.dt, self.lipschitz, discretization=discretization)
         self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self.z = self.x_hat = self.e_hat = self.P = None
@@ -892,7 +952,7 @@ class CascadedLTVObserver:
         O, J = kratz_liebscher_matrices(A, C, D, self.blocks, _N=Ns)
         K = left_annihilator(J) if J.size else np.eye(O.shape[0])
         U, sv, Vt = np.linalg.svd(K @ O, full_matrices=False)
-        if sv.size < self.plant.n or not sv[-1] > RANK_TOL * max(sv[0], 1.0):  # the rank decision of _rank
+        if sv.size < self.plant.n or not sv[-1] > RANK_TOL * sv[0]:  # the rank decision of _scaled_rank
             report = ltv_strong_observability(self.plant, t, blocks=self.blocks)
             _raise_if_not(report)
             raise NotStronglyObservableError(
@@ -917,13 +977,22 @@ class CascadedLTVObserver:
         return F, N, ident
 
     def reset(self, y0, z0=None, *, P0=None) -> np.ndarray:
-        """Start at ``t0`` with ``z = z0`` (default ``C(t0)^+ y0``) and the differentiator at the output error."""
-        self.t = self.t0
-        y0 = _vector("y0", y0, self.plant.n_outputs, self.t)
-        C0 = self.plant.C(self.t)
-        self.z = np.linalg.pinv(C0) @ y0 if z0 is None else _vector("z0", z0, self.plant.n, self.t)
-        self.P = self._P0.copy() if P0 is None else LTVPlant._as_matrix("P0", P0, (self.plant.n,) * 2)
-        self.differentiator.reset(y0 - C0 @ self.z)
+        """Start at ``t0`` with ``z = z0`` (default ``C(t0)^+ y0``) and the differentiator at the output error.
+
+        Raises
+        ------
+        TypeError, ValueError
+            When ``y0``, ``z0`` or ``P0`` is not finite, of the wrong shape, or ``P0`` is not symmetric positive
+            definite; the observer is then left as it was.
+        """
+        t = self.t0
+        y0 = _vector("y0", y0, self.plant.n_outputs, t)
+        C0 = self.plant.C(t)
+        z = np.linalg.pinv(C0) @ y0 if z0 is None else _vector("z0", z0, self.plant.n, t)
+        P = self._P0.copy() if P0 is None else _symmetric_positive_definite("P0", P0, self.plant.n)
+        # the differentiator is reset last: nothing above may fail once the observer's state starts changing
+        self.differentiator.reset(y0 - C0 @ z)
+        self.t, self.z, self.P = t, z, P
         self._dstate = self.differentiator.state
         self.x_hat, self.e_hat = self.z.copy(), np.zeros(self.plant.n)
         self._posterior = None
@@ -935,29 +1004,40 @@ class CascadedLTVObserver:
             raise RuntimeError(f"expected reset(y0) before {what}, actual value: the observer was never reset")
 
     def update(self, y) -> np.ndarray:
-        """Process the sample ``y_k = y(t_k)``; return :math:`\\hat x_k`."""
+        """Process the sample ``y_k = y(t_k)``; return :math:`\\hat x_k`.
+
+        Raises
+        ------
+        TypeError, ValueError
+            When ``y`` is not a finite vector of ``p`` outputs.
+        NotStronglyObservableError
+            When the state map does not exist at ``t_k`` or at the next sample ``t_k + dt`` (needed to carry the
+            injection over). A refused update leaves the observer as it was.
+        """
         self._require("update(y)")
         if self._posterior is not None:
             raise RuntimeError("expected advance(u) between two updates, actual value: update(y) called twice")
         p, t = self.plant.n_outputs, self.t
         C = self._mats(t)[2]
         ey = _vector("y", y, p, t) - C @ self.z
-        self.output_error = ey
+        # everything is computed into locals first: the map at t + dt can still be refused
         new_state, Zd = self.differentiator.step(self._dstate, ey)  # (p, k+1): e_y and derivatives at t_k
         F, _, ident = self._geometry(t)
         Y = Zd[:, : self.blocks].T.reshape(-1)  # derivative-major stack [e_y; e_y'; ...]
-        self.e_hat = F @ Y
+        e_hat = F @ Y
+        w_hat = self.w_hat
         if ident is not None:
             G, O1 = ident
-            self.w_hat = G @ (Zd[:, : self.blocks + 1].T.reshape(-1) - O1 @ self.e_hat)
-        self.x_hat = self.z + self.e_hat
+            w_hat = G @ (Zd[:, : self.blocks + 1].T.reshape(-1) - O1 @ e_hat)
         # injection at the sample, and its known effect on the output error's derivatives at the next sample
         L = np.linalg.solve(self.P, C.T)
         correction = self.dt * (L @ ey)
-        self._posterior = self.z + correction
-        self._Phi = self._transition(t)
+        Phi = self._transition(t)
         _, N_next, _ = self._geometry(t + self.dt)
-        new_state[:, : self.order + 1] -= (N_next @ (self._Phi @ correction)).reshape(self.order + 1, p).T
+        new_state[:, : self.order + 1] -= (N_next @ (Phi @ correction)).reshape(self.order + 1, p).T
+        self.output_error, self.e_hat, self.w_hat = ey, e_hat, w_hat
+        self.x_hat = self.z + e_hat
+        self._posterior, self._Phi = self.z + correction, Phi
         self._dstate = new_state
         return self.x_hat
 
@@ -1018,9 +1098,11 @@ class CascadedLTVObserver:
 
     def run(self, y, u=None) -> np.ndarray:
         """Process a whole record: ``y`` shape (T, p) sampled from ``t0`` every ``dt``; returns ``x_hat`` (T, n)."""
-        y = np.asarray(y, dtype=float)
+        y = as_real_array("y", y)
         if y.ndim != 2 or y.shape[1] != self.plant.n_outputs:
             raise ValueError(f"expected y with shape (T, {self.plant.n_outputs}), actual value: shape {y.shape}")
+        if len(y) == 0:  # the first sample starts the observer
+            raise ValueError(f"expected y with at least one sample, actual value: shape {y.shape}")
         out = np.zeros((len(y), self.plant.n))
         self.reset(y[0])
         for k in range(len(y)):
