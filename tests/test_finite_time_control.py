@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from smo_gym import control, observers
+from smo_gym import DivergenceError, control, observers
 from smo_gym.control import (
     FiniteTimeStabilizer,
     RelativeDegreeError,
@@ -323,6 +323,58 @@ def test_bad_gains_and_inputs_raise_typed_errors():
     unmatched = control.LinearPlant(P.A, P.B, P.C, np.eye(4)[:, [0]])
     with pytest.raises(ValueError, match="matched unknown input"):
         FiniteTimeStabilizer(control.LuenbergerObserver(unmatched, 1e-3), alpha=1.0)
+
+
+def test_controllers_refuse_a_non_finite_measurement_and_a_bad_state_norm():
+    """A NaN sigma must not become a zero control; a negative state norm would flip the control's sign."""
+    for controller in (quasi_continuous_hosm, nested_hosm):
+        with pytest.raises(ValueError, match=r"expected finite derivatives.*actual value"):
+            controller([np.nan, 0.0])
+    with pytest.raises(ValueError, match=r"expected finite derivatives"):
+        hosm_control([1.0, np.inf], 1.0)
+    for bad in (-10.0, np.nan, np.inf):
+        with pytest.raises(ValueError, match=r"expected state_norm >= 0.*actual value"):
+            hosm_control([1.0, 0.0], 1.0, state_norm=bad, k1=1.0)
+    with pytest.raises(TypeError, match=r"expected state_norm to be an array of real numbers"):
+        hosm_control([1.0, 0.0], 1.0, state_norm=True, k1=1.0)
+    with pytest.raises(ValueError, match=r"expected state_norm of a shape that broadcasts to \(\).*\(3,\)"):
+        hosm_control([1.0, 0.0], 1.0, state_norm=[1.0, 2.0, 3.0], k1=1.0)
+    batch = np.array([[1.0, 0.0], [-1.0, 0.0]])
+    np.testing.assert_array_equal(hosm_control(batch, 1.0, state_norm=[1.0, 2.0], k1=1.0), [-2.0, 3.0])
+
+
+def _furuta_stabilizer(**kw):
+    ctl = FiniteTimeStabilizer(control.CascadedHOSMObserver(control.furuta_slides(), 1e-3, 300.0), **kw)
+    ctl.reset(np.zeros(2))
+    ctl.step(np.array([0.01, 0.02]), 0.0)
+    return ctl
+
+
+def test_stabilizer_law_is_finite_for_a_huge_finite_state():
+    """||x||^2 overflows from ||x|| ~ 1.3e154: with the default k1 = 0 the law gave 0 * inf = NaN."""
+    ctl = _furuta_stabilizer(alpha=25.0, output_scale=10.0)
+    ctl.observer.x_hat = np.array([1e160, 0.0, 0.0, 0.0])
+    u = ctl.law(1.0)
+    assert np.all(np.isfinite(u)), u
+
+
+def test_refused_stabilizer_step_leaves_the_observer_as_it_was():
+    """alpha k1 ||x_hat|| overflows on a wild sample: refused, and the observer has not taken that sample."""
+    a, b = (_furuta_stabilizer(alpha=1e120, k1=1.0, output_scale=10.0, t_start=1.0) for _ in range(2))
+    with pytest.raises(DivergenceError, match=r"expected a finite control.*actual value"):
+        a.step(np.array([1e300, 1e300]), 2.0)
+    for k in range(1, 4):  # before t_start: u = 0, the observers alone decide
+        y = np.array([0.01, 0.02]) * k
+        np.testing.assert_array_equal(a.step(y, 1e-3 * k), b.step(y, 1e-3 * k))
+        np.testing.assert_array_equal(a.observer.x_hat, b.observer.x_hat)
+    for sa, sb in zip(a.sigma, b.sigma, strict=True):
+        np.testing.assert_array_equal(sa, sb)
+
+
+def test_stabilizer_refuses_an_object_that_is_not_an_observer():
+    for bad in (None, "observer"):
+        with pytest.raises(TypeError, match=r"expected an observer with plant, dt, x_hat, update and advance"):
+            FiniteTimeStabilizer(bad, alpha=1.0)
 
 
 def test_not_strongly_observable_plant_is_refused_by_name():

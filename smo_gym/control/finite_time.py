@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import (
+    DivergenceError,
     as_real_array,
     check_bool,
     check_choice,
@@ -88,6 +89,8 @@ def _derivatives(value) -> np.ndarray:
             f"expected derivatives with shape (..., r), r >= 1 (sigma, sigma', ..., sigma^(r-1) on the last axis), "
             f"actual value: shape {arr.shape}"
         )
+    if not np.all(np.isfinite(arr)):  # the 0/0 = 0 convention would turn a NaN measurement into zero control
+        raise ValueError(f"expected finite derivatives, actual value: {arr!r:.120}")
     return arr
 
 
@@ -226,20 +229,38 @@ def hosm_control(
     kind : {"quasi-continuous", "nested"}
     betas : array_like, optional
     state_norm : float or array_like, shape (...)
-        :math:`\|x\|` (or its estimate).
+        :math:`\|x\|` (or its estimate): finite, ``>= 0``, of a shape that broadcasts to the batch.
     k1, k2 : float
         ``k1 >= 0``, ``k2 > 0``.
 
     Returns
     -------
     ndarray, shape (...)
+
+    Raises
+    ------
+    TypeError, ValueError
+        When ``derivatives`` or ``state_norm`` is not finite, ``state_norm`` is negative or of a shape that does
+        not broadcast to the batch (a negative norm would flip the control's sign).
     """
     alpha = check_positive("alpha", alpha)
     k1 = check_nonnegative("k1", k1)
     k2 = check_positive("k2", k2)
     kind = check_choice("kind", kind, KINDS)
+    norm = as_real_array("state_norm", state_norm)
+    if not np.all(np.isfinite(norm) & (norm >= 0.0)):
+        raise ValueError(f"expected state_norm >= 0 and finite, actual value: {state_norm!r:.120}")
     H = quasi_continuous_hosm(derivatives, betas) if kind == "quasi-continuous" else nested_hosm(derivatives, betas)
-    return -alpha * (k1 * np.asarray(state_norm, dtype=float) + k2) * H
+    try:
+        fits = np.broadcast_shapes(norm.shape, np.shape(H)) == np.shape(H)
+    except ValueError:
+        fits = False
+    if not fits:
+        raise ValueError(
+            f"expected state_norm of a shape that broadcasts to {np.shape(H)} (the batch of derivatives), actual "
+            f"value: shape {norm.shape}"
+        )
+    return -alpha * (k1 * norm + k2) * H
 
 
 def simulate_chain(control, z0, dt: float, t_final: float, *, disturbance=None, substeps: int = 8):
@@ -530,6 +551,12 @@ class FiniteTimeStabilizer(StateFeedback):
         cancel_drift: bool = True,
         t_start: float = 0.0,
     ):
+        missing = [a for a in ("plant", "dt", "x_hat", "update", "advance") if not hasattr(observer, a)]
+        if missing:
+            raise TypeError(
+                "expected an observer with plant, dt, x_hat, update and advance (e.g. CascadedHOSMObserver), actual "
+                f"value: {type(observer).__name__} without {', '.join(missing)}"
+            )
         self.observer = observer
         P = self.plant = observer.plant
         m = P.n_inputs
@@ -570,18 +597,55 @@ class FiniteTimeStabilizer(StateFeedback):
         self.sigma = [np.zeros(int(r)) for r in self.sliding.degrees]
 
     def law(self, t: float) -> np.ndarray:
+        """The control :math:`u_k` from the observer's current estimate.
+
+        Raises
+        ------
+        DivergenceError
+            When the control is not finite (an estimate so large that the gain overflows).
+        """
         x = self.observer.x_hat
-        self.sigma = self.sliding.chains(x)
+        sigma = self.sliding.chains(x)
         if t < self.t_start:
+            self.sigma = sigma
             return np.zeros(self.plant.n_inputs)
-        nrm = float(np.linalg.norm(x))
+        nrm = math.hypot(*x)  # sqrt(x . x) overflows from ||x|| ~ 1.3e154, and 0 * inf = NaN with k1 = 0
         v = np.zeros(self.plant.n_inputs)
-        for i, (s, b) in enumerate(zip(self.sigma, self.betas, strict=True)):
-            if self.kind == "quasi-continuous":
-                H = _quasi_continuous(s, b)
-            else:
-                H = _nested(s, b, float(math.lcm(*range(1, s.shape[-1] + 1))))
-            v[i] = -self.alpha[i] * (self.k1[i] * nrm + self.k2[i]) * H
-        if self.cancel_drift:
-            v = v - self.sliding.F @ x
-        return self._Ginv @ v
+        with np.errstate(over="ignore", invalid="ignore"):  # a non-finite control is reported just below
+            for i, (s, b) in enumerate(zip(sigma, self.betas, strict=True)):
+                if self.kind == "quasi-continuous":
+                    H = _quasi_continuous(s, b)
+                else:
+                    H = _nested(s, b, float(math.lcm(*range(1, s.shape[-1] + 1))))
+                v[i] = -self.alpha[i] * (self.k1[i] * nrm + self.k2[i]) * H
+            if self.cancel_drift:
+                v = v - self.sliding.F @ x
+            u = self._Ginv @ v
+        if not np.all(np.isfinite(u)):
+            raise DivergenceError(
+                f"expected a finite control, actual value: {u!r:.120} at t={t} from an estimate of norm {nrm:.3g} "
+                "(the gain alpha (k1 ||x_hat|| + k2) overflows)"
+            )
+        self.sigma = sigma
+        return u
+
+    def step(self, y, t: float, limits=None) -> np.ndarray:
+        """As :meth:`StateFeedback.step`; a refused step (e.g. :class:`~smo_gym.DivergenceError` from :meth:`law`)
+        leaves the observer and the controller as they were, so the caller can retry or stop cleanly.
+
+        Raises
+        ------
+        DivergenceError
+            When the control is not finite.
+        """
+        # the observer takes the sample before the law can be computed: keep its attributes to put them back
+        saved = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in vars(self.observer).items()}
+        sigma, u = self.sigma, self.u
+        try:
+            return super().step(y, t, limits)
+        except Exception:
+            state = vars(self.observer)
+            state.clear()
+            state.update(saved)
+            self.sigma, self.u = sigma, u
+            raise
