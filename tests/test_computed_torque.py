@@ -266,6 +266,50 @@ def test_gain_recipes():
         noise_limited_lipschitz(0.01, -1.0)
 
 
+def test_computed_torque_refuses_shapes_that_do_not_fit():
+    with pytest.raises(ValueError, match=r"expected bias of shape \(2,\).*actual value: shape \(\)"):
+        computed_torque(np.eye(2), [1.0, 2.0], 5.0, [7.0, 0.0])
+    with pytest.raises(ValueError, match=r"expected passive of shape \(2,\).*actual value: shape \(1,\)"):
+        computed_torque(np.eye(2), [1.0, 2.0], [5.0, 0.0], [7.0])
+    with pytest.raises(ValueError, match=r"expected inertia of shape \(n, n\).*actual value: shape \(3, 2\)"):
+        computed_torque(np.ones((3, 2)), [1.0, 2.0], 0.0, 0.0)
+    with pytest.raises(ValueError, match=r"expected acceleration of shape \(2,\).*actual value: shape \(3,\)"):
+        computed_torque(np.eye(2), [1.0, 2.0, 3.0], [0.0, 0.0], [0.0, 0.0])
+
+
+def test_refused_act_leaves_the_observer_as_it_was():
+    """target(t) failing (wrong shape, or raising) is refused before the observer takes the sample: a retry and a
+    twin that never saw the failure give the same commands."""
+    env = _arm(sensor="ideal")
+    model, dt = env.unwrapped.model, env.unwrapped.dt
+    env.close()
+    mode = {"value": "ok"}
+
+    def target(t):
+        if mode["value"] == "raise":
+            raise RuntimeError("reference unavailable")
+        q = TARGET if mode["value"] == "ok" else np.zeros(3)
+        return q, np.zeros(2), np.zeros(2)
+
+    a = ComputedTorquePolicy(model, dt, target=target)
+    b = ComputedTorquePolicy(model, dt, target=lambda t: (TARGET, np.zeros(2), np.zeros(2)))
+    ys = [TARGET + 0.01 * k * np.array([1.0, -0.5]) for k in range(6)]
+    for policy in (a, b):
+        policy.reset(ys[0])
+        for y in ys[:3]:
+            policy.act(y)
+    mode["value"] = "shape"
+    with pytest.raises(ValueError, match=r"expected target\(t\)\[0\] a number or of shape \(2,\)"):
+        a.act(ys[3])
+    mode["value"] = "raise"
+    with pytest.raises(RuntimeError, match="reference unavailable"):
+        a.act(ys[3])
+    mode["value"] = "ok"
+    for y in ys[3:]:
+        np.testing.assert_array_equal(a.act(y), b.act(y))
+        np.testing.assert_array_equal(a.observer.estimate, b.observer.estimate)
+
+
 def test_identified_torque_is_the_observers_external_torque():
     env = _arm()
     policy = ComputedTorquePolicy.from_env(env)

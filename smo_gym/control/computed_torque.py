@@ -203,9 +203,24 @@ def computed_torque(inertia, acceleration, bias, passive) -> np.ndarray:
     Returns
     -------
     ndarray, shape (n,)
+
+    Raises
+    ------
+    TypeError, ValueError
+        When an argument is not real or its shape does not fit (NumPy would broadcast a scalar or a length-1
+        vector into every joint).
     """
-    M = np.asarray(inertia, dtype=np.float64)
-    return M @ np.asarray(acceleration, dtype=np.float64) + np.asarray(bias) - np.asarray(passive)
+    M = as_real_array("inertia", inertia)
+    if M.ndim != 2 or M.shape[0] != M.shape[1]:
+        raise ValueError(f"expected inertia of shape (n, n), actual value: shape {M.shape}")
+    vectors = []
+    for name, value in (("acceleration", acceleration), ("bias", bias), ("passive", passive)):
+        arr = as_real_array(name, value)
+        if arr.shape != (M.shape[0],):
+            raise ValueError(f"expected {name} of shape ({M.shape[0]},), actual value: shape {arr.shape}")
+        vectors.append(arr)
+    a, b, p = vectors
+    return M @ a + b - p
 
 
 def joint_actuator_map(dynamics: MujocoDynamics, q, v) -> tuple[np.ndarray, np.ndarray]:
@@ -555,13 +570,14 @@ class ComputedTorquePolicy:
         if self._k < 0:
             raise RuntimeError("expected reset(qpos_measured) before act(qpos_measured), actual value: never reset")
         y = self._measured(qpos_measured)
+        t = self._k * self.dt
+        # the reference first: a target(t) that fails must leave the observer without this sample
+        q_ref, v_ref, a_ref = self._reference(t)
         if self._k > 0:
             self.observer.update(y, self._u)
-        t = self._k * self.dt
         est = self.observer.estimate
         q_hat, v_hat = est[:, 0].copy(), est[:, 1].copy()
         w_hat = self.observer.disturbance.copy()
-        q_ref, v_ref, a_ref = self._reference(t)
         a_star = a_ref - self.kp * (y - q_ref) - self.kd * (v_hat - v_ref)
         a = a_star.copy()
         active = t >= self.t_start
