@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import load_script
 
+from smo_gym import DivergenceError
 from smo_gym import control as c
 from smo_gym.design import LMIInfeasibleError
 
@@ -187,6 +188,28 @@ def test_utkin_bad_input():
     obs.reset([0.0])
     with pytest.raises(ValueError, match=r"expected y of shape \(\.\.\., 1\), actual value: shape \(2,\)"):
         obs.update([0.0, 1.0])
+
+
+def test_utkin_divergence_is_refused_and_the_state_kept():
+    """An unstable plant sampled every 20 s: the prediction overflows at the sixth step; refused, state kept."""
+    a, b = (c.UtkinObserver([[0.0, 1.0], [50.0, 0.0]], None, [[1.0, 0.0]], 20.0, 5.0) for _ in range(2))
+    for obs in (a, b):
+        obs.reset([1.0])
+        for _ in range(5):
+            obs.advance()
+            obs.update([1.0])
+    with pytest.raises(DivergenceError, match=r"expected a finite state.*actual value.*the state was kept"):
+        a.advance()
+    np.testing.assert_array_equal(a.x_hat, b.x_hat)
+    np.testing.assert_array_equal(a.z_hat, b.z_hat)
+    np.testing.assert_array_equal(a.update([0.5]), b.update([0.5]))
+    np.testing.assert_array_equal(a.nu_filtered, b.nu_filtered)
+
+
+def test_run_refuses_an_empty_record():
+    obs = c.UtkinObserver([[0.0, 1.0], [-1.0, -0.5]], None, [[1.0, 0.0]], 1e-3, 1.0)
+    with pytest.raises(ValueError, match=r"expected y with at least one sample.*actual value: shape \(0, 1\)"):
+        obs.run(np.zeros((0, 1)))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -420,6 +443,30 @@ def test_walcott_zak_bad_input(wz_design):
         c.WalcottZakObserver(AW, BW, CW, DW, 1e-3, rho=1.0, design={"P": 1})
     with pytest.raises(ValueError, match=r"expected D with shape \(3x\*\)"):
         c.WalcottZakObserver(AW, BW, CW, np.ones((2, 1)), 1e-3, rho=1.0, design=wz_design)
+
+
+def test_walcott_zak_certificate_refuses_a_bad_decay_or_tol():
+    A, C, D = np.array([[0.0, 1.0], [-2.0, -3.0]]), np.eye(2), np.array([[0.0], [1.0]])
+    for decay in (np.nan, -1.0, np.inf):
+        with pytest.raises(ValueError, match=r"expected decay >= 0.*actual value"):
+            c.certify_walcott_zak(A, C, D, np.eye(2), 5 * np.eye(2), decay=decay)
+    for tol in (np.nan, -1e-6):
+        with pytest.raises(ValueError, match=r"expected tol >= 0.*actual value"):
+            c.certify_walcott_zak(A, C, D, np.eye(2), 5 * np.eye(2), tol=tol)
+    with pytest.raises(TypeError, match="expected decay to be a real number"):
+        c.certify_walcott_zak(A, C, D, np.eye(2), 5 * np.eye(2), decay=True)
+
+
+def test_walcott_zak_observer_refuses_a_design_for_another_system():
+    """The design's gain is re-verified on the observer's own A, C, D: A - G C must be Hurwitz there."""
+    A, C, D = np.array([[0.0, 1.0], [-2.0, -3.0]]), np.eye(2), np.array([[0.0], [1.0]])
+    design = c.certify_walcott_zak(A, C, D, np.eye(2), 5 * np.eye(2))
+    obs = c.WalcottZakObserver(A, None, C, D, 1e-3, 1.0, design=design)
+    np.testing.assert_allclose(np.sort_complex(obs.design.observer_eigenvalues), [-7.0 + 0j, -6.0], atol=1e-9)
+    with pytest.raises(ValueError, match=r"expected a design for this system.*actual value"):
+        c.WalcottZakObserver(5 * np.eye(2), None, C, D, 1e-3, 1.0, design=design)
+    with pytest.raises(ValueError, match=r"expected a design for this system.*actual value"):
+        c.WalcottZakObserver(AW, BW, CW, DW, 1e-3, 1.0, design=design)
 
 
 # ---------------------------------------------------------------------------------------------------------------

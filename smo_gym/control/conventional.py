@@ -58,13 +58,21 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
 
 from .._extras import require
-from .._validation import as_real_array, check_choice, check_nonnegative, check_positive, check_positive_array
+from .._validation import (
+    DivergenceError,
+    as_real_array,
+    check_choice,
+    check_nonnegative,
+    check_positive,
+    check_positive_array,
+)
 from ..design.gains import ackermann_observer_gain
 from ..design.lmi import LMIInfeasibleError
 from .plants import RANK_TOL, _matrix, _rank
@@ -186,6 +194,9 @@ def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarra
 class _SampledObserver:
     """Bookkeeping shared by the observers: shapes, ``reset``/``update``/``advance``/``run``."""
 
+    #: the attributes ``update`` and ``advance`` change: restored when a step is refused
+    _STATE: tuple[str, ...] = ("x_hat",)
+
     def __init__(self, A, B, C, dt):
         self.A, self.B, self.C, _ = _check_system(A, B, C)
         self.dt = check_positive("dt", dt)
@@ -247,15 +258,47 @@ class _SampledObserver:
         return self.x_hat
 
     def update(self, y) -> np.ndarray:
-        """Correct with the sample ``y_k`` (shape ``(..., p)``) and return :math:`\\hat x_k`, shape ``(..., n)``."""
+        """Correct with the sample ``y_k`` (shape ``(..., p)``) and return :math:`\\hat x_k`, shape ``(..., n)``.
+
+        Raises
+        ------
+        DivergenceError
+            When the corrected state is not finite; the state before the call is kept.
+        """
         self._require()
-        self._correct(self._y(y))
+        self._finite_step(self._correct, self._y(y), "update(y)")
         return self.x_hat
 
     def advance(self, u=None) -> None:
-        """Predict to the next sample with the control ``u`` (shape ``(..., q)``, default 0) held over ``dt``."""
+        """Predict to the next sample with the control ``u`` (shape ``(..., q)``, default 0) held over ``dt``.
+
+        Raises
+        ------
+        DivergenceError
+            When the predicted state is not finite (an unstable plant over a long step); the state before the call
+            is kept.
+        """
         self._require()
-        self._predict(self._u(u))
+        self._finite_step(self._predict, self._u(u), "advance(u)")
+
+    def _finite_step(self, step, arg, what: str) -> None:
+        """``step(arg)``, undone with a DivergenceError if it leaves a non-finite entry in the :attr:`_STATE`."""
+        # arrays copied: some observers write their state in place
+        saved = {k: getattr(self, k) for k in self._STATE}
+        saved = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in saved.items()}
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported just below
+            step(arg)
+        bad = [
+            k
+            for k in self._STATE
+            if isinstance(v := getattr(self, k), np.ndarray) and v.dtype.kind == "f" and not np.isfinite(v).all()
+        ]
+        if bad:
+            for k, v in saved.items():
+                setattr(self, k, v)
+            raise DivergenceError(
+                f"expected a finite state after {what}, actual value: non-finite {', '.join(bad)}; the state was kept"
+            )
 
     def run(self, y, u=None, x_hat0=None) -> np.ndarray:
         """Filter a recorded sequence: ``y`` of shape ``(T, ..., p)``, ``u`` of shape ``(T, ..., q)``.
@@ -266,6 +309,8 @@ class _SampledObserver:
         y = as_real_array("y", y)
         if y.ndim < 2:
             raise ValueError(f"expected y of shape (T, ..., {self.p}), actual value: shape {y.shape}")
+        if y.shape[0] == 0:  # the first sample starts the observer
+            raise ValueError(f"expected y with at least one sample, actual value: shape {y.shape}")
         if u is not None:
             u = as_real_array("u", u)
             if u.ndim == 0 or len(u) < len(y) - 1:
@@ -364,6 +409,8 @@ class UtkinObserver(_SampledObserver):
     The slides print :math:`\dot e_{y,i} = \ldots - \rho\nu_i` with :math:`\nu_i = \rho\,\mathrm{sign}(e_{y,i})`
     (the gain twice); the observer they state above it has :math:`-\nu`, which is what is implemented.
     """
+
+    _STATE = ("z_hat", "nu", "nu_filtered", "sliding", "x_hat", "x_reconstructed")
 
     def __init__(self, A, B, C, dt, gain, *, L=None, poles=None, tau=0.01, discretization="implicit"):
         super().__init__(A, B, C, dt)
@@ -566,6 +613,8 @@ class StepByStepObserver(_SampledObserver):
         Per block ``i < r``: the sliding variable :math:`s_i = z_i - \hat x_i^-` before the correction and the
         injection :math:`\nu_i` at the last sample.
     """
+
+    _STATE = ("xi_hat", "_x_steps", "s", "_nu_f", "nu", "sliding", "x_hat")
 
     def __init__(self, A, B, C, dt, gain, *, tau=None, discretization="implicit"):
         super().__init__(A, B, C, dt)
@@ -834,8 +883,12 @@ def certify_walcott_zak(A, C, D, P, G, *, decay: float = 0.0, tol: float = 1e-6,
     r"""NumPy certificate of the Walcott-Zak conditions for given ``(P, G)``; ``F = D^T P C^+``.
 
     Raises :class:`~smo_gym.design.LMIInfeasibleError` when ``P`` is not positive definite, the Lyapunov matrix
-    is not negative definite, or :math:`\|D^T P - FC\|_F > tol\,\|D^T P\|_F`.
+    (with ``2 decay P``, ``decay >= 0`` as in :func:`walcott_zak_design`) is not negative definite, or
+    :math:`\|D^T P - FC\|_F > tol\,\|D^T P\|_F` (``tol >= 0``); ``ValueError`` for a negative or non-finite
+    ``decay`` or ``tol`` (a NaN would make every comparison false and certify anything).
     """
+    decay = check_nonnegative("decay", decay)
+    tol = check_nonnegative("tol", tol)
     A, _, C, D = _check_system(A, None, C, D)
     P = _matrix("P", P, A.shape)
     G = _matrix("G", G, (A.shape[0], C.shape[0]))
@@ -902,7 +955,9 @@ class WalcottZakObserver(_SampledObserver):
     rho : float
         Bound on :math:`\|w\|`, ``> 0``.
     design : WalcottZakDesign, optional
-        Default :func:`walcott_zak_design` ``(A, C, D, decay=decay)``.
+        Default :func:`walcott_zak_design` ``(A, C, D, decay=decay)``. A given design is re-verified on these
+        ``A``, ``C``, ``D`` (:func:`certify_walcott_zak`: ``A - G C`` Hurwitz and the shapes fit), ``ValueError``
+        otherwise; its ``observer_eigenvalues`` are then those of this ``A - G C``.
     decay : float
         Passed to :func:`walcott_zak_design`.
     tau : float
@@ -920,6 +975,8 @@ class WalcottZakObserver(_SampledObserver):
     same switching function (Edwards and Spurgeon 1994), used here so that no canonical form is needed.
     """
 
+    _STATE = ("x_hat", "v", "v_filtered")
+
     def __init__(self, A, B, C, D, dt, rho, *, design=None, decay=0.0, tau=0.02, discretization="implicit"):
         super().__init__(A, B, C, dt)
         _, _, _, self.D = _check_system(self.A, None, self.C, D)
@@ -930,6 +987,8 @@ class WalcottZakObserver(_SampledObserver):
             design = walcott_zak_design(self.A, self.C, self.D, decay=decay)
         elif not isinstance(design, WalcottZakDesign):
             raise TypeError(f"expected design to be a WalcottZakDesign, actual value: {type(design).__name__}")
+        else:
+            design = self._fitting_design(design)
         self.design = design
         self.m = self.D.shape[1]
         self._Phi, self._Gam = _zoh(self.A, self.B, self.dt)
@@ -939,6 +998,31 @@ class WalcottZakObserver(_SampledObserver):
             raise ValueError(f"expected F C D = D^T P D positive definite, actual value: eigenvalues {lam}")
         self._lam, self._Q = lam, Q
         self._a = _lowpass_weight(self.dt, self.tau)
+
+    def _fitting_design(self, design: WalcottZakDesign) -> WalcottZakDesign:
+        """``design`` re-verified on this observer's ``A``, ``C``, ``D`` (it may have been made for another system),
+        with the error eigenvalues of this ``A - G C``."""
+        n, p, m = self.n, self.p, self.D.shape[1]
+        shapes = {"P": (n, n), "G": (n, p), "F": (m, p)}
+        wrong = {k: np.shape(getattr(design, k)) for k, v in shapes.items() if np.shape(getattr(design, k)) != v}
+        if wrong:
+            raise ValueError(
+                f"expected a design for this system (P, G, F of shapes {shapes}), actual value: shapes {wrong}"
+            )
+        eig = np.linalg.eigvals(self.A - design.G @ self.C)
+        try:
+            checked = certify_walcott_zak(self.A, self.C, self.D, design.P, design.G, status=design.status)
+        except LMIInfeasibleError as exc:
+            raise ValueError(
+                f"expected a design for this system (A - G C Hurwitz with the certificate of P), actual value: "
+                f"eigenvalues of A - G C {eig}; {exc}"
+            ) from None
+        if not np.allclose(checked.F, design.F, rtol=1e-6, atol=1e-12 * max(np.abs(checked.F).max(), 1.0)):
+            raise ValueError(
+                f"expected a design for this system (F = D^T P C^+), actual value: F {design.F!r:.80}, this system "
+                f"gives {checked.F!r:.80}"
+            )
+        return dataclasses.replace(design, observer_eigenvalues=eig)
 
     def _reset(self, x0, y0):
         self.x_hat = x0
@@ -1034,6 +1118,8 @@ class UnknownInputObserver(_SampledObserver):
     M. Darouach, M. Zasadzinski and S. J. Xu, "Full-order observers for linear systems with unknown inputs",
     IEEE TAC 39(3), 606-609, 1994; M. L. J. Hautus, "Strong detectability and observers", 1983.
     """
+
+    _STATE = ("z", "_y_last", "x_hat")
 
     def __init__(self, A, B, C, D, dt, *, decay=0.0, K=None):
         super().__init__(A, B, C, dt)
