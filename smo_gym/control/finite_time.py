@@ -602,7 +602,8 @@ class FiniteTimeStabilizer(StateFeedback):
         Raises
         ------
         DivergenceError
-            When the control is not finite (an estimate so large that the gain overflows).
+            When the control is not finite (an estimate so large that the gain overflows). Within :meth:`step` the
+            observer has then taken the sample: :meth:`reset` before the next step.
         """
         x = self.observer.x_hat
         sigma = self.sliding.chains(x)
@@ -624,28 +625,8 @@ class FiniteTimeStabilizer(StateFeedback):
         if not np.all(np.isfinite(u)):
             raise DivergenceError(
                 f"expected a finite control, actual value: {u!r:.120} at t={t} from an estimate of norm {nrm:.3g} "
-                "(the gain alpha (k1 ||x_hat|| + k2) overflows)"
+                "(the gain alpha (k1 ||x_hat|| + k2) overflows); the observer has taken this sample: reset before the "
+                "next step"
             )
         self.sigma = sigma
         return u
-
-    def step(self, y, t: float, limits=None) -> np.ndarray:
-        """As :meth:`StateFeedback.step`; a refused step (e.g. :class:`~smo_gym.DivergenceError` from :meth:`law`)
-        leaves the observer and the controller as they were, so the caller can retry or stop cleanly.
-
-        Raises
-        ------
-        DivergenceError
-            When the control is not finite.
-        """
-        # the observer takes the sample before the law can be computed: keep its attributes to put them back
-        saved = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in vars(self.observer).items()}
-        sigma, u = self.sigma, self.u
-        try:
-            return super().step(y, t, limits)
-        except Exception:
-            state = vars(self.observer)
-            state.clear()
-            state.update(saved)
-            self.sigma, self.u = sigma, u
-            raise
