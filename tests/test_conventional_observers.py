@@ -532,3 +532,17 @@ def test_uio_bad_input():
         c.UnknownInputObserver(AW, BW, CW, DW, 1e-3, K=np.ones((2, 2)))
     with pytest.raises(ValueError, match="full row rank"):
         c.UnknownInputObserver(AW, BW, np.vstack([CW[0], CW[0]]), DW, 1e-3)
+
+
+def test_unknown_input_observer_refuses_a_decay_its_design_misses():
+    """The shifted Riccati design places the error eigenvalues left of -decay in exact arithmetic; at decay = 1e8
+    its numerical solution left one at -5.3e4 and the observer was built, reporting a guarantee it does not keep
+    (1e200 escaped as a LinAlgError). Where it is met, it is met."""
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, -2.0, -3.0]])
+    C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    D = np.array([[0.0], [0.0], [1.0]])
+    for decay in (0.0, 10.0, 1e3):
+        assert c.UnknownInputObserver(A, None, C, D, 1e-3, decay=decay).error_eigenvalues.real.max() < -decay
+    for decay in (1e8, 1e200):
+        with pytest.raises(ValueError, match="expected a decay the Riccati design achieves"):
+            c.UnknownInputObserver(A, None, C, D, 1e-3, decay=decay)

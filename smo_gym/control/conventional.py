@@ -1139,12 +1139,22 @@ class UnknownInputObserver(_SampledObserver):
         self.T = np.eye(n) + self.E @ C
         TA = self.T @ A
         if K is None:
-            X = sla.solve_continuous_are((TA + decay * np.eye(n)).T, C.T, np.eye(n), np.eye(p))
+            try:
+                X = sla.solve_continuous_are((TA + decay * np.eye(n)).T, C.T, np.eye(n), np.eye(p))
+            except (np.linalg.LinAlgError, ValueError):
+                X = np.full((n, n), np.nan)  # refused just below, with the decay asked for
             self.K = X @ C.T
         else:
             self.K = _matrix("K", K, (n, p))
         self.N = TA - self.K @ C
-        self.error_eigenvalues = np.linalg.eigvals(self.N)
+        self.error_eigenvalues = np.linalg.eigvals(self.N) if np.isfinite(self.N).all() else np.full(n, np.nan)
+        if K is None and not np.all(self.error_eigenvalues.real < -decay * (1.0 - 1e-9)):
+            # the shifted Riccati equation places them left of -decay in exact arithmetic; far beyond the system's
+            # own time scales its numerical solution does not (decay = 1e8 gave a real part of -5e4)
+            raise ValueError(
+                f"expected a decay the Riccati design achieves (eigenvalues of N left of -decay = {-decay:g}), "
+                f"actual value: eigenvalues {self.error_eigenvalues}; choose a smaller decay or give K"
+            )
         if np.any(self.error_eigenvalues.real >= 0):
             raise ValueError(f"expected N = TA - KC Hurwitz, actual value: eigenvalues {self.error_eigenvalues}")
         self.L = self.K @ (np.eye(p) + C @ self.E) - TA @ self.E
