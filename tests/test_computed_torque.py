@@ -14,6 +14,7 @@ from smo_gym.control import ComputedTorquePolicy, UnderactuatedError
 from smo_gym.control.computed_torque import (
     acceleration_bound,
     computed_torque,
+    default_bandwidth,
     noise_limited_lipschitz,
     pd_gains,
 )
@@ -275,6 +276,15 @@ def test_computed_torque_refuses_shapes_that_do_not_fit():
         computed_torque(np.ones((3, 2)), [1.0, 2.0], 0.0, 0.0)
     with pytest.raises(ValueError, match=r"expected acceleration of shape \(2,\).*actual value: shape \(3,\)"):
         computed_torque(np.eye(2), [1.0, 2.0, 3.0], [0.0, 0.0], [0.0, 0.0])
+
+
+def test_gains_that_overflow_are_refused():
+    """``pd_gains(1e155)`` gave kp = inf (every control then NaN), ``default_bandwidth(1e-320)`` inf."""
+    with pytest.raises(ValueError, match="square is finite"):
+        pd_gains(1e155)
+    with pytest.raises(ValueError, match="inverse is finite"):
+        default_bandwidth(1e-320)
+    assert pd_gains(1e150) == (1e150 * 1e150, 2e150)
 
 
 def test_refused_act_leaves_the_observer_as_it_was():

@@ -72,6 +72,7 @@ References
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -126,6 +127,8 @@ def pd_gains(bandwidth: float) -> tuple[float, float]:
     (kp, kd) : tuple of float
     """
     w = check_positive("bandwidth", bandwidth)
+    if not math.isfinite(w * w):  # an infinite kp makes every later control NaN
+        raise ValueError(f"expected a bandwidth whose square is finite, actual value: {w!r}")
     return w * w, 2.0 * w
 
 
@@ -137,7 +140,10 @@ def default_bandwidth(dt: float) -> float:
     gain :math:`K_d = 0.2/h` multiplies the velocity estimate's noise by a moderate factor. On the 100 Hz
     :class:`smo_gym.envs.TwoLinkArmEnv` with a 12-bit encoder this is 10 rad/s.
     """
-    return 0.1 / check_positive("dt", dt)
+    w = 0.1 / check_positive("dt", dt)
+    if not math.isfinite(w):
+        raise ValueError(f"expected a control period dt whose inverse is finite, actual value: {dt!r}")
+    return w
 
 
 def acceleration_bound(inverse_inertias, torque_bound) -> np.ndarray:
