@@ -301,3 +301,19 @@ def test_indices_names_and_counts_are_not_coerced():
         c.default_integral_outputs("plant")
     with pytest.raises(TypeError, match="A to be an array of real numbers"):
         c.LinearPlant([["1", "0"], ["0", "1"]], [[0], [1]], [[1, 0]], [[0], [1]])
+
+
+def test_structure_helpers_refuse_what_their_decompositions_cannot_take():
+    """NaN entries reached an SVD ('SVD did not converge', a LinAlgError), a B without columns a reduction over an
+    empty array, and zero derivative blocks numpy's 'need at least one array'."""
+    from smo_gym.control.finite_time import sliding_output
+    from smo_gym.control.ltv import input_map, kratz_liebscher_matrices
+
+    with pytest.raises(ValueError, match="expected finite A and B"):
+        sliding_output([[np.nan, 1.0], [0.0, 0.0]], [0.0, 1.0])
+    with pytest.raises(ValueError, match="at least one input"):
+        sliding_output(np.eye(2), np.zeros((2, 0)))
+    with pytest.raises(ValueError, match="expected a finite J"):
+        input_map(np.eye(2), np.full((2, 1), np.nan), 1)
+    with pytest.raises(ValueError, match="expected blocks >= 1"):
+        kratz_liebscher_matrices(np.zeros((3, 2, 2)), np.zeros((3, 1, 2)), np.zeros((3, 2, 1)), 0)

@@ -441,6 +441,8 @@ def sliding_output(A, B, K=None) -> SlidingOutput:
     if B.ndim != 2 or B.shape[0] != n:
         raise ValueError(f"expected B with shape ({n}, q), actual value: shape {B.shape}")
     m = B.shape[1]
+    if m == 0 or not (np.isfinite(A).all() and np.isfinite(B).all()):  # the SVDs below would fail unexplained
+        raise ValueError(f"expected finite A and B with at least one input, actual value: A={A!r:.80}, B={B!r:.80}")
     if K is None:
         K = _controllability_output(A, B)
     else:

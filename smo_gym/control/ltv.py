@@ -45,6 +45,7 @@ from .._validation import (
     as_real_array,
     check_bool,
     check_choice,
+    check_int_at_least,
     check_int_in_range,
     check_nonnegative,
     check_positive,
@@ -122,6 +123,7 @@ def kratz_liebscher_matrices(A: np.ndarray, C: np.ndarray, D: np.ndarray, blocks
     J : ndarray, shape (p l, m (l - 1))
         Block ``(i, j)`` (derivative-major rows) is :math:`\mathcal D_{i+1,j+1}`; zero for ``j >= i``.
     """
+    blocks = check_int_at_least("blocks", blocks, 1)
     p, m = C.shape[1], D.shape[2]
     if min(len(A), len(C), len(D)) < blocks:
         raise ValueError(
@@ -158,6 +160,8 @@ def input_map(O: np.ndarray, J: np.ndarray, m: int) -> np.ndarray | None:
     :math:`\Pi J_1` has full column rank ``m`` (``w`` is then fixed by the output derivatives, whatever its own
     derivatives are).
     """
+    if not np.isfinite(J).all():  # the SVDs below would fail unexplained
+        raise ValueError(f"expected a finite J, actual value: {J!r:.80}")
     J1, J2 = J[:, :m], J[:, m:]
     Pi = left_annihilator(J2) if J2.size else np.eye(J.shape[0])
     PJ1 = Pi @ J1
