@@ -317,3 +317,16 @@ def test_structure_helpers_refuse_what_their_decompositions_cannot_take():
         input_map(np.eye(2), np.full((2, 1), np.nan), 1)
     with pytest.raises(ValueError, match="expected blocks >= 1"):
         kratz_liebscher_matrices(np.zeros((3, 2, 2)), np.zeros((3, 1, 2)), np.zeros((3, 2, 1)), 0)
+
+
+def test_ltv_times_and_matrices_of_the_wrong_type_are_named():
+    """``t=True`` was time 1; ``t="x"`` and a matrix entry beyond a float's range escaped as NumPy's own
+    ValueError and OverflowError."""
+    from smo_gym.control.ltv import LTVPlant, ltv_strong_observability
+
+    plant = LTVPlant([[0.0, 1.0], [0.0, 0.0]], None, [[1.0, 0.0]], [[0.0], [1.0]])
+    for t in (True, "x"):
+        with pytest.raises(TypeError, match="expected t"):
+            ltv_strong_observability(plant, t)
+    with pytest.raises(ValueError, match="within a float's range"):
+        LTVPlant([[10**400]], None, [[1.0]], [[1.0]])

@@ -299,6 +299,8 @@ class LTVPlant:
             arr = np.array(value, dtype=dtype)
         except (TypeError, ValueError):
             raise TypeError(f"expected {name} to be a real matrix{where}, actual value: {value!r}") from None
+        except OverflowError:  # an integer beyond a float's range
+            raise ValueError(f"expected {name} within a float's range{where}, actual value: {value!r:.80}") from None
         if arr.ndim == 1:  # a vector is one column
             arr = arr[:, None]
         if arr.ndim != 2 or (shape is not None and arr.shape != shape):
@@ -531,7 +533,9 @@ def ltv_strong_observability(plant: LTVPlant, t, *, blocks=None, max_blocks=None
     """
     if not isinstance(plant, LTVPlant):
         raise TypeError(f"expected an LTVPlant, actual value: {type(plant).__name__}")
-    times = np.atleast_1d(np.asarray(t, dtype=float))
+    if isinstance(t, (bool, np.bool_)):
+        raise TypeError(f"expected t a time or a grid of times, actual value: {t!r}")
+    times = np.atleast_1d(as_real_array("t", t))
     if times.ndim != 1 or times.size == 0 or not np.all(np.isfinite(times)):
         raise ValueError(f"expected t a finite time or a 1-D grid of them, actual value: {t!r}")
     n = plant.n
