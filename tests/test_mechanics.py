@@ -225,3 +225,47 @@ def test_acceleration_without_input_means_zero_input_after_a_call_with_one(arm):
     dyn.acceleration(q, v, np.array([5.0, 0.0]))
     np.testing.assert_array_equal(dyn.acceleration(q, v), free)
     np.testing.assert_array_equal(dyn.acceleration(q, v, np.zeros(2)), free)
+
+
+def test_non_finite_or_mis_shaped_coordinates_are_refused(arm):
+    """NaN or inf positions and velocities gave NaN accelerations (on the one-environment fast path as on the
+    general one), inertias and coefficients; ``terms`` is documented unbatched."""
+    dyn = MujocoDynamics(arm.model)
+    q, v = np.array([0.3, 0.2]), np.array([0.1, -0.2])
+    for bad_q, bad_v in (
+        (np.array([np.nan, 0.2]), v),
+        (q, np.array([np.nan, 0.0])),
+        ([np.inf, 0.2], [0.1, -0.2]),
+        (np.array([[0.0, 0.0], [np.inf, 0.0]]), np.zeros((2, 2))),
+    ):
+        with pytest.raises(ValueError, match="finite"):
+            dyn.acceleration(bad_q, bad_v)
+    with pytest.raises(ValueError, match="expected q finite"):
+        dyn.inertia([np.inf, 0.0])
+    with pytest.raises(ValueError, match="expected q finite"):
+        dyn.terms([np.nan, 0.0], [0.0, 0.0])
+    with pytest.raises(ValueError, match="expected q finite"):
+        dyn.self_quadratic_coefficient([np.nan, 0.0])
+    with pytest.raises(ValueError, match=r"expected q and v of shape \(2,\)"):
+        dyn.terms(np.zeros((2, 2)), np.zeros((2, 2)))
+    alpha = dyn.alpha_function()
+    with pytest.raises(ValueError, match=r"expected Y with shape \(G, 2\)"):
+        alpha([0.1, 0.2])
+    with pytest.raises(ValueError, match="expected Y finite"):
+        alpha([[np.nan, 0.2]])
+    # a large finite state still takes the fast path's answer
+    np.testing.assert_array_equal(dyn.acceleration(q, v), dyn.acceleration(q.tolist(), v.tolist()))
+
+
+def test_calibrate_model_miss_refuses_the_dynamics_of_another_model(arm):
+    from smo_gym.mechanics import calibrate_model_miss
+
+    body = "<body><joint name='{0}' type='hinge'/><geom size='0.1' mass='1'/>{1}</body>"
+    three = mujoco.MjModel.from_xml_string(  # three hinges, two motors: the arm's indices and widths fit it
+        f"<mujoco><worldbody>{body.format('a', body.format('b', body.format('c', '')))}</worldbody>"
+        "<actuator><motor joint='a'/><motor joint='b'/></actuator></mujoco>"
+    )
+    with pytest.raises(ValueError, match="expected dynamics of model"):
+        calibrate_model_miss(three, MujocoDynamics(arm.model), 1, steps=3)
+    miss, acc = calibrate_model_miss(arm.model, MujocoDynamics(arm.model), 1, steps=3)
+    assert miss.shape == acc.shape == (2,)

@@ -395,3 +395,13 @@ def test_comparison_arguments_are_checked_before_any_run():
         f(10**400)
     with pytest.raises(ValueError, match="nested less deeply"):
         parse_disturbance("+".join(["t"] * 100000))
+
+
+def test_equilibrium_and_default_weights_refuse_what_is_not_a_finite_configuration():
+    model = gym.make(ARM).unwrapped.model
+    with pytest.raises(TypeError, match="expected qpos to be an array of real numbers"):
+        equilibrium(model, [True, False])
+    with pytest.raises(TypeError, match=r"expected model to be a mujoco\.MjModel"):
+        equilibrium(None)
+    with pytest.raises(ValueError, match=r"expected qpos finite with shape \(2,\)"):
+        control.policies.default_weights(model, [np.nan, 0.0], np.eye(2))

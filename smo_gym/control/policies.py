@@ -238,6 +238,8 @@ def equilibrium(model, qpos=None) -> OperatingPoint:
     ``qpos`` on the unactuated joints, or one the actuators cannot hold within their range, is refused.
     """
     mujoco = _mujoco()
+    if not isinstance(model, mujoco.MjModel):
+        raise TypeError(f"expected model to be a mujoco.MjModel, actual value: {type(model).__name__}")
     if model.na:
         raise ValueError(
             f"expected actuators without activation dynamics (na = 0), actual value: na = {model.na}; the "
@@ -245,7 +247,7 @@ def equilibrium(model, qpos=None) -> OperatingPoint:
         )
     names, qadr, dofs = _joint_dofs(model, None)
     d = mujoco.MjData(model)
-    q0 = model.qpos0.copy() if qpos is None else np.array(qpos, dtype=float).reshape(-1)
+    q0 = model.qpos0.copy() if qpos is None else as_real_array("qpos", qpos, copy=True).reshape(-1)
     if q0.shape != (model.nq,) or not np.all(np.isfinite(q0)):
         raise ValueError(f"expected a finite operating point of shape ({model.nq},), actual value: {qpos!r}")
     d.qpos[:] = q0
@@ -338,9 +340,17 @@ def default_weights(model, qpos, G) -> tuple[np.ndarray, np.ndarray]:
     magnitude (its ``ctrlrange``; 1 for an unlimited actuator): a position error of :math:`\theta`, a velocity of
     :math:`\theta/T` on a joint of average inertia (kinetic energy weighted by the inertia, so heavy joints count
     more) and a full actuator command cost the same.
+
+    Raises
+    ------
+    ValueError
+        If ``qpos`` is not finite or not of shape ``(nq,)`` (the inertia, and so ``Q``, would be NaN).
     """
     nv = model.nv
-    M = _inertia(model, qpos)
+    q = as_real_array("qpos", qpos)
+    if q.shape != (model.nq,) or not np.isfinite(q).all():
+        raise ValueError(f"expected qpos finite with shape ({model.nq},), actual value: {qpos!r:.80}")
+    M = _inertia(model, q)
     mbar = float(np.mean(np.diag(M)))
     Q = np.zeros((2 * nv, 2 * nv))
     Q[:nv, :nv] = np.eye(nv) / POSITION_SCALE**2

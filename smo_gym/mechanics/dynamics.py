@@ -43,6 +43,7 @@ Only hinge and slide joints are supported (``nq == nv`` coordinate by coordinate
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Sequence
 
 import mujoco
@@ -267,10 +268,12 @@ class MujocoDynamics:
         return J
 
     # ---- protocol -------------------------------------------------------------------------------------------
-    def _check(self, name, arr, width):
+    def _check(self, name, arr, width, *, finite=True):
         arr = as_real_array(name, arr)
         if arr.ndim == 0 or arr.shape[-1] != width:
             raise ValueError(f"expected {name} with shape (..., {width}), actual value: {arr.shape}")
+        if finite and not np.isfinite(arr).all():  # MuJoCo would answer NaN without an error
+            raise ValueError(f"expected {name} finite, actual value: {arr!r:.80}")
         return arr
 
     def _accel_one(self, q, v, u) -> np.ndarray:
@@ -298,6 +301,11 @@ class MujocoDynamics:
         Returns
         -------
         ndarray, shape (..., n)
+
+        Raises
+        ------
+        ValueError
+            If ``q``, ``v`` or ``u`` is not finite (or ``u`` beyond MuJoCo's bound), or of the wrong shape.
         """
         if (
             self._fast
@@ -306,6 +314,9 @@ class MujocoDynamics:
             and q.dtype is _F64
             and v.dtype is _F64
             and q.shape == v.shape == (self.n,)
+            # one sum of Python floats is non-finite if any entry is (without NumPy's overflow warnings); an
+            # overflowing sum of finite entries only sends the call to the general path, which checks each entry
+            and math.isfinite(sum(q.tolist() + v.tolist()))
             # |u|_2 <= 1e10 in one dot product (NaN and inf fail it); the general path checks entry by entry
             and (u is None or (type(u) is np.ndarray and u.shape == (self._u_width,) and u @ u <= _MAX_U * _MAX_U))
         ):
@@ -321,7 +332,7 @@ class MujocoDynamics:
         if u is None:
             u = np.zeros(q.shape[:-1] + (width,))
         else:
-            u = self._check("u", u, width)
+            u = self._check("u", u, width, finite=False)
             if not (np.abs(u) <= _MAX_U).all():  # MuJoCo would replace it by 0 without an error
                 raise ValueError(f"expected u finite and within +-{_MAX_U:g} (MuJoCo's bound), actual value: {u!r:.80}")
         if q.ndim == 1 and v.ndim == 1 and u.ndim == 1:
@@ -361,6 +372,8 @@ class MujocoDynamics:
         ``actuator`` (n,), projected on the measured coordinates by :math:`J^\top`, and ``acceleration``."""
         q = self._check("q", q, self.n)
         v = self._check("v", v, self.n)
+        if q.shape != (self.n,) or v.shape != (self.n,):  # the data read below hold the last row of a batch only
+            raise ValueError(f"expected q and v of shape ({self.n},), actual value: {q.shape} and {v.shape}")
         acc = self.acceleration(q, v, u)
         d = self.data
         J = self.jacobian(q)
@@ -412,11 +425,15 @@ class MujocoDynamics:
         """
         ref = self.model.qpos0[self._qadr].copy() if reference is None else as_real_array("reference", reference)
         step = check_real_in_range("step", step, 1e-12, 1.0)
-        if ref.shape != (self.n,):
-            raise ValueError(f"expected reference with shape ({self.n},), actual value: {ref.shape}")
+        if ref.shape != (self.n,) or not np.isfinite(ref).all():
+            raise ValueError(f"expected reference finite with shape ({self.n},), actual value: {ref!r:.80}")
 
         def alpha(Y):
-            Y = np.asarray(Y, dtype=np.float64)
+            Y = as_real_array("Y", Y)
+            if Y.ndim != 2 or Y.shape[1] != self.n:
+                raise ValueError(f"expected Y with shape (G, {self.n}), actual value: {Y.shape}")
+            if not np.isfinite(Y).all():
+                raise ValueError(f"expected Y finite, actual value: {Y!r:.80}")
             out = np.empty_like(Y)
             for g in range(Y.shape[0]):
                 for i in range(self.n):
@@ -439,11 +456,24 @@ def calibrate_model_miss(
     Rollout of ``steps`` physics steps of ``model`` (its own ``MjData``, from ``qpos0`` plus small noise) with
     uniform random controls held for ``frame_skip`` steps; restarts when the state becomes non-finite. The default
     gains of the wrapper's model-based observers come from them (:mod:`smo_gym.wrappers.model_based`).
+
+    Raises
+    ------
+    ValueError
+        If ``dynamics`` was built on a model of other dimensions than ``model``.
     """
     if not isinstance(model, mujoco.MjModel) or not isinstance(dynamics, MujocoDynamics):
         raise TypeError(
             "expected a mujoco.MjModel and a MujocoDynamics, actual value: "
             f"{type(model).__name__} and {type(dynamics).__name__}"
+        )
+    # the dynamics' joint addresses index the rollout's state: another model's would read the wrong coordinates
+    dims = ("nq", "nv", "nu", "njnt", "nbody")
+    have, want = (tuple(int(getattr(x, k)) for k in dims) for x in (dynamics.model, model))
+    if have != want:
+        raise ValueError(
+            f"expected dynamics of model ({', '.join(f'{k}={v}' for k, v in zip(dims, want, strict=True))}), "
+            f"actual value: dynamics of a model with {', '.join(f'{k}={v}' for k, v in zip(dims, have, strict=True))}"
         )
     frame_skip = check_int_at_least("frame_skip", frame_skip, 1)
     steps = check_int_at_least("steps", steps, 1)

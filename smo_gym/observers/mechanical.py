@@ -485,6 +485,8 @@ class MechanicalSuperTwisting(_ModelBasedSuperTwisting):
                 np.clip(a, self._neg_bound, self.accel_bound, out=a)
             v = v + hs * a
             q = q + hs * v
+            if not np.isfinite(q).all():  # (so is v if q is) the next substep's dynamics would refuse it
+                raise _divergence(self)
             dpos += hs * (v - x2)
         return (v - x2) / self.dt, dpos / (self.dt * self.dt)
 
