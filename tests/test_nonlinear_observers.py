@@ -645,6 +645,10 @@ def test_nonlinear_switched_bank_bad_input():
     bank = NonlinearSwitchedObserverBank([_pendulum_mode_observer(a, 1e-3, 20.0) for a in (1.0, 4.0)], threshold=0.3)
     with pytest.raises(RuntimeError, match="reset"):
         bank.update([0.0])
+    with pytest.raises(TypeError, match="expected reset_on_switch to be True or False"):
+        NonlinearSwitchedObserverBank(
+            [_pendulum_mode_observer(a, 1e-3, 20.0) for a in (1.0, 4.0)], threshold=0.3, reset_on_switch="no"
+        )
 
 
 # ---- global observer without the BIBS property ------------------------------------------------------------------

@@ -320,3 +320,103 @@ def test_switching_surface_bad_input():
         AutonomousSwitchedObserver(system, [0, 1], DT, L)
     with pytest.raises(RuntimeError, match="reset"):
         AutonomousSwitchedObserver(system, surface, DT, L).update([0.0])
+
+
+# ---- bad input: refused with a typed error, state unchanged -------------------------------------------------------
+def _small():
+    """Two modes, 40 samples with a switch at 20: fast enough for the input checks."""
+    system = SwitchedLinearSystem([oscillator(1, 1), oscillator(9, 1)])
+    sigma = np.repeat([0, 1], 20)
+    u = np.sin(np.arange(40) * DT)[:, None]
+    _, Y = system.simulate([1.0, 2.0], sigma, DT, u=u)
+    return system, sigma, u, Y
+
+
+def test_simulate_refuses_non_finite_input_and_reports_an_escaping_trajectory():
+    from smo_gym import DivergenceError
+    from smo_gym.control import SwitchingSurface
+
+    system = _small()[0]
+    with pytest.raises(ValueError, match="expected x0 finite"):
+        system.simulate([np.nan, 2.0], [0, 1], DT)
+    with pytest.raises(ValueError, match="expected u finite"):
+        system.simulate([1.0, 2.0], [0, 1], DT, u=[[np.nan], [0.0]])
+    with pytest.raises(ValueError, match="expected w finite"):
+        system.simulate([1.0, 2.0], [0, 1], DT, w=[[np.inf], [0.0]])
+    with pytest.raises(ValueError, match=r"expected sigma as a 1-D sequence"):
+        system.simulate([1.0, 2.0], [[0, 1], [1, 0]], DT)
+    with pytest.raises(DivergenceError, match="expected a finite trajectory"):
+        system.simulate([1.0, 2.0], [0, 1], 1e300)
+    with pytest.raises(DivergenceError, match="expected a finite trajectory"):
+        system.simulate([1.0, 2.0], SwitchingSurface([1, 0], [0.0], [0, 1]), 1e300, steps=3)
+
+
+def test_switching_surface_refuses_non_integer_modes_and_a_nan_state():
+    from smo_gym.control import SwitchingSurface
+
+    for modes in ([0.7, 1.9], [True, False], ["a", "b"]):
+        with pytest.raises(TypeError, match="expected modes"):
+            SwitchingSurface([1, 0], [0.0], modes)
+    with pytest.raises(ValueError, match="expected modes >= 0"):
+        SwitchingSurface([1, 0], [0.0], [0, -1])
+    surface = SwitchingSurface([1, 0], [0.0], [0, 1])
+    with pytest.raises(ValueError, match="expected x finite"):
+        surface.mode([np.nan, 0.0])
+    with pytest.raises(ValueError, match=r"expected x with shape \(2,\)"):
+        surface.mode([1.0, 0.0, 3.0])
+
+
+def test_mode_metrics_refuses_what_is_not_a_mode_sequence():
+    from smo_gym.control import SwitchedEstimate
+
+    est = SwitchedEstimate(
+        modes=np.repeat([0, 1], 5),
+        switch_times=np.array([0.5]),
+        detection_times=np.array([0.5]),
+        new_modes=np.array([1]),
+        residual_norms=np.zeros((10, 2)),
+        x_hat=np.zeros((10, 2)),
+        dt=0.1,
+    )
+    sigma = np.repeat([0, 1], 5)
+    assert mode_metrics(est, sigma).accuracy == 1.0
+    with pytest.raises(ValueError, match="expected sigma as mode indices"):
+        mode_metrics(est, sigma + 0.7)
+    with pytest.raises(ValueError, match="expected sigma as mode indices"):
+        mode_metrics(est, np.r_[sigma[:-1] * 1.0, np.nan])
+    with pytest.raises(ValueError, match="expected sigma as mode indices"):
+        mode_metrics(est, -sigma)
+    with pytest.raises(TypeError, match="expected sigma to be an array of real numbers"):
+        mode_metrics(est, sigma.astype(bool))
+    with pytest.raises(ValueError, match=r"expected start < 1 \(the record's end"):
+        mode_metrics(est, sigma, start=100.0)
+    with pytest.raises(TypeError, match="expected a SwitchedEstimate"):
+        mode_metrics(None, sigma)
+
+
+def test_switched_observers_refuse_what_is_not_their_input():
+    system, _, u, Y = _small()
+    with pytest.raises(TypeError, match="expected reset_on_switch to be True or False"):
+        SwitchedObserverBank(system, DT, L, threshold=0.5, reset_on_switch="no")
+    obs = SwitchedHOSMObserver(system, DT, L)
+    with pytest.raises(ValueError, match=r"expected Y with shape \(T >= 1, 1\)"):
+        obs.run(5.0, [0, 1])
+    with pytest.raises(ValueError, match=r"expected Y with shape \(T >= 1, 1\)"):
+        obs.run(np.zeros((0, 1)), [0])
+    a, b = SwitchedHOSMObserver(system, DT, L), SwitchedHOSMObserver(system, DT, L)
+    for z in (a, b):
+        z.reset(Y[0], 0)
+    for bad, error in (("1", TypeError), (True, TypeError), ([np.nan], ValueError)):
+        with pytest.raises(error, match="expected"):
+            a.advance(bad)
+    for z in (a, b):
+        z.advance(u[0])
+    with pytest.raises(ValueError, match="expected a finite y,"):
+        a.update([np.nan], 1)  # in a new mode: checked before its observer restarts
+    with pytest.raises(ValueError, match="expected a finite y,"):
+        a.switch(1, [np.nan], [0.0, 0.0])
+    for k in range(1, 4):
+        np.testing.assert_array_equal(a.update(Y[k], 1), b.update(Y[k], 1))
+        for z in (a, b):
+            z.advance(u[k])
+    assert a.switch_samples == b.switch_samples == [1]

@@ -80,14 +80,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import (
+    DivergenceError,
     as_real_array,
+    check_bool,
     check_choice,
+    check_int_at_least,
     check_int_in_range,
     check_keywords,
     check_nonnegative,
     check_positive,
 )
-from .estimators import CascadedHOSMObserver
+from .estimators import CascadedHOSMObserver, _output_sample
 from .plants import RANK_TOL, LinearPlant, NotStronglyObservableError, StrongObservabilityReport
 
 __all__ = [
@@ -316,6 +319,14 @@ class SwitchedLinearSystem:
             With a switching surface only: the modes it decided.
         steps : int, optional
             ``T``, with a switching surface.
+
+        Raises
+        ------
+        ValueError
+            If ``x0``, ``u`` or ``w`` is not finite or of the wrong shape, or ``sigma`` is not a 1-D sequence of mode
+            indices.
+        DivergenceError
+            If the trajectory leaves the floating-point range (e.g. an unstable mode over a huge ``dt``).
         """
         dt = check_positive("dt", dt)
         surface = sigma if isinstance(sigma, SwitchingSurface) else None
@@ -330,6 +341,8 @@ class SwitchedLinearSystem:
         x = as_real_array("x0", x0).reshape(-1)
         if x.shape != (self.n,):
             raise ValueError(f"expected x0 with shape ({self.n},), actual value: shape {x.shape}")
+        if not np.isfinite(x).all():
+            raise ValueError(f"expected x0 finite, actual value: {x!r}")
         U = self._signal("u", u, T, self.n_inputs)
         W = self._signal("w", w, T, self.n_unknown)
         X = np.zeros((T + 1, self.n))
@@ -337,15 +350,21 @@ class SwitchedLinearSystem:
         X[0] = x
         for k in range(T):
             if surface is not None:
+                if not np.isfinite(X[k]).all():  # the surface cannot place it: the escape is the error
+                    raise _escaped(k, dt)
                 sigma[k] = surface.mode(X[k])
             Phi, Gam = self.discretize(int(sigma[k]), dt)
             Y[k] = self.modes[sigma[k]].C @ X[k]
             X[k + 1] = Phi @ X[k] + Gam @ np.concatenate([U[k], W[k]])
         Y[T] = self.modes[sigma[T - 1]].C @ X[T]
+        if not (np.isfinite(X).all() and np.isfinite(Y).all()):
+            raise _escaped(int(np.argmin(np.isfinite(X).all(axis=1))), dt)
         return (X, Y, sigma) if surface is not None else (X, Y)
 
     def _check_sigma(self, sigma) -> np.ndarray:
-        s = as_real_array("sigma", sigma).reshape(-1)
+        s = as_real_array("sigma", sigma)
+        if s.ndim != 1:  # a 2-D array would be read row after row as one long schedule
+            raise ValueError(f"expected sigma as a 1-D sequence of mode indices, actual value: shape {s.shape}")
         if s.size == 0 or np.any(s != np.round(s)) or np.any(s < 0) or np.any(s >= self.q):
             raise ValueError(
                 f"expected sigma as a non-empty sequence of mode indices in 0..{self.q - 1}, actual value: "
@@ -365,10 +384,18 @@ class SwitchedLinearSystem:
             arr = arr[:T]
         if arr.shape != (T, width):
             raise ValueError(f"expected {name} with shape ({T}, {width}), actual value: shape {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"expected {name} finite, actual value: {arr!r:.80}")
         return arr
 
     def __repr__(self) -> str:
         return f"SwitchedLinearSystem(q={self.q}, n={self.n}, names={list(self.names)})"
+
+
+def _escaped(k: int, dt: float) -> DivergenceError:
+    return DivergenceError(
+        f"expected a finite trajectory, actual value: the state left the floating-point range by sample {k} (dt={dt!r})"
+    )
 
 
 def _per_mode_lipschitz(system: SwitchedLinearSystem, lipschitz) -> np.ndarray:
@@ -462,6 +489,7 @@ class SwitchedHOSMObserver:
             raise RuntimeError("expected advance(u) after each update, actual value: update called twice in a row")
         mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
         if mode != self.mode:  # the new mode's observer starts here; it is the active one once it took the sample
+            y = _output_sample("y", y, self.system.n_outputs)  # named y here, not as the restart's y0
             self.observers[mode].reset(y, self._carry if self.on_switch == "continue" else None)
         self.x_hat = self.observers[mode].update(y)
         self._k += 1
@@ -477,6 +505,8 @@ class SwitchedHOSMObserver:
         if self.mode is None:
             raise RuntimeError("expected reset(y0, mode) before switch(...), actual value: never reset")
         mode = check_int_in_range("mode", mode, 0, self.system.q - 1)
+        y = _output_sample("y", y, self.system.n_outputs)  # named y and x_hat here, not as the restart's y0, x_hat0
+        x_hat = _output_sample("x_hat", x_hat, self.system.n, "state")
         self.observers[mode].reset(y, x_hat)
         self.x_hat = self.observers[mode].update(y)  # the sample is consumed: predict from it at the next advance
         self.mode = mode
@@ -487,7 +517,8 @@ class SwitchedHOSMObserver:
         """Predict to the next sample with the control ``u`` (default zero) held over the interval."""
         if self.mode is None:
             raise RuntimeError("expected reset(y0, mode) before advance(u), actual value: never reset")
-        u = np.zeros(self.system.n_inputs) if u is None else np.atleast_1d(np.asarray(u, dtype=float))
+        # a string or a bool is refused, not converted to a number
+        u = np.zeros(self.system.n_inputs) if u is None else _output_sample("u", u, self.system.n_inputs, "input")
         self.observers[self.mode].advance(u)
         Phi, Gam = self.system.discretize(self.mode, self.dt)
         self._carry = Phi @ self.x_hat + Gam[:, : self.system.n_inputs] @ u
@@ -498,12 +529,12 @@ class SwitchedHOSMObserver:
         shape ``(T, n)``."""
         Y = as_real_array("Y", Y)
         sigma = self.system._check_sigma(sigma)
-        T = Y.shape[0]
-        if Y.ndim != 2 or Y.shape[1] != self.system.n_outputs or sigma.shape[0] < T - 1:
+        if Y.ndim != 2 or Y.shape[0] < 1 or Y.shape[1] != self.system.n_outputs or sigma.shape[0] < Y.shape[0] - 1:
             raise ValueError(
-                f"expected Y with shape (T, {self.system.n_outputs}) and sigma with at least T - 1 entries, "
+                f"expected Y with shape (T >= 1, {self.system.n_outputs}) and sigma with at least T - 1 entries, "
                 f"actual value: Y shape {Y.shape}, sigma length {sigma.shape[0]}"
             )
+        T = Y.shape[0]
         U = SwitchedLinearSystem._signal("U", U, T - 1, self.system.n_inputs, extra=1)
         X = np.zeros((T, self.system.n))
         X[0] = self.reset(Y[0], int(sigma[0]), x_hat0)
@@ -679,7 +710,7 @@ class SwitchedObserverBank:
         self.dwell = check_positive("dwell", dwell)
         self.settle_time = check_nonnegative("settle_time", settle_time)
         self.residual_time_constant = check_nonnegative("residual_time_constant", residual_time_constant)
-        self.reset_on_switch = bool(reset_on_switch)
+        self.reset_on_switch = check_bool("reset_on_switch", reset_on_switch)
         self.observers = _bank(system, self.dt, lipschitz, alpha, poles)
         self._rule = _ModeDecision(
             system.q, self.dt, self.threshold, self.dwell, self.settle_time, self.residual_time_constant
@@ -830,7 +861,7 @@ class NonlinearSwitchedObserverBank:
         self.dt = first.dt
         self.threshold = check_positive("threshold", threshold)
         self.initial_mode = check_int_in_range("initial_mode", initial_mode, 0, self.q - 1)
-        self.reset_on_switch = bool(reset_on_switch)
+        self.reset_on_switch = check_bool("reset_on_switch", reset_on_switch)
         self._rule = _ModeDecision(
             self.q,
             self.dt,
@@ -913,7 +944,8 @@ class SwitchingSurface:
     def __init__(self, H, edges, modes):
         self.H = as_real_array("H", H, copy=True).reshape(-1)
         self.edges = as_real_array("edges", edges, copy=True).reshape(-1)
-        self.modes = np.asarray(modes, dtype=int).reshape(-1)
+        # each an integer: a float would be truncated, a bool read as 0 or 1
+        self.modes = np.array([check_int_at_least("modes", m, 0) for m in np.asarray(modes, dtype=object).reshape(-1)])
         if not np.all(np.isfinite(self.H)) or not np.any(self.H):
             raise ValueError(f"expected a finite, nonzero H, actual value: {self.H!r}")
         if not np.all(np.isfinite(self.edges)) or np.any(np.diff(self.edges) <= 0):
@@ -924,8 +956,20 @@ class SwitchingSurface:
             )
 
     def mode(self, x) -> int:
-        """The mode of the state ``x`` (shape ``(n,)``)."""
-        return int(self.modes[np.searchsorted(self.edges, float(self.H @ x), side="left")])
+        """The mode of the state ``x`` (shape ``(n,)``).
+
+        Raises
+        ------
+        ValueError
+            If ``x`` is not finite (it lies in no interval) or not of shape ``(n,)``.
+        """
+        x = as_real_array("x", x)
+        if x.shape != self.H.shape:
+            raise ValueError(f"expected x with shape {self.H.shape}, actual value: shape {x.shape}")
+        hx = float(self.H @ x)
+        if not math.isfinite(hx):
+            raise ValueError(f"expected x finite, actual value: {x!r}")
+        return int(self.modes[np.searchsorted(self.edges, hx, side="left")])
 
     def condition(self, system: SwitchedLinearSystem) -> tuple[bool, str]:
         r"""The slides' condition for exact, finite-time discrete-state estimation from :math:`H\hat x`:
@@ -1093,13 +1137,27 @@ def mode_metrics(estimate: SwitchedEstimate, sigma, *, start: float = 0.0) -> Mo
         after ``start``, the time from it to the first detection of the new mode before the next true switch
         (missed switches are left out and counted in ``missed``); ``false_switches``: detections that match no
         true switch.
+
+    Raises
+    ------
+    ValueError
+        If ``sigma`` is not a sequence of ``T`` mode indices (non-negative integers), or ``start`` is not before the
+        record's end.
     """
-    s = np.asarray(sigma, dtype=int).reshape(-1)
+    if not isinstance(estimate, SwitchedEstimate):
+        raise TypeError(f"expected a SwitchedEstimate, actual value: {type(estimate).__name__}")
+    s = as_real_array("sigma", sigma)
     T = estimate.modes.shape[0]
-    if s.shape[0] != T:
-        raise ValueError(f"expected sigma with {T} samples (one per estimate), actual value: {s.shape[0]}")
+    if s.shape != (T,):
+        raise ValueError(f"expected sigma with {T} samples (one per estimate), actual value: shape {s.shape}")
+    if not (np.isfinite(s).all() and np.all(s == np.round(s)) and np.all(s >= 0)):  # int() would truncate them
+        raise ValueError(f"expected sigma as mode indices (integers >= 0), actual value: {np.unique(s)[:10]!r}")
+    s = s.astype(int)
     dt = estimate.dt
-    k0 = math.ceil(check_nonnegative("start", start) / dt - 1e-9)
+    start = check_nonnegative("start", start)
+    k0 = math.ceil(start / dt - 1e-9)
+    if k0 >= T:  # nothing left to score: the accuracy would be the mean of no samples
+        raise ValueError(f"expected start < {T * dt:g} (the record's end), actual value: {start!r}")
     acc = float(np.mean(estimate.modes[k0:] == s[k0:]))
     true_k = [k for k in range(1, T) if s[k] != s[k - 1] and k >= k0]
     bounds = true_k + [T]
