@@ -358,3 +358,46 @@ def test_anti_windup_prevents_windup_under_saturation():
         under[T_t] = -xs.min()
     assert under[None] < 0.1, under
     assert under[1e9] > 3.0, under
+
+
+def test_van_loan_and_kalman_gain_refuse_what_is_not_a_covariance():
+    """A NaN matrix gave a NaN covariance, a negative spectral density a negative-definite one, a negative or
+    singular R a gain; shape errors were reported as a detectability failure."""
+    A, G = [[0.0, 1.0], [-1.0, -0.5]], [[0.0], [1.0]]
+    for W in ([[-1.0]], -1e-13):
+        with pytest.raises(ValueError, match="expected W symmetric positive semi-definite"):
+            van_loan_covariance(A, G, W, 0.1)
+    with pytest.raises(ValueError, match="expected A finite"):
+        van_loan_covariance([[np.nan, 1.0], [0.0, 0.0]], G, [[1.0]], 0.1)
+    with pytest.raises(ValueError, match=r"expected W with shape \(1, 1\)"):
+        van_loan_covariance(A, G, np.eye(2), 0.1)
+    for bad in ([["1"]], [[True]]):
+        with pytest.raises(TypeError, match="expected W to be an array of real numbers"):
+            van_loan_covariance([[0.0]], [[1.0]], bad, 0.1)
+    for R in ([[-1.0]], [[0.0]]):
+        with pytest.raises(ValueError, match="expected R symmetric positive definite"):
+            kalman_gain([[0.5]], [[1.0]], [[1.0]], R)
+    with pytest.raises(ValueError, match="expected Qd symmetric positive semi-definite"):
+        kalman_gain([[0.5]], [[1.0]], [[-1.0]], [[1.0]])
+    with pytest.raises(ValueError, match=r"expected C with shape \(p, 1\)"):
+        kalman_gain([[0.5]], [[1.0, 2.0]], [[1.0]], [[1.0]])
+    with pytest.raises(ValueError, match="expected Phi finite"):
+        kalman_gain([[np.nan]], [[1.0]], [[1.0]], [[1.0]])
+    # a covariance whose asymmetry or negative eigenvalue is rounding, relative to its size, is one
+    W = 1e-20 * np.array([[2.0, 1.0 + 1e-15], [1.0, 2.0]])
+    assert np.isfinite(van_loan_covariance(np.zeros((2, 2)), np.eye(2), W, 0.1)).all()
+
+
+def test_pid_weights_are_checked_relative_to_their_size_and_indices_are_integers(furuta):
+    with pytest.raises(ValueError, match="expected Q positive semi-definite"):
+        c.PIDController(furuta, DT, Q=-1e-13 * np.eye(4))
+    with pytest.raises(ValueError, match="expected Q finite and symmetric"):
+        c.PIDController(furuta, DT, Q=1e-13 * np.array([[1, 1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
+    with pytest.raises(TypeError, match="expected integral_outputs to be integers"):
+        c.PIDController(furuta, DT, integral_outputs=[0.0])
+    # a tiny weight is a weight: accepted as the same design as the scaled one
+    np.testing.assert_allclose(
+        c.PIDController(furuta, DT, Q=1e-3 * FURUTA_Q, Qi=[1e-3], R=[1e-3]).K,
+        c.PIDController(furuta, DT, Q=FURUTA_Q, Qi=[1.0], R=[1.0]).K,
+        rtol=1e-6,
+    )

@@ -67,11 +67,39 @@ def _square(name: str, value, size: int) -> np.ndarray:
         M = np.diag(M)
     if M.shape != (size, size):
         raise ValueError(f"expected {name} with shape ({size}, {size}) (or its diagonal), actual value: {M.shape}")
-    if not np.all(np.isfinite(M)) or np.linalg.norm(M - M.T) > 1e-12 * max(np.linalg.norm(M), 1.0):
+    # rounding relative to the weight's own size: an absolute floor would pass -1e-13 I as semi-definite
+    tol = 1e-12 * np.linalg.norm(M)
+    if not np.all(np.isfinite(M)) or np.linalg.norm(M - M.T) > tol:
         raise ValueError(f"expected {name} finite and symmetric, actual value: {M.tolist()}")
-    if np.linalg.eigvalsh(M).min() < -1e-12 * max(np.linalg.norm(M), 1.0):
+    if np.linalg.eigvalsh(M).min() < -tol:
         raise ValueError(f"expected {name} positive semi-definite, actual value: eigenvalues {np.linalg.eigvalsh(M)}")
     return M
+
+
+def _matrix(name: str, value, shape: tuple[int | str, int | str]) -> np.ndarray:
+    """``value`` as a finite 2-D float array (a number: 1 x 1) of ``shape``: a size, or a letter for any size (the
+    same letter twice: a square matrix)."""
+    M = np.atleast_2d(as_real_array(name, value))
+    fits = M.ndim == 2 and all(isinstance(want, str) or have == want for have, want in zip(M.shape, shape, strict=True))
+    if not fits or (shape[0] == shape[1] and M.shape[0] != M.shape[1]):
+        raise ValueError(
+            f"expected {name} with shape ({', '.join(map(str, shape))}), actual value: shape {np.shape(value)}"
+        )
+    if not np.isfinite(M).all():
+        raise ValueError(f"expected {name} finite, actual value: {M.tolist()}")
+    return M
+
+
+def _covariance(name: str, M: np.ndarray, *, definite: bool = False) -> None:
+    """Refuse a ``M`` that is not symmetric positive (semi-)definite up to rounding relative to its norm."""
+    tol = 1e-12 * np.linalg.norm(M)
+    low = np.linalg.eigvalsh(M).min() if M.size else 0.0
+    if np.linalg.norm(M - M.T) > tol or (low <= 0.0 if definite else low < -tol):
+        what = "definite" if definite else "semi-definite"
+        raise ValueError(
+            f"expected {name} symmetric positive {what} (a covariance), actual value: {M.tolist()!s:.120} "
+            f"(smallest eigenvalue {low:.3g})"
+        )
 
 
 def van_loan_covariance(A, G, W, dt: float) -> np.ndarray:
@@ -99,10 +127,19 @@ def van_loan_covariance(A, G, W, dt: float) -> np.ndarray:
     -------
     ndarray, shape (n, n)
         Symmetric positive semi-definite :math:`Q_d`.
+
+    Raises
+    ------
+    ValueError
+        If a matrix is not finite or of the wrong shape, or ``W`` is not symmetric positive semi-definite (the
+        result would not be a covariance).
     """
-    A, G, W = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, G, W))
-    dt = check_positive("dt", dt)
+    A = _matrix("A", A, ("n", "n"))
     n = A.shape[0]
+    G = _matrix("G", G, (n, "m"))
+    W = _matrix("W", W, (G.shape[1], G.shape[1]))
+    _covariance("W", W)
+    dt = check_positive("dt", dt)
     M = np.zeros((2 * n, 2 * n))
     M[:n, :n], M[:n, n:], M[n:, n:] = -A, G @ W @ G.T, A.T
     F = sla.expm(M * dt)
@@ -141,10 +178,19 @@ def kalman_gain(Phi, C, Qd, R) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Raises
     ------
     ValueError
-        When no stabilizing solution exists: ``(Phi, C)`` not detectable, or a mode on the unit circle that the
-        process noise does not excite (e.g. an integrator without noise: add ``process_std``).
+        When a matrix is not finite or of the wrong shape, ``Qd`` is not symmetric positive semi-definite or ``R``
+        not symmetric positive definite; when no stabilizing solution exists: ``(Phi, C)`` not detectable, or a
+        mode on the unit circle that the process noise does not excite (e.g. an integrator without noise: add
+        ``process_std``).
     """
-    Phi, C, Qd, R = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (Phi, C, Qd, R))
+    # checked before the Riccati solve, whose failures all read as "not detectable"
+    Phi = _matrix("Phi", Phi, ("n", "n"))
+    n = Phi.shape[0]
+    C = _matrix("C", C, ("p", n))
+    Qd = _matrix("Qd", Qd, (n, n))
+    R = _matrix("R", R, (C.shape[0], C.shape[0]))
+    _covariance("Qd", Qd)
+    _covariance("R", R, definite=True)
     try:
         P = sla.solve_discrete_are(Phi.T, C.T, Qd, R)
         S = C @ P @ C.T + R
@@ -495,6 +541,8 @@ class PIDController(StateFeedback):
             idx = default_integral_outputs(plant)
         else:
             raw = as_real_array("integral_outputs", integral_outputs)
+            if raw.size and np.asarray(integral_outputs).dtype.kind not in "iuO":  # an index 0.0 is not read as 0
+                raise TypeError(f"expected integral_outputs to be integers, actual value: {integral_outputs!r:.80}")
             if raw.ndim != 1 or raw.size == 0 or np.any(raw != np.round(raw)):
                 raise ValueError(
                     "expected integral_outputs a non-empty sequence of output indices, actual value: "
