@@ -405,3 +405,35 @@ def test_equilibrium_and_default_weights_refuse_what_is_not_a_finite_configurati
         equilibrium(None)
     with pytest.raises(ValueError, match=r"expected qpos finite with shape \(2,\)"):
         control.policies.default_weights(model, [np.nan, 0.0], np.eye(2))
+
+
+def test_differentiator_bound_refuses_bad_bounds_and_an_unstable_error_map():
+    """A NaN noise bound or an error map with spectral radius >= 1 ran 200,000 iterations into NaN."""
+    plant = control.furuta_slides()
+    Ld = control.sampled_observer_gain(plant.A, plant.C, 0.01)
+    bound = control.policies.differentiator_bound
+    ok = bound(plant, 0.01, Ld, 2, (1.0, 1.0, 1.0), [1e-3, 1e-3])
+    assert np.isfinite(ok).all()
+    np.testing.assert_array_equal(bound(plant, 0.01, Ld, 2, 1.0, [1e-3, 1e-3]), ok)  # one bound for every i
+    for noise in ([np.nan, 1e-3], [-1.0, -1.0]):
+        with pytest.raises(ValueError, match="expected noise_bound >= 0"):
+            bound(plant, 0.01, Ld, 2, (1.0, 1.0, 1.0), noise)
+    with pytest.raises(ValueError, match=r"expected L_d making the error map Phi \(I - L_d C\) stable"):
+        bound(plant, 0.01, np.zeros((4, 2)), 2, (1.0, 1.0, 1.0), [1e-3, 1e-3])
+    with pytest.raises(ValueError, match=r"expected L_d with shape \(4, 2\)"):
+        bound(plant, 0.01, np.zeros((2, 2)), 2, (1.0,), [1e-3, 1e-3])
+    with pytest.raises(ValueError, match="expected w_bounds with at least one entry"):
+        bound(plant, 0.01, Ld, 2, (), [1e-3, 1e-3])
+    with pytest.raises(TypeError, match="expected order to be an integer"):
+        bound(plant, 0.01, Ld, 2.5, (1.0,), [1e-3, 1e-3])
+
+
+def test_policy_act_refuses_bools_strings_and_complex_positions():
+    policy = design(gym.make(ARM), "lqr-luenberger")
+    twin = design(gym.make(ARM), "lqr-luenberger")
+    for p in (policy, twin):
+        p.reset(np.zeros(2))
+    for q in ([True, False], ["0.1", "0"], np.array([0.1 + 1j, 0.0])):
+        with pytest.raises(TypeError, match="expected qpos_measured to be an array of real numbers"):
+            policy.act(q)
+    np.testing.assert_array_equal(policy.act(np.array([0.1, 0.0])), twin.act(np.array([0.1, 0.0])))

@@ -254,3 +254,34 @@ def test_bad_input_is_typed_and_says_what_was_expected():
         c.LeftInverseIdentifier(L, 1e-3, 1.0).update([0.0, 0.0])
     with pytest.raises(RuntimeError, match="expected reset"):
         c.StronglyDetectableObserver(P, 1e-3, 20.0).update([0.0, 0.0])
+
+
+def test_numbers_are_not_read_from_bools_strings_or_overflowing_integers():
+    L = _left_inverse_plant()
+    for lipschitz in (True, "2"):
+        with pytest.raises(TypeError, match="expected lipschitz to be a real number"):
+            c.LeftInverseIdentifier(L, 1e-3, lipschitz)
+    with pytest.raises(ValueError, match="expected lipschitz > 0"):
+        c.LeftInverseIdentifier(L, 1e-3, 10**400)
+    with pytest.raises(ValueError, match=r"expected lipschitz a number or shape \(2,\)"):
+        c.LeftInverseIdentifier(L, 1e-3, [1.0, 2.0, 3.0])
+    li = c.LeftInverseIdentifier(L, 1e-3, 20.0)
+    for y in (["1", "1"], [True, True]):
+        with pytest.raises(TypeError, match="expected y0 to be an array of real numbers"):
+            li.reset(y)
+    li.reset([0.0, 0.0])
+    with pytest.raises(TypeError, match="expected y to be an array of real numbers"):
+        li.update(["1", "1"])
+    with pytest.raises(TypeError, match="expected A to be an array of real numbers"):
+        c.detectable_observer_gain([[True]], [[1.0]], 0.01)
+    with pytest.raises(ValueError, match="expected finite entries in A"):
+        c.detectable_observer_gain([[np.nan]], [[1.0]], 0.01)
+    with pytest.raises(ValueError, match=r"expected C with shape \(\*x2\)"):
+        c.detectable_observer_gain(-np.eye(2), [[1.0, 0.0, 0.0]], 0.01)
+    for A, error in (
+        ([[True, True], [False, False]], TypeError),
+        ([["0", "1"], [0, 0]], TypeError),
+        ([[np.nan, 1], [0, 0]], ValueError),
+    ):
+        with pytest.raises(error, match="A"):
+            c.relative_degrees(A, [[1, 0]], [[0], [1]])

@@ -122,10 +122,14 @@ def relative_degrees(A, C, D) -> np.ndarray:
     -------
     ndarray of int, shape (p,)
         ``r_i``; ``0`` marks an output that ``w`` never reaches (``c_i A^j D = 0`` for all ``j < n``).
+
+    Raises
+    ------
+    ValueError
+        If a matrix is not finite (a NaN compares as zero: every output would read as unreached) or the shapes
+        do not agree.
     """
-    A, C, D = np.asarray(A, float), np.atleast_2d(np.asarray(C, float)), np.asarray(D, float)
-    if D.ndim == 1:
-        D = D[:, None]
+    A, C, D = _check_triple(A, C, D)
     n = A.shape[0]
     scale = max(np.abs(D).max(), 1e-300)
     r = np.zeros(C.shape[0], dtype=int)

@@ -17,7 +17,14 @@ from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
-from .._validation import as_real_array, check_choice, check_int_in_range, check_nonnegative, check_positive
+from .._validation import (
+    as_real_array,
+    check_choice,
+    check_int_in_range,
+    check_nonnegative,
+    check_nonnegative_array,
+    check_positive,
+)
 
 __all__ = [
     "ControlDiagnostics",
@@ -391,30 +398,56 @@ def differentiator_bound(plant, dt: float, L_d: np.ndarray, order: int, w_bounds
     order : int
         The differentiator's order ``k``.
     w_bounds : sequence of float
-        Bounds of :math:`|w^{(i)}|` (each channel), ``i = 0, 1, ...`` (the last is reused).
+        Bounds of :math:`|w^{(i)}|` (each channel), ``i = 0, 1, ...`` (the last is reused; one number: the same
+        bound for every ``i``, as :func:`smo_gym.control.output_error_lipschitz` reads it).
     noise_bound : array_like, shape (p,)
         Bound of the measurement error per output.
 
     Returns
     -------
     ndarray, shape (p,)
+
+    Raises
+    ------
+    ValueError
+        If a bound is negative or not finite, ``L_d`` is not a finite ``(n, p)`` array, or the error map
+        :math:`M` is not stable (spectral radius >= 1: the sum diverges).
     """
     from .estimators import output_error_lipschitz
     from .plants import LinearPlant
 
     A, C = plant.A, plant.C
+    p = C.shape[0]
+    order = check_int_in_range("order", order, 0, 64)
+    w0 = float(check_nonnegative_array("w_bounds", w_bounds).reshape(-1)[0])
+    noise = as_real_array("noise_bound", noise_bound)
+    if noise.shape not in ((), (p,)) or not np.all(np.isfinite(noise) & (noise >= 0)):
+        raise ValueError(f"expected noise_bound >= 0 and finite, a number or shape ({p},), actual value: {noise!r}")
+    noise = np.broadcast_to(noise, (p,))
+    L_d = as_real_array("L_d", L_d)
+    if L_d.shape != (plant.n, p) or not np.isfinite(L_d).all():
+        raise ValueError(f"expected L_d with shape ({plant.n}, {p}), finite, actual value: {L_d!r:.120}")
     Phi, Gamma_D = LinearPlant(A, plant.D, C, plant.D).discretize(dt)
     M = Phi @ (np.eye(plant.n) - L_d @ C)
-    noise = np.broadcast_to(np.asarray(noise_bound, dtype=float), (C.shape[0],))
+    rho = float(np.abs(np.linalg.eigvals(M)).max(initial=0.0))
+    if not rho < 1.0:  # the impulse response's l1 norm is infinite: the iteration would overflow into NaN
+        raise ValueError(
+            f"expected L_d making the error map Phi (I - L_d C) stable, actual value: spectral radius {rho:.6g}"
+        )
     row = C @ np.linalg.matrix_power(A, order + 1)
-    inputs = np.hstack([Gamma_D * float(w_bounds[0]), (Phi @ L_d) * noise[None, :]])
-    total = np.zeros(C.shape[0])
+    inputs = np.hstack([Gamma_D * w0, (Phi @ L_d) * noise[None, :]])
+    total = np.zeros(p)
     for _ in range(200_000):
         term = np.abs(row @ inputs).sum(axis=1)
         total += term
         if term.max() <= 1e-12 * max(total.max(), 1e-300):
             break
         row = row @ M
+    else:  # a spectral radius this close to 1 leaves the sum unconverged: no bound to trust
+        raise ValueError(
+            f"expected an error map Phi (I - L_d C) that decays, actual value: spectral radius {rho:.12g}, the sum "
+            "did not converge in 200000 samples"
+        )
     return total + output_error_lipschitz(plant, order, e_bound=0.0, w_bounds=w_bounds)
 
 
@@ -449,7 +482,7 @@ class LinearizedPolicy:
         self._last_t = 0.0  # time of the last command
 
     def _outputs(self, qpos_measured) -> np.ndarray:
-        q = np.asarray(qpos_measured, dtype=float)
+        q = as_real_array("qpos_measured", qpos_measured)  # not True as 1.0, "0.1" as 0.1, or 0.1+1j as 0.1
         if q.shape != self._q0.shape:
             raise ValueError(f"expected qpos_measured of shape {self._q0.shape}, actual value: shape {q.shape}")
         if not np.all(np.isfinite(q)):

@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_int_in_range, check_positive
+from .._validation import as_real_array, check_int_in_range, check_positive
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
 from .estimators import CascadedHOSMObserver, _highest_block, sampled_observer_gain
@@ -360,9 +360,14 @@ def detectable_observer_gain(A, C, dt: float, poles=None) -> np.ndarray:
     Raises
     ------
     ValueError
-        ``(A, C)`` has an unobservable eigenvalue with ``Re >= 0`` (not detectable).
+        ``(A, C)`` has an unobservable eigenvalue with ``Re >= 0`` (not detectable), or a matrix is not finite or
+        of the wrong shape.
     """
-    A, C = np.asarray(A, float), np.asarray(C, float)
+    A = _matrix("A", A, (None, None))  # bool and string entries refused, not read as numbers
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ValueError(f"expected a square A, actual value: shape {A.shape}")
+    C = _matrix("C", np.atleast_2d(C), (None, n))
     dt = check_positive("dt", dt)
     Tn = _unobservable_basis(A, C)
     if Tn.shape[0] == 0:
@@ -808,7 +813,14 @@ class LeftInverseIdentifier:
             )
         self.alpha = alpha
         p = plant.n_outputs
-        lip = np.broadcast_to(np.asarray(lipschitz, dtype=float), (p,)).copy()
+        # True, "2" or 10**400 are refused rather than converted
+        if np.ndim(lipschitz) == 0:
+            lip = np.full(p, check_positive("lipschitz", lipschitz))
+        else:
+            lip = as_real_array("lipschitz", lipschitz)
+            if lip.shape not in ((1,), (p,)):
+                raise ValueError(f"expected lipschitz a number or shape ({p},), actual value: shape {lip.shape}")
+            lip = np.broadcast_to(lip, (p,)).copy()
         if not np.all(np.isfinite(lip) & (lip > 0)):
             raise ValueError(f"expected lipschitz > 0 for every output, actual value: {lip!r}")
         self.lipschitz = lip
@@ -824,7 +836,7 @@ class LeftInverseIdentifier:
 
     def reset(self, y0) -> np.ndarray:
         """Start the differentiator at ``y0`` (derivatives zero)."""
-        y0 = np.asarray(y0, dtype=float)
+        y0 = as_real_array("y0", y0)
         self.differentiator.reset(y0)
         self._dstate = self.differentiator.state
         self.w_hat = np.zeros(self.plant.n_unknown)
@@ -834,7 +846,7 @@ class LeftInverseIdentifier:
         """Process the sample ``y_k`` and return :math:`\\hat w_k`."""
         if self._dstate is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the identifier was never reset")
-        self._dstate, Z = self.differentiator.step(self._dstate, np.asarray(y, dtype=float))
+        self._dstate, Z = self.differentiator.step(self._dstate, as_real_array("y", y))
         self.derivatives = Z
         k = self.n_derivatives
         self.w_hat = self.G @ Z[:, : k + 1].T.reshape(-1)
