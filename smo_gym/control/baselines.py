@@ -36,7 +36,7 @@ import scipy.linalg as sla
 from .._validation import as_real_array, check_int_in_range, check_nonnegative, check_positive
 from .controllers import StateFeedback, lqr
 from .estimators import LuenbergerObserver, _output_sample
-from .plants import LinearPlant
+from .plants import LinearPlant, _matrix
 
 __all__ = [
     "FiniteDifferenceState",
@@ -76,17 +76,11 @@ def _square(name: str, value, size: int) -> np.ndarray:
     return M
 
 
-def _matrix(name: str, value, shape: tuple[int | str, int | str]) -> np.ndarray:
-    """``value`` as a finite 2-D float array (a number: 1 x 1) of ``shape``: a size, or a letter for any size (the
-    same letter twice: a square matrix)."""
-    M = np.atleast_2d(as_real_array(name, value))
-    fits = M.ndim == 2 and all(isinstance(want, str) or have == want for have, want in zip(M.shape, shape, strict=True))
-    if not fits or (shape[0] == shape[1] and M.shape[0] != M.shape[1]):
-        raise ValueError(
-            f"expected {name} with shape ({', '.join(map(str, shape))}), actual value: shape {np.shape(value)}"
-        )
-    if not np.isfinite(M).all():
-        raise ValueError(f"expected {name} finite, actual value: {M.tolist()}")
+def _square_matrix(name: str, value) -> np.ndarray:
+    """``value`` as a finite square float matrix (a number: 1 x 1)."""
+    M = _matrix(name, np.atleast_2d(value), (None, None))
+    if M.shape[0] != M.shape[1]:
+        raise ValueError(f"expected a square {name}, actual value: shape {M.shape}")
     return M
 
 
@@ -134,10 +128,10 @@ def van_loan_covariance(A, G, W, dt: float) -> np.ndarray:
         If a matrix is not finite or of the wrong shape, or ``W`` is not symmetric positive semi-definite (the
         result would not be a covariance).
     """
-    A = _matrix("A", A, ("n", "n"))
+    A = _square_matrix("A", A)
     n = A.shape[0]
-    G = _matrix("G", G, (n, "m"))
-    W = _matrix("W", W, (G.shape[1], G.shape[1]))
+    G = _matrix("G", np.atleast_2d(G), (n, None))
+    W = _matrix("W", np.atleast_2d(W), (G.shape[1], G.shape[1]))
     _covariance("W", W)
     dt = check_positive("dt", dt)
     M = np.zeros((2 * n, 2 * n))
@@ -184,11 +178,11 @@ def kalman_gain(Phi, C, Qd, R) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ``process_std``).
     """
     # checked before the Riccati solve, whose failures all read as "not detectable"
-    Phi = _matrix("Phi", Phi, ("n", "n"))
+    Phi = _square_matrix("Phi", Phi)
     n = Phi.shape[0]
-    C = _matrix("C", C, ("p", n))
-    Qd = _matrix("Qd", Qd, (n, n))
-    R = _matrix("R", R, (C.shape[0], C.shape[0]))
+    C = _matrix("C", np.atleast_2d(C), (None, n))
+    Qd = _matrix("Qd", np.atleast_2d(Qd), (n, n))
+    R = _matrix("R", np.atleast_2d(R), (C.shape[0], C.shape[0]))
     _covariance("Qd", Qd)
     _covariance("R", R, definite=True)
     try:
