@@ -46,7 +46,9 @@ __all__ = [
     "strong_observability",
 ]
 
-#: relative tolerance of the rank decisions (singular values below ``RANK_TOL * largest`` count as zero)
+#: tolerance of the rank decisions: singular values below ``RANK_TOL * max(largest, 1)`` count as zero, relative to
+#: the matrix's scale above 1 and absolute below it (so that a product that vanishes in exact arithmetic, whose
+#: entries are rounding errors, has rank 0; a matrix whose entries are all below ``RANK_TOL`` counts as zero too)
 RANK_TOL = 1e-9
 
 
