@@ -62,8 +62,9 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
     Raises
     ------
     ValueError
-        An unknown observer name or ``start``, an empty or non-finite ``y``, ``dt <= 0``, or an observer object
-        with another step.
+        An unknown observer name, parameter of it (``params`` are the observer's settings, checked as the names of
+        :data:`~smo_gym.observers.OBSERVERS` and the wrapper's ``observer_kwargs`` are) or ``start``, an empty or
+        non-finite ``y``, ``dt <= 0``, or an observer object with another step.
     TypeError
         ``y`` not numeric, both ``observer`` and ``method``, or an observer object together with ``params``.
     DivergenceError
