@@ -252,6 +252,12 @@ def make_vec(
     with at least :data:`VECTORIZE_FROM` environments); otherwise one :class:`~smo_gym.wrappers.EstimatedVelocity`
     per environment. Both give the same observations. Model-based observers (and ``"auto"`` with a model) run per
     environment.
+
+    Raises
+    ------
+    ValueError
+        ``vectorized=True`` with a ``rate`` other than ``"env"`` (the batched wrapper samples once per environment
+        step), with a sensing that does not estimate, or with a ``Dict`` observation; an unknown ``env_id``.
     """
     make_vec_env = require("stable_baselines3.common.env_util", "rl").make_vec_env
 
