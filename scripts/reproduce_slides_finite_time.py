@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from smo_gym import control
+from smo_gym import DivergenceError, control
 from smo_gym.control import FiniteTimeStabilizer, hosm_control, settling_time, simulate_chain
 
 GAINS = {2: 4.0, 3: 10.0, 4: 30.0}
@@ -79,7 +79,7 @@ def furuta_run(dt, *, true_plant=None, k1=0.0, x0=(0.0, 0.05, 0.0, 0.0), t_final
     ctl = FiniteTimeStabilizer(obs, alpha=FURUTA_ALPHA, k1=k1, k2=1.0, output_scale=FURUTA_SCALE)
     try:
         res = control.simulate(true_plant or P, ctl, t_final=t_final, w=control.furuta_disturbance, x0=x0)
-    except FloatingPointError:
+    except DivergenceError:  # the closed loop left the range of a float
         return None, ctl
     return res, ctl
 

@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from smo_gym import DivergenceError
 from smo_gym import control as c
 from smo_gym.control.closed_loop import ExternalForce, parse_disturbance
 from smo_gym.control.finite_time import settling_time
@@ -330,3 +331,68 @@ def test_ltv_times_and_matrices_of_the_wrong_type_are_named():
             ltv_strong_observability(plant, t)
     with pytest.raises(ValueError, match="within a float's range"):
         LTVPlant([[10**400]], None, [[1.0]], [[1.0]])
+
+
+def _oscillator():
+    return c.LinearPlant([[0.0, 1.0], [-1.0, -0.5]], [[0.0], [1.0]], [[1.0, 0.0]], [[0.0], [1.0]])
+
+
+def test_a_controller_step_refused_before_the_observer_takes_the_sample():
+    """``step(y, None)`` raised from ``t >= t_start`` after the observer had taken ``y`` (the next commands then
+    differed from a twin's by 1.26), a NaN time skipped the compensation, and a ``K`` of three columns for two
+    states was accepted until the first step's matmul."""
+    plant = _oscillator()
+    a, b = (c.CompensationController(c.LuenbergerObserver(plant, 0.01)) for _ in range(2))
+    for ctl in (a, b):
+        ctl.reset([0.1])
+    for bad_t, error in ((None, TypeError), (np.nan, ValueError)):
+        with pytest.raises(error, match="expected t"):
+            a.step([0.12], bad_t)
+    for k in range(1, 4):
+        np.testing.assert_array_equal(a.step([0.1 + 0.01 * k], 0.01 * k), b.step([0.1 + 0.01 * k], 0.01 * k))
+    with pytest.raises(ValueError, match=r"expected K with shape \(1x2\)"):
+        c.StateFeedback(c.LuenbergerObserver(plant, 0.01), K=[[1.0, 2.0, 3.0]])
+    with pytest.raises(TypeError, match="expected K"):
+        c.StateFeedback(c.LuenbergerObserver(plant, 0.01), K=[[True, False]])
+    with pytest.raises(TypeError, match="expected an observer of a LinearPlant"):
+        c.StateFeedback("observer")
+
+
+def test_observer_gains_refuse_what_they_cannot_place():
+    """The held injection took poles in the right half-plane (its error dynamics then had eigenvalues 1 and 2);
+    bool and string bounds and matrices were read as numbers; scipy's refusals arrived in its own words."""
+    plant = _oscillator()
+    with pytest.raises(ValueError, match="negative real parts"):
+        c.CascadedHOSMObserver(plant, 0.01, 100.0, injection="held", poles=[1.0, 2.0])
+    for bad in (True, "100"):
+        with pytest.raises(TypeError, match="expected lipschitz"):
+            c.CascadedHOSMObserver(plant, 0.01, bad)
+    with pytest.raises(TypeError, match="poles to be numbers"):
+        c.sampled_observer_gain(plant.A, plant.C, 0.01, poles=[True, False])
+    with pytest.raises(ValueError, match="negative real parts"):  # NumPy reads a bool among floats as 1.0
+        c.sampled_observer_gain(plant.A, plant.C, 0.01, poles=[True, -2.0])
+    with pytest.raises(TypeError, match="expected A"):
+        c.sampled_observer_gain(np.eye(2, dtype=bool), plant.C, 0.01)
+    with pytest.raises(ValueError, match="expected poles the output can place"):
+        c.sampled_observer_gain(np.eye(2), [[1.0, 0.0]], 0.01, poles=[-1.0, -1.0])
+
+
+def test_a_luenberger_estimate_leaving_the_floats_is_refused_with_the_state_kept():
+    """The estimate went to -inf, then NaN, without an error."""
+    obs = c.LuenbergerObserver(_oscillator(), 0.01)
+    obs.reset([0.0], x_hat0=[1.7e308, 0.0])
+    with pytest.raises(DivergenceError, match="state was kept"):
+        obs.update([-1.7e308])
+    np.testing.assert_array_equal(obs.x_hat, [1.7e308, 0.0])
+
+
+def test_simulation_helpers_refuse_what_they_would_misread():
+    """``x0=[1.0]`` was copied into every state; a NaN control or a decreasing time gave a number."""
+    plant = _oscillator()
+    ctl = c.StateFeedback(c.LuenbergerObserver(plant, 0.01))
+    with pytest.raises(ValueError, match=r"x0 of shape \(2,\)"):
+        c.simulate(plant, ctl, t_final=0.02, x0=[1.0])
+    with pytest.raises(ValueError, match="increasing t"):
+        c.total_variation_rate([0.0, 1.0, 2.0], [0.0, 5.0, 1.0])
+    with pytest.raises(ValueError, match="finite u"):
+        c.total_variation_rate([0.0, np.nan, 1.0], [0.0, 1.0, 2.0])

@@ -567,6 +567,10 @@ class PIDController(StateFeedback):
         T_t = dt if tracking_time is None else tracking_time
         super().__init__(FiniteDifferenceState(plant, dt, K, idx, T_t, derivative_filter), K)
 
+    def _feedback_width(self) -> int:
+        """The law feeds back the integrals and the state: ``K`` has ``n_i + n`` columns."""
+        return self.integral_outputs.size + self.plant.n
+
     @property
     def K_i(self) -> np.ndarray:
         return self.K[:, : self.integral_outputs.size]

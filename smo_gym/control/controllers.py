@@ -37,8 +37,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import check_bool, check_choice, check_nonnegative, check_positive
-from .plants import LinearPlant, left_annihilator
+from .._validation import check_bool, check_choice, check_nonnegative, check_positive, check_real
+from .plants import LinearPlant, _matrix, left_annihilator
 
 __all__ = [
     "CompensationController",
@@ -156,10 +156,23 @@ class StateFeedback:
     """
 
     def __init__(self, observer, K=None, *, Q=None, R=None):
+        plant = getattr(observer, "plant", None)
+        if not isinstance(plant, LinearPlant):
+            raise TypeError(
+                f"expected an observer of a LinearPlant (LuenbergerObserver, CascadedHOSMObserver, ...), actual value: "
+                f"{type(observer).__name__}"
+            )
         self.observer = observer
-        self.plant: LinearPlant = observer.plant
-        self.K = lqr(self.plant.A, self.plant.B, Q, R) if K is None else np.atleast_2d(np.asarray(K, float))
-        self.u = np.zeros(self.plant.n_inputs)
+        self.plant: LinearPlant = plant
+        if K is None:
+            self.K = lqr(plant.A, plant.B, Q, R)
+        else:  # checked now: a K that does not fit would fail in step, after the observer took the sample
+            self.K = _matrix("K", np.atleast_2d(K), (plant.n_inputs, self._feedback_width()))
+        self.u = np.zeros(plant.n_inputs)
+
+    def _feedback_width(self) -> int:
+        """The size of the state the law feeds back (the columns of ``K``): the plant's."""
+        return self.plant.n
 
     @property
     def dt(self) -> float:
@@ -186,11 +199,12 @@ class StateFeedback:
         actuator's range first: the observer predicts with, and the laws' memories (:attr:`u`) hold, the command
         actually applied.
         """
-        if limits is not None:  # checked before the observer takes the sample
+        t = check_real("t", t)  # checked before the observer takes the sample, as the limits are
+        if limits is not None:
             q = self.plant.n_inputs
             try:
                 low, high = (np.broadcast_to(np.asarray(v, dtype=float), (q,)) for v in limits)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise ValueError(f"expected limits (low, high) of shape ({q},), actual value: {limits!r:.80}") from None
             if np.isnan(low).any() or np.isnan(high).any() or (low > high).any():
                 raise ValueError(f"expected limits with low <= high and no NaN, actual value: {limits!r:.80}")

@@ -57,6 +57,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .._validation import (
+    DivergenceError,
     as_real_array,
     check_choice,
     check_int_in_range,
@@ -66,7 +67,7 @@ from .._validation import (
 )
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
-from .plants import LinearPlant, molinari_decoupling
+from .plants import LinearPlant, _matrix, molinari_decoupling
 
 __all__ = ["CascadedHOSMObserver", "LuenbergerObserver", "output_error_lipschitz", "sampled_observer_gain"]
 
@@ -81,6 +82,45 @@ def _output_sample(name: str, y, p: int, what: str = "output") -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"expected a finite {name}, actual value: {arr!r}")
     return arr
+
+
+def _observer_poles(poles, A: np.ndarray) -> np.ndarray:
+    """Continuous-time observer poles (default :func:`_default_poles`), checked: ``n`` finite numbers with negative
+    real parts (a bool or a string is not a pole)."""
+    if poles is None:
+        return _default_poles(A)
+    raw = np.asarray(poles)
+    if raw.dtype.kind not in "iufc":
+        raise TypeError(f"expected observer poles to be numbers, actual value: {poles!r:.80}")
+    out = raw.astype(complex)
+    n = A.shape[0]
+    if out.shape != (n,) or not np.all(np.isfinite(out)) or np.any(out.real >= 0):
+        raise ValueError(
+            f"expected {n} continuous-time observer poles with negative real parts, actual value: {poles!r}"
+        )
+    return out
+
+
+def _placed_gain(A: np.ndarray, C: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """``L`` with the eigenvalues of ``A - L C`` at ``poles`` (``scipy.signal.place_poles`` on the dual pair),
+    re-verified: its refusals (an unobservable pair, poles repeated beyond the number of outputs) say why."""
+    from scipy.signal import place_poles  # lazy: scipy.signal is slow to import
+
+    try:
+        L = place_poles(A.T, C.T, poles).gain_matrix.T
+    except ValueError as exc:
+        raise ValueError(f"expected poles the output can place, actual value: {np.round(poles, 6)} ({exc})") from None
+    placed = np.sort_complex(np.linalg.eigvals(A - L @ C))
+    if not np.allclose(placed, np.sort_complex(poles), rtol=1e-6, atol=1e-9 * max(1.0, np.abs(poles).max())):
+        raise ValueError(f"expected poles the gain places accurately, actual value: asked {poles}, placed {placed}")
+    return L
+
+
+def _finite_estimate(x: np.ndarray, what: str) -> np.ndarray:
+    """``x``, or a DivergenceError if an entry is not finite (the caller has not stored it yet)."""
+    if not np.all(np.isfinite(x)):
+        raise DivergenceError(f"expected a finite estimate after {what}, actual value: {x!r:.120}; the state was kept")
+    return x
 
 
 def _highest_block(M: np.ndarray, p: int) -> int:
@@ -107,18 +147,17 @@ def sampled_observer_gain(A, C, dt: float, poles=None) -> np.ndarray:
     -------
     ndarray, shape (n, p)
     """
-    A, C = np.asarray(A, float), np.asarray(C, float)
+    A = _matrix("A", A, (None, None))
+    if A.shape[0] != A.shape[1] or A.shape[0] == 0:
+        raise ValueError(f"expected a square A with at least one state, actual value: shape {A.shape}")
+    C = _matrix("C", np.atleast_2d(C), (None, A.shape[0]))
     dt = check_positive("dt", dt)
-    poles = _default_poles(A) if poles is None else np.asarray(poles, dtype=complex)
-    if poles.shape != (A.shape[0],) or np.any(poles.real >= 0):
-        raise ValueError(
-            f"expected {A.shape[0]} continuous-time observer poles with negative real parts, actual value: {poles!r}"
-        )
-    from scipy.signal import place_poles  # lazy: scipy.signal is slow to import
-
-    Phi = sla.expm(A * dt)
-    res = place_poles(Phi.T, C.T, np.exp(poles * dt))
-    Lp = res.gain_matrix.T  # Phi - Lp C has the requested eigenvalues
+    poles = _observer_poles(poles, A)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Phi = sla.expm(A * dt)
+    if not np.isfinite(Phi).all():
+        raise ValueError(f"expected a sampling step over which the plant's transition stays finite, actual value: {dt}")
+    Lp = _placed_gain(Phi, C, np.exp(poles * dt))  # Phi - Lp C has the requested eigenvalues
     return np.linalg.solve(Phi, Lp)
 
 
@@ -194,16 +233,23 @@ class LuenbergerObserver:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
 
     def update(self, y) -> np.ndarray:
-        """Correct with the sample ``y_k`` and return :math:`\\hat x_k`."""
+        """Correct with the sample ``y_k`` and return :math:`\\hat x_k`; a :class:`~smo_gym.DivergenceError` (the
+        state kept) if the estimate would leave the range of a float."""
         self._require()
-        innov = _output_sample("y", y, self.plant.n_outputs) - self.plant.C @ self._prior
-        self.x_hat = self._prior + self.L @ innov
+        y = _output_sample("y", y, self.plant.n_outputs)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+            x_hat = self._prior + self.L @ (y - self.plant.C @ self._prior)
+        self.x_hat = _finite_estimate(x_hat, "update(y)")
         return self.x_hat
 
     def advance(self, u) -> None:
-        """Predict to the next sample with the control ``u`` held over the interval."""
+        """Predict to the next sample with the control ``u`` held over the interval (a
+        :class:`~smo_gym.DivergenceError`, the state kept, if the prediction would not be finite)."""
         self._require()
-        self._prior = self.Phi @ self.x_hat + self.Gamma @ _output_sample("u", u, self.plant.n_inputs, "input")
+        u = _output_sample("u", u, self.plant.n_inputs, "input")
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+            prior = self.Phi @ self.x_hat + self.Gamma @ u
+        self._prior = _finite_estimate(prior, "advance(u)")
 
 
 class CascadedHOSMObserver:
@@ -286,10 +332,7 @@ class CascadedHOSMObserver:
             )
         if self.injection == "held":
             # the slides' continuous observer with y held between samples: e' = (A - L C) e + D w + L C (x - x_k)
-            poles_c = _default_poles(plant.A) if poles is None else np.asarray(poles, dtype=complex)
-            from scipy.signal import place_poles
-
-            self.L = place_poles(plant.A.T, plant.C.T, poles_c).gain_matrix.T
+            self.L = _placed_gain(plant.A, plant.C, _observer_poles(poles, plant.A))
             self._Adyn = plant.A - self.L @ plant.C
             mol = molinari_decoupling(self._Adyn, plant.C, plant.D)
         else:
@@ -305,7 +348,12 @@ class CascadedHOSMObserver:
             )
         self.alpha, self.n_w_derivatives = alpha, n_w_derivatives
         p = plant.n_outputs
-        self.lipschitz = np.broadcast_to(np.asarray(lipschitz, dtype=float), (p,)).copy()
+        lipschitz = as_real_array("lipschitz", lipschitz)  # True or "100" are not bounds
+        if lipschitz.shape not in ((), (1,), (p,)):
+            raise ValueError(
+                f"expected lipschitz a number or one per output ({p}), actual value: shape {lipschitz.shape}"
+            )
+        self.lipschitz = np.broadcast_to(lipschitz, (p,)).copy()
         self.differentiator = Levant(self.order, self.dt, self.lipschitz, discretization=discretization)
         self.Phi, self.Gamma = plant.discretize(self.dt)
         if self.injection == "sampled":

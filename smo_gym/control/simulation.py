@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import as_real_array, check_nonnegative, check_positive
+from .._validation import DivergenceError, as_real_array, check_nonnegative, check_positive
 from .plants import LinearPlant
 
 __all__ = ["SimulationResult", "fit_order", "simulate", "steady_state_error", "total_variation_rate"]
@@ -147,8 +147,11 @@ def simulate(
     Wt = _w_values(w, t, m)
     rng = np.random.default_rng(seed)
     xa = np.zeros(na)
-    if x0 is not None:
-        xa[:n] = np.asarray(x0, dtype=float)
+    if x0 is not None:  # one entry would be copied into every state
+        x0 = as_real_array("x0", x0)
+        if x0.shape != (n,) or not np.isfinite(x0).all():
+            raise ValueError(f"expected a finite x0 of shape ({n},), actual value: {x0!r:.80}")
+        xa[:n] = x0
     p = plant.n_outputs
     X, Y, U, UA, XH, WH = (np.zeros((T, k)) for k in (n, p, q, q, n, m))
 
@@ -177,7 +180,7 @@ def simulate(
         for j in range(n_sub):
             xa = Phi_h @ xa + Gam_h @ u + Ew @ Wn[k, j]
         if not np.all(np.isfinite(xa)):
-            raise FloatingPointError(f"expected a bounded closed loop, actual value: non-finite state at t={t[k]}")
+            raise DivergenceError(f"expected a bounded closed loop, actual value: non-finite state at t={t[k]}")
     return SimulationResult(t=t, x=X, y=Y, u=U, u_applied=UA, x_hat=XH, w=Wt, w_hat=WH, dt=dt)
 
 
@@ -199,8 +202,10 @@ def total_variation_rate(u: np.ndarray, t: np.ndarray) -> float:
     u, t = as_real_array("u", u), as_real_array("t", t)
     if u.ndim == 1:
         u = u[:, None]
-    if t.ndim != 1 or t.size < 2 or u.shape[0] != t.size or not t[-1] > t[0]:
+    if t.ndim != 1 or t.size < 2 or u.shape[0] != t.size:
         raise ValueError(f"expected u (T, ...) and increasing t (T,) with T >= 2, actual value: {u.shape}, {t.shape}")
+    if not (np.isfinite(u).all() and np.isfinite(t).all() and np.all(np.diff(t) > 0)):
+        raise ValueError(f"expected finite u and finite, increasing t, actual value: t={t!r:.80}, u={u!r:.80}")
     return float(np.abs(np.diff(u, axis=0)).sum() / (t[-1] - t[0]))
 
 

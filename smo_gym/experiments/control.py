@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import DivergenceError
 from ..control import (
     CascadedHOSMObserver,
     CompensationController,
@@ -299,7 +300,7 @@ def actuator_sweep(mus=(1e-3, 2e-3, 5e-3, 1e-2), dt: float = 1e-3, t_final: floa
                 r = simulate(plant, make(), t_final=t_final, w=furuta_disturbance, x0=X0, actuator_tau=mu)
                 sse = steady_state_error(r, t_steady, [0, 1])
                 tv = total_variation_rate(r.u[r.after(t_steady)], r.t[r.after(t_steady)])
-            except FloatingPointError:
+            except DivergenceError:  # the closed loop left the range of a float
                 sse, tv = np.inf, np.nan
             rows.append({"mu [ms]": mu * 1e3, "controller": name, "max |theta|,|alpha|": sse, "TV(u) per s": tv})
             if mu > 0:
