@@ -111,3 +111,12 @@ def test_certificate_scales_with_p_and_checks_lemma_3():
 def test_bad_input_raises_typed_errors(kwargs, exc):
     with pytest.raises(exc, match="expected"):
         switched_gain_lmi(**kwargs)
+
+
+def test_lemma_3_check_has_no_fixed_slack():
+    """With a tiny kappa a fixed slack of 1e-6 certified the unstable observer eigenvalues (1e-7, 0)."""
+    with pytest.raises(LMIInfeasibleError, match="Lemma 3"):
+        certify_switched_gain([-1e-7, 0.0], np.diag([1e-8, 1.0]), 1e-9, 1e4, 1.0)
+    l, P, _ = switched_gain_lmi(3, 1.0, 1.0, 1.0)
+    cert = certify_switched_gain(l, P, 1.0, 1.0, 1.0)
+    assert cert.observer_eigenvalues.real.max() < -0.5

@@ -212,7 +212,8 @@ def certify_switched_gain(
     Checks :math:`P \succ 0`, the block matrix of :func:`switched_gain_lmi_matrix` at ``(P, P l)`` below ``tol``
     relative to the scale of ``P`` (the blocks that carry the decay condition are linear in ``P``: an absolute
     tolerance would pass any gain with a small enough ``P``), and what Lemma 3 derives from it, every eigenvalue
-    of :math:`A - l c^T` with real part below :math:`-\kappa/2`.
+    of :math:`A - l c^T` with real part below :math:`-\kappa/2` (up to the rounding of the eigenvalue computation,
+    and never a real part ``>= 0``).
 
     Raises
     ------
@@ -237,13 +238,17 @@ def certify_switched_gain(
     M = switched_gain_lmi_matrix(P, P @ l, kappa, rho_d, rho_v, gamma)
     eig_M = np.linalg.eigvalsh(M)
     A, _, c = _canonical(n)
-    obs = np.linalg.eigvals(A - np.outer(l, c.ravel()))
+    A_l = A - np.outer(l, c.ravel())
+    obs = np.linalg.eigvals(A_l)
+    # Lemma 3 bounds the real parts strictly by -kappa/2: allow only the rounding of the eigenvalue computation,
+    # relative to the scale of A - l c^T and kappa (a fixed slack passed unstable gains when kappa is tiny)
+    slack = 64 * np.finfo(float).eps * max(np.linalg.norm(A_l, np.inf), kappa)
     if eig_P[0] <= 0.0 or eig_M[-1] > tol * min(1.0, eig_P[-1]):
         raise LMIInfeasibleError(
             "expected P > 0 and the Assumption 1 matrix <= 0 in the NumPy re-verification, actual value: "
             f"min eig(P) = {eig_P[0]:.3e}, max eig(LMI) = {eig_M[-1]:.3e} (tolerance {tol:.1e} x min(1, max eig(P)))"
         )
-    if obs.real.max() > -kappa / 2 + 1e-6 * max(1.0, kappa):
+    if obs.real.max() >= 0.0 or obs.real.max() > -kappa / 2 + slack:
         raise LMIInfeasibleError(
             f"expected the eigenvalues of A - l c^T with real parts below -kappa/2 = {-kappa / 2:.6g} (Lemma 3), "
             f"actual value: {obs.real.max():.6g}"
