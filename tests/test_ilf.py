@@ -403,3 +403,28 @@ def test_ilf_finite_differentiates_and_batches(rng):
         make_observer("ilf-fixed", dt=dt, lipschitz=1.0).update(np.zeros(1))
     with pytest.raises(ValueError, match="lipschitz"):
         make_observer("ilf-finite", dt=dt)
+
+
+def test_certificate_tolerance_scales_with_the_matrices():
+    """Scaling P = Z = M down to 1e-9 I brought a failing margin (+2.7e-9) under the absolute tolerance 1e-7."""
+    dec = block_decomposition([[0.0, 1.0], [0.0, 0.0]], [[1.0, 0.0]])
+    L = [[-3.0], [2.0]]
+    args = dict(dec=dec, L=L, kind="finite", mu=0.5, delta=0.5, alpha=None, beta=None, ggrid=None, eps=1e-12)
+    args |= dict(lgrid=np.array([0.0, 0.5**-0.5]))
+    for s in (1.0, 1e-9):
+        values = {"P": s * np.eye(2), "Z": s * np.eye(2), "M": s * np.eye(2)}
+        cert = certify_ilf(values=values, **args)
+        assert not cert.ok and cert.tol <= 1e-7 * s
+    I2 = np.eye(2)
+    for change, error, match in (
+        (dict(values={"P": I2, "Z": I2}), ValueError, "'M'"),
+        (dict(values={"P": I2, "Z": I2, "M": np.full((2, 2), np.nan)}), ValueError, "finite entries in M"),
+        (dict(values={"P": I2, "Z": I2, "M": I2}, lgrid="abc"), TypeError, "lgrid"),
+        (dict(values={"P": I2, "Z1": I2, "Z2": I2}, kind="fixed", proposition=False), ValueError, "alpha"),
+    ):
+        with pytest.raises(error, match=match):
+            certify_ilf(**(args | change))
+
+
+def test_certificate_of_a_design_passes_with_the_scaled_tolerance(finite_design):
+    assert finite_design.certificate.ok and 0 < finite_design.certificate.tol <= 1e-7

@@ -33,6 +33,7 @@ import numpy as np
 from .._extras import require
 from .._validation import (
     as_real_array,
+    check_bool,
     check_choice,
     check_int_in_range,
     check_nonnegative,
@@ -355,6 +356,7 @@ class ILFCertificate:
         Largest real part of the eigenvalues of :math:`\tilde A + L\tilde C` (negative for a valid design).
     ok : bool
     tol : float
+        The tolerance the margins were compared with: the requested one times ``min(1, scale of the matrices)``.
     """
 
     lmi_margins: dict
@@ -605,7 +607,7 @@ def ilf_gains(
     dense_points : int
         Points per parameter axis of the NumPy re-check of (14) / (24).
     tol : float
-        Tolerance of the NumPy re-verification.
+        Tolerance of the NumPy re-verification, relative to the scale of the matrices (:func:`certify_ilf`).
     decomposition : BlockDecomposition, optional
         Use this (e.g. from the paper's printed ``Phi``) instead of computing one.
     condition : {"proposition", "points"}
@@ -736,7 +738,7 @@ def ilf_gains(
     if not cert.ok:
         raise LMIInfeasibleError(
             f"expected the solver's answer to pass the NumPy re-verification, actual value: LMI margins "
-            f"{ {k_: round(v_, 9) for k_, v_ in cert.lmi_margins.items() if v_ > tol} }, parametric margin "
+            f"{ {k_: round(v_, 9) for k_, v_ in cert.lmi_margins.items() if v_ > cert.tol} }, parametric margin "
             f"{cert.parametric_margin:.3g} on {cert.dense_points} points, Hurwitz abscissa "
             f"{cert.hurwitz_abscissa:.3g} (after {p} refinements)"
         )
@@ -768,7 +770,16 @@ def certify_ilf(
 
     The LMI matrices are rebuilt with NumPy from the same functions the solver used (with margin ``eps``), so a
     margin ``<= tol`` means the strict inequality holds with at least ``eps - tol`` to spare; (14) / (24) is
-    checked on ``dense_points`` points per axis, independently of the solver's grid.
+    checked on ``dense_points`` points per axis, independently of the solver's grid. ``tol`` is relative to the
+    scale of the matrices, ``min(1, largest spectral norm of P, Z, ...)`` (the margins are linear in them), and the
+    certificate's ``tol`` is this scaled tolerance.
+
+    Raises
+    ------
+    TypeError, ValueError
+        Arguments of another type, shape or range: ``values`` without a matrix the LMIs need (``M`` for the
+        finite-time Proposition 8), non-finite matrices, a grid that is not a 1-D increasing array of finite numbers,
+        ``alpha`` missing for the fixed-time design.
     """
     kind = check_choice("kind", kind, ("finite", "fixed"))
     if not isinstance(dec, BlockDecomposition):
@@ -776,12 +787,22 @@ def certify_ilf(
     delta = check_real_in_range("delta", delta, 0.0, 1.0, low_open=True, high_open=True)
     mu, eps, tol = check_positive("mu", mu), check_positive("eps", eps), check_nonnegative("tol", tol)
     dense_points = check_int_in_range("dense_points", dense_points, 2, 100_000)
-    names = ("P", "Z") if kind == "finite" else ("P", "Z1", "Z2")
+    proposition = check_bool("proposition", proposition)
+    if kind == "finite":
+        names = ("P", "Z", "M") if proposition else ("P", "Z")
+    else:
+        names = ("P",) + tuple(f"{x}{i}" for i in (1, 2) for x in ("ZSRMU" if proposition else "Z"))
+        if alpha is None:
+            raise ValueError("expected alpha > 0 for the fixed-time design, actual value: None")
+        alpha = check_positive("alpha", alpha)
+        beta = check_positive("beta", beta) if proposition else beta
+        ggrid = _as_grid("ggrid", ggrid)
+    lgrid = _as_grid("lgrid", lgrid)
     if not isinstance(values, dict) or any(name not in values for name in names):
         raise ValueError(
             f"expected values with the matrices {names} of a {kind}-time design, actual value: {values!r:.80}"
         )
-    vals = dict(values) | {name: _as_matrix(name, values[name]) for name in names}
+    vals = dict(values) | {name: _as_matrix(name, values[name], (dec.n, dec.n)) for name in names}
     L = _as_matrix("L", L, (dec.n, dec.C0.shape[0]))
     vals["Y"] = vals["P"] @ L
     if kind == "finite":
@@ -811,5 +832,17 @@ def certify_ilf(
         )
     closed = dec.A_tilde + np.asarray(L) @ dec.C_tilde
     abscissa = float(np.max(np.linalg.eigvals(closed).real))
+    # the margins are linear in the matrices: an absolute tolerance would pass any design scaled small enough
+    tol = tol * min(1.0, max(np.linalg.norm(vals[name], 2) for name in names))
     ok = all(v_ <= tol for v_ in margins.values()) and worst <= tol and abscissa < 0
     return ILFCertificate(margins, float(worst), int(points), abscissa, bool(ok), tol)
+
+
+def _as_grid(name: str, value) -> np.ndarray:
+    """A grid of parameter values as a 1-D float array of finite, non-decreasing entries."""
+    grid = as_real_array(name, value)
+    if grid.ndim != 1 or grid.size < 2 or not np.all(np.isfinite(grid)) or np.any(np.diff(grid) < 0):
+        raise ValueError(
+            f"expected {name} as a 1-D increasing grid of at least 2 finite numbers, actual value: {value!r:.80}"
+        )
+    return grid
