@@ -328,6 +328,16 @@ def test_apaza_gains_rejects_bad_and_infeasible_data():
     assert "expected a feasible gain lemma" in str(info.value)
 
 
+def test_apaza_gains_refuses_a_lone_or_bad_multiplier():
+    """A lone mu1 was dropped in favour of the search; a string or NaN multiplier was never read."""
+    with pytest.raises(ValueError, match="mu1 and mu2 given together"):
+        design.apaza_gains(1.0, -1.0, 0.0, 0.0, mu1=1e-3)
+    with pytest.raises(TypeError, match="mu1"):
+        design.apaza_gains(1.0, -1.0, 0.0, 0.0, mu1="abc")
+    with pytest.raises(ValueError, match="mu2"):
+        design.apaza_gains(1.0, -1.0, 0.0, 0.0, mu2=np.nan)
+
+
 # ---- API ------------------------------------------------------------------------------------------------------------
 def test_api_errors_and_batching(arm_run):
     env, Q, _V, U = arm_run

@@ -248,8 +248,11 @@ def apaza_gains(
 
     Raises
     ------
+    TypeError
+        On a non-number (a string, a bool) where a number is expected.
     ValueError
-        On invalid data (``q >= 0``, ``s^2 - q r < 0``, non-positive gains).
+        On invalid data (``q >= 0``, ``s^2 - q r < 0``, non-positive gains, a non-finite or out-of-range ``mu1`` or
+        ``mu2``, or only one of them given).
     InfeasibleGainsError
         (a ``ValueError``) if the inequality has no verified solution at the given ``mu1, mu2``, or up to
         ``max_scale``.
@@ -268,8 +271,14 @@ def apaza_gains(
         Pv, th1, th2, lmax, pmin = sol
         return ApazaGains(k1, k2, k3, float(m1), float(m2), Pv, th1, th2, epsilon, lmax, pmin, data)
 
-    if mu1 is not None and mu2 is not None:
-        m1, m2 = check_real_in_range("mu1", mu1, _SMALL, _BIG), check_real_in_range("mu2", mu2, _SMALL, _BIG)
+    m1 = None if mu1 is None else check_real_in_range("mu1", mu1, _SMALL, _BIG)
+    m2 = None if mu2 is None else check_real_in_range("mu2", mu2, _SMALL, _BIG)
+    if (m1 is None) != (m2 is None):  # a lone multiplier would be silently replaced by the search
+        raise ValueError(
+            f"expected mu1 and mu2 given together (to check them) or both omitted (to search), actual value: "
+            f"mu1={mu1!r}, mu2={mu2!r}"
+        )
+    if m1 is not None:
         sol = attempt(m1, m2)
         if sol is None:
             raise InfeasibleGainsError(
