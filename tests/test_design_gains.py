@@ -17,6 +17,7 @@ from smo_gym.design import (
     binomial_coefficients,
     levant_gains,
     levant_lambdas,
+    levant_nonrecursive,
     super_twisting_gains,
 )
 from smo_gym.observers import FiniteDifference, HighGain, KalmanCA, Levant
@@ -357,3 +358,21 @@ def test_high_gain_per_channel_is_each_channel_with_its_own_gain(discretization,
     with pytest.raises(ValueError, match="expected a gain for an observer with one per channel"):
         both.system_matrices()
     np.testing.assert_allclose(HighGain.from_bounds(dt, [4.0, 9.0], [1e-4, 1e-4]).gain, np.sqrt([4e4, 9e4]))
+
+
+def test_gain_helpers_refuse_bools_strings_and_overflow():
+    """``True`` was read as the pole 1, overflowing gains came back as inf or as OverflowError/LinAlgError."""
+    A, c = [[0.0, 1.0], [0.0, 0.0]], [1.0, 0.0]
+    with pytest.raises(TypeError, match="expected poles"):
+        ackermann_observer_gain(A, c, [True, -2.0])
+    with pytest.raises(TypeError, match="expected poles"):
+        ackermann_observer_gain(A, c, ["a", "b"])
+    with pytest.raises(ValueError, match="finite coefficients"):
+        ackermann_observer_gain(A, c, [-1e200, -1e200])
+    with pytest.raises(ValueError, match="non-recursive gains are finite"):
+        levant_nonrecursive([1e300] * 3)
+    with pytest.raises(ValueError, match="finite coefficients"):
+        binomial_coefficients(3, 1e300)
+    with pytest.raises(TypeError, match="expected form"):
+        levant_lambdas(2, np.array(["a", "b"]))
+    np.testing.assert_allclose(ackermann_observer_gain(A, c, [-1.0, -2.0]), [3.0, 2.0])

@@ -428,3 +428,15 @@ def test_certificate_tolerance_scales_with_the_matrices():
 
 def test_certificate_of_a_design_passes_with_the_scaled_tolerance(finite_design):
     assert finite_design.certificate.ok and 0 < finite_design.certificate.tol <= 1e-7
+
+
+def test_decomposition_and_design_refuse_empty_and_mistyped_input():
+    A2, C2 = [[0.0, 1.0], [0.0, 0.0]], [[1.0, 0.0]]
+    with pytest.raises(ValueError, match="expected A square"):
+        block_decomposition(np.zeros((0, 0)), np.zeros((0, 0)))
+    with pytest.raises(TypeError, match="tol"):
+        block_decomposition(A2, C2, tol="x")
+    with pytest.raises(ValueError, match="tol"):
+        block_decomposition(A2, C2, tol=-1.0)
+    with pytest.raises(TypeError, match="alpha"):
+        ilf_gains(A, C, 0.5, alpha="x")

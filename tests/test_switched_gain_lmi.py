@@ -120,3 +120,13 @@ def test_lemma_3_check_has_no_fixed_slack():
     l, P, _ = switched_gain_lmi(3, 1.0, 1.0, 1.0)
     cert = certify_switched_gain(l, P, 1.0, 1.0, 1.0)
     assert cert.observer_eigenvalues.real.max() < -0.5
+
+
+def test_block_matrix_refuses_non_finite_input_and_overflow():
+    from smo_gym.design import switched_gain_lmi_matrix
+
+    with pytest.raises(ValueError, match="finite P and w"):
+        switched_gain_lmi_matrix(np.full((2, 2), np.nan), [1.0, 1.0], 1.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="overflow"):
+        switched_gain_lmi_matrix(1e200 * np.eye(2), [1e200, 1e200], 1e150, 1.0, 1.0)
+    assert np.isfinite(switched_gain_lmi_matrix(np.eye(2), [1.0, 1.0], 1.0, 1.0, 1.0)).all()

@@ -65,6 +65,8 @@ def levant_lambdas(order: int, form: str = "recursive") -> np.ndarray:
     ``(2, 2.12, 1.1)`` and for ``k = 3`` ``(3, 4.16, 3.06, 1.1)``, the values of Livne and Levant [2].
     """
     k = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
+    if not isinstance(form, str):  # an array would be compared element by element
+        raise TypeError(f"expected form to be 'recursive' or 'nonrecursive', actual value: {form!r:.80}")
     recursive = np.array([LEVANT_LAMBDAS[k - i] for i in range(k + 1)])
     if form == "recursive":
         return recursive
@@ -87,6 +89,13 @@ def levant_nonrecursive(lambdas) -> np.ndarray:
     ndarray, shape (k + 1,)
         :math:`\Lambda_0 = 1,\ \Lambda_{i+1} = \lambda_{k-i}\Lambda_i^{(k-i)/(k-i+1)}` for ``i < k``, then
         :math:`\lambda_0` (see :func:`levant_lambdas` for the form they enter).
+
+    Raises
+    ------
+    TypeError
+        ``lambdas`` not real numbers.
+    ValueError
+        ``lambdas`` of another shape, not finite and ``> 0``, or gains beyond a float's range.
     """
     lam = check_positive_array("lambdas", lambdas)
     if lam.ndim != 1 or lam.size < 2:
@@ -94,10 +103,13 @@ def levant_nonrecursive(lambdas) -> np.ndarray:
     k = lam.size - 1
     out = np.empty(k + 1)
     big_lambda = 1.0
-    for i in range(k):
-        big_lambda = lam[k - i] * big_lambda ** ((k - i) / (k - i + 1))
-        out[i] = big_lambda
+    with np.errstate(over="ignore"):  # an overflow is refused below
+        for i in range(k):
+            big_lambda = lam[k - i] * big_lambda ** ((k - i) / (k - i + 1))
+            out[i] = big_lambda
     out[k] = lam[0]
+    if not np.isfinite(out).all():
+        raise ValueError(f"expected lambdas whose non-recursive gains are finite, actual value: {lambdas!r:.80}")
     return out
 
 
@@ -139,10 +151,21 @@ def super_twisting_gains(lipschitz) -> tuple[np.ndarray | float, np.ndarray | fl
 
 
 def binomial_coefficients(n: int, rate: float = 1.0) -> np.ndarray:
-    """Coefficients ``(k_1, ..., k_n)`` of ``(s + rate)^n = s^n + k_1 s^{n-1} + ... + k_n``."""
+    """Coefficients ``(k_1, ..., k_n)`` of ``(s + rate)^n = s^n + k_1 s^{n-1} + ... + k_n``.
+
+    Raises ``TypeError`` for a non-integer ``n`` or a non-number ``rate``, ``ValueError`` for ``n`` outside
+    ``[1, 64]``, ``rate <= 0`` or coefficients beyond a float's range."""
     n = check_int_in_range("n", n, 1, 64)
     rate = check_positive("rate", rate)
-    return np.array([comb(n, i) * rate**i for i in range(1, n + 1)], dtype=np.float64)
+    try:
+        coeffs = np.array([comb(n, i) * rate**i for i in range(1, n + 1)], dtype=np.float64)
+    except OverflowError:  # float ** int raises where float * float gives inf
+        coeffs = np.array([np.inf])
+    if not np.isfinite(coeffs).all():
+        raise ValueError(
+            f"expected n and rate with finite coefficients rate^i C(n, i), actual value: n={n}, rate={rate!r}"
+        )
+    return coeffs
 
 
 def ackermann_observer_gain(A, c, poles) -> np.ndarray:
@@ -167,16 +190,19 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
     Raises
     ------
     TypeError
-        ``A`` or ``c`` not real, or ``poles`` not numbers.
+        ``A`` or ``c`` not real, or ``poles`` not numbers (bools included).
     ValueError
-        If shapes disagree, an entry is not finite, ``(A, c)`` is not observable, or the computed gain does not
-        place the eigenvalues (an observability matrix too ill-conditioned for the formula in floating point:
-        the characteristic polynomial of ``A - l c^T`` is checked against ``p``).
+        If shapes disagree, an entry is not finite, the polynomial ``p`` or the gain overflows, ``(A, c)`` is not
+        observable, or the computed gain does not place the eigenvalues (an observability matrix too
+        ill-conditioned for the formula in floating point: the characteristic polynomial of ``A - l c^T`` is checked
+        against ``p``).
     """
     A = as_real_array("A", A)
     c = as_real_array("c", c).reshape(-1)
+    # NumPy reads True in [True, -2] as the pole 1: look at the entries as given
+    has_bool = any(isinstance(p, (bool, np.bool_)) for p in np.asarray(poles, dtype=object).flat)
     poles = np.asarray(poles)
-    if poles.dtype.kind not in "iufc":
+    if poles.dtype.kind not in "iufc" or has_bool:
         raise TypeError(f"expected poles to be real or complex numbers, actual value: {poles!r:.80}")
     poles = poles.reshape(-1)
     n = A.shape[0] if A.ndim == 2 else -1
@@ -194,10 +220,14 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
     coeffs = np.real_if_close(np.poly(poles))  # p(s) = s^n + a_1 s^{n-1} + ... + a_n
     if np.iscomplexobj(coeffs):
         raise ValueError(f"expected poles closed under conjugation, actual value: {poles!r}")
+    if not np.isfinite(coeffs).all():
+        raise ValueError(f"expected poles whose polynomial p has finite coefficients, actual value: {poles!r:.80}")
     p_of_A = sum(a * np.linalg.matrix_power(A, n - i) for i, a in enumerate(coeffs))
     e_n = np.zeros(n)
     e_n[-1] = 1.0
     l = p_of_A @ np.linalg.solve(obs, e_n)
+    if not np.isfinite(l).all():
+        raise ValueError(f"expected a finite gain, actual value: {l!r:.80} (poles or A too large for a float)")
     # the formula is exact in exact arithmetic only: compare the placed characteristic polynomial with p, each
     # coefficient a_i relative to rho^i (rho bounds the eigenvalues' scale), as a backward-error test
     rho = max(1.0, float(np.abs(poles).max()), float(np.linalg.norm(A, 2)))

@@ -132,7 +132,7 @@ def _as_matrix(name: str, value, shape=None) -> np.ndarray:
 def _check_pair(A, C) -> tuple[np.ndarray, np.ndarray]:
     A = _as_matrix("A", A)
     n = A.shape[0]
-    if A.shape != (n, n):
+    if A.shape != (n, n) or n < 1:
         raise ValueError(f"expected A square (n, n), actual value: shape {A.shape}")
     C = _as_matrix("C", C, (1, n) if np.ndim(C) == 1 else (None, n))
     k = C.shape[0]
@@ -192,10 +192,13 @@ def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposit
 
     Raises
     ------
+    TypeError
+        A non-number ``tol`` or non-real matrices.
     ValueError
-        Unobservable pair, rank-deficient ``C``, or a supplied ``Phi`` that is singular or does not produce the
-        block structure (relative residual above ``1e-3``).
+        An empty ``A``, ``tol <= 0``, unobservable pair, rank-deficient ``C``, or a supplied ``Phi`` that is
+        singular or does not produce the block structure (relative residual above ``1e-3``).
     """
+    tol = check_positive("tol", tol)
     A, C = _check_pair(A, C)
     n, k = A.shape[0], C.shape[0]
     scale = max(np.linalg.norm(A), 1.0)
@@ -659,10 +662,9 @@ def ilf_gains(
     eps = check_positive("eps", eps)
     dense_points = check_int_in_range("dense_points", dense_points, 2, 100_000)
     max_refinements = check_int_in_range("max_refinements", max_refinements, 0, 12)
-    if kind == "fixed":
-        if alpha is None:
-            raise ValueError("expected alpha > 0 for the fixed-time design, actual value: None")
-        alpha = check_positive("alpha", alpha)
+    if kind == "fixed" and alpha is None:
+        raise ValueError("expected alpha > 0 for the fixed-time design, actual value: None")
+    alpha = None if alpha is None else check_positive("alpha", alpha)  # ILFDesign keeps it, even for finite time
     dec = block_decomposition(A, C) if decomposition is None else decomposition
     if not isinstance(dec, BlockDecomposition):
         raise TypeError(f"expected a BlockDecomposition, actual value: {type(decomposition).__name__}")

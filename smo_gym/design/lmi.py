@@ -89,6 +89,7 @@ def _canonical(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return A, b, c
 
 
+@np.errstate(over="ignore", invalid="ignore")  # an overflow is refused at the end
 def switched_gain_lmi_matrix(P, w, kappa: float, rho_d: float, rho_v: float, gamma: float = 0.0) -> np.ndarray:
     r"""The block matrix of Assumption 1 of Efimov et al. 2017 (Remark 2 when ``gamma = 0``), evaluated in NumPy.
 
@@ -107,12 +108,19 @@ def switched_gain_lmi_matrix(P, w, kappa: float, rho_d: float, rho_v: float, gam
     Returns
     -------
     ndarray, shape (n + 2, n + 2) or (n + 3, n + 3), symmetric.
+
+    Raises
+    ------
+    TypeError, ValueError
+        Arguments of another type, shape or range, non-finite ``P`` or ``w``, or a block matrix that overflows.
     """
     P = as_real_array("P", P)
     n = P.shape[0] if P.ndim == 2 else -1
     w = as_real_array("w", w)
     if P.shape != (n, n) or n < 1 or w.size != n:
         raise ValueError(f"expected P (n, n) and w (n,), actual value: P {P.shape}, w {w.shape}")
+    if not (np.isfinite(P).all() and np.isfinite(w).all()):
+        raise ValueError("expected finite P and w, actual value: a NaN or infinite entry")
     kappa, rho_d, rho_v, gamma = _check_spec(kappa, rho_d, rho_v, gamma)
     w = w.reshape(n, 1)
     A, b, c = _canonical(n)
@@ -136,7 +144,10 @@ def switched_gain_lmi_matrix(P, w, kappa: float, rho_d: float, rho_v: float, gam
                 [-w.T, z, -(rho_v**2) * np.ones((1, 1))],
             ]
         )
-    return 0.5 * (M + M.T)
+    M = 0.5 * (M + M.T)
+    if not np.isfinite(M).all():
+        raise ValueError("expected P and w small enough for a finite block matrix, actual value: an overflow")
+    return M
 
 
 def switched_gain_lmi(
