@@ -49,12 +49,19 @@ References
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._validation import as_real_array, check_int_in_range, check_keywords, check_nonnegative, check_positive
+from ._validation import (
+    as_real_array,
+    check_int_in_range,
+    check_keywords,
+    check_names,
+    check_nonnegative,
+    check_positive,
+)
 from .observers.mechanical import Dynamics, MechanicalSuperTwisting
 
 __all__ = ["FaultDiagnosis", "FaultObserverBank", "calibrate_threshold", "diagnose"]
@@ -137,6 +144,21 @@ class FaultDiagnosis:
         return self.residual_norms[-window:].mean(axis=0)
 
 
+def _samples(name: str, duration: float, dt: float) -> int:
+    """``ceil(duration / dt)`` samples (less a rounding allowance), or a ValueError where the ratio overflows."""
+    ratio = duration / dt - 1e-9
+    if not math.isfinite(ratio):  # math.ceil(inf) raises OverflowError
+        raise ValueError(f"expected {name} / dt within a float's range, actual value: {duration!r} / {dt!r}")
+    return math.ceil(ratio)
+
+
+def _model_names(value) -> list[str]:
+    """``value`` as a list of names (a bare string or a number is refused, not read letter by letter)."""
+    if not isinstance(value, Iterable):
+        raise TypeError(f"expected names as a sequence of strings, actual value: {value!r:.80}")
+    return check_names("names", value)
+
+
 def _first_window(inside: np.ndarray, m: int) -> np.ndarray:
     """Per column of ``inside`` (T, k): does the window of the last ``m`` samples ending at each sample lie inside."""
     c = np.cumsum(np.vstack([np.zeros((1, inside.shape[1]), dtype=int), inside.astype(int)]), axis=0)
@@ -169,6 +191,14 @@ def diagnose(
     Returns
     -------
     FaultDiagnosis
+
+    Raises
+    ------
+    TypeError
+        Non-numbers where numbers are expected, ``names`` not a sequence of strings.
+    ValueError
+        A shape, a NaN residual, a non-positive ``dt`` or ``dwell``, ``dwell / dt`` or ``settle_time / dt`` beyond a
+        float's range, or a wrong number of names.
     """
     rho = as_real_array("residual_norms", residual_norms)
     if rho.ndim < 2 or rho.shape[-1] < 2 or rho.shape[0] < 1:
@@ -186,11 +216,11 @@ def diagnose(
     batch = rho.shape[1:-1]
     if names is None:
         names = ("nominal",) + tuple(f"F{i}" for i in range(1, k))
-    names = tuple(str(s) for s in names)
+    names = tuple(_model_names(names))
     if len(names) != k:
         raise ValueError(f"expected {k} model names, actual value: {len(names)}")
-    m = max(1, math.ceil(dwell / dt - 1e-9))
-    k0 = min(T, math.ceil(settle_time / dt - 1e-9))
+    m = max(1, _samples("dwell", dwell, dt))
+    k0 = min(T, _samples("settle_time", settle_time, dt))
     flat = rho.reshape(T, -1, k)
     nb = flat.shape[1]
     detected = np.zeros(nb, dtype=bool)
@@ -248,19 +278,31 @@ def calibrate_threshold(residuals, dt: float, *, settle_time: float = 0.0, margi
     Returns
     -------
     ndarray, shape (n,)
+
+    Raises
+    ------
+    TypeError
+        Non-numbers where numbers are expected.
+    ValueError
+        An empty or 1-D ``residuals``, non-positive ``dt`` or ``margin``, a ``settle_time`` not shorter than the
+        record, non-finite or all-zero residuals of a joint, or a threshold beyond a float's range.
     """
     r = as_real_array("residuals", residuals)
-    if r.ndim < 2:
-        raise ValueError(f"expected residuals with shape (T, ..., n), actual value: shape {r.shape}")
+    if r.ndim < 2 or r.size == 0:
+        raise ValueError(f"expected residuals with shape (T, ..., n), none empty, actual value: shape {r.shape}")
     dt = check_positive("dt", dt)
     margin = check_positive("margin", margin)
-    k0 = math.ceil(check_nonnegative("settle_time", settle_time) / dt - 1e-9)
+    k0 = _samples("settle_time", check_nonnegative("settle_time", settle_time), dt)
     if k0 >= r.shape[0]:
         raise ValueError(f"expected settle_time shorter than the record ({r.shape[0] * dt} s), actual value: {k0 * dt}")
     peak = np.abs(r[k0:]).reshape(-1, r.shape[-1]).max(axis=0)
     if not np.all(np.isfinite(peak)) or np.any(peak <= 0):
         raise ValueError(f"expected finite residuals, not all zero per joint, actual value: peaks {peak!r}")
-    return margin * peak
+    with np.errstate(over="ignore"):  # an overflow is refused below
+        threshold = margin * peak
+    if not np.all(np.isfinite(threshold)):
+        raise ValueError(f"expected a finite threshold margin * peak, actual value: {margin!r} * {peak!r}")
+    return threshold
 
 
 class FaultObserverBank:
@@ -354,7 +396,7 @@ class FaultObserverBank:
                 models.append(_FaultyModel(n, nominal, fault))
         if names is None:
             names = [f"F{i}" for i in range(1, len(faults) + 1)]
-        names = [str(s) for s in names]
+        names = _model_names(names)
         if len(names) != len(faults):
             raise ValueError(f"expected {len(faults)} fault names, actual value: {len(names)}")
         self.names = ("nominal", *names)
@@ -401,7 +443,10 @@ class FaultObserverBank:
 
     def update(self, y, u=None) -> np.ndarray:
         r"""Process one sample ``y`` (shape ``(..., n)``) with the input ``u`` that acted over the interval ending at
-        it; return the normalized residuals :math:`\rho` of the ``q + 1`` models, shape ``(..., q + 1)``."""
+        it; return the normalized residuals :math:`\rho` of the ``q + 1`` models, shape ``(..., q + 1)``.
+
+        The bank does not know the width of ``u`` (a model's own convention): an input one model refuses after the
+        models before it took the sample leaves the bank to be reset."""
         if self._history is None:
             raise RuntimeError(f"expected reset(y0) before update(y), actual value: {self._unreset}")
         for i, obs in enumerate(self.observers):
@@ -432,13 +477,20 @@ class FaultObserverBank:
     def run(self, Y, U=None, v0=None) -> FaultDiagnosis:
         """Reset at ``Y[0]`` and process ``Y[1:]`` (shape ``(T, ..., n)``) with ``U[1:]`` (``U[k]`` the input over
         the interval ending at ``Y[k]``); return :meth:`diagnose`."""
+        # the whole record is checked before the reset: a bad sample found midway would lose the history
         Y = as_real_array("Y", Y)
         if Y.ndim < 2 or Y.shape[-1] != self.n or Y.shape[0] < 2:
             raise ValueError(f"expected Y with shape (T >= 2, ..., {self.n}), actual value: shape {Y.shape}")
+        if not np.isfinite(Y).all():
+            t = int(np.flatnonzero(~np.isfinite(Y).reshape(Y.shape[0], -1).all(axis=1))[0])
+            raise ValueError(f"expected finite measurements Y, actual value: NaN or inf at sample {t}")
         if U is not None:
             U = as_real_array("U", U)
-            if U.shape[0] != Y.shape[0]:
+            if U.ndim < 1 or U.shape[0] != Y.shape[0]:
                 raise ValueError(f"expected U with one row per sample of Y ({Y.shape[0]}), actual value: {U.shape}")
+            if not np.isfinite(U).all():
+                t = int(np.flatnonzero(~np.isfinite(U).reshape(U.shape[0], -1).all(axis=1))[0])
+                raise ValueError(f"expected finite inputs U, actual value: NaN or inf at sample {t}")
         self.reset(Y[0], v0=v0)
         for k in range(1, Y.shape[0]):
             self.update(Y[k], None if U is None else U[k])

@@ -299,6 +299,45 @@ def test_bad_use():
         diagnose(np.zeros((10, 2)), 0.1, dwell=0.1, names=["a"])
 
 
+def test_run_checks_the_whole_record_before_resetting():
+    """A NaN at sample 5 was found after the reset and 4 updates: the previous history was lost."""
+    bank = make_bank()
+    Y = np.zeros((10, 1))
+    bank.run(Y, U=np.zeros((10, 1)))
+    before = len(bank._history)
+    Y[5] = np.nan
+    with pytest.raises(ValueError, match="finite measurements Y, actual value: NaN or inf at sample 5"):
+        bank.run(Y)
+    U = np.zeros((10, 1))
+    U[3] = np.inf
+    with pytest.raises(ValueError, match="finite inputs U"):
+        bank.run(np.zeros((10, 1)), U=U)
+    with pytest.raises(ValueError, match="one row per sample"):
+        bank.run(np.zeros((10, 1)), U=np.zeros((9, 1)))
+    assert len(bank._history) == before and bank.diagnose().residual_norms.shape == (before + 1, 4)
+
+
+def test_threshold_and_decision_refuse_overflow_and_mistyped_names():
+    with pytest.raises(ValueError, match="finite threshold"):
+        calibrate_threshold(np.full((3, 1), 1e10), 0.01, margin=1e308)
+    with pytest.raises(ValueError, match="none empty"):
+        calibrate_threshold(np.ones((3, 0)), 0.01)
+    with pytest.raises(ValueError, match="settle_time / dt"):
+        calibrate_threshold(np.ones((3, 1)), 1e-300, settle_time=1e300)
+    rho = np.zeros((10, 2))
+    with pytest.raises(ValueError, match="settle_time / dt"):
+        diagnose(rho, 1e-300, dwell=0.01, settle_time=1e300)
+    with pytest.raises(ValueError, match="dwell / dt"):
+        diagnose(rho, 1e-300, dwell=1e300)
+    with pytest.raises(TypeError, match="expected names"):
+        diagnose(rho, 0.1, dwell=0.1, names="ab")
+    with pytest.raises(TypeError, match="expected names"):
+        diagnose(rho, 0.1, dwell=0.1, names=5)
+    with pytest.raises(TypeError, match="expected names"):
+        FaultObserverBank(H, f, FAULTS, THETA, lipschitz=L, n=1, names="abc")
+    assert diagnose(rho, 0.1, dwell=0.1, names=["a", "b"]).names == ("a", "b")
+
+
 # ---- MuJoCo: the demonstration's path, one seed ----------------------------------------------------------------
 
 
