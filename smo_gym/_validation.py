@@ -83,8 +83,9 @@ def _as_float(name: str, value, expected: str) -> float:
 
 
 def check_names(name: str, value, kind: str = "names") -> list[str]:
-    """``value`` as a list of strings; a single string is refused (iterating it would read it letter by letter)."""
-    if isinstance(value, str) or not all(isinstance(item, str) for item in value):
+    """``value`` as a list of strings; a single string is refused (iterating it would read it letter by letter), as is
+    anything that is not a sequence."""
+    if isinstance(value, str) or not isinstance(value, Iterable) or not all(isinstance(item, str) for item in value):
         raise TypeError(f"expected {name} as a sequence of {kind}, e.g. [{value!r:.40}], actual value: {value!r:.80}")
     return list(value)
 

@@ -49,7 +49,7 @@ References
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,13 +152,6 @@ def _samples(name: str, duration: float, dt: float) -> int:
     return math.ceil(ratio)
 
 
-def _model_names(value) -> list[str]:
-    """``value`` as a list of names (a bare string or a number is refused, not read letter by letter)."""
-    if not isinstance(value, Iterable):
-        raise TypeError(f"expected names as a sequence of strings, actual value: {value!r:.80}")
-    return check_names("names", value)
-
-
 def _first_window(inside: np.ndarray, m: int) -> np.ndarray:
     """Per column of ``inside`` (T, k): does the window of the last ``m`` samples ending at each sample lie inside."""
     c = np.cumsum(np.vstack([np.zeros((1, inside.shape[1]), dtype=int), inside.astype(int)]), axis=0)
@@ -216,7 +209,7 @@ def diagnose(
     batch = rho.shape[1:-1]
     if names is None:
         names = ("nominal",) + tuple(f"F{i}" for i in range(1, k))
-    names = tuple(_model_names(names))
+    names = tuple(check_names("names", names))
     if len(names) != k:
         raise ValueError(f"expected {k} model names, actual value: {len(names)}")
     m = max(1, _samples("dwell", dwell, dt))
@@ -396,7 +389,7 @@ class FaultObserverBank:
                 models.append(_FaultyModel(n, nominal, fault))
         if names is None:
             names = [f"F{i}" for i in range(1, len(faults) + 1)]
-        names = _model_names(names)
+        names = check_names("names", names)
         if len(names) != len(faults):
             raise ValueError(f"expected {len(faults)} fault names, actual value: {len(names)}")
         self.names = ("nominal", *names)
