@@ -396,3 +396,19 @@ def test_simulation_helpers_refuse_what_they_would_misread():
         c.total_variation_rate([0.0, 1.0, 2.0], [0.0, 5.0, 1.0])
     with pytest.raises(ValueError, match="finite u"):
         c.total_variation_rate([0.0, np.nan, 1.0], [0.0, 1.0, 2.0])
+
+
+def test_lqr_and_regular_form_say_what_is_wrong():
+    """An unstabilizable pair or a singular R raised scipy's LinAlgError and ValueError words, a negative Q gave a
+    gain for a cost that is not one, a 1-D B an IndexError, a B without columns the identity."""
+    from smo_gym.control.controllers import regular_form
+
+    with pytest.raises(ValueError, match="expected \\(A, B\\) stabilizable"):
+        c.lqr([[1.0, 0.0], [0.0, 1.0]], [[0.0], [1.0]])
+    for kwargs, what in (({"Q": -np.eye(2)}, "Q symmetric positive semi-definite"), ({"R": 0.0}, "R symmetric")):
+        with pytest.raises(ValueError, match=what):
+            c.lqr([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], **kwargs)
+    with pytest.raises(ValueError, match=r"B of shape \(n, q\)"):
+        regular_form(np.zeros((2, 0)))
+    with pytest.raises(ValueError, match="finite entries in B"):
+        regular_form([[np.nan], [1.0]])

@@ -56,14 +56,34 @@ def lqr(A, B, Q=None, R=None) -> np.ndarray:
 
     Minimizes :math:`\int x^TQx + u^TRu`; defaults ``Q = I``, ``R = I``. Returns ``K`` of shape ``(q, n)`` with
     ``A - B K`` Hurwitz (checked).
+
+    Raises
+    ------
+    TypeError, ValueError
+        Matrices that are not real, finite or of fitting shapes; no stabilizing solution (an uncontrollable
+        unstable mode, ``Q`` or ``R`` not definite as the Riccati equation needs).
     """
-    A, B = np.asarray(A, float), np.asarray(B, float)
-    if B.ndim == 1:
-        B = B[:, None]
-    Q = np.eye(A.shape[0]) if Q is None else np.asarray(Q, float)
-    R = np.eye(B.shape[1]) if R is None else np.atleast_2d(np.asarray(R, float))
-    P = sla.solve_continuous_are(A, B, Q, R)
-    K = np.linalg.solve(R, B.T @ P)
+    A = _matrix("A", np.atleast_2d(A), (None, None))
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ValueError(f"expected a square A, actual value: shape {A.shape}")
+    B = _matrix("B", B, (n, None))
+    Q = np.eye(n) if Q is None else _matrix("Q", np.atleast_2d(Q), (n, n))
+    R = np.eye(B.shape[1]) if R is None else _matrix("R", np.atleast_2d(R), (B.shape[1], B.shape[1]))
+    for name, M, definite in (("Q", Q, False), ("R", R, True)):  # a cost: rounding allowed relative to its size
+        low, tol = np.linalg.eigvalsh((M + M.T) / 2).min(), 1e-12 * np.linalg.norm(M)
+        if np.linalg.norm(M - M.T) > tol or (low <= 0.0 if definite else low < -tol):
+            raise ValueError(
+                f"expected {name} symmetric positive {'definite' if definite else 'semi-definite'}, actual value: "
+                f"{M.tolist()!s:.80} (smallest eigenvalue {low:.3g})"
+            )
+    try:
+        P = sla.solve_continuous_are(A, B, Q, R)
+        K = np.linalg.solve(R, B.T @ P)
+    except (np.linalg.LinAlgError, ValueError) as exc:  # scipy's words name neither the cause nor the remedy
+        raise ValueError(
+            f"expected (A, B) stabilizable with Q >= 0 and R > 0, actual value: no stabilizing Riccati solution ({exc})"
+        ) from None
     ev = np.linalg.eigvals(A - B @ K)
     if np.any(ev.real >= 0):
         raise ValueError(f"expected a stabilizing LQR gain, actual value: eigenvalues of A - BK {ev}")
@@ -106,7 +126,9 @@ def regular_form(B) -> tuple[np.ndarray, np.ndarray]:
     :math:`B^\perp B = 0` (orthonormal rows), :math:`B^+ = (B^TB)^{-1}B^T`, so :math:`\bar x = T_r x` splits into
     the unactuated :math:`x_1 = B^\perp x` (``n - q``) and :math:`x_2 = B^+ x` with :math:`\dot x_2 = \ldots + u`.
     """
-    B = np.asarray(B, float)
+    B = _matrix("B", B, (None, None))
+    if B.shape[1] == 0 or B.shape[0] < B.shape[1]:
+        raise ValueError(f"expected B of shape (n, q) with 1 <= q <= n, actual value: shape {B.shape}")
     if np.linalg.matrix_rank(B) < B.shape[1]:
         raise ValueError(
             f"expected B with full column rank, actual value: rank {np.linalg.matrix_rank(B)} < {B.shape[1]}"
