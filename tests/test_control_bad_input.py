@@ -412,3 +412,24 @@ def test_lqr_and_regular_form_say_what_is_wrong():
         regular_form(np.zeros((2, 0)))
     with pytest.raises(ValueError, match="finite entries in B"):
         regular_form([[np.nan], [1.0]])
+
+
+def test_simulation_arguments_are_checked_before_the_run():
+    """A plant that is not one raised AttributeError, a string seed NumPy's SeedSequence error, a horizon of 1e300
+    'Maximum allowed size exceeded'; steady_state_error took index 5 of two states into an IndexError, 0.5 as an
+    index, and reported an empty index list as 't0 after the record's end'."""
+    plant = _oscillator()
+    ctl = c.StateFeedback(c.LuenbergerObserver(plant, 0.01))
+    with pytest.raises(TypeError, match="expected a LinearPlant"):
+        c.simulate("plant", ctl, t_final=0.02)
+    with pytest.raises(TypeError, match="expected seed"):
+        c.simulate(plant, ctl, t_final=0.02, seed="a")
+    with pytest.raises(ValueError, match="expected at most"):
+        c.simulate(plant, ctl, t_final=1e300)
+    with pytest.raises(TypeError, match="expected a LinearPlant"):
+        c.output_error_lipschitz("plant", 2)
+    result = c.simulate(plant, ctl, t_final=0.05, x0=[0.1, 0.0])
+    for indices in ([5], [0.5], []):
+        with pytest.raises(ValueError, match="expected indices"):
+            c.steady_state_error(result, 0.0, indices)
+    assert c.steady_state_error(result, 0.0, [0]) == pytest.approx(np.abs(result.x[:, 0]).max())

@@ -176,6 +176,8 @@ def output_error_lipschitz(plant: LinearPlant, order: int, *, e_bound: float = 0
     -------
     ndarray, shape (p,)
     """
+    if not isinstance(plant, LinearPlant):
+        raise TypeError(f"expected a LinearPlant, actual value: {type(plant).__name__}")
     A, C, D = plant.A, plant.C, plant.D
     order = check_int_in_range("order", order, 0, 64)
     wb = list(check_nonnegative_array("w_bounds", w_bounds).reshape(-1))

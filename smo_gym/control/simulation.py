@@ -21,10 +21,13 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .._validation import DivergenceError, as_real_array, check_nonnegative, check_positive
+from .._validation import DivergenceError, as_real_array, check_nonnegative, check_positive, check_real
 from .plants import LinearPlant
 
 __all__ = ["SimulationResult", "fit_order", "simulate", "steady_state_error", "total_variation_rate"]
+
+#: the longest record :func:`simulate` allocates (samples)
+MAX_SAMPLES = 10**8
 
 _GAUSS_NODES = 0.5 * (1.0 + np.array([-np.sqrt(3.0 / 5.0), 0.0, np.sqrt(3.0 / 5.0)]))
 _GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
@@ -123,8 +126,14 @@ def simulate(
     seed : int, optional
         Noise seed.
     """
+    if not isinstance(plant, LinearPlant):
+        raise TypeError(f"expected a LinearPlant, actual value: {type(plant).__name__}")
     dt = check_positive("dt", controller.dt)
     t_final = check_positive("t_final", t_final)
+    if t_final / dt > MAX_SAMPLES:  # the record is allocated up front
+        raise ValueError(f"expected at most {MAX_SAMPLES} samples (t_final / dt), actual value: {t_final / dt:.3g}")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+        raise TypeError(f"expected seed None or an integer >= 0, actual value: {seed!r}")
     noise_bound = check_nonnegative("noise_bound", noise_bound)
     noise_std, resolution = check_nonnegative("noise_std", noise_std), check_nonnegative("resolution", resolution)
     w_step = check_positive("w_step", w_step)
@@ -186,7 +195,19 @@ def simulate(
 
 def steady_state_error(result: SimulationResult, t0: float, indices=None) -> float:
     """``max_k |x_i(t_k)|`` over ``t_k >= t0`` and the state entries ``indices`` (default the measured ones)."""
-    sel = result.after(t0)
+    sel = result.after(check_real("t0", t0))
+    if indices is not None:
+        n = result.x.shape[1]
+        index = np.asarray(indices)
+        if (
+            index.ndim != 1
+            or index.size == 0
+            or index.dtype.kind not in "iu"
+            or not np.all((-n <= index) & (index < n))
+        ):
+            raise ValueError(
+                f"expected indices a non-empty sequence of state indices in [0, {n}), actual value: {indices!r}"
+            )
     x = result.x[sel] if indices is None else result.x[sel][:, indices]
     if x.size == 0:
         raise ValueError(f"expected samples at t >= t0, actual value: t0 = {t0!r} after the record's end")
