@@ -194,7 +194,7 @@ def simulate(
 
 
 def steady_state_error(result: SimulationResult, t0: float, indices=None) -> float:
-    """``max_k |x_i(t_k)|`` over ``t_k >= t0`` and the state entries ``indices`` (default the measured ones)."""
+    """``max_k |x_i(t_k)|`` over ``t_k >= t0`` and the state entries ``indices`` (default every entry)."""
     sel = result.after(check_real("t0", t0))
     if indices is not None:
         n = result.x.shape[1]
