@@ -433,3 +433,14 @@ def test_simulation_arguments_are_checked_before_the_run():
         with pytest.raises(ValueError, match="expected indices"):
             c.steady_state_error(result, 0.0, indices)
     assert c.steady_state_error(result, 0.0, [0]) == pytest.approx(np.abs(result.x[:, 0]).max())
+
+
+def test_a_regulated_output_that_is_not_a_finite_matrix_of_the_state_is_refused():
+    """NaN entries reached LAPACK (a LinAlgError and 'DLASCL illegal value' lines on stderr); a row of the wrong
+    length a matmul error."""
+    heli = c.helicopter_slides()
+    observer = c.CascadedHOSMObserver(heli, 1e-3, 10.0)
+    n = heli.n
+    for regulated, what in (([[np.nan] * n], "finite entries in regulated"), ([[1.0] * (n + 1)], "regulated")):
+        with pytest.raises(ValueError, match=what):
+            c.UnmatchedCompensationController(observer, rho=0.5, regulated=regulated)

@@ -424,7 +424,7 @@ class UnmatchedCompensationController(StateFeedback):
         if regulated is None:
             E1 = np.eye(r)
         else:
-            E = np.atleast_2d(np.asarray(regulated, float))
+            E = _matrix("regulated", np.atleast_2d(regulated), (None, self.plant.n))
             if np.linalg.norm(E @ P.B) > 1e-9 * max(np.linalg.norm(E), 1.0):
                 raise ValueError(
                     f"expected a regulated output z = E x not directly actuated (E B = 0), actual "
