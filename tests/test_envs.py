@@ -129,3 +129,44 @@ def test_plain_import_registers_the_environments():
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "TwoLinkArmEnv"
+
+
+def test_a_simulation_mujoco_reset_ends_the_episode():
+    """A disturbance of 1e6 N m made MuJoCo reset the simulation at every step, with only a printed warning: the
+    environment returned the reset state, reward 1.0 and terminated False forever (its check, time going back,
+    misses a reset early in the step)."""
+    env = smo_gym.envs.FurutaPendulumEnv()
+    env.set_disturbance(1e6)
+    env.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, _, terminated, truncated, info = env.step([0.0])
+    assert terminated and not truncated and info["diverged"]
+    env.set_disturbance(0.0)
+    env.reset(seed=0)
+    assert not env.step([0.0])[4]["diverged"]
+
+
+def test_actions_rewards_and_copies_keep_their_meaning():
+    """A finite action of 1e200 gave reward -inf (VariableInertia raised OverflowError after the physics step);
+    an action of another shape reached Gymnasium's checker after the disturbance was written; pickling and
+    deepcopy lost a set_disturbance; a reset noise of 1e300 put inf in the observation."""
+    import copy
+    import pickle
+
+    arm = smo_gym.envs.TwoLinkArmEnv()
+    arm.reset(seed=0)
+    assert np.isfinite(arm.step([1e200, 1e200])[1])
+    pendulum = smo_gym.envs.VariableInertiaEnv()
+    pendulum.reset(seed=1)
+    assert np.isfinite(pendulum.step([1e308])[1])
+    arm.reset(seed=0)
+    before = arm.data.qfrc_applied.copy()
+    with pytest.raises(ValueError, match=r"action of shape \(2,\)"):
+        arm.step(np.zeros(3))
+    np.testing.assert_array_equal(arm.data.qfrc_applied, before)
+    arm.set_disturbance([1.0, -1.0])
+    for clone in (pickle.loads(pickle.dumps(arm)), copy.deepcopy(arm)):
+        np.testing.assert_array_equal(clone.constant_disturbance, [1.0, -1.0])
+    with pytest.raises(ValueError, match="keeps the initial state finite"):
+        smo_gym.envs.VariableInertiaEnv(reset_noise_scale=1e300).reset(seed=0)

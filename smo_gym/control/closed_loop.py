@@ -17,11 +17,10 @@ from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 
 from .._validation import check_nonnegative, check_positive, check_real
-from ..envs.base import SmoMujocoEnv
+from ..envs.base import SmoMujocoEnv, instability_warnings
 
 __all__ = [
     "ClosedLoopRun",
@@ -298,7 +297,7 @@ def run_closed_loop(
     pending = sorted(_checked_events(events), key=lambda e: e[0])
     _, info = sensed.reset(seed=seed)
     data = env.unwrapped.data
-    unstable = _instability_warnings(data)
+    unstable = instability_warnings(data)
     policy.reset(info["smo"]["qpos_measured"])
     n = int(round(t_final / dt))
     rows: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "qm", "ctrl", "w", "diag")}
@@ -317,7 +316,7 @@ def run_closed_loop(
         rows["diag"].append(policy.diagnostics)
         _, _, terminated, _truncated, info = sensed.step(u)
         rows["w"].append(np.atleast_1d(info.get("disturbance", np.zeros(0))).copy())
-        if _instability_warnings(env.unwrapped.data) > unstable:  # MuJoCo reset the simulation: the run failed
+        if instability_warnings(env.unwrapped.data) > unstable:  # MuJoCo reset the simulation: the run failed
             terminated = True
         if terminated:
             break
@@ -334,13 +333,6 @@ def run_closed_loop(
         target=target,
         terminated=bool(terminated),
     )
-
-
-def _instability_warnings(data) -> int:
-    """How often MuJoCo found a non-finite or huge position, velocity, acceleration or control in ``data`` (it then
-    resets the simulation, or zeroes the control, with only a printed warning)."""
-    kinds = ("mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC", "mjWARN_BADCTRL")
-    return sum(int(data.warning[int(getattr(mujoco.mjtWarning, k))].number) for k in kinds)
 
 
 def _checked_events(events) -> list:

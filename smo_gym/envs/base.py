@@ -33,6 +33,13 @@ def asset_path(name: str) -> str:
     return os.path.join(ASSETS, name)
 
 
+def instability_warnings(data: mujoco.MjData) -> int:
+    """How often MuJoCo found a non-finite or huge position, velocity, acceleration or control in ``data`` (it then
+    resets the simulation, or zeroes the control, with only a printed warning)."""
+    kinds = ("mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC", "mjWARN_BADCTRL")
+    return sum(int(data.warning[int(getattr(mujoco.mjtWarning, k))].number) for k in kinds)
+
+
 class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
     """Base class: observation ``[qpos, qvel]``, reset noise, and a joint-torque disturbance input.
 
@@ -115,6 +122,17 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
             raise ValueError(f"expected a finite disturbance at t = {t!r}, actual value: {d!r}")
         return d
 
+    # ---- pickling: the constructor's arguments (EzPickle) and the constant disturbance set since -------------
+    def __getstate__(self) -> dict:
+        return {**utils.EzPickle.__getstate__(self), "constant_disturbance": self._disturbance_const.copy()}
+
+    def __setstate__(self, state: dict) -> None:
+        state = dict(state)
+        constant = state.pop("constant_disturbance", None)
+        utils.EzPickle.__setstate__(self, state)
+        if constant is not None:  # a copy applies the same input as the original
+            self.set_disturbance(constant)
+
     # ---- gymnasium API -------------------------------------------------------------------------------------
     def _get_obs(self) -> np.ndarray:
         return np.concatenate([self.data.qpos, self.data.qvel]).ravel()
@@ -129,26 +147,39 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
         return qpos, qvel
 
     def step(self, action):
+        """One control period. ``info``: the ``disturbance`` applied, the ``time``, and ``diverged``: MuJoCo found
+        a non-finite or huge state and reset the simulation (with only a printed warning); the episode then ends.
+
+        The reward's control cost is that of the action MuJoCo applies, clipped to the action space.
+        """
         action = as_real_array("action", action)
+        if action.shape != self.action_space.shape:  # before anything moves
+            raise ValueError(f"expected an action of shape {self.action_space.shape}, actual value: {action.shape}")
         if not np.isfinite(action).all():  # MuJoCo would replace it by 0, silently
             raise ValueError(f"expected a finite action, actual value: {action!r}")
         d = self._disturbance_at(self.data.time)
         # only its own channels: forces another wrapper applies to other joints stay (a reset clears them all)
         self.data.qfrc_applied[self.disturbance_dofs] = d
         self._last_disturbance = d
-        t0 = self.data.time
+        resets = instability_warnings(self.data)
         self.do_simulation(action, self.frame_skip)
         obs = self._get_obs()
-        reward, terminated = self._reward_terminated(obs, action)
-        if not np.all(np.isfinite(obs)) or self.data.time < t0:  # MuJoCo resets a diverging simulation itself
-            terminated = True
-        info = {"disturbance": self._last_disturbance.copy(), "time": float(self.data.time)}
+        diverged = instability_warnings(self.data) > resets or not np.all(np.isfinite(obs))
+        applied = np.clip(action, self.action_space.low, self.action_space.high)
+        reward, terminated = self._reward_terminated(obs, applied)
+        info = {"disturbance": self._last_disturbance.copy(), "time": float(self.data.time), "diverged": diverged}
         if self.render_mode == "human":
             self.render()
-        return obs, float(reward), bool(terminated), False, info
+        return obs, float(reward), bool(terminated or diverged), False, info
 
     def reset_model(self):
-        qpos, qvel = self._initial_state()
+        with np.errstate(over="ignore", invalid="ignore"):  # a non-finite initial state is refused just below
+            qpos, qvel = self._initial_state()
+        if not (np.isfinite(qpos).all() and np.isfinite(qvel).all()):
+            raise ValueError(
+                f"expected a reset_noise_scale that keeps the initial state finite, actual value: "
+                f"{self._reset_noise_scale!r}"
+            )
         self.set_state(qpos, qvel)
         self.data.qfrc_applied[:] = 0.0
         return self._get_obs()
