@@ -7,6 +7,9 @@ step). It is either constant (:meth:`set_disturbance`) or a function of simulati
 (``f(t) -> array of shape (n_disturbance,)``, evaluated at the step's start time), and is reported as
 ``info["disturbance"]``. The physics is stepped by ``MujocoEnv``'s own ``_step_mujoco_simulation`` (not
 overridden), so :class:`smo_gym.wrappers.EstimatedVelocity` can sample inside ``frame_skip``.
+
+When MuJoCo finds a non-finite or huge state during a step it resets the simulation with only a printed warning;
+the step then ends the episode and says so in ``info["diverged"]`` (:func:`instability_warnings`).
 """
 
 from __future__ import annotations
