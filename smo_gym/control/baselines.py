@@ -36,7 +36,7 @@ import scipy.linalg as sla
 from .._validation import as_real_array, check_int_in_range, check_nonnegative, check_positive
 from .controllers import StateFeedback, lqr
 from .estimators import LuenbergerObserver, _output_sample
-from .plants import LinearPlant, _matrix
+from .plants import LinearPlant, _check_definite, _matrix, _square_matrix
 
 __all__ = [
     "FiniteDifferenceState",
@@ -76,26 +76,6 @@ def _square(name: str, value, size: int) -> np.ndarray:
     return M
 
 
-def _square_matrix(name: str, value) -> np.ndarray:
-    """``value`` as a finite square float matrix (a number: 1 x 1)."""
-    M = _matrix(name, np.atleast_2d(value), (None, None))
-    if M.shape[0] != M.shape[1]:
-        raise ValueError(f"expected a square {name}, actual value: shape {M.shape}")
-    return M
-
-
-def _covariance(name: str, M: np.ndarray, *, definite: bool = False) -> None:
-    """Refuse a ``M`` that is not symmetric positive (semi-)definite up to rounding relative to its norm."""
-    tol = 1e-12 * np.linalg.norm(M)
-    low = np.linalg.eigvalsh(M).min() if M.size else 0.0
-    if np.linalg.norm(M - M.T) > tol or (low <= 0.0 if definite else low < -tol):
-        what = "definite" if definite else "semi-definite"
-        raise ValueError(
-            f"expected {name} symmetric positive {what} (a covariance), actual value: {M.tolist()!s:.120} "
-            f"(smallest eigenvalue {low:.3g})"
-        )
-
-
 def van_loan_covariance(A, G, W, dt: float) -> np.ndarray:
     r"""Covariance of the sampled effect of continuous white noise, by Van Loan's method [VL78].
 
@@ -132,7 +112,7 @@ def van_loan_covariance(A, G, W, dt: float) -> np.ndarray:
     n = A.shape[0]
     G = _matrix("G", np.atleast_2d(G), (n, None))
     W = _matrix("W", np.atleast_2d(W), (G.shape[1], G.shape[1]))
-    _covariance("W", W)
+    _check_definite("W", W)
     dt = check_positive("dt", dt)
     M = np.zeros((2 * n, 2 * n))
     M[:n, :n], M[:n, n:], M[n:, n:] = -A, G @ W @ G.T, A.T
@@ -183,8 +163,8 @@ def kalman_gain(Phi, C, Qd, R) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     C = _matrix("C", np.atleast_2d(C), (None, n))
     Qd = _matrix("Qd", np.atleast_2d(Qd), (n, n))
     R = _matrix("R", np.atleast_2d(R), (C.shape[0], C.shape[0]))
-    _covariance("Qd", Qd)
-    _covariance("R", R, definite=True)
+    _check_definite("Qd", Qd)
+    _check_definite("R", R, definite=True)
     try:
         P = sla.solve_discrete_are(Phi.T, C.T, Qd, R)
         S = C @ P @ C.T + R

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .._validation import check_bool, check_choice, check_nonnegative, check_positive, check_real
-from .plants import LinearPlant, _matrix, left_annihilator
+from .plants import LinearPlant, _check_definite, _matrix, _square_matrix, left_annihilator
 
 __all__ = [
     "CompensationController",
@@ -63,20 +63,13 @@ def lqr(A, B, Q=None, R=None) -> np.ndarray:
         Matrices that are not real, finite or of fitting shapes; no stabilizing solution (an uncontrollable
         unstable mode, ``Q`` or ``R`` not definite as the Riccati equation needs).
     """
-    A = _matrix("A", np.atleast_2d(A), (None, None))
+    A = _square_matrix("A", A)
     n = A.shape[0]
-    if A.shape != (n, n):
-        raise ValueError(f"expected a square A, actual value: shape {A.shape}")
     B = _matrix("B", B, (n, None))
     Q = np.eye(n) if Q is None else _matrix("Q", np.atleast_2d(Q), (n, n))
     R = np.eye(B.shape[1]) if R is None else _matrix("R", np.atleast_2d(R), (B.shape[1], B.shape[1]))
-    for name, M, definite in (("Q", Q, False), ("R", R, True)):  # a cost: rounding allowed relative to its size
-        low, tol = np.linalg.eigvalsh((M + M.T) / 2).min(), 1e-12 * np.linalg.norm(M)
-        if np.linalg.norm(M - M.T) > tol or (low <= 0.0 if definite else low < -tol):
-            raise ValueError(
-                f"expected {name} symmetric positive {'definite' if definite else 'semi-definite'}, actual value: "
-                f"{M.tolist()!s:.80} (smallest eigenvalue {low:.3g})"
-            )
+    _check_definite("Q", Q)
+    _check_definite("R", R, definite=True)
     try:
         P = sla.solve_continuous_are(A, B, Q, R)
         K = np.linalg.solve(R, B.T @ P)

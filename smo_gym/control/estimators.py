@@ -67,7 +67,7 @@ from .._validation import (
 )
 from ..design.gains import MAX_LEVANT_ORDER
 from ..observers import Levant
-from .plants import LinearPlant, _matrix, molinari_decoupling
+from .plants import LinearPlant, _matrix, _square_matrix, molinari_decoupling
 
 __all__ = ["CascadedHOSMObserver", "LuenbergerObserver", "output_error_lipschitz", "sampled_observer_gain"]
 
@@ -147,9 +147,7 @@ def sampled_observer_gain(A, C, dt: float, poles=None) -> np.ndarray:
     -------
     ndarray, shape (n, p)
     """
-    A = _matrix("A", A, (None, None))
-    if A.shape[0] != A.shape[1] or A.shape[0] == 0:
-        raise ValueError(f"expected a square A with at least one state, actual value: shape {A.shape}")
+    A = _square_matrix("A", A)
     C = _matrix("C", np.atleast_2d(C), (None, A.shape[0]))
     dt = check_positive("dt", dt)
     poles = _observer_poles(poles, A)

@@ -68,6 +68,27 @@ def _matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.ndarra
     return arr
 
 
+def _square_matrix(name: str, value) -> np.ndarray:
+    """``value`` as a finite square float matrix with at least one row (a number: 1 x 1)."""
+    M = _matrix(name, np.atleast_2d(value), (None, None))
+    if M.shape[0] != M.shape[1] or M.shape[0] == 0:
+        raise ValueError(f"expected a square {name} with at least one row, actual value: shape {M.shape}")
+    return M
+
+
+def _check_definite(name: str, M: np.ndarray, *, definite: bool = False) -> None:
+    """Refuse a ``M`` that is not symmetric positive (semi-)definite, up to rounding relative to its norm (an
+    absolute floor would pass ``-1e-13 I`` as semi-definite): a covariance, or a quadratic cost's weight."""
+    tol = 1e-12 * np.linalg.norm(M)
+    low = np.linalg.eigvalsh((M + M.T) / 2).min() if M.size else 0.0
+    if np.linalg.norm(M - M.T) > tol or (low <= 0.0 if definite else low < -tol):
+        what = "definite" if definite else "semi-definite"
+        raise ValueError(
+            f"expected {name} symmetric positive {what}, actual value: {M.tolist()!s:.120} (smallest eigenvalue "
+            f"{low:.3g})"
+        )
+
+
 def _check_triple(A, C, D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(A, C, D)`` as float matrices after checking that ``A`` is square and the shapes agree."""
     A = _matrix("A", A, (None, None))
