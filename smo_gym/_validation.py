@@ -69,6 +69,17 @@ def _is_real_scalar(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, _NOT_NUMBERS)
 
 
+def _holds_bool(sequence) -> bool:
+    """Whether a (nested) list or tuple holds a bool or a bool array, which NumPy converts to numbers when other
+    entries are numbers."""
+    return any(
+        isinstance(v, (bool, np.bool_))
+        or (isinstance(v, np.ndarray) and v.dtype.kind == "b")
+        or (isinstance(v, (list, tuple)) and _holds_bool(v))
+        for v in sequence
+    )
+
+
 def _as_float(name: str, value, expected: str) -> float:
     """``value`` as a float if it is a real number; a TypeError if not, a ValueError saying ``expected`` if it is an
     integer beyond the range of a float (``float(10**400)`` raises OverflowError)."""
@@ -118,9 +129,9 @@ def as_real_array(name: str, value, *, copy: bool = False) -> np.ndarray:
     """``value`` as a float64 array, or ``TypeError`` if it is not an array of real numbers.
 
     Accepted: numbers, (nested) sequences of numbers and arrays of integer or floating dtype, and object arrays
-    whose entries are all real numbers. Rejected: bools, complex numbers, dates and durations, strings, ``None``
-    and other objects, and ragged nested sequences (which NumPy cannot make an array of). Values are not checked
-    for finiteness.
+    whose entries are all real numbers. Rejected: bools (also beside numbers in a list), complex numbers, dates and
+    durations, strings, ``None`` and other objects, and ragged nested sequences (which NumPy cannot make an array
+    of). Values are not checked for finiteness.
     """
     try:
         arr = np.array(value, copy=copy or None)
@@ -132,6 +143,8 @@ def as_real_array(name: str, value, *, copy: bool = False) -> np.ndarray:
     kind = arr.dtype.kind
     if kind == "O" and all(_is_real_scalar(v) for v in arr.flat):
         kind = "f"  # e.g. Fractions, or Python ints too large for int64
+    elif kind in "iuf" and isinstance(value, (list, tuple)) and _holds_bool(value):
+        kind = "b"  # NumPy reads [True, -2.0] as [1.0, -2.0]
     if kind not in "iuf":
         what = {"b": "bool", "c": "complex", "M": "datetime", "m": "timedelta", "U": "str", "S": "bytes"}.get(
             kind, str(arr.dtype)

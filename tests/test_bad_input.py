@@ -233,6 +233,8 @@ def test_model_based_step_is_refused():
         lambda: KalmanCA.from_levels(1e-3, jerk_rms="0.1", measurement_variance=1.0),
         lambda: LowPowerHighGain(1e-3, 20.0, 2, bounds=[True, True]),
         lambda: LowPowerHighGain(1e-3, 20.0, 2, bounds="2"),
+        lambda: LowPowerHighGain(1e-3, 20.0, 2, bounds=[True, 2.0]),  # NumPy makes [1.0, 2.0] of it
+        lambda: Levant(2, 1e-3, [5.0, np.array(True)]),
         lambda: SwitchedGain(1e-3, gain=[2.6 + 0j, 2.0], P=SG_P),
         lambda: SwitchedGain(1e-3, supervise="yes"),
         lambda: ILFDifferentiator(1e-3, lipschitz=True, gain=ILF_GAIN),
@@ -240,6 +242,7 @@ def test_model_based_step_is_refused():
         lambda: DiscreteTimeHOSM(2, 1e-3, 1.0, mu=True),
         lambda: DiscreteTimeHOSM(2, 1e-3, 1.0, mu="1"),
         lambda: MechanicalSuperTwisting(1e-3, Pendulums(2), lipschitz=[1.0, "2"]),
+        lambda: MechanicalSuperTwisting(1e-3, Pendulums(2), lipschitz=(1.0, np.True_)),
     ],
 )
 def test_bools_strings_and_complex_numbers_are_not_gains(factory):
