@@ -22,6 +22,7 @@ __all__ = [
     "as_real_array",
     "check_bool",
     "check_choice",
+    "check_equal",
     "check_int_at_least",
     "check_int_in_range",
     "check_keywords",
@@ -209,6 +210,13 @@ def check_real_in_range(
     if not inside:
         raise ValueError(f"expected {name} in {interval}, actual value: {value!r}")
     return value
+
+
+def check_equal(what: str, expected, actual) -> None:
+    """Raise ``ValueError`` unless ``actual == expected`` (``what`` names the expectation: ``"a venv with action
+    space"``); for values whose ``==`` is a plain bool, such as Gymnasium spaces (bounds, dtype and shape)."""
+    if actual != expected:
+        raise ValueError(f"expected {what} {expected}, actual value: {actual}")
 
 
 def check_int_in_range(name: str, value, low: int, high: int) -> int:

@@ -22,6 +22,16 @@ simulation (:class:`smo_gym.wrappers.Monitored` writes its record into ``info``)
   rule of :func:`smo_gym.fault_detection.diagnose` applied online: the flags at a sample are those that
   ``diagnose`` gives on the record up to that sample.
 
+A monitor may also state what it was built for, as optional attributes (absent or None: unknown), which
+:class:`smo_gym.wrappers.Monitored` checks against the environment before anything runs (:func:`check_monitor`):
+
+* ``dt``: the interval between its samples [s], one environment step (``frame_skip`` physics steps);
+* ``nq``: the length of ``q_measured`` (the model's ``nq``);
+* ``n_ctrl``: the length of ``ctrl`` (the model's ``nu``).
+
+The library's monitors define those they know: ``dt`` all three, ``nq`` :class:`ParameterMonitor` and
+:class:`FaultMonitor`, ``n_ctrl`` :class:`ModeMonitor` and a :class:`ParameterMonitor` given one.
+
 Why a wrapper of its own (:class:`smo_gym.wrappers.Monitored`) rather than an option of the model-based velocity
 observer: a monitor needs only the sensor's reading and the input, not the velocity observer, so it serves every
 observer family and sensor; one wrapper per monitor composes (a parameter monitor and a fault monitor stacked, each
@@ -52,9 +62,15 @@ from .identification import EquivalentInjectionIdentifier
 __all__ = ["FaultMonitor", "ModeMonitor", "ParameterMonitor", "check_monitor", "measured"]
 
 
-def measured(info) -> np.ndarray:
+def measured(info, key: str | None = None) -> np.ndarray:
     """``info["smo"]["qpos_measured"]`` (the sensor's reading, :class:`smo_gym.wrappers.sensing.SensingInfo`),
-    with a typed error naming what is missing."""
+    with a typed error naming what is missing. Given ``key`` (where a monitor's record is to go), an ``info`` that
+    already has that entry is refused: the record would overwrite the environment's own, without a word."""
+    if isinstance(info, dict) and key is not None and key in info:
+        raise ValueError(
+            f"expected an info without the monitor's key {key!r} (the record would replace the environment's "
+            f"entry: choose another key), actual value: info keys {sorted(info)}"
+        )
     sensing = info.get("smo") if isinstance(info, dict) else None
     if not isinstance(sensing, dict) or "qpos_measured" not in sensing:
         raise ValueError(
@@ -64,8 +80,14 @@ def measured(info) -> np.ndarray:
     return sensing["qpos_measured"]
 
 
-def check_monitor(monitor, key: str):
-    """Check that ``monitor`` has ``reset`` and ``update`` and that ``key`` is a non-empty string; return it."""
+def check_monitor(monitor, key: str, adapter=None):
+    """Check that ``monitor`` has ``reset`` and ``update`` and that ``key`` is a non-empty string; return it.
+
+    With ``adapter`` (a :class:`~smo_gym.wrappers.adapters.MujocoAdapter`: ``model`` and ``frame_skip``), the
+    monitor's ``dt``, ``nq`` and ``n_ctrl`` (those of the protocol it has, module docstring) must be the
+    environment step ``frame_skip * model.opt.timestep``, ``model.nq`` and ``model.nu``: a monitor built for
+    another step or model is refused before a reset or a step moves the simulation.
+    """
     if not (callable(getattr(monitor, "reset", None)) and callable(getattr(monitor, "update", None))):
         raise TypeError(
             f"expected a monitor with reset(q_measured) and update(q_measured, ctrl), actual value: "
@@ -75,6 +97,20 @@ def check_monitor(monitor, key: str):
         raise TypeError(f"expected key as a string, actual value: {type(key).__name__}")
     if not key or key == "smo":
         raise ValueError(f"expected key as a non-empty string other than 'smo', actual value: {key!r}")
+    if adapter is None:
+        return monitor
+    model = adapter.model
+    step = adapter.frame_skip * float(model.opt.timestep)
+    # optional attributes of the protocol: a duck-typed monitor (reset and update only) is not checked
+    dt, nq, n_ctrl = (getattr(monitor, name, None) for name in ("dt", "nq", "n_ctrl"))
+    if dt is not None and not np.isclose(dt, step, rtol=1e-9, atol=0.0):
+        raise ValueError(
+            f"expected a monitor with dt equal to the environment step {step} (frame_skip {adapter.frame_skip} x "
+            f"timestep {model.opt.timestep}), actual value: {dt}"
+        )
+    for name, own, env_size in (("nq", nq, model.nq), ("n_ctrl", n_ctrl, model.nu)):
+        if own is not None and own != env_size:
+            raise ValueError(f"expected a monitor with {name} = {env_size} (the model's), actual value: {own}")
     return monitor
 
 
@@ -189,6 +225,16 @@ class ParameterMonitor:
         )
         return cls(identifier, names=[f"{kind}:{name}" for kind, name in regressor.names], n_ctrl=model.nu)
 
+    @property
+    def dt(self) -> float:
+        """The identifier's sampling step [s]."""
+        return self.identifier.dt
+
+    @property
+    def nq(self) -> int:
+        """The length of ``q_measured``: the identifier's ``n``."""
+        return self.identifier.n
+
     def _record(self) -> dict:
         ident = self.identifier
         gain = ident.gain
@@ -252,6 +298,16 @@ class FaultMonitor:
     def names(self) -> tuple[str, ...]:
         """``("nominal", *fault names)``."""
         return self.bank.names
+
+    @property
+    def dt(self) -> float:
+        """The bank's sampling step [s]."""
+        return self.bank.dt
+
+    @property
+    def nq(self) -> int:
+        """The length of ``q_measured``: the bank's ``n``."""
+        return self.bank.n
 
     def reset(self, q_measured) -> dict:
         """Restart every observer at ``q_measured`` (shape ``(n,)``) and clear the flags."""
@@ -355,6 +411,16 @@ class ModeMonitor:
         self.qpos_offset = _vector("qpos_offset", _broadcast("qpos_offset", qpos_offset, p), p)
         self.ctrl_offset = _vector("ctrl_offset", _broadcast("ctrl_offset", ctrl_offset, m), m)
         self._k = None
+
+    @property
+    def dt(self) -> float:
+        """The bank's sampling step [s]."""
+        return self.bank.dt
+
+    @property
+    def n_ctrl(self) -> int:
+        """The length of ``ctrl``: the system's inputs."""
+        return self.ctrl_offset.size
 
     def _outputs(self, q_measured) -> np.ndarray:
         q = as_real_array("q_measured", q_measured)

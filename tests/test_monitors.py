@@ -316,6 +316,62 @@ def test_bad_input_raises_typed_errors():
         FaultMonitor(object())
 
 
+def test_a_monitor_of_another_step_or_model_is_refused_at_construction():
+    """A monitor built for another sampling step ran on silently, one for another model failed at its first reset
+    or step, after the simulation had moved. The monitor's ``dt``, ``nq`` and ``n_ctrl`` are checked now against
+    the environment step and the model, before anything runs."""
+    from smo_gym.control import SwitchedLinearSystem, SwitchedObserverBank
+    from smo_gym.identification import EquivalentInjectionIdentifier
+    from smo_gym.monitors import ModeMonitor
+
+    def nominal(t, x1, x2, u):
+        return -x1 - 0.1 * x2
+
+    def regressor(t, x1, x2, u):
+        return np.asarray(x2)[..., None]
+
+    sensed = wrappers.EstimatedVelocity(gym.make(ENV_ID), sensor="encoder-12bit", observer="super-twisting")
+    model = nominal_model()  # the environment step: 10 ms, frame_skip 5 x timestep 2 ms
+    for monitor in (parameter_monitor(model, 0.002), fault_monitor(model, 0.002)):  # the physics step
+        with pytest.raises(ValueError, match=r"dt equal to the environment step 0\.01"):
+            wrappers.Monitored(sensed, monitor)
+    one_joint = EquivalentInjectionIdentifier(0.01, nominal, regressor, [0.5], n=1, lipschitz=50.0)
+    with pytest.raises(ValueError, match=r"nq = 2 \(the model's\), actual value: 1"):
+        wrappers.Monitored(sensed, ParameterMonitor(one_joint))
+    with pytest.raises(ValueError, match=r"n_ctrl = 2 \(the model's\), actual value: 3"):
+        wrappers.Monitored(sensed, ParameterMonitor(parameter_monitor(model, 0.01).identifier, n_ctrl=3))
+    one_input = SwitchedLinearSystem([_oscillator(1, 1), _oscillator(9, 1)], names=["a", "b"])
+    bank = SwitchedObserverBank(one_input, 0.01, 300.0, threshold=0.5, dwell=0.05, settle_time=0.3)
+    with pytest.raises(ValueError, match=r"n_ctrl = 2 \(the model's\), actual value: 1"):
+        wrappers.Monitored(sensed, ModeMonitor(bank))
+
+
+def test_an_info_key_of_the_environment_is_refused_before_the_monitor_takes_the_sample():
+    """``info["disturbance"]`` of smo_gym's environments (reported at steps) was overwritten without a word by a
+    monitor under that key, and so was the record of a monitor below one under the same key. Refused now, at the
+    reset or step whose ``info`` has the key, before the monitor resets or updates."""
+    sensed = wrappers.EstimatedVelocity(gym.make(ENV_ID), sensor="encoder-12bit", observer="super-twisting")
+
+    class Counter:  # duck-typed: no dt, nq or n_ctrl, so nothing to check at construction
+        def reset(self, q):
+            self.samples = 1
+            return {}
+
+        def update(self, q, u):
+            self.samples += 1
+            return {}
+
+    env = wrappers.Monitored(sensed, Counter(), key="disturbance")
+    env.reset(seed=0)  # the arm reports its disturbance at steps only
+    with pytest.raises(ValueError, match="without the monitor's key 'disturbance'"):
+        env.step(np.zeros(2))
+    assert env.monitor.samples == 1  # the monitor did not take the refused step's sample
+    stacked = wrappers.Monitored(wrappers.Monitored(sensed, Counter(), key="twice"), Counter(), key="twice")
+    with pytest.raises(ValueError, match="without the monitor's key 'twice'"):
+        stacked.reset(seed=0)
+    assert not hasattr(stacked.monitor, "samples")  # refused before the outer monitor's reset
+
+
 # ---- the mode of a switched system ------------------------------------------------------------------------------
 def _oscillator(k: float, b: float):
     """x1' = x2, x2' = -k x1 - 0.5 x2 + b u + w, position measured."""

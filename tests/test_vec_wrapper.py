@@ -7,7 +7,7 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
-from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper, VecNormalize
 
 from smo_gym import sensors
 from smo_gym.engine.batch import BatchedSensing, MeasurementBatch
@@ -149,7 +149,7 @@ def test_pickles_without_venv():
     for call in (clone.reset, lambda: clone.step(np.zeros((2, 1))), lambda: clone.seed(0)):
         with pytest.raises(RuntimeError, match="attach one with set_venv"):
             call()
-    with pytest.raises(ValueError, match="expected a venv with observation shape"):
+    with pytest.raises(ValueError, match="expected a venv with observation space"):
         clone.set_venv(DummyVecEnv([lambda: gym.make("Hopper-v5")]))
     with pytest.raises(TypeError, match="expected a stable_baselines3 VecEnv"):
         clone.set_venv(gym.make(ENV))
@@ -161,6 +161,42 @@ def test_pickles_without_venv():
     assert clone.reset().shape == (2, 9)
     with pytest.raises(ValueError, match="without a venv"):
         clone.set_venv(DummyVecEnv([lambda: gym.make(ENV) for _ in range(2)]))
+
+
+def test_a_saved_wrapper_loads_only_onto_a_venv_with_its_spaces(tmp_path):
+    """A wrapper saved on smo_gym's two-link arm was attached to the Furuta pendulum (the same observation space,
+    one input instead of two) and kept the arm's action space; a venv of float32 observations (the same shape) was
+    taken too. The saved observation and action spaces must now equal the venv's; a refused venv leaves the wrapper
+    without one, and the arm's own venv is then taken."""
+
+    class Float32Observations(VecEnvWrapper):
+        def __init__(self, venv):
+            shape = venv.observation_space.shape
+            super().__init__(venv, observation_space=gym.spaces.Box(-np.inf, np.inf, shape, np.float32))
+
+        def reset(self):
+            return self.venv.reset().astype(np.float32)
+
+        def step_wait(self):
+            obs, rewards, dones, infos = self.venv.step_wait()
+            return obs.astype(np.float32), rewards, dones, infos
+
+    def arms():
+        return DummyVecEnv([lambda: gym.make("smo_gym/TwoLinkArm-v0") for _ in range(2)])
+
+    sensing = dict(sensor="ideal", observer="finite-difference")
+    VecEstimatedVelocity(arms(), **sensing).save(tmp_path / "arm.pkl")
+    furuta = DummyVecEnv([lambda: gym.make("smo_gym/FurutaPendulum-v0") for _ in range(2)])
+    assert furuta.observation_space == arms().observation_space  # only the action spaces tell them apart
+    with pytest.raises(ValueError, match=r"expected a venv with action space Box\(\[-10\. +-5\.\]"):
+        VecEstimatedVelocity.load(tmp_path / "arm.pkl", furuta)
+    with open(tmp_path / "arm.pkl", "rb") as fh:
+        saved = pickle.load(fh)
+    with pytest.raises(ValueError, match=r"expected a venv with observation space Box.*float64.*float32"):
+        saved.set_venv(Float32Observations(arms()))
+    assert saved.venv is None  # refused: without a venv, as before
+    saved.set_venv(arms())
+    assert saved.reset().shape == (2, 4) and saved.action_space == gym.make("smo_gym/TwoLinkArm-v0").action_space
 
 
 @pytest.mark.parametrize("api", ["sb3", "gymnasium"])

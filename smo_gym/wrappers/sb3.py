@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 
 from .._extras import require
+from .._validation import check_equal
 from .sensing import SensingInfo, check_seed
 from .vec import _Sensing, attach_sensors, check_vector_rate, sensing_config
 
@@ -165,16 +166,13 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
         self.venv = None
 
     def set_venv(self, venv) -> None:
-        """Attach a vector env after unpickling/loading (its observation space must match); then ``reset()``."""
+        """Attach a venv after unpickling/loading (with the saved observation and action spaces); then ``reset()``."""
         if self.venv is not None:
             raise ValueError("expected a wrapper without a venv (unpickled or loaded), actual value: it has one")
         if not isinstance(venv, VecEnv):
             raise TypeError(f"expected a stable_baselines3 VecEnv, actual value: {venv!r:.80}")
-        if venv.observation_space.shape != self.observation_space.shape:
-            raise ValueError(
-                f"expected a venv with observation shape {self.observation_space.shape}, actual value: "
-                f"{venv.observation_space.shape}"
-            )
+        check_equal("a venv with observation space", self.observation_space, venv.observation_space)
+        check_equal("a venv with action space", self.action_space, venv.action_space)
         try:
             self.venv, self.num_envs, self.render_mode = venv, venv.num_envs, venv.render_mode
             self.class_attributes = dict(inspect.getmembers(self.__class__))
