@@ -170,3 +170,45 @@ def test_actions_rewards_and_copies_keep_their_meaning():
         np.testing.assert_array_equal(clone.constant_disturbance, [1.0, -1.0])
     with pytest.raises(ValueError, match="keeps the initial state finite"):
         smo_gym.envs.VariableInertiaEnv(reset_noise_scale=1e300).reset(seed=0)
+
+
+def test_frame_skip_is_bounded_at_construction():
+    """frame_skip=10**12 was accepted: the first step then ran for hours, or failed inside mj_step (a C int)."""
+    for frame_skip in (10**12, 2**31, 10_001):
+        with pytest.raises(ValueError, match=r"expected frame_skip in \[1, 10000\], actual value"):
+            smo_gym.envs.TwoLinkArmEnv(frame_skip=frame_skip)
+    with pytest.raises(ValueError, match="frame_skip"):
+        gym.make("smo_gym/FurutaPendulum-v0", frame_skip=10**12)
+    env = smo_gym.envs.TwoLinkArmEnv(frame_skip=smo_gym.envs.base.MAX_FRAME_SKIP)  # the bound itself is accepted
+    assert env.dt == pytest.approx(20.0)
+
+
+def test_an_unknown_render_mode_is_refused_before_the_model_loads():
+    """render_mode="bad" was accepted and failed only at the first render(); and gymnasium.make warned that even
+    "rgb_array" was not among the possible render modes (an empty list on the class)."""
+
+    class Unloadable(smo_gym.envs.TwoLinkArmEnv):
+        xml_file = "no_such_model.xml"  # loading it would fail: the render mode is refused first
+
+    for render_mode in ("bad", "rgb", 3):
+        with pytest.raises(ValueError, match="expected render_mode to be one of 'human', 'rgb_array'"):
+            Unloadable(render_mode=render_mode)
+    with warnings.catch_warnings(), pytest.raises(ValueError, match="did you mean 'rgb_array'"):
+        warnings.simplefilter("ignore")  # gymnasium.make's own warning about it, before the constructor refuses it
+        gym.make("smo_gym/TwoLinkArm-v0", render_mode="rgb")
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*render_modes")  # none for a valid one
+        env = gym.make("smo_gym/TwoLinkArm-v0", render_mode="rgb_array")
+    assert env.unwrapped.metadata["render_fps"] == 100
+
+
+def test_reset_refuses_options_that_are_not_a_dict():
+    """options="x" was silently ignored. A dict is accepted and, as by Gymnasium's MuJoCo environments, not read
+    (vector environments and trainers pass one options dict to every sub-environment)."""
+    env = smo_gym.envs.FurutaPendulumEnv()
+    for options in ("x", ["qpos"], 1.0):
+        with pytest.raises(TypeError, match="expected options to be None or a dict, actual value"):
+            env.reset(seed=0, options=options)
+    plain, _ = env.reset(seed=0)
+    for options in (None, {}, {"qpos": np.zeros(2)}):
+        np.testing.assert_array_equal(env.reset(seed=0, options=options)[0], plain)

@@ -95,6 +95,11 @@ def test_set_mass_scale_is_the_constructor_s_mismatch_from_the_nominal_model(arm
     np.testing.assert_array_equal(dyn.model.body_inertia, 2.0 * arm.model.body_inertia)
     with pytest.raises(ValueError, match="mass_scale > 0"):
         dyn.set_mass_scale(-1.0)
+    # far out of range MuJoCo's inertia matrix is singular and the accelerations NaN or 1e14 and more
+    with pytest.raises(ValueError, match=r"expected mass_scale in \[0.001, 1000\]"):
+        dyn.set_mass_scale(1e100)
+    with pytest.raises(ValueError, match=r"expected inertia_scale in \[0.001, 1000\]"):
+        dyn.set_mass_scale(1.0, inertia_scale=1e-20)
 
 
 def test_coupling_elimination_inertia_and_alpha_analytic(pendulum):

@@ -184,6 +184,26 @@ def test_bad_model_based_settings_are_refused(env_id, kwargs, error, match):
     assert "expected" in str(excinfo.value) and "actual value" in str(excinfo.value)
 
 
+def test_an_absurd_mass_scale_is_refused_by_its_name():
+    """A mass scale of 1e100 (or 1e-100) made the model's inertia matrix singular and its accelerations NaN, and the
+    user, who never passed a lipschitz, read "expected lipschitz > 0 everywhere, actual value: array([nan, nan])"."""
+    for observer, kwargs in (
+        ("mechanical-super-twisting", {"mass_scale": 1e100}),
+        ("mechanical-super-twisting", {"mass_scale": 1e-100}),
+        ("auto", {"model": True, "mass_scale": 1e100}),
+    ):
+        with pytest.raises(ValueError, match=r"expected mass_scale in \[0.001, 1000\]") as excinfo:
+            wrappers.EstimatedVelocity(
+                gym.make("smo_gym/TwoLinkArm-v0"), observer=observer, observer_kwargs=kwargs, disk_cache=False
+            )
+        assert "lipschitz" not in str(excinfo.value)
+    # the ends of the range stay usable
+    from smo_gym.mechanics import MASS_SCALE_RANGE, MujocoDynamics
+
+    for scale in MASS_SCALE_RANGE:
+        assert MujocoDynamics(gym.make("smo_gym/TwoLinkArm-v0").unwrapped.model, mass_scale=scale).mass_scale == scale
+
+
 def test_the_vector_wrappers_refuse_a_model_based_name():
     """One batched observer update per vector step has no per-environment action: refused, pointing elsewhere."""
     with pytest.raises(ValueError, match="make_vec") as excinfo:

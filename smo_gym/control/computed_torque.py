@@ -364,8 +364,8 @@ class ComputedTorquePolicy:
     t_start : float
         Time [s] after :meth:`reset` from which :math:`\hat w` and the ISM act (observer convergence).
     mass_scale : float
-        Scales every mass and inertia of the policy's model (a deliberate mismatch; the observer sees it as
-        disturbance).
+        Scales every mass and inertia of the policy's model (a deliberate mismatch, in
+        :data:`~smo_gym.mechanics.MASS_SCALE_RANGE`; the observer sees it as disturbance).
     disturbance_time_constant : float, optional
         Time constant [s] of the filter on the equivalent injection (:class:`~smo_gym.observers.
         MechanicalSuperTwisting`); default ``5 * dt``.

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
+from typing import ClassVar
 
 import mujoco
 import numpy as np
@@ -23,12 +24,18 @@ from gymnasium import utils
 from gymnasium.envs.mujoco import MujocoEnv
 from gymnasium.spaces import Box
 
-from .._validation import as_real_array, check_int_at_least, check_nonnegative
+from .._validation import as_real_array, check_choice, check_int_in_range, check_nonnegative
 
-__all__ = ["ASSETS", "SmoMujocoEnv", "asset_path"]
+__all__ = ["ASSETS", "MAX_FRAME_SKIP", "SmoMujocoEnv", "asset_path"]
 
 #: directory of the packaged MJCF models
 ASSETS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "assets")
+
+#: the most physics steps one environment step may take. One environment step is one control period: 10 000
+#: physics steps are 10 s (VariableInertia, 1 ms) to 20 s (the others, 2 ms) of simulated time, longer than any of
+#: these mechanisms takes to settle, and about 0.1 s of computation (measured: 7-10 us per physics step). A larger
+#: count is a mistake, not a control period: frame_skip=10**12 ran for hours, or failed in mj_step (a C int).
+MAX_FRAME_SKIP = 10_000
 
 
 def asset_path(name: str) -> str:
@@ -48,10 +55,16 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
 
     Subclasses set ``xml_file``, ``disturbance_joints`` and implement ``_reward_terminated(obs, action)`` and
     ``_initial_state()``.
+
+    The constructor refuses a ``frame_skip`` outside ``[1, MAX_FRAME_SKIP]`` and a ``render_mode`` that is neither
+    None nor one of ``metadata["render_modes"]`` (Gymnasium's convention), before it loads the model.
     """
 
     xml_file: str = ""
     disturbance_joints: Sequence[str] = ()
+    # on the class, as Gymnasium reads it there: gymnasium.make checks render_mode against it before construction
+    # (an instance adds render_fps, which depends on frame_skip)
+    metadata: ClassVar[dict] = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"]}
 
     def __init__(
         self,
@@ -70,7 +83,9 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
             render_mode=render_mode,
             **kwargs,
         )
-        frame_skip = check_int_at_least("frame_skip", frame_skip, 1)
+        frame_skip = check_int_in_range("frame_skip", frame_skip, 1, MAX_FRAME_SKIP)
+        if render_mode is not None:  # refused here, not at the first render(), and before MuJoCo loads anything
+            check_choice("render_mode", render_mode, self.metadata["render_modes"])
         self._reset_noise_scale = check_nonnegative("reset_noise_scale", reset_noise_scale)
         path = asset_path(self.xml_file)
         model = mujoco.MjModel.from_xml_path(path)
@@ -83,10 +98,7 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
             render_mode=render_mode,
             **kwargs,
         )
-        self.metadata = {
-            "render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"],
-            "render_fps": int(np.round(1.0 / self.dt)),
-        }
+        self.metadata = {**self.metadata, "render_fps": int(np.round(1.0 / self.dt))}
         self.disturbance_dofs = np.array(
             [self.model.jnt_dofadr[self.model.joint(name).id] for name in self.disturbance_joints], dtype=int
         )
@@ -174,6 +186,28 @@ class SmoMujocoEnv(MujocoEnv, utils.EzPickle):
         if self.render_mode == "human":
             self.render()
         return obs, float(reward), bool(terminated or diverged), False, info
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode from :meth:`_initial_state` (drawn from the environment's random stream, which ``seed``
+        reseeds), with no applied force.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Reseeds the environment's random stream (Gymnasium's convention).
+        options : dict, optional
+            Read by none of these environments, like Gymnasium's own MuJoCo environments: vector environments and
+            trainers pass one ``options`` dict to every sub-environment, so keys meant for others are not an error.
+            To start from a chosen state, call ``set_state(qpos, qvel)`` after the reset.
+
+        Raises
+        ------
+        TypeError
+            ``options`` is neither None nor a dict (a mistake such as ``options="x"``, never read otherwise).
+        """
+        if options is not None and not isinstance(options, dict):
+            raise TypeError(f"expected options to be None or a dict, actual value: {options!r:.80}")
+        return super().reset(seed=seed, options=options)
 
     def reset_model(self):
         with np.errstate(over="ignore", invalid="ignore"):  # a non-finite initial state is refused just below

@@ -5,10 +5,11 @@ This layer may import MuJoCo but not Gymnasium. It implements the dynamics proto
 """
 
 from .design import default_transform, dissipative_gains
-from .dynamics import MujocoDynamics, calibrate_model_miss
+from .dynamics import MASS_SCALE_RANGE, MujocoDynamics, calibrate_model_miss
 from .regressor import MujocoParameterRegressor
 
 __all__ = [
+    "MASS_SCALE_RANGE",
     "MujocoDynamics",
     "MujocoParameterRegressor",
     "calibrate_model_miss",

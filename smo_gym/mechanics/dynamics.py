@@ -51,7 +51,14 @@ import numpy as np
 
 from .._validation import as_real_array, check_int_at_least, check_real_in_range
 
-__all__ = ["MujocoDynamics", "calibrate_model_miss"]
+__all__ = ["MASS_SCALE_RANGE", "MujocoDynamics", "calibrate_model_miss"]
+
+#: the accepted ``mass_scale`` and ``inertia_scale``. They are a deliberate error of the observer's model: a few tens
+#: of percent in the studies here, and a thousandfold one is another machine. Far beyond it MuJoCo's own limits break
+#: the model (measured on the two-link arm, the Furuta pendulum and Hopper-v5: from 1e-15 down or 1e10 up, a
+#: "too close to singular" inertia matrix and accelerations of 1e14 or more, inf or NaN, which the model-based
+#: observers' calibration turned into a NaN ``lipschitz``).
+MASS_SCALE_RANGE = (1e-3, 1e3)
 
 #: MuJoCo's mjMAXVAL: ``mj_forward`` replaces a larger or non-finite control by 0 (with a warning only)
 _MAX_U = 1e10
@@ -72,6 +79,15 @@ def _scale(name: str, value, size: int, *, positive: bool = False) -> np.ndarray
     return arr
 
 
+def _mismatch_scale(name: str, value, size: int) -> np.ndarray:
+    """A mass or inertia scale (:func:`_scale`, ``> 0``) within :data:`MASS_SCALE_RANGE`."""
+    arr = _scale(name, value, size, positive=True)
+    low, high = MASS_SCALE_RANGE
+    if np.any((arr < low) | (arr > high)):
+        raise ValueError(f"expected {name} in [{low:g}, {high:g}] (a model mismatch), actual value: {value!r:.80}")
+    return arr
+
+
 class MujocoDynamics:
     r"""Joint-space model terms of a MuJoCo model, evaluated on a private copy.
 
@@ -83,9 +99,10 @@ class MujocoDynamics:
         Names of the measured joints (hinge or slide), in the order of the observer's channels. Default: every
         joint that is not the dependent side of an active joint equality constraint.
     mass_scale : float or array_like, shape (nbody,)
-        Multiplies ``body_mass`` of the copy (model mismatch; ``> 0``). ``inertia_scale`` defaults to the same value, so
-        the bodies keep their radii of gyration.
+        Multiplies ``body_mass`` of the copy (model mismatch; in :data:`MASS_SCALE_RANGE`, ``[1e-3, 1e3]``).
+        ``inertia_scale`` defaults to the same value, so the bodies keep their radii of gyration.
     inertia_scale : float or array_like, optional
+        Multiplies ``body_inertia`` of the copy (also in :data:`MASS_SCALE_RANGE`).
     damping_scale : float
         Multiplies ``dof_damping`` (viscous joint friction).
     frictionloss_scale : float
@@ -202,8 +219,8 @@ class MujocoDynamics:
         ``mass_scale`` and ``inertia_scale`` (same meaning; ``inertia_scale`` defaults to ``mass_scale``), e.g. a
         new one per episode. Sets :attr:`mass_scale` and :attr:`inertia_scale`."""
         m = self.model
-        ms = _scale("mass_scale", mass_scale, m.nbody, positive=True)
-        isc = ms if inertia_scale is None else _scale("inertia_scale", inertia_scale, m.nbody, positive=True)
+        ms = _mismatch_scale("mass_scale", mass_scale, m.nbody)
+        isc = ms if inertia_scale is None else _mismatch_scale("inertia_scale", inertia_scale, m.nbody)
         m.body_mass[:] = self._nominal_mass * ms
         m.body_inertia[:] = self._nominal_inertia * isc[:, None]
         self.mass_scale = float(ms[0]) if np.ndim(mass_scale) == 0 else ms.copy()
