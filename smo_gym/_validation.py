@@ -32,9 +32,9 @@ __all__ = [
     "check_positive",
     "check_positive_array",
     "check_positive_parameter",
-    "check_positive_range",
     "check_real",
     "check_real_in_range",
+    "check_scale_range",
     "did_you_mean",
 ]
 
@@ -186,14 +186,13 @@ def check_nonnegative_array(name: str, value) -> np.ndarray:
     return arr
 
 
-def check_positive_range(name: str, value) -> tuple[float, float]:
-    """A number ``s > 0`` as ``(s, s)``, or a pair ``(low, high)`` with ``0 < low <= high`` (a range to draw from)."""
-    if not isinstance(value, (tuple, list)):
-        scale = check_positive(name, value)
-        return scale, scale
-    if len(value) != 2:
+def check_scale_range(name: str, value, bounds: tuple[float, float]) -> tuple[float, float]:
+    """A number ``s`` in ``bounds`` as ``(s, s)``, or a pair ``(low, high)`` in ``bounds`` with ``low <= high`` (a
+    range to draw from); both ends of ``bounds`` included."""
+    pair = tuple(value) if isinstance(value, (tuple, list)) else (value, value)
+    if len(pair) != 2:
         raise ValueError(f"expected {name} a number or a pair (low, high), actual value: {_short(value)}")
-    low, high = (check_positive(name, v) for v in value)
+    low, high = (check_real_in_range(name, v, *bounds) for v in pair)
     if low > high:
         raise ValueError(f"expected {name} (low, high) with low <= high, actual value: {value!r}")
     return low, high

@@ -28,10 +28,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validation import check_positive_range
+from .._validation import check_scale_range
 from ..calibration import NOISE_FLOOR
 from ..engine.measurement import VelocityEstimator, mean_velocity_span
-from ..mechanics import MujocoDynamics, calibrate_model_miss, default_transform, dissipative_gains
+from ..mechanics import MASS_SCALE_RANGE, MujocoDynamics, calibrate_model_miss, default_transform, dissipative_gains
 from ..observers import MODEL_BASED_OBSERVERS, DissipativeSuperTwisting, MechanicalSuperTwisting, Observer
 from ..observers.input_kalman import InputJumpFilter
 from ..specs import MODEL_OPTIONS
@@ -106,7 +106,7 @@ def model_based_observer(
         r = np.maximum(measurement.noise_std() ** 2 + measurement.quantization_step() ** 2 / 12, NOISE_FLOOR**2)
         velocity, inputs = [e.qvel for e in episodes], [e.ctrl for e in episodes]
         return ModelBasedObserver(INPUT_FILTERS[name].from_episodes(dt, velocity, inputs, r, **kwargs), None, None)
-    low, high = check_positive_range("mass_scale", kwargs.pop("mass_scale", 1.0))
+    low, high = check_scale_range("mass_scale", kwargs.pop("mass_scale", 1.0), MASS_SCALE_RANGE)
     dyn = MujocoDynamics(model, mass_scale=0.5 * (low + high), contact=kwargs.pop("contact", "unknown"))
     if dyn.n != model.nv:
         raise ValueError(
