@@ -379,6 +379,45 @@ def test_unknown_input_conditions_hold_and_fail_by_name():
     assert rep.failing[0] == "rank(D) = m"
 
 
+UNIT_SCALINGS = [(1e-10, 1.0, 1.0), (1e10, 1.0, 1.0), (1.0, 1e-10, 1.0), (1.0, 1e10, 1.0), (1.0, 1.0, 1e-10)]
+UNIT_SCALINGS += [(1.0, 1.0, 1e10), (1e-10, 1e-10, 1e-10), (1e10, 1e10, 1e10), (1e10, 1e-10, 1e10)]
+
+
+def test_unknown_input_conditions_and_block_form_do_not_depend_on_units():
+    """A -> a A, C -> c C, D -> d D (time, output and input units) change no rank and no verdict, and a
+    ``C D`` that vanishes exactly (rounding errors after an orthogonal change of coordinates) has rank 0."""
+    T = np.linalg.qr(np.random.default_rng(4).standard_normal((3, 3)))[0]
+    rotated = (T @ A3 @ T.T, C3 @ T.T, T @ B3)  # C D = 0 in exact arithmetic: relative degree 3
+    assert 0.0 < np.abs(rotated[1] @ rotated[2]).max() < 1e-15
+    systems = [(AW, CW, DW), (A3, C3, B3), rotated, (AW, CW, np.hstack([DW, 2 * DW]))]
+    systems += [(A, C, D) for A, _, C, D in (_relative_degree_one([-1.0, -2.0]), _relative_degree_one([1.0, -2.0]))]
+    for A, C, D in systems:
+
+        def verdicts(A, C, D):
+            rep = c.unknown_input_conditions(A, C, D)
+            return rep.ok, rep.failing, rep.rank_D, rep.rank_CD, rep.invariant_zeros.size, rep.strongly_observable
+
+        def block_sizes(A, C):
+            try:
+                return c.observable_block_form(A, None, C).sizes
+            except c.UnknownInputConditionError as err:  # (A3, [2, 3, 1]): the zeros -1, -2 cancel two poles
+                return err.condition
+
+        ref, sizes = verdicts(A, C, D), block_sizes(A, C)
+        for a, cc, d in UNIT_SCALINGS:
+            assert verdicts(a * A, cc * C, d * D) == ref, (a, cc, d)
+            assert block_sizes(a * A, cc * C) == sizes, (a, cc)
+            T_c = c.output_coordinate_change(cc * C)  # C of full row rank whatever its units
+            np.testing.assert_array_equal(T_c[A.shape[0] - C.shape[0] :], cc * C)
+    assert c.unknown_input_conditions(*rotated).rank_CD == 0
+    # Utkin's observer reconstructs x from the equivalent injection whatever the units (A21 = C A N_c != 0)
+    A, B, C = np.array([[0.0, 1.0], [-1.0, -0.5]]), np.array([[0.0], [1.0]]), np.array([[1.0, 0.0]])
+    for a, cc, _ in UNIT_SCALINGS:
+        obs = c.UtkinObserver(a * A, B, cc * C, 1e-3 / a, gain=10.0 * a * cc, poles=[-3.0 * a])
+        obs.reset(np.zeros(1))
+        assert obs.x_reconstructed is not None, (a, cc)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Walcott-Zak observer
 # ---------------------------------------------------------------------------------------------------------------

@@ -219,6 +219,23 @@ def test_sliding_output_fails_when_the_relative_degree_condition_fails():
         sliding_output(P.A, np.ones((3, 1)))
 
 
+def test_sliding_output_does_not_depend_on_units():
+    """A -> a A, B -> b B, K -> k K (time, input and output units) change no relative degree and no verdict."""
+    P, H = control.furuta_slides(), control.helicopter_slides()
+    degrees = {"furuta": sliding_output(P.A, P.B).degrees.tolist(), "heli": sliding_output(H.A, H.B).degrees.tolist()}
+    for a, b, k in [(1e-10, 1.0, 1.0), (1e10, 1.0, 1.0), (1.0, 1e-10, 1e10), (1e-10, 1e10, 1e-10), (1e10,) * 3]:
+        assert sliding_output(a * P.A, b * P.B).degrees.tolist() == degrees["furuta"], (a, b)
+        so = sliding_output(a * H.A, b * H.B)  # relative degrees 2 and 4: G's rows scale like a and a^3
+        assert so.degrees.tolist() == degrees["heli"], (a, b)
+        assert sliding_output(a * H.A, b * H.B, k * so.K).degrees.tolist() == degrees["heli"], (a, b, k)
+        with pytest.raises(RelativeDegreeError, match="summing to n = 4"):
+            sliding_output(a * P.A, b * P.B, [[k, 0.0, 0.0, 0.0]])
+        with pytest.raises(RelativeDegreeError, match="decoupling matrix"):
+            sliding_output(a * H.A, b * H.B, k * np.vstack([np.eye(6)[0], 2 * np.eye(6)[0]]))
+        with pytest.raises(RelativeDegreeError, match="controllable pair"):
+            sliding_output(a * np.diag([-1.0, 2.0]), [[0.0], [b]])
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # the output-feedback stabilizer on the slides' Furuta pendulum
 

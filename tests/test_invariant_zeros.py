@@ -262,6 +262,99 @@ def test_bad_arguments_give_typed_errors():
 
 
 # ---------------------------------------------------------------------------------------------------------------
+# units decide no verdict: A, C, D scaled by constants; products that vanish exactly stay zero at every scale
+# ---------------------------------------------------------------------------------------------------------------
+def scalings():
+    """``(a, c, d)``: each of ``A``, ``C``, ``D`` scaled alone by 1e-10 and by 1e10, then all three at once."""
+    for k in range(3):
+        for s in (1e-10, 1e10):
+            yield tuple(s if i == k else 1.0 for i in range(3))
+    yield from ((1e-10, 1e-10, 1e-10), (1e10, 1e10, 1e10), (1e-10, 1e10, 1e-10), (1e10, 1e-10, 1e10))
+
+
+def rotated(A, C, D, seed=0):
+    """The system in random orthogonal coordinates: products that vanish exactly now hold rounding errors."""
+    T = np.linalg.qr(np.random.default_rng(seed).standard_normal(A.shape))[0]
+    return T @ A @ T.T, C @ T.T, T @ D
+
+
+def unit_chains():
+    """``x1' = x2, x2' = -x1`` seen by ``y1`` (``w`` never reaches it: relative degree 0, ``c_1 A^j D = 0`` for
+    every ``j``); ``x3' = x4, x4' = -x3 - x4 + w`` seen by ``y2`` (relative degree 2): strongly observable."""
+    A = np.array([[0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, -1.0, -1.0]])
+    return A, np.eye(4)[[0, 2]], np.eye(4)[:, [3]]
+
+
+def verdicts(A, C, D):
+    """Every yes/no and integer answer of strong_observability and relative_degrees."""
+    rep = c.strong_observability(A, C, D)
+    mol = rep.molinari
+    return (
+        rep.ok,
+        rep.relative_degrees.tolist(),
+        c.relative_degrees(A, C, D).tolist(),
+        rep.normal_rank,
+        rep.weakly_unobservable_dim,
+        rep.invariant_zeros.size,
+        mol.rank,
+        mol.n_derivatives,
+        rep.reason.split(" at s =")[0].split(":")[0],
+    )
+
+
+def derivative_stack(A, C, D, x, ws, k):
+    """``[y; y'; ...; y^(k)]`` at the state ``x`` with ``w^(j) = ws[j]``: ``y^(i) = C A^i x + sum_j C A^(i-1-j) D
+    w^(j)``."""
+    P = [np.linalg.matrix_power(A, i) for i in range(k + 1)]
+    return np.concatenate([C @ P[i] @ x + sum(C @ P[i - 1 - j] @ D @ ws[j] for j in range(i)) for i in range(k + 1)])
+
+
+UNIT_SYSTEMS = {
+    "strongly observable chain, relative degree 3": controllable_canonical([1.0], np.poly([-1.0, -2.0, -3.0])),
+    "zero at -2, relative degree 2": controllable_canonical(np.poly([-2.0]), np.poly([-1.0, -3.0, -4.0])),
+    "unstable zero of a MIMO system": gilbert_mimo(),
+    "tall system with a common zero": tall_common_zero(2.0),
+    "an output w never reaches": unit_chains(),
+    "more unknown inputs than outputs": (gilbert_mimo()[0], gilbert_mimo()[1][:1], gilbert_mimo()[2]),
+    "dependent unknown inputs": (gilbert_mimo()[0], gilbert_mimo()[1], gilbert_mimo()[2][:, [0, 0]]),
+}
+
+
+@pytest.mark.parametrize("name", UNIT_SYSTEMS)
+def test_verdicts_do_not_depend_on_the_units_of_a_c_d(name):
+    """Strong observability, relative degrees, normal rank, the number of zeros and Molinari's ranks are invariant
+    under A -> a A, C -> c C, D -> d D (a change of the time, output and input units); the zeros scale with ``a``
+    and Molinari's relation ``M x = Q Y`` holds for the derivatives of the scaled system's own output."""
+    A, C, D = UNIT_SYSTEMS[name]
+    ref = verdicts(A, C, D)
+    zeros = c.strong_observability(A, C, D).invariant_zeros
+    rng = np.random.default_rng(5)
+    for a, cc, d in scalings():
+        As, Cs, Ds = a * A, cc * C, d * D
+        assert verdicts(As, Cs, Ds) == ref, (a, cc, d)
+        rep = c.strong_observability(As, Cs, Ds)
+        assert_same_multiset(rep.invariant_zeros, a * zeros, rtol=1e-7)
+        mol = rep.molinari
+        x, ws = rng.standard_normal(A.shape[0]), d * rng.standard_normal((mol.n_derivatives + 1, D.shape[1]))
+        Y = derivative_stack(As, Cs, Ds, x, ws, mol.n_derivatives)
+        np.testing.assert_allclose(mol.M @ x, mol.Q @ Y, rtol=0, atol=1e-9 * (np.abs(mol.Q) @ np.abs(Y)).max())
+
+
+def test_a_product_that_vanishes_exactly_has_rank_zero_at_every_scale():
+    """``C D = C A D = 0`` in exact arithmetic, rounding errors after an orthogonal change of coordinates: the
+    relative degree stays 3 (and 0 for an output ``w`` never reaches) at every scale."""
+    chain = rotated(*controllable_canonical([1.0], np.poly([-1.0, -2.0, -3.0])), seed=1)
+    blind = rotated(*unit_chains(), seed=2)
+    for (A, C, D), degrees in ((chain, [3]), (blind, [0, 2])):
+        assert 0.0 < np.abs(C @ D).max() < 1e-15  # the rounding errors the rank decisions must see through
+        for a, cc, d in [(1.0, 1.0, 1.0), *scalings()]:
+            rep = c.strong_observability(a * A, cc * C, d * D)
+            assert rep.ok, (a, cc, d, rep.reason)
+            assert rep.relative_degrees.tolist() == degrees, (a, cc, d)
+            assert rep.weakly_unobservable_dim == 0 and rep.invariant_zeros.size == 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
 # SLICOT's AB08ND as the oracle
 # ---------------------------------------------------------------------------------------------------------------
 def slicot_zeros(A, C, D):

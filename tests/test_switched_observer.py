@@ -304,6 +304,22 @@ def test_switching_surface_condition_holds_and_fails_with_the_weakly_unobservabl
     assert SwitchingSurface([3, -2], [0.0], [0, 1]).condition(damper)[0]
 
 
+def test_detectability_and_the_surface_condition_do_not_depend_on_units():
+    """A -> a A, C -> c C, D -> d D, H -> h H (time, output, input and surface units) change no verdict."""
+    from smo_gym.control import SwitchingSurface
+
+    A = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, -1.0]])
+    B, C, D = np.array([[0.0], [1.0], [0.0]]), np.array([[1.0, 0.0, 0.0]]), np.array([[0.0], [1.0], [0.0]])
+    for a, cc, d in [(1e-10, 1.0, 1.0), (1e10, 1.0, 1.0), (1.0, 1e-10, 1e10), (1e-10, 1e10, 1e-10), (1e10,) * 3]:
+        hidden = LinearPlant(a * np.diag([1.0, -1.0]), [[0], [1]], cc * np.array([[0.0, 1.0]]), [[0], [d]])
+        seen = LinearPlant(a * np.diag([1.0, -1.0]), [[0], [1]], cc * np.array([[1.0, 1.0]]), [[0], [d]])
+        assert SwitchedLinearSystem([hidden, seen]).conditions().detectable == (False, True), (a, cc, d)
+        system = SwitchedLinearSystem([LinearPlant(a * A, B, cc * C, d * D)])
+        for h in (1e-10, 1.0, 1e10):  # x3 is weakly unobservable: H = e1 never sees it, H = e3 does
+            assert SwitchingSurface([h, 0, 0], [0.0], [0, 0]).condition(system) == (True, ""), (a, cc, d, h)
+            assert not SwitchingSurface([0, 0, h], [0.0], [0, 0]).condition(system)[0], (a, cc, d, h)
+
+
 def test_switching_surface_bad_input():
     from smo_gym.control import AutonomousSwitchedObserver, SwitchingSurface
 

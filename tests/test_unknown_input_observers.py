@@ -201,6 +201,58 @@ def test_no_static_left_inverse_names_the_zero():
     assert not unstable.static and not unstable.asymptotic
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# units decide no verdict
+# ---------------------------------------------------------------------------------------------------------------
+UNIT_SCALINGS = [
+    (1e-10, 1.0, 1.0),
+    (1e10, 1.0, 1.0),
+    (1.0, 1e-10, 1.0),
+    (1.0, 1e10, 1.0),
+    (1.0, 1.0, 1e-10),
+    (1.0, 1.0, 1e10),
+    (1e-10, 1e-10, 1e-10),
+    (1e10, 1e10, 1e10),
+]
+
+
+def _detection_verdicts(A, C, D):
+    det, inv = c.strong_detectability(A, C, D), c.left_inverse(A, C, D)
+    zd = det.zero_dynamics
+    return (
+        det.ok,
+        det.strongly_observable,
+        det.invariant_zeros.size,
+        det.unstable_zeros.size,
+        det.weakly_unobservable_dim,
+        None if zd is None else (zd.T_o.shape[0], zd.n_unstable),
+        inv.static,
+        inv.asymptotic,
+        inv.n_derivatives,
+        inv.visible_zeros.size,
+    )
+
+
+@pytest.mark.parametrize(
+    "plant",
+    [_detectable_plant(-1.5), _detectable_plant(1.0), _functional_plant(), _left_inverse_plant(), c.furuta_slides()],
+    ids=["stable zero", "unstable zero", "two zeros", "unobservable zero", "furuta"],
+)
+def test_detectability_and_left_inverse_do_not_depend_on_units(plant):
+    """A -> a A, C -> c C, D -> d D (time, output and input units) change no verdict and no number of
+    derivatives; the static left inverse still reads w from the scaled system's output derivatives."""
+    ref = _detection_verdicts(plant.A, plant.C, plant.D)
+    rng = np.random.default_rng(1)
+    for a, cc, d in UNIT_SCALINGS:
+        P = c.LinearPlant(a * plant.A, plant.B, cc * plant.C, d * plant.D)
+        assert _detection_verdicts(P.A, P.C, P.D) == ref, (a, cc, d)
+        rep = c.left_inverse(P)
+        if rep.static:
+            x, W = rng.standard_normal(P.n), rng.standard_normal((rep.n_derivatives + 1, 1))
+            Y = _derivative_stack(P, x, W, rep.n_derivatives)
+            np.testing.assert_allclose(rep.G @ Y, W[0], atol=1e-9 * (np.abs(rep.G) @ np.abs(Y)).max())
+
+
 @pytest.mark.parametrize("alpha, lipschitz", [(1, 30.0), (2, 60.0)])
 def test_left_inverse_identification_order_in_the_sampling_step(alpha, lipschitz):
     steps, errs = [1e-3, 2e-3, 4e-3], []

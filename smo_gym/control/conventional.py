@@ -75,7 +75,7 @@ from .._validation import (
 )
 from ..design.gains import ackermann_observer_gain
 from ..design.lmi import LMIInfeasibleError
-from .plants import RANK_TOL, _matrix, _rank
+from .plants import RANK_TOL, _matrix, _rank, _unit
 from .unknown_inputs import StrongDetectabilityReport, strong_detectability
 
 __all__ = [
@@ -124,9 +124,9 @@ def _check_system(A, B, C, D=None):
         raise ValueError(f"expected a square A, actual value: shape {A.shape}")
     B = np.zeros((n, 0)) if B is None else _matrix("B", B, (n, None))
     C = _matrix("C", np.atleast_2d(C), (None, n))
-    if _rank(C) < C.shape[0]:
+    if _rank(_unit(C)) < C.shape[0]:
         raise ValueError(
-            f"expected C of full row rank {C.shape[0]} (independent outputs), actual value: rank {_rank(C)}"
+            f"expected C of full row rank {C.shape[0]} (independent outputs), actual value: rank {_rank(_unit(C))}"
         )
     if D is not None:
         D = _matrix("D", D, (n, None))
@@ -150,8 +150,8 @@ def output_coordinate_change(C) -> np.ndarray:
     """
     C = _matrix("C", np.atleast_2d(C), (None, None))
     p, n = C.shape
-    if p > n or _rank(C) < p:
-        raise ValueError(f"expected C of full row rank p <= n, actual value: shape {C.shape}, rank {_rank(C)}")
+    if p > n or _rank(_unit(C)) < p:
+        raise ValueError(f"expected C of full row rank p <= n, actual value: shape {C.shape}, rank {_rank(_unit(C))}")
     _, _, Vh = np.linalg.svd(C)
     return np.vstack([Vh[p:], C])
 
@@ -442,7 +442,8 @@ class UtkinObserver(_SampledObserver):
         Bz = self.T @ self.B
         self._Phi, self._Gam = _zoh(Az, Bz, self.dt)
         self._a = _lowpass_weight(self.dt, self.tau)
-        self._A21_pinv = np.linalg.pinv(self.A21) if k and _rank(self.A21) == k else None
+        A21_unit = _unit(self.C) @ _unit(self.A) @ self.T_inv[:, :k]  # A21 = C A N_c on its factors' scale
+        self._A21_pinv = np.linalg.pinv(self.A21) if k and _rank(A21_unit) == k else None
         self.z_hat = None
         self.nu = self.nu_filtered = self.sliding = self.x_reconstructed = None
 
@@ -544,7 +545,7 @@ def observable_block_form(A, B, C) -> ObservableBlockForm:
     Q = Vh.T  # columns: row space of C (first p), then the rest
     sizes = [p]
     done = p
-    scale = max(np.linalg.norm(A), 1.0)
+    scale = np.linalg.norm(A)  # the couplings are blocks of Q^T A Q: judged against ||A||, whatever its units
     while done < n:
         At = Q.T @ A @ Q
         last = slice(done - sizes[-1], done)
@@ -751,7 +752,7 @@ def unknown_input_conditions(A, C, D) -> UnknownInputConditions:
     """
     A, _, C, D = _check_system(A, None, C, D)
     m = D.shape[1]
-    rD, rCD = _rank(D), _rank(C @ D)
+    rD, rCD = _rank(_unit(D)), _rank(_unit(C) @ _unit(D))  # CD judged against ||C|| ||D||
     failing, reasons = [], []
     zeros = np.zeros(0, dtype=complex)
     if rD < m:

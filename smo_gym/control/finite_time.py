@@ -56,7 +56,7 @@ from .._validation import (
     check_positive_array,
 )
 from .controllers import StateFeedback
-from .plants import RANK_TOL, relative_degrees
+from .plants import RANK_TOL, _unit, relative_degrees
 
 __all__ = [
     "DEFAULT_BETAS",
@@ -392,18 +392,17 @@ def _controllability_output(A: np.ndarray, B: np.ndarray) -> np.ndarray:
             f"expected B with full column rank {m} (independent inputs) for a vector relative degree, actual value: "
             f"rank {np.linalg.matrix_rank(B)}"
         )
-    scale = max(np.linalg.norm(B), 1e-300)
-    cols, owner = [], []
+    cols, cols_unit, owner = [], [], []  # A^j b_i, and the same on its factors' scale for the rank decisions
     mu = np.zeros(m, dtype=int)
     for j in range(n):
-        AjB = np.linalg.matrix_power(A, j) @ B
+        AjB, AjB_unit = np.linalg.matrix_power(A, j) @ B, np.linalg.matrix_power(_unit(A), j) @ _unit(B)
         for i in range(m):
             if j > 0 and mu[i] < j:  # A^j b_i depends on the earlier columns once A^(j-1) b_i did
                 continue
-            cand = np.column_stack(cols + [AjB[:, i]])
-            s = np.linalg.svd(cand / scale, compute_uv=False)
+            s = np.linalg.svd(np.column_stack(cols_unit + [AjB_unit[:, i]]), compute_uv=False)
             if s[-1] > RANK_TOL * max(s[0], 1.0) * 1e2 and len(cols) < n:
                 cols.append(AjB[:, i])
+                cols_unit.append(AjB_unit[:, i])
                 owner.append(i)
                 mu[i] += 1
     if len(cols) < n:
@@ -456,7 +455,9 @@ def sliding_output(A, B, K=None) -> SlidingOutput:
             f"relative degrees {r.tolist()}"
         )
     G = np.vstack([K[i] @ np.linalg.matrix_power(A, r[i] - 1) @ B for i in range(m)])
-    sG = np.linalg.svd(G, compute_uv=False)
+    # rows k_i A^(r_i - 1) B on their factors' scale: rows with different r_i scale differently with A
+    G_unit = np.vstack([_unit(K[i]) @ np.linalg.matrix_power(_unit(A), r[i] - 1) @ _unit(B) for i in range(m)])
+    sG = np.linalg.svd(G_unit, compute_uv=False)
     if sG[-1] <= RANK_TOL * 1e2 * max(sG[0], 1e-300):
         raise RelativeDegreeError(
             f"expected a vector relative degree (decoupling matrix G = [k_i A^(r_i-1) B] invertible), actual value: "

@@ -48,7 +48,9 @@ __all__ = [
 
 #: tolerance of the rank decisions: singular values below ``RANK_TOL * max(largest, 1)`` count as zero, relative to
 #: the matrix's scale above 1 and absolute below it (so that a product that vanishes in exact arithmetic, whose
-#: entries are rounding errors, has rank 0; a matrix whose entries are all below ``RANK_TOL`` counts as zero too)
+#: entries are rounding errors, has rank 0). The public functions apply it to matrices built from the factors
+#: ``A``, ``C``, ``D`` brought to unit norm (:func:`_unit`): a product ``C A^k D`` is then judged against
+#: ``||C|| ||A||^k ||D||``, the scale of its rounding errors, and no verdict depends on the units of the data
 RANK_TOL = 1e-9
 
 
@@ -114,6 +116,16 @@ def _triple(plant, C, D, caller: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return _check_triple(plant, C, D)
 
 
+def _unit(M: np.ndarray) -> np.ndarray:
+    """``M`` scaled to Frobenius norm in ``[1/sqrt 2, sqrt 2]`` by a power of two (exact; a zero ``M`` unchanged).
+
+    Rank decisions take the factors of a product through this, never the product itself: judged against its own
+    norm, a product that vanishes in exact arithmetic (entries ``1e-17``) would have full rank; judged against 1,
+    a small but genuine one (``1e-10 C``) would have rank 0.
+    """
+    return M / _pow2(np.linalg.norm(M))
+
+
 def _rank(M: np.ndarray) -> int:
     if M.size == 0:
         return 0
@@ -154,12 +166,12 @@ def relative_degrees(A, C, D) -> np.ndarray:
     """
     A, C, D = _check_triple(A, C, D)
     n = A.shape[0]
-    scale = max(np.abs(D).max(), 1e-300)
+    A, D = _unit(A), _unit(D)  # c_i A^j D judged against ||c_i|| ||A||^j ||D||, whatever the units
     r = np.zeros(C.shape[0], dtype=int)
     for i, c in enumerate(C):
-        v = c.copy()
+        v = _unit(c)
         for j in range(n):
-            if np.abs(v @ D).max() > RANK_TOL * scale * max(np.abs(v).max(), 1.0):
+            if np.abs(v @ D).max() > RANK_TOL:
                 r[i] = j + 1
                 break
             v = v @ A
@@ -375,9 +387,15 @@ def molinari_decoupling(A, C, D) -> MolinariDecoupling:
     one derivative). Rows are compressed to an orthonormal basis of the row space after each step. It stops when
     the rank stops growing; ``ker M`` is then the weakly unobservable subspace (``ker M_n = V*``), so the triple is
     strongly observable iff ``rank M = n``.
+
+    The steps run on ``A / a``, ``C / c``, ``D / d``, each scaled to unit norm by a power of two, so that no rank
+    decision depends on units: in the time ``a t`` the output ``y / c`` has the derivatives ``y^(k) / (c a^k)``,
+    which is how ``Q`` is scaled back to the derivatives of ``y``.
     """
     A, C, D = np.asarray(A, float), np.asarray(C, float), np.asarray(D, float)
     n, p = A.shape[0], C.shape[0]
+    a, c = _pow2(np.linalg.norm(A)), _pow2(np.linalg.norm(C))
+    A, C, D = A / a, C / c, _unit(D)
     width = p * (n + 2)
 
     def shift(Q):
@@ -401,7 +419,8 @@ def molinari_decoupling(A, C, D) -> MolinariDecoupling:
         M, Q, rank, steps = M_new, Q_new, r_new, steps + 1
     used = np.nonzero(np.any(np.abs(Q) > 0, axis=0))[0]
     n_der = int(used.max() // p) if used.size else 0
-    return MolinariDecoupling(M=M, Q=Q[:, : p * (n_der + 1)], n_derivatives=n_der, steps=steps)
+    Q = Q[:, : p * (n_der + 1)] / (c * a ** np.repeat(np.arange(n_der + 1), p))  # weights of y^(k)
+    return MolinariDecoupling(M=M, Q=Q, n_derivatives=n_der, steps=steps)
 
 
 def _compress(M, Q):
@@ -409,7 +428,7 @@ def _compress(M, Q):
     r = int(np.sum(s > RANK_TOL * max(s[0] if s.size else 0.0, 1.0)))
     Ur = U[:, :r]
     Mc, Qc = Ur.T @ M, Ur.T @ Q
-    Qc[np.abs(Qc) < 1e-14 * max(np.abs(Qc).max(), 1.0)] = 0.0
+    Qc[np.abs(Qc) < 1e-14 * max(np.abs(Qc).max(initial=0.0), 1.0)] = 0.0
     return Mc, Qc
 
 
@@ -452,9 +471,9 @@ def strong_observability(A, C=None, D=None) -> StrongObservabilityReport:
     v_dim = n - mol.rank
     zeros = np.array([], dtype=complex)
     reason = ""
-    if _rank(D) < m:
+    if _rank(_unit(D)) < m:
         reason = (
-            f"D has rank {_rank(D)} < m={m} columns: some unknown inputs act identically on the state and "
+            f"D has rank {_rank(_unit(D))} < m={m} columns: some unknown inputs act identically on the state and "
             "can never be told apart"
         )
     elif p < m:

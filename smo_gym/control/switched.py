@@ -91,7 +91,7 @@ from .._validation import (
     check_positive,
 )
 from .estimators import CascadedHOSMObserver, _output_sample
-from .plants import RANK_TOL, LinearPlant, NotStronglyObservableError, StrongObservabilityReport
+from .plants import RANK_TOL, LinearPlant, NotStronglyObservableError, StrongObservabilityReport, _unit
 
 __all__ = [
     "AutonomousSwitchedObserver",
@@ -116,6 +116,7 @@ def is_detectable(A, C) -> bool:
     r"""Hautus test: :math:`\operatorname{rank}[A - \lambda I; C] = n` for every eigenvalue with
     :math:`\operatorname{Re}\lambda \ge 0`."""
     A, C = np.asarray(A, float), np.atleast_2d(np.asarray(C, float))
+    A, C = _unit(A), _unit(C)  # unit scale, so that the tolerances below are relative to ||A|| and ||C||
     n = A.shape[0]
     for lam in np.linalg.eigvals(A):
         if lam.real < -RANK_TOL * max(1.0, abs(lam)):
@@ -994,7 +995,7 @@ class SwitchingSurface:
             V = Vh[rank:].T  # basis of the weakly unobservable subspace
             if V.size == 0:
                 continue
-            Q = np.vstack([self.H @ np.linalg.matrix_power(m.A, i) for i in range(system.n)])
+            Q = np.vstack([_unit(self.H) @ np.linalg.matrix_power(_unit(m.A), i) for i in range(system.n)])
             leak = np.abs(Q @ V).max()
             if leak > 1e-9 * max(np.abs(Q).max(), 1.0):
                 return False, (

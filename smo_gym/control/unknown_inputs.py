@@ -83,6 +83,7 @@ from .plants import (
     _matrix,
     _rank,
     _triple,
+    _unit,
     strong_observability,
 )
 
@@ -104,7 +105,8 @@ __all__ = [
     "zero_dynamics",
 ]
 
-#: an eigenvalue counts as unstable when its real part is at or above ``-STABILITY_TOL * max(1, ||A||)``
+#: an eigenvalue counts as unstable when its real part is at or above ``-STABILITY_TOL * ||A||`` (relative: the
+#: zeros scale with ``A``; ``||A||`` read as 1 when ``A = 0``)
 STABILITY_TOL = 1e-9
 
 
@@ -135,7 +137,7 @@ def _orthonormal_rows(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _unstable(ev: np.ndarray, A: np.ndarray) -> np.ndarray:
-    return np.asarray(ev).real >= -STABILITY_TOL * max(1.0, np.linalg.norm(A, 2))
+    return np.asarray(ev).real >= -STABILITY_TOL * (np.linalg.norm(A, 2) or 1.0)
 
 
 @dataclass(frozen=True)
@@ -207,17 +209,17 @@ def zero_dynamics(A, C=None, D=None) -> ZeroDynamics:
     A, C, D = _triple(A, C, D, "zero_dynamics")
     rep = strong_observability(A, C, D)
     n, m = A.shape[0], D.shape[1]
-    if _rank(D) < m or rep.normal_rank < n + m:
+    if _rank(_unit(D)) < m or rep.normal_rank < n + m:
         raise NotStronglyDetectableError(
             f"expected a left-invertible triple (rank D = m = {m} and Rosenbrock normal rank n + m = {n + m}), "
-            f"actual value: rank D = {_rank(D)}, normal rank {rep.normal_rank}: an unknown input can move the "
+            f"actual value: rank D = {_rank(_unit(D))}, normal rank {rep.normal_rank}: an unknown input can move the "
             "state without any trace in y"
         )
     mol = rep.molinari
     T_o, T_w = _orthonormal_rows(mol.M)
     TD = T_o @ D
-    if _rank(TD) < m:  # cannot happen for a left-invertible triple; guards the rank decisions' consistency
-        raise RuntimeError(f"expected T_o D of full column rank {m}, actual value: rank {_rank(TD)}")
+    if _rank(T_o @ _unit(D)) < m:  # cannot happen for a left-invertible triple; guards the rank decisions
+        raise RuntimeError(f"expected T_o D of full column rank {m}, actual value: rank {_rank(T_o @ _unit(D))}")
     TDp = np.linalg.pinv(TD)
     Pi = np.eye(n) - D @ TDp @ T_o
     A_xi = T_w @ Pi @ A @ T_w.T
@@ -225,7 +227,7 @@ def zero_dynamics(A, C=None, D=None) -> ZeroDynamics:
     H = T_w @ D @ TDp
     d = T_w.shape[0]
     if d:
-        tol = STABILITY_TOL * max(1.0, np.linalg.norm(A, 2))
+        tol = STABILITY_TOL * (np.linalg.norm(A, 2) or 1.0)
         T_s, U, n_uns = sla.schur(A_xi, output="real", sort=lambda re, im: re >= -tol)
     else:
         T_s, U, n_uns = np.zeros((0, 0)), np.zeros((0, 0)), 0
@@ -296,7 +298,7 @@ def strong_detectability(A, C=None, D=None) -> StrongDetectabilityReport:
     so = strong_observability(A, C, D)
     n, m = A.shape[0], D.shape[1]
     empty = np.zeros(0, dtype=complex)
-    if _rank(D) < m or so.normal_rank < n + m:
+    if _rank(_unit(D)) < m or so.normal_rank < n + m:
         return StrongDetectabilityReport(
             ok=False,
             strongly_observable=False,
@@ -337,7 +339,7 @@ def strong_detectability(A, C=None, D=None) -> StrongDetectabilityReport:
 def _unobservable_basis(A: np.ndarray, C: np.ndarray) -> np.ndarray:
     """Orthonormal rows spanning the unobservable subspace of ``(A, C)`` (null space of the observability matrix)."""
     n = A.shape[0]
-    O = np.vstack([C @ np.linalg.matrix_power(A, j) for j in range(n)])
+    O = np.vstack([_unit(C) @ np.linalg.matrix_power(_unit(A), j) for j in range(n)])  # C A^j on its factors' scale
     return _orthonormal_rows(O)[1]
 
 
@@ -742,7 +744,9 @@ def left_inverse(A, C=None, D=None) -> LeftInverseReport:
     S_up = np.hstack([np.zeros((n, p)), S])
     TD = zd.T_o @ D
     G = np.linalg.pinv(TD) @ zd.T_o @ (S_up - A @ S_ext)
-    k = _highest_block(G, p)
+    # the weights of y^(k) compared at the size of y^(k), ||C|| ||A||^k: raw weights depend on the time unit
+    size = np.linalg.norm(C) * (np.linalg.norm(A) or 1.0) ** np.arange(G.shape[1] // p)
+    k = _highest_block(G * np.repeat(size, p), p)
     return LeftInverseReport(
         static=True,
         asymptotic=True,
