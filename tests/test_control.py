@@ -247,6 +247,10 @@ def test_regular_form_and_2013_surface():
     P = c.LinearPlant(A, B, np.eye(3)[[0, 2]], D)  # w = y1'' - y2
     Tr, _Tri = c.regular_form(B)
     np.testing.assert_allclose(Tr @ B, [[0.0], [0.0], [1.0]], atol=1e-12)
+    for scale in (1e-10, 1e10):  # B^perp does not depend on B's units (a B of 1e-10 had no full-rank transform)
+        Tr_s, _ = c.regular_form(scale * B)
+        np.testing.assert_allclose(Tr_s[:2], Tr[:2], atol=1e-12)
+        np.testing.assert_allclose(Tr_s @ (scale * B), [[0.0], [0.0], [1.0]], atol=1e-12)
     ctl = c.UnmatchedCompensationController(c.CascadedHOSMObserver(P, 1e-3, 10.0), rho=1.0)
     assert ctl.J == 0
     np.testing.assert_allclose(ctl.G, np.linalg.pinv(ctl.A12) @ ctl.D1, atol=1e-12)

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .._validation import check_bool, check_choice, check_nonnegative, check_positive, check_real
-from .plants import LinearPlant, _check_definite, _matrix, _square_matrix, left_annihilator
+from .plants import LinearPlant, _check_definite, _matrix, _square_matrix, _unit, left_annihilator
 
 __all__ = [
     "CompensationController",
@@ -126,7 +126,7 @@ def regular_form(B) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(
             f"expected B with full column rank, actual value: rank {np.linalg.matrix_rank(B)} < {B.shape[1]}"
         )
-    Tr = np.vstack([left_annihilator(B), np.linalg.pinv(B)])
+    Tr = np.vstack([left_annihilator(_unit(B)), np.linalg.pinv(B)])  # B^perp of any units (its floor is absolute)
     return Tr, np.linalg.inv(Tr)
 
 
