@@ -178,6 +178,22 @@ def test_ackermann_refuses_a_gain_that_does_not_place_the_poles(rng):
     np.testing.assert_allclose(np.poly(np.eye(3, k=1) - np.outer(l, [1.0, 0.0, 0.0])), np.poly([-2.0] * 3))
 
 
+def test_ackermann_observability_does_not_depend_on_units():
+    """A -> a A, c -> s c (time and output units) leave (A, c) observable or not: the blocks c A^i of the
+    observability matrix scale as s a^i, and NumPy's rank on the raw stack called a 3-state chain unobservable for
+    a = 1e-10 and 1e10. The gain scales as l -> (a / s) l when the poles scale with a; a pair that is unobservable
+    in exact arithmetic stays refused at every scale, in random coordinates too."""
+    chain, e1, poles = np.eye(3, k=1), np.array([1.0, 0.0, 0.0]), np.array([-1.0, -2.0, -3.0])
+    l = ackermann_observer_gain(chain, e1, poles)
+    T = np.linalg.qr(np.random.default_rng(4).standard_normal((2, 2)))[0]
+    blind = (T @ np.diag([1.0, 2.0]) @ T.T, np.array([1.0, 0.0]) @ T.T)  # the second mode is invisible
+    for a in (1e-10, 1.0, 1e10):
+        for s in (1e-10, 1.0, 1e10):
+            np.testing.assert_allclose(ackermann_observer_gain(a * chain, s * e1, a * poles), (a / s) * l, rtol=1e-9)
+            with pytest.raises(ValueError, match="observable pair"):
+                ackermann_observer_gain(a * blind[0], s * blind[1], a * poles[:2])
+
+
 def independent_ackermann_repeated(A, z):
     """Ackermann for ``c = e_1`` and all poles at ``z``, directly: ``l = (A - zI)^m O^{-1} e_m``."""
     m = A.shape[0]

@@ -82,6 +82,29 @@ def test_decomposition_rejects_bad_input():
         block_decomposition(A, C, Phi=np.eye(5))  # C Phi^-1 is not [C0 0]
 
 
+def test_decomposition_does_not_depend_on_units():
+    """A -> a A, C -> c C (time and output units): the same block sizes and Phi (its staircase is made of
+    subspaces), F and A_tilde scaled by a, C0 by c, and the printed Phi's residual unchanged. The observability check
+    (NumPy's rank on the raw [C; CA; ...], whose blocks scale as c a^i) refused the example for a = 1e-10 and 1e10,
+    and the staircase's rank floor stalled on C = 1e-10 C. A superdiagonal block that vanishes in exact arithmetic
+    (a chain of 4 seen in its first two states, in random coordinates) keeps rank 0 at every scale: sizes (2, 1, 1)."""
+    T = np.linalg.qr(np.random.default_rng(6).standard_normal((4, 4)))[0]
+    chain = (T @ np.eye(4, k=1) @ T.T, np.eye(4)[:2] @ T.T)
+    ref, ref_paper = block_decomposition(A, C), block_decomposition(A, C, Phi=EX["Phi"])
+    for a in (1e-10, 1.0, 1e10):
+        for cc in (1e-10, 1.0, 1e10):
+            dec = block_decomposition(a * A, cc * C)
+            assert dec.block_sizes == ref.block_sizes == (2, 2, 1), (a, cc)
+            np.testing.assert_allclose(dec.Phi, ref.Phi, atol=1e-9)
+            np.testing.assert_allclose(dec.F, a * ref.F, atol=1e-9 * a * np.abs(ref.F).max())
+            np.testing.assert_allclose(dec.A_tilde, a * ref.A_tilde, atol=1e-9 * a * np.abs(ref.A_tilde).max())
+            np.testing.assert_allclose(dec.C0, cc * ref.C0, atol=1e-9 * cc * np.abs(ref.C0).max())
+            paper = block_decomposition(a * A, cc * C, Phi=EX["Phi"])
+            assert paper.block_sizes == ref_paper.block_sizes
+            np.testing.assert_allclose(paper.residual, ref_paper.residual, rtol=1e-6)
+            assert block_decomposition(a * chain[0], cc * chain[1]).block_sizes == (2, 1, 1), (a, cc)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # LMI designs, re-verified
 # ----------------------------------------------------------------------------------------------------------------

@@ -168,6 +168,23 @@ def binomial_coefficients(n: int, rate: float = 1.0) -> np.ndarray:
     return coeffs
 
 
+def _pow2(x: float) -> float:
+    """The power of two nearest to ``x > 0`` (1 for 0): a scaling that rounds no entry."""
+    return float(2.0 ** np.round(np.log2(x))) if x > 0 else 1.0
+
+
+def _observability_rank(A: np.ndarray, C: np.ndarray) -> int:
+    """Rank of the observability matrix ``[C; C A; ...; C A^(n-1)]``, built from ``A`` and ``C`` at unit norm.
+
+    Observability does not change under ``A -> a A``, ``C -> c C``, but the blocks ``C A^i`` scale as ``c a^i``:
+    NumPy's tolerance on the raw stack, relative to its largest singular value, judged the blocks of a small ``A``
+    (all but the first of a large one) as zero. The factors are scaled by powers of two (exact), never the stack,
+    as in the control library's rank decisions (``plants._unit``).
+    """
+    A, C = A / _pow2(np.linalg.norm(A)), C / _pow2(np.linalg.norm(C))
+    return int(np.linalg.matrix_rank(np.vstack([C @ np.linalg.matrix_power(A, i) for i in range(A.shape[0])])))
+
+
 def ackermann_observer_gain(A, c, poles) -> np.ndarray:
     r"""Observer gain ``l`` placing the eigenvalues of ``A - l c^T`` at ``poles`` (Ackermann's formula).
 
@@ -213,10 +230,9 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
     if not (np.isfinite(A).all() and np.isfinite(c).all() and np.isfinite(poles).all()):
         raise ValueError("expected finite A, c and poles, actual value: a NaN or infinite entry")
     obs = np.vstack([c @ np.linalg.matrix_power(A, i) for i in range(n)])
-    if np.linalg.matrix_rank(obs) < n:
-        raise ValueError(
-            f"expected an observable pair (A, c), actual value: observability rank {np.linalg.matrix_rank(obs)} < {n}"
-        )
+    rank = _observability_rank(A, c)
+    if rank < n:
+        raise ValueError(f"expected an observable pair (A, c), actual value: observability rank {rank} < {n}")
     coeffs = np.real_if_close(np.poly(poles))  # p(s) = s^n + a_1 s^{n-1} + ... + a_n
     if np.iscomplexobj(coeffs):
         raise ValueError(f"expected poles closed under conjugation, actual value: {poles!r}")

@@ -40,6 +40,7 @@ from .._validation import (
     check_positive,
     check_real_in_range,
 )
+from .gains import _observability_rank, _pow2
 from .lmi import LMIInfeasibleError  # shared with the switched-gain design of Efimov et al. 2017
 
 __all__ = [
@@ -138,8 +139,7 @@ def _check_pair(A, C) -> tuple[np.ndarray, np.ndarray]:
     k = C.shape[0]
     if np.linalg.matrix_rank(C) != k:
         raise ValueError(f"expected C of full row rank {k}, actual value: rank {np.linalg.matrix_rank(C)}")
-    obs = np.vstack([C @ np.linalg.matrix_power(A, i) for i in range(n)])
-    rank = np.linalg.matrix_rank(obs)
+    rank = _observability_rank(A, C)  # from A and C at unit norm: the blocks C A^i scale apart with the units
     if rank < n:
         raise ValueError(f"expected an observable pair (A, C), actual value: observability rank {rank} < {n}")
     return A, C
@@ -201,7 +201,7 @@ def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposit
     tol = check_positive("tol", tol)
     A, C = _check_pair(A, C)
     n, k = A.shape[0], C.shape[0]
-    scale = max(np.linalg.norm(A), 1.0)
+    scale = np.linalg.norm(A) or 1.0  # blocks of Phi A Phi^-1 judged against ||A||, whatever its units
     if Phi is not None:
         Phi = _as_matrix("Phi", Phi, (n, n))
         if np.linalg.cond(Phi) > 1e12:
@@ -233,7 +233,10 @@ def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposit
 
     # orthogonal staircase (30)
     O = np.eye(n)
-    Am, Cm = A.copy(), C.copy()
+    # on A and C at unit norm (the subspaces do not depend on their scale): the tolerance below, absolute under 1 so
+    # that a block vanishing in exact arithmetic has rank 0, read every block of a small C (or of a small A, the
+    # later Cm) as zero
+    Am, Cm = A / _pow2(np.linalg.norm(A)), C / _pow2(np.linalg.norm(C))
     sizes: list[int] = []
     offset = 0
     while True:
