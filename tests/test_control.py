@@ -8,6 +8,8 @@ tables and plots are in ``scripts/control_experiments.py``.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -231,6 +233,22 @@ def test_compensation_rejects_unmatched_disturbance():
         c.CompensationController(obs)
 
 
+@pytest.mark.parametrize("alpha", [1, 2])
+def test_theoretical_orders_do_not_depend_on_units(furuta, alpha):
+    """A -> a A (with the step and the poles in the same time unit), C -> c C, D -> d D: the same orders. The maps
+    weigh y^(k), whose size grows as ||A||^k, and were judged by their raw entries: the identification order of the
+    relative-degree-one plant dropped by one for a = 1e-10, Furuta's rose by one for a = 1e5, and for a = 1e10 both
+    maps of both plants seemed to need one derivative fewer (Furuta's identification two)."""
+    A = np.array([[0.0, 1.0, 1.0], [-2.0, -1.0, 0.0], [1.0, 0.0, -3.0]])
+    rd1 = c.LinearPlant(A, [[0.0], [1.0], [1.0]], np.eye(3)[:2], [[0.0], [1.0], [0.0]])
+    for plant, orders in ((furuta, (alpha + 1, alpha)), (rd1, (alpha + 1, alpha + 1))):
+        for a, cc, d in [(1e-10, 1, 1), (1e5, 1, 1), (1e10, 1, 1), (1, 1e-10, 1e10), (1e10, 1e10, 1e-10), (1, 1, 1)]:
+            P = c.LinearPlant(a * plant.A, plant.B, cc * plant.C, d * plant.D)
+            poles = -a * np.linspace(10.0, 13.0, P.n)
+            obs = c.CascadedHOSMObserver(P, 1e-3 / a, 10.0, alpha=alpha, poles=poles)
+            assert obs.theoretical_orders == {"state": orders[0], "identification": orders[1]}, (a, cc, d)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # unmatched compensation: the slides' helicopter
 # ---------------------------------------------------------------------------------------------------------------
@@ -264,6 +282,46 @@ def test_helicopter_needs_a_regulated_output():
     E = np.eye(6)[[0, 2]]
     with pytest.raises(ValueError, match="n_w_derivatives >= 1"):
         c.UnmatchedCompensationController(c.CascadedHOSMObserver(heli, 1e-3, 10.0), rho=0.5, regulated=E)
+
+
+def test_compensation_surfaces_do_not_depend_on_units(furuta):
+    """A -> a A, B -> b B, D -> d D, E -> e E (time, input, disturbance and regulated-output units): the same
+    verdicts, the same J, and the surface of the unit plant scaled, Pi_j -> d a^-(j+1) Pi_j and
+    Gamma_j -> d a^-(j+1) b^-1 Gamma_j. The surface equations mix blocks of sizes a, a b and 1 and their residual
+    was judged against max(||D1||, 1): J was 0 for a = 1e10 and no J was found for a = 1e-10 or b = 1e10. E B and
+    the matching of D were judged against max(., 1): a directly actuated output, and an unmatched D, of size 1e-10
+    passed."""
+    heli = c.helicopter_slides()
+    E0 = np.eye(6)[[0, 2]]
+    actuated = np.eye(6)[[0, 3]]  # the elevation rate is driven by u directly
+
+    def surface(a, b, d, e):
+        P = c.LinearPlant(a * heli.A, b * heli.B, heli.C, d * heli.D)
+        obs = SimpleNamespace(plant=P, n_w_derivatives=1, dt=1e-3)  # all the surface needs of an observer
+        return c.UnmatchedCompensationController(obs, rho=0.5, regulated=e * E0), obs
+
+    ref, _ = surface(1, 1, 1, 1)
+    assert ref.J == 1
+    Pi, Gam = [*ref.Pi, np.zeros_like(ref.D1)], [*ref.Gam, np.zeros_like(ref.Gam[0])]
+    for j in range(ref.J + 2):  # A11 Pi_j + A12 Gamma_j - Pi_{j-1} + D1 delta_j0 = 0 (Pi_J = 0), E1 Pi_j = 0
+        rows = ref.A11 @ Pi[j] + ref.A12 @ Gam[j] - (Pi[j - 1] if j else -ref.D1)
+        np.testing.assert_allclose(rows, 0.0, atol=1e-12)
+        np.testing.assert_allclose(E0 @ ref.Tr_inv[:, :4] @ Pi[j], 0.0, atol=1e-12)
+    scalings = [(1e-10, 1, 1, 1), (1e10, 1, 1, 1), (1, 1e-10, 1, 1), (1, 1e10, 1, 1), (1, 1, 1e-10, 1)]
+    for a, b, d, e in [*scalings, (1, 1, 1e10, 1e-10), (1, 1, 1, 1e10), (1e10, 1e-10, 1e10, 1e-10)]:
+        ctl, obs = surface(a, b, d, e)
+        assert ctl.J == 1, (a, b, d, e)
+        for j in range(ctl.J + 1):
+            np.testing.assert_allclose(ctl.Pi[j] * a ** (j + 1) / d, ref.Pi[j], atol=1e-9)
+            np.testing.assert_allclose(ctl.Gam[j] * a ** (j + 1) * b / d, ref.Gam[j], atol=1e-9)
+        with pytest.raises(ValueError, match="span D1 inside span A12"):
+            c.UnmatchedCompensationController(obs, rho=0.5)
+        with pytest.raises(ValueError, match="not directly actuated"):
+            c.UnmatchedCompensationController(obs, rho=0.5, regulated=e * actuated)
+        with pytest.raises(ValueError, match="expected a matched unknown input"):
+            c.CompensationController(obs, K=np.zeros((2, 6)))
+        F = c.LinearPlant(a * furuta.A, b * furuta.B, furuta.C, d * furuta.D)
+        c.CompensationController(SimpleNamespace(plant=F), K=np.zeros((1, 4)))  # D = B: matched at every scale
 
 
 def test_unmatched_compensation_beats_lqr_tenfold():

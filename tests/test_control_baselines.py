@@ -12,7 +12,14 @@ import pytest
 import scipy.linalg as sla
 
 from smo_gym import control as c
-from smo_gym.control.baselines import FiniteDifferenceState, default_integral_outputs, kalman_gain, van_loan_covariance
+from smo_gym.control.baselines import (
+    FiniteDifferenceState,
+    _first_markov,
+    _integrators_controllable,
+    default_integral_outputs,
+    kalman_gain,
+    van_loan_covariance,
+)
 from smo_gym.sensors import make_sensor
 
 FURUTA_Q = np.diag([10.0, 1.0, 1.0, 1.0])
@@ -281,6 +288,33 @@ def test_default_integral_outputs():
     assert default_integral_outputs(plant).tolist() == [0]
     full = c.LinearPlant(plant.A, np.vstack([np.zeros((2, 2)), np.eye(2)]), plant.C, plant.D)
     assert default_integral_outputs(full).tolist() == [0, 1]
+
+
+UNIT_SCALINGS = [(1e-10, 1.0, 1.0), (1e10, 1.0, 1.0), (1.0, 1e-10, 1.0), (1.0, 1e10, 1.0), (1.0, 1.0, 1e-10)]
+UNIT_SCALINGS += [(1.0, 1.0, 1e10), (1e-10, 1e-10, 1e-10), (1e10, 1e10, 1e10), (1e10, 1e-10, 1e10)]
+
+
+def test_default_integral_outputs_do_not_depend_on_units(furuta):
+    """A -> a A, B -> b B, C -> c C (time, input and output units) change neither the outputs picked nor the rank
+    test of [YW72]: the blocks of [[A, B], [C_I, 0]] scale apart (NumPy's tolerance, relative to the largest
+    singular value, lost one of order 1 / ||A||: nothing was picked for ||A|| ~ 1e10), and a threshold on the raw
+    c A^(r-1) B read a small Markov parameter as zero. The pendulum angle's zero at s = 0 is exact, and refused at
+    every scale, in random coordinates too (where [[A, B], [C_I, 0]] is singular up to rounding only)."""
+    T = np.linalg.qr(np.random.default_rng(3).standard_normal((4, 4)))[0]
+    turned = c.LinearPlant(T @ furuta.A @ T.T, T @ furuta.B, furuta.C @ T.T, T @ furuta.D)
+    osc = damped_oscillator()
+    swapped = c.LinearPlant(osc.A, osc.B[[0, 1, 3, 2]], osc.C, osc.D)  # |c_2 A B| = 1.0 against 0.5 now
+    for a, b, cc in UNIT_SCALINGS:
+        for plant, chosen in ((osc, [0]), (swapped, [1]), (c.helicopter_slides(), [0, 2])):
+            P = c.LinearPlant(a * plant.A, b * plant.B, cc * plant.C, plant.D)
+            assert default_integral_outputs(P).tolist() == chosen, (a, b, cc)
+            for i in range(P.n_outputs):  # c_i A^(r_i - 1) B scales as a^(r_i - 1) b c
+                r = c.relative_degrees(plant.A, plant.C[[i]], plant.B)[0]
+                ref = plant.C[i] @ np.linalg.matrix_power(plant.A, r - 1) @ plant.B
+                np.testing.assert_allclose(_first_markov(P.A, P.B, P.C[i]), a ** (r - 1) * b * cc * ref, rtol=1e-12)
+        for P in (furuta, turned):
+            assert _integrators_controllable(a * P.A, b * P.B, cc * P.C[[0]]), (a, b, cc)
+            assert not _integrators_controllable(a * P.A, b * P.B, cc * P.C[[1]]), (a, b, cc)
 
 
 def test_pid_typed_errors(furuta):

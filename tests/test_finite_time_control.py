@@ -342,6 +342,19 @@ def test_bad_gains_and_inputs_raise_typed_errors():
         FiniteTimeStabilizer(control.LuenbergerObserver(unmatched, 1e-3), alpha=1.0)
 
 
+def test_matching_does_not_depend_on_the_units_of_d():
+    """span D inside span B is judged relative to ||D||: with a floor of 1 a D below 1e-9 passed as matched
+    whatever its direction (B B^+ does not depend on B's units)."""
+    P = control.furuta_slides()
+    for d in (1e-10, 1.0, 1e10):
+        for b in (1e-10, 1.0, 1e10):
+            matched = control.LinearPlant(P.A, b * P.B, P.C, d * P.D)
+            FiniteTimeStabilizer(control.LuenbergerObserver(matched, 1e-3), alpha=1.0)
+            unmatched = control.LinearPlant(P.A, b * P.B, P.C, d * np.eye(4)[:, [0]])
+            with pytest.raises(ValueError, match="matched unknown input"):
+                FiniteTimeStabilizer(control.LuenbergerObserver(unmatched, 1e-3), alpha=1.0)
+
+
 def test_controllers_refuse_a_non_finite_measurement_and_a_bad_state_norm():
     """A NaN sigma must not become a zero control; a negative state norm would flip the control's sign."""
     for controller in (quasi_continuous_hosm, nested_hosm):

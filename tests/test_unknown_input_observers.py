@@ -253,6 +253,17 @@ def test_detectability_and_left_inverse_do_not_depend_on_units(plant):
             np.testing.assert_allclose(rep.G @ Y, W[0], atol=1e-9 * (np.abs(rep.G) @ np.abs(Y)).max())
 
 
+def test_detectable_observer_orders_do_not_depend_on_units():
+    """A -> a A (step and poles in the same time unit), C -> c C, D -> d D: the order of the strongly observable
+    coordinates stays alpha + 1. Its map weighs y^(k), whose size grows as ||A||^k, and was judged by its raw
+    entries: for a = 1e10 it read 4, as if y'' were not needed."""
+    plant = _transformed(_detectable_plant(-1.5))[0]
+    for a, cc, d in [(1e-10, 1, 1), (1e10, 1, 1), (1, 1e-10, 1e10), (1e10, 1e10, 1e-10), (1e-10, 1e-10, 1e-10)]:
+        P = c.LinearPlant(a * plant.A, plant.B, cc * plant.C, d * plant.D)
+        obs = c.StronglyDetectableObserver(P, 2e-3 / a, 10.0, alpha=2, poles=-a * np.linspace(10.0, 12.0, 4))
+        assert obs.theoretical_orders == {"strongly observable state": 3}, (a, cc, d)
+
+
 @pytest.mark.parametrize("alpha, lipschitz", [(1, 30.0), (2, 60.0)])
 def test_left_inverse_identification_order_in_the_sampling_step(alpha, lipschitz):
     steps, errs = [1e-3, 2e-3, 4e-3], []

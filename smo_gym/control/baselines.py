@@ -36,7 +36,7 @@ import scipy.linalg as sla
 from .._validation import as_real_array, check_int_in_range, check_nonnegative, check_positive
 from .controllers import StateFeedback, lqr
 from .estimators import LuenbergerObserver, _output_sample
-from .plants import LinearPlant, _check_definite, _matrix, _square_matrix
+from .plants import LinearPlant, _check_definite, _matrix, _rank, _square_matrix, _unit, relative_degrees
 
 __all__ = [
     "FiniteDifferenceState",
@@ -396,20 +396,19 @@ class FiniteDifferenceState:
 
 def _first_markov(A, B, c) -> np.ndarray:
     """``c A^(r-1) B``, the first non-zero Markov parameter of the output row ``c`` (zeros if none)."""
-    v = c
-    for _ in range(A.shape[0]):
-        row = v @ B
-        if np.abs(row).max() > 1e-12 * max(np.abs(B).max(), 1.0):
-            return row
-        v = v @ A
-    return np.zeros(B.shape[1])
+    # r from relative_degrees, which judges c A^j B against ||c|| ||A||^j ||B||: a threshold on the raw product
+    # read a genuine parameter of small units as zero
+    r = relative_degrees(A, c[None, :], B)[0]
+    return c @ np.linalg.matrix_power(A, r - 1) @ B if r else np.zeros(B.shape[1])
 
 
 def _integrators_controllable(A, B, C_I) -> bool:
     """Rank test of [YW72]: ``[[A, B], [C_I, 0]]`` has full row rank (no transmission zero at ``s = 0``)."""
     n, q = B.shape
-    M = np.block([[A, B], [C_I, np.zeros((C_I.shape[0], q))]])
-    return np.linalg.matrix_rank(M) == n + C_I.shape[0]
+    # the rank does not change under A -> a A, B -> b B, C_I -> c C_I, so the blocks are taken at unit norm:
+    # NumPy's tolerance on the raw matrix, relative to its largest singular value, lost one of order 1 / ||A||
+    M = np.block([[_unit(A), _unit(B)], [_unit(C_I), np.zeros((C_I.shape[0], q))]])
+    return _rank(M) == n + C_I.shape[0]
 
 
 def default_integral_outputs(plant: LinearPlant) -> np.ndarray:

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .._validation import check_bool, check_choice, check_nonnegative, check_positive, check_real
-from .plants import LinearPlant, _check_definite, _matrix, _square_matrix, _unit, left_annihilator
+from .plants import LinearPlant, _check_definite, _matrix, _pow2, _square_matrix, _unit, left_annihilator
 
 __all__ = [
     "CompensationController",
@@ -250,7 +250,9 @@ class CompensationController(StateFeedback):
         super().__init__(observer, K, Q=Q, R=R)
         P = self.plant
         self.Bw = np.linalg.pinv(P.B) @ P.D
-        if np.linalg.norm(P.B @ self.Bw - P.D) > 1e-9 * max(np.linalg.norm(P.D), 1.0):
+        # relative to ||D||, whatever its units (B B^+ does not depend on B's): a floor of 1 passed any unmatched D
+        # below 1e-9
+        if np.linalg.norm(P.B @ self.Bw - P.D) > 1e-9 * np.linalg.norm(P.D):
             raise ValueError(
                 "expected a matched unknown input (span D inside span B) for compensation through u, "
                 f"actual value: ||B B^+ D - D|| = {np.linalg.norm(P.B @ self.Bw - P.D):.3g}; use "
@@ -418,7 +420,7 @@ class UnmatchedCompensationController(StateFeedback):
             E1 = np.eye(r)
         else:
             E = _matrix("regulated", np.atleast_2d(regulated), (None, self.plant.n))
-            if np.linalg.norm(E @ P.B) > 1e-9 * max(np.linalg.norm(E), 1.0):
+            if np.linalg.norm(_unit(E) @ _unit(P.B)) > 1e-9:  # E B judged against ||E|| ||B||, whatever the units
                 raise ValueError(
                     f"expected a regulated output z = E x not directly actuated (E B = 0), actual "
                     f"value: ||E B|| = {np.linalg.norm(E @ P.B):.3g}"
@@ -441,8 +443,14 @@ class UnmatchedCompensationController(StateFeedback):
 
     def _solve_surface(self, E1):
         r"""Smallest ``J`` and ``(Pi_j, Gamma_j)`` with ``Pi_{j-1} = A11 Pi_j + A12 Gamma_j + D1 delta_j0``,
-        ``Pi_J = 0``, ``E1 Pi_j = 0``."""
-        A11, A12, D1 = self.A11, self.A12, self.D1
+        ``Pi_J = 0``, ``E1 Pi_j = 0``.
+
+        Solved for ``A``, ``B``, ``D`` and ``E1`` at unit norm (divided by powers of two ``a``, ``b``, ``d``, ``e``)
+        and scaled back, ``Pi_j = d a^-(j+1) Pi_j'``, ``Gamma_j = d a^-(j+1) b^-1 Gamma_j'``: the raw equations mix
+        blocks of sizes ``a``, ``a b`` and 1, so which ``J`` passed the residual test depended on the units."""
+        P = self.plant
+        a, b, d = (float(_pow2(np.linalg.norm(M))) for M in (P.A, P.B, P.D))
+        A11, A12, D1, E1 = self.A11 / a, self.A12 / (a * b), self.D1 / d, _unit(E1)  # A12 = B^perp A B, D1 = B^perp D
         r, q = A12.shape
         m = D1.shape[1]
         for J in range(r + 1):
@@ -465,9 +473,10 @@ class UnmatchedCompensationController(StateFeedback):
                 rhs.append(np.zeros((E1.shape[0], m)))
             M, R = np.vstack(rows), np.vstack(rhs)
             X = np.linalg.lstsq(M, R, rcond=None)[0]
-            if np.linalg.norm(M @ X - R) <= 1e-9 * max(np.linalg.norm(R), 1.0):
-                Pi = [X[j * r : (j + 1) * r] for j in range(J + 1)]
-                Gam = [X[(J + 1) * r + j * q : (J + 1) * r + (j + 1) * q] for j in range(J + 1)]
+            if np.linalg.norm(M @ X - R) <= 1e-9 * max(np.linalg.norm(R), 1.0):  # a D1 of rounding errors is 0
+                size = [d / a ** (j + 1) for j in range(J + 1)]  # of Pi_j; Gamma_j's is size[j] / b
+                Pi = [X[j * r : (j + 1) * r] * size[j] for j in range(J + 1)]
+                Gam = [X[(J + 1) * r + j * q : (J + 1) * r + (j + 1) * q] * (size[j] / b) for j in range(J + 1)]
                 return Pi, Gam
         raise ValueError(
             "expected a disturbance that can be compensated on the regulated output through the "

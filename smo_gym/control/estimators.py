@@ -123,10 +123,18 @@ def _finite_estimate(x: np.ndarray, what: str) -> np.ndarray:
     return x
 
 
-def _highest_block(M: np.ndarray, p: int) -> int:
-    """Index of the last block of ``p`` columns of ``M`` with a non-negligible entry."""
-    col = np.nonzero(np.abs(M).max(axis=0) > 1e-9 * max(np.abs(M).max(), 1e-300))[0]
-    return int(col.max() // p) if col.size else 0
+def _highest_block(M: np.ndarray, p: int, a: float = 1.0) -> int:
+    """Index of the last block of ``p`` columns of ``M`` with a non-negligible entry, block ``k`` weighted by ``a^k``.
+
+    The estimators' maps weigh ``y, y', y'', ...`` block by block: with ``a = ||A||`` each block is compared at the
+    size of what it multiplies (``||y^(k)|| ~ ||C|| ||A||^k``), since raw weights scale as ``a^-k`` and the answer
+    would depend on the time unit. Compared in logarithms, where ``a^k`` cannot overflow.
+    """
+    k = np.arange(M.shape[1]) // p
+    with np.errstate(divide="ignore"):  # a zero column: log 0 = -inf, never above the threshold
+        size = np.log(np.abs(M).max(axis=0, initial=0.0)) + k * np.log(a or 1.0)
+    big = k[size > size.max(initial=-np.inf) + np.log(1e-9)]
+    return int(big.max()) if big.size else 0
 
 
 def _default_poles(A: np.ndarray) -> np.ndarray:
@@ -400,9 +408,10 @@ class CascadedHOSMObserver:
         section 6. With an output of relative degree 1, ``w`` may be read from ``y_e'`` alone and the
         identification gains one order; the maps below say which.
         """
+        p, a = self.plant.n_outputs, np.linalg.norm(self.plant.A)  # the weights of y^(k) compared at its size
         return {
-            "state": self.order + 1 - _highest_block(self._S, self.plant.n_outputs),
-            "identification": self.order + 1 - _highest_block(self._W_map, self.plant.n_outputs),
+            "state": self.order + 1 - _highest_block(self._S, p, a),
+            "identification": self.order + 1 - _highest_block(self._W_map, p, a),
         }
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:

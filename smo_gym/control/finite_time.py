@@ -565,7 +565,7 @@ class FiniteTimeStabilizer(StateFeedback):
         m = P.n_inputs
         Bw = np.linalg.pinv(P.B) @ P.D
         miss = np.linalg.norm(P.B @ Bw - P.D)
-        if miss > 1e-9 * max(np.linalg.norm(P.D), 1.0):
+        if miss > 1e-9 * np.linalg.norm(P.D):  # relative to ||D||: a floor of 1 passed any unmatched D below 1e-9
             raise ValueError(
                 "expected a matched unknown input (span D inside span B) for finite-time stabilization through u, "
                 f"actual value: ||B B^+ D - D|| = {miss:.3g}"

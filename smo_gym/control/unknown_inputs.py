@@ -551,7 +551,8 @@ class FunctionalUnknownInputObserver(CascadedHOSMObserver):
     @property
     def theoretical_orders(self) -> dict[str, int]:
         """Order in ``tau`` of the error of the strongly observable coordinates ``z`` (noise-free samples)."""
-        return {"strongly observable state": self.order + 1 - _highest_block(self._S, self.plant.n_outputs)}
+        k = _highest_block(self._S, self.plant.n_outputs, np.linalg.norm(self.plant.A))  # y^(k) at its size
+        return {"strongly observable state": self.order + 1 - k}
 
     def reset(self, y0, x_hat0=None) -> np.ndarray:
         """Start the cascade (see :meth:`CascadedHOSMObserver.reset`) and the copy of the stable zero dynamics."""
@@ -744,9 +745,7 @@ def left_inverse(A, C=None, D=None) -> LeftInverseReport:
     S_up = np.hstack([np.zeros((n, p)), S])
     TD = zd.T_o @ D
     G = np.linalg.pinv(TD) @ zd.T_o @ (S_up - A @ S_ext)
-    # the weights of y^(k) compared at the size of y^(k), ||C|| ||A||^k: raw weights depend on the time unit
-    size = np.linalg.norm(C) * (np.linalg.norm(A) or 1.0) ** np.arange(G.shape[1] // p)
-    k = _highest_block(G * np.repeat(size, p), p)
+    k = _highest_block(G, p, np.linalg.norm(A))  # the weights of y^(k) compared at the size of y^(k)
     return LeftInverseReport(
         static=True,
         asymptotic=True,
