@@ -372,6 +372,92 @@ def test_rank_test_does_not_depend_on_the_scale_of_C():
         assert rep.ok and rep.blocks == 2, (scale, rep)
 
 
+UNIT_SCALINGS = [(1e-10, 1, 1), (1e10, 1, 1), (1, 1e-10, 1), (1, 1e10, 1), (1, 1, 1e-10), (1, 1, 1e10)]
+UNIT_SCALINGS += [(1e-10, 1e-10, 1e-10), (1e10, 1e10, 1e10), (1e10, 1e-10, 1e10)]
+
+
+def _in_units(a, c, d):
+    """The example with time in units 1/a, y scaled by c and w by 1/d: A_a(t) = a A(a t), C_a(t) = c C(a t),
+    D_a(t) = d a D(a t) (exact derivatives, chain rule)."""
+
+    def up(k):  # d^k/dt^k M(a t) = a^k M^(k)(a t)
+        return a ** np.arange(k + 1)[:, None, None]
+
+    return LTVPlant(
+        lambda t: a * A(a * t),
+        None,
+        lambda t: c * C(a * t),
+        lambda t: d * a * D(a * t),
+        derivatives={
+            "A": lambda t, k: a * dA(a * t, k) * up(k),
+            "C": lambda t, k: c * dC(a * t, k) * up(k),
+            "D": lambda t, k: d * a * dD(a * t, k) * up(k),
+        },
+    )
+
+
+def test_verdicts_do_not_depend_on_units():
+    """A, C, D in other units of time, y and w change no verdict, no rank and not the margin (1e-10 .. 1e10). The
+    blocks y^(i) of O and J scale as c a^i and were judged against the largest: the example was 'not observable'
+    for a = 1e-10 or 1e10, and 'not strongly observable' for d = 1e10; for d = 1e-10 w could not be identified
+    (input_map's absolute floor), and the state map of C = 1e-10 C did not annihilate w."""
+    grid = np.linspace(0.0, 2 * np.pi, 9)
+    ref = ltv_strong_observability(_in_units(1, 1, 1), grid)
+    assert ref.ok and ref.blocks == 2 and ref.observability_index == 2
+    t, x = 1.3, np.array([0.3, -2.0, 1.1])
+    for a, c, d in UNIT_SCALINGS:
+        pl = _in_units(a, c, d)
+        rep = ltv_strong_observability(pl, grid / a)
+        assert (rep.ok, rep.blocks, rep.observability_index) == (True, 2, 2), (a, c, d, rep.reason)
+        assert rep.rank_S.tolist() == ref.rank_S.tolist() and rep.rank_S_star.tolist() == ref.rank_S_star.tolist()
+        np.testing.assert_allclose(rep.margin, ref.margin, rtol=1e-9)
+        obs = CascadedLTVObserver(pl, 4e-3 / a, LIPSCHITZ * a**4, alpha=2, identify=True)
+        assert obs.theoretical_orders == {
+            "state": 3.0,
+            "noise": 0.75,
+            "identification": 3.0,
+            "identification_noise": 0.75,
+        }
+        O, J = kratz_liebscher_matrices(*pl.series(t / a, 2), 2)
+        ybar = O @ x + J @ np.array([7.0 / (a * d)])  # any w: the map removes it
+        np.testing.assert_allclose(ltv_state_map(pl, t / a, 2) @ ybar, x, atol=1e-12)
+
+
+def test_blocks_that_vanish_exactly_stay_zero_at_every_scale():
+    """Constant matrices in random coordinates (C D = C A D = 0 up to rounding): a chain of 3 needs three blocks at
+    every scale, the LTI counterexamples stay refused for the same reason, and y = c cos(a t) x1 on a double
+    integrator goes blind at t = pi / (2 a) (where C(t) is c times the rounding error of cos) and only there. For
+    a = 1e-10 or 1e10 all were 'not observable' everywhere; for d = 1e-10 two counterexamples passed."""
+    T = np.linalg.qr(np.random.default_rng(7).standard_normal((3, 3)))[0]
+    chain = (T @ np.eye(3, k=1) @ T.T, np.array([[1.0, 0.0, 0.0]]) @ T.T, T @ np.array([[0.0], [0.0], [1.0]]))
+    refused = [
+        (np.eye(2, k=1), [[1.0, 0.0]], [[1.0], [0.0]], "strong observability"),  # invariant zero at 0
+        (np.diag([1.0, -2.0]), [[1.0, 0.0]], [[1.0], [1.0]], "observability"),  # unobservable mode
+        (np.diag([1.0, 2.0, 3.0]), [[1.0, 1.0, 1.0]], [[0.0], [1.0], [-1.0]], "strong observability"),
+    ]
+    for a, c, d in [(1, 1, 1), *UNIT_SCALINGS]:
+        rep = ltv_strong_observability(LTVPlant(a * chain[0], None, c * chain[1], d * chain[2]), 0.0)
+        assert (rep.ok, rep.blocks, rep.observability_index) == (True, 3, 3), (a, c, d)
+        for A_, C_, D_, condition in refused:
+            rep = ltv_strong_observability(LTVPlant(a * A_, None, c * np.array(C_), d * np.array(D_)), 0.0)
+            assert not rep.ok and rep.condition == condition, (a, c, d, rep.reason)
+
+        def dC_(t, k, a=a, c=c):
+            return np.array([[[c * a**j * np.cos(a * t + j * np.pi / 2), 0.0]] for j in range(k + 1)])
+
+        pl = LTVPlant(
+            a * np.eye(2, k=1),
+            None,
+            lambda t, a=a, c=c: [[c * np.cos(a * t), 0.0]],
+            [[0.0], [d]],
+            derivatives={"C": dC_},
+        )
+        assert ltv_strong_observability(pl, np.array([0.0, 1.0]) / a).ok, (a, c, d)
+        rep = ltv_strong_observability(pl, np.array([0.0, np.pi / 2, 1.0]) / a, blocks=2)
+        assert not rep.ok and rep.condition == "observability" and "rank O_2(t) = 1 < n = 2" in rep.reason
+        assert list(rep.rank_S != rep.rank_S_star) == [False, True, False], (a, c, d)
+
+
 def _blind_at_half_pi():
     """y = cos(t) x1 on a double integrator: not observable at t = pi/2, the 51st sample with dt = pi/100."""
     pl = LTVPlant([[0.0, 1.0], [0.0, 0.0]], None, lambda t: np.array([[np.cos(t), 0.0]]), [[0.0], [1.0]])

@@ -145,29 +145,60 @@ def kratz_liebscher_matrices(A: np.ndarray, C: np.ndarray, D: np.ndarray, blocks
     return O, J
 
 
-def _state_map_from(O: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(F, K, KO)``: ``K`` with ``ker K = Im J`` (orthonormal rows) and ``F = (KO)^+ K``."""
+def _unit_scales(A: np.ndarray, C: np.ndarray, D: np.ndarray, blocks: int) -> tuple[np.ndarray, np.ndarray, float]:
+    r"""``(rows, cols, a)``: the scalings that bring :math:`\mathcal O_l` and :math:`\mathcal J_l` to unit size.
+
+    With the rate ``a`` of ``A`` (time unit ``1/a``) and the sizes ``c`` of ``C`` and ``d`` of ``D``, ``y^(i)`` has
+    the size ``c a^i`` and ``w^(j)`` the size ``d a^j``: block row ``i`` is divided by ``c a^i`` (``rows``) and the
+    block column of ``w^(j)`` in ``J`` multiplied by ``a^(j+1) / d`` (``cols``), so that :math:`N_i` and
+    :math:`\mathcal D_{i+1,j+1}` (``~ C A^i`` and ``C A^(i-1-j) D`` for constant matrices) are judged against the
+    size of their rounding errors, as the LTI rank decisions are (:func:`~smo_gym.control.plants._unit`): no
+    verdict depends on the units of time, ``y`` or ``w``, and a block that vanishes in exact arithmetic stays at
+    rank 0. ``a = max_k ||A_k||^(1/(k+1))`` over the Taylor coefficients used (``||A||`` for a constant ``A``),
+    ``c = max_k ||C_k|| / a^k`` (the series, not ``C(t)`` alone, which may vanish at ``t``) and ``d`` likewise,
+    each read as 1 where it is 0. Not rounded to powers of two: scaled exactly with the units, they leave the
+    report's margin unchanged too.
+    """
+    k = np.arange(blocks)
+
+    def size(M):  # the norms of the Taylor coefficients used by O_l and J_l
+        return np.linalg.norm(M[:blocks], axis=(1, 2))
+
+    a = float(max(size(A) ** (1.0 / (k + 1)))) or 1.0
+    c, d = (float(max(size(M) / a**k)) or 1.0 for M in (C, D))
+    p, m = C.shape[1], D.shape[2]
+    return np.repeat(1.0 / (c * a**k), p), np.repeat(a ** k[1:] / d, m), a
+
+
+def _state_map_from(O: np.ndarray, J: np.ndarray, rows, cols) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(F, K, KO)`` on the matrices scaled to unit size by ``rows`` and ``cols`` (:func:`_unit_scales`): ``K``
+    with ``ker K = Im J`` (orthonormal rows) and ``F = (KO)^+ K``, scaled back to the derivatives of ``y``."""
+    O, J = rows[:, None] * O, rows[:, None] * J * cols
     K = left_annihilator(J) if J.size else np.eye(O.shape[0])
     KO = K @ O
-    return np.linalg.pinv(KO) @ K, K, KO
+    return (np.linalg.pinv(KO) @ K) * rows, K, KO
 
 
-def input_map(O: np.ndarray, J: np.ndarray, m: int) -> np.ndarray | None:
+def input_map(O: np.ndarray, J: np.ndarray, m: int, rows=None, cols=None) -> np.ndarray | None:
     r"""``G`` with :math:`G\mathcal J = [I_m\ 0]`, so that :math:`w = G(\bar y - \mathcal O x)`; ``None`` if none.
 
     From :math:`\bar y - \mathcal O x = \mathcal J \bar w = J_1 w + J_2 [\dot w; \ldots]`: with :math:`\Pi`
     the left annihilator of :math:`J_2`, :math:`w = (\Pi J_1)^+\Pi(\bar y - \mathcal O x)` when
     :math:`\Pi J_1` has full column rank ``m`` (``w`` is then fixed by the output derivatives, whatever its own
-    derivatives are).
+    derivatives are). Computed on ``J`` scaled to unit size by ``rows`` and ``cols`` (:func:`_unit_scales`;
+    default none): the rank decisions of ``left_annihilator`` and of :math:`\Pi J_1` have an absolute floor.
     """
     if not np.isfinite(J).all():  # the SVDs below would fail unexplained
         raise ValueError(f"expected a finite J, actual value: {J!r:.80}")
+    rows = np.ones(J.shape[0]) if rows is None else rows
+    cols = np.ones(J.shape[1]) if cols is None else cols
+    J = rows[:, None] * J * cols
     J1, J2 = J[:, :m], J[:, m:]
     Pi = left_annihilator(J2) if J2.size else np.eye(J.shape[0])
     PJ1 = Pi @ J1
     if _rank(PJ1) < m:
         return None
-    return np.linalg.pinv(PJ1) @ Pi
+    return cols[:m, None] * (np.linalg.pinv(PJ1) @ Pi) * rows  # G = S_1 G' R for J' = R J S
 
 
 # ---- the plant -------------------------------------------------------------------------------------------------
@@ -455,7 +486,8 @@ class LTVStrongObservabilityReport:
     rank_S, rank_S_star : ndarray of int, shape (T,)
         The ranks of :math:`S = [\mathcal O_l\ \mathcal J_l]` and :math:`S^* = [I\ 0;\ \mathcal O_l\ \mathcal J_l]`.
     margin : ndarray, shape (T,)
-        Smallest over largest singular value of :math:`K\mathcal O_l` (zero where the condition fails): how far the
+        Smallest over largest singular value of :math:`K\mathcal O_l` (zero where the condition fails), with each
+        output derivative at unit size (:func:`_unit_scales`, so that no unit changes it): how far the
         reconstruction is from singular.
     """
 
@@ -482,13 +514,14 @@ def _scaled_rank(M: np.ndarray, scale: float | None = None) -> int:
     return int(np.sum(s > RANK_TOL * (s[0] if scale is None else scale)))
 
 
-def _ranks(O: np.ndarray, J: np.ndarray) -> tuple[int, int, float]:
+def _ranks(O: np.ndarray, J: np.ndarray, rows, cols) -> tuple[int, int, float]:
     n = O.shape[1]
+    KO = _state_map_from(O, J, rows, cols)[2]
+    O, J = rows[:, None] * O, rows[:, None] * J * cols  # unit sizes (_unit_scales)
     S = np.hstack([O, J])
     # rank S* = n + rank J exactly; stacking I_n on S would judge the identity on the scale of O and J
     scale = np.linalg.svd(S, compute_uv=False)[0] if S.size else 0.0
     rank_S, rank_S_star = _scaled_rank(S, scale), n + _scaled_rank(J, scale)
-    KO = _state_map_from(O, J)[2]
     s = np.linalg.svd(KO, compute_uv=False) if KO.size else np.zeros(1)
     margin = float(s[-1] / s[0]) if s.size >= n and s[0] > 0 else 0.0
     return rank_S, rank_S_star, margin
@@ -544,15 +577,19 @@ def ltv_strong_observability(plant: LTVPlant, t, *, blocks=None, max_blocks=None
         blocks = check_int_in_range("blocks", blocks, 1, 16)
     top = blocks if blocks is not None else max_blocks
     series = [plant.series(float(ti), top) for ti in times]
+
+    def observability_rank(s, lo):  # of O_l with its block rows y^(i) at unit size (_unit_scales)
+        return _scaled_rank(_unit_scales(*s, lo)[0][:, None] * kratz_liebscher_matrices(*s, lo)[0])
+
     # Rugh's observability index (the O_l part only)
     obs_index = None
     for lo in range(1, top + 1):
-        if all(_scaled_rank(kratz_liebscher_matrices(*s, lo)[0]) == n for s in series):
+        if all(observability_rank(s, lo) == n for s in series):
             obs_index = lo
             break
     candidates = [blocks] if blocks is not None else list(range(1, max_blocks + 1))
     for lo in candidates:
-        results = [_ranks(*kratz_liebscher_matrices(*s, lo)) for s in series]
+        results = [_ranks(*kratz_liebscher_matrices(*s, lo), *_unit_scales(*s, lo)[:2]) for s in series]
         rS = np.array([r[0] for r in results])
         rSs = np.array([r[1] for r in results])
         if np.all(rS == rSs):
@@ -562,11 +599,11 @@ def ltv_strong_observability(plant: LTVPlant, t, *, blocks=None, max_blocks=None
     if bad.size == 0:
         return LTVStrongObservabilityReport(True, "", "", times, lo, obs_index, rS, rSs, margin)
     i = int(bad[0])
-    O_i = kratz_liebscher_matrices(*series[i], lo)[0]
-    if _scaled_rank(O_i) < n:
+    rank_O = observability_rank(series[i], lo)
+    if rank_O < n:
         condition = "observability"
         reason = (
-            f"(A(t), C(t)) is not observable at t={times[i]:.6g}: rank O_{lo}(t) = {_scaled_rank(O_i)} < n = {n} "
+            f"(A(t), C(t)) is not observable at t={times[i]:.6g}: rank O_{lo}(t) = {rank_O} < n = {n} "
             f"(Rugh's rank condition, l up to {lo})"
         )
     else:
@@ -598,7 +635,8 @@ def ltv_state_map(plant: LTVPlant, t: float, blocks: int) -> np.ndarray:
         \bar y = [y; \dot y; \ldots; y^{(l-1)}],
 
     valid for every unknown input (``K`` kills the input terms of :math:`\bar y = \mathcal O_l x +
-    \mathcal J_l \bar w`). Computed as :math:`(K\mathcal O_l)^+ K` with orthonormal rows of ``K``.
+    \mathcal J_l \bar w`). Computed as :math:`(K\mathcal O_l)^+ K` with orthonormal rows of ``K`` on
+    :math:`\bar y` with each derivative at unit size (:func:`_unit_scales`), then scaled back.
 
     Returns
     -------
@@ -612,7 +650,8 @@ def ltv_state_map(plant: LTVPlant, t: float, blocks: int) -> np.ndarray:
     """
     report = ltv_strong_observability(plant, t, blocks=blocks)
     _raise_if_not(report)
-    return _state_map_from(*kratz_liebscher_matrices(*plant.series(float(t), blocks), blocks))[0]
+    series = plant.series(float(t), blocks)
+    return _state_map_from(*kratz_liebscher_matrices(*series, blocks), *_unit_scales(*series, blocks)[:2])[0]
 
 
 # ---- simulation ------------------------------------------------------------------------------------------------
@@ -908,8 +947,9 @@ class CascadedLTVObserver:
                     "expected alpha >= 1 with identify=True (w needs the output derivative of order l), actual "
                     f"value: alpha={alpha}"
                 )
-            A_, C_, D_ = plant.series(self.t0, self.blocks)
-            if input_map(*kratz_liebscher_matrices(A_, C_, D_, self.blocks + 1), plant.n_unknown) is None:
+            series, top = plant.series(self.t0, self.blocks), self.blocks + 1
+            O1, J1 = kratz_liebscher_matrices(*series, top)
+            if input_map(O1, J1, plant.n_unknown, *_unit_scales(*series, top)[:2]) is None:
                 raise NotStronglyObservableError(
                     "expected the unknown input fixed by y .. y^(l) (G J = [I 0] solvable), actual value: not at "
                     f"t={self.t0} with l={self.blocks}"
@@ -941,10 +981,11 @@ class CascadedLTVObserver:
         k = self.order
         F, _, ident = self._geometry(self.t0)
         p = self.plant.n_outputs
-        i = _highest_block(F, p)
+        a = _unit_scales(*self.plant.series(self.t0, self.blocks), self.blocks)[2]
+        i = _highest_block(F, p, a)  # the weights of y^(i) compared at its size
         out = {"state": float(k + 1 - i), "noise": (k + 1 - i) / (k + 1)}
         if ident is not None:
-            j = _highest_block(ident[0], p)
+            j = _highest_block(ident[0], p, a)
             out["identification"] = float(k + 1 - j)
             out["identification_noise"] = (k + 1 - j) / (k + 1)
         return out
@@ -958,6 +999,8 @@ class CascadedLTVObserver:
         A, C, D = self.plant.series(t, self.order)
         Ns = _observability_series(A, C, self.order + 1)
         O, J = kratz_liebscher_matrices(A, C, D, self.blocks, _N=Ns)
+        rows, cols, _ = _unit_scales(A, C, D, self.blocks)
+        O, J = rows[:, None] * O, rows[:, None] * J * cols  # unit sizes, as in ltv_strong_observability
         K = left_annihilator(J) if J.size else np.eye(O.shape[0])
         U, sv, Vt = np.linalg.svd(K @ O, full_matrices=False)
         if sv.size < self.plant.n or not sv[-1] > RANK_TOL * sv[0]:  # the rank decision of _scaled_rank
@@ -967,12 +1010,12 @@ class CascadedLTVObserver:
                 f"expected a strongly observable triple (A(t), C(t), D(t)), actual value: K O_{self.blocks}(t) "
                 f"singular at t={t:.6g} (singular values {sv})"
             )
-        F = Vt.T @ (U.T / sv[:, None]) @ K  # (K O)^+ K
+        F = Vt.T @ (U.T / sv[:, None]) @ K * rows  # (K O)^+ K, back to the derivatives of y
         N = np.vstack([Ni[0] for Ni in Ns])
         ident = None
         if self.identify:  # w = G (Y_{l+1} - O_{l+1} e)
             O1, J1 = kratz_liebscher_matrices(A, C, D, self.blocks + 1, _N=Ns)
-            G = input_map(O1, J1, self.plant.n_unknown)
+            G = input_map(O1, J1, self.plant.n_unknown, *_unit_scales(A, C, D, self.blocks + 1)[:2])
             if G is None:
                 raise NotStronglyObservableError(
                     f"expected the unknown input fixed by y .. y^(l) at t={t:.6g}, actual value: G J = [I 0] has no "
