@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
+from .._scaling import pow2 as _pow2
+from .._scaling import unit as _unit
 from .._validation import as_real_array, check_nonnegative, check_positive
 
 __all__ = [
@@ -49,7 +51,7 @@ __all__ = [
 #: tolerance of the rank decisions: singular values below ``RANK_TOL * max(largest, 1)`` count as zero, relative to
 #: the matrix's scale above 1 and absolute below it (so that a product that vanishes in exact arithmetic, whose
 #: entries are rounding errors, has rank 0). The public functions apply it to matrices built from the factors
-#: ``A``, ``C``, ``D`` brought to unit norm (:func:`_unit`): a product ``C A^k D`` is then judged against
+#: ``A``, ``C``, ``D`` brought to unit norm (``_scaling.unit``): a product ``C A^k D`` is then judged against
 #: ``||C|| ||A||^k ||D||``, the scale of its rounding errors, and no verdict depends on the units of the data
 RANK_TOL = 1e-9
 
@@ -116,16 +118,6 @@ def _triple(plant, C, D, caller: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return _check_triple(plant, C, D)
 
 
-def _unit(M: np.ndarray) -> np.ndarray:
-    """``M`` scaled to Frobenius norm in ``[1/sqrt 2, sqrt 2]`` by a power of two (exact; a zero ``M`` unchanged).
-
-    Rank decisions take the factors of a product through this, never the product itself: judged against its own
-    norm, a product that vanishes in exact arithmetic (entries ``1e-17``) would have full rank; judged against 1,
-    a small but genuine one (``1e-10 C``) would have rank 0.
-    """
-    return M / _pow2(np.linalg.norm(M))
-
-
 def _rank(M: np.ndarray) -> int:
     if M.size == 0:
         return 0
@@ -183,13 +175,6 @@ def _svd_full(M: np.ndarray):
     if min(M.shape) == 0:
         return np.eye(M.shape[0]), np.zeros(0), np.eye(M.shape[1])
     return np.linalg.svd(M, full_matrices=True)
-
-
-def _pow2(x: np.ndarray) -> np.ndarray:
-    """The powers of two nearest to ``x`` (1 where ``x`` is 0 or not finite): scalings that round no entry."""
-    x = np.asarray(x, dtype=float)
-    ok = np.isfinite(x) & (x > 0)
-    return np.where(ok, 2.0 ** np.round(np.log2(np.where(ok, x, 1.0))), 1.0)
 
 
 def _system_matrix(A, B, C) -> np.ndarray:

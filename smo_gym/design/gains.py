@@ -18,6 +18,7 @@ from math import comb
 
 import numpy as np
 
+from .._scaling import unit
 from .._validation import as_real_array, check_int_in_range, check_positive, check_positive_array
 
 __all__ = [
@@ -168,20 +169,15 @@ def binomial_coefficients(n: int, rate: float = 1.0) -> np.ndarray:
     return coeffs
 
 
-def _pow2(x: float) -> float:
-    """The power of two nearest to ``x > 0`` (1 for 0): a scaling that rounds no entry."""
-    return float(2.0 ** np.round(np.log2(x))) if x > 0 else 1.0
-
-
 def _observability_rank(A: np.ndarray, C: np.ndarray) -> int:
     """Rank of the observability matrix ``[C; C A; ...; C A^(n-1)]``, built from ``A`` and ``C`` at unit norm.
 
     Observability does not change under ``A -> a A``, ``C -> c C``, but the blocks ``C A^i`` scale as ``c a^i``:
     NumPy's tolerance on the raw stack, relative to its largest singular value, judged the blocks of a small ``A``
     (all but the first of a large one) as zero. The factors are scaled by powers of two (exact), never the stack,
-    as in the control library's rank decisions (``plants._unit``).
+    as in the control library's rank decisions (:mod:`smo_gym._scaling`).
     """
-    A, C = A / _pow2(np.linalg.norm(A)), C / _pow2(np.linalg.norm(C))
+    A, C = unit(A), unit(C)
     return int(np.linalg.matrix_rank(np.vstack([C @ np.linalg.matrix_power(A, i) for i in range(A.shape[0])])))
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._extras import require
+from .._scaling import unit
 from .._validation import (
     as_real_array,
     check_bool,
@@ -40,7 +41,7 @@ from .._validation import (
     check_positive,
     check_real_in_range,
 )
-from .gains import _observability_rank, _pow2
+from .gains import _observability_rank
 from .lmi import LMIInfeasibleError  # shared with the switched-gain design of Efimov et al. 2017
 
 __all__ = [
@@ -236,7 +237,7 @@ def block_decomposition(A, C, Phi=None, *, tol: float = 1e-9) -> BlockDecomposit
     # on A and C at unit norm (the subspaces do not depend on their scale): the tolerance below, absolute under 1 so
     # that a block vanishing in exact arithmetic has rank 0, read every block of a small C (or of a small A, the
     # later Cm) as zero
-    Am, Cm = A / _pow2(np.linalg.norm(A)), C / _pow2(np.linalg.norm(C))
+    Am, Cm = unit(A), unit(C)
     sizes: list[int] = []
     offset = 0
     while True:
