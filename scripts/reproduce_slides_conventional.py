@@ -366,9 +366,14 @@ EXAMPLES = {
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Reproduce the claims of section 1 of Fridman's slides.")
-    parser.add_argument("examples", nargs="*", default=list(EXAMPLES), choices=list(EXAMPLES) + [[]])
+    # no `choices` here: argparse checks a list default of nargs="*" against them as one value and refused a run
+    # without arguments
+    parser.add_argument("examples", nargs="*", help=f"among {', '.join(EXAMPLES)} (default: all)")
     parser.add_argument("--fast", action="store_true")
     args = parser.parse_args(argv)
+    unknown = [key for key in args.examples if key not in EXAMPLES]
+    if unknown:
+        parser.error(f"unknown examples {unknown}; choose from {', '.join(EXAMPLES)}")
     for key in args.examples or list(EXAMPLES):
         print(f"\n=== {EXAMPLES[key][0]} ({SLIDES}) ===")
         for claim in EXAMPLES[key][1](None, args.fast):
