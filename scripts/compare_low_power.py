@@ -11,6 +11,8 @@ Two measurements, printed as tables (``python scripts/compare_low_power.py``):
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
 from smo_gym.observers import HighGain, LowPowerHighGain
@@ -100,4 +102,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()  # no options; --help says what runs
     main()

@@ -20,6 +20,7 @@ from the change) and the error over the last 2 s.
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -103,10 +104,11 @@ def settling(t, err, tol, after=0.0):
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    fast = "--fast" in argv
-    args = [a for a in argv if not a.startswith("--")]
-    out_dir = Path(args[0]) if args else ROOT / "outputs" / "identification"
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out_dir", nargs="?", type=Path, default=ROOT / "outputs" / "identification")
+    parser.add_argument("--fast", action="store_true")
+    args = parser.parse_args(argv)
+    fast, out_dir = args.fast, args.out_dir
     out_dir.mkdir(parents=True, exist_ok=True)
     T = 10.0 if fast else 20.0
     steps = (5,) if fast else (1, 5)

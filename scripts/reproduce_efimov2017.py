@@ -32,7 +32,7 @@ start from zero. :func:`reproduce_efimov2017` returns one dict per claim (``clai
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -361,7 +361,8 @@ def _figures(runs, out_dir: Path) -> None:
 
 
 if __name__ == "__main__":
-    target = sys.argv[1] if len(sys.argv) > 1 else "figures/efimov2017"
-    for r in reproduce_efimov2017(target):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out_dir", nargs="?", default="figures/efimov2017", help="where the figures go")
+    for r in reproduce_efimov2017(parser.parse_args().out_dir):
         print(("OK   " if r["ok"] else "DIFF ") + r["claim"])
         print(f"       paper: {r['paper']}\n       ours:  {r['ours']}\n       {r['measured']}")

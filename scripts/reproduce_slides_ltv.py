@@ -14,6 +14,7 @@ test is checked against the LTI test on the slides' own plants (Furuta pendulum,
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -205,8 +206,10 @@ def reproduce_kratz_liebscher1998(out_dir: Path | None, fast: bool = False) -> l
 
 
 if __name__ == "__main__":
-    out = Path(sys.argv[1]) if len(sys.argv) > 1 and not sys.argv[1].startswith("--") else None
-    fast = "--fast" in sys.argv
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out_dir", nargs="?", type=Path, help="also write the figures there")
+    parser.add_argument("--fast", action="store_true")
+    args = parser.parse_args()
     for runner in (reproduce_kratz_liebscher1998, reproduce_galvan_guerra2017):
-        for c in runner(out, fast):
+        for c in runner(args.out_dir, args.fast):
             print(f"[{'ok' if c['ok'] else 'DIFFERS'}] {c['claim']}\n        measured: {c['measured']}")
