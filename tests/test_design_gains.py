@@ -176,6 +176,14 @@ def test_ackermann_refuses_a_gain_that_does_not_place_the_poles(rng):
     # the characteristic polynomial is not)
     l = ackermann_observer_gain(np.eye(3, k=1), [1.0, 0.0, 0.0], [-2.0, -2.0, -2.0])
     np.testing.assert_allclose(np.poly(np.eye(3, k=1) - np.outer(l, [1.0, 0.0, 0.0])), np.poly([-2.0] * 3))
+    # the same refusal in slow time units: with A and the poles scaled by 2^-27 (exact) the check was absolute and
+    # a gain placing the eigenvalues at -94, -28 +- 47j, -6.4 +- 8.3j, -6 (scaled back) instead of -8 .. -48 passed
+    A = np.array([[2, 3, 3, 1, 0, 0], [3, 2, 0, 0, -2, 0], [1, 3, 0, -1, 2, 0], [0, 0, -3, -1, 2, 0]]
+                 + [[0, 2, -3, -2, 0, -1], [0, 0, -1, 0, 0, 0]], dtype=float)  # fmt: skip
+    c, poles = np.array([0.0, 3.0, 0.0, -1.0, 3.0, 0.0]), -8.0 * np.arange(1, 7)
+    for a in (1.0, 2.0**-27):
+        with pytest.raises(ValueError, match="places the eigenvalues"):
+            ackermann_observer_gain(a * A, c, a * poles)
 
 
 def test_ackermann_observability_does_not_depend_on_units():

@@ -241,8 +241,9 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
     if not np.isfinite(l).all():
         raise ValueError(f"expected a finite gain, actual value: {l!r:.80} (poles or A too large for a float)")
     # the formula is exact in exact arithmetic only: compare the placed characteristic polynomial with p, each
-    # coefficient a_i relative to rho^i (rho bounds the eigenvalues' scale), as a backward-error test
-    rho = max(1.0, float(np.abs(poles).max()), float(np.linalg.norm(A, 2)))
+    # coefficient a_i relative to rho^i (rho bounds the eigenvalues' scale), as a backward-error test; no floor at
+    # 1, which made the test absolute for a slow system (A and the poles scaled by 1e-8 passed a misplaced gain)
+    rho = max(float(np.abs(poles).max()), float(np.linalg.norm(A, 2))) or 1.0
     placed = np.real_if_close(np.poly(A - np.outer(l, c)))
     error = float(np.max(np.abs(placed - coeffs) / rho ** np.arange(n + 1)))
     if not np.isfinite(error) or error > 1e-6:
