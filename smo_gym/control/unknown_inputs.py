@@ -227,8 +227,7 @@ def zero_dynamics(A, C=None, D=None) -> ZeroDynamics:
     H = T_w @ D @ TDp
     d = T_w.shape[0]
     if d:
-        tol = STABILITY_TOL * (np.linalg.norm(A, 2) or 1.0)
-        T_s, U, n_uns = sla.schur(A_xi, output="real", sort=lambda re, im: re >= -tol)
+        T_s, U, n_uns = _unstable_first_schur(A_xi, STABILITY_TOL * (np.linalg.norm(A, 2) or 1.0))
     else:
         T_s, U, n_uns = np.zeros((0, 0)), np.zeros((0, 0)), 0
     return ZeroDynamics(
@@ -241,6 +240,24 @@ def zero_dynamics(A, C=None, D=None) -> ZeroDynamics:
         T_schur=T_s,
         n_unstable=int(n_uns),
         molinari=mol,
+    )
+
+
+def _unstable_first_schur(M: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Real Schur form ``M = U T U^T`` with the eigenvalues of real part ``>= -tol`` first, and their number.
+
+    A defective eigenvalue near the boundary (a double zero at 0 computed as ``+-1e-8``) can cross it while the form
+    is reordered, which scipy refuses (``LinAlgError``); the boundary is then moved ten times further into the
+    stable half-plane, counting such an eigenvalue as unstable: the conservative side for detectability.
+    """
+    for widen in (1.0, 10.0, 100.0):
+        try:
+            return sla.schur(M, output="real", sort=lambda re, im, bound=-widen * tol: re >= bound)
+        except np.linalg.LinAlgError:
+            continue
+    raise ValueError(
+        "expected zero dynamics whose eigenvalues can be split at the stability boundary, actual value: "
+        f"eigenvalues {np.linalg.eigvals(M)!r:.200} cross it within rounding"
     )
 
 
