@@ -136,8 +136,14 @@ def _orthonormal_rows(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Vh[:r].copy(), Vh[r:].copy()
 
 
+def _stability_bound(A: np.ndarray) -> float:
+    """How far left of the imaginary axis a stable eigenvalue of a system with matrix ``A`` must be
+    (:data:`STABILITY_TOL`)."""
+    return STABILITY_TOL * (np.linalg.norm(A, 2) or 1.0)
+
+
 def _unstable(ev: np.ndarray, A: np.ndarray) -> np.ndarray:
-    return np.asarray(ev).real >= -STABILITY_TOL * (np.linalg.norm(A, 2) or 1.0)
+    return np.asarray(ev).real >= -_stability_bound(A)
 
 
 @dataclass(frozen=True)
@@ -227,7 +233,7 @@ def zero_dynamics(A, C=None, D=None) -> ZeroDynamics:
     H = T_w @ D @ TDp
     d = T_w.shape[0]
     if d:
-        T_s, U, n_uns = _unstable_first_schur(A_xi, STABILITY_TOL * (np.linalg.norm(A, 2) or 1.0))
+        T_s, U, n_uns = _unstable_first_schur(A_xi, _stability_bound(A))
     else:
         T_s, U, n_uns = np.zeros((0, 0)), np.zeros((0, 0)), 0
     return ZeroDynamics(
