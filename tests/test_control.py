@@ -8,6 +8,7 @@ tables and plots are in ``scripts/control_experiments.py``.
 
 from __future__ import annotations
 
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -102,6 +103,47 @@ def test_linear_plant_validates_shapes():
         c.LinearPlant(np.eye(2), np.ones((3, 1)), np.eye(2), np.ones((2, 1)))
     with pytest.raises(ValueError, match="expected finite entries in A"):
         c.LinearPlant([[np.nan, 0], [0, 1]], np.ones((2, 1)), np.eye(2), np.ones((2, 1)))
+
+
+def test_many_output_placement_places_without_scipys_robustness_warning():
+    """Six double integrators, all positions measured: ``scipy.signal.place_poles`` warns that its eigenvector
+    iteration stopped short (the gain is correct, only less robust); the warning reached users of every
+    MuJoCo linearization. The placement is what is checked, in continuous time and sampled."""
+    import scipy.linalg as sla
+
+    nv = 6
+    A = np.block([[np.zeros((nv, nv)), np.eye(nv)], [np.zeros((nv, nv)), np.zeros((nv, nv))]])
+    C = np.hstack([np.eye(nv), np.zeros((nv, nv))])
+    B = np.vstack([np.zeros((nv, nv)), np.eye(nv)])  # a force on every joint, the unknown input as well
+    plant = c.LinearPlant(A, B, C, B)
+    poles = -10.0 * (1.0 + 0.15 * np.arange(2 * nv))  # the default of a plant at rest
+    dt = 0.002
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Ld = c.sampled_observer_gain(A, C, dt)
+        cascade = c.CascadedHOSMObserver(plant, dt, 100.0, injection="held")
+    error_map = sla.expm(A * dt) @ (np.eye(2 * nv) - Ld @ C)
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(error_map).real), np.sort(np.exp(poles * dt)), rtol=1e-9)
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(A - cascade.L @ C).real), np.sort(poles), rtol=1e-6)
+
+
+def test_a_placement_that_misses_the_poles_is_refused():
+    """For a pair with an unobservable mode (here -0.5: nothing reads the second state) ``place_poles`` returns,
+    with only the warning above, a gain that leaves that mode and moves the others elsewhere; Utkin's
+    reduced-order observer took it because the result was Hurwitz: eigenvalues -3.93, -3.59, -2.02, -0.5 for the
+    asked -1 .. -4."""
+    from smo_gym.control import conventional
+
+    A11 = np.array([[-2.0, 0, 0, 2], [1, -0.5, 2, 1], [-3, 0, 3, 3], [2, 0, 2, 3]])
+    A21 = np.array([[2.0, 0, 1, -1], [-1, 0, -1, 0]])  # (A11, A21) is the pair the observer places on
+    C = np.hstack([np.zeros((2, 4)), np.eye(2)])
+    T = conventional.output_coordinate_change(C)
+    A = np.linalg.solve(T, np.block([[A11, np.zeros((4, 2))], [A21, -np.eye(2)]]) @ T)
+    B = np.linalg.solve(T, np.vstack([np.zeros((4, 1)), np.ones((2, 1))]))
+    with pytest.raises(ValueError, match="expected poles the gain places accurately"):
+        c.UtkinObserver(A, B, C, 0.01, 1.0, poles=[-1.0, -2.0, -3.0, -4.0])
+    with pytest.raises(ValueError, match="expected poles the gain places accurately"):
+        c.sampled_observer_gain(A11, A21, 0.01, poles=[-1.0, -2.0, -3.0, -4.0])
 
 
 def test_linearize_mujoco_pendulum_matches_the_analytic_model():

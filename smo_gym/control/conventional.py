@@ -73,7 +73,7 @@ from .._validation import (
     check_positive,
     check_positive_array,
 )
-from ..design.gains import ackermann_observer_gain
+from ..design.gains import _placed_gain, ackermann_observer_gain
 from ..design.lmi import LMIInfeasibleError
 from .plants import RANK_TOL, _matrix, _rank, _unit
 from .unknown_inputs import StrongDetectabilityReport, strong_detectability
@@ -158,12 +158,10 @@ def output_coordinate_change(C) -> np.ndarray:
 
 def _place(A, C, poles) -> np.ndarray:
     """``L`` with eigenvalues of ``A + L C`` at ``poles``: Ackermann's formula for one output, else
-    ``scipy.signal.place_poles`` on the dual pair (imported only then: it is slow to import)."""
+    ``scipy.signal.place_poles`` on the dual pair, re-verified (``smo_gym.design.gains._placed_gain``)."""
     if C.shape[0] == 1:
         return -ackermann_observer_gain(A, C[0], poles)[:, None]
-    from scipy.signal import place_poles
-
-    return -place_poles(A.T, C.T, poles).gain_matrix.T
+    return -_placed_gain(A, C, poles)
 
 
 def _default_poles(A: np.ndarray, k: int) -> np.ndarray:

@@ -65,7 +65,7 @@ from .._validation import (
     check_nonnegative_array,
     check_positive,
 )
-from ..design.gains import MAX_LEVANT_ORDER
+from ..design.gains import MAX_LEVANT_ORDER, _placed_gain
 from ..observers import Levant
 from .plants import LinearPlant, _matrix, _square_matrix, molinari_decoupling
 
@@ -99,21 +99,6 @@ def _observer_poles(poles, A: np.ndarray) -> np.ndarray:
             f"expected {n} continuous-time observer poles with negative real parts, actual value: {poles!r}"
         )
     return out
-
-
-def _placed_gain(A: np.ndarray, C: np.ndarray, poles: np.ndarray) -> np.ndarray:
-    """``L`` with the eigenvalues of ``A - L C`` at ``poles`` (``scipy.signal.place_poles`` on the dual pair),
-    re-verified: its refusals (an unobservable pair, poles repeated beyond the number of outputs) say why."""
-    from scipy.signal import place_poles  # lazy: scipy.signal is slow to import
-
-    try:
-        L = place_poles(A.T, C.T, poles).gain_matrix.T
-    except ValueError as exc:
-        raise ValueError(f"expected poles the output can place, actual value: {np.round(poles, 6)} ({exc})") from None
-    placed = np.sort_complex(np.linalg.eigvals(A - L @ C))
-    if not np.allclose(placed, np.sort_complex(poles), rtol=1e-6, atol=1e-9 * max(1.0, np.abs(poles).max())):
-        raise ValueError(f"expected poles the gain places accurately, actual value: asked {poles}, placed {placed}")
-    return L
 
 
 def _finite_estimate(x: np.ndarray, what: str) -> np.ndarray:

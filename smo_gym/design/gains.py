@@ -14,6 +14,7 @@ References
 
 from __future__ import annotations
 
+import warnings
 from math import comb
 
 import numpy as np
@@ -253,3 +254,26 @@ def ackermann_observer_gain(A, c, poles) -> np.ndarray:
             f"{np.linalg.cond(obs):.1e}); use a better conditioned realization, or scipy.signal.place_poles"
         )
     return l
+
+
+def _placed_gain(A: np.ndarray, C: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """``L`` with the eigenvalues of ``A - L C`` at ``poles`` (``scipy.signal.place_poles`` on the dual pair, for
+    any number of outputs), re-verified: its refusals (an unobservable pair, poles repeated beyond the number of
+    outputs) and a gain that misplaces them (``place_poles`` returns one for an unobservable pair, with only a
+    warning) are a ``ValueError`` that says why. ``A``, ``C`` and ``poles`` are checked by the caller."""
+    from scipy.signal import place_poles  # lazy: scipy.signal is slow to import
+
+    try:
+        with warnings.catch_warnings():
+            # the method of Tits and Yang (1996) iterates on the conditioning of the eigenvectors and warns when
+            # that iteration stops short (the 12-state chain of six double integrators does); the gain is then
+            # less robust, not wrong, and whether it places the poles is checked below
+            warnings.filterwarnings("ignore", "Convergence was not reached", UserWarning)
+            L = place_poles(A.T, C.T, poles).gain_matrix.T
+    except ValueError as exc:
+        raise ValueError(f"expected poles the output can place, actual value: {np.round(poles, 6)} ({exc})") from None
+    placed = np.sort_complex(np.linalg.eigvals(A - L @ C))
+    # relative to the poles' size, without a floor: an absolute tolerance passes anything for slow poles
+    if not np.allclose(placed, np.sort_complex(poles), rtol=1e-6, atol=1e-9 * np.abs(poles).max()):
+        raise ValueError(f"expected poles the gain places accurately, actual value: asked {poles}, placed {placed}")
+    return L
