@@ -55,6 +55,29 @@ def test_per_channel_equals_each_part_on_its_channels():
     assert "finite-difference: [1]" in repr(composite) and not composite.reports_instant
 
 
+def test_per_channel_reports_each_parts_estimate_not_its_state():
+    """With explicit steps (Levant's ``taylor``, super-twisting's ``euler``) a part's state and its reported
+    estimate differ; the composite reports each part's estimate, value and velocity (the test above has only
+    parts whose two agree, so it could not tell them apart)."""
+    from smo_gym.observers import SuperTwisting
+
+    def parts():
+        return [
+            (Levant(dt=DT, order=2, lipschitz=5.0, discretization="taylor"), [0, 3]),
+            (SuperTwisting(DT, 5.0, discretization="euler"), [2]),
+            (KalmanCA(dt=DT, process_noise=1e3, measurement_noise=1e-6), [1]),
+        ]
+
+    Y = _signal()
+    composite = PerChannel(parts())
+    composite.reset(Y[0])
+    got = composite.run(Y[1:])
+    for observer, channels in parts():
+        observer.reset(Y[0, channels])
+        want = observer.run(Y[1:, channels])
+        np.testing.assert_array_equal(got[:, channels, :2], want[..., :2])
+
+
 def test_per_channel_batch_run_and_masked_reset():
     Y = _signal(batch=(3,))
     composite = PerChannel(_parts())

@@ -364,6 +364,10 @@ def test_finite_difference_is_np_diff(rng):
     acc = a.run(Y[1:])[..., 2]
     np.testing.assert_array_equal(acc[0], 0.0)  # no previous velocity after a reset
     np.testing.assert_allclose(acc[1:], np.diff(Y, 2, axis=0) / dt**2, rtol=1e-9)
+    # a reset told the velocity takes it as the previous difference: the next acceleration differentiates it
+    v0 = rng.normal(size=3)
+    a.reset(Y[0], derivatives=v0[:, None])
+    np.testing.assert_allclose(a.update(Y[1])[:, 2], ((Y[1] - Y[0]) / dt - v0) / dt, rtol=1e-12)
 
 
 @pytest.mark.parametrize("discretization", ["implicit", "euler"])

@@ -326,3 +326,69 @@ def test_bad_parameters_say_what_was_expected():
     for kwargs, match in cases:
         with pytest.raises(ValueError, match=match):
             FilteringDifferentiator(**{"dt": 1e-3, "lipschitz": 5.0, **kwargs})
+
+
+@pytest.mark.parametrize("filtering_order", [1, 2, 3])
+@pytest.mark.parametrize("dt", [1e-3, 1e-2])
+def test_the_compiled_step_has_every_eigenvalue_where_the_mapping_puts_it(filtering_order, dt):
+    """The compiled ``matching`` step of degree 0 is linear; its error matrix, read column by column from unit
+    states with ``y = 0``, has the characteristic polynomial :math:`(x - e^{-hr})^N`. The test above checks the
+    NumPy matrices; this one the held input of the filter states inside the kernel (``tau^k / k!``)."""
+    r = 20.0
+    obs = FilteringDifferentiator(order=2, filtering_order=filtering_order, dt=dt, p1=r, degree=0.0,
+                                  discretization="matching")  # fmt: skip
+    obs.reset(np.zeros(1))
+    n = obs.arrays.state.shape[1] - 1  # the states, then the innovation
+    M = np.empty((n, n))
+    for j in range(n):
+        state = np.zeros((1, n + 1))
+        state[0, j] = 1.0
+        new, out = np.empty_like(state), np.empty((1, 3))
+        assert _kernels.eigmap_kernel(state, np.zeros(1), obs.arrays.params, new, out) == -1
+        M[:, j] = new[0, :n]
+    expected = np.poly(np.full(n, np.exp(-r * dt)))
+    np.testing.assert_allclose(np.poly(M), expected, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("discretization", ["matching", "implicit"])
+@pytest.mark.parametrize("degree", [-1.0, -0.5, -0.2])
+@pytest.mark.parametrize("filtering_order", [0, 1, 2])
+def test_weighted_homogeneity_holds_in_discrete_time(discretization, degree, filtering_order, rng):
+    """Homogeneity of degree ``d`` (Andritsch et al. 2021): with the chain's weights :math:`w_c = 1 - d(N - 1 -
+    c)` (``w_1 .. w_nf, z_0 .. z_n`` in chain order), the signal scaled by :math:`\\kappa^{w_{z_0}}` and the step by
+    :math:`\\kappa^{-d}` give the estimates scaled by :math:`\\kappa^{w_{z_i}}`, exactly for both discretizations
+    (both keep the eigenvalues' dependence on :math:`\\sigma h^{...}`). A wrong exponent of the eigenvalue's root
+    for fractional degrees breaks it by 10-50 %."""
+    n, h, kappa, r = 2, 1e-3, 3.0, 5.0
+    N = n + 1 + filtering_order
+    weights = (1.0 - degree * (N - 1 - np.arange(N)))[filtering_order:]  # of z_0 .. z_n
+    y = np.cumsum(rng.standard_normal(400)) * 1e-2 + np.sin(20 * h * np.arange(400))
+
+    def estimates(step, scale):
+        obs = FilteringDifferentiator(order=n, filtering_order=filtering_order, dt=step, p1=r, degree=degree,
+                                      discretization=discretization)  # fmt: skip
+        return estimates_of(obs, scale * y[:, None])[:, 0]
+
+    expected = kappa**weights * estimates(h, 1.0)
+    scaled = estimates(kappa**-degree * h, kappa ** weights[0])
+    # the eigenvalue mapping evaluates its gains by Horner's scheme in e^{-h r}: ~1e-7 of rounding, not 1e-2
+    tolerance = 1e-5 if discretization == "matching" else 1e-12
+    np.testing.assert_allclose(scaled, expected, rtol=0, atol=tolerance * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("discretization", ["matching", "implicit"])
+@pytest.mark.parametrize("filtering_order", [0, 1, 2])
+def test_the_default_gain_does_not_depend_on_units(discretization, filtering_order):
+    """Levant's differentiators are homogeneous in ``L``: the signal ``c y`` with the bound ``c L`` gives ``c``
+    times the estimates, for the default rate :math:`r = (1.1 L)^{1/N}` of every filtering order."""
+    t = np.arange(3000) * 1e-3
+    y = (np.sin(3 * t) + 0.3 * np.cos(7 * t))[:, None]
+    obs = FilteringDifferentiator(order=2, filtering_order=filtering_order, dt=1e-3, lipschitz=50.0,
+                                  discretization=discretization)  # fmt: skip
+    base = estimates_of(obs, y)
+    tolerance = 1e-5 if discretization == "matching" else 1e-12  # Horner's rounding, as above
+    for c in (1e-3, 1e3):
+        obs = FilteringDifferentiator(order=2, filtering_order=filtering_order, dt=1e-3, lipschitz=50.0 * c,
+                                      discretization=discretization)  # fmt: skip
+        scaled = estimates_of(obs, c * y)
+        np.testing.assert_allclose(scaled, c * base, rtol=0, atol=tolerance * c * np.abs(base).max())

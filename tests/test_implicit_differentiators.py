@@ -259,3 +259,23 @@ def test_levant_implicit_rejects_the_eigenvalue_map_parameters():
         Levant(order=2, dt=1e-3, discretization="implicit", p1=3.0)
     with pytest.raises(ValueError, match="mu"):
         Levant(order=2, dt=1e-3, discretization="implicit", mu=1.0)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_both_discretizations_of_a_fractional_uniform_exponent_approach_one_solution(order):
+    """``UniformLevant(alpha=0.5)`` has exponents :math:`(n + i/2)/n` that are not multiples of ``1/n``, which the
+    kernels' fast powers do not cover: during the transient from a large error the ``euler`` and ``implicit``
+    steps, two first-order discretizations of the same differential equation, differ by ``O(h)`` (measured: the
+    difference halves with ``h``)."""
+    differences, steps = [], (4e-4, 2e-4, 1e-4)
+    for h in steps:
+        y = np.sin(2 * np.arange(int(0.5 / h)) * h)[:, None]
+        k = int(round(0.05 / h))  # well inside the transient, before the sliding motion
+        at_k = []
+        for discretization in ("euler", "implicit"):
+            obs = UniformLevant(order=order, dt=h, lipschitz=8.0, alpha=0.5, discretization=discretization)
+            obs.reset(y[0] + 3.0)  # a large initial error: the terms of high degree act
+            at_k.append(obs.run(y[1 : k + 1])[-1, 0])
+        differences.append(np.abs(at_k[0] - at_k[1]).max())
+    slope = float(np.polyfit(np.log(steps), np.log(differences), 1)[0])
+    assert 0.9 < slope < 1.1 and differences[-1] < 0.005, (differences, slope)  # measured 1.000, 0.0018

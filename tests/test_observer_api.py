@@ -748,3 +748,43 @@ def test_reset_derivatives_are_validated(derivatives, error, match):
         obs.reset(np.zeros(BATCH), derivatives=derivatives)
     assert_worded(excinfo)
     assert obs.shape is None  # nothing was set up
+
+
+# the steps that predict the next sample (exact on a ramp once converged), and those that form no prediction
+PREDICTING = [
+    ("kalman-ca", {"process_noise": 1e3, "measurement_noise": 1e-6}),
+    ("kalman-imm", {"process_noise": 1e3, "measurement_noise": 1e-6}),
+    ("worst-case-optimal", {"lipschitz": 5.0, "noise": 0.0}),
+    ("worst-case-optimal", {"lipschitz": 5.0, "noise": 1e-4}),
+    ("high-gain", {"gain": 30.0, "discretization": "euler"}),
+    ("levant", {"lipschitz": 5.0, "discretization": "implicit"}),
+    ("levant", {"lipschitz": 5.0, "discretization": "matching"}),
+    ("filtering", {"lipschitz": 5.0, "discretization": "matching"}),
+    ("super-twisting", {"lipschitz": 5.0, "discretization": "implicit"}),
+    ("ured", {"lipschitz": 5.0, "discretization": "implicit"}),
+    ("uniform-levant", {"lipschitz": 5.0, "discretization": "implicit"}),
+]
+NOT_PREDICTING = [
+    ("finite-difference", {}),
+    ("high-gain", {"gain": 30.0, "discretization": "implicit"}),
+    ("filtering", {"lipschitz": 5.0, "discretization": "implicit"}),
+    ("low-power-high-gain", {"gain": 30.0}),
+]
+
+
+@pytest.mark.parametrize(("name", "kwargs"), PREDICTING + NOT_PREDICTING)
+def test_output_error_is_the_innovation_it_documents(name, kwargs):
+    """``output_error`` is ``y_k`` minus the observer's prediction of it; on a noise-free ramp every prediction of
+    a step that forms one is exact once the observer has converged (a wrong sample in the innovation leaves
+    ``slope * dt = 2e-3``); the steps that form none report ``y_k`` minus the previous value estimate."""
+    t = np.arange(5000) * DT
+    y = (0.3 + 2.0 * t)[:, None]
+    obs = make_observer(name, dt=DT, **kwargs)
+    obs.reset(y[0])
+    obs.run(y[1:-1])
+    previous = obs.estimate[:, 0].copy()
+    obs.update(y[-1])
+    if (name, kwargs) in PREDICTING:
+        assert np.abs(obs.output_error).max() < 1e-9
+    else:
+        np.testing.assert_allclose(obs.output_error, y[-1] - previous, rtol=1e-12)

@@ -757,7 +757,10 @@ class Observer:
 
     @property
     def output_error(self) -> np.ndarray:
-        """Last innovation ``y - yhat^-`` (measurement minus predicted value), shape ``(..., n_channels)``."""
+        r"""Last innovation, shape ``(..., n_channels)``: the measurement minus the observer's prediction of it,
+        :math:`y_k - \hat y_k^-`, or, for the steps that form no prediction (the backward difference, the implicit
+        steps of the linear and filtering differentiators, the low-power observer), minus the previous value
+        estimate, :math:`y_k - \hat y_{k-1}`."""
         self._require_reset()
         return self._state[:, self._innovation_column()].reshape(self._shape)
 
