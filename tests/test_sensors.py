@@ -53,16 +53,21 @@ def test_ideal_is_identity():
 def test_gaussian_noise_std():
     # 40000 samples: the sample std has relative standard error 1/sqrt(2N) = 0.35 %, tolerance 3 %
     Y = ramp(20000, 2)
-    err = measure_all(GaussianNoise([1e-3, 5e-3]), Y) - Y
+    sensor = GaussianNoise([1e-3, 5e-3])
+    err = measure_all(sensor, Y) - Y
     np.testing.assert_allclose(err.std(axis=0), [1e-3, 5e-3], rtol=0.03)
+    np.testing.assert_allclose(sensor.error_std(2), err.std(axis=0), rtol=0.03)  # declared = measured
     assert np.all(np.abs(err.mean(axis=0)) < 4 * np.array([1e-3, 5e-3]) / np.sqrt(20000))
 
 
 def test_uniform_noise_is_bounded_with_variance_b2_over_3():
     Y = ramp(20000, 3)
-    err = measure_all(UniformNoise(2e-3), Y) - Y
+    sensor = UniformNoise(2e-3)
+    err = measure_all(sensor, Y) - Y
     assert np.max(np.abs(err)) <= 2e-3
     np.testing.assert_allclose(err.std(axis=0), 2e-3 / np.sqrt(3), rtol=0.03)
+    # the declared level, which calibrations read instead of estimating it, is the measured one
+    np.testing.assert_allclose(sensor.error_std(3), err.std(axis=0), rtol=0.03)
 
 
 def test_quantization_grid_and_error_bound_per_joint_kind():
