@@ -273,3 +273,19 @@ def test_measure_live_gathers_the_live_states_and_follows_a_replaced_mjdata():
             np.testing.assert_array_equal(block[i, -model.nv :], alone[i].measure(Q[t, i]))
     with pytest.raises(ValueError, match="boolean mask"):
         batch.measure(Q[1], np.zeros((N, model.nv)), np.arange(N))
+
+
+def test_translations_are_measured_in_metres_and_rotations_in_radians():
+    """Which dofs are lengths follows the joint types (free: three translations then three rotations; ball:
+    three rotations; hinge: one; slide: one translation), so a quantizer with a linear resolution puts the
+    translations on its metre grid and the rotations on its angle grid."""
+    model = mujoco.MjModel.from_xml_string(MANIFOLD)
+    expected = np.array([False] * 3 + [True] * 3 + [True] * 3 + [True] + [False])  # free, ball, hinge, slide
+    measurement = JointMeasurement(model, sensors.Quantization(2 * np.pi / 4096, linear_resolution=1e-5), DT)
+    np.testing.assert_array_equal(measurement.angular, expected)
+    np.testing.assert_array_equal(measurement.quantization_step(), np.where(expected, 2 * np.pi / 4096, 1e-5))
+    q = _trajectories(model, 5, 0)[:, 0]
+    measurement.reset(q[0], np.random.default_rng(0))
+    z = measurement.measure_block(q[1:])
+    translations = z[:, ~expected] / 1e-5
+    np.testing.assert_allclose(translations, np.round(translations), rtol=0, atol=1e-6)
