@@ -70,6 +70,20 @@ def test_uniform_noise_is_bounded_with_variance_b2_over_3():
     np.testing.assert_allclose(sensor.error_std(3), err.std(axis=0), rtol=0.03)
 
 
+@pytest.mark.parametrize("per_channel", [False, True])
+def test_the_first_measurement_is_never_drifted_dropped_or_an_outlier(per_channel):
+    """``reset`` documents its measurement as never delayed, dropped or an outlier: with a drift, a dropout and
+    outliers that act at almost every later sample, the first measurement is the true signal; the stages act from
+    the next sample on (the drift's first step, a drop holding that first value, or an outlier)."""
+    y0 = np.array([0.3, -1.2, 2.0])
+    moved = 0
+    for seed in range(20):
+        sensor = Chain(Drift(1.0), Dropout(0.99, per_channel=per_channel), Outliers(0.99, 1e3))
+        np.testing.assert_array_equal(sensor.reset(y0, seed=seed), y0)
+        moved += np.count_nonzero(sensor.measure(y0) != y0)
+    assert moved >= 0.9 * 20 * y0.size
+
+
 def test_quantization_grid_and_error_bound_per_joint_kind():
     res, lin = 2 * np.pi / 4096, 1e-5
     Y = ramp(5000, 2)
