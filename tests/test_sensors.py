@@ -74,7 +74,8 @@ def test_uniform_noise_is_bounded_with_variance_b2_over_3():
 def test_the_first_measurement_is_never_drifted_dropped_or_an_outlier(per_channel):
     """``reset`` documents its measurement as never delayed, dropped or an outlier: with a drift, a dropout and
     outliers that act at almost every later sample, the first measurement is the true signal; the stages act from
-    the next sample on (the drift's first step, a drop holding that first value, or an outlier)."""
+    the next sample on (the drift's first step, a drop holding that first value, or an outlier), and again
+    after a reset that continues the random stream."""
     y0 = np.array([0.3, -1.2, 2.0])
     moved = 0
     for seed in range(20):
@@ -82,6 +83,11 @@ def test_the_first_measurement_is_never_drifted_dropped_or_an_outlier(per_channe
         np.testing.assert_array_equal(sensor.reset(y0, seed=seed), y0)
         moved += np.count_nonzero(sensor.measure(y0) != y0)
     assert moved >= 0.9 * 20 * y0.size
+    # a new episode on the same stream restarts the drift at zero, wherever the last episode left it
+    rng, drift = np.random.default_rng(0), Drift(1.0)
+    drift.reset(y0, rng=rng)
+    assert np.abs(drift.run(np.tile(y0, (50, 1)))[-1] - y0).min() > 0.1
+    np.testing.assert_array_equal(drift.reset(y0, rng=rng), y0)
 
 
 def test_quantization_grid_and_error_bound_per_joint_kind():
