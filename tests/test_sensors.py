@@ -133,6 +133,9 @@ def test_bias_fixed_and_per_episode():
     e2 = measure_all(s, Y, seed=2) - Y
     assert np.allclose(e1, e1[0], atol=1e-12)  # constant within an episode
     assert not np.allclose(e1[0], e2[0])  # redrawn at reset
+    # drawn from N(0, std^2): 20,000 channels' offsets (sample error of their std ~0.5 %)
+    offsets = Bias(std=0.01).reset(np.zeros(20000), seed=3)
+    np.testing.assert_allclose(offsets.std(), 0.01, rtol=0.03)
 
 
 def test_drift_is_a_random_walk_with_sqrt_time_growth():
