@@ -289,3 +289,19 @@ def test_translations_are_measured_in_metres_and_rotations_in_radians():
     z = measurement.measure_block(q[1:])
     translations = z[:, ~expected] / 1e-5
     np.testing.assert_allclose(translations, np.round(translations), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("xml", [MANIFOLD, HINGES], ids=["free-ball-hinge-slide", "hinges"])
+def test_a_block_of_live_data_is_copied(xml):
+    """``measure_block`` takes views of the live simulation (``data.qpos[None]``): what it keeps must not move
+    when the simulation steps on."""
+    model = mujoco.MjModel.from_xml_string(xml)
+    q = _trajectories(model, 3, 0)[:, 0]
+    measurement = JointMeasurement(model, sensors.Chain(), DT)
+    measurement.reset(q[0], np.random.default_rng(0))
+    live = q[1].copy()
+    measurement.measure_block(live[None])
+    z_true, qpos = measurement.z_true.copy(), measurement.measured_qpos().copy()
+    live[:] = q[2]  # the next physics step writes into the same array
+    np.testing.assert_array_equal(measurement.z_true, z_true)
+    np.testing.assert_array_equal(measurement.measured_qpos(), qpos)

@@ -445,6 +445,16 @@ def test_noisy_single_turn_encoder_wraps_after_noise_and_quantization():
     assert Chain(GaussianNoise(1e-3), Quantization(res), Wrap()) == enc
 
 
+def test_wrap_maps_onto_the_half_open_circle():
+    """A single-turn reading lies in ``[-pi, pi)``: every odd multiple of pi reads ``-pi`` (``round`` would give
+    ``+pi`` for some of them, a reading of one angle as two values a full turn apart)."""
+    x = np.array([np.pi, 3 * np.pi, 5 * np.pi, -np.pi, -3 * np.pi, 2.0, -7.0])
+    sensor = Wrap()
+    for out in (sensor.reset(x, seed=0), sensor.measure(x)):
+        np.testing.assert_array_equal(out[:5], -np.pi)
+        np.testing.assert_allclose(out[5:], [2.0, 2 * np.pi - 7.0], rtol=1e-15)
+
+
 def test_encoder_wrap_must_be_a_bool():
     with pytest.raises(TypeError, match="expected wrap") as excinfo:
         Encoder(1e-3, wrap="no")
