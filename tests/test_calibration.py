@@ -66,6 +66,18 @@ def test_derivative_bound_is_safety_times_the_quantile_of_the_true_derivative(de
     assert naive > 20 * expected  # without decimation the noise would set the gain
 
 
+def test_every_channel_is_calibrated_alone():
+    """Channels are independent signals: a clean channel beside a noisy one (which needs a longer lag before its
+    difference quotients rise above the noise) gets the bound and the level it gets alone, to rounding."""
+    rng = np.random.default_rng(0)
+    t = np.arange(5000) * 1e-3
+    Y = np.column_stack([np.sin(3 * t), np.sin(2 * t) + 1e-2 * rng.standard_normal(t.size)])
+    for level in (calibration.derivative_bound, calibration.derivative_rms):
+        both = level(Y, 1e-3, 2)
+        for c in range(2):
+            np.testing.assert_allclose(both[c], level(Y[:, c], 1e-3, 2), rtol=1e-12)
+
+
 def test_long_records_are_calibrated_on_a_random_subset(monkeypatch):
     """Above ``MAX_SAMPLES`` differences the statistics come from a random subset (fixed seed): the same numbers at
     every call, within 3 % of those of every difference (2^17 draws: standard errors below 1 %)."""
