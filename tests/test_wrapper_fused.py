@@ -6,14 +6,18 @@ import copy
 import pickle
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 from conftest import full_forward_observation
+from gymnasium.envs.mujoco.hopper_v5 import HopperEnv
 
 from smo_gym.engine import FusedSensing
+from smo_gym.engine.scratch import INPUT_FIELDS, OBSERVED_FIELDS, copy_observed_fields
 from smo_gym.observers import DivergenceError
 from smo_gym.specs import parse_observer_spec
 from smo_gym.wrappers import EstimatedVelocity
+from smo_gym.wrappers.adapters import make_adapter
 from smo_gym.wrappers.sensing import SensingInfo
 
 KEYS = ("qpos", "qvel", "qvel_estimate", "qpos_measured", "observation")
@@ -199,6 +203,60 @@ def test_adapter_probes_what_the_observation_reads():
         gym.make("Ant-v5", include_cfrc_ext_in_observation=False), disk_cache=False
     ).adapter.evaluation
     assert not no_contacts.reads_contacts
+    # the cheapest stages that reproduce the forward pass: none for a state observation, the kinematics for
+    # Humanoid's com inertias and velocities (and actuator forces, which read ctrl), all of it for
+    # InvertedDoublePendulum's constraint force (which copies every input)
+    for env_id, pipeline, inputs in [
+        ("Hopper-v5", "none", ()),
+        ("Humanoid-v5", "kinematics", ("ctrl",)),
+        ("InvertedDoublePendulum-v5", "forward", INPUT_FIELDS),
+    ]:
+        evaluation = make_adapter(gym.make(env_id).unwrapped).evaluation
+        assert evaluation.pipeline == pipeline, env_id
+        assert (evaluation.input_fields if evaluation.copies_inputs else ()) == inputs, env_id
+
+
+def test_an_observation_that_is_a_view_of_the_data_is_copied():
+    """An observation that returns a view of what it reads (here the body positions, after the kinematics) is not
+    fresh: each sensed observation is a copy, which the next step leaves as it was (the probe once evaluated it
+    without the kinematics, saw the view unchanged and returned the same view at every step)."""
+
+    class BodyPositions(HopperEnv):
+        def _get_obs(self):
+            return self.data.xpos[1:]
+
+    env = EstimatedVelocity(BodyPositions(), sensor="ideal", disk_cache=False)
+    assert env.adapter.evaluation.pipeline == "kinematics" and not env.adapter.evaluation.fresh_observation
+    env.reset(seed=0)
+    first = env.step(np.ones(3))[0]
+    kept = first.copy()
+    second = env.step(-np.ones(3))[0]
+    np.testing.assert_array_equal(first, kept)
+    assert not np.shares_memory(first, second) and not np.array_equal(first, second)
+    qpos, qvel = env.measurement.measured_qpos(), env.observer.velocity
+    np.testing.assert_array_equal(second, full_forward_observation(env, qpos, qvel))
+
+
+def test_an_observation_of_the_time_reads_the_live_clock():
+    """``data.time`` is an input a controller knows: an observation that reads it gets the simulation's time at
+    every step, and the snapshot of the live data that a vector environment's terminal observation is built from
+    after the reset (:func:`copy_observed_fields`) keeps the time at which the episode ended."""
+
+    class Clock(HopperEnv):
+        def _get_obs(self):
+            return np.concatenate([self.data.qpos[1:], self.data.qvel, [self.data.time]])
+
+    env = EstimatedVelocity(Clock(), disk_cache=False)
+    assert env.adapter.evaluation.input_fields == ("time",)
+    assert env.reset(seed=0)[0][-1] == 0.0
+    for _ in range(3):
+        assert env.step(np.ones(3))[0][-1] == env.unwrapped.data.time > 0.0
+    live = env.unwrapped.data
+    live.time = 1.25
+    snapshot = copy_observed_fields(live, mujoco.MjData(env.unwrapped.model))
+    assert snapshot.time == 1.25
+    for name in OBSERVED_FIELDS:
+        np.testing.assert_array_equal(getattr(snapshot, name), getattr(live, name))
 
 
 def test_observation_entries_are_gathered_clipped_and_checked():
@@ -206,8 +264,6 @@ def test_observation_entries_are_gathered_clipped_and_checked():
     gathered by one compiled call, equal to _get_obs at run-time states (here with Ant's contact forces beyond
     its clip at +-1), and a non-finite entry raises the wrapper's error. Reacher's is not (its last entries
     are differences of two body positions)."""
-    from smo_gym.wrappers.adapters import make_adapter
-
     humanoid = make_adapter(gym.make("Humanoid-v5").unwrapped).evaluation
     assert set(humanoid.observation_entries[0]) == {"qpos", "qvel", "cinert", "cvel", "qfrc_actuator", "cfrc_ext"}
     assert make_adapter(gym.make("Reacher-v5").unwrapped).evaluation.observation_entries is None
@@ -232,10 +288,6 @@ def test_observation_entries_are_gathered_clipped_and_checked():
 def test_observation_map_is_found_only_for_clipped_selections():
     """Hopper's observation (qpos[1:], clip(qvel, -10, 10)) is a clipped selection; a transformed or mixed
     observation is not, and keeps the environment's own _get_obs."""
-    from gymnasium.envs.mujoco.hopper_v5 import HopperEnv
-
-    from smo_gym.wrappers.adapters import make_adapter
-
     index, bounds = make_adapter(gym.make("Hopper-v5").unwrapped).evaluation.observation_map
     np.testing.assert_array_equal(index, np.arange(1, 12))
     np.testing.assert_array_equal(bounds[:, :5], [[-np.inf] * 5, [np.inf] * 5])
@@ -271,7 +323,8 @@ def test_observation_map_is_found_only_for_clipped_selections():
 @pytest.mark.parametrize("env_id", ["Humanoid-v5", "Ant-v5"])
 def test_compiled_tangent_arithmetic_is_mujocos(env_id):
     """differentiate_pos / integrate_pos equal mj_differentiatePos / mj_integratePos (free and hinge joints),
-    for large rotations (beyond pi: the wrap of the angle) and tiny ones (the zero-norm branch)."""
+    for large rotations (beyond pi: the wrap of the angle) and tiny ones (the zero-norm branch), from unit
+    quaternions and from quaternions of other norms (which MuJoCo normalizes first; a zero one is the identity)."""
     import mujoco
 
     from smo_gym.engine.tangent import differentiate_pos, integrate_pos, joint_table
@@ -285,6 +338,9 @@ def test_compiled_tangent_arithmetic_is_mujocos(env_id):
         q1 = np.array(env.data.qpos)
         mujoco.mj_integratePos(model, q1, rng.standard_normal(model.nv) * (3.0 if k % 2 else 0.01), 1.0)
         v = rng.standard_normal(model.nv) * (3.0 if k % 3 else 1e-12)
+        if k % 4 == 1:  # quaternions of norm 0.5 .. 2, or 0
+            quat = joints[joints[:, 0] == mujoco.mjtJoint.mjJNT_FREE, 1][0] + 3 + np.arange(4)
+            q1[quat] *= 0.0 if k == 5 else rng.uniform(0.5, 2.0)
         q2, mine = q1.copy(), q1.copy()
         mujoco.mj_integratePos(model, q2, v, 1.0)
         integrate_pos(joints, mine, v)
@@ -357,7 +413,6 @@ def test_sines_and_cosines_are_gathered_only_where_they_equal_numpys(monkeypatch
     observations without them)."""
     from smo_gym.engine import scratch
     from smo_gym.engine.fused import ENTRY_COS, ENTRY_SIN, entry_functions_match_numpy
-    from smo_gym.wrappers.adapters import make_adapter
 
     assert entry_functions_match_numpy()
     env = EstimatedVelocity(gym.make("InvertedDoublePendulum-v5"), disk_cache=False)

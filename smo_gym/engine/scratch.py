@@ -407,20 +407,22 @@ class ScratchObservation:
 
     def _probe_fresh(self) -> bool:
         """Whether ``_get_obs`` returns a new array at every call, sharing no memory with the data it reads: two
-        evaluations at different states, the first result must be an ndarray and unchanged by the second. Then
-        the defensive copy of every observation is skipped."""
+        evaluations at different states (each through the forward-pass stages the observation needs, so that what
+        it reads changes), the first result must be an ndarray, share no memory with the second and be unchanged
+        by it. Then the defensive copy of every observation is skipped."""
         rng = np.random.default_rng(777)
         first = None
         for _ in range(2):
             qpos = np.array(self.live().qpos)
             mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
             self._fill(self._scratch, qpos, rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
+            self._compute(self._scratch, self.pipeline)
             obs = self.function(self._scratch)
             if first is None:
                 if type(obs) is not np.ndarray:
                     return False
                 first, kept = obs, np.array(obs, copy=True)
-        return obs is not first and np.array_equal(first, kept, equal_nan=True)
+        return obs is not first and not np.may_share_memory(obs, first) and np.array_equal(first, kept, equal_nan=True)
 
     def _probe_observation_map(self) -> tuple[np.ndarray, np.ndarray] | None:
         """``(index, bounds)`` such that the observation is ``obs[i] = min(max(x[index[i]], bounds[0, i]),
