@@ -189,9 +189,9 @@ def noise_std(y, *, order: int = 4) -> np.ndarray:
     Gaussian noise is estimated without bias. Other distributions are biased by the ratio of their difference's
     MAD to standard deviation against the Gaussian's: uniform noise (bounded, the sliding-mode setting) and
     dithered quantization come out about 6 % high (measured with ``n = 3`` and ``4``). A quantized signal that
-    moves by less than one count in most samples is a staircase whose differences are mostly zero: the median
-    then misses the quantization error, so the estimate is floored at the rounding error of one count,
-    :math:`\Delta/\sqrt{12}`, with :math:`\Delta` the typical nonzero step of such a channel.
+    stands still in most samples is a staircase whose differences are mostly zero: the median then misses the
+    quantization error, so the estimate is floored at the rounding error of one count, :math:`\Delta/\sqrt{12}`,
+    with :math:`\Delta` the step of the lattice its samples lie on (:func:`quantization_step`).
     """
     n = check_int_in_range("order", order, 1, 16)
     y = _time_series(y)
@@ -203,19 +203,24 @@ def noise_std(y, *, order: int = 4) -> np.ndarray:
 
 
 def _staircase_std(y: np.ndarray) -> np.ndarray:
-    r"""Floor of the noise level of quantized channels that move by less than one count in most samples.
+    r"""Floor of the noise level of quantized channels that stand still in most samples.
 
     Such a record is a staircase: most first differences are exactly zero, so the median of every difference misses
-    the quantization error. Where more than half of them are zero, the step :math:`\Delta` is the median of the
-    nonzero ones (one count), and the error of rounding to it has the standard deviation :math:`\Delta/\sqrt{12}`;
-    other channels get 0.
+    the quantization error. Where more than half of them are zero, the error of rounding to one count
+    :math:`\Delta` has the standard deviation :math:`\Delta/\sqrt{12}`; other channels get 0. The count is the
+    step of the lattice the samples lie on (:func:`quantization_step`), not a typical move: a joint that rests
+    most of the time and moves by several counts per sample in between is no noisier than a slow one. With too
+    few moves to show the lattice, the median of the nonzero differences stands in for it.
     """
     d = np.abs(np.diff(y, axis=0)).reshape(y.shape[0] - 1, -1)
     floor = np.zeros(d.shape[1])
-    for c in np.flatnonzero(np.mean(d == 0.0, axis=0) > 0.5):
-        steps = d[d[:, c] > 0.0, c]
-        if steps.size:
-            floor[c] = np.median(steps) / np.sqrt(12.0)
+    stairs = np.flatnonzero(np.mean(d == 0.0, axis=0) > 0.5)
+    if stairs.size:
+        lattice = quantization_step(y.reshape(y.shape[0], -1)[:, stairs])
+        for c, count in zip(stairs, lattice, strict=True):
+            steps = d[d[:, c] > 0.0, c]
+            if steps.size:
+                floor[c] = (count if count > 0.0 else np.median(steps)) / np.sqrt(12.0)
     return floor.reshape(y.shape[1:])
 
 

@@ -66,6 +66,47 @@ def test_derivative_bound_is_safety_times_the_quantile_of_the_true_derivative(de
     assert naive > 20 * expected  # without decimation the noise would set the gain
 
 
+def _random_acceleration(T=5000, dt=1e-2, seed=0):
+    """Samples ``y`` whose second differences are ``a dt^2`` for white Gaussian accelerations ``a``, and ``a``."""
+    a = np.random.default_rng(seed).standard_normal(T - 2)
+    return np.concatenate([[0.0, 0.0], np.cumsum(np.cumsum(a)) * dt**2]), a
+
+
+def test_derivative_bound_and_level_of_noise_free_samples():
+    """Noise-free samples (``noise=0``: the lag-1 quotients are the accelerations themselves, to rounding): the
+    bound is twice the 99th percentile of the acceleration's magnitude, and the level its RMS, unclipped (Gaussian
+    accelerations beyond twice that percentile, 5.2 standard deviations, have probability 2e-7)."""
+    y, a = _random_acceleration()
+    assert np.max(np.abs(a)) < 2.0 * np.quantile(np.abs(a), 0.99)
+    np.testing.assert_allclose(
+        calibration.derivative_bound(y, 1e-2, 2, noise=0.0), 2.0 * np.quantile(np.abs(a), 0.99), rtol=1e-6
+    )
+    np.testing.assert_allclose(calibration.derivative_rms(y, 1e-2, 2, noise=0.0), np.sqrt(np.mean(a**2)), rtol=1e-6)
+
+
+def test_the_level_clips_gross_errors_at_the_worst_case_bound():
+    """One sample off by 1 (a gross error of 10**4 accelerations' worth) enters three second differences: their
+    quotients are clipped at twice the 99th percentile of all quotients, the rest is untouched."""
+    y, _ = _random_acceleration()
+    y[2500] += 1.0
+    quotients = np.abs(np.diff(y, 2)) / 1e-4
+    limit = 2.0 * np.quantile(quotients, 0.99)
+    assert np.count_nonzero(quotients > limit) == 3
+    expected = np.sqrt(np.mean(np.minimum(quotients, limit) ** 2))
+    np.testing.assert_allclose(calibration.derivative_rms(y, 1e-2, 2, noise=0.0), expected, rtol=1e-6)
+
+
+def test_a_channel_of_pure_noise_gets_the_quotient_at_the_last_lag():
+    """White noise has no lag at which its difference quotient rises above the noise; the lags double while the
+    next one spans at most an eighth of the record (``2 s r <= T // 8``): for ``T = 4096``, ``r = 2`` the last lag
+    is 256, and the bound is twice the 99th percentile of the lag-256 quotients."""
+    T, dt, s = 4096, 1e-3, 256
+    y = 1e-3 * np.random.default_rng(1).standard_normal(T)
+    second = y[2 * s :] - 2.0 * y[s:-s] + y[: -2 * s]
+    expected = 2.0 * np.quantile(np.abs(second), 0.99) / (s * dt) ** 2
+    np.testing.assert_allclose(calibration.derivative_bound(y, dt, 2, noise=1e-3), expected, rtol=1e-12)
+
+
 def test_every_channel_is_calibrated_alone():
     """Channels are independent signals: a clean channel beside a noisy one (which needs a longer lag before its
     difference quotients rise above the noise) gets the bound and the level it gets alone, to rounding."""
@@ -489,6 +530,51 @@ def test_a_slow_quantized_staircase_gets_the_rounding_error_as_its_noise_level()
     _, _, noisy = noisy_sine(T=5000, sigma=0.0)
     fine = step * np.floor(noisy / step + 0.5)
     assert calibration._staircase_std(fine)[0] == 0.0
+
+
+def test_a_joint_that_rests_and_moves_fast_gets_the_rounding_error_of_one_count():
+    """A 12-bit encoder on a joint that stands still 70 % of the time and moves at 3 rad/s (two counts per sample)
+    in between: a staircase whose quantization error is that of one count, :math:`\\Delta/\\sqrt{12}`, however
+    far it moves when it moves (the typical move, two counts, doubled the estimate), and whose lattice step is the
+    count."""
+    dt, step = 1e-3, 2 * np.pi / 4096
+    t = np.arange(20000) * dt
+    v = np.where(t % 1.0 < 0.3, 3.0, 0.0) * np.where(t % 2.0 < 1.0, 1.0, -1.0)
+    Y = (step * np.floor((0.2 + np.cumsum(v) * dt) / step + 0.5))[:, None]
+    moves = np.abs(np.diff(Y[:, 0]))
+    assert 0.6 < np.mean(moves == 0.0) < 0.8 and np.median(moves[moves > 0]) > 1.5 * step
+    np.testing.assert_allclose(calibration.noise_std(Y), step / np.sqrt(12.0), rtol=1e-9)
+    np.testing.assert_allclose(calibration.quantization_step(Y), step, rtol=1e-9)
+    # nine moves are too few to show a lattice: the median move stands in for the count
+    few = step * np.repeat(np.arange(10.0), 500)[:, None]
+    assert calibration.quantization_step(few)[0] == 0.0
+    np.testing.assert_allclose(calibration.noise_std(few), step / np.sqrt(12.0), rtol=1e-9)
+
+
+def test_the_lattice_of_a_signal_that_moves_many_counts_per_sample():
+    """``sin(30 t)`` at 1 ms through a 12-bit encoder moves by 14 counts in the median sample and by one count only
+    near its turning points: the step is the smallest move, of which all others are multiples."""
+    step = 2 * np.pi / 4096
+    Y = step * np.round(np.sin(30.0 * np.arange(5000) * DT) / step)
+    moves = np.abs(np.diff(Y))
+    assert np.median(moves[moves > 0]) > 10 * step
+    np.testing.assert_allclose(calibration.quantization_step(Y[:, None]), [step], rtol=1e-9)
+
+
+def test_quantization_step_asks_for_its_share_of_lattice_moves():
+    """Gross errors of 5 to 50 counts (any real number of them) in 2 % of the samples of a lattice signal: about
+    88 % of the moves are on the lattice, below the default share of 0.99 (no step) and above a share of 0.8."""
+    step = 0.01
+    t = np.arange(4000) * DT
+    Y = step * np.round(np.sin(3.0 * t) / step)
+    rng = np.random.default_rng(0)
+    hit = np.flatnonzero(rng.random(t.size) < 0.02)
+    Y[hit] += step * rng.uniform(5.0, 50.0, hit.size) * rng.choice([-1.0, 1.0], hit.size)
+    moves = np.abs(np.diff(Y))
+    moves = moves[moves > 0] / step
+    assert 0.8 < np.mean(np.abs(moves - np.round(moves)) < 1e-6) < 0.95
+    assert calibration.quantization_step(Y[:, None])[0] == 0.0
+    np.testing.assert_allclose(calibration.quantization_step(Y[:, None], share=0.8), [step], rtol=1e-9)
 
 
 def test_calibration_refuses_values_that_are_not_real_numbers():
