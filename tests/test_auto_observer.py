@@ -223,6 +223,12 @@ def test_predicted_kalman_error_matches_a_signal_of_its_own_model():
     measured = np.sqrt(np.mean((est[T // 10 :, 1] - x[1 + T // 10 :, 1]) ** 2))
     predicted = selection._kalman_ca_error(DT, q, s**2, np.array([1.0, 0.0]))
     assert predicted == pytest.approx(measured, rel=0.05)
+    # the same filter as "auto" builds it from a calibration whose typical jerk is the signal's, predicted for it
+    calibration = Calibration(DT, {3: [2 * jerk]}, {3: [jerk]}, [s])
+    auto = selection.default_observer("kalman-ca", calibration)
+    np.testing.assert_allclose([auto.process_noise, auto.measurement_noise], [[q], [s**2]], rtol=1e-12)
+    (found,) = predicted_errors(calibration, ["kalman-ca"])
+    assert found[0] == pytest.approx(measured, rel=0.05)
 
 
 def test_prediction_prefers_the_difference_without_noise_and_the_filter_with_it():
@@ -325,6 +331,68 @@ def test_the_trials_bound_comes_from_their_blocks():
     np.testing.assert_array_equal(measured.rmse, found.errors[0, 2])
     predicted = select(calibration, candidates=candidates[:2])
     np.testing.assert_allclose(predicted.bound[0, 1], predicted.errors[0, 1] / predicted.errors[0].min(axis=0))
+
+
+def test_a_gain_is_proven_against_the_reference_that_would_be_chosen():
+    """The Kalman filter is 3 % worse than the backward difference in the first scenario: unsafe, so never chosen;
+    its worst regret (1.98) is not what a candidate must beat, the backward difference's (2.0) is. A candidate
+    whose bound is 1.99 can lose less than that: it is taken."""
+    candidates = ("finite-difference", "kalman-ca", "x")
+    errors = np.array([[[1.0], [1.03], [0.9]], [[1.0], [0.99], [0.5]]])
+    found = Selection(candidates, errors, "trials", bound=np.full((2, 3, 1), 1.99))
+    assert found.safe[:, 0].tolist() == [True, False, True]
+    np.testing.assert_allclose(found.regret[:, 0], [2.0, 1.98, 1.0])
+    assert found.proven[2, 0] and found.names == ("x",)
+
+
+def test_a_gain_is_proven_in_every_scenario():
+    """A candidate that halves the backward difference's error in both scenarios, with bounds 1.05 and 2.5: in the
+    second scenario it could lose more than the reference's worst regret (2), so the gain is not proven and the
+    reference keeps the channel."""
+    candidates = ("finite-difference", "kalman-ca", "x")
+    errors = np.array([[[1.0], [1.5], [0.5]], [[1.0], [1.5], [0.5]]])
+    bound = np.array([[[1.0], [1.5], [1.05]], [[1.0], [1.5], [2.5]]])
+    found = Selection(candidates, errors, "trials", bound=bound)
+    assert not found.proven[2, 0] and found.names == ("finite-difference",)
+    bound[1, 2, 0] = 1.9
+    assert Selection(candidates, errors, "trials", bound=bound).names == ("x",)
+
+
+def test_a_joint_candidate_that_only_ties_is_not_taken():
+    """A model-based column whose worst regret equals that of the per-channel choice buys nothing: the
+    per-channel references keep the channels (the joint column must be strictly better)."""
+    candidates = ("finite-difference", "kalman-ca", "mechanical-super-twisting")
+    errors = np.array([[[1.0, 1.0], [1.0, 1.2], [1.0, 1.0]]])
+    assert Selection(candidates, errors, "trials", joint=True).names == ("finite-difference",) * 2
+    errors[0, 2, 1] = 0.99
+    assert Selection(candidates, errors, "trials", joint=True).names == ("mechanical-super-twisting",) * 2
+
+
+def test_a_part_of_a_calibration_has_its_channels_values():
+    """Each part of a per-channel choice is built from its channels' bounds, levels, noise, quantization step and
+    initial levels (the worst-case optimal observer reads the step)."""
+    rng = np.random.default_rng(0)
+    fields = {name: rng.uniform(0.1, 1.0, 4) for name in ("b2", "b3", "t2", "t3", "noise", "res", "i1")}
+    whole = Calibration(
+        DT,
+        {2: fields["b2"], 3: fields["b3"]},
+        {2: fields["t2"], 3: fields["t3"]},
+        fields["noise"],
+        fields["res"],
+        {1: fields["i1"]},
+    )
+    channels = np.array([3, 1])
+    part = selection._take(whole, channels)
+    for got, want in [
+        (part.bound(2), whole.bound(2)),
+        (part.bound(3), whole.bound(3)),
+        (part.rms(2), whole.rms(2)),
+        (part.rms(3), whole.rms(3)),
+        (part.noise, whole.noise),
+        (part.resolution, whole.resolution),
+        (part.initial[1], whole.initial[1]),
+    ]:
+        np.testing.assert_array_equal(got, want[channels])
 
 
 def test_one_candidate_is_taken_for_all_channels_where_a_mix_buys_less_than_the_tolerance():
