@@ -305,3 +305,28 @@ def test_a_block_of_live_data_is_copied(xml):
     live[:] = q[2]  # the next physics step writes into the same array
     np.testing.assert_array_equal(measurement.z_true, z_true)
     np.testing.assert_array_equal(measurement.measured_qpos(), qpos)
+    # the measured configuration is mapped back from the tangent coordinates only when read: after the live data
+    # moved on, it is still that of the sample (a twin measuring a copy says what)
+    twin = JointMeasurement(model, sensors.Chain(), DT)
+    twin.reset(q[0], np.random.default_rng(0))
+    twin.measure_block(q[1][None].copy())
+    measurement.reset(q[0], np.random.default_rng(0))
+    live[:] = q[1]
+    measurement.measure_block(live[None])
+    live[:] = q[2]
+    np.testing.assert_array_equal(measurement.measured_qpos(), twin.measured_qpos())
+
+
+def test_tangent_coordinates_start_at_the_configuration_and_follow_the_translations():
+    """``z0`` holds the hinge and slide values and the free joint's translation of ``q0``, and zero for the
+    rotations (free and ball); a free joint's translation coordinates stay its position (Euclidean: the tangent
+    difference is the plain one), to rounding."""
+    model = mujoco.MjModel.from_xml_string(MANIFOLD)  # qpos: free (7), ball (4), hinge, slide; nv: 3 + 3 + 3 + 1 + 1
+    q = _trajectories(model, 50, 0)[:, 0]
+    tangent = TangentCoordinates(model)
+    z0 = tangent.reset(q[0])
+    np.testing.assert_array_equal(z0, np.concatenate([q[0, :3], np.zeros(6), q[0, 11:13]]))
+    for k in range(1, len(q)):
+        z = tangent(q[k])
+        np.testing.assert_allclose(z[:3], q[k, :3], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(z[9:], q[k, 11:13])
