@@ -355,6 +355,12 @@ def test_reserving_random_rows_takes_a_count_within_one_block():
         assert_worded(excinfo)
     assert sensor.reserve_random_rows(np.int64(2)) == before + 1  # the refused calls reserved nothing
     assert np.isfinite(sensor.measure(np.zeros(3))).all()
+    # rows that end exactly at the block's end fit; one more would straddle it (None, nothing reserved); a block
+    # used up is refilled and its rows start at 0
+    rest = sensors.BLOCK - sensor._t
+    assert sensor.reserve_random_rows(rest + 1) is None
+    assert sensor.reserve_random_rows(rest) == sensors.BLOCK - rest
+    assert sensor.reserve_random_rows(3) == 0
 
 
 def test_sensor_measure_rejects_converted_dtypes():
