@@ -237,6 +237,34 @@ def test_an_observation_that_is_a_view_of_the_data_is_copied():
     np.testing.assert_array_equal(second, full_forward_observation(env, qpos, qvel))
 
 
+def test_an_observation_that_reads_the_live_simulation_is_refused():
+    """An observation function that keeps views of ``data.qpos`` and ``data.qvel`` from ``__init__`` reads the live
+    simulation, not the data the wrapper evaluates it on: the sensed observation was the true state, silently. It
+    is refused with a message that says why; the probe leaves the live data as it found it, bit for bit."""
+
+    class KeptViews(HopperEnv):
+        def __init__(self, **kwargs):
+            super().__init__(**kwargs)
+            self._qpos, self._qvel = self.data.qpos, self.data.qvel
+
+        def _get_obs(self):
+            return np.concatenate([self._qpos[1:], np.clip(self._qvel, -10, 10)])
+
+    with pytest.raises(ValueError, match="reads the state from the data it is given") as excinfo:
+        EstimatedVelocity(KeptViews(), disk_cache=False)
+    assert "KeptViews" in str(excinfo.value) and "actual value" in str(excinfo.value)
+    env = gym.make("Humanoid-v5").unwrapped
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    fields = [name for name in dir(env.data) if not name.startswith("_")]
+    before = {
+        name: np.array(getattr(env.data, name)) for name in fields if isinstance(getattr(env.data, name), np.ndarray)
+    }
+    make_adapter(env)
+    for name, value in before.items():
+        np.testing.assert_array_equal(getattr(env.data, name), value, err_msg=name)
+
+
 def test_an_observation_of_the_time_reads_the_live_clock():
     """``data.time`` is an input a controller knows: an observation that reads it gets the simulation's time at
     every step, and the snapshot of the live data that a vector environment's terminal observation is built from

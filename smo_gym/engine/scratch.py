@@ -5,7 +5,10 @@ everything derived from them (Humanoid's ``cinert``/``cvel``/``qfrc_actuator``, 
 InvertedDoublePendulum's constraint force) recomputed: :class:`ScratchObservation` copies into a scratch
 ``MjData`` the inputs a real controller knows (``ctrl``, ``act``, ``time``, mocap poses, applied forces) and the
 sensed state, runs the forward-pass stages the observation needs and calls the observation function on it. The
-live simulation is never touched.
+live simulation is never changed. The function must read the data it is given: one check at construction sets
+every floating-point field of the live data to NaN for one evaluation (then restores it bit for bit) and refuses a
+function whose result moved, since it would return the true state (a view of ``data.qpos`` kept since
+``__init__``).
 
 What the observation needs is *probed* once at construction, with no per-environment table: the observation is
 evaluated on scratch data whose other fields are all NaN, after no computation, then after the kinematic stages
@@ -137,7 +140,8 @@ class ScratchObservation:
     Raises
     ------
     ValueError
-        ``contact_forces`` unknown, or other than ``"sensor"`` for an observation without contact forces.
+        ``contact_forces`` unknown, or other than ``"sensor"`` for an observation without contact forces; a
+        ``function`` that reads the live simulation instead of the data it is given.
     """
 
     def __init__(self, model: mujoco.MjModel, live: Callable, function: Callable, contact_forces: str, name: str):
@@ -153,6 +157,7 @@ class ScratchObservation:
         self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
         self.input_fields = INPUT_FIELDS
         with _quiet_mujoco():  # the probes feed MuJoCo NaN and huge inputs on purpose
+            self._check_reads_given_data(name)
             self.pipeline, self.copies_inputs = self._probe_pipeline()
             self.reads_contacts = self._probe_contacts()
             if contact_forces != "sensor" and not self.reads_contacts:
@@ -247,6 +252,50 @@ class ScratchObservation:
         source.qfrc_applied[:] = rng.standard_normal(model.nv)
         source.xfrc_applied[1:] = rng.standard_normal((model.nbody - 1, 6))
         return source
+
+    def _check_reads_given_data(self, name: str) -> None:
+        """Refuse an observation function that reads the live simulation instead of the data it is given.
+
+        Its result on scratch data must not change when every floating-point field of the live data does (set to
+        NaN for one evaluation, then restored bit for bit). One that does, e.g. from a view of ``data.qpos``
+        kept since ``__init__``, would return the true state where the sensed one is asked for, silently.
+        """
+        model, live = self.model, self.live()
+        rng = np.random.default_rng(97531)
+        qpos = np.array(live.qpos)
+        mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+        scratch = mujoco.MjData(model)
+        self._fill(scratch, qpos, rng.standard_normal(model.nv), source=self._random_inputs(rng))
+        mujoco.mj_forward(model, scratch)
+        scratch.cfrc_ext[:] = live.cfrc_ext
+        want = np.array(self.function(scratch), copy=True)
+        saved = {}
+        for field in dir(live):
+            if field.startswith("_"):
+                continue
+            try:
+                value = getattr(live, field)
+            except Exception:
+                continue
+            if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
+                saved[field] = value.copy()
+        try:
+            for field in saved:
+                getattr(live, field)[...] = np.nan
+            try:
+                got = np.array(self.function(scratch), copy=True)
+            except Exception:
+                got = None
+        finally:
+            for field, value in saved.items():
+                getattr(live, field)[...] = value
+        if got is None or got.shape != want.shape or not np.array_equal(got, want, equal_nan=True):
+            raise ValueError(
+                f"expected an observation function of {name} that reads the state from the data it is given "
+                "(env.data, which the wrapper points at scratch data holding the sensed state), actual value: one "
+                "whose result follows the live simulation; a view of data.qpos or data.qvel kept from __init__ "
+                "reads the true state"
+            )
 
     def _probe_input_fields(self) -> tuple[str, ...]:
         """The controller inputs the observation actually reads (Humanoid's actuator force reads ``ctrl``, nothing
