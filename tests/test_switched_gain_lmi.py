@@ -10,6 +10,7 @@ from smo_gym.design import (
     SwitchedGainCertificate,
     certify_switched_gain,
     switched_gain_lmi,
+    switched_gain_lmi_matrix,
 )
 
 
@@ -130,3 +131,45 @@ def test_block_matrix_refuses_non_finite_input_and_overflow():
     with pytest.raises(ValueError, match="overflow"):
         switched_gain_lmi_matrix(1e200 * np.eye(2), [1e200, 1e200], 1e150, 1.0, 1.0)
     assert np.isfinite(switched_gain_lmi_matrix(np.eye(2), [1.0, 1.0], 1.0, 1.0, 1.0)).all()
+
+
+@pytest.mark.parametrize("gamma", [0.0, 0.1])
+def test_block_matrix_is_assumption_1(gamma):
+    """The NumPy block matrix is the one written out above, with the ``I_n`` term and the last row and column
+    exactly when ``gamma > 0`` (Efimov et al. 2017, Assumption 1; Remark 2 for ``gamma = 0``)."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(3, 3))
+    P, l = X @ X.T + np.eye(3), rng.normal(size=3)
+    expected = _assumption1(P, l, 0.2, 5.0, 5.0, gamma)
+    np.testing.assert_allclose(switched_gain_lmi_matrix(P, P @ l, 0.2, 5.0, 5.0, gamma), expected, atol=1e-13)
+
+
+def test_a_returned_design_is_the_callers_own():
+    """The designs are cached: what a caller does to the arrays it got must not change the next caller's design."""
+    l, P, _ = switched_gain_lmi(2, 1.0, 1.0, 1.0)
+    kept = l.copy(), P.copy()
+    l[:] = 0.0
+    P[:] = 0.0
+    again, P_again, _ = switched_gain_lmi(2, 1.0, 1.0, 1.0)
+    np.testing.assert_array_equal(again, kept[0])
+    np.testing.assert_array_equal(P_again, kept[1])
+
+
+def test_the_design_keeps_its_margin():
+    """``eps`` is the margin the solver is asked for: the certified largest eigenvalue of the block matrix is at
+    most ``-eps`` (relative to the solver's tolerance)."""
+    _, _, cert = switched_gain_lmi(2, 1.0, 1.0, 1.0, eps=1e-3)
+    assert cert.max_eig_lmi <= -1e-3 * (1 - 1e-4), cert.max_eig_lmi
+
+
+def test_lemma_3_and_a_positive_p_are_checked_whatever_the_tolerance():
+    """The block matrix's tolerance does not excuse the rest of the certificate: observer eigenvalues at -0.6
+    (``s^2 + 1.2 s + 0.36``) are above ``-kappa/2 = -1`` (Lemma 3), and an indefinite ``P`` is no Lyapunov
+    matrix, both refused with the loosest tolerance."""
+    with pytest.raises(LMIInfeasibleError):
+        certify_switched_gain([1.2, 0.36], np.eye(2), 2.0, 1.0, 1.0, tol=1e12)
+    l, P, _ = switched_gain_lmi(2, 1.0, 1.0, 1.0)
+    values, vectors = np.linalg.eigh(P)
+    indefinite = vectors @ np.diag([-values[0], values[1]]) @ vectors.T
+    with pytest.raises(LMIInfeasibleError):
+        certify_switched_gain(l, indefinite, 1.0, 1.0, 1.0, tol=1e12)
