@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import gymnasium as gym
 import mujoco
 import numpy as np
@@ -274,3 +276,119 @@ def test_calibrate_model_miss_refuses_the_dynamics_of_another_model(arm):
         calibrate_model_miss(three, MujocoDynamics(arm.model), 1, steps=3)
     miss, acc = calibrate_model_miss(arm.model, MujocoDynamics(arm.model), 1, steps=3)
     assert miss.shape == acc.shape == (2,)
+
+
+# ---- the model's terms against MuJoCo's own forward pass -----------------------------------------------------------
+def _forward(model, qpos, qvel, **fields):
+    """MuJoCo's forward pass at ``(qpos, qvel)`` with the given ``MjData`` inputs, on fresh data."""
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = qpos, qvel
+    for name, value in fields.items():
+        getattr(data, name)[:] = value
+    mujoco.mj_forward(model, data)
+    return data
+
+
+@pytest.mark.parametrize("scale", [0.0, 2.0])
+def test_damping_scale_is_the_model_with_scaled_damping(arm, scale):
+    """``damping_scale`` multiplies every joint's damping: the acceleration at a nonzero velocity (where damping
+    acts) is MuJoCo's for the model with ``dof_damping`` scaled; a negative scale is refused."""
+    q, v = np.array([0.4, -0.9]), np.array([2.0, -3.0])
+    scaled = copy.deepcopy(arm.model)
+    scaled.dof_damping[:] *= scale
+    expected = _forward(scaled, q, v).qacc
+    np.testing.assert_allclose(MujocoDynamics(arm.model, damping_scale=scale).acceleration(q, v), expected, rtol=1e-10)
+    for name in ("damping_scale", "frictionloss_scale"):
+        with pytest.raises(ValueError, match=name):
+            MujocoDynamics(arm.model, **{name: -1.0})
+
+
+FRICTION = """<mujoco><worldbody><body pos='0 0 1'>
+<joint name='j' type='hinge' axis='0 1 0' frictionloss='{f}'/>
+<geom type='capsule' fromto='0 0 0 0.5 0 0' size='0.02' mass='1'/>
+</body></worldbody></mujoco>"""
+
+
+def test_frictionloss_scale_zero_is_the_model_without_dry_friction():
+    """A hinge whose dry friction (5 N m) holds it against gravity (2.45 N m): with the measured constraint forces the
+    model barely accelerates; with ``frictionloss_scale=0`` it falls as the model without friction does."""
+    model = mujoco.MjModel.from_xml_string(FRICTION.format(f=5.0))
+    q, v = np.zeros(1), np.zeros(1)
+    held = MujocoDynamics(model, contact="measured").acceleration(q, v)
+    free = MujocoDynamics(model, contact="measured", frictionloss_scale=0.0).acceleration(q, v)
+    without = _forward(mujoco.MjModel.from_xml_string(FRICTION.format(f=0.0)), q, v).qacc
+    np.testing.assert_allclose(free, without, rtol=1e-9)
+    assert abs(held[0]) < 0.2 * abs(free[0]), (held, free)
+
+
+BEAD = """<mujoco><worldbody><body><joint name='arm' type='hinge' axis='0 1 0' damping='0.02'/>
+<geom type='capsule' fromto='0 0 0 0.3 0 0' size='0.02' mass='0.5'/>
+<body pos='0.3 0 0'><joint name='bead' type='slide' axis='0 0 -1' damping='0.05'/><geom size='0.03' mass='1'/></body>
+</body></worldbody>
+<equality><joint joint1='bead' joint2='arm' polycoef='0.05 0.1 0.3 0.2 0.1'/></equality>
+<actuator><motor joint='arm'/></actuator></mujoco>"""
+
+
+@pytest.mark.parametrize("state", [(0.7, 1.3), (-0.9, -2.0)])
+def test_a_joint_equality_with_every_coefficient_is_reduced_exactly(state):
+    r"""A bead on an arm tied by a quartic joint equality (every coefficient nonzero): the reduced model's state lies
+    on MuJoCo's constraint (residual ``efc_pos`` and ``efc_J qvel`` zero), its Jacobian is MuJoCo's constraint
+    Jacobian solved for the dependent joint, and its acceleration is the rigid reduction computed independently:
+    ``J`` and ``dJ/dq`` of the constraint by central differences of MuJoCo's residual, ``M`` and ``qfrc_smooth``
+    of the unconstrained model, :math:`a = J^T(f - M\dot J v)/(J^T M J)`."""
+    model = mujoco.MjModel.from_xml_string(BEAD)
+    dynamics = MujocoDynamics(model)
+    theta, omega = state
+    a = dynamics.acceleration(np.array([theta]), np.array([omega]))[0]
+    data = _forward(model, dynamics.data.qpos, dynamics.data.qvel)
+    (row,) = np.flatnonzero(data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+    J_efc = data.efc_J.reshape(data.nefc, model.nv)[row]
+    assert abs(data.efc_pos[row]) < 1e-12 and abs(J_efc @ data.qvel) < 1e-12
+    np.testing.assert_allclose(dynamics.jacobian(np.array([theta]))[1, 0], -J_efc[0] / J_efc[1], rtol=1e-12)
+
+    def bead(x):  # the bead's position on the constraint: efc_pos is linear in it with slope 1
+        return -_forward(model, [x, 0.0], [0.0, 0.0]).efc_pos[row]
+
+    h = 1e-4
+    y, up, down = bead(theta), bead(theta + h), bead(theta - h)
+    J, curvature = np.array([1.0, (up - down) / (2 * h)]), (up - 2 * y + down) / h**2
+    free = copy.deepcopy(model)
+    free.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    unconstrained = _forward(free, [theta, y], J * omega)
+    M = np.zeros((2, 2))
+    mujoco.mj_fullM(free, unconstrained, M)
+    expected = J @ (unconstrained.qfrc_smooth - M @ np.array([0.0, curvature * omega**2])) / (J @ M @ J)
+    assert a == pytest.approx(expected, rel=1e-5)
+
+
+def test_measured_contacts_with_a_coupling_are_mujocos_acceleration(pendulum):
+    """With ``contact="measured"`` the model is MuJoCo's forward pass at the full state, the coupled joint included:
+    the acceleration of the measured joint is ``qacc`` there."""
+    dynamics = MujocoDynamics(pendulum.model, contact="measured")
+    a = dynamics.acceleration(np.array([0.6]), np.array([2.5]))
+    expected = _forward(pendulum.model, dynamics.data.qpos, dynamics.data.qvel).qacc[dynamics.dof]
+    np.testing.assert_allclose(a, expected, rtol=1e-10)
+
+
+def test_a_generalized_force_input_is_applied_as_given(arm):
+    """``input="qfrc"``: the input is a generalized force, applied whole even beyond the actuators' ``ctrlrange``."""
+    q, v, tau = np.array([0.3, -0.4]), np.array([1.0, -1.0]), np.array([25.0, -12.0])
+    expected = _forward(arm.model, q, v, qfrc_applied=tau).qacc
+    np.testing.assert_allclose(MujocoDynamics(arm.model, input="qfrc").acceleration(q, v, tau), expected, rtol=1e-10)
+
+
+def test_the_terms_of_a_coupled_model_solve_to_its_acceleration(pendulum):
+    r"""``terms`` of a model with a coupled joint are projected like its acceleration:
+    :math:`M^{-1}(\tau + f_p - b) = a`."""
+    terms = MujocoDynamics(pendulum.model).terms(np.array([0.6]), np.zeros(1), np.array([0.7]))
+    solved = np.linalg.solve(terms["inertia"], terms["actuator"] + terms["passive"] - terms["bias"])
+    np.testing.assert_allclose(solved, terms["acceleration"], rtol=1e-9)
+
+
+def test_the_alpha_function_moves_one_joint_at_a_time(arm):
+    r""":math:`\alpha_i` of the Coriolis-removing transform is joint ``i``'s self-quadratic coefficient with the
+    other joints at the reference."""
+    dynamics = MujocoDynamics(arm.model)
+    alpha = dynamics.alpha_function(reference=np.array([0.2, -0.7]))(np.array([[0.9, 0.4]]))
+    assert alpha[0, 0] == dynamics.self_quadratic_coefficient(np.array([0.9, -0.7]))[0]
+    assert alpha[0, 1] == dynamics.self_quadratic_coefficient(np.array([0.2, 0.4]))[1]
