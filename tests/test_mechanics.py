@@ -392,3 +392,65 @@ def test_the_alpha_function_moves_one_joint_at_a_time(arm):
     alpha = dynamics.alpha_function(reference=np.array([0.2, -0.7]))(np.array([[0.9, 0.4]]))
     assert alpha[0, 0] == dynamics.self_quadratic_coefficient(np.array([0.9, -0.7]))[0]
     assert alpha[0, 1] == dynamics.self_quadratic_coefficient(np.array([0.2, 0.4]))[1]
+
+
+def test_dissipative_gains_take_the_smallest_inertia_and_the_largest_upsilon(pendulum):
+    """The gains of a joint are Apaza-Perez et al.'s for the bound ``L``, the damping rate over the *smallest*
+    inertia of the joint's range (the largest rate), :math:`s = -c/2`, and the largest :math:`\\Upsilon` of the
+    transform (VariableInertia: an inertia that varies over the range, so the extremes differ)."""
+    from smo_gym import design
+    from smo_gym.mechanics import default_transform, dissipative_gains
+
+    dynamics = MujocoDynamics(pendulum.model)
+    transform = default_transform(dynamics, grid=101)
+    np.testing.assert_array_equal(transform.lower, [-np.pi])
+    np.testing.assert_array_equal(transform.upper, [np.pi])
+    inertia = [dynamics.inertia(np.array([y]))[0, 0] for y in transform.grid_y[:, 0]]
+    assert max(inertia) > 1.5 * min(inertia)
+    c = pendulum.model.dof_damping[0] / min(inertia)
+    upsilon = max(1.0, transform.grid_upsilon.max())
+    expected = design.apaza_gains(5.0, q=-1.0, s=-c / 2, r=0.0, upsilon_max=upsilon).as_dict()
+    found = dissipative_gains(dynamics, transform, 5.0)
+    for key, value in expected.items():
+        np.testing.assert_allclose(found[key], [value], rtol=1e-6, err_msg=key)
+
+
+def test_the_default_transform_spans_a_limited_joints_range():
+    """A limited hinge's transform spans ``jnt_range`` and is referenced at ``qpos0`` (inside the range)."""
+    from smo_gym.mechanics import default_transform
+
+    model = mujoco.MjModel.from_xml_string(
+        "<mujoco><compiler angle='radian'/><worldbody><body>"
+        "<joint type='hinge' axis='0 1 0' range='0 1.5' limited='true'/>"
+        "<geom type='capsule' fromto='0 0 0 0.3 0 0' size='0.02' mass='1'/></body></worldbody></mujoco>"
+    )
+    transform = default_transform(MujocoDynamics(model), grid=21)
+    np.testing.assert_array_equal(transform.lower, [0.0])
+    np.testing.assert_array_equal(transform.upper, [1.5])
+    np.testing.assert_array_equal(transform.reference, [0.0])
+
+
+def test_the_model_miss_of_an_exact_model_is_small_and_controls_are_held(arm):
+    """With the exact model the miss (Euler's velocity update against the model's acceleration) is a few percent
+    of the acceleration itself; the quantile is the one asked for (the maximum is larger); controls are held for
+    ``frame_skip`` physics steps, as an environment holds them."""
+    from smo_gym.mechanics import calibrate_model_miss
+
+    dynamics = MujocoDynamics(arm.model)
+    miss, accel = calibrate_model_miss(arm.model, dynamics, 1, steps=300)
+    assert np.all(miss < 0.05 * accel), (miss, accel)
+    worst_miss, worst_accel = calibrate_model_miss(arm.model, dynamics, 1, steps=300, quantile=1.0)
+    assert np.all(worst_miss > miss) and np.all(worst_accel > accel)
+
+    class Inputs(MujocoDynamics):
+        def acceleration(self, q, v, u=None):
+            self.inputs.append(np.array(u, copy=True))
+            return super().acceleration(q, v, u)
+
+    spy = Inputs(arm.model)
+    spy.inputs = []
+    calibrate_model_miss(arm.model, spy, 5, steps=20)
+    U = np.array(spy.inputs)
+    for k in range(20):
+        np.testing.assert_array_equal(U[k], U[k - k % 5])
+    assert not np.array_equal(U[0], U[5])
