@@ -166,6 +166,15 @@ def test_ackermann_rejects_unobservable_and_bad_input():
         ackermann_observer_gain(np.eye(2, k=1), [1.0, 0.0], [np.nan, -1.0])
 
 
+def test_ackermann_refuses_a_gain_that_misplaces_the_poles_by_a_little_in_its_polynomial():
+    """Ten real modes 1 .. 15 seen through one output (observability condition number 2e13): the formula's gain
+    has a characteristic polynomial off by 2e-5 relative, which puts complex pairs up to 2.9 away from the poles
+    -1 .. -10 (measured with the check loosened to 0.1): refused, not returned."""
+    A, c, poles = np.diag(np.linspace(1.0, 15.0, 10)), np.ones(10), -np.arange(1.0, 11.0)
+    with pytest.raises(ValueError, match="places the eigenvalues"):
+        ackermann_observer_gain(A, c, poles)
+
+
 def test_ackermann_refuses_a_gain_that_does_not_place_the_poles(rng):
     """An observable but nearly unobservable pair (three modes 1e-6 apart, condition number ~1e13): the formula
     in floating point returned a gain with eigenvalues near +-3.5e5 instead of -1, -2, -3, without a word."""
