@@ -253,6 +253,23 @@ def test_an_observation_that_reads_the_live_simulation_is_refused():
     with pytest.raises(ValueError, match="reads the state from the data it is given") as excinfo:
         EstimatedVelocity(KeptViews(), disk_cache=False)
     assert "KeptViews" in str(excinfo.value) and "actual value" in str(excinfo.value)
+
+    class NoisyKeptViews(KeptViews):  # an observation with noise of its own is judged by what NaN reaches
+        def _get_obs(self):
+            return super()._get_obs() + 1e-3 * self.np_random.standard_normal(11)
+
+    with pytest.raises(ValueError, match="reads the state from the data it is given"):
+        EstimatedVelocity(NoisyKeptViews(), disk_cache=False)
+
+    class Noisy(HopperEnv):  # reads the data it is given, with noise of its own: accepted, and noisy
+        def _get_obs(self):
+            return super()._get_obs() + 1e-3 * self.np_random.standard_normal(11)
+
+    noisy = EstimatedVelocity(Noisy(), sensor="ideal", disk_cache=False)
+    noisy.reset(seed=0)
+    first = noisy.step(np.zeros(3))[0]
+    qpos, qvel = noisy.measurement.measured_qpos(), noisy.observer.velocity
+    assert 0 < np.max(np.abs(first - np.concatenate([qpos[1:], np.clip(qvel, -10, 10)]))) < 0.01
     env = gym.make("Humanoid-v5").unwrapped
     env.reset(seed=0)
     env.step(env.action_space.sample())
