@@ -473,3 +473,43 @@ def test_sines_and_cosines_are_gathered_only_where_they_equal_numpys(monkeypatch
     monkeypatch.setattr(scratch, "entry_functions_match_numpy", lambda: False)
     assert make_adapter(gym.make("InvertedDoublePendulum-v5").unwrapped).evaluation.observation_entries is None
     assert make_adapter(gym.make("Ant-v5").unwrapped).evaluation.observation_entries is not None
+
+
+USERDATA_PENDULUM = """<mujoco><size nuserdata="1"/><worldbody><body pos="0 0 1">
+<joint name="j" type="hinge" axis="0 1 0"/><geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.05"/></body>
+</worldbody><actuator><motor joint="j" ctrlrange="-1 1"/></actuator></mujoco>"""
+
+
+def test_an_observation_of_userdata_reads_what_the_environment_wrote(tmp_path):
+    """``data.userdata`` is where an environment keeps what a controller knows (a goal written at reset and at
+    every step): an observation that reads it gets the live value, as it gets ``ctrl`` (it stayed 0 before)."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    path = tmp_path / "pendulum.xml"
+    path.write_text(USERDATA_PENDULUM)
+
+    class Goal(MujocoEnv):
+        metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 250}
+
+        def __init__(self):
+            space = Box(-np.inf, np.inf, shape=(3,), dtype=np.float64)
+            super().__init__(str(path), 2, observation_space=space)
+
+        def _get_obs(self):
+            return np.concatenate([self.data.qpos, self.data.qvel, self.data.userdata])
+
+        def step(self, action):
+            self.do_simulation(action, self.frame_skip)
+            self.data.userdata[0] = 0.7
+            return self._get_obs(), 0.0, False, False, {}
+
+        def reset_model(self):
+            self.set_state(self.init_qpos + 0.1, self.init_qvel)
+            self.data.userdata[0] = 0.7
+            return self._get_obs()
+
+    env = EstimatedVelocity(Goal(), disk_cache=False)
+    assert "userdata" in env.adapter.evaluation.input_fields
+    assert env.reset(seed=0)[0][-1] == 0.7
+    assert env.step(np.zeros(1))[0][-1] == 0.7

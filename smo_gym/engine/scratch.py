@@ -3,12 +3,12 @@ r"""An environment's own observation function evaluated on scratch ``MjData`` at
 The sensed observation is the environment's observation at the measured ``qpos`` and estimated ``qvel``, with
 everything derived from them (Humanoid's ``cinert``/``cvel``/``qfrc_actuator``, Pusher's body positions,
 InvertedDoublePendulum's constraint force) recomputed: :class:`ScratchObservation` copies into a scratch
-``MjData`` the inputs a real controller knows (``ctrl``, ``act``, ``time``, mocap poses, applied forces) and the
-sensed state, runs the forward-pass stages the observation needs and calls the observation function on it. The
-live simulation is never changed. The function must read the data it is given: one check at construction sets
-every floating-point field of the live data to NaN for one evaluation (then restores it bit for bit) and refuses a
-function whose result moved, since it would return the true state (a view of ``data.qpos`` kept since
-``__init__``).
+``MjData`` the inputs a real controller knows (``ctrl``, ``act``, ``time``, mocap poses, applied forces,
+``userdata``) and the sensed state, runs the forward-pass stages the observation needs and calls the observation
+function on it. The live simulation is never changed. The function must read the data it is given: one check at
+construction sets every floating-point field of the live data to NaN for one evaluation (then restores it bit for
+bit) and refuses a function whose result moved, since it would return the true state (a view of ``data.qpos``
+kept since ``__init__``).
 
 What the observation needs is *probed* once at construction, with no per-environment table: the observation is
 evaluated on scratch data whose other fields are all NaN, after no computation, then after the kinematic stages
@@ -72,7 +72,7 @@ __all__ = [
 #: sources of the contact forces (``cfrc_ext``) in a sensed observation: see :class:`ScratchObservation`
 CONTACT_FORCES = ("sensor", "estimated", "zero")
 #: the controller's inputs that ``observation`` copies from the live data (those the observation reads, probed)
-INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied")
+INPUT_FIELDS = ("time", "ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied", "userdata")
 #: MjData fields that are inputs of the simulation (known to a controller), not functions of the state
 _INPUTS = (
     "qpos",
@@ -251,6 +251,7 @@ class ScratchObservation:
         source.mocap_quat[:] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
         source.qfrc_applied[:] = rng.standard_normal(model.nv)
         source.xfrc_applied[1:] = rng.standard_normal((model.nbody - 1, 6))
+        source.userdata[:] = rng.standard_normal(model.nuserdata)
         return source
 
     def _check_reads_given_data(self, name: str) -> None:
@@ -323,6 +324,7 @@ class ScratchObservation:
                 ("mocap_quat", model.nmocap),
                 ("qfrc_applied", model.nv),
                 ("xfrc_applied", model.nbody),
+                ("userdata", model.nuserdata),
             )
             if size
         ]
@@ -699,9 +701,8 @@ class ScratchObservation:
 
 
 #: MjData fields an observation may read from the live data: the state, the controller inputs the scratch evaluation
-#: copies (:data:`INPUT_FIELDS`, but ``time``, a scalar), ``userdata`` and the contact forces
-#: (``contact_forces="sensor"``)
-OBSERVED_FIELDS = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "time"), "userdata", "cfrc_ext")
+#: copies (:data:`INPUT_FIELDS`, but ``time``, a scalar) and the contact forces (``contact_forces="sensor"``)
+OBSERVED_FIELDS = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "time"), "cfrc_ext")
 
 
 def copy_observed_fields(data: mujoco.MjData, into: mujoco.MjData) -> mujoco.MjData:
