@@ -107,6 +107,19 @@ def _ignore_warning(message: str) -> None:
     pass
 
 
+def _float_fields(data: mujoco.MjData):
+    """``(name, array)`` of every nonempty float64 array field of ``data`` (the probes poison, mark or save them)."""
+    for name in dir(data):
+        if name.startswith("_"):
+            continue
+        try:
+            value = getattr(data, name)
+        except Exception:
+            continue
+        if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
+            yield name, value
+
+
 class ScratchObservation:
     """An observation function evaluated on a scratch ``MjData`` at a given state (see the module docstring).
 
@@ -274,16 +287,7 @@ class ScratchObservation:
         want = np.array(self.function(scratch), copy=True)
         # an observation with noise of its own differs from call to call: then only NaN coming through tells
         deterministic = np.array_equal(np.array(self.function(scratch)), want, equal_nan=True)
-        saved = {}
-        for field in dir(live):
-            if field.startswith("_"):
-                continue
-            try:
-                value = getattr(live, field)
-            except Exception:
-                continue
-            if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
-                saved[field] = value.copy()
+        saved = {field: value.copy() for field, value in _float_fields(live)}
         try:
             for field in saved:
                 getattr(live, field)[...] = np.nan
@@ -578,21 +582,7 @@ class ScratchObservation:
             obs0 = self._call_observation(scratch)
             if type(obs0) is not np.ndarray or obs0.dtype != np.float64 or obs0.ndim != 1 or not obs0.size:
                 return None
-            fields = []
-            for name in dir(scratch):
-                if name.startswith("_"):
-                    continue
-                try:
-                    value = getattr(scratch, name)
-                except Exception:
-                    continue
-                if (
-                    isinstance(value, np.ndarray)
-                    and value.dtype == np.float64
-                    and value.size
-                    and value.flags.c_contiguous
-                ):
-                    fields.append((name, value))
+            fields = [(name, value) for name, value in _float_fields(scratch) if value.flags.c_contiguous]
             total = sum(value.size for _, value in fields)
             # distinct magnitudes in (0, 0.5) (inside any plausible clip), random signs, in random order
             values = rng.permutation((np.arange(total) + 1.0) / (2.0 * (total + 1)) * rng.choice([-1.0, 1.0], total))
@@ -656,14 +646,8 @@ class ScratchObservation:
             for (qpos, qvel, source), want in zip(states, expected, strict=True):
                 poisoned = mujoco.MjData(model)
                 skip = keep | (set(_INPUTS) if inputs else set())
-                for name in dir(poisoned):
-                    if name.startswith("_") or name in skip:
-                        continue
-                    try:
-                        value = getattr(poisoned, name)
-                    except Exception:
-                        continue
-                    if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size:
+                for name, value in _float_fields(poisoned):
+                    if name not in skip:
                         value[...] = np.nan
                 self._fill(poisoned, qpos, qvel, inputs=inputs, source=source)
                 try:
