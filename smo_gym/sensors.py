@@ -1048,9 +1048,14 @@ PRESETS: dict[str, Callable[[], Sensor]] = {
 
 @check_keywords
 def make_sensor(sensor: str | Sensor) -> Sensor:
-    """A sensor from a preset name of :data:`PRESETS`, or ``sensor`` itself if it already is one."""
+    """A sensor from a preset name of :data:`PRESETS` or a spec of :mod:`smo_gym.specs`
+    (``"encoder:counts_per_revolution=1024+delay:samples=2"``), or ``sensor`` itself if it already is one."""
     if isinstance(sensor, Sensor):
         return sensor
+    if isinstance(sensor, str) and (":" in sensor or "+" in sensor):
+        from .specs import make_sensor as from_spec  # specs builds on this module
+
+        return from_spec(sensor)
     if not isinstance(sensor, str) or sensor not in PRESETS:
         raise ValueError(
             f"expected a sensor preset in {', '.join(sorted(PRESETS))} or a smo_gym.sensors.Sensor, "

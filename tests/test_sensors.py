@@ -480,3 +480,19 @@ def test_a_sensor_subclass_with_stages_only_is_accepted():
         """A preset: only the parameters differ."""
 
     assert Quiet(0.1).stages[0].std == 0.1
+
+
+def test_a_sensor_spec_is_accepted_wherever_a_preset_is():
+    """The wrapper's ``sensor`` (and everything built on ``make_sensor``) takes the spec syntax the guide documents:
+    a 1024-count encoder delayed by two samples, as ``smo_gym.specs`` builds it."""
+    import gymnasium as gym
+
+    from smo_gym import specs
+    from smo_gym.wrappers import EstimatedVelocity
+
+    spec = "encoder:counts_per_revolution=1024+delay:samples=2"
+    assert repr(sensors.make_sensor(spec)) == repr(specs.make_sensor(spec))
+    env = EstimatedVelocity(gym.make("InvertedPendulum-v5"), sensor=spec, disk_cache=False)
+    np.testing.assert_allclose(env.measurement.quantization_step()[1], 2 * np.pi / 1024)
+    env.reset(seed=0)
+    env.step(np.zeros(1))
