@@ -267,6 +267,12 @@ class ScratchObservation:
         source.userdata[:] = rng.standard_normal(model.nuserdata)
         return source
 
+    def _near_live(self, rng: np.random.Generator, scale: float = 0.1) -> np.ndarray:
+        """A configuration of the probes: the live ``qpos`` moved by a random tangent step of size ``scale``."""
+        qpos = np.array(self.live().qpos)
+        mujoco.mj_integratePos(self.model, qpos, scale * rng.standard_normal(self.model.nv), 1.0)
+        return qpos
+
     def _check_reads_given_data(self, name: str) -> None:
         """Refuse an observation function that reads the live simulation instead of the data it is given.
 
@@ -278,8 +284,7 @@ class ScratchObservation:
         """
         model, live = self.model, self.live()
         rng = np.random.default_rng(97531)
-        qpos = np.array(live.qpos)
-        mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+        qpos = self._near_live(rng)
         scratch = mujoco.MjData(model)
         self._fill(scratch, qpos, rng.standard_normal(model.nv), source=self._random_inputs(rng))
         mujoco.mj_forward(model, scratch)
@@ -335,8 +340,7 @@ class ScratchObservation:
         rng = np.random.default_rng(2468)
         cases = []
         for _ in range(2):
-            qpos = np.array(self.live().qpos)
-            mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+            qpos = self._near_live(rng)
             cases.append((qpos, rng.standard_normal(model.nv), self._random_inputs(rng), self._random_inputs(rng)))
         self.input_fields = tuple(fields)
         expected = []
@@ -478,8 +482,7 @@ class ScratchObservation:
         rng = np.random.default_rng(777)
         first = None
         for _ in range(2):
-            qpos = np.array(self.live().qpos)
-            mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
+            qpos = self._near_live(rng)
             self._fill(self._scratch, qpos, rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
             self._compute(self._scratch, self.pipeline)
             obs = self.function(self._scratch)
@@ -565,8 +568,7 @@ class ScratchObservation:
 
         def computed(scale):
             scratch = mujoco.MjData(model)
-            qpos = np.array(self.live().qpos)
-            mujoco.mj_integratePos(model, qpos, scale * rng.standard_normal(model.nv), 1.0)
+            qpos = self._near_live(rng, scale)
             self._fill(
                 scratch,
                 qpos,
@@ -629,12 +631,11 @@ class ScratchObservation:
         ``"kinematics"`` (kinematics, com frames and velocities, tendons, actuation: no collision or constraint
         solver) or ``"forward"``. Fields not copied or computed are NaN in the probe, so any read of them shows."""
         rng = np.random.default_rng(12345)
-        model, live = self.model, self.live()
+        model = self.model
         keep = {"qpos", "qvel"} | ({"cfrc_ext"} if self.contact_forces != "estimated" else set())
         states = []
         for _ in range(2):
-            qpos = np.array(live.qpos)
-            mujoco.mj_integratePos(model, qpos, 0.1 * rng.standard_normal(model.nv), 1.0)
+            qpos = self._near_live(rng)
             states.append((qpos, rng.standard_normal(model.nv), self._random_inputs(rng)))
         expected = []
         for qpos, qvel, source in states:
@@ -668,8 +669,7 @@ class ScratchObservation:
         forces is skipped, and a ``contact_forces`` mode other than ``"sensor"`` is refused."""
         mode, self.contact_forces = self.contact_forces, "sensor"  # no recomputation during the probe
         rng = np.random.default_rng(54321)
-        qpos = np.array(self.live().qpos)
-        mujoco.mj_integratePos(self.model, qpos, 0.1 * rng.standard_normal(self.model.nv), 1.0)
+        qpos = self._near_live(rng)
         scratch = mujoco.MjData(self.model)
         self._fill(scratch, qpos, rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
         self.reads_contacts = False
