@@ -513,3 +513,124 @@ def test_an_observation_of_userdata_reads_what_the_environment_wrote(tmp_path):
     assert "userdata" in env.adapter.evaluation.input_fields
     assert env.reset(seed=0)[0][-1] == 0.7
     assert env.step(np.zeros(1))[0][-1] == 0.7
+
+
+TWO_LINKS = """<mujoco><option timestep="0.01"/><worldbody><body pos="0 0 1">
+<joint name="j1" type="hinge" axis="0 1 0" damping="0.1"/><geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.05"/>
+<body pos="0 0 -0.5"><joint name="j2" type="hinge" axis="0 1 0" damping="0.1"/>
+<geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.05"/><site name="tip" pos="0 0 -0.5"/></body></body>
+</worldbody><actuator><motor joint="j1" gear="5" ctrlrange="-1 1"/><motor joint="j2" gear="5" ctrlrange="-1 1"/>
+</actuator></mujoco>"""
+
+
+def _goal_env(path, kind: str, ends_after: int = 10_000):
+    """A two-link arm whose observation reads attributes the environment draws at every reset but the first: a goal
+    (zero before) in the joint error ``qpos - goal`` (``kind="joints"``, with clipped velocities: a clipped
+    selection of the state until then) or in the tip-to-goal vector (``"tip"``, a selection of ``site_xpos``
+    entries until then), or the velocities' clip bound (``"clip"``, 10 before, then below the arm's speed; the
+    velocity is zero at every reset: the bound shows only at larger ones)."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    class Reach(MujocoEnv):
+        metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 20}
+
+        def __init__(self):
+            self.goal, self.limit, self.resets, self.steps = np.zeros(2), 10.0, 0, 0
+            space = Box(-np.inf, np.inf, shape=(4 if kind == "tip" else 5,), dtype=np.float64)
+            super().__init__(str(path), 5, observation_space=space)
+
+        def _get_obs(self):
+            d = self.data
+            if kind == "tip":
+                return np.concatenate([d.qvel, d.site_xpos[0, ::2] - self.goal])
+            return np.concatenate([d.qpos - self.goal, np.clip(d.qvel, -self.limit, self.limit), [d.qpos[0]]])
+
+        def step(self, action):
+            self.do_simulation(action, self.frame_skip)
+            self.steps += 1
+            return self._get_obs(), 0.0, self.steps % ends_after == 0, False, {}
+
+        def reset_model(self):
+            self.set_state(self.init_qpos + self.np_random.uniform(-0.1, 0.1, 2), self.init_qvel)
+            if self.resets and kind == "clip":
+                self.limit = self.np_random.uniform(0.01, 0.02)
+            elif self.resets:
+                self.goal = self.np_random.uniform(-1.0, 1.0, 2)
+            self.resets += 1
+            return self._get_obs()
+
+    return Reach
+
+
+@pytest.mark.parametrize("kind", ["joints", "tip", "clip"])
+@pytest.mark.parametrize("rate", ["env", "physics"])
+def test_compiled_observation_shortcuts_are_checked_at_every_reset(tmp_path, kind, rate):
+    """An observation that reads attributes the environment draws at reset (a goal, zero at construction; a clip
+    bound) is a clipped selection of the state, or of MjData entries, only until then: the reset checks the
+    compiled shortcut against the environment's own observation and drops it, and every later observation is
+    the environment's own at the sensed state (the shortcut had returned the state, the goal silently dropped)."""
+    path = tmp_path / "reach.xml"
+    path.write_text(TWO_LINKS)
+    env = EstimatedVelocity(_goal_env(path, kind)(), rate=rate, observer="kalman-ca", disk_cache=False)
+    evaluation = env.adapter.evaluation
+    assert (evaluation.observation_entries if kind == "tip" else evaluation.observation_map) is not None
+    rng = np.random.default_rng(0)
+    clipped = 0
+    for episode in range(3):
+        obs, info = env.reset(seed=episode)
+        # the first reset leaves the attributes as they were: the shortcut holds
+        dropped = evaluation.observation_map is None and evaluation.observation_entries is None
+        assert dropped == (episode > 0) and env._fused is not None
+        assert env._fused.maps_observation == (kind != "tip" and episode == 0)
+        for _ in range(3):
+            obs, *_, info = env.step(rng.uniform(-1, 1, 2))
+            qpos, qvel = info["smo"]["qpos_measured"], info["smo"]["qvel_estimate"]
+            np.testing.assert_array_equal(obs, full_forward_observation(env, qpos, qvel))
+            clipped += np.any(np.abs(qvel) > env.unwrapped.limit)
+    assert kind != "clip" or clipped > 0  # the drawn bound was active
+    assert copy.deepcopy(env).adapter.evaluation.observation_map is None  # through __getstate__
+
+
+@pytest.mark.parametrize("env_id", ["Hopper-v5", "Humanoid-v5", "Ant-v5", "InvertedDoublePendulum-v5"])
+def test_the_v5_environments_keep_their_compiled_observations_across_resets(env_id):
+    """The reset's check of the compiled shortcuts holds for the v5 environments (their observations read nothing
+    but MjData), at the reset state and at clipped extremes: none loses its compiled observation."""
+    env = EstimatedVelocity(gym.make(env_id), disk_cache=False)
+    evaluation = env.adapter.evaluation
+    shortcut = evaluation.observation_map, evaluation.observation_entries
+    assert any(s is not None for s in shortcut)
+    for seed in range(3):
+        env.reset(seed=seed)
+        env.step(env.action_space.sample())
+    assert (evaluation.observation_map, evaluation.observation_entries) == shortcut
+    assert evaluation.verify()
+
+
+@pytest.mark.parametrize("kind", ["joints", "tip"])
+def test_vector_wrappers_check_the_compiled_observations_at_every_reset(tmp_path, kind):
+    """The in-process vector wrapper's shared selection, its compiled step's and the batched gather are made
+    again once an autoreset drops an environment's shortcut: every observation is the environment's own at the
+    sensed state."""
+    from gymnasium.vector import SyncVectorEnv
+
+    from smo_gym.wrappers.vec import VectorEstimatedVelocity
+
+    path = tmp_path / "reach.xml"
+    path.write_text(TWO_LINKS)
+    make = _goal_env(path, kind, ends_after=4)
+    venv = VectorEstimatedVelocity(
+        SyncVectorEnv([make, make], autoreset_mode=gym.vector.AutoresetMode.SAME_STEP),
+        observer="kalman-ca",
+        positions="measured",
+        disk_cache=False,
+    )
+    venv.reset(seed=0)
+    assert (venv._selection() if kind == "joints" else venv._entries_plan()) is not None
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        obs, *_, infos = venv.step(rng.uniform(-1, 1, (2, 2)))
+        for i, sub in enumerate(venv.env.envs):
+            qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
+            np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))
+    assert venv._selection() is None and venv._entries_plan() is None

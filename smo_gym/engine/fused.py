@@ -494,6 +494,8 @@ class FusedSensing:
         Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
         """
         sensed, estimated = self.sensor.arrays, self.observer.arrays
+        # a selection the evaluation dropped at a reset (ScratchObservation.verify) is built by it from then on
+        self.maps_observation = self.maps_observation and self.evaluation.observation_map is not None
         n, S = estimated.state.shape
         if self._work is None or self._work.shape[1:] != (n, S):
             self._work = np.empty((2, n, S))

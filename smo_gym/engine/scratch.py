@@ -120,6 +120,11 @@ def _float_fields(data: mujoco.MjData):
             yield name, value
 
 
+def _select(x: np.ndarray, index: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """``np.clip(x[index], bounds[0], bounds[1])`` in NumPy: an :attr:`ScratchObservation.observation_map`."""
+    return np.minimum(np.maximum(x[index], bounds[0]), bounds[1])
+
+
 class ScratchObservation:
     """An observation function evaluated on a scratch ``MjData`` at a given state (see the module docstring).
 
@@ -220,7 +225,7 @@ class ScratchObservation:
 
     def __getstate__(self):
         state = dict(self.__dict__)
-        for name in ("_scratch_qpos", "_scratch_qvel", "_inputs", "_inputs_cache", "_gather"):
+        for name in ("_scratch_qpos", "_scratch_qvel", "_inputs", "_inputs_cache", "_gather", "_verification"):
             state.pop(name, None)
         return state
 
@@ -441,6 +446,64 @@ class ScratchObservation:
             raise ValueError(f"expected a finite sensed observation, actual value: {obs[bad]!r} at entry {bad}")
         return obs
 
+    def verify(self) -> bool:
+        """Check the compiled shortcuts (:attr:`observation_map`, :attr:`observation_entries`) against the observation
+        function at the live state; drop them if they differ. Returns whether they hold (True without any).
+
+        The shortcuts are probed at construction as functions of ``MjData`` alone. An observation that also reads
+        the environment's own attributes may be such a function then and not later: ``qpos - self.goal`` with a
+        goal still zero at construction and drawn at every reset is a selection of the state only until the first
+        reset. The wrappers call this at every reset: the function and the shortcut, on data holding the live
+        state and inputs after the forward-pass stages, then with every field the shortcut reads at -1e300 and at
+        +1e300 (the clip bounds; sines and cosines excepted), must agree bit for bit, else the function computes
+        the observation from then on (the cost of :meth:`observe_scratch` without a shortcut). An attribute
+        changed in the middle of an episode is seen at the next reset only.
+        """
+        if self.observation_map is None and self.observation_entries is None:
+            return True
+        model, live = self.model, self.live()
+        if getattr(self, "_verification", None) is None:
+            data = mujoco.MjData(model)
+            fields, gather = {"qpos": data.qpos, "qvel": data.qvel}, None  # what the shortcut reads
+            if self.observation_entries is not None:
+                names, flat, bounds, functions = self.observation_entries
+                fields = {name: getattr(data, name) for name in set(names)}
+                gather = EntryGather(fields, names, flat, functions, bounds)
+            self._verification = (data, list(fields.values()), gather)
+        data, fields, gather = self._verification
+        if gather is None:
+            index, bounds = self.observation_map
+
+            def shortcut():
+                return _select(np.concatenate((data.qpos, data.qvel)), index, bounds)
+
+            identity = slice(None)
+        else:
+
+            def shortcut():
+                obs = np.empty(len(gather))
+                gather(obs)
+                return obs
+
+            identity = self.observation_entries[3] == ENTRY_IDENTITY
+        mujoco.mj_resetData(model, data)
+        self._fill(data, live.qpos, live.qvel, source=live)
+        with _quiet_mujoco():
+            try:
+                self._compute(data, self.pipeline)
+                holds = np.array_equal(self._call_observation(data), shortcut(), equal_nan=True)
+                for huge in (-1e300, 1e300):
+                    for value in fields:
+                        value[...] = huge
+                    want, got = self._call_observation(data), shortcut()
+                    holds = holds and np.array_equal(want[identity], got[identity], equal_nan=True)
+            except Exception:
+                holds = False
+        if not holds:
+            self.observation_map = self.observation_entries = self._verification = None
+            self._views()
+        return holds
+
     def input_views(self) -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], bool]:
         """``(pairs, time)``: the ``(scratch, live)`` array views of the inputs the observation reads (each a
         C-contiguous float64 array of the same size), and whether it reads ``time``; made once per live data."""
@@ -511,9 +574,6 @@ class ScratchObservation:
             self._fill(scratch, x[:nq], x[nq:], inputs=False)
             return self._evaluate(scratch, "none")
 
-        def select(x, index, bounds):
-            return np.minimum(np.maximum(x[index], bounds[0]), bounds[1])
-
         rng = np.random.default_rng(97531)
         x0 = 1e-3 * rng.standard_normal(nq + nv)
         try:
@@ -539,7 +599,7 @@ class ScratchObservation:
             for scale in (1e-6, 1e-2, 1.0, 10.0, 1e2, 1e4, 1e8):
                 for _ in range(2):
                     x = scale * rng.standard_normal(nq + nv)
-                    if not np.array_equal(evaluate(x), select(x, index, bounds)):
+                    if not np.array_equal(evaluate(x), _select(x, index, bounds)):
                         return None
         except Exception:
             return None
@@ -764,15 +824,20 @@ class GatheredObservations:
         sizes = [len(e.gather) for e in evaluations]
         if len(set(sizes)) != 1:
             raise ValueError(f"expected observations of one size, actual value: {sizes}")
-        self.gather = EntryGather.concatenate(e.gather for e in evaluations)
+        self.gathers = [e.gather for e in evaluations]
+        self.gather = EntryGather.concatenate(self.gathers)
         self.shape = (n, sizes[0])
         #: one full forward pass on every scratch data, or None when the stages differ (then each runs its own)
         forward_only = all(e.pipeline == "forward" and not e.reads_contacts for e in evaluations)
         self.forward = [(e.model, e.scratch) for e in evaluations] if forward_only else None
 
     def current(self) -> bool:
-        """Whether every environment still has the ``MjData`` the input copies read."""
-        return all(e.live() is live for e, live in zip(self.evaluations, self.live, strict=True))
+        """Whether every environment still has the ``MjData`` the input copies read, and its gather (which
+        :meth:`ScratchObservation.verify` drops at a reset where the observation is no longer one)."""
+        return all(
+            e.live() is live and e.gather is gather
+            for e, live, gather in zip(self.evaluations, self.live, self.gathers, strict=True)
+        )
 
     def observe(self, positions: np.ndarray, velocities: np.ndarray) -> np.ndarray:
         """Observations ``(n_envs, obs_dim)`` at ``qpos = positions[i]`` ``(n_envs, nq)`` and ``qvel =

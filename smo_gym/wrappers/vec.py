@@ -50,6 +50,7 @@ the batched wrapper pays off with ``DummyVecEnv`` (no process boundary).
 from __future__ import annotations
 
 import copy
+import inspect
 import uuid
 
 import gymnasium as gym
@@ -60,36 +61,21 @@ from ..engine.batch import BatchedSensing, MeasurementBatch
 from ..engine.measurement import check_finite_observation
 from ..engine.scratch import GatheredObservations, copy_observed_fields, shared_selection
 from ..specs import needs_model
-from .estimated_velocity import _SEED_SALT, EstimatedVelocity
+from .estimated_velocity import EstimatedVelocity, _reset_stream
 from .sensing import check_action, check_seed
 
 __all__ = ["JointSensor", "VectorEstimatedVelocity", "check_vector_rate", "sensing_config", "stack_samples"]
 
 
-def sensing_config(
-    sensor="encoder-12bit-noisy",
-    observer="auto",
-    observer_kwargs=None,
-    *,
-    positions="measured",
-    contact_forces="sensor",
-    calibration_safety=2.0,
-    calibration_quantile=0.99,
-    calibration_steps=2000,
-    disk_cache=True,
-) -> dict:
-    """The sensing options (those of :class:`EstimatedVelocity` except ``rate``) as a dict."""
-    return dict(
-        sensor=sensor,
-        observer=observer,
-        observer_kwargs=observer_kwargs,
-        positions=positions,
-        contact_forces=contact_forces,
-        calibration_safety=calibration_safety,
-        calibration_quantile=calibration_quantile,
-        calibration_steps=calibration_steps,
-        disk_cache=disk_cache,
-    )
+def sensing_config(sensor="encoder-12bit-noisy", observer="auto", observer_kwargs=None, **options) -> dict:
+    """The sensing options (those of :class:`EstimatedVelocity` except ``rate``) as a dict: its keyword-only
+    ``options``, the missing ones at its defaults."""
+    parameters = inspect.signature(EstimatedVelocity).parameters
+    defaults = {name: p.default for name, p in parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    unknown = sorted(set(options) - set(defaults))
+    if unknown:
+        raise TypeError(f"expected options of EstimatedVelocity ({', '.join(defaults)}), actual value: {unknown}")
+    return dict(sensor=sensor, observer=observer, observer_kwargs=observer_kwargs, **{**defaults, **options})
 
 
 def check_vector_rate(rate) -> None:
@@ -179,11 +165,10 @@ class JointSensor(EstimatedVelocity):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         seed = check_seed(seed)
         obs, info = self.env.reset(seed=seed, options=options)
-        if seed is not None:  # the same stream as EstimatedVelocity's
-            self._rng = np.random.default_rng([int(seed) & 0xFFFFFFFFFFFFFFFF, _SEED_SALT])
-        elif self._rng is None:
-            self._rng = np.random.default_rng()
+        self._rng = _reset_stream(seed, self._rng)  # the same stream as EstimatedVelocity's
         self.measurement.reset(self.adapter.data.qpos, self._rng)
+        if self.adapter.evaluation is not None:  # the observation's compiled shortcuts may read a goal drawn here
+            self.adapter.evaluation.verify()
         self.z_reset = np.array(self.measurement.z_measured, dtype=np.float64)
         self._reset_last = True
         self.smo_reset = self._record(obs, info)
@@ -417,17 +402,19 @@ class _Sensing:
     def _selection(self):
         """``(index, low, high)`` when the in-process environments' observations are all the same clipped selection
         of the measured positions and estimated velocities (:func:`~smo_gym.engine.scratch.shared_selection`,
-        ``positions="measured"``), else None; decided once."""
-        if "_selection_cache" not in self.__dict__:
-            evaluations = [s.adapter.evaluation for s in self._local]
-            self._selection_cache = shared_selection(evaluations) if self.positions == "measured" else None
-        return self._selection_cache
+        ``positions="measured"``), else None; decided once, and again after a reset dropped one's selection."""
+        cache, evaluations = self.__dict__.get("_selection_cache", False), [s.adapter.evaluation for s in self._local]
+        if cache is False or (cache is not None and any(e.observation_map is None for e in evaluations)):
+            cache = self._selection_cache = shared_selection(evaluations) if self.positions == "measured" else None
+            if self._together is not None:
+                self._together = BatchedSensing(self._batch, self.estimator, cache)
+        return cache
 
     def _entries_plan(self) -> GatheredObservations | None:
         """The batched evaluation of the in-process environments' observations when each is gathered from MjData
         entries (:meth:`GatheredObservations.supports <smo_gym.engine.scratch.GatheredObservations.supports>`,
         ``positions="measured"``, joint coordinates equal to ``qpos``), else None; decided once, made again if an
-        environment replaced its ``MjData``."""
+        environment replaced its ``MjData`` or a reset dropped its gather."""
         plan = self.__dict__.get("_plan_cache", False)
         if plan is None or (plan and plan.current()):
             return plan
