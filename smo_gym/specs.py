@@ -137,11 +137,14 @@ MODEL_OPTIONS = ("mass_scale", "contact")
 
 
 def needs_model(observer, options: dict | None = None) -> bool:
-    """Whether the observer ``observer`` (a name) with ``options`` runs a model of the environment: a model-based
-    name, or ``"auto"`` with ``model`` set (it may choose one). Such an observer takes the environment's control
-    input at every sample, so it runs in :class:`~smo_gym.wrappers.EstimatedVelocity` only."""
+    """Whether the observer ``observer`` (a name or a spec) with ``options`` runs a model of the environment: a
+    model-based name, or ``"auto"`` with ``model`` set (it may choose one). Such an observer takes the environment's
+    control input at every sample, so it runs in :class:`~smo_gym.wrappers.EstimatedVelocity` only."""
     if not isinstance(observer, str):
         return False
+    if ":" in observer:  # a spec: its name, and its options under the given ones
+        observer, spec_options = parse_observer_spec(observer)
+        options = {**spec_options, **(options or {})}
     return observer in MODEL_BASED_OBSERVERS or (
         observer == "auto" and isinstance(options, dict) and bool(options.get("model"))
     )

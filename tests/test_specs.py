@@ -107,3 +107,12 @@ def test_compare_takes_model_free_observers_only():
     for spec in ("mechanical-super-twisting", "auto:model=true"):
         with pytest.raises(ValueError, match=f"expected model-free observers.*'{spec}'"):
             parse_observer_specs([spec])
+
+
+def test_needs_model_reads_specs():
+    """A spec runs a model where its name, or auto's model option, says so; the options given win over the spec's."""
+    assert specs.needs_model("kalman-ca-input:huber=3") and specs.needs_model("auto:model=true")
+    assert not specs.needs_model("kalman-ca:huber=3") and not specs.needs_model("auto:model=false")
+    assert not specs.needs_model("auto:model=true", {"model": False})
+    with pytest.raises(ValueError, match="options of observer 'kalman-ca'"):
+        specs.needs_model("kalman-ca:bogus=1")

@@ -506,3 +506,29 @@ def test_a_copied_wrapper_steps_the_model_of_its_own_environment():
             e.step(np.array([1.0]))
         qpos.append(e.unwrapped.data.qpos.copy())
     assert not np.allclose(qpos[0], qpos[1])
+
+
+def test_observer_specs_are_the_name_with_its_options():
+    """``observer="kalman-imm:huber=3"`` is ``observer="kalman-imm", observer_kwargs={"huber": 3}`` (the same
+    observations, bit for bit); given ``observer_kwargs`` win over the spec's; a model-based spec is refused by the
+    vector wrappers as its name is, and an unknown option is a ValueError naming the valid ones."""
+    from smo_gym.wrappers.vec import VectorEstimatedVelocity
+
+    spec = EstimatedVelocity(gym.make("Hopper-v5"), observer="kalman-imm:huber=3", disk_cache=False)
+    named = EstimatedVelocity(
+        gym.make("Hopper-v5"), observer="kalman-imm", observer_kwargs={"huber": 3}, disk_cache=False
+    )
+    assert spec.observer.huber == 3.0
+    np.testing.assert_array_equal(spec.reset(seed=0)[0], named.reset(seed=0)[0])
+    for action in smooth_actions(spec.action_space, 5, seed=0):
+        np.testing.assert_array_equal(spec.step(action)[0], named.step(action)[0])
+    given = EstimatedVelocity(
+        gym.make("Hopper-v5"), observer="kalman-ca:huber=1.0", observer_kwargs={"huber": 2.0}, disk_cache=False
+    )
+    assert given.observer.huber == 2.0
+    with pytest.raises(ValueError, match="options of observer 'kalman-ca' in"):
+        EstimatedVelocity(gym.make("Hopper-v5"), observer="kalman-ca:bogus=1", disk_cache=False)
+    with pytest.raises(ValueError, match="expected a model-free observer for a vector wrapper"):
+        VectorEstimatedVelocity(
+            gym.make_vec("Hopper-v5", 2, vectorization_mode="sync"), observer="kalman-ca-input:huber=3"
+        )

@@ -17,6 +17,7 @@ from ..engine.rollout import model_rollout_velocities
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
 from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select
 from ..sensors import Sensor, make_sensor
+from ..specs import parse_observer_spec
 from .adapters import SubstepRecording, make_adapter
 from .rollout import rollout, smooth_random_policy
 from .sensing import SensingInfo, check_action, check_seed
@@ -339,7 +340,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ``"auto"`` (the default: per joint the candidate of :mod:`smo_gym.selection` that does best on this
         wrapper's own trials, :func:`calibrated_observer`; the choice is ``observer.selection``), an observer name
         (:data:`smo_gym.observers.OBSERVERS`), with gains from a calibration rollout unless
-        ``observer_kwargs`` sets them, or an observer object whose ``dt`` is the sampling step (copied). A
+        ``observer_kwargs`` sets them, or a spec of one with options (``"kalman-imm:huber=3"``,
+        :func:`smo_gym.specs.parse_observer_spec`; ``observer_kwargs`` override them), or an observer object whose
+        ``dt`` is the sampling step (copied). A
         model-based name (:data:`smo_gym.observers.MODEL_BASED_OBSERVERS`) gets a model of the environment's own
         ``MjModel`` and the action as its input (:func:`smo_gym.wrappers.model_based.model_based_observer`).
     rate : "physics", "env" or int
@@ -449,6 +452,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._observation_wrappers = observation_wrappers(env, replay=self._replays_observation_wrappers)
         if positions not in ("measured", "filtered"):
             raise ValueError(f"expected positions 'measured' or 'filtered', actual value: {positions!r}")
+        if isinstance(observer, str) and ":" in observer:  # a spec: the name, and its options under observer_kwargs
+            observer, options = parse_observer_spec(observer)
+            observer_kwargs = {**options, **(observer_kwargs or {})}
         self.adapter = make_adapter(env, contact_forces=contact_forces)
         model = self.adapter.model
         self.sample_every = resolve_rate(rate, self.adapter.frame_skip)
