@@ -614,3 +614,17 @@ def test_batched_sensing_is_the_measurement_then_the_update_bit_for_bit():
         np.testing.assert_array_equal(block, reference)
         np.testing.assert_array_equal(obs, np.clip(x[:, index], low, high))
         np.testing.assert_array_equal(twins[0].observer.estimate, twins[1].observer.estimate)
+
+
+def test_sub_environments_sampled_at_different_steps_are_refused():
+    """One batched observer runs at one sampling step: sub-environments of different ``frame_skip`` are refused
+    (the second one's velocities came out twice too large, silently, with the first one's step)."""
+    from gymnasium.vector import SyncVectorEnv
+
+    def make(frame_skip):
+        return lambda: gym.make("HalfCheetah-v5", frame_skip=frame_skip)
+
+    with pytest.raises(ValueError, match=r"same sensing and sample step .* sample steps \[0.04, 0.08\]"):
+        VectorEstimatedVelocity(SyncVectorEnv([make(4), make(8)]), sensor="ideal", observer="finite-difference")
+    with pytest.raises(ValueError, match="same sensing and sample step"):
+        VecEstimatedVelocity(DummyVecEnv([make(4), make(8)]), sensor="ideal", observer="finite-difference")

@@ -345,9 +345,10 @@ class _Sensing:
                 )
             protos = list(self._call_envs("prototype"))
             tokens = [p[2] for p in protos]
-        configs = [p[1] for p in protos]
-        if any(c != configs[0] for c in configs):
-            raise ValueError(f"expected the same sensing in every sub-environment, actual value: {configs}")
+        configs, steps = [p[1] for p in protos], [p[0].observer.dt for p in protos]  # one batched observer, one dt
+        if any(c != configs[0] for c in configs) or len(set(steps)) > 1:
+            raise ValueError(f"expected the same sensing and sample step in every sub-environment, actual value: "
+                             f"{configs}, sample steps {steps}")  # fmt: skip
         if config is not None and config != configs[0]:
             raise ValueError(
                 f"expected the sub-environments' JointSensor to have the wrapper's sensing {config}, actual value: "
