@@ -28,15 +28,10 @@ def _disturbance(t):
 
 
 def _arm(sensor="encoder-12bit-noisy", frame_skip=5, timestep=None):
-    env = smo_gym.wrappers.EstimatedVelocity(
-        gymnasium.make("smo_gym/TwoLinkArm-v0", disturbance=_disturbance, frame_skip=frame_skip),
-        sensor=sensor,
-        rate="env",
-        observer="finite-difference",
-    )
-    if timestep is not None:
-        env.unwrapped.model.opt.timestep = timestep
-    return env
+    arm = gymnasium.make("smo_gym/TwoLinkArm-v0", disturbance=_disturbance, frame_skip=frame_skip)
+    if timestep is not None:  # before wrapping: the wrapper's sampling step and gains are made for it
+        arm.unwrapped.model.opt.timestep = timestep
+    return smo_gym.wrappers.EstimatedVelocity(arm, sensor=sensor, rate="env", observer="finite-difference")
 
 
 def _rollout(env, policy, duration, seed=0):

@@ -532,3 +532,22 @@ def test_observer_specs_are_the_name_with_its_options():
         VectorEstimatedVelocity(
             gym.make_vec("Hopper-v5", 2, vectorization_mode="sync"), observer="kalman-ca-input:huber=3"
         )
+
+
+@pytest.mark.parametrize("rate", ["env", "physics"])
+def test_a_timestep_edited_after_wrapping_is_refused_at_reset(rate):
+    """The sampling step and the observer's gains are made for the model's timestep at construction: an edit after
+    it (domain randomization of the timestep) is refused at the next reset, where it went unnoticed (finite
+    differences then came out twice the true velocity with a doubled timestep)."""
+    env = EstimatedVelocity(gym.make("HalfCheetah-v5"), rate=rate, observer="finite-difference", disk_cache=False)
+    env.reset(seed=0)
+    env.unwrapped.model.opt.timestep *= 2
+    with pytest.raises(ValueError, match=r"expected the model's opt.timestep 0.01 .* actual value: 0.02; edit"):
+        env.reset(seed=1)
+    env.unwrapped.model.opt.timestep /= 2
+    env.reset(seed=1)
+    edited = gym.make("HalfCheetah-v5")
+    edited.unwrapped.model.opt.timestep = 0.02  # edited before wrapping: the wrapper's step follows
+    assert EstimatedVelocity(edited, rate=rate, observer="finite-difference", disk_cache=False).sample_dt == (
+        0.02 if rate == "physics" else 0.1
+    )

@@ -165,12 +165,16 @@ class JointMeasurement:
         Tangent coordinates of the true and of the measured configuration at the last sample.
     qpos_measured : ndarray, shape (nq,)
         The measured configuration :math:`q \oplus (z^{meas} - z)`.
+    timestep : float
+        The model's ``opt.timestep`` at construction, which :meth:`reset` requires.
     """
 
     def __init__(self, model: mujoco.MjModel, sensor: str | Sensor, dt: float):
         self.model = model
         self.sensor = make_sensor(sensor)
         self.dt = float(dt)
+        #: the physics step ``dt`` is a multiple of (checked at every reset: the observer's gains were made for it)
+        self.timestep = float(model.opt.timestep)
         self.tangent = TangentCoordinates(model)
         self.angular = angular_dofs(model)
         #: the sensor reports single-turn angles (a :class:`~smo_gym.sensors.Wrap` stage): observers of its
@@ -224,7 +228,20 @@ class JointMeasurement:
         return self.sensor.quantization_step(self.model.nv, self.angular)
 
     def reset(self, qpos: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """First measurement of the configuration ``qpos`` (the sensor's stream comes from ``rng``)."""
+        """First measurement of the configuration ``qpos`` (the sensor's stream comes from ``rng``).
+
+        Raises
+        ------
+        ValueError
+            The model's ``opt.timestep`` is no longer :attr:`timestep` (edited after construction: the samples would
+            be ``dt`` apart no more, and the observer would differentiate with the wrong step).
+        """
+        if self.model.opt.timestep != self.timestep:
+            raise ValueError(
+                f"expected the model's opt.timestep {self.timestep} that the sampling step {self.dt} and the "
+                f"observer's gains were made for, actual value: {self.model.opt.timestep}; edit the timestep before "
+                "wrapping the environment (the calibration reads the live model)"
+            )
         qpos = np.asarray(qpos, dtype=np.float64)
         self._fused_block = None
         self._z_true = self.tangent.reset(qpos)
