@@ -202,6 +202,7 @@ class ScratchObservation:
         self._inputs = None
         self._inputs_cache = {}
         self._gather = None
+        self._verification = None  # made by the first verify()
         entries = self.observation_entries
         if entries is not None:  # the observation's entries in this scratch data, gathered by one compiled call
             names, flat, bounds, functions = entries
@@ -462,7 +463,7 @@ class ScratchObservation:
         if self.observation_map is None and self.observation_entries is None:
             return True
         model, live = self.model, self.live()
-        if getattr(self, "_verification", None) is None:
+        if self._verification is None:
             data = mujoco.MjData(model)
             fields, gather = {"qpos": data.qpos, "qvel": data.qvel}, None  # what the shortcut reads
             if self.observation_entries is not None:
@@ -500,7 +501,7 @@ class ScratchObservation:
             except Exception:
                 holds = False
         if not holds:
-            self.observation_map = self.observation_entries = self._verification = None
+            self.observation_map = self.observation_entries = None
             self._views()
         return holds
 

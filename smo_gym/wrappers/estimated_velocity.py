@@ -342,9 +342,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         (:data:`smo_gym.observers.OBSERVERS`), with gains from a calibration rollout unless
         ``observer_kwargs`` sets them, or a spec of one with options (``"kalman-imm:huber=3"``,
         :func:`smo_gym.specs.parse_observer_spec`; ``observer_kwargs`` override them), or an observer object whose
-        ``dt`` is the sampling step (copied). A
-        model-based name (:data:`smo_gym.observers.MODEL_BASED_OBSERVERS`) gets a model of the environment's own
-        ``MjModel`` and the action as its input (:func:`smo_gym.wrappers.model_based.model_based_observer`).
+        ``dt`` is the sampling step (copied). A model-based name (:data:`smo_gym.observers.MODEL_BASED_OBSERVERS`)
+        gets a model of the environment's own ``MjModel`` and the action as its input
+        (:func:`smo_gym.wrappers.model_based.model_based_observer`).
     rate : "physics", "env" or int
         Sample every physics step, once per environment step, or every ``k`` physics steps (``k`` divides
         ``frame_skip``).
