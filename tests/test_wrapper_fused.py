@@ -634,3 +634,49 @@ def test_vector_wrappers_check_the_compiled_observations_at_every_reset(tmp_path
             qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
             np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))
     assert venv._selection() is None and venv._entries_plan() is None
+
+
+LEG_ON_FLOOR = """<mujoco><option timestep="0.005"/><worldbody><geom type="plane" size="5 5 .1"/>
+<body pos="0 0 0.6"><joint type="slide" axis="0 0 1" damping="0.5"/>
+<joint name="hinge" type="hinge" axis="0 1 0" damping="0.1"/><geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.05"/>
+</body></worldbody><actuator><motor joint="hinge" gear="1" ctrlrange="-1 1"/></actuator></mujoco>"""
+
+
+def test_an_observation_of_contacts_gets_the_collision_detection(tmp_path):
+    """A foot-contact flag read from ``data.ncon`` and ``data.contact`` (counts and structures, which the NaN probes
+    cannot mark, empty at probe states in the air) takes the full forward pass: the sensed flag is the contact at
+    the sensed state once the leg has fallen onto the floor (it stayed 0 before, the collision never run)."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    path = tmp_path / "leg.xml"
+    path.write_text(LEG_ON_FLOOR)
+
+    class Leg(MujocoEnv):
+        metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 200}
+
+        def __init__(self):
+            super().__init__(str(path), 1, observation_space=Box(-np.inf, np.inf, shape=(5,), dtype=np.float64))
+
+        def _get_obs(self):
+            d = self.data
+            touching = any({d.contact.geom1[i], d.contact.geom2[i]} == {0, 1} for i in range(d.ncon))
+            return np.concatenate([d.qpos, d.qvel, [float(touching)]])
+
+        def step(self, action):
+            self.do_simulation(action, self.frame_skip)
+            return self._get_obs(), 0.0, False, False, {}
+
+        def reset_model(self):
+            self.set_state(self.init_qpos, self.init_qvel)
+            return self._get_obs()
+
+    env = EstimatedVelocity(Leg(), sensor="ideal", observer="kalman-ca", rate="env", disk_cache=False)
+    assert env.adapter.evaluation.pipeline == "forward"
+    env.reset(seed=0)
+    for _ in range(200):
+        obs, *_, info = env.step(np.zeros(1))
+    assert obs[-1] == 1.0 and info["smo"]["observation"][-1] == 1.0  # on the floor
+    np.testing.assert_array_equal(
+        obs, full_forward_observation(env, info["smo"]["qpos_measured"], info["smo"]["qvel_estimate"])
+    )

@@ -14,18 +14,21 @@ What the observation needs is *probed* once at construction, with no per-environ
 evaluated on scratch data whose other fields are all NaN, after no computation, then after the kinematic stages
 only (no collision detection or constraint solver); the first that comes out finite and equal to the
 ``mj_forward`` result at random states is used (Hopper, HalfCheetah, Ant: none; Humanoid: kinematics;
-InvertedDoublePendulum, whose observation has a constraint force: the full forward pass). The same NaN probe finds
-whether the observation reads ``cfrc_ext``. Which of the inputs (``ctrl``, applied forces, ``time``, ...) it reads
-is probed at random nonzero inputs, each replaced in turn by other random values and by NaN (MuJoCo zeroes a NaN
-``ctrl``, and the live ``ctrl`` is zero at construction: Humanoid's ``qfrc_actuator`` reads ``ctrl`` only through
-the actuation); with the full forward pass every input is copied (constraint forces depend on the inputs only
-while a constraint is active, which a probe at a few states need not see). Last, whether the function returns a
-fresh array. Only what is read is copied at every step, and fresh arrays are not copied again
-(:meth:`ScratchObservation.observe_scratch`, the per-step path). Observations that are clipped selections of the
-state (:attr:`ScratchObservation.observation_map`) or of ``MjData`` entries and their sines and cosines
-(:attr:`ScratchObservation.observation_entries`) are built by compiled code instead of the Python function, with
-the same numbers; ``tests/test_wrapper.py`` checks the result against a full forward pass at run-time inputs and
-active joint limits on every v5 environment.
+InvertedDoublePendulum, whose observation has a constraint force: the full forward pass). What collision
+detection makes (``ncon``, ``contact``: counts and structures no NaN marks, empty where no geoms touch) is probed
+with a copy of the model whose contact margin makes every pair of geoms touch: an observation that reads it
+takes the full forward pass. The same NaN probe finds whether the observation reads ``cfrc_ext``. Which of the
+inputs (``ctrl``, applied forces, ``time``, ...) it reads is probed at random nonzero inputs, each replaced in
+turn by other random values and by NaN (MuJoCo zeroes a NaN ``ctrl``, and the live ``ctrl`` is zero at
+construction: Humanoid's ``qfrc_actuator`` reads ``ctrl`` only through the actuation); with the full forward pass
+every input is copied (constraint forces depend on the inputs only while a constraint is active, which a probe
+at a few states need not see). Last, whether the function returns a fresh array. Only what is read is copied at
+every step, and fresh arrays are not copied again (:meth:`ScratchObservation.observe_scratch`, the per-step
+path). Observations that are clipped selections of the state (:attr:`ScratchObservation.observation_map`) or of
+``MjData`` entries and their sines and cosines (:attr:`ScratchObservation.observation_entries`) are built by
+compiled code instead of the Python function, with the same numbers; ``tests/test_wrapper.py`` checks the result
+against a full forward pass at run-time inputs and active joint limits on every v5 environment, and
+:meth:`ScratchObservation.verify` checks the shortcut again at every reset.
 
 Contact forces
 --------------
@@ -44,6 +47,7 @@ contact forces with force/torque sensors or foot switches. ``contact_forces`` de
 from __future__ import annotations
 
 import contextlib
+import copy
 from collections.abc import Callable
 
 import mujoco
@@ -721,8 +725,29 @@ class ScratchObservation:
                     ok = False
                     break
             if ok:
-                return pipeline, inputs
+                return ("forward", True) if self._reads_collisions(*states[0]) else (pipeline, inputs)
         return "forward", True
+
+    def _reads_collisions(self, qpos: np.ndarray, qvel: np.ndarray, source: mujoco.MjData) -> bool:
+        """Whether the observation reads what collision detection makes: ``ncon``, ``contact``, the constraint
+        rows. The NaN probes cannot mark those (counts and structures, empty where no geoms touch: a foot-contact
+        flag read at probe states in the air). Here the observation is evaluated after the full forward pass at
+        one state twice: with the model, and with a copy whose contact margin (``o_margin`` override) spans the
+        model, so that every pair of geoms that may collide touches; an observation that differs reads them."""
+        wide = copy.deepcopy(self.model)
+        wide.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_OVERRIDE
+        wide.opt.o_margin = max(2.0 * float(self.model.stat.extent), 1.0)
+        observations = []
+        try:
+            for model in (self.model, wide):
+                data = mujoco.MjData(model)
+                self._fill(data, qpos, qvel, source=source)
+                mujoco.mj_forward(model, data)
+                observations.append(np.array(self.function(data), copy=True))
+        except Exception:
+            return True
+        first, second = observations
+        return first.shape != second.shape or not np.array_equal(first, second, equal_nan=True)
 
     def _probe_contacts(self) -> bool:
         """Whether the observation reads ``cfrc_ext`` (Ant, Humanoid): evaluated at a random state with
