@@ -680,3 +680,78 @@ def test_an_observation_of_contacts_gets_the_collision_detection(tmp_path):
     np.testing.assert_array_equal(
         obs, full_forward_observation(env, info["smo"]["qpos_measured"], info["smo"]["qvel_estimate"])
     )
+
+
+def _two_links(path, after_physics, frame_skip=5):
+    """The two-link arm whose step runs ``after_physics(env, action)`` in place of ``do_simulation`` alone."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    class Arm(MujocoEnv):
+        metadata = {
+            "render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"],
+            "render_fps": 100 // frame_skip,
+        }
+
+        def __init__(self):
+            space = Box(-np.inf, np.inf, shape=(4,), dtype=np.float64)
+            super().__init__(str(path), frame_skip, observation_space=space)
+
+        def _get_obs(self):
+            return np.concatenate([self.data.qpos, self.data.qvel])
+
+        def step(self, action):
+            after_physics(self, action)
+            return self._get_obs(), 0.0, False, False, {}
+
+        def reset_model(self):
+            self.set_state(self.init_qpos + self.np_random.uniform(-0.1, 0.1, 2), self.init_qvel)
+            return self._get_obs()
+
+    return Arm()
+
+
+def test_the_last_sample_at_the_physics_rate_is_the_steps_end(tmp_path):
+    """A state the environment sets after its physics (a joint it re-centres) is the step's last sample at the
+    physics rate as at the env rate: the sensed and the reported true configuration are the step's end (they were
+    the last physics substep's, before the re-centring)."""
+    path = tmp_path / "arm.xml"
+    path.write_text(TWO_LINKS)
+
+    def recentre(env, action):
+        env.do_simulation(action, env.frame_skip)
+        env.set_state(env.data.qpos * [1.0, 0.0], env.data.qvel * [1.0, 0.0])
+
+    for rate in ("physics", "env"):
+        env = EstimatedVelocity(_two_links(path, recentre), sensor="ideal", observer="kalman-ca", rate=rate)
+        env.reset(seed=0)
+        for _ in range(3):
+            obs, *_, info = env.step(np.full(2, 0.5))
+            live = env.unwrapped.data.qpos
+            assert live[1] == 0.0
+            np.testing.assert_array_equal(obs[:2], live)
+            np.testing.assert_array_equal(info["smo"]["qpos"], live)
+
+
+def test_too_few_physics_steps_to_sample_are_refused(tmp_path):
+    """At a rate inside ``frame_skip`` the samples come from the physics steps the environment takes through
+    ``do_simulation``: a step that takes none there (``mj_step`` called directly), or fewer than one sample needs,
+    is a RuntimeError that says how many it saw (fewer than one sample's gave "expected n_samples in [1, 256]")."""
+    import mujoco
+
+    path = tmp_path / "arm.xml"
+    path.write_text(TWO_LINKS)
+
+    def direct(env, action):
+        env.data.ctrl[:] = action
+        mujoco.mj_step(env.model, env.data, nstep=env.frame_skip)
+
+    def short(env, action):
+        env.do_simulation(action, 2)
+
+    for after_physics, rate, seen in ((direct, "physics", 0), (short, 5, 2)):
+        arm = _two_links(path, after_physics, frame_skip=10)
+        env = EstimatedVelocity(arm, sensor="ideal", observer="kalman-ca", rate=rate)
+        env.reset(seed=0)
+        with pytest.raises(RuntimeError, match=rf"or more physics steps per step\(\).*actual value: {seen} observed"):
+            env.step(np.zeros(2))

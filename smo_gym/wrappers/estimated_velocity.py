@@ -661,12 +661,13 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 hook = self._substep_hook = self.adapter.record_substeps(recording)
             with hook:
                 clean, reward, terminated, truncated, info = self.env.step(action)
-            if recording.count == 0 and recording.n == 0:
+            if recording.n == 0:
                 raise RuntimeError(
-                    "expected the environment to step its physics through MujocoEnv._step_mujoco_simulation, "
-                    "actual value: no physics step was observed during step(); use rate='env'"
+                    f"expected {self.sample_every} or more physics steps per step() through MujocoEnv._step_mujoco_"
+                    f"simulation, actual value: {recording.count} observed; use rate='env'"
                 )
             samples = recording.rows["qpos"][: recording.n]
+            samples[-1] = live[3]  # the step's end: what the environment did after its physics counts (a re-centring)
         else:
             clean, reward, terminated, truncated, info = self.env.step(action)
             samples = live[1]
