@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -95,6 +97,12 @@ def test_certificate_scales_with_p_and_checks_lemma_3():
         certify_switched_gain(l, P * (1 + 1j), 1.0, 1.0, 1.0)
     with pytest.raises(ValueError, match="expected l with 2 entries"):
         certify_switched_gain([1.0, 2.0, 3.0], P, 1.0, 1.0, 1.0)
+    # an asymmetric P (the solver's plus a skew part) was certified as its symmetric part; rounding-level
+    # asymmetry still passes
+    skew = np.array([[0.0, 1.0], [-1.0, 0.0]]) * 1e-3 * np.abs(P).max()
+    with pytest.raises(ValueError, match=re.escape(f"max |P - P^T| = {2e-3 * np.abs(P).max():.3e}")):
+        certify_switched_gain(l, P + skew, 1.0, 1.0, 1.0)
+    certify_switched_gain(l, P + 1e-12 * skew, 1.0, 1.0, 1.0)
     with pytest.raises(ValueError, match=r"rho_d in \[1e-150"):
         switched_gain_lmi(2, 1.0, 1e300, 1.0)
 

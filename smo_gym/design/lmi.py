@@ -229,7 +229,8 @@ def certify_switched_gain(
     Raises
     ------
     TypeError, ValueError
-        Arguments of another type, shape or range (``P`` square of size 2 to 10, ``l`` of its size).
+        Arguments of another type, shape or range (``P`` symmetric up to rounding, of size 2 to 10, ``l`` of its
+        size).
     LMIInfeasibleError
         The re-verification fails.
     """
@@ -244,6 +245,12 @@ def certify_switched_gain(
         raise ValueError("expected finite l and P, actual value: a NaN or infinite entry")
     kappa, rho_d, rho_v, gamma = _check_spec(kappa, rho_d, rho_v, gamma)
     tol = check_nonnegative("tol", tol)
+    asymmetry = float(np.abs(P - P.T).max())
+    if asymmetry > 1e-9 * float(np.abs(P).max()):  # Assumption 1 is for symmetric P; eigvalsh reads one triangle
+        raise ValueError(
+            f"expected a symmetric P (up to rounding, 1e-9 of its largest entry), actual value: max |P - P^T| = "
+            f"{asymmetry:.3e}"
+        )
     P = 0.5 * (P + P.T)
     eig_P = np.linalg.eigvalsh(P)
     M = switched_gain_lmi_matrix(P, P @ l, kappa, rho_d, rho_v, gamma)
