@@ -15,7 +15,7 @@ from scipy.integrate import solve_ivp
 
 from smo_gym.mechanics import MujocoDynamics
 from smo_gym.observers import CoordinateTransform, DissipativeSuperTwisting, MechanicalSuperTwisting
-from smo_gym.observers._mechanical_kernels import STATE_WIDTH, mechanical_channel_step
+from smo_gym.observers._mechanical_kernels import MODEL, STATE_WIDTH, mechanical_channel_step
 
 
 class Recorded:
@@ -188,10 +188,10 @@ def test_implicit_step_without_the_discontinuous_gain_solves_its_equation(g):
     h = 0.01
     for _ in range(100):
         x = np.zeros(STATE_WIDTH)
-        x[0], x[1], x[4] = rng.normal(), rng.normal(), 10 * rng.normal()
+        x[0], x[1], x[MODEL] = rng.normal(), rng.normal(), 10 * rng.normal()
         X = x[0] + rng.normal() * 10.0 ** rng.uniform(-7, 0)
         new = np.zeros(STATE_WIDTH)
-        new[4] = x[4]
+        new[MODEL] = x[MODEL]
         w = mechanical_channel_step(x, X, _parameters(h, 0.5, g, True), new)
         e = X - new[0]
         root = np.sign(e) * np.sqrt(abs(e))
@@ -208,11 +208,11 @@ def test_explicit_step_is_the_prediction_plus_the_injections():
     h, c, g = 0.01, 0.5, (4.0, 2.0, 8.0, 6.0, 4.0)
     for k in range(100):
         x = np.zeros(STATE_WIDTH)
-        x[0], x[1], x[4] = rng.normal(), rng.normal(), 10 * rng.normal()
-        p1, p2 = x[0] + h * x[1] + c * h * h * x[4], x[1] + h * x[4]
+        x[0], x[1], x[MODEL] = rng.normal(), rng.normal(), 10 * rng.normal()
+        p1, p2 = x[0] + h * x[1] + c * h * h * x[MODEL], x[1] + h * x[MODEL]
         X = p1 if k == 0 else x[0] + rng.normal()
         new = np.zeros(STATE_WIDTH)
-        new[4] = x[4]
+        new[MODEL] = x[MODEL]
         w = mechanical_channel_step(x, X, _parameters(h, c, g, False), new)
         root = np.sign(w) * np.sqrt(abs(w))
         np.testing.assert_allclose(new[0], p1 + h * (g[0] * root + g[1] * w), rtol=1e-13, atol=1e-15)

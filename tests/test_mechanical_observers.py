@@ -18,7 +18,7 @@ from smo_gym.observers import (
     MechanicalSuperTwisting,
     SuperTwisting,
 )
-from smo_gym.observers._mechanical_kernels import STATE_WIDTH, mechanical_channel_step
+from smo_gym.observers._mechanical_kernels import MODEL, STATE_WIDTH, mechanical_channel_step
 
 RES = 2 * np.pi / 4096
 
@@ -88,15 +88,15 @@ def test_semi_implicit_step_solves_its_implicit_equation(g):
     params = np.array([h, c, *g, 1.0, 0.1, 0.0, np.inf])
     for _ in range(200):
         x = np.zeros(STATE_WIDTH)
-        x[0], x[1], x[4] = rng.normal(), rng.normal(), rng.normal() * 10
+        x[0], x[1], x[MODEL] = rng.normal(), rng.normal(), rng.normal() * 10
         X = x[0] + rng.normal() * 10.0 ** rng.uniform(-7, 0)
         x_new = np.zeros(STATE_WIDTH)
-        x_new[4] = x[4]  # the model term is passed in the row the step writes
+        x_new[MODEL] = x[MODEL]  # the model term is passed in the row the step writes
         w = mechanical_channel_step(x, X, params, x_new)
-        assert w == pytest.approx(X - x[0] - h * x[1] - c * h * h * x[4])
+        assert w == pytest.approx(X - x[0] - h * x[1] - c * h * h * x[MODEL])
         e = X - x_new[0]
         root = np.sign(e) * np.sqrt(abs(e))
-        s = (x_new[1] - x[1] - h * x[4] - h * (g[3] * root + g[4] * e)) / (h * g[2])
+        s = (x_new[1] - x[1] - h * x[MODEL] - h * (g[3] * root + g[4] * e)) / (h * g[2])
         assert abs(s) <= 1 + 1e-9
         if abs(e) > 1e-14:
             assert s == pytest.approx(np.sign(e), abs=1e-6)

@@ -6,7 +6,8 @@ call and writes it into the column ``MODEL`` (and ``MODEL_POS``) of ``new_state`
 An input in the output row keeps ``state`` read-only: a step rejected for a non-finite measurement or a diverging
 state leaves the observer's state exactly as it was.
 
-State row (per channel): ``[x1, x2, innovation, x1_meas_prev, model, injection, injection_filtered, e, model_pos]``
+State row (per channel): ``[x1, x2, innovation, model, injection, injection_filtered, e, model_pos]`` (columns
+named below)
 Params row: ``[dt, c, g11, g12, g20, g21, g22, implicit, filter_coefficient, pos_from_state, model_bound]``
 (``model_bound``: the model term is clipped to ``[-model_bound, model_bound]``, Wetzlinger et al. eq. (33); ``inf`` for
 none; not applied to a prediction integrated outside, which saturates its own substeps)
@@ -44,19 +45,20 @@ __all__ = [
     "MODEL",
     "MODEL_POS",
     "STATE_WIDTH",
-    "X1_PREV",
     "mechanical_channel_step",
     "mechanical_kernel",
 ]
 
-STATE_WIDTH = 9
+#: the columns of a channel's state row
+STATE_WIDTH = 8
+X1 = 0
+X2 = 1
 INNOVATION = 2
-X1_PREV = 3
-MODEL = 4
-INJECTION = 5
-FILTERED = 6
-ERROR = 7
-MODEL_POS = 8
+MODEL = 3
+INJECTION = 4
+FILTERED = 5
+ERROR = 6
+MODEL_POS = 7
 
 
 @njit(cache=CACHE)
@@ -75,18 +77,18 @@ def mechanical_channel_step(x, X, params, x_new):
     g22 = params[6]
     implicit = params[7] != 0.0
     beta = params[8]
-    m = x_new[4]
+    m = x_new[MODEL]
     bound = params[10]
     if m > bound:
         m = bound
     elif m < -bound:
         m = -bound
     if params[9] != 0.0:
-        p1 = x[0] + h * x[1] + h * h * x_new[8]
+        p1 = x[X1] + h * x[X2] + h * h * x_new[MODEL_POS]
     else:
-        p1 = x[0] + h * x[1] + c * h * h * m
-        x_new[8] = 0.0  # no prediction integrated outside (the scratch row may hold anything)
-    p2 = x[1] + h * m
+        p1 = x[X1] + h * x[X2] + c * h * h * m
+        x_new[MODEL_POS] = 0.0  # no prediction integrated outside (the scratch row may hold anything)
+    p2 = x[X2] + h * m
     w = X - p1
     if implicit:
         a = 1.0 + h * g12 + h * h * g22
@@ -115,16 +117,15 @@ def mechanical_channel_step(x, X, params, x_new):
     root = math.copysign(math.sqrt(abs(e)), e)
     inj2 = g20 * s + g21 * root + g22 * e
     if implicit:
-        x_new[0] = X - e
+        x_new[X1] = X - e
     else:
-        x_new[0] = p1 + h * (g11 * root + g12 * e)
-    x_new[1] = p2 + h * inj2
-    x_new[2] = w
-    x_new[3] = X
-    x_new[4] = m
-    x_new[5] = inj2
-    x_new[6] = x[6] + beta * (inj2 - x[6])
-    x_new[7] = e if implicit else X - x_new[0]
+        x_new[X1] = p1 + h * (g11 * root + g12 * e)
+    x_new[X2] = p2 + h * inj2
+    x_new[INNOVATION] = w
+    x_new[MODEL] = m
+    x_new[INJECTION] = inj2
+    x_new[FILTERED] = x[FILTERED] + beta * (inj2 - x[FILTERED])
+    x_new[ERROR] = e if implicit else X - x_new[X1]
     return w
 
 
@@ -137,8 +138,8 @@ def mechanical_kernel(state, y, params, new_state, out):
         return bad
     for ch in range(yf.shape[0]):
         mechanical_channel_step(state[ch], yf[ch], params[ch], new_state[ch])
-        o[ch, 0] = new_state[ch, 0]
-        o[ch, 1] = new_state[ch, 1]
+        o[ch, 0] = new_state[ch, X1]
+        o[ch, 1] = new_state[ch, X2]
     return _check_state(new_state, o)
 
 

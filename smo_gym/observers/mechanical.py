@@ -193,9 +193,8 @@ class _ModelBasedSuperTwisting(Observer):
         v0 = np.zeros(self._shape) if self._v0 is None else np.broadcast_to(self._v0, self._shape)
         x1, x2 = self._from_estimate(y0s, v0)
         state = np.zeros((y0.shape[0], _mk.STATE_WIDTH))
-        state[:, 0] = np.reshape(x1, -1)
-        state[:, 1] = np.reshape(x2, -1)
-        state[:, _mk.X1_PREV] = np.reshape(self._measure(y0s), -1)
+        state[:, _mk.X1] = np.reshape(x1, -1)
+        state[:, _mk.X2] = np.reshape(x2, -1)
         return state
 
     @check_keywords
