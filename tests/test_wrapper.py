@@ -551,3 +551,42 @@ def test_a_timestep_edited_after_wrapping_is_refused_at_reset(rate):
     assert EstimatedVelocity(edited, rate=rate, observer="finite-difference", disk_cache=False).sample_dt == (
         0.02 if rate == "physics" else 0.1
     )
+
+
+def test_physics_steps_other_than_the_sampling_assumes_are_refused_at_the_env_rate():
+    """At ``rate="env"`` one sample per step assumes ``frame_skip`` physics steps: a ``frame_skip`` edited after
+    wrapping, or a step that simulates twice (an action repeated inside ``step``), is a RuntimeError at the
+    episode's first step (finite differences came out twice the true velocity). At the physics rate the samples
+    follow the physics steps taken, and the estimate is right."""
+    from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv
+    from gymnasium.vector import SyncVectorEnv
+
+    from smo_gym.wrappers.vec import VectorEstimatedVelocity
+
+    class Repeat(HalfCheetahEnv):
+        def step(self, action):
+            self.do_simulation(action, self.frame_skip)
+            return super().step(action)
+
+    edited = EstimatedVelocity(gym.make("HalfCheetah-v5"), sensor="ideal", observer="finite-difference", rate="env")
+    edited.unwrapped.frame_skip = 10
+    edited.reset(seed=0)
+    with pytest.raises(RuntimeError, match=r"expected 0.05 s of simulated time per sample .* actual value: 0.1 s"):
+        edited.step(np.zeros(6))
+    repeated = EstimatedVelocity(Repeat(), sensor="ideal", observer="finite-difference", rate="env")
+    repeated.reset(seed=0)
+    with pytest.raises(RuntimeError, match=r"actual value: 0\.1 s"):
+        repeated.step(np.zeros(6))
+    physics = EstimatedVelocity(Repeat(), sensor="ideal", observer="finite-difference", rate="physics")
+    physics.reset(seed=0)
+    for _ in range(3):
+        info = physics.step(np.full(6, 0.5))[-1]
+    q = info["smo"]
+    np.testing.assert_allclose(q["qvel_estimate"], q["qvel"], rtol=0, atol=1e-9)  # Euler: exactly the new qvel
+    vector = VectorEstimatedVelocity(
+        SyncVectorEnv([lambda: gym.make("HalfCheetah-v5")] * 2), sensor="ideal", observer="finite-difference"
+    )
+    vector.env.envs[1].unwrapped.frame_skip = 10
+    vector.reset(seed=0)
+    with pytest.raises(RuntimeError, match=r"actual value: 0\.1 s"):
+        vector.step(np.zeros((2, 6)))

@@ -42,10 +42,50 @@ __all__ = [
     "VelocityEstimator",
     "angular_dofs",
     "check_finite_observation",
+    "check_sample_time",
     "first_nonfinite_entry",
     "mean_velocity_span",
+    "resolve_rate",
     "step_mean_coefficients",
 ]
+
+
+def resolve_rate(rate, frame_skip: int) -> int:
+    """Physics steps per sample: ``"physics"`` -> 1, ``"env"`` -> ``frame_skip``, an int ``k`` dividing it -> k."""
+    if isinstance(rate, str):
+        if rate == "physics":
+            return 1
+        if rate == "env":
+            return int(frame_skip)
+        raise ValueError(f"expected rate 'physics', 'env' or an int dividing frame_skip, actual value: {rate!r}")
+    if isinstance(rate, bool) or not isinstance(rate, (int, np.integer)):
+        raise TypeError(f"expected rate 'physics', 'env' or an int dividing frame_skip, actual value: {rate!r}")
+    k = int(rate)
+    if k < 1 or frame_skip % k != 0:
+        raise ValueError(
+            f"expected rate to be a positive divisor of frame_skip={frame_skip} (physics steps per sample), "
+            f"actual value: {rate!r}"
+        )
+    return k
+
+
+def check_sample_time(elapsed: float, sample_dt: float) -> None:
+    """Raise if ``elapsed`` seconds of simulated time passed between two samples taken ``sample_dt`` apart: the
+    environment took other physics steps than the sampling assumes (``frame_skip`` edited after wrapping, an action
+    repeated inside ``step``), and the observer would differentiate with the wrong step.
+
+    Raises
+    ------
+    RuntimeError
+        ``elapsed`` off ``sample_dt`` by more than 1e-6 of it (the rounding of ``data.time`` is far below).
+    """
+    if not abs(elapsed - sample_dt) <= 1e-6 * sample_dt:
+        raise RuntimeError(
+            f"expected {sample_dt:g} s of simulated time per sample (frame_skip physics steps at rate='env'), "
+            f"actual value: {elapsed:g} s; wrap the environment after editing frame_skip or opt.timestep, or "
+            "sample inside the step with rate='physics'"
+        )
+
 
 _FREE, _BALL, _SLIDE, _HINGE = (
     int(mujoco.mjtJoint.mjJNT_FREE),

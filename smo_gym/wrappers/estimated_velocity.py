@@ -12,7 +12,14 @@ from .._cache import cached_bounds, calibration_key, stable_repr
 from .._validation import check_int_in_range, check_positive, check_real_in_range
 from ..calibration import Calibration, bound_order, calibration_from_velocities, default_observer
 from ..engine.fused import FusedSensing
-from ..engine.measurement import JointMeasurement, VelocityEstimator, check_finite_observation, mean_velocity_span
+from ..engine.measurement import (
+    JointMeasurement,
+    VelocityEstimator,
+    check_finite_observation,
+    check_sample_time,
+    mean_velocity_span,
+    resolve_rate,
+)
 from ..engine.rollout import model_rollout_velocities
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
 from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select
@@ -50,25 +57,6 @@ CALIBRATION_SEED = 0x534D4F43
 #: the trials of ``observer="auto"`` run this many times the calibration's physics steps, per scenario: a choice
 #: per joint needs more samples than a level does (on Ant and Walker2d, 1x chose 8-9 % worse than 4x)
 TRIAL_STEPS = 4
-
-
-def resolve_rate(rate, frame_skip: int) -> int:
-    """Physics steps per sample: ``"physics"`` -> 1, ``"env"`` -> ``frame_skip``, an int ``k`` dividing it -> k."""
-    if isinstance(rate, str):
-        if rate == "physics":
-            return 1
-        if rate == "env":
-            return int(frame_skip)
-        raise ValueError(f"expected rate 'physics', 'env' or an int dividing frame_skip, actual value: {rate!r}")
-    if isinstance(rate, bool) or not isinstance(rate, (int, np.integer)):
-        raise TypeError(f"expected rate 'physics', 'env' or an int dividing frame_skip, actual value: {rate!r}")
-    k = int(rate)
-    if k < 1 or frame_skip % k != 0:
-        raise ValueError(
-            f"expected rate to be a positive divisor of frame_skip={frame_skip} (physics steps per sample), "
-            f"actual value: {rate!r}"
-        )
-    return k
 
 
 def rollout_velocities(adapter, sample_every: int, steps: int, seed: int = CALIBRATION_SEED) -> list[np.ndarray] | None:
@@ -539,6 +527,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     _unreset = "the wrapper was never reset"
     #: whether the last step ended the episode
     _ended = False
+    #: ``data.time`` at the reset, until the episode's first step (at ``rate="env"``) is checked against the sampling
+    _start_time = None
 
     @property
     def sensor(self) -> Sensor:
@@ -623,6 +613,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._substep_hook = None  # a reset may rebuild the simulation's objects (dm_control's physics)
         data = self.adapter.data
         self._live = (data, data.qpos[None], data.qvel, data.qpos)
+        self._start_time = data.time  # rate="env": the first step's physics steps are checked against the sampling
         fused = self._fused
         if fused is None or fused.observer is not self.estimator.observer or fused.sensor is not self.sensor:
             self._fused = (
@@ -671,6 +662,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             clean, reward, terminated, truncated, info = self.env.step(action)
             samples = live[1]
+            if self._start_time is not None:  # once an episode: a frame_skip edited since, an action repeated inside
+                check_sample_time(data.time - self._start_time, self.sample_dt)
+                self._start_time = None
         self._ended = terminated or truncated
         fused = self._fused
         if fused is not None:

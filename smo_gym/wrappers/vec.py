@@ -58,7 +58,7 @@ import mujoco
 import numpy as np
 
 from ..engine.batch import BatchedSensing, MeasurementBatch
-from ..engine.measurement import check_finite_observation
+from ..engine.measurement import check_finite_observation, check_sample_time
 from ..engine.scratch import GatheredObservations, copy_observed_fields, shared_selection
 from ..specs import needs_model
 from .estimated_velocity import EstimatedVelocity, _reset_stream
@@ -167,6 +167,7 @@ class JointSensor(EstimatedVelocity):
         obs, info = self.env.reset(seed=seed, options=options)
         self._rng = _reset_stream(seed, self._rng)  # the same stream as EstimatedVelocity's
         self.measurement.reset(self.adapter.data.qpos, self._rng)
+        self._start_time = self.adapter.data.time  # the episode's first step is checked against the sampling
         if self.adapter.evaluation is not None:  # the observation's compiled shortcuts may read a goal drawn here
             self.adapter.evaluation.verify()
         self.z_reset = np.array(self.measurement.z_measured, dtype=np.float64)
@@ -182,6 +183,9 @@ class JointSensor(EstimatedVelocity):
         check_action(action, self._action_shape)
         self._terminal = None  # kept across the autoreset that follows an episode's end, dropped here
         obs, reward, terminated, truncated, info = self.env.step(action)
+        if self._start_time is not None:  # once an episode: a frame_skip edited since, an action repeated inside
+            check_sample_time(self.adapter.data.time - self._start_time, self.sample_dt)
+            self._start_time = None
         self._reset_last = False
         if self.batched and not (terminated or truncated):  # the owner measures this sample with the others'
             self.step_observation = obs
