@@ -115,7 +115,7 @@ def full_forward_observation(env, qpos, qvel):
     model, live = u.model, u.data
     scratch = mujoco.MjData(model)
     scratch.time = live.time
-    for name in ("ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied", "userdata"):
+    for name in ("ctrl", "act", "mocap_pos", "mocap_quat", "qfrc_applied", "xfrc_applied", "userdata", "eq_active"):
         getattr(scratch, name)[:] = getattr(live, name)
     scratch.qpos[:] = qpos
     scratch.qvel[:] = qvel

@@ -755,3 +755,80 @@ def test_too_few_physics_steps_to_sample_are_refused(tmp_path):
         env.reset(seed=0)
         with pytest.raises(RuntimeError, match=rf"or more physics steps per step\(\).*actual value: {seen} observed"):
             env.step(np.zeros(2))
+
+
+LOCKED_ELBOW = """<mujoco><option timestep="0.005"/><worldbody><body pos="0 0 1">
+<joint name="shoulder" type="hinge" axis="0 1 0" damping="0.1"/>
+<geom type="capsule" fromto="0 0 0 0.5 0 0" size="0.05"/>
+<body pos="0.5 0 0"><joint name="elbow" type="hinge" axis="0 1 0" damping="0.1"/>
+<geom type="capsule" fromto="0 0 0 0.5 0 0" size="0.05"/></body></body></worldbody>
+<equality><joint joint1="elbow" active="true"/></equality>
+<actuator><motor joint="shoulder" gear="5" ctrlrange="-1 1"/><motor joint="elbow" gear="5" ctrlrange="-1 1"/>
+</actuator></mujoco>"""
+
+
+def _gripper(path, reads_flag: bool):
+    """An arm whose elbow lock (an equality constraint, on in the model) the environment releases at reset and
+    switches at every step by the sign of the second action: the observation reads the accelerations (the full
+    forward pass) or the lock's flag alone."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    class Gripper(MujocoEnv):
+        metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 40}
+
+        def __init__(self):
+            space = Box(-np.inf, np.inf, shape=(5 if reads_flag else 6,), dtype=np.float64)
+            super().__init__(str(path), 5, observation_space=space)
+
+        def _get_obs(self):
+            d = self.data
+            return np.concatenate([d.qpos, d.qvel, d.eq_active.astype(float) if reads_flag else d.qacc])
+
+        def step(self, action):
+            self.do_simulation(action, self.frame_skip)
+            self.data.eq_active[0] = action[1] > 0.0
+            return self._get_obs(), 0.0, False, False, {}
+
+        def reset_model(self):
+            self.set_state(self.init_qpos + self.np_random.uniform(-0.1, 0.1, 2), self.init_qvel)
+            self.data.eq_active[0] = 0
+            return self._get_obs()
+
+    return Gripper
+
+
+@pytest.mark.parametrize("reads_flag", [False, True])
+def test_which_equality_constraints_are_on_is_copied(tmp_path, reads_flag):
+    """Which equality constraints are on (``eq_active``, a uint8 array an environment switches: a weld for a grasp)
+    is one of the controller's inputs: the sensed accelerations and a flag read from it follow the live switch, in
+    the single and the vector wrappers (the scratch data kept the model's lock, silently)."""
+    from gymnasium.vector import SyncVectorEnv
+
+    from smo_gym.wrappers.vec import VectorEstimatedVelocity
+
+    path = tmp_path / "gripper.xml"
+    path.write_text(LOCKED_ELBOW)
+    make = _gripper(path, reads_flag)
+    env = EstimatedVelocity(make(), sensor="ideal", observer="kalman-ca")
+    assert env.adapter.evaluation.pipeline == ("none" if reads_flag else "forward")
+    obs, info = env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    switched = set()
+    for _ in range(6):
+        np.testing.assert_array_equal(
+            obs, full_forward_observation(env, info["smo"]["qpos_measured"], info["smo"]["qvel_estimate"])
+        )
+        obs, *_, info = env.step(rng.uniform(-1, 1, 2))
+        switched.add(bool(env.unwrapped.data.eq_active[0]))
+    assert switched == {False, True}
+    live = env.unwrapped.data
+    live.eq_active[0] = 0  # the model's lock is on: a vector env's terminal snapshot keeps the live switch
+    assert copy_observed_fields(live, mujoco.MjData(env.unwrapped.model)).eq_active[0] == 0
+    vector = VectorEstimatedVelocity(SyncVectorEnv([make, make]), sensor="ideal", observer="kalman-ca")
+    vector.reset(seed=0)
+    for _ in range(4):
+        obs, *_, infos = vector.step(rng.uniform(-1, 1, (2, 2)))
+        for i, sub in enumerate(vector.env.envs):
+            qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
+            np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))

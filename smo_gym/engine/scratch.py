@@ -2,13 +2,13 @@ r"""An environment's own observation function evaluated on scratch ``MjData`` at
 
 The sensed observation is the environment's observation at the measured ``qpos`` and estimated ``qvel``, with
 everything derived from them (Humanoid's ``cinert``/``cvel``/``qfrc_actuator``, Pusher's body positions,
-InvertedDoublePendulum's constraint force) recomputed: :class:`ScratchObservation` copies into a scratch
-``MjData`` the inputs a real controller knows (``ctrl``, ``act``, ``time``, mocap poses, applied forces,
-``userdata``) and the sensed state, runs the forward-pass stages the observation needs and calls the observation
-function on it. The live simulation is never changed. The function must read the data it is given: one check at
-construction sets every floating-point field of the live data to NaN for one evaluation (then restores it bit for
-bit) and refuses a function whose result moved, since it would return the true state (a view of ``data.qpos``
-kept since ``__init__``).
+InvertedDoublePendulum's constraint force) recomputed: :class:`ScratchObservation` copies into a scratch ``MjData``
+the inputs a real controller knows (``ctrl``, ``act``, ``time``, mocap poses, applied forces, ``userdata``, which
+equality constraints are on) and the sensed state, runs the forward-pass stages the observation needs and calls the
+observation function on it. The live simulation is never changed. The function must read the data it is given: one
+check at construction sets every floating-point field of the live data to NaN for one evaluation (then restores it
+bit for bit) and refuses a function whose result moved, since it would return the true state (a view of
+``data.qpos`` kept since ``__init__``).
 
 What the observation needs is *probed* once at construction, with no per-environment table: the observation is
 evaluated on scratch data whose other fields are all NaN, after no computation, then after the kinematic stages
@@ -178,6 +178,9 @@ class ScratchObservation:
         self._scratch = mujoco.MjData(model)
         self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
         self.input_fields = INPUT_FIELDS
+        #: which equality constraints are on (``eq_active``, an environment may switch one at reset: a weld for a
+        #: grasp) is copied at every evaluation when the model has any: a uint8 array, outside the compiled copies
+        self.copies_equality = model.neq > 0
         with _quiet_mujoco():  # the probes feed MuJoCo NaN and huge inputs on purpose
             self._check_reads_given_data(name)
             self.pipeline, self.copies_inputs = self._probe_pipeline()
@@ -195,7 +198,12 @@ class ScratchObservation:
                 self.copies_inputs = bool(self.input_fields)
             self.fresh_observation = self._probe_fresh()
             #: the observation needs nothing but the sensed qpos/qvel on the scratch data (Hopper, HalfCheetah, ...)
-            self._bare = self.pipeline == "none" and not self.copies_inputs and not self.reads_contacts
+            self._bare = (
+                self.pipeline == "none"
+                and not self.copies_inputs
+                and not self.reads_contacts
+                and not self.copies_equality
+            )
             self.observation_map = self._probe_observation_map() if self._bare else None
             self.observation_entries = None if self._bare else self._probe_observation_entries()
         self._views()
@@ -442,6 +450,8 @@ class ScratchObservation:
                 self._copy_inputs()
             elif self._inputs.reads_time:
                 self._scratch.time = self.live().time
+        if self.copies_equality:
+            self._scratch.eq_active[:] = self.live().eq_active
         if self._gather is None:
             return self._evaluate(self._scratch, self.pipeline)
         self._compute(self._scratch, self.pipeline)  # then the entries, compiled, instead of _get_obs
@@ -776,10 +786,11 @@ OBSERVED_FIELDS = ("qpos", "qvel", *(name for name in INPUT_FIELDS if name != "t
 
 
 def copy_observed_fields(data: mujoco.MjData, into: mujoco.MjData) -> mujoco.MjData:
-    """Copy ``time`` and the :data:`OBSERVED_FIELDS` of ``data`` into ``into`` (an ``MjData`` of the same model) and
-    return it: what an observation of the state needs after the live data moved on (a vector env's terminal
-    observation, rebuilt after the autoreset); a full ``copy.copy(MjData)`` costs ~100x more."""
+    """Copy ``time``, ``eq_active`` and the :data:`OBSERVED_FIELDS` of ``data`` into ``into`` (an ``MjData`` of the
+    same model) and return it: what an observation of the state needs after the live data moved on (a vector env's
+    terminal observation, rebuilt after the autoreset); a full ``copy.copy(MjData)`` costs ~100x more."""
     into.time = data.time
+    into.eq_active[:] = data.eq_active
     for name in OBSERVED_FIELDS:
         dst = getattr(into, name, None)
         if isinstance(dst, np.ndarray) and dst.size:
@@ -847,6 +858,7 @@ class GatheredObservations:
             self.live.append(live)
         self.copy = InputCopy(pairs)
         self.times = [e for e in evaluations if e.copies_inputs and e.inputs_of(e.live()).reads_time]
+        self.equalities = [e for e in evaluations if e.copies_equality]
         sizes = [len(e.gather) for e in evaluations]
         if len(set(sizes)) != 1:
             raise ValueError(f"expected observations of one size, actual value: {sizes}")
@@ -873,6 +885,8 @@ class GatheredObservations:
         self.copy()
         for evaluation in self.times:
             evaluation.scratch.time = evaluation.live().time
+        for evaluation in self.equalities:
+            evaluation.scratch.eq_active[:] = evaluation.live().eq_active
         if self.forward is not None:
             forward = mujoco.mj_forward
             for model, scratch in self.forward:
