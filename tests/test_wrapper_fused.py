@@ -753,7 +753,7 @@ def test_too_few_physics_steps_to_sample_are_refused(tmp_path):
         arm = _two_links(path, after_physics, frame_skip=10)
         env = EstimatedVelocity(arm, sensor="ideal", observer="kalman-ca", rate=rate)
         env.reset(seed=0)
-        with pytest.raises(RuntimeError, match=rf"or more physics steps per step\(\).*actual value: {seen} observed"):
+        with pytest.raises(RuntimeError, match=rf"physics steps per step\(\).* actual value: {seen}; use rate="):
             env.step(np.zeros(2))
 
 

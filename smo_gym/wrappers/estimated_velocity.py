@@ -654,8 +654,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 clean, reward, terminated, truncated, info = self.env.step(action)
             if recording.n == 0:
                 raise RuntimeError(
-                    f"expected {self.sample_every} or more physics steps per step() through MujocoEnv._step_mujoco_"
-                    f"simulation, actual value: {recording.count} observed; use rate='env'"
+                    f"expected {self.sample_every} or more physics steps per step() through "
+                    f"MujocoEnv._step_mujoco_simulation, actual value: {recording.count}; use rate='env'"
                 )
             samples = recording.rows["qpos"][: recording.n]
             samples[-1] = live[3]  # the step's end: what the environment did after its physics counts (a re-centring)
