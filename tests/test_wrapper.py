@@ -548,9 +548,16 @@ def test_a_timestep_edited_after_wrapping_is_refused_at_reset(rate):
     env.reset(seed=1)
     edited = gym.make("HalfCheetah-v5")
     edited.unwrapped.model.opt.timestep = 0.02  # edited before wrapping: the wrapper's step follows
-    assert EstimatedVelocity(edited, rate=rate, observer="finite-difference", disk_cache=False).sample_dt == (
-        0.02 if rate == "physics" else 0.1
-    )
+    wrapped = EstimatedVelocity(edited, rate=rate, observer="finite-difference", disk_cache=False)
+    assert wrapped.sample_dt == (0.02 if rate == "physics" else 0.1)
+    # a copy rebuilds the environment from its constructor, with the XML's timestep: refused, not run at the
+    # wrapper's step (velocities came out twice the true ones at the physics rate)
+    copied = copy.deepcopy(wrapped)
+    assert copied.unwrapped.model.opt.timestep == 0.01
+    with pytest.raises(ValueError, match="again in a copy of the wrapper"):
+        copied.reset(seed=0)
+    copied.unwrapped.model.opt.timestep = 0.02
+    copied.reset(seed=0)
 
 
 def test_physics_steps_other_than_the_sampling_assumes_are_refused_at_the_env_rate():

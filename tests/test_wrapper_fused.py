@@ -642,10 +642,12 @@ LEG_ON_FLOOR = """<mujoco><option timestep="0.005"/><worldbody><geom type="plane
 </body></worldbody><actuator><motor joint="hinge" gear="1" ctrlrange="-1 1"/></actuator></mujoco>"""
 
 
-def test_an_observation_of_contacts_gets_the_collision_detection(tmp_path):
+@pytest.mark.parametrize("flag", ["touching", "penetrating"])
+def test_an_observation_of_contacts_gets_the_collision_detection(tmp_path, flag):
     """A foot-contact flag read from ``data.ncon`` and ``data.contact`` (counts and structures, which the NaN probes
-    cannot mark, empty at probe states in the air) takes the full forward pass: the sensed flag is the contact at
-    the sensed state once the leg has fallen onto the floor (it stayed 0 before, the collision never run)."""
+    cannot mark, empty at probe states in the air), or from the contacts' distances, takes the full forward pass:
+    the sensed flag is the contact at the sensed state once the leg has fallen onto the floor (it stayed 0 before,
+    the collision never run; the distances were missed by a probe that only made the geoms touch)."""
     from gymnasium.envs.mujoco import MujocoEnv
     from gymnasium.spaces import Box
 
@@ -660,8 +662,11 @@ def test_an_observation_of_contacts_gets_the_collision_detection(tmp_path):
 
         def _get_obs(self):
             d = self.data
-            touching = any({d.contact.geom1[i], d.contact.geom2[i]} == {0, 1} for i in range(d.ncon))
-            return np.concatenate([d.qpos, d.qvel, [float(touching)]])
+            if flag == "touching":
+                on = any({d.contact.geom1[i], d.contact.geom2[i]} == {0, 1} for i in range(d.ncon))
+            else:  # contacts at a positive distance (a margin) do not count: the contacts' numbers are read
+                on = bool(np.any(d.contact.dist[: d.ncon] < 0.0))
+            return np.concatenate([d.qpos, d.qvel, [float(on)]])
 
         def step(self, action):
             self.do_simulation(action, self.frame_skip)
@@ -832,3 +837,37 @@ def test_which_equality_constraints_are_on_is_copied(tmp_path, reads_flag):
         for i, sub in enumerate(vector.env.envs):
             qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
             np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))
+
+
+def test_the_collision_probe_keeps_observations_of_the_state_alone_on_their_shortcuts(tmp_path):
+    """An observation of the state alone on a model of many geoms (a chain of 40 links of 6 boxes: making every
+    pair of geoms touch overflows MuJoCo's arena) or with an equality constraint (inactive) keeps the bare path
+    and the compiled selection (the overflow counted as reading collisions: the full forward pass at every step,
+    2.8x the step time; the constraint took the selection away)."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    boxes = "".join(f'<geom type="box" size=".02 .02 .02" pos="{0.03 * k} 0 0"/>' for k in range(6))
+    chain = "".join(f'<body pos="0.2 0 0"><joint type="hinge" axis="0 1 0"/>{boxes}' for _ in range(40))
+    models = {
+        "chain": f"<mujoco><worldbody>{chain}{'</body>' * 40}</worldbody></mujoco>",
+        "equality": TWO_LINKS.replace("<actuator>", '<equality><joint joint1="j1" joint2="j2" active="false"/>'
+                                                    "</equality><actuator>"),
+    }  # fmt: skip
+    for name, xml in models.items():
+        path = tmp_path / f"{name}.xml"
+        path.write_text(xml)
+        model = mujoco.MjModel.from_xml_path(str(path))
+        nq, fps = model.nq, round(1.0 / model.opt.timestep)
+
+        class State(MujocoEnv):
+            metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": fps}
+
+            def __init__(self):
+                super().__init__(str(path), 1, observation_space=Box(-np.inf, np.inf, (2 * nq,), np.float64))
+
+            def _get_obs(self):
+                return np.concatenate([self.data.qpos, self.data.qvel])
+
+        evaluation = make_adapter(State()).evaluation
+        assert evaluation.pipeline == "none" and evaluation.observation_map is not None, name

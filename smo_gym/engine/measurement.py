@@ -280,7 +280,8 @@ class JointMeasurement:
             raise ValueError(
                 f"expected the model's opt.timestep {self.timestep} that the sampling step {self.dt} and the "
                 f"observer's gains were made for, actual value: {self.model.opt.timestep}; edit the timestep before "
-                "wrapping the environment (the calibration reads the live model)"
+                "wrapping the environment (the calibration reads the live model), and again in a copy of the wrapper "
+                "(Gymnasium rebuilds a copied environment from its constructor)"
             )
         qpos = np.asarray(qpos, dtype=np.float64)
         self._fused_block = None

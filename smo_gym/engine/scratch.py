@@ -11,24 +11,24 @@ bit for bit) and refuses a function whose result moved, since it would return th
 ``data.qpos`` kept since ``__init__``).
 
 What the observation needs is *probed* once at construction, with no per-environment table: the observation is
-evaluated on scratch data whose other fields are all NaN, after no computation, then after the kinematic stages
-only (no collision detection or constraint solver); the first that comes out finite and equal to the
-``mj_forward`` result at random states is used (Hopper, HalfCheetah, Ant: none; Humanoid: kinematics;
-InvertedDoublePendulum, whose observation has a constraint force: the full forward pass). What collision
-detection makes (``ncon``, ``contact``: counts and structures no NaN marks, empty where no geoms touch) is probed
-with a copy of the model whose contact margin makes every pair of geoms touch: an observation that reads it
-takes the full forward pass. The same NaN probe finds whether the observation reads ``cfrc_ext``. Which of the
-inputs (``ctrl``, applied forces, ``time``, ...) it reads is probed at random nonzero inputs, each replaced in
-turn by other random values and by NaN (MuJoCo zeroes a NaN ``ctrl``, and the live ``ctrl`` is zero at
-construction: Humanoid's ``qfrc_actuator`` reads ``ctrl`` only through the actuation); with the full forward pass
-every input is copied (constraint forces depend on the inputs only while a constraint is active, which a probe
-at a few states need not see). Last, whether the function returns a fresh array. Only what is read is copied at
-every step, and fresh arrays are not copied again (:meth:`ScratchObservation.observe_scratch`, the per-step
-path). Observations that are clipped selections of the state (:attr:`ScratchObservation.observation_map`) or of
-``MjData`` entries and their sines and cosines (:attr:`ScratchObservation.observation_entries`) are built by
-compiled code instead of the Python function, with the same numbers; ``tests/test_wrapper.py`` checks the result
-against a full forward pass at run-time inputs and active joint limits on every v5 environment, and
-:meth:`ScratchObservation.verify` checks the shortcut again at every reset.
+evaluated on scratch data whose other fields are all NaN, after no computation, then after the kinematic stages only
+(no collision detection or constraint solver); the first that comes out finite and equal to the ``mj_forward``
+result at random states is used (Hopper, HalfCheetah, Ant: none; Humanoid: kinematics; InvertedDoublePendulum, whose
+observation has a constraint force: the full forward pass). What collision detection makes (``ncon``, ``contact``:
+counts and structures no NaN marks, empty where no geoms touch) is probed with a copy of the model whose contact
+margin makes the geoms touch, then with the contacts' numbers moved and the contacts dropped: an observation that
+follows takes the full forward pass. The same NaN probe finds whether the observation reads ``cfrc_ext``. Which of
+the inputs (``ctrl``, applied forces, ``time``, ...) it reads is probed at random nonzero inputs, each replaced in
+turn by other random values and by NaN (MuJoCo zeroes a NaN ``ctrl``, and the live ``ctrl`` is zero at construction:
+Humanoid's ``qfrc_actuator`` reads ``ctrl`` only through the actuation); with the full forward pass every input is
+copied (constraint forces depend on the inputs only while a constraint is active, which a probe at a few states need
+not see). Last, whether the function returns a fresh array. Only what is read is copied at every step, and fresh
+arrays are not copied again (:meth:`ScratchObservation.observe_scratch`, the per-step path). Observations that are
+clipped selections of the state (:attr:`ScratchObservation.observation_map`) or of ``MjData`` entries and their
+sines and cosines (:attr:`ScratchObservation.observation_entries`) are built by compiled code instead of the Python
+function, with the same numbers; ``tests/test_wrapper.py`` checks the result against a full forward pass at run-time
+inputs and active joint limits on every v5 environment, and :meth:`ScratchObservation.verify` checks the shortcut
+again at every reset.
 
 Contact forces
 --------------
@@ -185,12 +185,14 @@ class ScratchObservation:
         self._scratch = mujoco.MjData(model)
         self.pipeline, self.copies_inputs, self.reads_contacts = "forward", True, True
         self.input_fields = INPUT_FIELDS
-        #: which equality constraints are on (``eq_active``, an environment may switch one at reset: a weld for a
-        #: grasp) is copied at every evaluation when the model has any: a uint8 array, outside the compiled copies
-        self.copies_equality = model.neq > 0
+        self.copies_equality = False
         with _quiet_mujoco():  # the probes feed MuJoCo NaN and huge inputs on purpose
             self._check_reads_given_data(name)
             self.pipeline, self.copies_inputs = self._probe_pipeline()
+            #: which equality constraints are on (``eq_active``, which an environment may switch: a weld for a
+            #: grasp) is copied at every evaluation where the constraint solver runs or the observation reads it (a
+            #: uint8 array, outside the compiled copies)
+            self.copies_equality = model.neq > 0 and (self.pipeline == "forward" or self._reads_equality())
             self.reads_contacts = self._probe_contacts()
             if contact_forces != "sensor" and not self.reads_contacts:
                 raise ValueError(
@@ -755,25 +757,56 @@ class ScratchObservation:
         return "forward", True
 
     def _reads_collisions(self, qpos: np.ndarray, qvel: np.ndarray, source: mujoco.MjData) -> bool:
-        """Whether the observation reads what collision detection makes: ``ncon``, ``contact``, the constraint
-        rows. The NaN probes cannot mark those (counts and structures, empty where no geoms touch: a foot-contact
-        flag read at probe states in the air). Here the observation is evaluated after the full forward pass at
-        one state twice: with the model, and with a copy whose contact margin (``o_margin`` override) spans the
-        model, so that every pair of geoms that may collide touches; an observation that differs reads them."""
+        """Whether the observation reads what collision detection makes: ``ncon``, the ``contact`` structures, the
+        constraint rows. The NaN probes cannot mark those (counts and structures, empty where no geoms touch: a
+        foot-contact flag read at probe states in the air). Here the full forward pass runs at one state with a
+        copy of the model whose contact margin (``o_margin`` override) makes the geoms touch (the largest margin
+        whose contacts fit MuJoCo's arena), then the contacts' and constraint rows' numbers are moved and the
+        contacts dropped (``ncon = 0``): an observation that follows either reads them."""
         wide = copy.deepcopy(self.model)
         wide.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_OVERRIDE
-        wide.opt.o_margin = max(2.0 * float(self.model.stat.extent), 1.0)
-        observations = []
+        for margin in (2.0, 0.2, 0.02):
+            wide.opt.o_margin = margin * max(float(self.model.stat.extent), 0.5)
+            data = mujoco.MjData(wide)
+            self._fill(data, qpos, qvel, source=source)
+            try:
+                mujoco.mj_forward(wide, data)
+                break
+            except Exception:  # mujoco.FatalError: the contacts overflow the arena
+                continue
+        else:
+            return True
+        if data.ncon == 0:
+            return False
         try:
-            for model in (self.model, wide):
-                data = mujoco.MjData(model)
-                self._fill(data, qpos, qvel, source=source)
-                mujoco.mj_forward(model, data)
-                observations.append(np.array(self.function(data), copy=True))
+            before = np.array(self.function(data), copy=True)
+            contacts = data.contact
+            for name in ("dist", "pos", "frame", "includemargin"):
+                getattr(contacts, name)[...] = -1.5 * getattr(contacts, name) - 0.25
+            for name, value in _float_fields(data):
+                if name.startswith("efc_"):
+                    value[...] = -1.5 * value - 0.25
+            moved = np.array(self.function(data), copy=True)
+            data.ncon = 0
+            dropped = np.array(self.function(data), copy=True)
         except Exception:
             return True
-        first, second = observations
-        return first.shape != second.shape or not np.array_equal(first, second, equal_nan=True)
+        return not (_same(moved, before) and _same(dropped, before))
+
+    def _reads_equality(self) -> bool:
+        """Whether the observation reads ``eq_active`` itself (a grasp flag): evaluated at a random state with every
+        equality constraint switched, does it change? (Through the constraint solver it matters only to the full
+        forward pass, which copies it anyway.)"""
+        rng = np.random.default_rng(13579)
+        data = mujoco.MjData(self.model)
+        self._fill(data, self._near_live(rng), rng.standard_normal(self.model.nv), source=self._random_inputs(rng))
+        try:
+            self._compute(data, "forward")
+            before = np.array(self.function(data), copy=True)
+            data.eq_active[:] = 1 - data.eq_active
+            return not _same(self.function(data), before)
+        except Exception:
+            return True
 
     def _probe_contacts(self) -> bool:
         """Whether the observation reads ``cfrc_ext`` (Ant, Humanoid): evaluated at a random state with

@@ -589,6 +589,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def __setstate__(self, state):
         simulation = state.pop("_simulation", None)
         self.__dict__.update(state)
+        self.measurement.model = self.adapter.model  # the copy's live model: reset checks its timestep
         data = self.adapter.data
         if simulation is not None and not (
             np.array_equal(simulation[0], data.qpos) and np.array_equal(simulation[1], data.qvel)
