@@ -274,7 +274,9 @@ def test_auto_with_a_model_takes_the_model_based_observer_where_it_wins():
     assert selection.joint and selection.candidates[-1] == "mechanical-super-twisting"
     assert set(selection.names) == {"mechanical-super-twisting"}
     free = make()
-    np.testing.assert_array_equal(selection.errors[:, :-1], free.observer.selection.errors)  # the same trials
+    # the same trials: equal to rounding (one entry of 48 has differed by one ulp in a process that ran other tests
+    # first; other trials would move them by percents)
+    np.testing.assert_allclose(selection.errors[:, :-1], free.observer.selection.errors, rtol=1e-12, atol=0)
     assert episodes_rmse(with_model) < 0.8 * episodes_rmse(free)
 
 
