@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from conftest import full_forward_observation
 from gymnasium.envs.mujoco.hopper_v5 import HopperEnv
+from gymnasium.envs.mujoco.inverted_pendulum_v5 import InvertedPendulumEnv
 
 from smo_gym.engine import FusedSensing
 from smo_gym.engine.scratch import INPUT_FIELDS, OBSERVED_FIELDS, copy_observed_fields
@@ -871,3 +872,141 @@ def test_the_collision_probe_keeps_observations_of_the_state_alone_on_their_shor
 
         evaluation = make_adapter(State()).evaluation
         assert evaluation.pipeline == "none" and evaluation.observation_map is not None, name
+
+
+def _rebuilt_env(path, change: str, observe: str = "tip", ends_after: int = 10_000):
+    """The two-link arm with its model rebuilt from the XML at every reset but the first (a procedurally generated
+    world): ``change="geometry"`` lengthens the upper link and divides the motors' gear by 100 (the same joints),
+    ``"joints"`` adds a third link, ``"timestep"`` halves the timestep. It observes the joints and the tip's position
+    (``observe="tip"``: entries of MjData, which the length moves) or the joints' positions and their velocities
+    clipped at the first motor's gear (``"clip"``: a clipped selection of the state, which the gear changes)."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    class Rebuilt(MujocoEnv):
+        metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 20}
+
+        def __init__(self):
+            self.resets, self.steps = 0, 0
+            space = Box(-np.inf, np.inf, shape=(7 if observe == "tip" else 4,), dtype=np.float64)
+            super().__init__(str(path), 5, observation_space=space)
+
+        def _get_obs(self):
+            d, gear = self.data, self.model.actuator_gear[0, 0]
+            if observe == "clip":
+                return np.concatenate([d.qpos[:2], np.clip(d.qvel[:2], -gear, gear)])
+            return np.concatenate([d.qpos[:2], d.qvel[:2], d.site_xpos[0]])
+
+        def step(self, action):
+            self.do_simulation(action, self.frame_skip)
+            self.steps += 1
+            return self._get_obs(), 0.0, self.steps % ends_after == 0, False, {}
+
+        def reset_model(self):
+            if self.resets:
+                xml = TWO_LINKS.replace('<body pos="0 0 -0.5">', f'<body pos="0 0 {-0.5 - 0.1 * self.resets}">')
+                xml = xml.replace('gear="5"', 'gear="0.05"')
+                if change == "joints":
+                    xml = xml.replace(
+                        "</body></body>", "<body><joint type='hinge'/><geom size='.1'/></body></body></body>"
+                    )
+                elif change == "timestep":
+                    xml = xml.replace('timestep="0.01"', 'timestep="0.005"')
+                self.model = mujoco.MjModel.from_xml_string(xml)
+                self.data = mujoco.MjData(self.model)
+            self.set_state(np.full(self.model.nq, 0.1), np.zeros(self.model.nv))
+            self.resets += 1
+            return self._get_obs()
+
+    return Rebuilt
+
+
+@pytest.mark.parametrize("observe", ["tip", "clip"])
+@pytest.mark.parametrize("rate", ["env", "physics"])
+def test_a_model_rebuilt_at_reset_is_followed(tmp_path, rate, observe):
+    """An environment that rebuilds its model at reset (the same joints, a longer link, another gear): every sensed
+    observation is the environment's own on the new model (the scratch evaluation, its compiled gather or selection,
+    had stayed on the first model: the tip a link length off, the velocities clipped at the old gear), and the
+    physics-rate samples come from the new model's steps."""
+    path = tmp_path / "arm.xml"
+    path.write_text(TWO_LINKS)
+    make = _rebuilt_env(path, "geometry", observe)
+    env = EstimatedVelocity(make(), sensor="ideal", observer="kalman-ca", rate=rate, disk_cache=False)
+    rng, clipped = np.random.default_rng(0), 0
+    for episode in range(3):
+        obs, info = env.reset(seed=episode)
+        assert env.adapter.evaluation.model is env.unwrapped.model and env._fused is not None
+        smo = info["smo"]
+        np.testing.assert_array_equal(obs, full_forward_observation(env, smo["qpos_measured"], smo["qvel_estimate"]))
+        for _ in range(5):
+            obs, *_, info = env.step(rng.uniform(-1, 1, 2))
+            qpos, qvel = info["smo"]["qpos_measured"], info["smo"]["qvel_estimate"]
+            np.testing.assert_array_equal(qpos, env.unwrapped.data.qpos)  # the ideal sensor
+            np.testing.assert_array_equal(obs, full_forward_observation(env, qpos, qvel))
+            clipped += episode > 0 and np.any(np.abs(qvel) > 0.05)
+    assert env.unwrapped.model.body_pos[2, 2] == pytest.approx(-0.7) and clipped > 0
+
+
+@pytest.mark.parametrize("observe", ["tip", "clip"])
+def test_a_model_rebuilt_at_reset_in_a_vector_env_is_followed(tmp_path, observe):
+    """The same in the in-process vector wrapper, whose autoresets rebuild the models: its batched gather and its
+    shared selection are made again on the new scratch data."""
+    from gymnasium.vector import SyncVectorEnv
+
+    from smo_gym.wrappers.vec import VectorEstimatedVelocity
+
+    path = tmp_path / "arm.xml"
+    path.write_text(TWO_LINKS)
+    make = _rebuilt_env(path, "geometry", observe, ends_after=4)
+    venv = VectorEstimatedVelocity(
+        SyncVectorEnv([make, make], autoreset_mode=gym.vector.AutoresetMode.SAME_STEP),
+        sensor="ideal",
+        observer="kalman-ca",
+        positions="measured",
+        disk_cache=False,
+    )
+    venv.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        obs, *_, infos = venv.step(rng.uniform(-1, 1, (2, 2)))
+        for i, sub in enumerate(venv.env.envs):
+            qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
+            np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))
+    assert all(sub.unwrapped.resets == 3 for sub in venv.env.envs)
+    assert (venv._entries_plan() if observe == "tip" else venv._selection()) is not None
+
+
+@pytest.mark.parametrize(
+    "change, message", [("joints", r"nq=2, nv=2.*actual value: nq=3, nv=3"), ("timestep", "opt.timestep 0.01 .* 0.005")]
+)
+def test_a_model_rebuilt_with_other_joints_or_timestep_is_refused(tmp_path, change, message):
+    """A rebuilt model with other joints (the observer's channels, the sensor's state) or another timestep (the
+    sampling step the gains were made for) is refused at the reset that brings it, with both sides named."""
+    path = tmp_path / "arm.xml"
+    path.write_text(TWO_LINKS)
+    env = EstimatedVelocity(_rebuilt_env(path, change)(), observer="kalman-ca", disk_cache=False)
+    env.reset(seed=0)
+    env.step(np.zeros(2))
+    with pytest.raises(ValueError, match=message):
+        env.reset(seed=1)
+
+
+class _PoleCentre(InvertedPendulumEnv):
+    """InvertedPendulum observing also where its pole's body is (which an edit of the model's geometry moves)."""
+
+    def _get_obs(self):
+        return np.concatenate([super()._get_obs(), self.data.xpos[2]])
+
+
+def test_a_copy_follows_in_place_edits_of_its_model():
+    """A copy of the wrapper (pickled, or deep-copied) evaluates observations on its own environment's model, which
+    Gymnasium rebuilds from the constructor: an in-place edit there (domain randomisation) is seen (the copy's
+    scratch evaluation had a copy of the original's model, on which the edit never showed)."""
+    env = EstimatedVelocity(_PoleCentre(), sensor="ideal", observer="kalman-ca", disk_cache=False)
+    for clone in (env, pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
+        clone.unwrapped.model.body_pos[2, 2] = 0.5
+        obs, info = clone.reset(seed=0)
+        obs, *_, info = clone.step(np.full(1, 0.5))
+        qpos, qvel = info["smo"]["qpos_measured"], info["smo"]["qvel_estimate"]
+        assert obs[-1] > 0.4
+        np.testing.assert_array_equal(obs, full_forward_observation(clone, qpos, qvel))

@@ -423,7 +423,7 @@ class FusedSensing:
         drivers = FUSED_DRIVERS[self.observer._kernel]
         self._driver = drivers.manifold if measurement.tangent.manifold else drivers.flat
         self.evaluation = evaluation = adapter.evaluation
-        selection = evaluation.observation_map
+        self._selection = selection = evaluation.observation_map
         #: the compiled call also builds the observation (a clipped selection of the sensed state, probed by the
         #: adapter): :meth:`sample` leaves it in :attr:`observation`
         self.maps_observation = selection is not None
@@ -494,8 +494,9 @@ class FusedSensing:
         Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
         """
         sensed, estimated = self.sensor.arrays, self.observer.arrays
-        # a selection the evaluation dropped at a reset (ScratchObservation.verify) is built by it from then on
-        self.maps_observation = self.maps_observation and self.evaluation.observation_map is not None
+        # a selection the evaluation dropped or probed again at a reset (ScratchObservation.verify and follow) is built
+        # by the evaluation from then on
+        self.maps_observation = self.maps_observation and self.evaluation.observation_map is self._selection
         n, S = estimated.state.shape
         if self._work is None or self._work.shape[1:] != (n, S):
             self._work = np.empty((2, n, S))

@@ -107,6 +107,11 @@ def angular_dofs(model: mujoco.MjModel) -> np.ndarray:
     return mask
 
 
+def joint_layout(model: mujoco.MjModel) -> str:
+    """The sizes of ``qpos`` and ``qvel`` and the joints' types, as ``"nq=.., nv=.., joint types [..]"``."""
+    return f"nq={model.nq}, nv={model.nv}, joint types {np.asarray(model.jnt_type).tolist()}"
+
+
 class TangentCoordinates:
     r"""Continuous tangent coordinates ``z`` (size ``nv``) of a stream of configurations ``q`` (size ``nq``).
 
@@ -267,21 +272,44 @@ class JointMeasurement:
         """Per-dof quantization step of the sensor (0 where it does not quantize), shape ``(nv,)``."""
         return self.sensor.quantization_step(self.model.nv, self.angular)
 
-    def reset(self, qpos: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """First measurement of the configuration ``qpos`` (the sensor's stream comes from ``rng``).
+    def follow(self, model: mujoco.MjModel) -> None:
+        """Measure on ``model`` from now on: a model the environment rebuilt, or a copy's own (its timestep is checked
+        by :meth:`reset`).
+
+        Raises
+        ------
+        ValueError
+            ``model`` has other joints than :attr:`model` (they make the sensor's and the observer's channels).
+        """
+        if model is self.model:
+            return
+        have, got = joint_layout(self.model), joint_layout(model)
+        if have != got:
+            raise ValueError(
+                f"expected a model with the joints of the one the sensor and the observer were made for ({have}), "
+                f"actual value: {got}"
+            )
+        self.model = self.tangent.model = model
+
+    def reset(self, qpos: np.ndarray, rng: np.random.Generator, model: mujoco.MjModel | None = None) -> np.ndarray:
+        """First measurement of the configuration ``qpos`` (the sensor's stream comes from ``rng``); ``model``: the
+        environment's model now, followed first (:meth:`follow`).
 
         Raises
         ------
         ValueError
             The model's ``opt.timestep`` is no longer :attr:`timestep` (edited after construction: the samples would
-            be ``dt`` apart no more, and the observer would differentiate with the wrong step).
+            be ``dt`` apart no more, and the observer would differentiate with the wrong step); a model with other
+            joints.
         """
+        if model is not None:
+            self.follow(model)
         if self.model.opt.timestep != self.timestep:
             raise ValueError(
                 f"expected the model's opt.timestep {self.timestep} that the sampling step {self.dt} and the "
                 f"observer's gains were made for, actual value: {self.model.opt.timestep}; edit the timestep before "
                 "wrapping the environment (the calibration reads the live model), and again in a copy of the wrapper "
-                "(Gymnasium rebuilds a copied environment from its constructor)"
+                "(Gymnasium rebuilds a copied environment from its constructor); a model rebuilt at reset keeps it"
             )
         qpos = np.asarray(qpos, dtype=np.float64)
         self._fused_block = None

@@ -225,11 +225,10 @@ class GymnasiumMujocoAdapter:
         manager can be entered again and again (a generator-based one would cost more than a small model's physics
         step).
         """
-        env, model = self.env, self.model
-        mj_step = mujoco.mj_step
+        env, mj_step = self.env, mujoco.mj_step
 
         def step_recording(ctrl, n_frames):
-            data = env.data
+            model, data = env.model, env.data  # as MujocoEnv's own step reads them
             data.ctrl[:] = ctrl
             # the recording loop written out: a Python call per physics step costs what a small model's step does
             pairs = recording.destinations(data, n_frames)

@@ -589,7 +589,6 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def __setstate__(self, state):
         simulation = state.pop("_simulation", None)
         self.__dict__.update(state)
-        self.measurement.model = self.adapter.model  # the copy's live model: reset checks its timestep
         data = self.adapter.data
         if simulation is not None and not (
             np.array_equal(simulation[0], data.qpos) and np.array_equal(simulation[1], data.qvel)
@@ -606,11 +605,11 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.mass_scale_range is not None:  # a new model mismatch per episode, on a stream of its own
             self._model_rng = _reset_stream(seed, self._model_rng, 1)
             self.observer.dynamics.set_mass_scale(self._model_rng.uniform(*self.mass_scale_range))
-        self.measurement.reset(self.adapter.data.qpos, self._rng)
+        self.measurement.reset(self.adapter.data.qpos, self._rng, self.adapter.model)  # a model rebuilt, a copy's
         self._ended = False
         self.estimator.reset(self.measurement.z_measured)
         if self.adapter.evaluation is not None:  # the observation's compiled shortcuts may read a goal drawn here
-            self.adapter.evaluation.verify()
+            self.adapter.evaluation.verify(self.adapter.model)
         self._substep_hook = None  # a reset may rebuild the simulation's objects (dm_control's physics)
         data = self.adapter.data
         self._live = (data, data.qpos[None], data.qvel, data.qpos)

@@ -166,10 +166,10 @@ class JointSensor(EstimatedVelocity):
         seed = check_seed(seed)
         obs, info = self.env.reset(seed=seed, options=options)
         self._rng = _reset_stream(seed, self._rng)  # the same stream as EstimatedVelocity's
-        self.measurement.reset(self.adapter.data.qpos, self._rng)
+        self.measurement.reset(self.adapter.data.qpos, self._rng, self.adapter.model)  # a model rebuilt, a copy's
         self._start_time = self.adapter.data.time  # the episode's first step is checked against the sampling
         if self.adapter.evaluation is not None:  # the observation's compiled shortcuts may read a goal drawn here
-            self.adapter.evaluation.verify()
+            self.adapter.evaluation.verify(self.adapter.model)
         self.z_reset = np.array(self.measurement.z_measured, dtype=np.float64)
         self._reset_last = True
         self.smo_reset = self._record(obs, info)
@@ -407,13 +407,16 @@ class _Sensing:
     def _selection(self):
         """``(index, low, high)`` when the in-process environments' observations are all the same clipped selection
         of the measured positions and estimated velocities (:func:`~smo_gym.engine.scratch.shared_selection`,
-        ``positions="measured"``), else None; decided once, and again after a reset dropped one's selection."""
-        cache, evaluations = self.__dict__.get("_selection_cache", False), [s.adapter.evaluation for s in self._local]
-        if cache is False or (cache is not None and any(e.observation_map is None for e in evaluations)):
-            cache = self._selection_cache = shared_selection(evaluations) if self.positions == "measured" else None
+        ``positions="measured"``), else None; decided again whenever a reset dropped or re-probed one's selection."""
+        evaluations = [s.adapter.evaluation for s in self._local]
+        maps = [None if e is None else e.observation_map for e in evaluations]
+        cache = self.__dict__.get("_selection_cache")
+        if cache is None or any(m is not seen for m, seen in zip(maps, cache[0], strict=True)):
+            selection = shared_selection(evaluations) if self.positions == "measured" else None
+            cache = self._selection_cache = maps, selection
             if self._together is not None:
-                self._together = BatchedSensing(self._batch, self.estimator, cache)
-        return cache
+                self._together = BatchedSensing(self._batch, self.estimator, selection)
+        return cache[1]
 
     def _entries_plan(self) -> GatheredObservations | None:
         """The batched evaluation of the in-process environments' observations when each is gathered from MjData
