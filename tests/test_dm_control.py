@@ -152,6 +152,23 @@ def test_observation_comes_from_measurements_not_the_true_state():
     assert not np.allclose(obs["velocity"], info["smo"]["qvel"])  # a noisy sensor: not the true state
 
 
+def test_a_copy_evaluates_on_its_own_physics_model():
+    """Reacher writes each episode's target into the model (``geom_pos``): a copy of the wrapper (pickled,
+    deep-copied) evaluates its observations on its own physics' model, so ``to_target`` is the task's own at the
+    ideal sensor's exact positions (the copy had kept the original's model, unpickled beside the physics: the first
+    episode's target)."""
+    import copy
+    import pickle
+
+    env = make_dm_control("reacher", "easy", sensor="ideal", observer="kalman-ca", rate="env", disk_cache=False)
+    for clone in (env, pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
+        for seed in (3, 4):
+            clone.reset(seed=seed)
+            obs, *_, info = clone.step(np.zeros(2))
+            assert clone.adapter.evaluation.model is clone.adapter.view.physics.model.ptr
+            np.testing.assert_array_equal(obs["to_target"], info["smo"]["observation"]["to_target"])
+
+
 def test_rate_env_and_integer_rates():
     env = make_dm_control("walker", "walk", rate="env")
     assert env.sample_every == env.adapter.frame_skip == 10

@@ -43,6 +43,9 @@ see that reset, so, as with any Gymnasium environment, call ``reset()`` after ``
 
 from __future__ import annotations
 
+import copy
+
+import mujoco
 import numpy as np
 
 from .._cache import stable_repr
@@ -72,8 +75,6 @@ class DmControlTaskView:
 
     def __init__(self, environment):
         self.environment = environment
-        physics = environment.physics
-        self.model = physics.model.ptr
         self.frame_skip = int(environment._n_sub_steps)
         self._override = None
         self._cached = (None, None)  # (MjData, Physics around it): the adapter's scratch data after the probe
@@ -83,6 +84,10 @@ class DmControlTaskView:
     @property
     def physics(self):
         return self.environment.physics
+
+    @property
+    def model(self):  # read through: a copy's physics has a model of its own (a task may edit it: reacher's target)
+        return self.environment.physics.model.ptr
 
     @property
     def data(self):
@@ -98,9 +103,6 @@ class DmControlTaskView:
             return live
         if self._cached[0] is data:
             return self._cached[1]
-        import copy
-
-        import mujoco
         from dm_control.mujoco import wrapper
 
         # a Physics runs a forward pass on construction: restore every field afterwards (the adapter's probe
@@ -170,8 +172,7 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
         self.gym_env = env
         self.view = DmControlTaskView(dm)
         super().__init__(self.view, contact_forces=contact_forces)
-        self.keys = list(self.view.keys or [])
-        self.shapes = list(self.view.shapes)
+        self.keys, self.shapes = list(self.view.keys or []), list(self.view.shapes)
         sizes = [int(np.prod(s)) for s in self.shapes]
         self._slices = [
             (k, a, a + n, s)
@@ -196,8 +197,6 @@ class DmControlAdapter(GymnasiumMujocoAdapter):
     def copy_environment(self):
         """A deep copy of shimmy's environment: dm_control's ``Physics`` copies by value, so edits of the live
         model are kept."""
-        import copy
-
         return copy.deepcopy(self.gym_env)
 
     # ---- observation structure ------------------------------------------------------------------------------
