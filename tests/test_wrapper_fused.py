@@ -877,9 +877,11 @@ def test_the_collision_probe_keeps_observations_of_the_state_alone_on_their_shor
 def _rebuilt_env(path, change: str, observe: str = "tip", ends_after: int = 10_000):
     """The two-link arm with its model rebuilt from the XML at every reset but the first (a procedurally generated
     world): ``change="geometry"`` lengthens the upper link and divides the motors' gear by 100 (the same joints),
-    ``"joints"`` adds a third link, ``"timestep"`` halves the timestep. It observes the joints and the tip's position
-    (``observe="tip"``: entries of MjData, which the length moves) or the joints' positions and their velocities
-    clipped at the first motor's gear (``"clip"``: a clipped selection of the state, which the gear changes)."""
+    ``"joints"`` also adds a third link, ``"timestep"`` also halves the timestep (the attribute ``change``, set on
+    the instance after wrapping: the calibration's rollouts reset a copy of the environment). It observes the
+    joints and the tip's position (``observe="tip"``: entries of MjData, which the length moves) or the joints'
+    positions and their velocities clipped at the first motor's gear (``"clip"``: a clipped selection of the state,
+    which the gear changes)."""
     from gymnasium.envs.mujoco import MujocoEnv
     from gymnasium.spaces import Box
 
@@ -887,7 +889,7 @@ def _rebuilt_env(path, change: str, observe: str = "tip", ends_after: int = 10_0
         metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 20}
 
         def __init__(self):
-            self.resets, self.steps = 0, 0
+            self.resets, self.steps, self.change = 0, 0, change
             space = Box(-np.inf, np.inf, shape=(7 if observe == "tip" else 4,), dtype=np.float64)
             super().__init__(str(path), 5, observation_space=space)
 
@@ -906,11 +908,11 @@ def _rebuilt_env(path, change: str, observe: str = "tip", ends_after: int = 10_0
             if self.resets:
                 xml = TWO_LINKS.replace('<body pos="0 0 -0.5">', f'<body pos="0 0 {-0.5 - 0.1 * self.resets}">')
                 xml = xml.replace('gear="5"', 'gear="0.05"')
-                if change == "joints":
+                if self.change == "joints":
                     xml = xml.replace(
                         "</body></body>", "<body><joint type='hinge'/><geom size='.1'/></body></body></body>"
                     )
-                elif change == "timestep":
+                elif self.change == "timestep":
                     xml = xml.replace('timestep="0.01"', 'timestep="0.005"')
                 self.model = mujoco.MjModel.from_xml_string(xml)
                 self.data = mujoco.MjData(self.model)
@@ -979,16 +981,39 @@ def test_a_model_rebuilt_at_reset_in_a_vector_env_is_followed(tmp_path, observe)
 @pytest.mark.parametrize(
     "change, message", [("joints", r"nq=2, nv=2.*actual value: nq=3, nv=3"), ("timestep", "opt.timestep 0.01 .* 0.005")]
 )
-def test_a_model_rebuilt_with_other_joints_or_timestep_is_refused(tmp_path, change, message):
+@pytest.mark.parametrize("rate", ["env", "physics"])
+def test_a_model_rebuilt_with_other_joints_or_timestep_is_refused(tmp_path, change, message, rate):
     """A rebuilt model with other joints (the observer's channels, the sensor's state) or another timestep (the
-    sampling step the gains were made for) is refused at the reset that brings it, with both sides named."""
+    sampling step the gains were made for) is refused at the reset that brings it, with both sides named, and the
+    wrapper is left un-reset: a step then asks for a reset (it had gone on with the old model's arrays, whose
+    compiled step wrote past them into the heap)."""
+    from gymnasium.vector import SyncVectorEnv
+
+    from smo_gym.wrappers.vec import VectorEstimatedVelocity
+
     path = tmp_path / "arm.xml"
     path.write_text(TWO_LINKS)
-    env = EstimatedVelocity(_rebuilt_env(path, change)(), observer="kalman-ca", disk_cache=False)
+    env = EstimatedVelocity(_rebuilt_env(path, "geometry")(), observer="kalman-ca", rate=rate, disk_cache=False)
+    env.unwrapped.change = change
     env.reset(seed=0)
     env.step(np.zeros(2))
-    with pytest.raises(ValueError, match=message):
-        env.reset(seed=1)
+    for _ in range(2):
+        with pytest.raises(ValueError, match=message):
+            env.reset(seed=1)
+        with pytest.raises(RuntimeError, match="its last reset raised"):
+            env.step(np.zeros(2))
+    make = _rebuilt_env(path, "geometry", ends_after=2)
+    autoreset = gym.vector.AutoresetMode.SAME_STEP
+    venv = VectorEstimatedVelocity(SyncVectorEnv([make, make], autoreset_mode=autoreset), observer="kalman-ca",
+                                   disk_cache=False)  # fmt: skip
+    for sub in venv.env.envs:
+        sub.unwrapped.change = change
+    venv.reset(seed=0)
+    venv.step(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=message):  # the autoreset after the episode's end
+        venv.step(np.zeros((2, 2)))
+    with pytest.raises(RuntimeError, match="its last reset raised"):
+        venv.step(np.zeros((2, 2)))
 
 
 class _PoleCentre(InvertedPendulumEnv):

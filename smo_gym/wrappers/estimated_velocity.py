@@ -513,8 +513,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rng: np.random.Generator | None = None
         self._model_rng: np.random.Generator | None = None
         n_samples = max(1, self.adapter.frame_skip // self.sample_every)
-        self._substep_hook = None
-        self._live = None
+        self._substep_hook = self._live = None
         self._info_slices = SensingInfo.slices(model.nq, model.nv)
         self._recording = SubstepRecording(self.sample_every, {"qpos": model.nq}, n_samples)
         #: the one-compiled-call hot path where it computes exactly what the general path would (decided at
@@ -601,11 +600,11 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         seed = check_seed(seed)
         clean, info = self.env.reset(seed=seed, options=options)
-        self._rng = _reset_stream(seed, self._rng)
+        rng, self._rng, self._unreset = _reset_stream(seed, self._rng), None, "its last reset raised"  # until done
         if self.mass_scale_range is not None:  # a new model mismatch per episode, on a stream of its own
             self._model_rng = _reset_stream(seed, self._model_rng, 1)
             self.observer.dynamics.set_mass_scale(self._model_rng.uniform(*self.mass_scale_range))
-        self.measurement.reset(self.adapter.data.qpos, self._rng, self.adapter.model)  # a model rebuilt, a copy's
+        self.measurement.reset(self.adapter.data.qpos, rng, self.adapter.model)  # a model rebuilt, a copy's
         self._ended = False
         self.estimator.reset(self.measurement.z_measured)
         if self.adapter.evaluation is not None:  # the observation's compiled shortcuts may read a goal drawn here
@@ -623,6 +622,7 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         if self._fused is not None:
             self._fused.prepare()
+        self._rng = rng
         return self._observe(info, clean), info
 
     def step(self, action):

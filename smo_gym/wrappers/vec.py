@@ -165,8 +165,8 @@ class JointSensor(EstimatedVelocity):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         seed = check_seed(seed)
         obs, info = self.env.reset(seed=seed, options=options)
-        self._rng = _reset_stream(seed, self._rng)  # the same stream as EstimatedVelocity's
-        self.measurement.reset(self.adapter.data.qpos, self._rng, self.adapter.model)  # a model rebuilt, a copy's
+        rng, self._rng, self._unreset = _reset_stream(seed, self._rng), None, "its last reset raised"  # until done
+        self.measurement.reset(self.adapter.data.qpos, rng, self.adapter.model)  # a model rebuilt, a copy's
         self._start_time = self.adapter.data.time  # the episode's first step is checked against the sampling
         if self.adapter.evaluation is not None:  # the observation's compiled shortcuts may read a goal drawn here
             self.adapter.evaluation.verify(self.adapter.model)
@@ -175,11 +175,12 @@ class JointSensor(EstimatedVelocity):
         self.smo_reset = self._record(obs, info)
         if self.emit_info:
             info["smo_z"] = self.z_reset
+        self._rng = rng
         return obs, info
 
     def step(self, action):
         if self._rng is None:
-            raise RuntimeError("expected reset() before step(), actual value: the wrapper was never reset")
+            raise RuntimeError(f"expected reset() before step(), actual value: {self._unreset}")
         check_action(action, self._action_shape)
         self._terminal = None  # kept across the autoreset that follows an episode's end, dropped here
         obs, reward, terminated, truncated, info = self.env.step(action)
