@@ -608,6 +608,17 @@ def test_the_v5_environments_keep_their_compiled_observations_across_resets(env_
     assert evaluation.verify()
 
 
+def _check_vector_steps(venv, steps: int = 10) -> None:
+    """Step ``venv`` (two environments of two actuators) with random actions: every observation is the
+    environment's own at the sensed state."""
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        obs, *_, infos = venv.step(rng.uniform(-1, 1, (2, 2)))
+        for i, sub in enumerate(venv.env.envs):
+            qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
+            np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))
+
+
 @pytest.mark.parametrize("kind", ["joints", "tip"])
 def test_vector_wrappers_check_the_compiled_observations_at_every_reset(tmp_path, kind):
     """The in-process vector wrapper's shared selection, its compiled step's and the batched gather are made
@@ -628,12 +639,7 @@ def test_vector_wrappers_check_the_compiled_observations_at_every_reset(tmp_path
     )
     venv.reset(seed=0)
     assert (venv._selection() if kind == "joints" else venv._entries_plan()) is not None
-    rng = np.random.default_rng(0)
-    for _ in range(10):
-        obs, *_, infos = venv.step(rng.uniform(-1, 1, (2, 2)))
-        for i, sub in enumerate(venv.env.envs):
-            qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
-            np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))
+    _check_vector_steps(venv)
     assert venv._selection() is None and venv._entries_plan() is None
 
 
@@ -968,12 +974,7 @@ def test_a_model_rebuilt_at_reset_in_a_vector_env_is_followed(tmp_path, observe)
         disk_cache=False,
     )
     venv.reset(seed=0)
-    rng = np.random.default_rng(0)
-    for _ in range(10):
-        obs, *_, infos = venv.step(rng.uniform(-1, 1, (2, 2)))
-        for i, sub in enumerate(venv.env.envs):
-            qpos, qvel = infos["smo"]["qpos_measured"][i], infos["smo"]["qvel_estimate"][i]
-            np.testing.assert_array_equal(obs[i], full_forward_observation(sub, qpos, qvel))
+    _check_vector_steps(venv)
     assert all(sub.unwrapped.resets == 3 for sub in venv.env.envs)
     assert (venv._entries_plan() if observe == "tip" else venv._selection()) is not None
 
