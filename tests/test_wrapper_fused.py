@@ -1017,6 +1017,51 @@ def test_a_model_rebuilt_with_other_joints_or_timestep_is_refused(tmp_path, chan
         venv.step(np.zeros((2, 2)))
 
 
+@pytest.mark.parametrize("rate", ["env", "physics"])
+def test_a_model_replaced_in_the_middle_of_an_episode_is_refused(tmp_path, rate):
+    """An environment that replaces its model and data inside ``step`` (with a third joint) is refused at the next
+    step with a ``ValueError`` naming both sizes: the compiled step reads the live ``qpos`` without a check, and had
+    written the new model's three joints past the old arrays (a heap corruption that aborted the interpreter)."""
+    from gymnasium.envs.mujoco import MujocoEnv
+    from gymnasium.spaces import Box
+
+    path = tmp_path / "arm.xml"
+    path.write_text(TWO_LINKS)
+
+    class Swap(MujocoEnv):
+        metadata = {"render_modes": ["human", "rgb_array", "depth_array", "rgbd_tuple"], "render_fps": 20}
+
+        def __init__(self):
+            self.steps, self.swap = 0, False
+            super().__init__(str(path), 5, observation_space=Box(-np.inf, np.inf, shape=(4,), dtype=np.float64))
+
+        def _get_obs(self):
+            return np.concatenate([self.data.qpos[:2], self.data.qvel[:2]])
+
+        def step(self, action):
+            self.do_simulation(action, self.frame_skip)
+            self.steps += 1
+            if self.swap and self.steps == 2:
+                three = "<body><joint type='hinge'/><geom size='.1'/></body></body></body>"
+                self.model = mujoco.MjModel.from_xml_string(TWO_LINKS.replace("</body></body>", three))
+                self.data = mujoco.MjData(self.model)
+            return self._get_obs(), 0.0, False, False, {}
+
+        def reset_model(self):
+            self.set_state(self.init_qpos + 0.1, self.init_qvel)
+            return self._get_obs()
+
+    env = EstimatedVelocity(Swap(), observer="kalman-ca", rate=rate, disk_cache=False)
+    env.unwrapped.swap = True  # after the calibration's rollouts, which step a copy
+    env.reset(seed=0)
+    assert env._fused is not None
+    env.step(np.zeros(2))
+    env.step(np.zeros(2))  # the environment replaces its model here
+    for _ in range(2):
+        with pytest.raises(ValueError, match=r"qpos of size 2, qvel of size 2\), actual value: sizes 3 and 3"):
+            env.step(np.zeros(2))
+
+
 class _PoleCentre(InvertedPendulumEnv):
     """InvertedPendulum observing also where its pole's body is (which an edit of the model's geometry moves)."""
 

@@ -492,7 +492,19 @@ class FusedSensing:
         The table (:data:`smo_gym.engine.fused.TABLE_SLOTS`) holds raw addresses, so the arrays are kept in
         ``_static`` for as long as the table points to them, and each is checked: dtype, dimensions, C order.
         Rows are rebuilt only for arrays that changed (most resets replace only the tangent coordinates).
+
+        Raises
+        ------
+        ValueError
+            The live ``MjData`` is not of the measured model's size (the compiled call reads it without a check).
         """
+        live, model = self.evaluation.live(), self.measurement.model
+        if live.qpos.shape != (model.nq,) or live.qvel.shape != (model.nv,):  # the compiled call reads them unchecked
+            raise ValueError(
+                f"expected the live MjData of the model measured (qpos of size {model.nq}, qvel of size {model.nv}), "
+                f"actual value: sizes {live.qpos.size} and {live.qvel.size} (a model replaced in the middle of an "
+                "episode: replace it in reset_model, where the wrappers follow it)"
+            )
         sensed, estimated = self.sensor.arrays, self.observer.arrays
         # a selection the evaluation dropped or probed again at a reset (ScratchObservation.verify and follow) is built
         # by the evaluation from then on

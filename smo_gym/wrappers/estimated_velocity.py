@@ -641,9 +641,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         data = self.adapter.data
         live = self._live
         if live is None or live[0] is not data:  # cached views of the live qpos/qvel (a field access makes one)
-            live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
-            if self._fused is not None:  # its input copies read the live data
+            if self._fused is not None:  # its input copies read the live data (and it checks the data's size)
                 self._fused.prepare()
+            live = self._live = (data, data.qpos[None], data.qvel, data.qpos)
         if self.sample_every < self.adapter.frame_skip:
             recording = self._recording
             recording.start()
