@@ -514,6 +514,8 @@ class Observer:
         fresh = self._fresh_state(y0, x0)
         width = self._state.shape[-1]
         state, fresh = self._state.reshape(-1, block, width), fresh.reshape(-1, block, width)  # views: C-contiguous
+        # a new estimate array: the last one was returned by update (or run) as the caller's to keep
+        self._estimate = self._estimate.copy()
         estimate, y0 = self._estimate.reshape(-1, block, self.order + 1), y0.reshape(-1, block)
         x0 = None if x0 is None else x0.reshape(-1, block, self.order + 1)
         for i in np.flatnonzero(mask):

@@ -131,7 +131,7 @@ class VecEstimatedVelocity(_Sensing, VecEnvWrapper):
                 Z = np.array([info["smo_z"] for info in infos], dtype=np.float64)
             est = self._update(Z)  # one batched call for every environment (the last sample of finished episodes)
             if ended is not None:
-                terminal = est.copy()  # the masked reset below rewrites the observer's estimate in place
+                terminal = est  # the masked reset below returns a new estimate, and leaves this one as it is
                 reset_infos = self._reset_infos()
                 Z0 = Z.copy()
                 for i in np.flatnonzero(done):
