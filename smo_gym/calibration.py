@@ -459,7 +459,8 @@ class Calibration:
     initial : mapping of int to ndarray, shape (...)
         Where the signals start: ``initial[r]`` is the RMS of :math:`f^{(r)}` at the first sample of an episode (1:
         the velocity, 2: the acceleration), over the episodes of a rollout; what a Kalman filter's prior needs
-        (:func:`default_observer`). Empty where unknown (a recorded signal).
+        (:func:`default_observer`). For a recorded signal, whose start is unknown, the bounds of those derivatives
+        (:func:`calibration_of_signal`): a prior as wide as anything the signal does, in its own units.
     """
 
     dt: float
@@ -549,20 +550,25 @@ def calibration_of_signal(
     """The :class:`Calibration` of a recorded signal ``y`` (T, ...): :func:`derivative_bound` and
     :func:`derivative_rms` of each derivative order in ``orders``, with the noise level ``noise`` (default
     :func:`noise_std` of ``y``) and the quantization step ``resolution`` (default :func:`quantization_step` of
-    ``y``: the sensor is unknown). Records of ``r`` samples or fewer get the floors for order ``r``."""
+    ``y``: the sensor is unknown). Records of ``r`` samples or fewer get the floors for order ``r``. Its
+    :attr:`~Calibration.initial` levels, a Kalman filter's prior, are the bounds of the velocity and the
+    acceleration: where the record starts is unknown, and a prior of fixed size would be narrow in large units
+    (a velocity of 1e5 counts/s against a prior of 10) and keep the filter's first estimates from being the
+    least-squares fits its settling time assumes."""
     y = _time_series(y)
     sigma = _noise_per_channel(noise, y)
     if resolution is None:
         resolution = quantization_step(y) if y.shape[0] > 1 else 0.0
     bounds, typical = {}, {}
     orders = [_bound_order(r) for r in orders]
-    for r in sorted(set(orders)):
+    for r in sorted({*orders, 1, 2}):
         if y.shape[0] > r:
             bounds[r] = derivative_bound(y, dt, r, noise=sigma, quantile=quantile, safety=safety)
             typical[r] = derivative_rms(y, dt, r, noise=sigma)
         else:
             bounds[r] = typical[r] = np.full(y.shape[1:], BOUND_FLOOR)
-    return Calibration(dt, bounds, typical, sigma, resolution)
+    initial = {r: bounds[r] for r in (1, 2)}
+    return Calibration(dt, bounds, typical, sigma, resolution, initial)
 
 
 def _bound_order(r) -> int:

@@ -12,7 +12,7 @@ from . import calibration
 from ._validation import as_real_array, check_keywords, check_positive
 from .observers import KalmanCA, Observer, make_observer
 from .observers.base import check_wrap
-from .observers.linear import white_jerk_density
+from .observers.linear import calibrated_prior, white_jerk_density
 
 __all__ = ["differentiate"]
 
@@ -96,14 +96,23 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
     slow signal, with the small bound a calibration rightly finds, its first estimates are wrong for seconds (a
     cubic over 20 s, ``scripts/bench_signals.py``: the filtering differentiator's largest velocity error after 2 s
     was 0.33-0.40, its RMSE 7 to 200 times the Kalman filter's). The constant-acceleration Kalman filter has no
-    such transient: its wide prior makes its first estimates least-squares fits. With ``start="kalman"`` that
-    filter, calibrated from ``y`` (:meth:`KalmanCA.from_levels <smo_gym.observers.KalmanCA.from_levels>`), gives
-    the first ``m + 1`` estimates, ``m`` the updates until its velocity's standard deviation is within a factor 2
-    of its steady state (:meth:`KalmanCA.settling_samples <smo_gym.observers.KalmanCA.settling_samples>`: 2.5 time
-    constants of the filter; the results hardly depend on the factor: on that benchmark 2, 1.1 and 1.01 gave the
-    same RMSE but where the filter is the worse estimator, and there a longer start costs); at sample ``m`` the
-    observer is reset at the filter's estimate (value, velocity and acceleration, as many as it has) and runs on
-    from there. Still causal.
+    such transient: its wide prior (the record's own velocity and acceleration bounds,
+    :func:`smo_gym.calibration.calibration_of_signal`) makes its first estimates least-squares fits. With
+    ``start="kalman"`` that filter, calibrated from ``y`` (:meth:`KalmanCA.from_levels
+    <smo_gym.observers.KalmanCA.from_levels>`), gives the first ``m + 1`` estimates, ``m`` the updates until its
+    velocity's standard deviation is within a factor 2 of its steady state (:meth:`KalmanCA.settling_samples
+    <smo_gym.observers.KalmanCA.settling_samples>`: 2.5 time constants of the filter; the results hardly depend on
+    the factor: on that benchmark 2, 1.1 and 1.01 gave the same RMSE but where the filter is the worse estimator,
+    and there a longer start costs); at sample ``m`` the observer is reset at the filter's estimate (value, velocity
+    and acceleration, as many as it has; higher derivatives are 0 until then, and start from 0) and runs on from
+    there. Still causal. ``m`` is the slowest channel's, and the prior the widest: those two couple the channels
+    of one call (a channel's estimates then differ from its own call's, within the start's transient).
+
+    Units. The estimates scale with ``y`` (a record in counts gives the same velocities in counts/s), except below
+    the calibration's floors, which are absolute: a noise level under :data:`smo_gym.calibration.NOISE_FLOOR`
+    (1e-6) and derivative levels under :data:`smo_gym.calibration.BOUND_FLOOR` (1e-3) are raised to them. Rescale
+    records of very small amplitude (e.g. metres of a micrometre vibration) to units where the noise is above
+    1e-6, or pass the gains.
 
     The result of the sliding-mode observers depends on the gains: a calibration from the data cannot know
     bounds the record does not show, and the Lipschitz bounds of the theory (Levant 2003) assume the worst case.
@@ -216,8 +225,8 @@ def _with_fitted_jerk(found, y: np.ndarray, huber: float | None = None):
     from the differences."""
     if y.shape[0] < MIN_FIT_SAMPLES:
         return found
-    white = white_jerk_density(found.dt, found.rms(3))
-    fitted = KalmanCA.fit(y, found.dt, found.measurement_variance, white, huber=huber).process_noise
+    white, prior = white_jerk_density(found.dt, found.rms(3)), calibrated_prior(found)  # as it will be built
+    fitted = KalmanCA.fit(y, found.dt, found.measurement_variance, white, huber=huber, **prior).process_noise
     return dataclasses.replace(found, typical={**found.typical, 3: np.sqrt(fitted / found.dt)})
 
 

@@ -12,6 +12,7 @@ import pytest
 import smo_gym
 from smo_gym import calibration
 from smo_gym.observers import OBSERVERS, HighGain, KalmanCA, SuperTwisting, make_observer
+from smo_gym.observers.linear import PRIOR_STD_FLOOR
 
 DT = 1e-3
 
@@ -370,7 +371,8 @@ def test_the_kalman_prior_comes_from_where_the_episodes_start():
     2^2): the calibration of their velocities gives the filter that prior (``initial_std`` = the RMS of the first
     velocity and acceleration), and its velocity RMSE over the episodes is below 0.6x the default wide prior's
     (10, 100) (measured 0.46x: the wide prior makes the first estimates least-squares fits of a few noisy samples).
-    A given ``initial_std`` is kept; a recorded signal (no episodes) keeps the default."""
+    A given ``initial_std`` is kept; a recorded signal (no episodes) gets its velocity's and acceleration's bounds,
+    the largest over channels."""
     rng = np.random.default_rng(1)
     dt, n, T = 0.01, 200, 40
     t = np.arange(T) * dt
@@ -391,9 +393,10 @@ def test_the_kalman_prior_comes_from_where_the_episodes_start():
         return np.sqrt(np.mean(np.square(errors)))
 
     assert rmse(calibrated) < 0.6 * rmse(wide)
-    recorded = calibration.calibration_of_signal(Y[0], dt, (3,))
-    assert not recorded.initial
-    assert calibration.default_observer("kalman-ca", recorded).initial_std == (10.0, 100.0)
+    recorded = calibration.calibration_of_signal(Y[:2].T, dt, (3,))
+    assert all(np.array_equal(recorded.initial[r], recorded.bounds[r]) for r in (1, 2))
+    expected = tuple(max(float(np.max(recorded.bounds[r])), PRIOR_STD_FLOOR) for r in (1, 2))
+    assert calibration.default_observer("kalman-ca", recorded).initial_std == expected
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -165,6 +165,19 @@ def test_wrapped_angles_stay_continuous_across_the_hand_over():
     assert np.sqrt(np.mean((z[2000:, 1] - rate[2000:]) ** 2)) < 0.05
 
 
+@pytest.mark.parametrize("name", ["levant", "filtering", "kalman-ca", "auto"])
+def test_the_estimates_do_not_depend_on_the_units(name):
+    """Differentiation is linear and every level the calibration takes from a record scales with it, so the same
+    record in units 1e5 times smaller (counts, micrometres) gives the estimates times 1e5, to rounding: the Kalman
+    filter's prior at reset is the record's own derivative bounds. With the fixed prior (10, 100) the filter's first
+    estimates were no least-squares fits, the hand-over came before its prior was forgotten, and Levant's velocity
+    was 3.4x its amplitude off over the second half of the record."""
+    y, _ = cubic(T=3000, channels=2)
+    y = y + np.sin(np.arange(3000) * DT * 2.0)[:, None]
+    base, scaled = smo_gym.differentiate(y, DT, name), smo_gym.differentiate(1e5 * y, DT, name) / 1e5
+    np.testing.assert_allclose(scaled, base, rtol=0, atol=1e-4 * np.abs(base[..., 1]).max())
+
+
 def test_bad_start_and_limit_are_rejected():
     Y, _ = cubic(T=200, channels=1)
     with pytest.raises(ValueError, match="expected start to be 'kalman' or 'measurement', actual value: 'Kalman'"):

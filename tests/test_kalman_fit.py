@@ -14,7 +14,7 @@ import pytest
 import smo_gym
 from smo_gym.calibration import calibration_of_signal
 from smo_gym.observers import KalmanCA, linear
-from smo_gym.observers.linear import FIT_FACTORS, constant_acceleration_model, white_jerk_density
+from smo_gym.observers.linear import FIT_FACTORS, calibrated_prior, constant_acceleration_model, white_jerk_density
 
 DT = 1e-3
 
@@ -131,7 +131,9 @@ def test_differentiate_default_builds_its_kalman_filter_with_the_fit():
     levels = smo_gym.differentiate(y, DT, observer="kalman-ca")
     assert rmse(auto[..., 1], v) < 0.5 * rmse(levels[..., 1], v)
     found = calibration_of_signal(y, DT, (2, 3))
-    fitted = KalmanCA.fit(y, DT, found.measurement_variance, white_jerk_density(DT, found.rms(3)))
+    fitted = KalmanCA.fit(
+        y, DT, found.measurement_variance, white_jerk_density(DT, found.rms(3)), **calibrated_prior(found)
+    )
     np.testing.assert_allclose(auto, smo_gym.differentiate(y, DT, observer=fitted)[..., :2], rtol=1e-12, atol=1e-12)
 
 

@@ -32,7 +32,7 @@ import smo_gym
 from smo_gym.calibration import calibration_of_signal
 from smo_gym.observers import KalmanCA, KalmanIMM
 from smo_gym.observers._kernels import HUBER_SUSPEND_EXCESS
-from smo_gym.observers.linear import white_jerk_density
+from smo_gym.observers.linear import calibrated_prior, white_jerk_density
 
 
 def glitchy_sine(dt, T, sigma, rng, glitches):
@@ -176,7 +176,9 @@ def test_differentiate_builds_its_default_with_the_threshold():
     late = slice(2000, None)
     assert np.abs(robust[late, :, 1] - v[late]).max() < 0.3 * np.abs(default[late, :, 1] - v[late]).max()
     found = calibration_of_signal(y, DT, (2, 3))
-    fitted = KalmanCA.fit(y, DT, found.measurement_variance, white_jerk_density(DT, found.rms(3)), huber=3)
+    fitted = KalmanCA.fit(
+        y, DT, found.measurement_variance, white_jerk_density(DT, found.rms(3)), huber=3, **calibrated_prior(found)
+    )
     assert fitted.huber == 3.0
     np.testing.assert_allclose(robust, smo_gym.differentiate(y, DT, observer=fitted)[..., :2], rtol=1e-12, atol=1e-12)
     on_clean = smo_gym.differentiate(clean, DT, huber=3)[..., 1]

@@ -108,16 +108,21 @@ def steady_state_covariance(dt: float, process_noise: float, measurement_noise: 
 PRIOR_STD_FLOOR = 1e-3
 
 
+def calibrated_prior(calibration) -> dict:
+    """``{"initial_std": (velocity std, acceleration std)}``, a Kalman filter's prior at reset, from
+    :attr:`Calibration.initial <smo_gym.calibration.Calibration.initial>` (where a rollout's episodes start, or a
+    recorded signal's derivative bounds; the largest over channels, at least :data:`PRIOR_STD_FLOOR`), or ``{}``
+    where that is not known (the constructor's default)."""
+    if not calibration.initial:
+        return {}
+    return {"initial_std": tuple(max(float(np.max(calibration.initial[r])), PRIOR_STD_FLOOR) for r in (1, 2))}
+
+
 def _kalman_rule(cls, calibration, order, kwargs):
     """:meth:`KalmanCA.from_levels` per channel: the typical jerk (``order`` 3) and the measurement variance; the
-    prior at reset (``initial_std``, unless given) from where the calibration's episodes start
-    (:attr:`Calibration.initial <smo_gym.calibration.Calibration.initial>`: the RMS of the first velocity and
-    acceleration, the largest over channels, at least :data:`PRIOR_STD_FLOOR`), or the default where that is not
-    known (a recorded signal). A ``process_noise`` or ``measurement_noise`` given is kept, the other calibrated."""
-    kwargs = dict(kwargs)
-    if calibration.initial and "initial_std" not in kwargs:
-        spread = (max(float(np.max(calibration.initial[r])), PRIOR_STD_FLOOR) for r in (1, 2))
-        kwargs["initial_std"] = tuple(spread)
+    prior at reset (``initial_std``, unless given) from :func:`calibrated_prior`. A ``process_noise`` or
+    ``measurement_noise`` given is kept, the other calibrated."""
+    kwargs = {**calibrated_prior(calibration), **kwargs}
     q = kwargs.pop("process_noise", None)
     r = kwargs.pop("measurement_noise", None)
     if q is None:
