@@ -95,8 +95,10 @@ MAX_SAMPLES = 2**17
 
 
 def _time_series(y, name: str = "y") -> np.ndarray:
-    """``y`` as a float64 array of shape ``(T, ...)`` with ``T >= 1``, at least one channel and finite entries."""
-    arr = as_real_array(name, y)  # complex, bool or date values are refused, not converted
+    """``y`` as a C-ordered float64 array of shape ``(T, ...)`` with ``T >= 1``, at least one channel and finite
+    entries (one memory layout: the levels are means, whose sums NumPy orders by the layout, and a level one ulp
+    apart can move a sliding-mode recursion visibly)."""
+    arr = np.ascontiguousarray(as_real_array(name, y))  # complex, bool or date values are refused, not converted
     if arr.ndim == 0 or arr.shape[0] == 0 or arr.size == 0:
         raise ValueError(
             f"expected {name} with shape (T, ...), T >= 1 and at least one channel, actual value: shape {arr.shape}"
