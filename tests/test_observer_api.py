@@ -338,7 +338,8 @@ def test_nonfinite_measurement_names_channel_and_keeps_state(name, kwargs, bad, 
 
 @pytest.mark.parametrize("name, kwargs", CASES)
 def test_nonfinite_in_run_or_reset_raises(name, kwargs, rng):
-    """``run`` and ``reset`` reject non-finite samples too, naming the channel; a failed ``run`` changes nothing."""
+    """``run`` and ``reset`` reject non-finite samples too, naming the channel (and ``run`` the sample); a failed
+    ``run`` changes nothing."""
     Y = measurements(rng, T=20)
     obs = build(name, kwargs)
     with pytest.raises(ValueError, match="channel 3") as excinfo:
@@ -351,7 +352,7 @@ def test_nonfinite_in_run_or_reset_raises(name, kwargs, rng):
     state, estimate, n = obs.state, obs.estimate.copy(), obs.n_updates
     block = Y[5:15].copy()
     block[6, 0, 4] = np.inf
-    with pytest.raises(ValueError, match="channel 4") as excinfo:
+    with pytest.raises(ValueError, match=r"in Y at sample 6, actual value: \S*inf\S* at channel 4") as excinfo:
         obs.run(block)
     assert_worded(excinfo)
     np.testing.assert_array_equal(obs.state, state)

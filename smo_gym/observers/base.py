@@ -606,13 +606,15 @@ class Observer:
         self.n_updates += 1
         return out
 
-    def _raise_status(self, status: int, y: np.ndarray):
+    def _raise_status(self, status: int, y: np.ndarray, sample: int | None = None):
+        """The error of a compiled step's ``status`` on the measurement ``y`` (sample ``sample`` of ``run``'s ``Y``)."""
         if status >= 0:
-            self._raise_nonfinite(y, "y")
+            self._raise_nonfinite(y, "y" if sample is None else f"Y at sample {sample}")
         channel = -2 - status
         index = np.unravel_index(channel, self._shape)
+        after = "update" if sample is None else f"the update of sample {sample}"
         raise DivergenceError(
-            f"expected a finite observer state, actual value: non-finite after update at channel {index[-1]}"
+            f"expected a finite observer state, actual value: non-finite after {after} at channel {index[-1]}"
             + (f" of batch element {tuple(int(i) for i in index[:-1])}" if len(index) > 1 else "")
             + f" (dt={self.dt}); the step was rejected and the previous state kept. The step is too large for this "
             "observer and discretization at this error level: reduce dt or choose an implicit discretization."
@@ -682,7 +684,7 @@ class Observer:
         kernel, params = self._step_kernel()  # scalar gains: the driver of the shared-parameter kernel
         status, t = _kernels.run_offline(kernel, state, Y.reshape(T, -1), params, out.reshape(T, -1, m), self._period)
         if status != -1:
-            self._raise_status(status, Y[t])
+            self._raise_status(status, Y[t], t)
         self._state = state
         self._estimate = out[-1].copy()
         self.n_updates += T
