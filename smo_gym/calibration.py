@@ -559,6 +559,11 @@ def calibration_of_signal(
     least-squares fits its settling time assumes."""
     y = _time_series(y)
     sigma = _noise_per_channel(noise, y)
+    if np.max(sigma) > 1e150:  # its square, the measurement variance, would overflow (and every level after it)
+        raise ValueError(
+            f"expected a record whose noise level squares to a finite number (below 1e150), actual value: a noise "
+            f"level of {float(np.max(sigma)):.3g}; rescale the record"
+        )
     if resolution is None:
         resolution = quantization_step(y) if y.shape[0] > 1 else 0.0
     bounds, typical = {}, {}

@@ -471,6 +471,19 @@ def test_differentiate_does_not_depend_on_the_memory_layout(name):
     np.testing.assert_array_equal(np.moveaxis(transposed, 1, 0), reference)
 
 
+@pytest.mark.parametrize("observer", ["levant", "auto"])
+def test_differentiate_asks_to_rescale_a_record_whose_variance_overflows(observer):
+    """A record of amplitude 1e300 has a noise level whose square overflows: a ``ValueError`` that says to rescale,
+    without overflow warnings first (it had warned three times, then named the Kalman start's ``measurement_noise``,
+    a parameter the user never passed)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"noise level of 2\.84e\+300; rescale the record"):
+            smo_gym.differentiate(np.array([1e300, -1e300] * 40), 1e-2, observer)
+
+
 def test_differentiate_method_alias_axis_and_errors():
     _, _, noisy = noisy_sine(T=500, channels=3)
     ref = smo_gym.differentiate(noisy, DT, observer="levant", order=2, lipschitz=30.0)
