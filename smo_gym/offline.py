@@ -108,11 +108,12 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
     there. Still causal. ``m`` is the slowest channel's, and the prior the widest: those two couple the channels
     of one call (a channel's estimates then differ from its own call's, within the start's transient).
 
-    Units. The estimates scale with ``y`` (a record in counts gives the same velocities in counts/s), except below
-    the calibration's floors, which are absolute: a noise level under :data:`smo_gym.calibration.NOISE_FLOOR`
-    (1e-6) and derivative levels under :data:`smo_gym.calibration.BOUND_FLOOR` (1e-3) are raised to them. Rescale
-    records of very small amplitude (e.g. metres of a micrometre vibration) to units where the noise is above
-    1e-6, or pass the gains.
+    Units. The estimates scale with ``y`` (a record in counts or in metres of a micrometre vibration gives the
+    same velocities in counts/s or m/s): every level of the calibration scales with the record, its floors too
+    (relative to the record's velocity bound, :mod:`smo_gym.calibration`, "Floors"). Except for the families whose
+    terms of positive homogeneity degree have default weights in the units of the signal (``"ured"``,
+    ``"uniform-levant"``, ``"discrete-hosm"`` with its uniform part, ``"ilf-fixed"``): give their weights for
+    your units.
 
     The result of the sliding-mode observers depends on the gains: a calibration from the data cannot know
     bounds the record does not show, and the Lipschitz bounds of the theory (Levant 2003) assume the worst case.

@@ -12,7 +12,6 @@ import pytest
 import smo_gym
 from smo_gym import calibration
 from smo_gym.observers import OBSERVERS, HighGain, KalmanCA, SuperTwisting, make_observer
-from smo_gym.observers.linear import PRIOR_STD_FLOOR
 
 DT = 1e-3
 
@@ -338,11 +337,15 @@ def test_calibration_from_velocities_levels():
     assert c.bound(2)[0] == pytest.approx(2.0 * np.quantile(A, 0.99))
     assert c.rms(2)[0] == pytest.approx(np.sqrt(np.mean(A**2)))
     assert c.bound(2)[1] == c.bound(2)[0] and c.rms(2)[1] == c.rms(2)[0]
-    # where the episodes start: the RMS over episodes of the first velocity and of its first difference
+    # where the episodes start: the RMS over episodes of the first velocity and of its first difference, floored
+    # (the dof at rest: a Kalman filter's prior must be positive)
     firsts = np.array([V[0], V[2500]])
-    np.testing.assert_allclose(c.initial[1], np.sqrt(np.mean(firsts**2, axis=0)))
+    np.testing.assert_allclose(c.initial[1], np.maximum(np.sqrt(np.mean(firsts**2, axis=0)), calibration.BOUND_FLOOR))
     slopes = np.array([V[1] - V[0], V[2501] - V[2500]]) / DT
-    np.testing.assert_allclose(c.initial[2], np.sqrt(np.mean(slopes**2, axis=0)))
+    np.testing.assert_allclose(c.initial[2], np.maximum(np.sqrt(np.mean(slopes**2, axis=0)), calibration.BOUND_FLOOR))
+    assert c.initial[1][1] == c.initial[2][1] == calibration.BOUND_FLOOR
+    with pytest.raises(ValueError, match="initial levels > 0"):
+        calibration.Calibration(DT, c.bounds, c.typical, c.noise, initial={1: [0.1, 0.0], 2: [1.0, 1.0]})
 
 
 def test_calibration_rows_round_trip():
@@ -395,7 +398,7 @@ def test_the_kalman_prior_comes_from_where_the_episodes_start():
     assert rmse(calibrated) < 0.6 * rmse(wide)
     recorded = calibration.calibration_of_signal(Y[:2].T, dt, (3,))
     assert all(np.array_equal(recorded.initial[r], recorded.bounds[r]) for r in (1, 2))
-    expected = tuple(max(float(np.max(recorded.bounds[r])), PRIOR_STD_FLOOR) for r in (1, 2))
+    expected = tuple(float(np.max(recorded.bounds[r])) for r in (1, 2))
     assert calibration.default_observer("kalman-ca", recorded).initial_std == expected
 
 

@@ -104,18 +104,14 @@ def steady_state_covariance(dt: float, process_noise: float, measurement_noise: 
     return (np.eye(3) - gain @ H) @ prior
 
 
-#: the smallest prior standard deviation of the velocity and the acceleration taken from a calibration
-PRIOR_STD_FLOOR = 1e-3
-
-
 def calibrated_prior(calibration) -> dict:
     """``{"initial_std": (velocity std, acceleration std)}``, a Kalman filter's prior at reset, from
     :attr:`Calibration.initial <smo_gym.calibration.Calibration.initial>` (where a rollout's episodes start, or a
-    recorded signal's derivative bounds; the largest over channels, at least :data:`PRIOR_STD_FLOOR`), or ``{}``
-    where that is not known (the constructor's default)."""
+    recorded signal's derivative bounds; the largest over channels), or ``{}`` where that is not known (the
+    constructor's default)."""
     if not calibration.initial:
         return {}
-    return {"initial_std": tuple(max(float(np.max(calibration.initial[r])), PRIOR_STD_FLOOR) for r in (1, 2))}
+    return {"initial_std": tuple(float(np.max(calibration.initial[r])) for r in (1, 2))}
 
 
 def _kalman_rule(cls, calibration, order, kwargs):

@@ -207,7 +207,7 @@ def calibrate_environment(
     model = adapter.model
     orders, every = tuple(sorted({int(r) for r in np.atleast_1d(derivative)})), int(sample_every)
     settings = dict(derivative=orders, every=every, frame_skip=adapter.frame_skip, safety=float(safety))
-    settings.update(quantile=float(quantile), steps=int(steps), v=7)
+    settings.update(quantile=float(quantile), steps=int(steps), v=8)
     key = calibration_key(adapter.environment_key, model, **settings)
     dt = float(model.opt.timestep) * every
 
