@@ -582,14 +582,17 @@ class Calibration:
 def calibration_of_signal(
     y, dt: float, orders, *, noise=None, resolution=None, quantile: float = 0.99, safety: float = 2.0
 ) -> Calibration:
-    """The :class:`Calibration` of a recorded signal ``y`` (T, ...): :func:`derivative_bound` and
-    :func:`derivative_rms` of each derivative order in ``orders``, with the noise level ``noise`` (default
-    :func:`noise_std` of ``y``) and the quantization step ``resolution`` (default :func:`quantization_step` of
-    ``y``: the sensor is unknown), with floors relative to each channel's velocity bound (module notes,
-    "Floors"). Records of ``r`` samples or fewer get the floors for order ``r``. Its
-    :attr:`~Calibration.initial` levels, a Kalman filter's prior, are the bounds of the velocity and the
-    acceleration: where the record starts is unknown, and a prior of fixed size would be narrow in large units
-    (a velocity of 1e5 counts/s against a prior of 10) and keep the filter's first estimates from being the
+    """The :class:`Calibration` of a recorded signal ``y`` (T, ...): :func:`derivative_bound` and :func:`derivative_rms`
+    of each derivative order in ``orders``, with the noise level ``noise`` (default :func:`noise_std` of ``y``) and the
+    quantization step ``resolution`` (default :func:`quantization_step` of ``y``: the sensor is unknown), with floors
+    relative to each channel's velocity bound (module notes, "Floors"). A typical level of order ``r >= 3`` of which the
+    record gives no estimate (:func:`derivative_rms` at its floor: the noise hides it, and the mean square of the
+    difference quotient less its noise part is not above the floor's square) continues the two below it,
+    ``rms(r-1)**2/rms(r-2)``: their ratio is the signal's frequency, and for a sine the result is exact. Where that
+    difference is above it, it is kept: an unbiased estimate, if a noisy one. Records of ``r`` samples or fewer get the
+    floors for order ``r``. Its :attr:`~Calibration.initial` levels, a Kalman filter's prior, are the bounds of the
+    velocity and the acceleration: where the record starts is unknown, and a prior of fixed size would be narrow in
+    large units (a velocity of 1e5 counts/s against a prior of 10) and keep the filter's first estimates from being the
     least-squares fits its settling time assumes."""
     y = _time_series(y)
     sigma = _noise_per_channel(noise, y)
@@ -615,6 +618,11 @@ def calibration_of_signal(
         else:
             bounds[r] = derivative_bound(y, dt, r, noise=sigma, quantile=quantile, safety=safety, floor=floor)
         typical[r] = derivative_rms(y, dt, r, noise=sigma, floor=floor)
+        if r >= 3 and {r - 1, r - 2} <= typical.keys():
+            # no estimate (derivative_rms at its floor: the noise hides the level): the next term of the two
+            # levels below, whose ratio is the signal's frequency (exact for a sine)
+            unseen = typical[r] <= floor
+            typical[r] = np.where(unseen, np.maximum(floor, typical[r - 1] ** 2 / typical[r - 2]), typical[r])
     initial = {r: bounds[r] for r in (1, 2)}
     return Calibration(dt, bounds, typical, sigma, resolution, initial, NOISE_FLOOR * speed * dt)
 

@@ -306,6 +306,19 @@ def test_derivative_rms_matches_the_closed_form():
     assert np.sqrt(np.mean((np.diff(noisy[:, 0], 2) / DT**2) ** 2)) > 100 * expected
 
 
+def test_a_level_the_noise_hides_continues_the_two_below_it():
+    r"""A sine (amplitude 1, 1 rad/s, one period at 1 ms) under noise 3e-2: the record gives no estimate of its
+    jerk (at every lag the mean square of the difference quotient less its noise part is not positive, and
+    :func:`derivative_rms` returns its floor), and the record's calibration takes the next term of the velocity
+    and acceleration levels, :math:`a^2/v`, which for a sine is its jerk level :math:`1/\sqrt2` (measured 0.698).
+    At its floor (1e-3 times the velocity bound) a Kalman filter's jerk was 350 times too small."""
+    _, _, noisy = noisy_sine(T=6284, sigma=3e-2, amplitude=1.0, omega=1.0)
+    assert calibration.derivative_rms(noisy, DT, 3) < 0.01  # no estimate: the floor
+    found = calibration.calibration_of_signal(noisy, DT, (3,))
+    np.testing.assert_allclose(found.rms(3), found.rms(2) ** 2 / found.rms(1))
+    np.testing.assert_allclose(found.rms(3), 1.0 / np.sqrt(2.0), rtol=0.1)
+
+
 def test_derivative_rms_ignores_rare_gross_errors():
     """The ``outliers`` sensor (the noisy 12-bit encoder, one sample in a thousand off by a Gaussian error of 0.1) on
     ``sin(3t)`` at 1 ms: the typical acceleration and jerk (true RMS 6.36 and 19.1) within 5 % of what the
