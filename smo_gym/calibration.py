@@ -484,6 +484,11 @@ class Calibration:
         The smallest noise level the gain formulas use (:attr:`noise_levels`): :data:`NOISE_FLOOR` for the
         wrapper's joints, a millionth of a recorded signal's largest motion in one sample (module notes,
         "Floors").
+    unit : ndarray, shape (...)
+        The size of one unit of the signal, for the weights whose dimension is a power of it (the high-degree terms
+        of URED, the uniform Levant differentiator and the eigenvalue-map HOSM): 1 for the wrapper's joints
+        (radians, metres), a recorded signal's velocity bound times one second, so that its estimates do not
+        depend on its units.
     initial : mapping of int to ndarray, shape (...)
         Where the signals start: ``initial[r] > 0`` is the RMS of :math:`f^{(r)}` at the first sample of an episode
         (1: the velocity, 2: the acceleration), over the episodes of a rollout; what a Kalman filter's prior needs
@@ -498,6 +503,7 @@ class Calibration:
     resolution: np.ndarray = field(default=0.0)
     initial: Mapping[int, np.ndarray] = field(default_factory=dict)
     noise_floor: np.ndarray = field(default=NOISE_FLOOR)
+    unit: np.ndarray = field(default=1.0)
 
     def __post_init__(self):
         object.__setattr__(self, "dt", check_positive("dt", self.dt))
@@ -513,8 +519,10 @@ class Calibration:
         object.__setattr__(self, "noise", _frozen("noise", noise, shape, infinite=True))
         object.__setattr__(self, "resolution", _frozen("resolution", self.resolution, shape))
         object.__setattr__(self, "noise_floor", _frozen("noise_floor", self.noise_floor, shape))
-        if not np.all(self.noise_floor > 0.0):
-            raise ValueError(f"expected noise_floor > 0 everywhere, actual value: {self.noise_floor!r}")
+        object.__setattr__(self, "unit", _frozen("unit", self.unit, shape))
+        for name in ("noise_floor", "unit"):
+            if not np.all(getattr(self, name) > 0.0):
+                raise ValueError(f"expected {name} > 0 everywhere, actual value: {getattr(self, name)!r}")
         for name in ("bounds", "typical", "initial"):
             levels = getattr(self, name)
             frozen = {
@@ -624,7 +632,7 @@ def calibration_of_signal(
             unseen = typical[r] <= floor
             typical[r] = np.where(unseen, np.maximum(floor, typical[r - 1] ** 2 / typical[r - 2]), typical[r])
     initial = {r: bounds[r] for r in (1, 2)}
-    return Calibration(dt, bounds, typical, sigma, resolution, initial, NOISE_FLOOR * speed * dt)
+    return Calibration(dt, bounds, typical, sigma, resolution, initial, NOISE_FLOOR * speed * dt, speed * 1.0)
 
 
 #: the smallest positive float64, the floor under which no level is taken as it is

@@ -110,10 +110,11 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
 
     Units. The estimates scale with ``y`` (a record in counts or in metres of a micrometre vibration gives the
     same velocities in counts/s or m/s): every level of the calibration scales with the record, its floors too
-    (relative to the record's velocity bound, :mod:`smo_gym.calibration`, "Floors"). Except for the families whose
-    terms of positive homogeneity degree have default weights in the units of the signal (``"ured"``,
-    ``"uniform-levant"``, ``"discrete-hosm"`` with its uniform part, ``"ilf-fixed"``): give their weights for
-    your units.
+    (relative to the record's velocity bound, :mod:`smo_gym.calibration`, "Floors"), and so do the weights of the
+    uniform families' terms of positive homogeneity degree, whose dimension is a power of the signal's
+    (``"ured"``, ``"uniform-levant"``, ``"discrete-hosm"``: scaled by the calibration's
+    :attr:`~smo_gym.calibration.Calibration.unit`, the record's velocity bound times one second). Except for
+    ``"ilf-fixed"``, whose weights of positive degree no calibration scales: give them for your units.
 
     The result of the sliding-mode observers depends on the gains: a calibration from the data cannot know
     bounds the record does not show, and the Lipschitz bounds of the theory (Levant 2003) assume the worst case.

@@ -166,18 +166,19 @@ def test_wrapped_angles_stay_continuous_across_the_hand_over():
     assert np.sqrt(np.mean((z[2000:, 1] - rate[2000:]) ** 2)) < 0.05
 
 
-#: families with terms of positive homogeneity degree, whose default weights are in the units of the signal: their
-#: estimates depend on the units (measured in units 1e5 times smaller, velocity RMSE on the record below: URED 20x,
-#: uniform Levant 28x, the eigenvalue-map HOSM with its uniform part 180x larger)
-UNIT_DEPENDENT = {"ured", "uniform-levant", "discrete-hosm", "ilf-fixed"}
+#: the fixed-time implicit-Lyapunov-function observer, whose terms of positive degree have weights in the units of
+#: the signal that no calibration scales (the uniform families' weights are scaled by the calibration's unit)
+UNIT_DEPENDENT = {"ilf-fixed"}
 #: families whose recursion chatters: a rounding difference grows to a part of their noise-driven error, so a noisy
 #: record rescaled (not by a power of two) gives estimates that differ by up to 1 % of their amplitude
-CHATTERING = {"super-twisting", "ilf-finite"}
+CHATTERING = {"super-twisting", "ured", "ilf-finite"}
 
 
-def _units_record(noise: float):
-    y, _ = cubic(T=3000, channels=2, noise=noise)
-    return y + np.sin(np.arange(3000) * DT * 2.0)[:, None]
+def _units_record(noise: float, velocity: bool = False):
+    y, v = cubic(T=3000, channels=2, noise=noise)
+    t = np.arange(3000) * DT
+    y, v = y + np.sin(2.0 * t)[:, None], v + 2.0 * np.cos(2.0 * t)[:, None]
+    return (y, v) if velocity else y
 
 
 def _check_units(name: str, y: np.ndarray) -> None:
@@ -204,6 +205,19 @@ def test_the_estimates_do_not_depend_on_the_units(name):
 def test_the_estimates_of_a_noisy_record_do_not_depend_on_the_units(name):
     """As above with noise 1e-3 on the record (its calibration finds the noise and the level floors do not act)."""
     _check_units(name, _units_record(1e-3))
+
+
+@pytest.mark.parametrize("name", sorted(CHATTERING))
+def test_chattering_families_are_as_accurate_in_any_units(name):
+    """The families whose estimates a rescaling moves by their chattering are as accurate in units 1e5 times
+    smaller or 1e6 times larger (velocity RMSE after 1 s within 5 %). URED's high-degree terms took its weight
+    ``beta`` in absolute units before the calibration scaled it: 20 times the RMSE in units 1e5 times smaller."""
+    y, v = _units_record(1e-3, velocity=True)
+    rmse = {}
+    for scale in (1.0, 1e5, 1e-6):
+        estimate = smo_gym.differentiate(scale * y, DT, name)[1000:, :, 1] / scale
+        rmse[scale] = np.sqrt(np.mean((estimate - v[1000:]) ** 2))
+    np.testing.assert_allclose([rmse[1e5], rmse[1e-6]], rmse[1.0], rtol=0.05, err_msg=str(rmse))
 
 
 def test_bad_start_and_limit_are_rejected():

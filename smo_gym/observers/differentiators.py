@@ -499,11 +499,23 @@ class Levant(_ImplicitOutputs, Observer):
         return _pack_hosm(self.dt, self.discretization == "taylor", gains[:, :, None], powers)
 
 
+def _ured_rule(cls, calibration, order, kwargs):
+    """:func:`~smo_gym.observers.registry.lipschitz_rule` with ``beta`` one over the calibration's ``unit`` per
+    channel (its dimension is 1/[y]), unless given."""
+    return lipschitz_rule(cls, calibration, order, {"beta": 1.0 / calibration.unit, **kwargs})
+
+
+def _uniform_levant_rule(cls, calibration, order, kwargs):
+    """:func:`~smo_gym.observers.registry.lipschitz_rule` with the calibration's ``unit`` per channel (the scale of
+    the default ``k``), unless given."""
+    return lipschitz_rule(cls, calibration, order, {"unit": calibration.unit, **kwargs})
+
+
 @register_observer(
     "ured",
     steps=(_kernels.hosm_rows, _kernels.hosm_implicit_rows),
     bound=2,
-    calibrate=lipschitz_rule,
+    calibrate=_ured_rule,
     given=(("lipschitz",), ("k1", "k2")),
     examples=(dict(lipschitz=5.0), dict(lipschitz=5.0, discretization="euler")),
 )
@@ -524,8 +536,11 @@ class URED(_ImplicitOutputs, Observer):
         ``L >= |f''|``; defaults ``k1 = 1.5 sqrt(L)``, ``k2 = 2.2 L`` so that near the origin (where the
         ``beta`` terms vanish) it is the super-twisting differentiator with Levant's gains.
     k1, k2 : optional overrides.
-    beta : float
-        Weight of the high-degree terms (units 1/[y]); larger means faster from large errors.
+    beta : float or array_like
+        Weight of the high-degree terms (units 1/[y]; per channel if an array); larger means faster from large
+        errors. Calibrated (the registry's gain rule) it is one over the calibration's
+        :attr:`~smo_gym.calibration.Calibration.unit`: 1 for the wrapper's joints, so that a record in other
+        units gives the same estimates in them.
     discretization : {"implicit", "euler"}
         Default ``"implicit"``. ``"euler"``: explicit Euler. The high-degree terms make it stiff: at error ``|e|``
         the step must satisfy roughly ``tau * k1 * beta * |e|^(1/2) < 1``, otherwise it diverges (raised as
@@ -552,9 +567,8 @@ class URED(_ImplicitOutputs, Observer):
         wrap=None,
     ):
         super().__init__(dt, 1, discretization, wrap)
-        _check_optional_positive(lipschitz=lipschitz, k1=k1, k2=k2)  # fail at construction, not at reset
-        self.lipschitz, self.k1, self.k2 = lipschitz, k1, k2
-        self.beta = check_positive("beta", beta)
+        _check_optional_positive(lipschitz=lipschitz, k1=k1, k2=k2, beta=beta)  # fail at construction, not at reset
+        self.lipschitz, self.k1, self.k2, self.beta = lipschitz, k1, k2, beta
 
     @property
     def _kernel(self):
@@ -567,10 +581,16 @@ class URED(_ImplicitOutputs, Observer):
         L = self._per_channel("lipschitz", self.lipschitz, shape)
         k1 = 1.5 * np.sqrt(L) if self.k1 is None else self._per_channel("k1", self.k1, shape)
         k2 = 2.2 * L if self.k2 is None else self._per_channel("k2", self.k2, shape)
-        b = self.beta
+        b = self._per_channel("beta", self.beta, shape)
         gains = np.zeros((k1.size, 2, 3))
-        gains[:, 0, 0], gains[:, 0, 1] = k1, k1 * b
-        gains[:, 1, 0], gains[:, 1, 1], gains[:, 1, 2] = 0.5 * k2, 2.0 * b * k2, 1.5 * b * b * k2
+        with np.errstate(over="ignore"):
+            gains[:, 0, 0], gains[:, 0, 1] = k1, k1 * b
+            gains[:, 1, 0], gains[:, 1, 1], gains[:, 1, 2] = 0.5 * k2, 2.0 * b * k2, 1.5 * b * b * k2
+        if not np.isfinite(gains).all():
+            raise ValueError(
+                f"expected beta and the gains small enough that beta^2 k2 is finite, actual value: beta={self.beta!r}, "
+                f"k2 up to {float(np.max(k2)):.3g}"
+            )
         powers = np.array([[0.5, 1.5, 0.0], [0.0, 1.0, 2.0]])
         if self.discretization == "implicit":
             return _pack_hosm_implicit(self.dt, gains, powers)
@@ -580,7 +600,7 @@ class URED(_ImplicitOutputs, Observer):
 @register_observer(
     "uniform-levant",
     steps=(_kernels.hosm_rows, _kernels.hosm_implicit_rows),
-    calibrate=lipschitz_rule,
+    calibrate=_uniform_levant_rule,
     given=(("lipschitz",),),
     examples=(
         dict(order=2, lipschitz=5.0),
@@ -612,7 +632,12 @@ class UniformLevant(_ImplicitOutputs, Observer):
         ``alpha > 0``; default 1, which for ``order = 1`` gives URED's exponents 3/2 and 2.
     k : array_like, shape (order + 1,), optional
         Coefficients making ``s^n + k_1 s^(n-1) + ... + k_n`` Hurwitz; default those of
-        ``(s + L^(1/n))^n`` (so the uniform part has the time scale of the Levant part).
+        ``(s + (L / unit^(1 + alpha))^(1/n))^n``, so that at an error of one ``unit`` the uniform part has the
+        time scale of the Levant part.
+    unit : float or array_like
+        The size of one unit of ``y`` for the default ``k`` (per channel if an array; default 1). Calibrated (the
+        registry's gain rule) it is the calibration's :attr:`~smo_gym.calibration.Calibration.unit`: 1 for the
+        wrapper's joints, so that a record in other units gives the same estimates in them.
     gains : array_like, shape (order + 1,), optional
         Levant's parameters :math:`(\lambda_0, \ldots, \lambda_k)` of the low-degree terms, as for
         :class:`Levant` (default the sequence of [Lev03]).
@@ -643,14 +668,15 @@ class UniformLevant(_ImplicitOutputs, Observer):
         *,
         alpha: float = 1.0,
         k=None,
+        unit=1.0,
         gains=None,
         discretization: str | None = None,
         wrap=None,
     ):
         order = check_int_in_range("order", order, 1, MAX_LEVANT_ORDER)
         super().__init__(dt, order, discretization, wrap)
-        _check_optional_positive(lipschitz=lipschitz)  # fail at construction, not at reset
-        self.lipschitz = lipschitz
+        _check_optional_positive(lipschitz=lipschitz, unit=unit)  # fail at construction, not at reset
+        self.lipschitz, self.unit = lipschitz, unit
         self.alpha = check_positive("alpha", alpha)
         if k is not None:
             k = as_real_array("k", k)
@@ -677,7 +703,9 @@ class UniformLevant(_ImplicitOutputs, Observer):
         i = np.arange(1, n + 1)
         lam = levant_nonrecursive(self.gains)[None, :] * L[:, None] ** (i / n)[None, :]
         if self.k is None:
-            kk = np.stack([binomial_coefficients(n, float(rate)) for rate in L ** (1.0 / n)])
+            unit = self._per_channel("unit", self.unit, shape)
+            rates = (L / unit ** (1.0 + self.alpha)) ** (1.0 / n)
+            kk = np.stack([binomial_coefficients(n, float(rate)) for rate in rates])
         else:
             kk = np.broadcast_to(self.k, (L.size, n))
         gains = np.stack([lam, kk], axis=2)

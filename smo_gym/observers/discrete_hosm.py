@@ -365,8 +365,11 @@ def _estimated_derivatives(kwargs: dict) -> int:
 def _rate_rule(cls, calibration, order, kwargs):
     r""":math:`p_1 = (1.1 L)^{1/n}` per channel from the calibrated bound :math:`L \ge |f^{(n)}|`, the rate
     ``Levant(discretization="semi-implicit")`` takes by default
-    (:func:`~smo_gym.observers.differentiators.eigenvalue_map_rate`)."""
+    (:func:`~smo_gym.observers.differentiators.eigenvalue_map_rate`), and :math:`\mu` one over the largest
+    :attr:`~smo_gym.calibration.Calibration.unit` (its dimension is 1/[y]; one number for all channels), unless
+    given."""
     n = check_int_in_range("n", kwargs.get("n", DEFAULT_N), 2, MAX_N)
+    kwargs = {"mu": 1.0 / float(np.max(calibration.unit)), **kwargs}  # mu has the dimension 1/[y]
     return cls(dt=calibration.dt, **kwargs, p1=eigenvalue_map_rate(calibration.bound(order), n))
 
 
