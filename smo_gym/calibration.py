@@ -103,9 +103,11 @@ __all__ = [
 
 #: median absolute deviation -> standard deviation of a Gaussian, 1 / Phi^-1(3/4)
 MAD_TO_STD = 1.482602218505602
-#: smallest noise level a gain formula divides by, times the calibration's scale (module notes, "Floors")
+#: smallest noise level a gain formula divides by, for the wrapper's joints; a record's is relative to its velocity
+#: bound (module notes, "Floors")
 NOISE_FLOOR = 1e-6
-#: smallest derivative level, times the calibration's scale: a constant channel still gets a positive gain
+#: smallest derivative level, for the wrapper's joints (a record's: times its velocity bound): a constant channel
+#: still gets a positive gain
 BOUND_FLOOR = 1e-3
 #: longer records are calibrated on this many differences drawn at random (see :func:`_lag_difference`)
 MAX_SAMPLES = 2**17
