@@ -95,7 +95,7 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
     Start. A differentiator started at rest converges in a time that grows as its gain falls (Levant 2003): on a
     slow signal, with the small bound a calibration rightly finds, its first estimates are wrong for seconds (a
     cubic over 20 s, ``scripts/bench_signals.py``: the filtering differentiator's largest velocity error after 2 s
-    was 0.33-0.40, its RMSE 7 to 200 times the Kalman filter's). The constant-acceleration Kalman filter has no
+    was 0.33-0.40, its RMSE 8 to 190 times the Kalman filter's). The constant-acceleration Kalman filter has no
     such transient: its wide prior (the record's own velocity and acceleration bounds,
     :func:`smo_gym.calibration.calibration_of_signal`) makes its first estimates least-squares fits. With
     ``start="kalman"`` that filter, calibrated from ``y`` (:meth:`KalmanCA.from_levels
