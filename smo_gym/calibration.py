@@ -48,9 +48,7 @@ level raised a thousandfold, its estimated velocity off by more than its amplitu
 :func:`calibration_of_signal` takes them relative to each channel's velocity bound ``V``: ``BOUND_FLOOR * V``
 (times one second, the wrapper's floor for a joint moving at 1 rad/s) for the derivative levels and ``NOISE_FLOOR
 * V * tau`` for the noise level, a millionth of the largest motion in one sample: below any sensor that is not
-noise-free, yet large enough for a noise-free record to keep a Kalman filter's covariance recursion within double
-precision (a measurement variance :math:`10^{-20}` times the predicted one loses the covariance's positivity to
-rounding). A record multiplied by ``c`` is then calibrated to levels multiplied by ``c``. Measured on noise-free
+noise-free. A record multiplied by ``c`` is then calibrated to levels multiplied by ``c``. Measured on noise-free
 sums of sines, cubics and constants at 1 and 10 ms: no family's error is larger than with the floors fixed at
 1e-6 and 1e-3 in the record's units, the Kalman filters' up to 32 times smaller.
 

@@ -76,9 +76,10 @@ from .registry import register_observer
 
 __all__ = ["KalmanIMM", "imm_ca_step"]
 
-# state columns: the output (value, velocity, acceleration), the innovation, then per mode its mean (3) and the
-# upper triangle of its covariance (6), then the two mode probabilities, then the share of the smooth mode's
-# innovations beyond Huber's bound (:func:`smo_gym.observers._kernels.huber_rate`)
+# state columns: the output (value, velocity, acceleration), the innovation, then per mode its mean (3) and the U-D
+# factors of its covariance (6: U01, U02, U12, D0, D1, D2, as in :func:`smo_gym.observers._kernels.kalman_ca_rows`),
+# then the two mode probabilities, then the share of the smooth mode's innovations beyond Huber's bound
+# (:func:`smo_gym.observers._kernels.huber_rate`)
 _OUT, _INNOVATION, _MODES, _MU, _RATE = 0, 3, 4, 22, 24
 _WIDTH = 25
 # parameter columns: dt, q of the smooth mode, q of the other, r, the probability of staying in a mode, Huber's c
@@ -87,19 +88,19 @@ _H, _Q_LOW, _Q_HIGH, _R, _STAY, _HUBER = range(6)
 
 @njit(cache=True, error_model="numpy")
 def _mix(s, wa, wb, d0, d1, d2, out, o):
-    """``out[o:o + 9]`` = the mixed mean ``wa xa + wb xb`` and covariance ``wa Pa + wb Pb + wa wb d d^T`` of the
-    two mode blocks of the state row ``s`` (mean, then the covariance's upper triangle ``00 01 02 11 12 22``),
-    ``d = xa - xb``."""
+    """``out[o:o + 9]`` = the mixed mean ``wa xa + wb xb`` and the factors of the mixed covariance
+    ``wa Pa + wb Pb + wa wb d d^T`` (:func:`~smo_gym.observers._kernels.ud_of_sum`, without forming it) of the two
+    mode blocks of the state row ``s``, ``d = xa - xb``."""
     a, b = _MODES, _MODES + 9
-    for i in range(9):
+    for i in range(3):
         out[o + i] = wa * s[a + i] + wb * s[b + i]
-    spread = wa * wb
-    out[o + 3] += spread * d0 * d0
-    out[o + 4] += spread * d0 * d1
-    out[o + 5] += spread * d0 * d2
-    out[o + 6] += spread * d1 * d1
-    out[o + 7] += spread * d1 * d2
-    out[o + 8] += spread * d2 * d2
+    U = _kernels.ud_of_sum(
+        s[a + 3], s[a + 4], s[a + 5], wa * s[a + 6], wa * s[a + 7], wa * s[a + 8],
+        s[b + 3], s[b + 4], s[b + 5], wb * s[b + 6], wb * s[b + 7], wb * s[b + 8],
+        d0, d1, d2, wa * wb,
+    )  # fmt: skip
+    for i in range(6):
+        out[o + 3 + i] = U[i]
 
 
 @njit(cache=True, error_model="numpy")
@@ -108,11 +109,11 @@ def _mode_update(s_new, o, y, dt, q, r, huber, previous, rate):
     prediction and update with the density ``q`` and Huber's threshold ``huber``, the ``previous`` innovation and
     the ``rate`` of innovations beyond the bound deciding whether it clips); returns its innovation, its
     log-likelihood (that of an innovation at the bound where it clips) and its innovation variance."""
-    m = _kernels.kalman_ca_prior_covariance(
+    m = _kernels.kalman_ca_prior_factors(
         s_new[o + 3], s_new[o + 4], s_new[o + 5], s_new[o + 6], s_new[o + 7], s_new[o + 8], dt, q
     )
-    variance = m[0] + r
-    P = _kernels.kalman_ca_posterior_covariance(m[0], m[1], m[2], m[3], m[4], m[5], r)
+    P = _kernels.kalman_ca_posterior_factors(m[0], m[1], m[2], m[3], m[4], m[5], r)
+    variance = P[9]
     limit = _kernels.huber_limit(huber, variance, previous, rate)
     x0, x1, x2, nu = _kernels.kalman_ca_mean(s_new[o], s_new[o + 1], s_new[o + 2], y, dt, P[6], P[7], P[8], limit)
     s_new[o], s_new[o + 1], s_new[o + 2] = x0, x1, x2
@@ -163,8 +164,8 @@ def imm_ca_rows(state, y, params, new_state, out, shared):
     return _kernels._check_state(new_state, out)
 
 
-# the step and its mode update link _kernels' filter halves: their cache goes when those change
-_STEP = _kernels.register_step(imm_ca_rows, helpers=(_mode_update, imm_ca_step))
+# the step, its mixing and its mode update link _kernels' filter halves: their cache goes when those change
+_STEP = _kernels.register_step(imm_ca_rows, helpers=(_mix, _mode_update, imm_ca_step))
 
 
 @register_observer(
@@ -271,9 +272,9 @@ class KalmanIMM(Observer):
         state[:, _OUT] = y0
         for o in (_MODES, _MODES + 9):
             state[:, o] = y0
-            state[:, o + 3] = params[:, _R]  # P00 = r
-            state[:, o + 6] = self.initial_std[0] ** 2  # P11
-            state[:, o + 8] = self.initial_std[1] ** 2  # P22
+            state[:, o + 6] = params[:, _R]  # P = diag(r, initial_std**2): U = I, D = its diagonal
+            state[:, o + 7] = self.initial_std[0] ** 2
+            state[:, o + 8] = self.initial_std[1] ** 2
         state[:, _MU : _MU + 2] = 0.5
         return state
 

@@ -43,7 +43,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._numba_cache import drop_stale
 from .._validation import as_real_array, check_keywords
+from . import _kernels
 from .base import checked_input
 from .imm import _MODES, KalmanIMM
 from .linear import KalmanCA
@@ -141,10 +143,12 @@ def _variance_model(design: np.ndarray, residual2: np.ndarray, iterations: int =
 
 
 @njit(cache=True, error_model="numpy")
-def _apply_jumps(state, u, u_prev, gain, noise, columns, saved):
-    """Add the predicted jump ``gain @ du`` to every acceleration column and ``noise * |du|^2`` to every variance
-    column (``columns``: pairs) of the state rows, ``du = u - u_prev`` per batch element (rows ``b n .. b n + n``;
-    zero where the previous input is unknown, NaN); the previous values go to ``saved``."""
+def _apply_jumps(state, u, u_prev, gain, noise, blocks, saved):
+    """Add the predicted jump ``gain @ du`` to the acceleration and ``noise * |du|^2`` to its variance in every
+    constant-acceleration filter of the state rows (``blocks``: where each filter's mean starts; its covariance
+    factors follow, as in :func:`~smo_gym.observers._kernels.kalman_ca_rows`), ``du = u - u_prev`` per batch
+    element (rows ``b n .. b n + n``; zero where the previous input is unknown, NaN). The 7 columns each filter
+    changes (its acceleration, its factors) go to ``saved`` first."""
     n, m = gain.shape
     for b in range(u.shape[0]):
         known = True
@@ -159,11 +163,20 @@ def _apply_jumps(state, u, u_prev, gain, noise, columns, saved):
                 for j in range(m):
                     jump += gain[c, j] * (u[b, j] - u_prev[b, j])
             row = b * n + c
-            for k in range(columns.shape[0]):
-                saved[row, 2 * k] = state[row, columns[k, 0]]
-                saved[row, 2 * k + 1] = state[row, columns[k, 1]]
-                state[row, columns[k, 0]] += jump
-                state[row, columns[k, 1]] += size2 * noise[c]
+            for k in range(blocks.shape[0]):
+                o = blocks[k]
+                for i in range(7):
+                    saved[row, 7 * k + i] = state[row, o + 2 + i]
+                state[row, o + 2] += jump
+                U = _kernels.kalman_ca_add_acceleration_variance(
+                    state[row, o + 3], state[row, o + 4], state[row, o + 5], state[row, o + 6], state[row, o + 7],
+                    state[row, o + 8], size2 * noise[c],
+                )  # fmt: skip
+                for i in range(6):
+                    state[row, o + 3 + i] = U[i]
+
+
+drop_stale([_apply_jumps], [_kernels.__file__])  # it links _kernels' factor update; numba checks this file only
 
 
 class InputJumpFilter:
@@ -172,9 +185,9 @@ class InputJumpFilter:
     wrapper builds every registered subclass from its calibration episodes (:meth:`from_episodes`)."""
 
     takes_input = True
-    #: ``(acceleration, its variance)`` state columns of each constant-acceleration filter of the state row, one
-    #: row per filter (int64: the compiled jump reads it)
-    _jump_columns = np.zeros((0, 2), dtype=np.int64)
+    #: where the mean of each constant-acceleration filter of the state row starts (int64: the compiled jump reads
+    #: it)
+    _jump_blocks = np.zeros(0, dtype=np.int64)
 
     def _set_input_model(self, input_gain, jump_noise) -> None:
         gain = as_real_array("input_gain", input_gain)
@@ -220,14 +233,14 @@ class InputJumpFilter:
             return out
         if u.shape != self._u_prev.shape:
             raise ValueError(f"expected u with shape {self._u_prev.shape}, actual value: {u.shape}")
-        state, columns = self._state, self._jump_columns
-        saved = np.empty((state.shape[0], columns.size))
+        state, blocks = self._state, self._jump_blocks
+        saved = np.empty((state.shape[0], 7 * blocks.size))
         _apply_jumps(state, u.reshape(-1, u.shape[-1]), self._u_prev.reshape(-1, u.shape[-1]), self.input_gain,
-                     self.jump_noise, columns, saved)  # fmt: skip
+                     self.jump_noise, blocks, saved)  # fmt: skip
         try:
             out = super().update(y)
         except BaseException:
-            state[:, columns.reshape(-1)] = saved
+            state[:, (blocks[:, None] + np.arange(2, 9)).reshape(-1)] = saved
             raise
         self._u_prev[...] = u
         return out
@@ -277,7 +290,7 @@ class KalmanCAInput(InputJumpFilter, KalmanCA):
     ``run(Y)``, is :class:`~smo_gym.observers.KalmanCA` and forgets the last input.
     """
 
-    _jump_columns = np.array([[2, 8]], dtype=np.int64)
+    _jump_blocks = np.array([0], dtype=np.int64)
 
     @check_keywords
     def __init__(
@@ -313,7 +326,7 @@ class KalmanIMMInput(InputJumpFilter, KalmanIMM):
         As :class:`KalmanCAInput`.
     """
 
-    _jump_columns = np.array([[o + 2, o + 8] for o in (_MODES, _MODES + 9)], dtype=np.int64)
+    _jump_blocks = np.array([_MODES, _MODES + 9], dtype=np.int64)
 
     @check_keywords
     def __init__(
