@@ -112,9 +112,8 @@ def differentiate(y, dt, observer=None, *, method=None, axis=0, start=None, **pa
     same velocities in counts/s or m/s): every level of the calibration scales with the record, its floors too
     (relative to the record's velocity bound, :mod:`smo_gym.calibration`, "Floors"), and so do the weights of the
     uniform families' terms of positive homogeneity degree, whose dimension is a power of the signal's
-    (``"ured"``, ``"uniform-levant"``, ``"discrete-hosm"``: scaled by the calibration's
-    :attr:`~smo_gym.calibration.Calibration.unit`, the record's velocity bound times one second). Except for
-    ``"ilf-fixed"``, whose weights of positive degree no calibration scales: give them for your units.
+    (``"ured"``, ``"uniform-levant"``, ``"discrete-hosm"``, ``"ilf-fixed"``: scaled by the calibration's
+    :attr:`~smo_gym.calibration.Calibration.unit`, the record's velocity bound times one second).
 
     The result of the sliding-mode observers depends on the gains: a calibration from the data cannot know
     bounds the record does not show, and the Lipschitz bounds of the theory (Levant 2003) assume the worst case.

@@ -626,9 +626,10 @@ def chain_gain(n: int, mu: float, kind: str, alpha: float | None) -> tuple[float
 def _ilf_chain_kernel(state, y, params, new_state, out):
     r"""Batch step of the chain observer in the time scale :math:`\tau = \omega t` (same convention as the kernels).
 
-    ``state`` rows ``[x~_1..x~_n, innovation]`` with :math:`\tilde x_i = \hat x_i/\omega^{i-1}`; ``params`` rows
-    ``[h, omega, kind(0 finite/1 fixed), mu, rho_min, L_1..L_n]``. The step is the one of :class:`ILFObserver`
-    with :math:`A` the shift matrix, :math:`\Phi = I`, ``F = 0`` and step :math:`\omega h`.
+    ``state`` rows ``[x~_1..x~_n, innovation]`` with :math:`\tilde x_i = \hat x_i/(u\,\omega^{i-1})` (``u`` the
+    channel's unit: the observer runs on :math:`y/u`); ``params`` rows ``[h, omega, kind(0 finite/1 fixed), mu,
+    rho_min, u, L_1..L_n]``. The step is the one of :class:`ILFObserver` with :math:`A` the shift matrix,
+    :math:`\Phi = I`, ``F = 0`` and step :math:`\omega h`.
     """
     y = y.reshape(-1)
     bad = np.flatnonzero(~np.isfinite(y))
@@ -643,11 +644,12 @@ def _ilf_chain_step(state, y, params, new_state, out):
     m = out.shape[-1]
     N = y.shape[0]
     h = params[:, 0] * params[:, 1]  # step in tau
-    omega = params[:, 1]
+    omega, unit = params[:, 1], params[:, 5]
     kind = "finite" if params[0, 2] == 0.0 else "fixed"
     mu = params[0, 3]
-    L = params[:, 5 : 5 + m]
+    L = params[:, 6 : 6 + m]
     x = state[:, :m]
+    y_unit = y / unit  # the fixed-time weights rho^(+r) take |s| in units of u
     # exact prediction e^{hN} x (Taylor matrix) and first row of R = (I - hN)^-1: [1, h, h^2, ...]
     j = np.arange(m)
     hp = h[:, None] ** j[None, :]  # (N, m)
@@ -655,7 +657,7 @@ def _ilf_chain_step(state, y, params, new_state, out):
     x_pred = np.empty_like(x)
     for i in range(m):
         x_pred[:, i] = np.sum(x[:, i:] * hp[:, : m - i] / fact[: m - i], axis=1)
-    s_pred = (y - x_pred[:, 0])[:, None]
+    s_pred = (y_unit - x_pred[:, 0])[:, None]
     r = ilf_degrees(m, mu)
     s_new, rho = solve_implicit_output_error(
         s_pred, hp[:, None, :], np.zeros((1, 1, 1)), L[:, :, None], h, r, kind, rho_min=params[0, 4]
@@ -667,17 +669,23 @@ def _ilf_chain_step(state, y, params, new_state, out):
     for i in range(m):
         x_new[:, i] = x_pred[:, i] - h * np.sum(inj[:, i:] * hp[:, : m - i], axis=1)
     new_state[:, :m] = x_new
-    new_state[:, m] = y - x_pred[:, 0]
-    out.reshape(N, m)[:] = x_new * omega[:, None] ** j[None, :]
+    new_state[:, m] = y - unit * x_pred[:, 0]
+    out.reshape(N, m)[:] = x_new * unit[:, None] * omega[:, None] ** j[None, :]
     finite = np.isfinite(new_state).all(axis=1) & np.isfinite(out.reshape(N, m)).all(axis=1)
     if not finite.all():
         return -2 - int(np.flatnonzero(~finite)[0])
     return -1
 
 
+def _ilf_rule(cls, calibration, order, kwargs):
+    """:func:`~smo_gym.observers.registry.lipschitz_rule` with the calibration's ``unit`` per channel, unless
+    given."""
+    return lipschitz_rule(cls, calibration, order, {"unit": calibration.unit, **kwargs})
+
+
 @register_observer(
     "ilf-finite",
-    calibrate=lipschitz_rule,
+    calibrate=_ilf_rule,
     given=(("lipschitz",), ("rate",)),
     examples=(dict(order=1, lipschitz=20.0),),
 )
@@ -690,8 +698,9 @@ class ILFDifferentiator(Observer):
     channel): in the original time the correction of :math:`\hat x_i` is
     :math:`-\omega^i L_i\,\mathcal D_i(|s|)\,s`. For ``kind="finite"`` with ``mu = 1`` this is Levant's
     differentiator in non-recursive form; the default rate
-    :math:`\omega = (1.1\,L_f/|L_n|)^{1/n}` makes its discontinuous last gain :math:`\omega^n|L_n|` equal to
-    Levant's :math:`\lambda_0 L_f = 1.1 L_f` for :math:`|f^{(n)}| \le L_f` (``lipschitz``). For ``mu < 1`` (and the
+    :math:`\omega = (1.1\,L_f/(u|L_n|))^{1/n}` (``u`` the ``unit``) makes its discontinuous last gain
+    :math:`u\,\omega^n|L_n|` equal to Levant's :math:`\lambda_0 L_f = 1.1 L_f` for :math:`|f^{(n)}| \le L_f`
+    (``lipschitz``). For ``mu < 1`` (and the
     fixed-time kind) the injections are continuous: exact for polynomial signals of degree ``< n`` only, with an
     error of order :math:`L_f` otherwise.
 
@@ -710,6 +719,15 @@ class ILFDifferentiator(Observer):
         :math:`\omega` (1/s), overrides the default from ``lipschitz``.
     gain : array_like, shape (order + 1,), optional
         ``L`` in the :math:`\tau` scale (default: :func:`chain_gain`).
+    rho_min : float
+        The smallest level :math:`\rho` the implicit step resolves (module notes), in units of ``unit``.
+    unit : float or array_like
+        The size of one unit of ``y`` (per channel if an array; default 1): the observer runs on ``y / unit``, where
+        the fixed-time weights :math:`\rho^{\tilde r_i}` of positive degree take :math:`|s| = 1` as the level at
+        which the fixed-time part takes over. Calibrated (the registry's gain rule) it is the calibration's
+        :attr:`~smo_gym.calibration.Calibration.unit`: 1 for the wrapper's joints, so that a record in other units
+        gives the same estimates in them. The finite-time kind is homogeneous and the same in any unit (but for
+        ``rho_min``).
     discretization : {"implicit"}
         Exact chain prediction plus implicit-Euler injection (see :mod:`smo_gym.observers.ilf`); stable at any
         step and any error. Not a compiled kernel: a NumPy step of about 0.5-1 ms.
@@ -739,6 +757,7 @@ class ILFDifferentiator(Observer):
         rate=None,
         gain=None,
         rho_min: float = 1e-14,
+        unit=1.0,
         discretization: str | None = None,
         wrap=None,
     ):
@@ -755,10 +774,10 @@ class ILFDifferentiator(Observer):
         self.alpha = None if self.kind == "finite" else (2.0 if alpha is None else alpha)
         if lipschitz is None and rate is None:
             raise ValueError("expected lipschitz > 0 or rate > 0, actual value: both None")
-        for name, value in (("lipschitz", lipschitz), ("rate", rate)):
+        for name, value in (("lipschitz", lipschitz), ("rate", rate), ("unit", unit)):
             if value is not None:
                 check_positive_array(name, value)  # fail at construction, not at reset
-        self.lipschitz, self.rate = lipschitz, rate
+        self.lipschitz, self.rate, self.unit = lipschitz, rate, unit
         if gain is None:
             gain = chain_gain(n, self.mu, self.kind, self.alpha)
         gain = as_real_array("gain", gain)
@@ -782,14 +801,17 @@ class ILFDifferentiator(Observer):
     def _load_estimate(self, state, x0, params):
         r"""The state in the time scale :math:`\tau = \omega t`: :math:`\tilde x_i = \hat x_i/\omega^{i-1}`."""
         m = self.order + 1
-        state[:, :m] = x0 / params[:, 1:2] ** np.arange(m)[None, :]
+        state[:, :m] = x0 / (params[:, 5:6] * params[:, 1:2] ** np.arange(m)[None, :])
 
     def _channel_params(self, shape):
         n = self.order + 1
+        unit = self._per_channel("unit", self.unit, shape)
         if self.rate is not None:
             omega = self._per_channel("rate", self.rate, shape)
-        else:
-            omega = (1.1 * self._per_channel("lipschitz", self.lipschitz, shape) / abs(self.gain[-1])) ** (1.0 / n)
+        else:  # from the bound of y / unit: the same rate in any units (the finite kind is homogeneous)
+            omega = (1.1 * self._per_channel("lipschitz", self.lipschitz, shape) / unit / abs(self.gain[-1])) ** (
+                1.0 / n
+            )
         N = omega.size
         head = np.column_stack(
             [
@@ -798,6 +820,7 @@ class ILFDifferentiator(Observer):
                 np.full(N, 0.0 if self.kind == "finite" else 1.0),
                 np.full(N, self.mu),
                 np.full(N, self.rho_min),
+                unit,
             ]
         )
         return np.hstack([head, np.broadcast_to(self.gain, (N, n))])
@@ -805,7 +828,7 @@ class ILFDifferentiator(Observer):
 
 @register_observer(
     "ilf-fixed",
-    calibrate=lipschitz_rule,
+    calibrate=_ilf_rule,
     given=(("lipschitz",), ("rate",)),
     examples=(dict(order=1, rate=30.0),),
 )
