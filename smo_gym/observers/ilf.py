@@ -626,9 +626,9 @@ def chain_gain(n: int, mu: float, kind: str, alpha: float | None) -> tuple[float
 def _ilf_chain_kernel(state, y, params, new_state, out):
     r"""Batch step of the chain observer in the time scale :math:`\tau = \omega t` (same convention as the kernels).
 
-    ``state`` rows ``[x~_1..x~_n, innovation]`` with :math:`\tilde x_i = \hat x_i/(u\,\omega^{i-1})` (``u`` the
-    channel's unit: the observer runs on :math:`y/u`); ``params`` rows ``[h, omega, kind(0 finite/1 fixed), mu,
-    rho_min, u, L_1..L_n]``. The step is the one of :class:`ILFObserver` with :math:`A` the shift matrix,
+    ``state`` rows ``[x~_1..x~_n, innovation]`` with :math:`\tilde x_i = \hat x_i/\omega^{i-1}`; ``params`` rows
+    ``[h, omega, kind(0 finite/1 fixed), mu, rho_min, u, L_1..L_n]``, ``u`` the channel's unit: the step runs on
+    :math:`y/u` and :math:`\tilde x/u`. The step is the one of :class:`ILFObserver` with :math:`A` the shift matrix,
     :math:`\Phi = I`, ``F = 0`` and step :math:`\omega h`.
     """
     y = y.reshape(-1)
@@ -648,8 +648,8 @@ def _ilf_chain_step(state, y, params, new_state, out):
     kind = "finite" if params[0, 2] == 0.0 else "fixed"
     mu = params[0, 3]
     L = params[:, 6 : 6 + m]
-    x = state[:, :m]
-    y_unit = y / unit  # the fixed-time weights rho^(+r) take |s| in units of u
+    x = state[:, :m] / unit[:, None]  # in units of u: the fixed-time weights rho^(+r) take |s| in them
+    y_unit = y / unit
     # exact prediction e^{hN} x (Taylor matrix) and first row of R = (I - hN)^-1: [1, h, h^2, ...]
     j = np.arange(m)
     hp = h[:, None] ** j[None, :]  # (N, m)
@@ -668,9 +668,9 @@ def _ilf_chain_step(state, y, params, new_state, out):
     x_new = np.empty_like(x)
     for i in range(m):
         x_new[:, i] = x_pred[:, i] - h * np.sum(inj[:, i:] * hp[:, : m - i], axis=1)
-    new_state[:, :m] = x_new
+    new_state[:, :m] = x_new * unit[:, None]
     new_state[:, m] = y - unit * x_pred[:, 0]
-    out.reshape(N, m)[:] = x_new * unit[:, None] * omega[:, None] ** j[None, :]
+    out.reshape(N, m)[:] = new_state[:, :m] * omega[:, None] ** j[None, :]
     finite = np.isfinite(new_state).all(axis=1) & np.isfinite(out.reshape(N, m)).all(axis=1)
     if not finite.all():
         return -2 - int(np.flatnonzero(~finite)[0])
@@ -801,7 +801,7 @@ class ILFDifferentiator(Observer):
     def _load_estimate(self, state, x0, params):
         r"""The state in the time scale :math:`\tau = \omega t`: :math:`\tilde x_i = \hat x_i/\omega^{i-1}`."""
         m = self.order + 1
-        state[:, :m] = x0 / (params[:, 5:6] * params[:, 1:2] ** np.arange(m)[None, :])
+        state[:, :m] = x0 / params[:, 1:2] ** np.arange(m)[None, :]
 
     def _channel_params(self, shape):
         n = self.order + 1
