@@ -10,6 +10,8 @@ from the filter's own covariance, and for the defaults, short records, wrapped a
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -196,6 +198,20 @@ def test_the_estimates_do_not_depend_on_the_units(name):
     fixed at 1e-3 and 1e-6 every family but finite differences 0.5-0.7 times it in the large ones. Noise-free here;
     the noisy record below."""
     _check_units(name, _units_record(0.0))
+
+
+@pytest.mark.parametrize("scale", [1e-20, 1e30])
+def test_auto_works_in_far_units_without_warnings(scale):
+    """``auto`` compares the candidates' steady-state errors through the Kalman filter's Riccati equation; solved in
+    the record's units, scipy's balancing warned ("invalid value encountered in cast") from levels of about 1e-40
+    (a record in units 1e20 times smaller, or 1e30 times larger). Solved in units of the noise it does not, and the
+    estimates scale with the record."""
+    y = _units_record(1e-3)
+    base = smo_gym.differentiate(y, DT)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scaled = smo_gym.differentiate(scale * y, DT) / scale
+    np.testing.assert_allclose(scaled[..., :2], base[..., :2], rtol=0, atol=1e-4 * np.abs(base[..., 1]).max())
 
 
 @pytest.mark.parametrize("name", ["auto", *sorted(set(OBSERVERS) - CHATTERING)])

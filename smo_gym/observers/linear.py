@@ -97,11 +97,13 @@ def steady_state_covariance(dt: float, process_noise: float, measurement_noise: 
     """
     from scipy.linalg import solve_discrete_are
 
-    F, Q = constant_acceleration_model(dt, process_noise)
+    # the equation is homogeneous in (Q, r, P): solved with r = 1, in units of the measurement noise, so that a
+    # signal in small or large units (levels of 1e-40) does not reach scipy's balancing, which fails on them
+    F, Q = constant_acceleration_model(dt, process_noise / measurement_noise)
     H = np.array([[1.0, 0.0, 0.0]])
-    prior = solve_discrete_are(F.T, H.T, Q, np.array([[measurement_noise]]))
-    gain = prior @ H.T / (H @ prior @ H.T + measurement_noise)
-    return (np.eye(3) - gain @ H) @ prior
+    prior = solve_discrete_are(F.T, H.T, Q, np.eye(1))
+    gain = prior @ H.T / (H @ prior @ H.T + 1.0)
+    return measurement_noise * ((np.eye(3) - gain @ H) @ prior)
 
 
 def _covariance_from_factors(factors) -> np.ndarray:
