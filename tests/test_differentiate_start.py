@@ -182,7 +182,7 @@ def _units_record(noise: float, velocity: bool = False):
 
 def _check_units(name: str, y: np.ndarray) -> None:
     base = smo_gym.differentiate(y, DT, name)
-    for scale in (1e5, 1e-6):
+    for scale in (1e5, 1e-6, 1e120, 1e-120):
         scaled = smo_gym.differentiate(scale * y, DT, name) / scale
         atol = 1e-4 * np.abs(base[..., 1]).max()
         np.testing.assert_allclose(scaled[..., :2], base[..., :2], rtol=0, atol=atol, err_msg=f"units x {scale}")
@@ -195,8 +195,10 @@ def test_the_estimates_do_not_depend_on_the_units(name):
     gives the estimates (value and velocity) scaled alike, to rounding: the Kalman filter's prior at reset is the
     record's own derivative bounds, and the floors of the levels are relative to its velocity bound. Before,
     with a fixed prior (10, 100) Levant's velocity was 3.4x its amplitude off in the small units, and with floors
-    fixed at 1e-3 and 1e-6 every family but finite differences 0.5-0.7 times it in the large ones. Noise-free here;
-    the noisy record below."""
+    fixed at 1e-3 and 1e-6 every family but finite differences 0.5-0.7 times it in the large ones. And in units
+    1e120 times larger or smaller: the Kalman filter's measurement update multiplied two variances (overflow above
+    1e154, underflow below 1e-154), and every family starts from that filter. Noise-free here; the noisy record
+    below."""
     _check_units(name, _units_record(0.0))
 
 

@@ -1013,12 +1013,14 @@ def kalman_ca_posterior_factors(u01, u02, u12, d0, d1, d2, r):
     a1 = a0 + u01 * v1
     a2 = a1 + u02 * v2
     i0, i1, i2 = 1.0 / a0, 1.0 / a1, 1.0 / a2
+    # ratios first: a product of two variances overflows where both are above 1e154 (a record in large units)
+    f0, f1, f2 = r * i0, a0 * i1, a1 * i2
     # U01 + b0 (-U01 / a0) with b0 = D0, and U02 + b0 (-U02 / a1) with b0 = D0 + U01 v1: both are U r / a
-    n01, n02 = u01 * r * i0, u02 * r * i1
-    n12 = u12 - u02 * v1 * i1
+    n01, n02 = u01 * f0, u02 * (r * i1)
+    n12 = u12 - u02 * (v1 * i1)
     b0 = d0 + u01 * v1 + u02 * v2  # P^- c
     b1 = v1 + u12 * v2
-    return n01, n02, n12, d0 * r * i0, d1 * a0 * i1, d2 * a1 * i2, b0 * i2, b1 * i2, v2 * i2, a2
+    return n01, n02, n12, d0 * f0, d1 * f1, d2 * f2, b0 * i2, b1 * i2, v2 * i2, a2
 
 
 @njit(cache=CACHE, error_model="numpy")
