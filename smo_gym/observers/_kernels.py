@@ -936,7 +936,8 @@ def linear_rows(state, y, params, new_state, out, shared):
 # against the predicted one, and in double precision loses the covariance's positivity once their ratio is below
 # about 1e-15 (a measurement variance of 1e-20 against a prior velocity spread of 10 at 1 ms), where the IMM
 # estimator would take the logarithm of a negative innovation variance. The factored updates only add positive
-# terms to ``D``, and carry the covariance to about 1e-15 of its size at any such ratio.
+# terms to ``D``: measured against the recursion in 60-digit arithmetic, within 1e-8 of the covariance's size at
+# such ratios (1e-15 at moderate ones).
 @njit(cache=CACHE, error_model="numpy")
 def ud_of_sum(a01, a02, a12, p0, p1, p2, b01, b02, b12, q0, q1, q2, d0, d1, d2, s):
     r"""U-D factors of :math:`A\operatorname{diag}(p)A^T + B\operatorname{diag}(q)B^T + s\,dd^T` for unit upper

@@ -362,7 +362,8 @@ class KalmanCA(Observer):
     update, [Bie77]; :mod:`smo_gym.observers._kernels`), which only add positive terms to ``D``: the textbook
     recursion :math:`P^+ = P^- - Kc^TP^-` subtracts nearly equal numbers where ``r`` is small against the predicted
     variance, and below a ratio of about 1e-15 loses the covariance's positivity in double precision (``r = 4e-22``
-    with the default prior at 1 ms), where the factors keep it to about 1e-15 of its size.
+    with the default prior at 1 ms). The factors keep it positive and, measured against that recursion in 60-digit
+    arithmetic at such ratios, within 1e-8 of its size (1e-15 at moderate ones).
 
     With ``huber`` the update is Masreliez and Martin's robust one [MM77]: :math:`x^+ = x^- + K\psi(\nu)`,
     :math:`\psi(\nu) = \max(-c\sqrt S, \min(\nu, c\sqrt S))`. One wrong sample then moves the velocity by at most
