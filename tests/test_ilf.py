@@ -433,7 +433,7 @@ def test_the_chain_differentiators_are_the_same_in_any_unit(name):
     r"""The observer of ``c y`` with ``unit = c`` (and the bound ``c L``) is ``c`` times that of ``y`` with
     ``unit = 1``: it runs on ``y / unit``, so the fixed-time weights :math:`\rho^{\tilde r_i}` see the same
     errors. ``c`` a power of two (exact scaling); the fixed-time kind with ``unit = 1`` on ``c y`` is another
-    observer (its velocity up to 0.7 times the amplitude apart at ``c = 2**-20``)."""
+    observer (its velocity as far apart as the amplitude itself at ``c = 2**-20``)."""
     dt, c = 2e-3, 2.0**-20
     t = np.arange(1500) * dt
     y = signal_derivatives(t, 2)[:, :1]
