@@ -491,7 +491,8 @@ class Calibration:
         (module notes, "Floors").
     unit : ndarray, shape (...)
         The size of one unit of the signal, for the weights whose dimension is a power of it (the high-degree terms
-        of URED, the uniform Levant differentiator and the eigenvalue-map HOSM): 1 for the wrapper's joints
+        of URED, the uniform Levant differentiator, the eigenvalue-map HOSM and the implicit-Lyapunov-function
+        differentiators): 1 for the wrapper's joints
         (radians, metres), a recorded signal's velocity bound times one second, so that its estimates do not
         depend on its units.
     initial : mapping of int to ndarray, shape (...)

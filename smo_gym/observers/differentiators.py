@@ -54,7 +54,7 @@ from ..design.gains import (
 )
 from . import _kernels
 from .base import Observer, taylor_matrix
-from .registry import lipschitz_rule, register_observer
+from .registry import lipschitz_rule, lipschitz_unit_rule, register_observer
 
 __all__ = [
     "URED",
@@ -505,12 +505,6 @@ def _ured_rule(cls, calibration, order, kwargs):
     return lipschitz_rule(cls, calibration, order, {"beta": 1.0 / calibration.unit, **kwargs})
 
 
-def _uniform_levant_rule(cls, calibration, order, kwargs):
-    """:func:`~smo_gym.observers.registry.lipschitz_rule` with the calibration's ``unit`` per channel (the scale of
-    the default ``k``), unless given."""
-    return lipschitz_rule(cls, calibration, order, {"unit": calibration.unit, **kwargs})
-
-
 @register_observer(
     "ured",
     steps=(_kernels.hosm_rows, _kernels.hosm_implicit_rows),
@@ -600,7 +594,7 @@ class URED(_ImplicitOutputs, Observer):
 @register_observer(
     "uniform-levant",
     steps=(_kernels.hosm_rows, _kernels.hosm_implicit_rows),
-    calibrate=_uniform_levant_rule,
+    calibrate=lipschitz_unit_rule,
     given=(("lipschitz",),),
     examples=(
         dict(order=2, lipschitz=5.0),

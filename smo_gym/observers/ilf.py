@@ -66,7 +66,7 @@ from .._validation import (
 )
 from ..design.ilf import BlockDecomposition, block_decomposition, ilf_degrees, ilf_gains
 from .base import Observer
-from .registry import lipschitz_rule, register_observer
+from .registry import lipschitz_unit_rule, register_observer
 
 __all__ = [
     "ILFDifferentiator",
@@ -677,15 +677,9 @@ def _ilf_chain_step(state, y, params, new_state, out):
     return -1
 
 
-def _ilf_rule(cls, calibration, order, kwargs):
-    """:func:`~smo_gym.observers.registry.lipschitz_rule` with the calibration's ``unit`` per channel, unless
-    given."""
-    return lipschitz_rule(cls, calibration, order, {"unit": calibration.unit, **kwargs})
-
-
 @register_observer(
     "ilf-finite",
-    calibrate=_ilf_rule,
+    calibrate=lipschitz_unit_rule,
     given=(("lipschitz",), ("rate",)),
     examples=(dict(order=1, lipschitz=20.0),),
 )
@@ -828,7 +822,7 @@ class ILFDifferentiator(Observer):
 
 @register_observer(
     "ilf-fixed",
-    calibrate=_ilf_rule,
+    calibrate=lipschitz_unit_rule,
     given=(("lipschitz",), ("rate",)),
     examples=(dict(order=1, rate=30.0),),
 )

@@ -45,6 +45,7 @@ __all__ = [
     "Family",
     "family_of",
     "lipschitz_rule",
+    "lipschitz_unit_rule",
     "register_observer",
 ]
 
@@ -60,6 +61,13 @@ MODEL_BASED_OBSERVERS: dict[str, type] = {}
 def lipschitz_rule(cls, calibration, order: int, kwargs: dict):
     """The sliding-mode gain rule: ``lipschitz`` = the worst-case bound of ``order``, per channel (Levant 2003)."""
     return cls(dt=calibration.dt, **kwargs, lipschitz=calibration.bound(order))
+
+
+def lipschitz_unit_rule(cls, calibration, order: int, kwargs: dict):
+    """:func:`lipschitz_rule` for a family with a ``unit`` parameter (the weights of its terms of positive degree
+    have a dimension in the signal's unit): the calibration's :attr:`~smo_gym.calibration.Calibration.unit` per
+    channel, unless given."""
+    return lipschitz_rule(cls, calibration, order, {"unit": calibration.unit, **kwargs})
 
 
 @dataclass(frozen=True)
