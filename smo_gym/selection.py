@@ -45,9 +45,15 @@ joints).
 A model-based observer estimates all channels together (its model couples them): as the last candidate of a
 :class:`Selection` with ``joint=True`` it is taken for every channel or for none (:attr:`Selection.choice`; the
 wrapper's ``observer_kwargs={"model": True}``), measured on trials that carry the inputs (:func:`trial_errors`).
+A filter told the input (:class:`~smo_gym.observers.input_kalman.InputJumpFilter`, the wrapper's
+``observer_kwargs={"model": "kalman-imm-input"}``) is measured the same way but chosen per channel like the others:
+its channels are independent given the input, so its part on some channels
+(:meth:`~smo_gym.observers.input_kalman.InputJumpFilter.of_channels`) estimates exactly what it does there, and a
+:class:`~smo_gym.observers.composite.PerChannelInput` holds it beside the model-free parts.
 
 The result is a single observer when one candidate wins every channel (the wrapper's one-call path then applies),
-else a :class:`smo_gym.observers.composite.PerChannel`; :class:`Selection` says what was chosen and why.
+else a :class:`smo_gym.observers.composite.PerChannel` (:class:`~smo_gym.observers.composite.PerChannelInput` with
+a part told the input); :class:`Selection` says what was chosen and why.
 """
 
 from __future__ import annotations
@@ -62,7 +68,8 @@ from ._validation import DivergenceError, as_real_array, check_names, check_posi
 from .calibration import Calibration, bound_order, default_observer
 from .observers import Observer
 from .observers.base import reported_coefficients, reported_velocity
-from .observers.composite import PerChannel
+from .observers.composite import PerChannel, PerChannelInput
+from .observers.input_kalman import InputJumpFilter
 from .observers.linear import steady_state_covariance
 from .specs import MODEL_OPTIONS, parse_observer_spec
 
@@ -78,6 +85,7 @@ __all__ = [
     "Trials",
     "auto_observer",
     "candidate_orders",
+    "estimates_jointly",
     "measure_on_trials",
     "predicted_errors",
     "ratio_bound",
@@ -475,9 +483,9 @@ def select(
     observer_kwargs : dict, optional
         Constructor arguments every candidate gets (``wrap``, say).
     joint : Observer, optional
-        An observer of all channels together (a model-based one), compared as the last candidate
-        (:attr:`Selection.joint`) under the name ``joint.name``; without trials its error is ``inf`` (no
-        evidence, not chosen).
+        An observer that takes the control input, compared as the last candidate under the name ``joint.name``:
+        for all channels together (:attr:`Selection.joint`) if it is model-based, per channel if it is a filter
+        told the input (module notes); without trials its error is ``inf`` (no evidence, not chosen).
     """
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, actual value: {calibration!r:.80}")
@@ -513,7 +521,14 @@ def select(
     if not np.isfinite(errors.min(axis=1)).all():
         raise ValueError(f"expected a candidate with a finite error on every channel, actual value: {errors!r}")
     names = candidates + tuple(observer.name for observer in extra)
-    return Selection(names, errors, source, joint=joint is not None, bound=bound)
+    return Selection(names, errors, source, joint=estimates_jointly(joint), bound=bound)
+
+
+def estimates_jointly(observer: Observer | None) -> bool:
+    """Whether ``observer``, a candidate that takes the control input, is chosen for all channels or for none
+    (:attr:`Selection.joint`): a model-based observer, whose model couples the channels; not a filter told the
+    input, whose channels are independent given it (module notes)."""
+    return observer is not None and not isinstance(observer, InputJumpFilter)
 
 
 def _check_kwargs(observer_kwargs, allowed: tuple[str, ...] = ("wrap",)) -> dict:
@@ -562,14 +577,18 @@ def auto_observer(
     mean_over: float | None = None,
     observer_kwargs: dict | None = None,
     selection: Selection | None = None,
+    told: InputJumpFilter | None = None,
 ) -> Observer:
     """The observer ``"auto"`` builds: per channel the winner of :func:`select`, with its calibrated gains.
 
     Parameters are those of :func:`select` (``selection``: an earlier one, reused as it is, e.g. from a cache).
-    ``observer_kwargs`` may hold a per-channel ``wrap`` (an array over the channels). Returns the winning
+    ``observer_kwargs`` may hold a per-channel ``wrap`` (an array over the channels). ``told``: the filter told
+    the input that ``selection`` compared as its last candidate (its ``joint``, not chosen jointly), taken on the
+    channels it wins (:meth:`~smo_gym.observers.input_kalman.InputJumpFilter.of_channels`). Returns the winning
     observer itself when one candidate wins every channel, else a
-    :class:`~smo_gym.observers.composite.PerChannel` (with ``mean_over``); either way the :class:`Selection` is
-    its ``selection`` attribute.
+    :class:`~smo_gym.observers.composite.PerChannel` (with ``mean_over``; a
+    :class:`~smo_gym.observers.composite.PerChannelInput` where ``told`` wins channels); either way the
+    :class:`Selection` is its ``selection`` attribute.
     """
     if selection is None:
         selection = select(
@@ -577,6 +596,14 @@ def auto_observer(
         )
     if not isinstance(selection, Selection):
         raise TypeError(f"expected a Selection, actual value: {type(selection).__name__}")
+    if told is not None and (
+        not isinstance(told, InputJumpFilter) or selection.joint or selection.candidates[-1] != told.name
+    ):
+        raise ValueError(
+            "expected told to be the filter told the input that the selection compared per channel as its last "
+            f"candidate, actual value: {type(told).__name__} named {told.name!r} for the candidates "
+            f"{selection.candidates}"
+        )
     kwargs = _check_kwargs(observer_kwargs)
     wrap = kwargs.pop("wrap", None)
     choice = selection.choice
@@ -595,7 +622,15 @@ def auto_observer(
         elif wrap is not None:
             kw["wrap"] = wrap
         whole = len(channels) == choice.size
-        parts.append((default_observer(name, calibration if whole else _take(calibration, channels), kw), channels))
-    observer = parts[0][0] if len(parts) == 1 else PerChannel(parts, mean_over=mean_over)
+        if told is not None and k == len(selection.candidates) - 1:
+            parts.append((told if whole else told.of_channels(channels), channels))
+        else:
+            part = default_observer(name, calibration if whole else _take(calibration, channels), kw)
+            parts.append((part, channels))
+    if len(parts) == 1:
+        observer = parts[0][0]
+    else:
+        composite = PerChannelInput if any(part.takes_input for part, _ in parts) else PerChannel
+        observer = composite(parts, mean_over=mean_over)
     observer.selection = selection
     return observer

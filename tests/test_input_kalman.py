@@ -169,3 +169,93 @@ def test_a_checkpoint_would_miss_the_last_input_so_it_is_refused():
     told.reset(np.zeros(GAIN.shape[0]))
     with pytest.raises(TypeError, match="takes one"):
         told.checkpoint()
+
+
+# ---- on some channels: a part of a composite ("auto" takes a told filter on the joints where it wins) -----------
+def _told_run(rng, T=600):
+    runs = [piecewise_run(rng, T=T, jerk=10.0) for _ in range(2)]
+    Y = np.stack([q + 1e-4 * rng.standard_normal(q.shape) for q, _, _ in runs], axis=1)  # (T, 2, 3)
+    return Y, np.stack([u for _, _, u in runs], axis=1)  # (T, 2, 2)
+
+
+@pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
+def test_on_some_of_its_channels_a_told_filter_estimates_exactly_what_it_does_there(cls):
+    """Its channels are independent given the input: the filter on channels [2, 0] is, bit for bit, the whole
+    filter's channels 2 and 0, with each per-channel parameter taken there and the shared ones kept."""
+    Y, U = _told_run(np.random.default_rng(4))
+    whole = cls(DT, np.array([50.0, 100.0, 200.0]), np.array([1e-8, 2e-8, 4e-8]), GAIN, np.array([1.0, 2.0, 3.0]),
+                wrap=np.array([False, True, False]), huber=3.0)  # fmt: skip
+    part = whole.of_channels([2, 0])
+    np.testing.assert_array_equal(part.input_gain, GAIN[[2, 0]])
+    np.testing.assert_array_equal(part.process_noise, [200.0, 50.0])
+    np.testing.assert_array_equal(part.wrap, [False, False])
+    assert part.huber == 3.0 and part.dt == DT and type(part) is cls
+    whole.reset(Y[0])
+    part.reset(Y[0][..., [2, 0]])
+    np.testing.assert_array_equal(part.run(Y[1:, :, [2, 0]], U[1:]), whole.run(Y[1:], U[1:])[:, :, [2, 0]])
+    with pytest.raises(ValueError, match=r"channels in 0\.\.2"):
+        whole.of_channels([3])
+
+
+def _composite_parts(told):
+    """The told filter on channels 0 and 2, a plain Kalman filter and a backward difference on 1 (as "auto"
+    builds them: the parts' channels in order)."""
+    from smo_gym.observers import FiniteDifference
+
+    return [(told.of_channels([0, 2]), [0, 2]), (KalmanCA(DT, 30.0, 1e-8), [1])], FiniteDifference(DT)
+
+
+@pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
+def test_a_composite_with_a_told_part_is_its_parts_side_by_side(cls):
+    """``PerChannelInput``: on the told part's channels the whole told filter, bit for bit (the jumps move only
+    their rows); on the others the plain observer; a batch is a loop over its elements, a masked reset restarts
+    one, a pickled copy goes on as the original."""
+    from smo_gym.observers.composite import PerChannelInput
+
+    Y, U = _told_run(np.random.default_rng(5))
+    told = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+    parts, _ = _composite_parts(told)
+    composite = PerChannelInput(parts)
+    np.testing.assert_array_equal(composite.input_gain, [[40.0, 0.0], [0.0, 0.0], [0.0, 60.0]])
+    composite.reset(Y[0])
+    together = composite.run(Y[1:301], U[1:301])
+    told.reset(Y[0])
+    np.testing.assert_array_equal(together[..., [0, 2], :2], told.run(Y[1:301], U[1:301])[..., [0, 2], :2])
+    plain = KalmanCA(DT, 30.0, 1e-8)
+    plain.reset(Y[0, :, [1]].T)
+    np.testing.assert_array_equal(together[..., [1], :2], plain.run(Y[1:301, :, [1]])[..., :2])
+    for i in range(2):
+        alone = PerChannelInput(parts)
+        alone.reset(Y[0, i])
+        np.testing.assert_allclose(alone.run(Y[1:301, i], U[1:301, i]), together[:, i], rtol=1e-12, atol=1e-12)
+    copy = pickle.loads(pickle.dumps(composite))
+    composite.reset(Y[300], mask=np.array([False, True]))
+    after = composite.run(Y[301:], U[301:])
+    fresh = PerChannelInput(parts)
+    fresh.reset(Y[300, 1])
+    np.testing.assert_allclose(fresh.run(Y[301:, 1], U[301:, 1]), after[:, 1], rtol=1e-12, atol=1e-12)
+    copy.reset(Y[300], mask=np.array([False, True]))
+    np.testing.assert_array_equal(copy.run(Y[301:], U[301:]), after)
+
+
+def test_a_composite_with_a_told_part_refuses_what_it_cannot_take_and_keeps_its_state():
+    from smo_gym.observers.composite import PerChannel, PerChannelInput
+
+    told = KalmanIMMInput(DT, 100.0, 1e-8, GAIN, 1.0)
+    parts, fd = _composite_parts(told)
+    with pytest.raises(TypeError, match="use PerChannelInput"):
+        PerChannel(parts)
+    with pytest.raises(ValueError, match="none told the input; use PerChannel"):
+        PerChannelInput([(fd, [0, 2]), (KalmanCA(DT, 30.0, 1e-8), [1])])
+    other = KalmanCAInput(DT, 100.0, 1e-8, np.ones((1, 3)), 1.0)  # three inputs against two
+    with pytest.raises(ValueError, match=r"inputs \[2, 3\]"):
+        PerChannelInput([parts[0], (other, [1])])
+    composite = PerChannelInput(parts)
+    composite.reset(np.zeros(3))
+    composite.update(np.full(3, 1e-4), np.ones(2))
+    state, estimate = composite.state.copy(), composite.estimate.copy()
+    for y, u in [(np.array([0, np.nan, 0]), 2 * np.ones(2)), (np.zeros(3), np.ones(3)), (np.zeros(3), [np.nan, 0])]:
+        with pytest.raises(ValueError):  # the first after the told part's jump: the jump is undone
+            composite.update(y, u)
+        np.testing.assert_array_equal(composite.state, state)
+        np.testing.assert_array_equal(composite.estimate, estimate)

@@ -360,6 +360,24 @@ def test_the_filters_told_the_actions_run_in_the_wrapper_and_in_auto():
         wrappers.JointSensor(gym.make("InvertedPendulum-v5"), observer="kalman-ca-input")
 
 
+def test_auto_takes_the_filter_told_the_actions_on_the_joints_where_it_wins():
+    """Its channels are independent given the action, so ``auto`` weighs it joint by joint like any candidate:
+    on InvertedPendulum with the noise-free 12-bit encoder at the physics rate it wins the hinge only (on the cart
+    the IMM estimator blind to the action is the better on the trials), and the composite beats the model-free
+    choice on new uniform random episodes (measured: 0.038 against 0.068). All or nothing, the action was not used
+    there at all."""
+    from smo_gym.observers.composite import PerChannelInput
+
+    make = lambda **kw: wrappers.EstimatedVelocity(
+        gym.make("InvertedPendulum-v5"), sensor="encoder-12bit", rate="physics", disk_cache=False, **kw
+    )
+    told = make(observer_kwargs={"model": "kalman-imm-input"})
+    assert isinstance(told.observer, PerChannelInput) and isinstance(told.estimator, InputAwareEstimator)
+    assert told.observer.names == ("kalman-imm", "kalman-imm-input")
+    assert told.observer.selection.names == told.observer.names and not told.observer.selection.joint
+    assert episodes_rmse(told) < 0.7 * episodes_rmse(make())
+
+
 def test_a_recording_keeps_its_inputs_for_the_filters_told_the_actions():
     """``compare_observers`` runs them on a recording as the wrapper runs them (the recorded ``ctrl``)."""
     from smo_gym.experiments.compare import compare_observers, parse_observer_specs, record_rollout

@@ -13,7 +13,7 @@ import pkgutil
 from .._validation import DivergenceError, check_keywords, did_you_mean
 from .alpha_beta import AlphaBeta
 from .base import Observer
-from .composite import PerChannel
+from .composite import PerChannel, PerChannelInput
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .discrete_hosm import DiscreteTimeHOSM
 from .filtering import FilteringDifferentiator
@@ -69,6 +69,7 @@ __all__ = [
     "MechanicalSuperTwisting",
     "Observer",
     "PerChannel",
+    "PerChannelInput",
     "SuperTwisting",
     "SwitchedGain",
     "UniformLevant",

@@ -36,6 +36,7 @@ References
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -51,7 +52,15 @@ from .imm import _MODES, KalmanIMM
 from .linear import KalmanCA
 from .registry import register_observer
 
-__all__ = ["InputJumpFilter", "InputJumps", "KalmanCAInput", "KalmanIMMInput", "fit_input_jumps"]
+__all__ = [
+    "InputJumpFilter",
+    "InputJumpUpdates",
+    "InputJumps",
+    "JumpTarget",
+    "KalmanCAInput",
+    "KalmanIMMInput",
+    "fit_input_jumps",
+]
 
 
 class InputJumps(NamedTuple):
@@ -143,30 +152,33 @@ def _variance_model(design: np.ndarray, residual2: np.ndarray, iterations: int =
 
 
 @njit(cache=True, error_model="numpy")
-def _apply_jumps(state, u, u_prev, gain, noise, blocks, saved):
+def _apply_jumps(state, u, u_prev, gain, noise, blocks, channels, saved):
     """Add the predicted jump ``gain @ du`` to the acceleration and ``noise * |du|^2`` to its variance in every
-    constant-acceleration filter of the state rows (``blocks``: where each filter's mean starts; its covariance
-    factors follow, as in :func:`~smo_gym.observers._kernels.kalman_ca_rows`), ``du = u - u_prev`` per batch
-    element (rows ``b n .. b n + n``; zero where the previous input is unknown, NaN). The 7 columns each filter
-    changes (its acceleration, its factors) go to ``saved`` first."""
-    n, m = gain.shape
-    for b in range(u.shape[0]):
+    constant-acceleration filter of the rows of ``channels`` (``blocks``: where each filter's mean starts; its
+    covariance factors follow, as in :func:`~smo_gym.observers._kernels.kalman_ca_rows`), ``du = u - u_prev`` per
+    batch element (zero where the previous input is unknown, NaN). Batch element ``b`` holds the state rows
+    ``b n .. b n + n`` (``n`` = rows / batch elements); row ``c`` of ``gain`` and ``noise`` moves its row
+    ``b n + channels[c]``. The 7 columns each filter changes (its acceleration, its factors) go to row
+    ``b len(channels) + c`` of ``saved`` first."""
+    batch, m = u.shape[0], gain.shape[1]
+    n, k_channels = state.shape[0] // batch, channels.shape[0]
+    for b in range(batch):
         known = True
         for j in range(m):
             known = known and not math.isnan(u_prev[b, j])
         size2 = 0.0
         for j in range(m):
             size2 += (u[b, j] - u_prev[b, j]) ** 2 if known else 0.0
-        for c in range(n):
+        for c in range(k_channels):
             jump = 0.0
             if known:
                 for j in range(m):
                     jump += gain[c, j] * (u[b, j] - u_prev[b, j])
-            row = b * n + c
+            row, kept = b * n + channels[c], b * k_channels + c
             for k in range(blocks.shape[0]):
                 o = blocks[k]
                 for i in range(7):
-                    saved[row, 7 * k + i] = state[row, o + 2 + i]
+                    saved[kept, 7 * k + i] = state[row, o + 2 + i]
                 state[row, o + 2] += jump
                 U = _kernels.kalman_ca_add_acceleration_variance(
                     state[row, o + 3], state[row, o + 4], state[row, o + 5], state[row, o + 6], state[row, o + 7],
@@ -179,36 +191,30 @@ def _apply_jumps(state, u, u_prev, gain, noise, blocks, saved):
 drop_stale([_apply_jumps], [_kernels.__file__])  # it links _kernels' factor update; numba checks this file only
 
 
-class InputJumpFilter:
-    """What the input-aware filters add to their Kalman filter: the jump of the acceleration estimate(s) at each
-    change of input (module notes). A subclass names the state columns of each acceleration and its variance; the
-    wrapper builds every registered subclass from its calibration episodes (:meth:`from_episodes`)."""
+class JumpTarget(NamedTuple):
+    """Constant-acceleration filters that one input model moves at each change of input (:class:`InputJumpUpdates`)."""
+
+    input_gain: np.ndarray
+    """``G`` of these channels, shape ``(k, m)``."""
+    jump_noise: np.ndarray
+    """``s`` of these channels, shape ``(k,)``."""
+    blocks: np.ndarray
+    """Where each constant-acceleration filter's mean starts in a channel's state row (int64)."""
+    channels: np.ndarray
+    """The ``k`` channels (int64 indices into the last axis of the measurement)."""
+
+
+class InputJumpUpdates:
+    """The update of an observer some of whose constant-acceleration filters jump at each change of input (module
+    notes): :class:`InputJumpFilter`, and :class:`~smo_gym.observers.composite.PerChannelInput` (its parts told the
+    input). A subclass sets ``input_gain`` (``(n, m)``: ``G`` of every channel, zero where no filter jumps) and
+    ``jump_noise`` (``(n,)``), and says which filters move (:meth:`jump_targets`)."""
 
     takes_input = True
-    #: where the mean of each constant-acceleration filter of the state row starts (int64: the compiled jump reads
-    #: it)
-    _jump_blocks = np.zeros(0, dtype=np.int64)
 
-    def _set_input_model(self, input_gain, jump_noise) -> None:
-        gain = as_real_array("input_gain", input_gain)
-        if gain.ndim != 2 or 0 in gain.shape or not np.isfinite(gain).all():
-            raise ValueError(f"expected a finite input_gain of shape (n, m), actual value: shape {gain.shape}")
-        noise = as_real_array("jump_noise", jump_noise)
-        if noise.ndim > 1 or noise.size not in (1, gain.shape[0]) or not (np.isfinite(noise) & (noise >= 0)).all():
-            raise ValueError(
-                f"expected jump_noise >= 0, one or one per channel ({gain.shape[0]}), actual value: {jump_noise!r}"
-            )
-        self.input_gain = np.ascontiguousarray(gain, dtype=np.float64)
-        self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
-        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
-
-    def _channel_params(self, shape):
-        if shape[-1] != self.input_gain.shape[0]:
-            raise ValueError(
-                f"expected measurements with {self.input_gain.shape[0]} channels (input_gain's rows), actual value: "
-                f"shape {shape}"
-            )
-        return super()._channel_params(shape)
+    def jump_targets(self) -> tuple[JumpTarget, ...]:
+        """The filters the input moves, with their input model."""
+        raise NotImplementedError
 
     @check_keywords
     def reset(self, y0, mask=None, *, derivatives=None) -> np.ndarray:
@@ -223,7 +229,7 @@ class InputJumpFilter:
 
     def update(self, y, u=None) -> np.ndarray:
         """Process one sample ``y`` ``(..., n)`` with the input ``u`` ``(..., m)`` that acted over the interval
-        ending at it; returns the estimate ``(..., n, 3)``. The state is unchanged if either is rejected."""
+        ending at it; returns the estimate ``(..., n, order + 1)``. The state is unchanged if either is rejected."""
         if self._state is None:
             raise RuntimeError("expected reset(y0) before update(y), actual value: the observer was never reset")
         u = checked_input(u)
@@ -233,14 +239,21 @@ class InputJumpFilter:
             return out
         if u.shape != self._u_prev.shape:
             raise ValueError(f"expected u with shape {self._u_prev.shape}, actual value: {u.shape}")
-        state, blocks = self._state, self._jump_blocks
-        saved = np.empty((state.shape[0], 7 * blocks.size))
-        _apply_jumps(state, u.reshape(-1, u.shape[-1]), self._u_prev.reshape(-1, u.shape[-1]), self.input_gain,
-                     self.jump_noise, blocks, saved)  # fmt: skip
+        state, m = self._state, u.shape[-1]
+        u2, u_prev2 = u.reshape(-1, m), self._u_prev.reshape(-1, m)
+        moved = []
         try:
+            for target in self.jump_targets():
+                saved = np.empty((u2.shape[0] * target.channels.size, 7 * target.blocks.size))
+                _apply_jumps(state, u2, u_prev2, target.input_gain, target.jump_noise, target.blocks, target.channels,
+                             saved)  # fmt: skip
+                moved.append((target, saved))
             out = super().update(y)
         except BaseException:
-            state[:, (blocks[:, None] + np.arange(2, 9)).reshape(-1)] = saved
+            n = self._shape[-1]
+            for target, saved in reversed(moved):
+                rows = (np.arange(u2.shape[0])[:, None] * n + target.channels).reshape(-1)
+                state[rows[:, None], (target.blocks[:, None] + np.arange(2, 9)).reshape(-1)] = saved
             raise
         self._u_prev[...] = u
         return out
@@ -255,6 +268,62 @@ class InputJumpFilter:
         raise NotImplementedError(
             "expected update(y, u) for an observer that takes the control input, actual value: step(state, y)"
         )
+
+
+class InputJumpFilter(InputJumpUpdates):
+    """What the input-aware filters add to their Kalman filter: the jump of the acceleration estimate(s) at each
+    change of input (module notes). A subclass names the state columns of each acceleration and its variance; the
+    wrapper builds every registered subclass from its calibration episodes (:meth:`from_episodes`)."""
+
+    #: where the mean of each constant-acceleration filter of the state row starts (int64: the compiled jump reads
+    #: it)
+    _jump_blocks = np.zeros(0, dtype=np.int64)
+    #: the constructor's parameters that may hold one value per channel (:meth:`of_channels`)
+    _channel_parameters = ("process_noise", "measurement_noise", "wrap")
+
+    def _set_input_model(self, input_gain, jump_noise) -> None:
+        gain = as_real_array("input_gain", input_gain)
+        if gain.ndim != 2 or 0 in gain.shape or not np.isfinite(gain).all():
+            raise ValueError(f"expected a finite input_gain of shape (n, m), actual value: shape {gain.shape}")
+        noise = as_real_array("jump_noise", jump_noise)
+        if noise.ndim > 1 or noise.size not in (1, gain.shape[0]) or not (np.isfinite(noise) & (noise >= 0)).all():
+            raise ValueError(
+                f"expected jump_noise >= 0, one or one per channel ({gain.shape[0]}), actual value: {jump_noise!r}"
+            )
+        self.input_gain = np.ascontiguousarray(gain, dtype=np.float64)
+        self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
+        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
+
+    def jump_targets(self) -> tuple[JumpTarget, ...]:
+        """Every channel's filters, with ``G`` and ``s`` as given."""
+        channels = np.arange(self.input_gain.shape[0], dtype=np.int64)
+        return (JumpTarget(self.input_gain, self.jump_noise, self._jump_blocks, channels),)
+
+    def _channel_params(self, shape):
+        if shape[-1] != self.input_gain.shape[0]:
+            raise ValueError(
+                f"expected measurements with {self.input_gain.shape[0]} channels (input_gain's rows), actual value: "
+                f"shape {shape}"
+            )
+        return super()._channel_params(shape)
+
+    def of_channels(self, channels) -> InputJumpFilter:
+        """The same filter on the channels ``channels`` only (indices into its ``n``): every per-channel parameter
+        taken there. Its channels are independent given the input, so on those channels it estimates exactly what
+        this filter does: ``"auto"`` takes it on the joints where it wins
+        (:class:`~smo_gym.observers.composite.PerChannelInput`)."""
+        n = self.input_gain.shape[0]
+        idx = np.asarray(channels)
+        if idx.ndim != 1 or idx.size == 0 or idx.dtype.kind not in "iu" or not ((idx >= 0) & (idx < n)).all():
+            raise ValueError(f"expected a non-empty 1-d array of channels in 0..{n - 1}, actual value: {channels!r}")
+        # rebuilt from its constructor's arguments (each stored under its own name), as scikit-learn's clone does:
+        # a new filter, never reset, whatever state this one is in
+        kwargs = {name: getattr(self, name) for name in inspect.signature(type(self)).parameters if name != "dt"}
+        for name in ("input_gain", "jump_noise", *self._channel_parameters):
+            value = kwargs[name]
+            if np.ndim(value) >= 1 and np.shape(value)[0] == n:  # one per channel (else shared by all)
+                kwargs[name] = np.asarray(value)[idx]
+        return type(self)(self.dt, **kwargs)
 
     @classmethod
     def from_episodes(cls, dt: float, velocity, inputs, measurement_variance, **kwargs):

@@ -22,7 +22,15 @@ from ..engine.measurement import (
 )
 from ..engine.rollout import model_rollout_velocities
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
-from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, select
+from ..selection import (
+    CANDIDATES,
+    Selection,
+    Trials,
+    auto_observer,
+    candidate_orders,
+    estimates_jointly,
+    select,
+)
 from ..sensors import Sensor, make_sensor
 from ..specs import parse_observer_spec
 from .adapters import SubstepRecording, make_adapter
@@ -287,7 +295,7 @@ def calibrated_observer(
         v=8,
     )
 
-    observer = None if joint is None else joint.observer  # compared as the last candidate, for all joints or none
+    observer = None if joint is None else joint.observer  # compared as the last candidate
 
     def compute():
         steps = TRIAL_STEPS * how.get("steps", 2000)
@@ -299,11 +307,13 @@ def calibrated_observer(
 
     stored = cached_bounds(key, compute, disk=how.get("disk", True))
     errors, bound = stored[:-1].reshape(2, -1, len(candidates), stored.shape[1])  # the last row: scenarios
-    found = Selection(candidates, errors, "trials" if stored[-1, 0] else "prediction", joint=bool(joint), bound=bound)
-    if joint is not None and found.choice[0] == len(CANDIDATES):
+    source = "trials" if stored[-1, 0] else "prediction"
+    found = Selection(candidates, errors, source, joint=estimates_jointly(observer), bound=bound)
+    if found.joint and found.choice[0] == len(CANDIDATES):
         joint.observer.selection = found
         return joint.observer, calibration
-    return auto_observer(calibration, mean_over=span, observer_kwargs=kwargs, selection=found), calibration
+    told = None if found.joint else observer  # a filter told the input: on the channels it wins
+    return auto_observer(calibration, mean_over=span, observer_kwargs=kwargs, selection=found, told=told), calibration
 
 
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -506,6 +516,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if joint is not None and obs_object is joint.observer:
             model_based = True
             self.model_miss_bound, self.mass_scale_range = built.model_miss_bound, built.mass_scale_range
+        elif obs_object.takes_input:  # "auto" took the filter told the input on some joints
+            model_based = True
         if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
             self.estimator = InputAwareEstimator(obs_object, self.adapter)
         else:  # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4
