@@ -8,6 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
+from smo_gym._validation import DivergenceError
 from smo_gym.observers import KalmanCA, KalmanCAInput, KalmanIMM, KalmanIMMInput, fit_input_jumps
 
 DT = 1e-3
@@ -259,3 +260,40 @@ def test_a_composite_with_a_told_part_refuses_what_it_cannot_take_and_keeps_its_
             composite.update(y, u)
         np.testing.assert_array_equal(composite.state, state)
         np.testing.assert_array_equal(composite.estimate, estimate)
+
+
+@pytest.mark.parametrize("kind", ["kalman-ca-input", "kalman-imm-input", "composite"])
+def test_a_run_is_its_updates_sample_by_sample(kind):
+    """``run`` is ``update`` sample by sample, bit for bit, through changes of input (the told part of a composite
+    too), and all or nothing: a block refused in its middle, by a sample or by a diverging state, leaves the state,
+    the estimate and the last input as they were (the jumps already applied undone)."""
+    from smo_gym.observers.composite import PerChannelInput
+
+    Y, U = _told_run(np.random.default_rng(6), T=200)
+    cls = KalmanCAInput if kind == "kalman-ca-input" else KalmanIMMInput
+
+    def make():
+        told = cls(DT, 100.0, 1e-8, GAIN, 1.0)
+        return PerChannelInput(_composite_parts(told)[0]) if kind == "composite" else told
+
+    a, b = make(), make()
+    a.reset(Y[0])
+    b.reset(Y[0])
+    np.testing.assert_array_equal(
+        a.run(Y[1:], U[1:]), np.stack([b.update(y, u) for y, u in zip(Y[1:], U[1:], strict=True)])
+    )
+    np.testing.assert_array_equal(a.state, b.state)
+    assert a.n_updates == b.n_updates == len(Y) - 1
+    state, estimate = a.state.copy(), a.estimate.copy()
+    for value, error in [(np.nan, ValueError), (1e300, DivergenceError)]:  # the IMM estimator's state overflows
+        if kind == "kalman-ca-input" and error is DivergenceError:
+            continue  # its state stays finite
+        bad = Y[:20].copy()
+        bad[12, :, 0] = value  # after three changes of input
+        with pytest.raises(error, match="finite"):
+            a.run(bad, U[:20])
+        np.testing.assert_array_equal(a.state, state)
+        np.testing.assert_array_equal(a.estimate, estimate)
+    np.testing.assert_array_equal(
+        a.run(Y[:20], U[:20]), np.stack([b.update(y, u) for y, u in zip(Y[:20], U[:20], strict=True)])
+    )
