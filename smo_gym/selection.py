@@ -49,10 +49,10 @@ A filter told the input (:class:`~smo_gym.observers.input_kalman.InputJumpFilter
 ``observer_kwargs={"model": "kalman-imm-input"}``) is measured the same way but chosen per channel like the others:
 its channels are independent given the input, so its part on some channels
 (:meth:`~smo_gym.observers.input_kalman.InputJumpFilter.of_channels`) estimates exactly what it does there, and a
-:class:`~smo_gym.observers.composite.PerChannelInput` holds it beside the model-free parts.
+:class:`~smo_gym.observers.input_kalman.PerChannelInput` holds it beside the model-free parts.
 
 The result is a single observer when one candidate wins every channel (the wrapper's one-call path then applies),
-else a :class:`smo_gym.observers.composite.PerChannel` (:class:`~smo_gym.observers.composite.PerChannelInput` with
+else a :class:`smo_gym.observers.composite.PerChannel` (:class:`~smo_gym.observers.input_kalman.PerChannelInput` with
 a part told the input); :class:`Selection` says what was chosen and why.
 """
 
@@ -68,8 +68,8 @@ from ._validation import DivergenceError, as_real_array, check_names, check_posi
 from .calibration import Calibration, bound_order, default_observer
 from .observers import Observer
 from .observers.base import reported_coefficients, reported_velocity
-from .observers.composite import PerChannel, PerChannelInput
-from .observers.input_kalman import InputJumpFilter
+from .observers.composite import PerChannel
+from .observers.input_kalman import InputJumpFilter, PerChannelInput
 from .observers.linear import steady_state_covariance
 from .specs import MODEL_OPTIONS, parse_observer_spec
 
@@ -587,7 +587,7 @@ def auto_observer(
     channels it wins (:meth:`~smo_gym.observers.input_kalman.InputJumpFilter.of_channels`). Returns the winning
     observer itself when one candidate wins every channel, else a
     :class:`~smo_gym.observers.composite.PerChannel` (with ``mean_over``; a
-    :class:`~smo_gym.observers.composite.PerChannelInput` where ``told`` wins channels); either way the
+    :class:`~smo_gym.observers.input_kalman.PerChannelInput` where ``told`` wins channels); either way the
     :class:`Selection` is its ``selection`` attribute.
     """
     if selection is None:

@@ -211,7 +211,7 @@ def test_a_composite_with_a_told_part_is_its_parts_side_by_side(cls):
     """``PerChannelInput``: on the told part's channels the whole told filter, bit for bit (the jumps move only
     their rows); on the others the plain observer; a batch is a loop over its elements, a masked reset restarts
     one, a pickled copy goes on as the original."""
-    from smo_gym.observers.composite import PerChannelInput
+    from smo_gym.observers import PerChannelInput
 
     Y, U = _told_run(np.random.default_rng(5))
     told = cls(DT, 100.0, 1e-8, GAIN, 1.0)
@@ -240,11 +240,11 @@ def test_a_composite_with_a_told_part_is_its_parts_side_by_side(cls):
 
 
 def test_a_composite_with_a_told_part_refuses_what_it_cannot_take_and_keeps_its_state():
-    from smo_gym.observers.composite import PerChannel, PerChannelInput
+    from smo_gym.observers import PerChannel, PerChannelInput
 
     told = KalmanIMMInput(DT, 100.0, 1e-8, GAIN, 1.0)
     parts, fd = _composite_parts(told)
-    with pytest.raises(TypeError, match="use PerChannelInput"):
+    with pytest.raises(TypeError, match=r"use smo_gym\.observers\.PerChannelInput"):
         PerChannel(parts)
     with pytest.raises(ValueError, match="none told the input; use PerChannel"):
         PerChannelInput([(fd, [0, 2]), (KalmanCA(DT, 30.0, 1e-8), [1])])
@@ -267,7 +267,7 @@ def test_a_run_is_its_updates_sample_by_sample(kind):
     """``run`` is ``update`` sample by sample, bit for bit, through changes of input (the told part of a composite
     too), and all or nothing: a block refused in its middle, by a sample or by a diverging state, leaves the state,
     the estimate and the last input as they were (the jumps already applied undone)."""
-    from smo_gym.observers.composite import PerChannelInput
+    from smo_gym.observers import PerChannelInput
 
     Y, U = _told_run(np.random.default_rng(6), T=200)
     cls = KalmanCAInput if kind == "kalman-ca-input" else KalmanIMMInput

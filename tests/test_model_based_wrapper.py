@@ -366,7 +366,7 @@ def test_auto_takes_the_filter_told_the_actions_on_the_joints_where_it_wins():
     the IMM estimator blind to the action is the better on the trials), and the composite beats the model-free
     choice on new uniform random episodes (measured: 0.038 against 0.068). All or nothing, the action was not used
     there at all."""
-    from smo_gym.observers.composite import PerChannelInput
+    from smo_gym.observers import PerChannelInput
 
     make = lambda **kw: wrappers.EstimatedVelocity(
         gym.make("InvertedPendulum-v5"), sensor="encoder-12bit", rate="physics", disk_cache=False, **kw

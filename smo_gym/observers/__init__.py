@@ -13,13 +13,13 @@ import pkgutil
 from .._validation import DivergenceError, check_keywords, did_you_mean
 from .alpha_beta import AlphaBeta
 from .base import Observer
-from .composite import PerChannel, PerChannelInput
+from .composite import PerChannel
 from .differentiators import URED, Levant, SuperTwisting, UniformLevant
 from .discrete_hosm import DiscreteTimeHOSM
 from .filtering import FilteringDifferentiator
 from .ilf import ILFDifferentiator, ILFFixedDifferentiator, ILFObserver
 from .imm import KalmanIMM
-from .input_kalman import KalmanCAInput, KalmanIMMInput, fit_input_jumps
+from .input_kalman import KalmanCAInput, KalmanIMMInput, PerChannelInput, fit_input_jumps
 from .linear import FiniteDifference, HighGain, KalmanCA
 from .low_power import LowPowerHighGain
 from .mechanical import CoordinateTransform, DissipativeSuperTwisting, Dynamics, MechanicalSuperTwisting

@@ -43,7 +43,6 @@ from .._numba_cache import cached_instance
 from .._validation import check_keywords, check_positive
 from . import _kernels
 from .base import Observer, reported_coefficients
-from .input_kalman import InputJumpFilter, InputJumpUpdates, JumpTarget
 from .registry import family_of
 
 __all__ = [
@@ -57,7 +56,6 @@ __all__ = [
     "PART",
     "STATE_WIDTH",
     "PerChannel",
-    "PerChannelInput",
     "compiled_step",
     "composite_step",
 ]
@@ -81,10 +79,11 @@ def compiled_step(observer) -> _kernels.Step | None:
 
 
 def _part_step(observer) -> _kernels.Step | None:
-    """The compiled step of a part of a composite: :func:`compiled_step`, or for a filter told the input
-    (:class:`~smo_gym.observers.input_kalman.InputJumpFilter`) the step of its Kalman filter, which
-    :class:`PerChannelInput` runs after moving the filter at each change of input."""
-    if isinstance(observer, InputJumpFilter):
+    """The compiled step of a part of a composite: :func:`compiled_step`, or for an observer that takes the input
+    the registered step of its kernel, if any: a filter told the input
+    (:class:`~smo_gym.observers.input_kalman.InputJumpFilter`) runs its Kalman filter's step after moving it at
+    each change of input, which :class:`~smo_gym.observers.input_kalman.PerChannelInput` does."""
+    if observer.takes_input:
         return _kernels.STEPS.get(observer._kernel)
     return compiled_step(observer)
 
@@ -257,7 +256,7 @@ class PerChannel(Observer):
             if observer.takes_input and not self.takes_input:
                 raise TypeError(
                     f"expected parts that do not take the control input in a PerChannel, actual value: parts[{i}] "
-                    f"is a {type(observer).__name__}; use PerChannelInput"
+                    f"is a {type(observer).__name__}; use smo_gym.observers.PerChannelInput"
                 )
             owned.append(copy.deepcopy(observer))
             channels.append(idx.astype(np.intp))
@@ -360,55 +359,3 @@ class PerChannel(Observer):
         groups = ", ".join(f"{self.names[idx[0]]}: {idx.tolist()}" for _, idx in self.parts)
         mean = "" if self.mean_over is None else f", mean_over={self.mean_over}"
         return f"{type(self).__name__}({{{groups}}}, dt={self.dt}{mean})"
-
-
-class PerChannelInput(InputJumpUpdates, PerChannel):
-    r""":class:`PerChannel` with some parts told the control input: filters of
-    :class:`~smo_gym.observers.input_kalman.InputJumpFilter` (``"kalman-imm-input"``, ...) on some channels,
-    observers of the measurements only on the others.
-
-    A told filter's channels are independent given the input (each is a Kalman filter of its own whose
-    acceleration moves by its row of :math:`G\Delta u`), so on its channels the composite estimates exactly what
-    the whole filter does on them; ``"auto"`` takes it on the joints where it wins. At each sample the told parts'
-    filters move first (:meth:`~smo_gym.observers.input_kalman.InputJumpUpdates.update`), then the composite's one
-    compiled step advances every part; ``update(y, u)`` and ``run(Y, U)`` as for the told filters, all or nothing.
-
-    Parameters
-    ----------
-    parts, mean_over :
-        As :class:`PerChannel`; one or more parts are told the input, all with the same number of inputs ``m``.
-
-    Attributes
-    ----------
-    input_gain : ndarray, shape (n_channels, m)
-        ``G`` of every channel: the told part's rows, zero on the other channels.
-    jump_noise : ndarray, shape (n_channels,)
-        ``s`` of every channel, zero on the channels of parts not told the input.
-    """
-
-    @check_keywords
-    def __init__(self, parts: Sequence, *, mean_over: float | None = None):
-        super().__init__(parts, mean_over=mean_over)
-        told = [(observer, idx) for observer, idx in self.parts if isinstance(observer, InputJumpFilter)]
-        widths = sorted({observer.input_gain.shape[1] for observer, _ in told})
-        if len(widths) != 1:
-            raise ValueError(
-                "expected one or more parts told the same number of inputs, actual value: "
-                + (f"inputs {widths}" if told else "none told the input; use PerChannel")
-            )
-        self.input_gain = np.zeros((self.n_channels, widths[0]))
-        self.jump_noise = np.zeros(self.n_channels)
-        for observer, idx in told:
-            self.input_gain[idx] = observer.input_gain
-            self.jump_noise[idx] = observer.jump_noise
-        #: the told parts' filters on the composite's channels
-        self._targets = tuple(
-            JumpTarget(t.input_gain, t.jump_noise, t.blocks, idx[t.channels].astype(np.int64))
-            for observer, idx in told
-            for t in observer.jump_targets()
-        )
-        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
-
-    def jump_targets(self) -> tuple[JumpTarget, ...]:
-        """The told parts' filters, on the composite's channels."""
-        return self._targets

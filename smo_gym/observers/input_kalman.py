@@ -48,6 +48,7 @@ from .._numba_cache import drop_stale
 from .._validation import as_real_array, check_keywords
 from . import _kernels
 from .base import checked_input
+from .composite import PerChannel
 from .imm import _MODES, KalmanIMM
 from .linear import KalmanCA
 from .registry import register_observer
@@ -59,6 +60,7 @@ __all__ = [
     "JumpTarget",
     "KalmanCAInput",
     "KalmanIMMInput",
+    "PerChannelInput",
     "fit_input_jumps",
 ]
 
@@ -206,7 +208,7 @@ class JumpTarget(NamedTuple):
 
 class InputJumpUpdates:
     """The update of an observer some of whose constant-acceleration filters jump at each change of input (module
-    notes): :class:`InputJumpFilter`, and :class:`~smo_gym.observers.composite.PerChannelInput` (its parts told the
+    notes): :class:`InputJumpFilter`, and :class:`~smo_gym.observers.input_kalman.PerChannelInput` (its parts told the
     input). A subclass sets ``input_gain`` (``(n, m)``: ``G`` of every channel, zero where no filter jumps) and
     ``jump_noise`` (``(n,)``), and says which filters move (:meth:`jump_targets`)."""
 
@@ -311,7 +313,7 @@ class InputJumpFilter(InputJumpUpdates):
         """The same filter on the channels ``channels`` only (indices into its ``n``): every per-channel parameter
         taken there. Its channels are independent given the input, so on those channels it estimates exactly what
         this filter does: ``"auto"`` takes it on the joints where it wins
-        (:class:`~smo_gym.observers.composite.PerChannelInput`)."""
+        (:class:`~smo_gym.observers.input_kalman.PerChannelInput`)."""
         n = self.input_gain.shape[0]
         idx = np.asarray(channels)
         if idx.ndim != 1 or idx.size == 0 or idx.dtype.kind not in "iu" or not ((idx >= 0) & (idx < n)).all():
@@ -331,6 +333,65 @@ class InputJumpFilter(InputJumpUpdates):
         measurement variance ``r`` (noise variance plus :math:`\\Delta^2/12` for quantization)."""
         jumps = fit_input_jumps(velocity, inputs, dt)
         return cls(dt, jumps.process_noise, measurement_variance, jumps.input_gain, jumps.jump_noise, **kwargs)
+
+
+class PerChannelInput(InputJumpUpdates, PerChannel):
+    r""":class:`~smo_gym.observers.composite.PerChannel` with some parts told the control input: filters of
+    :class:`~smo_gym.observers.input_kalman.InputJumpFilter` (``"kalman-imm-input"``, ...) on some channels,
+    observers of the measurements only on the others.
+
+    A told filter's channels are independent given the input (each is a Kalman filter of its own whose
+    acceleration moves by its row of :math:`G\Delta u`), so on its channels the composite estimates exactly what
+    the whole filter does on them; ``"auto"`` takes it on the joints where it wins. At each sample the told parts'
+    filters move first (:meth:`~smo_gym.observers.input_kalman.InputJumpUpdates.update`), then the composite's one
+    compiled step advances every part; ``update(y, u)`` and ``run(Y, U)`` as for the told filters, all or nothing.
+
+    Parameters
+    ----------
+    parts, mean_over :
+        As :class:`~smo_gym.observers.composite.PerChannel`; one or more parts are told the input, all with the
+        same number of inputs ``m``.
+
+    Attributes
+    ----------
+    input_gain : ndarray, shape (n_channels, m)
+        ``G`` of every channel: the told part's rows, zero on the other channels.
+    jump_noise : ndarray, shape (n_channels,)
+        ``s`` of every channel, zero on the channels of parts not told the input.
+    """
+
+    @check_keywords
+    def __init__(self, parts: Sequence, *, mean_over: float | None = None):
+        super().__init__(parts, mean_over=mean_over)
+        for i, (observer, _) in enumerate(self.parts):
+            if observer.takes_input and not isinstance(observer, InputJumpFilter):
+                raise TypeError(
+                    f"expected parts told the input to be filters of InputJumpFilter, actual value: parts[{i}] is a "
+                    f"{type(observer).__name__}"
+                )
+        told = [(observer, idx) for observer, idx in self.parts if isinstance(observer, InputJumpFilter)]
+        widths = sorted({observer.input_gain.shape[1] for observer, _ in told})
+        if len(widths) != 1:
+            raise ValueError(
+                "expected one or more parts told the same number of inputs, actual value: "
+                + (f"inputs {widths}" if told else "none told the input; use PerChannel")
+            )
+        self.input_gain = np.zeros((self.n_channels, widths[0]))
+        self.jump_noise = np.zeros(self.n_channels)
+        for observer, idx in told:
+            self.input_gain[idx] = observer.input_gain
+            self.jump_noise[idx] = observer.jump_noise
+        #: the told parts' filters on the composite's channels
+        self._targets = tuple(
+            JumpTarget(t.input_gain, t.jump_noise, t.blocks, idx[t.channels].astype(np.int64))
+            for observer, idx in told
+            for t in observer.jump_targets()
+        )
+        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
+
+    def jump_targets(self) -> tuple[JumpTarget, ...]:
+        """The told parts' filters, on the composite's channels."""
+        return self._targets
 
 
 @register_observer("kalman-ca-input", bound=3, model_based=True)
