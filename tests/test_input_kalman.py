@@ -248,6 +248,12 @@ def test_a_composite_with_a_told_part_refuses_what_it_cannot_take_and_keeps_its_
         PerChannel(parts)
     with pytest.raises(ValueError, match="none told the input; use PerChannel"):
         PerChannelInput([(fd, [0, 2]), (KalmanCA(DT, 30.0, 1e-8), [1])])
+
+    class Told(KalmanIMM):  # takes an input the composite would not know how to pass on
+        takes_input = True
+
+    with pytest.raises(TypeError, match="InputJumpFilter"):
+        PerChannelInput([parts[0], (Told(DT, 30.0, 1e-8), [1])])
     other = KalmanCAInput(DT, 100.0, 1e-8, np.ones((1, 3)), 1.0)  # three inputs against two
     with pytest.raises(ValueError, match=r"inputs \[2, 3\]"):
         PerChannelInput([parts[0], (other, [1])])
