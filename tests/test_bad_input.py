@@ -54,6 +54,7 @@ from smo_gym.observers import (
     MechanicalSuperTwisting,
     Observer,
     PerChannel,
+    PerChannelInput,
     SuperTwisting,
     SwitchedGain,
     UniformLevant,
@@ -954,6 +955,21 @@ OBSERVER_FAMILIES = [
         ),
     ),
     Family(
+        "PerChannelInput",
+        PerChannelInput,
+        lambda n: dict(
+            parts=st.sampled_from(
+                [
+                    [(KalmanIMMInput(1e-3, 10.0, 1e-6, np.ones((n, 1)), 1.0), list(range(n)))],
+                    [(KalmanCAInput(1e-3, 10.0, 1e-6, np.ones((1, 2)), 1.0), [0])]
+                    + ([(FiniteDifference(1e-3), list(range(1, n)))] if n > 1 else []),
+                    [(FiniteDifference(1e-3), list(range(n)))],  # none told the input: refused
+                ]
+            ),
+            mean_over=st.one_of(st.none(), positive(1e-4, 2e-2)),
+        ),
+    ),
+    Family(
         "Observer",
         Observer,
         lambda n: dict(dt=positive(1e-4, 2e-2), order=st.integers(1, 3), discretization=st.none()),
@@ -1364,6 +1380,10 @@ def run_sweep(family: Family) -> int:
 #: a good value of every swept parameter, for ``n = 2`` channels
 GOOD = {
     "PerChannel": dict(parts=[(KalmanCA(1e-3, 10.0, 1e-6), [1]), (FiniteDifference(1e-3), [0])], mean_over=1e-3),
+    "PerChannelInput": dict(
+        parts=[(KalmanIMMInput(1e-3, 10.0, 1e-6, np.ones((1, 1)), 1.0), [1]), (FiniteDifference(1e-3), [0])],
+        mean_over=1e-3,
+    ),
     "SuperTwisting": dict(dt=1e-3, lipschitz=5.0, k1=3.0, k2=6.0, discretization="euler"),
     "Levant": dict(order=2, dt=1e-3, lipschitz=5.0, discretization="matching", p1=3.0, mu=0.5),
     "FilteringDifferentiator": dict(order=2, filtering_order=1, dt=1e-3, lipschitz=5.0, degree=-0.5, p1=3.0),

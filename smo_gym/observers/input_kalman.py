@@ -28,6 +28,12 @@ is small and so is the added variance.
 inputs (the calibration rollouts of :class:`~smo_gym.wrappers.EstimatedVelocity`): no model of the robot, only the
 actions the wrapper sees anyway.
 
+The channels are independent given the input: each is a Kalman filter of its own whose acceleration moves by its
+own row of :math:`G\Delta u`. So the filter on some channels (:meth:`InputJumpFilter.of_channels`) estimates there
+exactly what the whole filter does, and :class:`PerChannelInput` holds it beside observers of the measurements only
+on the other channels: ``observer="auto"`` told the actions takes it on the joints where it wins
+(:mod:`smo_gym.selection`).
+
 References
 ----------
 .. [BSL01] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, *Estimation with Applications to Tracking and Navigation*,

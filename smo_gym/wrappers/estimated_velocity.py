@@ -354,7 +354,9 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         and ``contact``, ``"unknown"`` or ``"measured"`` (:mod:`smo_gym.mechanics.dynamics`). With
         ``observer="auto"``, ``model=True`` (or a model-based name) makes that observer, with these model
         settings, one more candidate for all joints together
-        (:func:`calibrated_observer`, :attr:`smo_gym.selection.Selection.joint`).
+        (:func:`calibrated_observer`, :attr:`smo_gym.selection.Selection.joint`); a filter told the input
+        (``"kalman-imm-input"``, ``"kalman-ca-input"``) is one more candidate joint by joint
+        (:func:`smo_gym.selection.estimates_jointly`).
     positions : {"measured", "filtered"}
         Positions in the observation: the raw measurement or the observer's filtered value.
     contact_forces : {"sensor", "estimated", "zero"}
