@@ -49,6 +49,28 @@ def test_the_fit_recovers_the_jump_model_it_was_generated_with():
     np.testing.assert_allclose(found.jump_noise, 4.0, rtol=0.15)
 
 
+def test_a_channel_the_episodes_never_move_is_fitted_as_still():
+    """A joint the calibration episodes never move (Reacher's and Pusher's targets) has residuals of zero: the fit
+    weighted them by 1 / 0, ran its least squares on NaN and raised numpy's LinAlgError (SVD did not converge).
+    Now that channel gets no jump, no jump noise, the smallest positive process noise, and the others the fit
+    they get alone; the filter built from it holds the still channel at rest."""
+    rng = np.random.default_rng(7)
+    runs = [piecewise_run(rng, T=600, jerk=10.0, miss=1.0) for _ in range(3)]
+    inputs = [u for _, _, u in runs]
+    found = fit_input_jumps([np.column_stack([v, np.zeros(len(v))]) for _, v, _ in runs], inputs, DT)
+    alone = fit_input_jumps([v for _, v, _ in runs], inputs, DT)
+    np.testing.assert_array_equal(found.input_gain[3], 0.0)
+    assert found.jump_noise[3] == 0.0 and 0.0 < found.process_noise[3] < 1e-300
+    for got, expected in zip(found, alone, strict=True):
+        np.testing.assert_allclose(got[:3], expected, rtol=1e-12)
+    q, _, u = runs[0]
+    Y = np.column_stack([q, np.full(len(q), 0.3)])
+    told = KalmanIMMInput(DT, found.process_noise, 1e-8, found.input_gain, found.jump_noise)
+    told.reset(Y[0])
+    estimate = told.run(Y[1:], u[1:])
+    assert np.isfinite(estimate).all() and np.abs(estimate[:, 3, 1:]).max() == 0.0
+
+
 def test_with_the_exact_jumps_the_estimate_is_exact_where_the_blind_filter_lags():
     """Noise-free positions of piecewise-constant acceleration, the exact gain, no miss: the model is exact, so
     after the prior is forgotten the posterior follows the truth (to round-off of the tiny measurement variance),

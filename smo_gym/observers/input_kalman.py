@@ -154,8 +154,9 @@ def _variance_model(design: np.ndarray, residual2: np.ndarray, iterations: int =
             _, k, c = min(fits)
             coef = np.zeros(2)
             coef[k] = c
-        weights = 1.0 / np.maximum(design @ coef, np.finfo(float).tiny) ** 2
-        weights /= weights.max()
+        variance = np.maximum(design @ coef, np.finfo(float).tiny)
+        weights = (variance.min() / variance) ** 2  # 1 / variance^2 scaled to at most 1, without overflowing it:
+        # a channel that never moves (Reacher's target) has a zero model, and 1 / tiny^2 is inf
     return coef
 
 
