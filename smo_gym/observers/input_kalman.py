@@ -302,11 +302,12 @@ class InputJumpFilter(InputJumpUpdates):
         self.input_gain = np.ascontiguousarray(gain, dtype=np.float64)
         self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
         self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
+        channels = np.arange(gain.shape[0], dtype=np.int64)
+        self._targets = (JumpTarget(self.input_gain, self.jump_noise, self._jump_blocks, channels),)  # per update
 
     def jump_targets(self) -> tuple[JumpTarget, ...]:
         """Every channel's filters, with ``G`` and ``s`` as given."""
-        channels = np.arange(self.input_gain.shape[0], dtype=np.int64)
-        return (JumpTarget(self.input_gain, self.jump_noise, self._jump_blocks, channels),)
+        return self._targets
 
     def _channel_params(self, shape):
         if shape[-1] != self.input_gain.shape[0]:
