@@ -325,3 +325,26 @@ def test_a_run_is_its_updates_sample_by_sample(kind):
     np.testing.assert_array_equal(
         a.run(Y[:20], U[:20]), np.stack([b.update(y, u) for y, u in zip(Y[:20], U[:20], strict=True)])
     )
+
+
+@pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
+def test_the_input_model_may_be_replaced_by_one_of_the_same_shape(cls):
+    """``input_gain`` and ``jump_noise`` may be replaced: from the next update on the filter jumps as one built with
+    them (set right after a reset: the same estimates bit for bit; mid-run: the last input is still known, so the
+    next change of input jumps). A gain of another shape, which the compiled jump would index out of its rows, is
+    refused and changes nothing."""
+    Y, U = _told_run(np.random.default_rng(8), T=200)
+    built = cls(DT, 100.0, 1e-8, 2.0 * GAIN, 3.0)
+    replaced = cls(DT, 100.0, 1e-8, np.zeros_like(GAIN), 0.0)
+    built.reset(Y[0])
+    replaced.reset(Y[0])
+    replaced.input_gain, replaced.jump_noise = 2.0 * GAIN, 3.0
+    np.testing.assert_array_equal(replaced.run(Y[1:100], U[1:100]), built.run(Y[1:100], U[1:100]))
+    replaced.input_gain = 2.0 * GAIN  # a new array of the same values, between two changes of input
+    for bad, error in [(np.ones((3, 3)), ValueError), (np.ones((2, 2)), ValueError), ("ab", TypeError)]:
+        with pytest.raises(error):
+            replaced.input_gain = bad
+    with pytest.raises(ValueError, match="jump_noise"):
+        replaced.jump_noise = -1.0
+    np.testing.assert_array_equal(replaced.jump_noise, [3.0, 3.0, 3.0])
+    np.testing.assert_array_equal(replaced.run(Y[100:], U[100:]), built.run(Y[100:], U[100:]))

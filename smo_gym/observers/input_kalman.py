@@ -299,11 +299,42 @@ class InputJumpFilter(InputJumpUpdates):
             raise ValueError(
                 f"expected jump_noise >= 0, one or one per channel ({gain.shape[0]}), actual value: {jump_noise!r}"
             )
-        self.input_gain = np.ascontiguousarray(gain, dtype=np.float64)
-        self.jump_noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
-        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
+        gain = np.ascontiguousarray(gain, dtype=np.float64)
+        noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
         channels = np.arange(gain.shape[0], dtype=np.int64)
-        self._targets = (JumpTarget(self.input_gain, self.jump_noise, self._jump_blocks, channels),)  # per update
+        self._targets = (JumpTarget(gain, noise, self._jump_blocks, channels),)  # built once: read at every update
+        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
+
+    @property
+    def input_gain(self) -> np.ndarray:
+        """``G``, shape ``(n, m)``: the acceleration jump per unit change of each input. It may be replaced by one
+        of the same shape (the compiled jump indexes the state with it)."""
+        return self._targets[0].input_gain
+
+    @input_gain.setter
+    def input_gain(self, value) -> None:
+        self._replace_input_model(value, self.jump_noise)
+
+    @property
+    def jump_noise(self) -> np.ndarray:
+        """``s``, shape ``(n,)``: the variance of what ``G`` misses per unit of :math:`\\|\\Delta u\\|^2`. It may be
+        replaced by one value or one per channel."""
+        return self._targets[0].jump_noise
+
+    @jump_noise.setter
+    def jump_noise(self, value) -> None:
+        self._replace_input_model(self.input_gain, value)
+
+    def _replace_input_model(self, input_gain, jump_noise) -> None:
+        shape, u_prev = self.input_gain.shape, self._u_prev
+        gain = as_real_array("input_gain", input_gain)
+        if gain.shape != shape:
+            raise ValueError(
+                f"expected input_gain of the filter's shape {shape} (build a new filter for other channels or "
+                f"inputs), actual value: shape {gain.shape}"
+            )
+        self._set_input_model(gain, jump_noise)
+        self._u_prev = u_prev  # the last input stays known: the model changes, the signal does not
 
     def jump_targets(self) -> tuple[JumpTarget, ...]:
         """Every channel's filters, with ``G`` and ``s`` as given."""
