@@ -577,33 +577,39 @@ def auto_observer(
     mean_over: float | None = None,
     observer_kwargs: dict | None = None,
     selection: Selection | None = None,
-    told: InputJumpFilter | None = None,
+    joint: Observer | None = None,
 ) -> Observer:
     """The observer ``"auto"`` builds: per channel the winner of :func:`select`, with its calibrated gains.
 
-    Parameters are those of :func:`select` (``selection``: an earlier one, reused as it is, e.g. from a cache).
-    ``observer_kwargs`` may hold a per-channel ``wrap`` (an array over the channels). ``told``: the filter told
-    the input that ``selection`` compared as its last candidate (its ``joint``, not chosen jointly), taken on the
-    channels it wins (:meth:`~smo_gym.observers.input_kalman.InputJumpFilter.of_channels`). Returns the winning
-    observer itself when one candidate wins every channel, else a
-    :class:`~smo_gym.observers.composite.PerChannel` (with ``mean_over``; a
-    :class:`~smo_gym.observers.input_kalman.PerChannelInput` where ``told`` wins channels); either way the
-    :class:`Selection` is its ``selection`` attribute.
+    Parameters are those of :func:`select` (``selection``: an earlier one, reused as it is, e.g. from a cache, made
+    with the same ``joint``). ``observer_kwargs`` may hold a per-channel ``wrap`` (an array over the channels).
+    Returns the winning observer itself when one candidate wins every channel, else a
+    :class:`~smo_gym.observers.composite.PerChannel` (with ``mean_over``); either way the :class:`Selection` is
+    its ``selection`` attribute. ``joint`` is returned itself where it is chosen for all channels together (a
+    model-based one, :attr:`Selection.joint`), and a filter told the input is taken on the channels it wins
+    (:meth:`~smo_gym.observers.input_kalman.InputJumpFilter.of_channels`, in a
+    :class:`~smo_gym.observers.input_kalman.PerChannelInput`).
     """
     if selection is None:
         selection = select(
-            calibration, trials, candidates=candidates, mean_over=mean_over, observer_kwargs=observer_kwargs
-        )
+            calibration, trials, candidates=candidates, mean_over=mean_over, observer_kwargs=observer_kwargs,
+            joint=joint,
+        )  # fmt: skip
     if not isinstance(selection, Selection):
         raise TypeError(f"expected a Selection, actual value: {type(selection).__name__}")
-    if told is not None and (
-        not isinstance(told, InputJumpFilter) or selection.joint or selection.candidates[-1] != told.name
+    if joint is not None and (
+        not isinstance(joint, Observer)
+        or selection.candidates[-1] != joint.name
+        or selection.joint != estimates_jointly(joint)
     ):
         raise ValueError(
-            "expected told to be the filter told the input that the selection compared per channel as its last "
-            f"candidate, actual value: {type(told).__name__} named {told.name!r} for the candidates "
-            f"{selection.candidates}"
+            "expected joint to be the observer the selection compared as its last candidate, per channel exactly "
+            f"if it is a filter told the input, actual value: {type(joint).__name__} for the candidates "
+            f"{selection.candidates} (joint={selection.joint})"
         )
+    if selection.joint and np.all(selection.choice == len(selection.candidates) - 1):
+        joint.selection = selection
+        return joint
     kwargs = _check_kwargs(observer_kwargs)
     wrap = kwargs.pop("wrap", None)
     choice = selection.choice
@@ -622,8 +628,8 @@ def auto_observer(
         elif wrap is not None:
             kw["wrap"] = wrap
         whole = len(channels) == choice.size
-        if told is not None and k == len(selection.candidates) - 1:
-            parts.append((told if whole else told.of_channels(channels), channels))
+        if joint is not None and k == len(selection.candidates) - 1:  # per channel: a filter told the input
+            parts.append((joint if whole else joint.of_channels(channels), channels))
         else:
             part = default_observer(name, calibration if whole else _take(calibration, channels), kw)
             parts.append((part, channels))

@@ -32,7 +32,7 @@ import re
 
 from . import sensors
 from ._validation import did_you_mean
-from .observers import FAMILIES, MODEL_BASED_OBSERVERS, OBSERVERS
+from .observers import FAMILIES, MODEL_BASED_OBSERVERS, OBSERVERS, Observer
 from .observers.input_kalman import InputJumpFilter
 
 __all__ = [
@@ -137,9 +137,12 @@ MODEL_OPTIONS = ("mass_scale", "contact")
 
 
 def needs_model(observer, options: dict | None = None) -> bool:
-    """Whether the observer ``observer`` (a name or a spec) with ``options`` runs a model of the environment: a
-    model-based name, or ``"auto"`` with ``model`` set (it may choose one). Such an observer takes the environment's
-    control input at every sample, so it runs in :class:`~smo_gym.wrappers.EstimatedVelocity` only."""
+    """Whether the observer ``observer`` (a name, a spec or an observer) with ``options`` runs a model of the
+    environment: a model-based name, ``"auto"`` with ``model`` set (it may choose one), or an observer that takes the
+    input. Such an observer takes the environment's control input at every sample, so it runs in
+    :class:`~smo_gym.wrappers.EstimatedVelocity` only."""
+    if isinstance(observer, Observer):
+        return observer.takes_input
     if not isinstance(observer, str):
         return False
     if ":" in observer:  # a spec: its name, and its options under the given ones

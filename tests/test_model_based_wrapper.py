@@ -219,6 +219,9 @@ def test_the_vector_wrappers_refuse_a_model_based_name():
     # auto with a model would choose the model-based observer and then run it without the actions
     with pytest.raises(ValueError, match="actual value: 'auto' with a model"):
         wrappers.VectorEstimatedVelocity(envs, observer_kwargs={"model": True, "mass_scale": 1.1})
+    told = KalmanIMMInput(envs.unwrapped.get_attr("dt")[0], 10.0, 1e-6, np.ones((2, 2)), 1.0)
+    with pytest.raises(ValueError, match="expected a model-free observer"):  # an object was run without actions
+        wrappers.VectorEstimatedVelocity(envs, observer=told)
     envs.close()
 
 
@@ -387,6 +390,28 @@ def test_the_filters_told_the_actions_run_on_an_environment_with_joints_that_nev
     for _ in range(20):
         obs, *_ = env.step(env.action_space.sample())
     assert np.isfinite(obs).all()
+
+
+def test_a_filter_told_the_actions_given_as_an_object_gets_them():
+    """The wrapper chose the estimator that passes the action by the observer's name only: a told filter given as
+    an object ran without it, its jumps never happening. Its estimates are now those of the same filter fed the
+    recorded measurements and actions."""
+    env = gym.make("InvertedPendulum-v5")
+    told = KalmanIMMInput(env.unwrapped.dt, 10.0, 1e-6, np.array([[0.5], [-30.0]]), 1.0)
+    wrapped = wrappers.EstimatedVelocity(env, sensor="ideal", observer=told, rate="env")
+    assert isinstance(wrapped.estimator, InputAwareEstimator)
+    _, info = wrapped.reset(seed=0)
+    measured, actions, estimates = [info["smo"]["qpos_measured"]], [], []
+    for action in np.random.default_rng(0).uniform(-0.3, 0.3, (15, 1)):
+        *_, info = wrapped.step(action)
+        measured.append(info["smo"]["qpos_measured"])
+        actions.append(action)
+        estimates.append(info["smo"]["qvel_estimate"])
+    told.reset(measured[0])
+    replayed = told.run(np.array(measured[1:]), np.array(actions))[..., 1]
+    np.testing.assert_allclose(estimates, replayed, rtol=1e-12, atol=1e-12)
+    told.reset(measured[0])
+    assert np.abs(told.run(np.array(measured[1:]))[..., 1] - replayed).max() > 1e-3  # the jumps matter here
 
 
 def test_a_recording_keeps_its_inputs_for_the_filters_told_the_actions():

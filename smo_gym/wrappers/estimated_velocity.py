@@ -22,15 +22,7 @@ from ..engine.measurement import (
 )
 from ..engine.rollout import model_rollout_velocities
 from ..observers import MODEL_BASED_OBSERVERS, OBSERVERS, Observer, make_observer
-from ..selection import (
-    CANDIDATES,
-    Selection,
-    Trials,
-    auto_observer,
-    candidate_orders,
-    estimates_jointly,
-    select,
-)
+from ..selection import CANDIDATES, Selection, Trials, auto_observer, candidate_orders, estimates_jointly, select
 from ..sensors import Sensor, make_sensor
 from ..specs import parse_observer_spec
 from .adapters import SubstepRecording, make_adapter
@@ -309,11 +301,8 @@ def calibrated_observer(
     errors, bound = stored[:-1].reshape(2, -1, len(candidates), stored.shape[1])  # the last row: scenarios
     source = "trials" if stored[-1, 0] else "prediction"
     found = Selection(candidates, errors, source, joint=estimates_jointly(observer), bound=bound)
-    if found.joint and found.choice[0] == len(CANDIDATES):
-        joint.observer.selection = found
-        return joint.observer, calibration
-    told = None if found.joint else observer  # a filter told the input: on the channels it wins
-    return auto_observer(calibration, mean_over=span, observer_kwargs=kwargs, selection=found, told=told), calibration
+    observer = auto_observer(calibration, mean_over=span, observer_kwargs=kwargs, selection=found, joint=observer)
+    return observer, calibration
 
 
 class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -353,10 +342,8 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reset, from a stream seeded by ``reset(seed=...)``; the current one is ``observer.dynamics.mass_scale``),
         and ``contact``, ``"unknown"`` or ``"measured"`` (:mod:`smo_gym.mechanics.dynamics`). With
         ``observer="auto"``, ``model=True`` (or a model-based name) makes that observer, with these model
-        settings, one more candidate for all joints together
-        (:func:`calibrated_observer`, :attr:`smo_gym.selection.Selection.joint`); a filter told the input
-        (``"kalman-imm-input"``, ``"kalman-ca-input"``) is one more candidate joint by joint
-        (:func:`smo_gym.selection.estimates_jointly`).
+        settings, one more candidate for all joints together (:func:`calibrated_observer`,
+        :attr:`smo_gym.selection.Selection.joint`), a filter told the input (``"kalman-imm-input"``) per joint.
     positions : {"measured", "filtered"}
         Positions in the observation: the raw measurement or the observer's filtered value.
     contact_forces : {"sensor", "estimated", "zero"}
@@ -474,11 +461,11 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
         joint = None  # observer="auto" with a model: the model-based candidate for all joints together
         how = (calibration_steps, calibration_quantile, calibration_safety)
         if isinstance(observer, str) and observer == "auto" and (observer_kwargs or {}).get("model"):
-            from .model_based import InputAwareEstimator, joint_candidate  # it imports this module
+            from .model_based import joint_candidate  # it imports this module
 
             joint, built, observer_kwargs = joint_candidate(self.adapter, self.measurement, observer_kwargs, *how)
         if model_based:
-            from .model_based import InputAwareEstimator, model_based_observer  # it imports this module
+            from .model_based import model_based_observer  # it imports this module
 
             built = model_based_observer(observer, self.adapter, self.measurement, observer_kwargs, *how)
             observer, self.model_miss_bound, self.mass_scale_range = built
@@ -516,11 +503,10 @@ class EstimatedVelocity(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 joint=joint,
             )
         if joint is not None and obs_object is joint.observer:
-            model_based = True
             self.model_miss_bound, self.mass_scale_range = built.model_miss_bound, built.mass_scale_range
-        elif obs_object.takes_input:  # "auto" took the filter told the input on some joints
-            model_based = True
-        if model_based:  # given the action that acted over the sample interval (order 1: its velocity as it is)
+        if obs_object.takes_input:  # given the action that acted over the sample interval (order 1: as it is)
+            from .model_based import InputAwareEstimator  # it imports this module
+
             self.estimator = InputAwareEstimator(obs_object, self.adapter)
         else:  # MuJoCo's qvel is the mean velocity over the last physics step unless it integrates with RK4
             self.estimator = VelocityEstimator(obs_object, mean_over=mean_velocity_span(model))
