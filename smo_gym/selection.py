@@ -597,10 +597,10 @@ def auto_observer(
         )  # fmt: skip
     if not isinstance(selection, Selection):
         raise TypeError(f"expected a Selection, actual value: {type(selection).__name__}")
-    if joint is not None and (
-        not isinstance(joint, Observer)
-        or selection.candidates[-1] != joint.name
-        or selection.joint != estimates_jointly(joint)
+    if (joint is not None or selection.joint) and not (  # the last candidate takes the input: it must be joint
+        isinstance(joint, Observer)
+        and selection.candidates[-1] == joint.name
+        and selection.joint == estimates_jointly(joint)
     ):
         raise ValueError(
             "expected joint to be the observer the selection compared as its last candidate, per channel exactly "

@@ -368,6 +368,33 @@ def test_a_joint_candidate_that_only_ties_is_not_taken():
     assert Selection(candidates, errors, "trials", joint=True).names == ("mechanical-super-twisting",) * 2
 
 
+def test_a_filter_told_the_input_is_taken_on_the_channels_it_wins():
+    """``auto_observer`` with the candidate that takes the input (``joint``): a told filter on the channels it wins
+    beside the model-free winners (a ``PerChannelInput``, its part ``of_channels``). A selection made for a
+    model-based candidate (all channels or none) refuses it, and one made with such a candidate refuses to be read
+    without it."""
+    from smo_gym.observers import KalmanIMMInput, PerChannelInput
+
+    rng = np.random.default_rng(1)
+    levels = {r: rng.uniform(1.0, 2.0, 3) for r in (2, 3)}
+    calibration = Calibration(DT, levels, levels, np.full(3, 1e-4), np.zeros(3), {1: np.ones(3)})
+    told = KalmanIMMInput(DT, [1.0, 2.0, 3.0], 1e-8, np.arange(6.0).reshape(3, 2), [0.1, 0.2, 0.3])
+    candidates = ("finite-difference", "kalman-ca", "kalman-imm-input")
+    errors = np.array([[[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [0.5, 1.5, 0.5]]])  # the told filter wins channels 0, 2
+    assert not selection.estimates_jointly(told) and not selection.estimates_jointly(None)
+    observer = auto_observer(calibration, selection=Selection(candidates, errors, "trials"), joint=told)
+    assert isinstance(observer, PerChannelInput)
+    assert observer.names == ("kalman-imm-input", "finite-difference", "kalman-imm-input")
+    np.testing.assert_array_equal(observer.input_gain, [[0.0, 1.0], [0.0, 0.0], [4.0, 5.0]])
+    (part,) = [part for part, _ in observer.parts if part.takes_input]
+    np.testing.assert_array_equal(part.process_noise, [1.0, 3.0])
+    jointly = Selection(candidates, errors, "trials", joint=True)
+    with pytest.raises(ValueError, match="per channel exactly if it is a filter told the input"):
+        auto_observer(calibration, selection=jointly, joint=told)
+    with pytest.raises(ValueError, match="last candidate"):
+        auto_observer(calibration, selection=jointly)
+
+
 def test_a_part_of_a_calibration_has_its_channels_values():
     """Each part of a per-channel choice is built from its channels' bounds, levels, noise, quantization step and
     initial levels (the worst-case optimal observer reads the step)."""
