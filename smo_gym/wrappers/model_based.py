@@ -19,7 +19,7 @@ the ``frame_skip`` physics steps of a sample (``model_substeps``): the cost per 
 
 Limitations: hinge and slide joints only (``MujocoDynamics`` refuses free and ball joints), no joint-equality
 couplings (use the observers directly on such models, as ``scripts/plot_coriolis_transform.py`` does), no vector
-wrappers (they refuse these names, and ``"auto"`` with a model), no sensors that report single-turn angles.
+wrappers (they refuse these names, ``"auto"`` with a model, observers taking the input), no single-turn angle sensors.
 """
 
 from __future__ import annotations
