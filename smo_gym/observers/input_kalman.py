@@ -220,6 +220,8 @@ class InputJumpUpdates:
     ``jump_noise`` (``(n,)``), and says which filters move (:meth:`jump_targets`)."""
 
     takes_input = True
+    #: the last input ``(..., m)``, NaN where unknown; None until the first reset
+    _u_prev: np.ndarray | None = None
 
     def jump_targets(self) -> tuple[JumpTarget, ...]:
         """The filters the input moves, with their input model."""
@@ -303,7 +305,6 @@ class InputJumpFilter(InputJumpUpdates):
         noise = np.broadcast_to(noise, gain.shape[:1]).astype(np.float64)
         channels = np.arange(gain.shape[0], dtype=np.int64)
         self._targets = (JumpTarget(gain, noise, self._jump_blocks, channels),)  # built once: read at every update
-        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
 
     @property
     def input_gain(self) -> np.ndarray:
@@ -326,15 +327,14 @@ class InputJumpFilter(InputJumpUpdates):
         self._replace_input_model(self.input_gain, value)
 
     def _replace_input_model(self, input_gain, jump_noise) -> None:
-        shape, u_prev = self.input_gain.shape, self._u_prev
+        shape = self.input_gain.shape
         gain = as_real_array("input_gain", input_gain)
         if gain.shape != shape:
             raise ValueError(
                 f"expected input_gain of the filter's shape {shape} (build a new filter for other channels or "
                 f"inputs), actual value: shape {gain.shape}"
             )
-        self._set_input_model(gain, jump_noise)
-        self._u_prev = u_prev  # the last input stays known: the model changes, the signal does not
+        self._set_input_model(gain, jump_noise)  # the last input stays known: the model changes, the signal not
 
     def jump_targets(self) -> tuple[JumpTarget, ...]:
         """Every channel's filters, with ``G`` and ``s`` as given."""
@@ -426,7 +426,6 @@ class PerChannelInput(InputJumpUpdates, PerChannel):
             for observer, idx in told
             for t in observer.jump_targets()
         )
-        self._u_prev: np.ndarray | None = None  # (..., m): the last input, NaN where unknown
 
     def jump_targets(self) -> tuple[JumpTarget, ...]:
         """The told parts' filters, on the composite's channels."""
