@@ -98,13 +98,32 @@ def test_the_level_clips_gross_errors_at_the_worst_case_bound():
 
 def test_a_channel_of_pure_noise_gets_the_quotient_at_the_last_lag():
     """White noise has no lag at which its difference quotient rises above the noise; the lags double while the
-    next one spans at most an eighth of the record (``2 s r <= T // 8``): for ``T = 4096``, ``r = 2`` the last lag
-    is 256, and the bound is twice the 99th percentile of the lag-256 quotients."""
-    T, dt, s = 4096, 1e-3, 256
+    next one spans at most half of the record (``2 s r <= T // 2``): for ``T = 4096``, ``r = 2`` the last lag
+    is 1024, and the bound is twice the 99th percentile of the lag-1024 quotients."""
+    T, dt, s = 4096, 1e-3, 1024
     y = 1e-3 * np.random.default_rng(1).standard_normal(T)
     second = y[2 * s :] - 2.0 * y[s:-s] + y[: -2 * s]
     expected = 2.0 * np.quantile(np.abs(second), 0.99) / (s * dt) ** 2
     np.testing.assert_allclose(calibration.derivative_bound(y, dt, 2, noise=1e-3), expected, rtol=1e-12)
+
+
+def test_a_slow_derivative_shows_at_a_lag_spanning_up_to_half_the_record():
+    r"""A cubic with :math:`f''' = 0.1` over 20 s at 1 ms under Gaussian noise 1e-2: at every lag spanning up to an
+    eighth of the record the noise hides the jerk (at lag 512 the 99th percentile of the quotient is several times
+    the jerk), and at lag 2048 (a span of 6 s) the noise part is below a quarter of it, so the bound is the safety
+    factor 2 times the jerk plus at most a third: no longer mostly noise."""
+    T, dt, jerk = 20000, 1e-3, 0.1
+    t = np.arange(T) * dt
+    y = jerk * t**3 / 6.0 + 1e-2 * np.random.default_rng(0).standard_normal(T)
+
+    def quotient(s):
+        third = y[3 * s :] - 3.0 * y[2 * s : -s] + 3.0 * y[s : -2 * s] - y[: -3 * s]
+        return np.quantile(np.abs(third), 0.99) / (s * dt) ** 3
+
+    assert quotient(512) > 5.0 * jerk  # the last lag of an eighth of the record
+    bound = calibration.derivative_bound(y, dt, 3, noise=1e-2)
+    assert 2.0 * jerk <= bound <= 2.0 * jerk * (1.0 + 1.0 / 3.0)
+    np.testing.assert_allclose(bound, 2.0 * quotient(2048), rtol=1e-12)
 
 
 def test_every_channel_is_calibrated_alone():
@@ -307,16 +326,18 @@ def test_derivative_rms_matches_the_closed_form():
 
 
 def test_a_level_the_noise_hides_continues_the_two_below_it():
-    r"""A sine (amplitude 1, 1 rad/s, one period at 1 ms) under noise 3e-2: the record gives no estimate of its
-    jerk (at every lag the mean square of the difference quotient less its noise part is not positive, and
-    :func:`derivative_rms` returns its floor), and the record's calibration takes the next term of the velocity
-    and acceleration levels, :math:`a^2/v`, which for a sine is its jerk level :math:`1/\sqrt2` (measured 0.698).
-    At its floor (1e-3 times the velocity bound) a Kalman filter's jerk was 350 times too small."""
-    _, _, noisy = noisy_sine(T=6284, sigma=3e-2, amplitude=1.0, omega=1.0)
-    assert calibration.derivative_rms(noisy, DT, 3) < 0.01  # no estimate: the floor
+    r"""A sine (amplitude 1, 1 Hz, one period at 1 ms) under noise 0.3: the record gives no estimate of its jerk
+    (at every lag, up to a span of half the record, the mean square of the difference quotient less its noise part
+    is not positive, and :func:`derivative_rms` returns its floor), and the record's calibration takes the next
+    term of the velocity and acceleration levels, :math:`a^2/v`, which for a sine is its jerk level
+    :math:`\omega^3/\sqrt2` (measured 1.05 times). At its floor (1e-3 times the velocity bound) the level was
+    about 10^4 times too small."""
+    omega = 2.0 * np.pi
+    _, _, noisy = noisy_sine(T=1000, sigma=0.3, amplitude=1.0, omega=omega)
+    assert calibration.derivative_rms(noisy, DT, 3) < 0.1  # no estimate: the floor
     found = calibration.calibration_of_signal(noisy, DT, (3,))
     np.testing.assert_allclose(found.rms(3), found.rms(2) ** 2 / found.rms(1))
-    np.testing.assert_allclose(found.rms(3), 1.0 / np.sqrt(2.0), rtol=0.1)
+    np.testing.assert_allclose(found.rms(3), omega**3 / np.sqrt(2.0), rtol=0.1)
 
 
 def test_derivative_rms_ignores_rare_gross_errors():

@@ -39,20 +39,24 @@ def rmse_after(estimate, truth, seconds: float = 2.0) -> float:
     return float(np.sqrt(np.mean((estimate[skip:] - truth[skip:]) ** 2)))
 
 
-@pytest.mark.parametrize("name, gain", [("filtering", 20.0), ("levant", 50.0), ("super-twisting", 3.0)])
-def test_kalman_start_removes_the_slow_start(name, gain):
-    """Velocity RMSE after 2 s (seed 0): filtering 0.038 from the measurement, 0.0014 from the Kalman start;
-    Levant (order 2) 0.061 and 0.00084; super-twisting 0.020 and 0.0056; the Kalman filter alone 0.0039. Asserted:
-    the start gains at least ``gain`` (half the measured factor), and the second-order differentiators, whose model
-    is the filter's, end up better than the filter they started from (super-twisting, first order, does not: its
-    error is its noise floor, not the start)."""
+@pytest.mark.parametrize(
+    "name, gain, of_kalman", [("filtering", 40.0, 0.5), ("levant", 25.0, 1.0), ("super-twisting", 3.0, None)]
+)
+def test_kalman_start_removes_the_slow_start(name, gain, of_kalman):
+    """Velocity RMSE after 2 s (seed 0): filtering 0.095 from the measurement, 0.0012 from the Kalman start;
+    Levant (order 2) 0.12 and 0.0024; super-twisting 0.020 and 0.0056; the Kalman filter alone 0.0039. Asserted:
+    the start gains at least ``gain`` (about half the measured factor), and the second-order differentiators, whose
+    model is the filter's, end up below ``of_kalman`` times the filter they started from (super-twisting, first
+    order, does not: its error is its noise floor, not the start). Levant's recursion, with the calibrated bound
+    2.2-4.3 times the true jerk, is 0.63 times the filter (0.0013 and 0.0010 with 3 and 10 times that bound; 0.22
+    when the bound was mostly noise, before the calibration's lags reached half the record)."""
     Y, v = cubic()
     kalman = rmse_after(smo_gym.differentiate(Y, DT, observer="kalman-ca")[..., 1], v)
     at_rest = rmse_after(smo_gym.differentiate(Y, DT, observer=name, start="measurement")[..., 1], v)
     started = rmse_after(smo_gym.differentiate(Y, DT, observer=name)[..., 1], v)
     assert started < at_rest / gain, (started, at_rest)
-    if name != "super-twisting":
-        assert started < kalman / 2, (started, kalman)
+    if of_kalman is not None:
+        assert started < of_kalman * kalman, (started, kalman)
 
 
 @pytest.mark.parametrize("name, params", [("filtering", {}), ("levant", {"order": 3}), ("super-twisting", {})])
