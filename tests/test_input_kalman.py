@@ -204,14 +204,18 @@ def _told_run(rng, T=600):
 @pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
 def test_on_some_of_its_channels_a_told_filter_estimates_exactly_what_it_does_there(cls):
     """Its channels are independent given the input: the filter on channels [2, 0] is, bit for bit, the whole
-    filter's channels 2 and 0, with each per-channel parameter taken there and the shared ones kept."""
+    filter's channels 2 and 0, with each per-channel parameter (the prior's too) taken there and the shared ones
+    kept."""
     Y, U = _told_run(np.random.default_rng(4))
     whole = cls(DT, np.array([50.0, 100.0, 200.0]), np.array([1e-8, 2e-8, 4e-8]), GAIN, np.array([1.0, 2.0, 3.0]),
-                wrap=np.array([False, True, False]), huber=3.0)  # fmt: skip
+                wrap=np.array([False, True, False]), huber=3.0,
+                initial_std=(np.array([1.0, 2.0, 3.0]), 50.0))  # fmt: skip
     part = whole.of_channels([2, 0])
     np.testing.assert_array_equal(part.input_gain, GAIN[[2, 0]])
     np.testing.assert_array_equal(part.process_noise, [200.0, 50.0])
     np.testing.assert_array_equal(part.wrap, [False, False])
+    np.testing.assert_array_equal(part.initial_std[0], [3.0, 1.0])
+    assert part.initial_std[1] == 50.0
     assert part.huber == 3.0 and part.dt == DT and type(part) is cls
     whole.reset(Y[0])
     part.reset(Y[0][..., [2, 0]])

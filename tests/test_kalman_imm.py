@@ -199,3 +199,27 @@ def test_bad_parameters_are_typed_errors(kwargs, error):
     params = {"dt": 1e-3, "process_noise": 1.0, "measurement_noise": 1e-6, **kwargs}
     with pytest.raises(error, match="expected"):
         KalmanIMM(**params)
+
+
+@pytest.mark.parametrize("cls", [KalmanCA, KalmanIMM])
+def test_a_prior_per_channel_is_each_channel_alone_with_its_own(cls):
+    """The prior at reset may differ per channel (``calibrated_prior`` gives each joint the levels where its own
+    episodes start): a batch (2, 3) of channels with the velocity prior per channel and one acceleration prior
+    estimates, bit for bit, what each channel does alone with its scalar prior, restarts included; a prior of
+    another channel count is refused at reset."""
+    rng = np.random.default_rng(5)
+    Y = np.cumsum(rng.standard_normal((200, 2, 3)), axis=0) * 1e-3
+    velocity, acceleration = np.array([0.1, 1.0, 10.0]), 30.0
+    both = cls(0.01, 50.0, 1e-6, initial_std=(velocity, acceleration))
+    out = np.concatenate([both.reset(Y[0])[None], both.run(Y[1:100])])
+    out = np.concatenate([out, both.reset(Y[100], mask=np.array([True, False]))[None], both.run(Y[101:])])
+    for c in range(3):
+        alone = cls(0.01, 50.0, 1e-6, initial_std=(velocity[c], acceleration))
+        mine = np.concatenate([alone.reset(Y[0, :, c : c + 1])[None], alone.run(Y[1:100, :, c : c + 1])])
+        again = alone.reset(Y[100, :, c : c + 1], mask=np.array([True, False]))[None]
+        mine = np.concatenate([mine, again, alone.run(Y[101:, :, c : c + 1])])
+        np.testing.assert_array_equal(out[:, :, c], mine[:, :, 0])
+    with pytest.raises(ValueError, match=r"initial_std\[0\] broadcastable to the measurement shape \(2,\)"):
+        cls(0.01, 50.0, 1e-6, initial_std=(velocity, acceleration)).reset(np.zeros(2))
+    with pytest.raises(ValueError, match=r"initial_std\[1\]"):
+        cls(0.01, 50.0, 1e-6, initial_std=(1.0, [2.0, -1.0]))

@@ -71,7 +71,7 @@ from numba import njit
 from .._validation import check_keywords, check_positive, check_positive_parameter
 from . import _kernels
 from .base import Observer
-from .linear import _huber, _initial_std, _kalman_rule, white_jerk_density
+from .linear import _huber, _initial_std, _kalman_rule, _prior_variances, white_jerk_density
 from .registry import register_observer
 
 __all__ = ["KalmanIMM", "imm_ca_step"]
@@ -197,9 +197,9 @@ class KalmanIMM(Observer):
         :math:`\rho` in ``(0, 1]``: the smooth mode's density is :math:`\rho q`. 1 gives :class:`KalmanCA`.
     stay : float
         :math:`p` in ``(0, 1)``: the probability that the motion stays in its mode from one sample to the next.
-    initial_std : tuple of 2 floats
+    initial_std : tuple of 2 floats or array_like
         Prior standard deviations of velocity and acceleration at reset in both modes (the value's is
-        ``sqrt(r)``); the modes start equally likely.
+        ``sqrt(r)``), each one for all channels or one per channel; the modes start equally likely.
     huber : float, optional
         Huber's threshold ``c > 0`` for sensors with gross errors, in both modes (as
         :class:`~smo_gym.observers.KalmanCA`'s); a sample the modes clip weighs them as an innovation of exactly
@@ -270,11 +270,12 @@ class KalmanIMM(Observer):
     def _initial_state(self, y0, params):
         state = np.zeros((y0.shape[0], _WIDTH))
         state[:, _OUT] = y0
+        velocity, acceleration = _prior_variances(self, self._shape)
         for o in (_MODES, _MODES + 9):
             state[:, o] = y0
             state[:, o + 6] = params[:, _R]  # P = diag(r, initial_std**2): U = I, D = its diagonal
-            state[:, o + 7] = self.initial_std[0] ** 2
-            state[:, o + 8] = self.initial_std[1] ** 2
+            state[:, o + 7] = velocity
+            state[:, o + 8] = acceleration
         state[:, _MU : _MU + 2] = 0.5
         return state
 

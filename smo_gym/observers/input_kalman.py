@@ -360,10 +360,15 @@ class InputJumpFilter(InputJumpUpdates):
         # rebuilt from its constructor's arguments (each stored under its own name), as scikit-learn's clone does:
         # a new filter, never reset, whatever state this one is in
         kwargs = {name: getattr(self, name) for name in inspect.signature(type(self)).parameters if name != "dt"}
-        for name in ("input_gain", "jump_noise", *self._channel_parameters):
-            value = kwargs[name]
+
+        def taken(value):
             if np.ndim(value) >= 1 and np.shape(value)[0] == n:  # one per channel (else shared by all)
-                kwargs[name] = np.asarray(value)[idx]
+                return np.asarray(value)[idx]
+            return value
+
+        for name in ("input_gain", "jump_noise", *self._channel_parameters):
+            kwargs[name] = taken(kwargs[name])
+        kwargs["initial_std"] = tuple(taken(std) for std in kwargs["initial_std"])  # a pair, each maybe per channel
         return type(self)(self.dt, **kwargs)
 
     @classmethod
