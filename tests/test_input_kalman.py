@@ -352,3 +352,23 @@ def test_the_input_model_may_be_replaced_by_one_of_the_same_shape(cls):
         replaced.jump_noise = -1.0
     np.testing.assert_array_equal(replaced.jump_noise, [3.0, 3.0, 3.0])
     np.testing.assert_array_equal(replaced.run(Y[100:], U[100:]), built.run(Y[100:], U[100:]))
+
+
+@pytest.mark.parametrize("cls", [KalmanCAInput, KalmanIMMInput])
+def test_from_episodes_starts_each_channel_where_its_episodes_start(cls):
+    """The prior at reset is where the episodes start, per channel (the calibration of their velocities, as the
+    wrapper's Kalman filters get it): episodes whose joints start at velocities of spread 0.01, 0.1 and 1 give those
+    spreads, not the constructor's wide (10, 100), whose first estimates were least-squares fits of a few noisy
+    samples; a prior given is kept."""
+    from smo_gym.calibration import calibration_from_velocities
+
+    rng = np.random.default_rng(8)
+    runs = [piecewise_run(rng, T=300, jerk=10.0) for _ in range(12)]
+    velocity = [v + rng.normal(0.0, [0.01, 0.1, 1.0]) for _, v, _ in runs]
+    inputs = [u for _, _, u in runs]
+    told = cls.from_episodes(DT, velocity, inputs, 1e-8)
+    starts = calibration_from_velocities(velocity, DT, (1,), noise=0.0).initial
+    for r, std in zip((1, 2), told.initial_std, strict=True):
+        np.testing.assert_array_equal(std, starts[r])
+    assert 0.005 < told.initial_std[0][0] < 0.02 and 0.5 < told.initial_std[0][2] < 2.0
+    assert cls.from_episodes(DT, velocity, inputs, 1e-8, initial_std=(10.0, 100.0)).initial_std == (10.0, 100.0)

@@ -284,7 +284,7 @@ def calibrated_observer(
         trial_steps=TRIAL_STEPS,
         calibration=stable_repr(vars(calibration)),  # the errors depend on the gains; v on the candidates' code
         **settings,
-        v=8,
+        v=9,
     )
 
     observer = None if joint is None else joint.observer  # compared as the last candidate
