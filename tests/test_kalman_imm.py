@@ -223,3 +223,23 @@ def test_a_prior_per_channel_is_each_channel_alone_with_its_own(cls):
         cls(0.01, 50.0, 1e-6, initial_std=(velocity, acceleration)).reset(np.zeros(2))
     with pytest.raises(ValueError, match=r"initial_std\[1\]"):
         cls(0.01, 50.0, 1e-6, initial_std=(1.0, [2.0, -1.0]))
+
+
+@pytest.mark.parametrize("cls", [KalmanCA, KalmanIMM])
+def test_a_prior_changed_between_episodes_starts_the_next_one(cls):
+    """The prior is kept from one restart to the next (checking it again cost more than the rest of a restart),
+    but a new ``initial_std`` set between episodes is the next episode's, at a restart as at a reset of another
+    shape: bit for bit a filter built with it."""
+    rng = np.random.default_rng(6)
+    Y = np.cumsum(rng.standard_normal((120, 3)), axis=0) * 1e-3
+    kf = cls(0.01, 50.0, 1e-6, initial_std=(1.0, 2.0))
+    kf.reset(Y[0])
+    kf.run(Y[1:60])
+    kf.initial_std = (np.array([5.0, 0.5, 50.0]), 7.0)
+    fresh = cls(0.01, 50.0, 1e-6, initial_std=(np.array([5.0, 0.5, 50.0]), 7.0))
+    np.testing.assert_array_equal(kf.restart(Y[60]), fresh.reset(Y[60]))
+    np.testing.assert_array_equal(kf.run(Y[61:]), fresh.run(Y[61:]))
+    kf.initial_std = (3.0, 4.0)
+    pair = cls(0.01, 50.0, 1e-6, initial_std=(3.0, 4.0))
+    kf.reset(Y[0, :2]), pair.reset(Y[0, :2])
+    np.testing.assert_array_equal(kf.run(Y[1:, :2]), pair.run(Y[1:, :2]))

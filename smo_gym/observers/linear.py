@@ -50,10 +50,17 @@ def _initial_std(initial_std) -> tuple:
 
 
 def _prior_variances(observer, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """The prior variances of velocity and acceleration of every flat row of measurements of ``shape``."""
-    return tuple(
-        observer._per_channel(f"initial_std[{i}]", std, shape) ** 2 for i, std in enumerate(observer.initial_std)
-    )
+    """The prior variances of velocity and acceleration of every flat row of measurements of ``shape``.
+
+    Checked and broadcast once per shape and ``initial_std`` object, then kept: every episode restarts the filter
+    with them, and checking them each time made a restart 4.6 times as long (:class:`KalmanCA`, three channels with
+    a prior each: 39 us against 8.5 us; the IMM estimator 43 us against 17.5 us)."""
+    std = observer.initial_std
+    kept = observer.__dict__.get("_prior")
+    if kept is None or kept[0] != shape or kept[1] is not std:
+        variances = tuple(observer._per_channel(f"initial_std[{i}]", s, shape) ** 2 for i, s in enumerate(std))
+        kept = observer._prior = (shape, std, variances)
+    return kept[2]
 
 
 def _huber(huber) -> float | None:
