@@ -214,6 +214,7 @@ class KalmanIMM(Observer):
     discretizations = ("exact",)
     reports_instant = True
     self_starting = True  # each mode starts from KalmanCA's prior
+    _prior = None  # made at the first reset, kept while the shape and initial_std are (KalmanCA's)
 
     @check_keywords
     def __init__(
@@ -270,7 +271,8 @@ class KalmanIMM(Observer):
     def _initial_state(self, y0, params):
         state = np.zeros((y0.shape[0], _WIDTH))
         state[:, _OUT] = y0
-        velocity, acceleration = _prior_variances(self, self._shape)
+        self._prior = _prior_variances(self.initial_std, self._shape, self._prior)
+        velocity, acceleration = self._prior.variances
         for o in (_MODES, _MODES + 9):
             state[:, o] = y0
             state[:, o + 6] = params[:, _R]  # P = diag(r, initial_std**2): U = I, D = its diagonal

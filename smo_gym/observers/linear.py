@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import sys
+from typing import NamedTuple
 
 import numpy as np
 
@@ -49,18 +50,28 @@ def _initial_std(initial_std) -> tuple:
     return tuple(check_positive_parameter(f"initial_std[{i}]", value) for i, value in enumerate(initial_std))
 
 
-def _prior_variances(observer, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """The prior variances of velocity and acceleration of every flat row of measurements of ``shape``.
+class _Prior(NamedTuple):
+    """The prior variances of a constant-acceleration filter at reset, and what they were made from."""
 
-    Checked and broadcast once per shape and ``initial_std`` object, then kept: every episode restarts the filter
-    with them, and checking them each time made a restart 4.6 times as long (:class:`KalmanCA`, three channels with
-    a prior each: 39 us against 8.5 us; the IMM estimator 43 us against 17.5 us)."""
-    std = observer.initial_std
-    kept = observer.__dict__.get("_prior")
-    if kept is None or kept[0] != shape or kept[1] is not std:
-        variances = tuple(observer._per_channel(f"initial_std[{i}]", s, shape) ** 2 for i, s in enumerate(std))
-        kept = observer._prior = (shape, std, variances)
-    return kept[2]
+    shape: tuple[int, ...]
+    """The shape of the measurements they are for."""
+    initial_std: tuple
+    """The filter's ``initial_std`` they were made from (the object itself)."""
+    variances: tuple[np.ndarray, np.ndarray]
+    """Of velocity and acceleration, each ``(prod(shape),)``: one per flat row of measurements."""
+
+
+def _prior_variances(initial_std: tuple, shape: tuple[int, ...], kept: _Prior | None = None) -> _Prior:
+    """The prior (:class:`_Prior`) of ``initial_std`` (a pair, each one number or one per channel) for measurements of
+    ``shape``: ``kept`` itself if it was made from the same object for the same shape.
+
+    Every episode restarts the filter with them, and checking and broadcasting them again each time made a restart
+    4.6 times as long (:class:`KalmanCA`, three channels with a prior each: 39 us against 8.5 us; the IMM estimator
+    43 us against 17.5 us). A new ``initial_std`` (a new object) is checked again."""
+    if kept is not None and kept.shape == shape and kept.initial_std is initial_std:
+        return kept
+    variances = tuple(Observer._per_channel(f"initial_std[{i}]", s, shape) ** 2 for i, s in enumerate(initial_std))
+    return _Prior(shape, initial_std, variances)
 
 
 def _huber(huber) -> float | None:
@@ -418,6 +429,7 @@ class KalmanCA(Observer):
     discretizations = ("exact",)
     reports_instant = True  # the exact discretization of the constant-acceleration model
     self_starting = True  # its prior covariance makes the first estimates least-squares fits
+    _prior: _Prior | None = None  # made at the first reset, kept while the shape and initial_std are
 
     @check_keywords
     def __init__(
@@ -537,7 +549,8 @@ class KalmanCA(Observer):
         state = np.zeros((y0.shape[0], 11))
         state[:, 0] = y0
         state[:, 6] = params[:, 2]  # P = diag(r, initial_std**2): U = I, D = its diagonal
-        state[:, 7], state[:, 8] = _prior_variances(self, self._shape)
+        self._prior = _prior_variances(self.initial_std, self._shape, self._prior)
+        state[:, 7], state[:, 8] = self._prior.variances
         return state
 
     def __repr__(self) -> str:
