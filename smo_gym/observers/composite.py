@@ -186,10 +186,11 @@ def composite_step(steps: Sequence[_kernels.Step]) -> _kernels.Step:
         label = "+".join(r.py_func.__qualname__ for r in rows)[:60] + "." + digest
         slots = {f"_R{i}": rows[i] if i < len(rows) else None for i in range(MAX_PARTS)}
         deps = sorted({inspect.getfile(r.py_func) for r in rows} | {_kernels.__file__})
-        # inlined into its callers (the batch kernels, the wrapper's one-call driver), so that LLVM optimizes and
-        # emits the parts' code once per caller instead of once more for a standalone composite (a cold start
-        # compiles about 2 s less)
-        options = dict(cache=_kernels.CACHE, error_model="numpy", inline="always")
+        # compiled once and called by its drivers (the batch kernels, the offline loop, the wrapper's one-call
+        # drivers), not inlined into each: numba's inlining types the parts' code again in every driver, 6-8 s
+        # each (FD, KalmanCA and the IMM estimator: the batch kernel 8.4 s inlined, 2.1 s calling it, after 6 s
+        # for the composite alone), and a process often builds two or three drivers; the step costs the same
+        options = dict(cache=_kernels.CACHE, error_model="numpy", inline="never")
         compiled = cached_instance(_per_channel_rows_template, label, options, deps, _N_PARTS=len(rows), **slots)
         step = _COMPOSITE_STEPS[rows] = _kernels.register_step(compiled, allocates=True, sources=deps)
     return step
