@@ -78,6 +78,37 @@ def test_per_channel_reports_each_parts_estimate_not_its_state():
         np.testing.assert_array_equal(got[:, channels, :2], want[..., :2])
 
 
+def test_parts_of_one_step_share_one_call_and_any_order_one_compiled_step():
+    """Parts running the same step with the same state width and order (the IMM estimator with two gains, one with
+    Huber's update) are one call per sample, and the composites of the same steps share one compiled step whatever
+    the order and grouping of their parts: each still estimates, bit for bit, what each part does alone. Parts of
+    one step with another order (Levant's differentiator of orders 1 and 2) stay two calls."""
+    from smo_gym.observers import KalmanIMM
+
+    def parts():
+        return [
+            (KalmanIMM(DT, 1e3, 1e-6), [0, 3]),
+            (FiniteDifference(dt=DT), [1]),
+            (KalmanIMM(DT, 5e3, 1e-6, huber=3.0), [2]),
+            (Levant(dt=DT, order=1, lipschitz=5.0, discretization="implicit"), [4]),
+            (Levant(dt=DT, order=2, lipschitz=5.0, discretization="implicit"), [5]),
+        ]
+
+    Y = np.concatenate([_signal(), _signal()[:, :2] * 0.5], axis=1)
+    composite = PerChannel(parts())
+    steps, slot = composite._slots()
+    assert len(steps) == 4 and slot[0] == slot[2] and len(set(slot)) == 4  # FD, IMM, Levant order 1, order 2
+    reordered = PerChannel([parts()[i] for i in (4, 2, 1, 3, 0)])
+    assert reordered._kernel is composite._kernel
+    assert PerChannel([parts()[1], (KalmanIMM(DT, 1e3, 1e-6), [0])])._kernel is not composite._kernel
+    composite.reset(Y[0])
+    got = composite.run(Y[1:])
+    for observer, channels in parts():
+        observer.reset(Y[0, channels])
+        want = observer.run(Y[1:, channels])
+        np.testing.assert_array_equal(got[:, channels, :2], want[..., :2])
+
+
 def test_per_channel_batch_run_and_masked_reset():
     Y = _signal(batch=(3,))
     composite = PerChannel(_parts())
