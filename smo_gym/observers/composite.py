@@ -20,12 +20,15 @@ own state row padded with zeros to the widest part; its parameter row per channe
 
     [part, S, P, m, innovation column, K, start, c_0 .. c_{K-1}, the part's P parameters, zeros]
 
-(:data:`PART` ... :data:`COEFFICIENTS`): the part's state, parameter and estimate widths, where its innovation is,
-the ``K`` coefficients of the reported velocity :math:`\sum_j c_j \hat z_{j+1}` (``[1]``: the first derivative as
-it is; :func:`smo_gym.observers.base.reported_coefficients` otherwise) and the column where its parameters start.
-Per sample and part, the step gathers the part's rows into contiguous views of one buffer, calls the part's step
-and scatters the result back: about 0.3 us per sample on six channels of two parts (measured against the parts
-alone), more than a cheap step itself costs but a few percent of a wrapped environment step.
+(:data:`PART` ... :data:`COEFFICIENTS`): the call its part runs in, the part's state, parameter and estimate
+widths, where its innovation is, the ``K`` coefficients of the reported velocity :math:`\sum_j c_j \hat z_{j+1}`
+(``[1]``: the first derivative as it is; :func:`smo_gym.observers.base.reported_coefficients` otherwise) and the
+column where its parameters start. Per sample and call, the step gathers the call's rows into contiguous views of
+one buffer, calls the part's step and scatters the result back: about 0.3 us per sample on six channels of two
+parts (measured against the parts alone), more than a cheap step itself costs but a few percent of a wrapped
+environment step. Parts that run the same step with the same state width and order share one call (their
+parameters are per channel), and the calls are ordered by the steps' names, so that every composite of the same
+steps runs one compiled step.
 """
 
 from __future__ import annotations
@@ -60,8 +63,9 @@ __all__ = [
     "composite_step",
 ]
 
-#: columns of a channel's parameter row (module notes): its part, the part's state, parameter and estimate widths,
-#: the part's innovation column, the number of velocity coefficients, the column where the part's parameters start
+#: columns of a channel's parameter row (module notes): the call its part runs in, the part's state, parameter and
+#: estimate widths, the part's innovation column, the number of velocity coefficients, the column where the part's
+#: parameters start
 PART, STATE_WIDTH, PARAM_WIDTH, ESTIMATES, INNOVATION, N_COEFFICIENTS, PARAMS_AT = range(7)
 #: the first column of the velocity coefficients
 COEFFICIENTS = 7
