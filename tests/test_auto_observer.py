@@ -38,6 +38,16 @@ def _signal(T: int = 400, batch: tuple[int, ...] = ()) -> np.ndarray:
     return np.sin(3 * t[:, *([None] * (len(batch) + 1))] + phases) + 1e-4 * rng.standard_normal((T, *batch, 4))
 
 
+def _assert_each_part_alone(composite, parts, Y):
+    """The composite's value and velocity on ``Y`` (T, n) are, bit for bit, each part's own on its channels."""
+    composite.reset(Y[0])
+    got = composite.run(Y[1:])
+    for observer, channels in parts:
+        observer.reset(Y[0, channels])
+        want = observer.run(Y[1:, channels])
+        np.testing.assert_array_equal(got[:, channels, :2], want[..., :2])
+
+
 # ---- PerChannel ---------------------------------------------------------------------------------------------------
 def test_per_channel_equals_each_part_on_its_channels():
     Y = _signal()
@@ -68,14 +78,7 @@ def test_per_channel_reports_each_parts_estimate_not_its_state():
             (KalmanCA(dt=DT, process_noise=1e3, measurement_noise=1e-6), [1]),
         ]
 
-    Y = _signal()
-    composite = PerChannel(parts())
-    composite.reset(Y[0])
-    got = composite.run(Y[1:])
-    for observer, channels in parts():
-        observer.reset(Y[0, channels])
-        want = observer.run(Y[1:, channels])
-        np.testing.assert_array_equal(got[:, channels, :2], want[..., :2])
+    _assert_each_part_alone(PerChannel(parts()), parts(), _signal())
 
 
 def test_parts_of_one_step_share_one_call_and_any_order_one_compiled_step():
@@ -97,12 +100,7 @@ def test_parts_of_one_step_share_one_call_and_any_order_one_compiled_step():
     assert len(steps) == 2 and slot[0] == slot[2] != slot[1]
     assert PerChannel([parts()[i] for i in (2, 1, 0)])._kernel is composite._kernel
     assert PerChannel([parts()[1], (KalmanCA(DT, 1e3, 1e-6), [0, 2, 3])])._kernel is composite._kernel
-    composite.reset(Y[0])
-    got = composite.run(Y[1:])
-    for observer, channels in parts():
-        observer.reset(Y[0, channels])
-        want = observer.run(Y[1:, channels])
-        np.testing.assert_array_equal(got[:, channels, :2], want[..., :2])
+    _assert_each_part_alone(composite, parts(), Y)
     orders = PerChannel([(Levant(dt=DT, order=k, lipschitz=5.0, discretization="implicit"), [k - 1]) for k in (1, 2)])
     steps, slot = orders._slots()
     assert len(steps) == 2 and slot[0] != slot[1] and steps[0] is steps[1]
