@@ -28,7 +28,9 @@ one buffer, calls the part's step and scatters the result back: about 0.3 us per
 parts (measured against the parts alone), more than a cheap step itself costs but a few percent of a wrapped
 environment step. Parts that run the same step with the same state width and order share one call (their
 parameters are per channel), and the calls are ordered by the steps' names, so that every composite of the same
-steps runs one compiled step.
+steps runs one compiled step. The gathering, the part's step and the scattering are compiled once per part step
+(``_advance``) and called by every composite step that holds it: a composite step of steps compiled before costs
+~1.5 s to compile on a cold cache, where inlining them cost ~2 s more per part.
 """
 
 from __future__ import annotations
@@ -40,7 +42,6 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from numba import njit
 
 from .._numba_cache import cached_instance
 from .._validation import check_keywords, check_positive
@@ -92,13 +93,12 @@ def _part_step(observer) -> _kernels.Step | None:
     return compiled_step(observer)
 
 
-@njit(error_model="numpy", inline="always")
-def _advance_part(rows, part, state, y, params, new_state, out, shared, index, work):
-    """One sample of the part ``part`` (its step ``rows``) on its channels: gathered into contiguous arrays (views
+def _advance_template(part, state, y, params, new_state, out, shared, index, work):
+    """One sample of the part ``part`` (the step ``_ROWS``) on its channels: gathered into contiguous arrays (views
     of ``work``; ``index`` receives the channels), advanced, scattered back into ``new_state`` (padding columns
     copied) and ``out`` (value, reported velocity). Returns the step's status with the part's channel translated to
-    the composite's. Inlined into the composite's step (it takes a function: see
-    :func:`smo_gym.observers._kernels._drive`)."""
+    the composite's. Compiled once per part step (:func:`_advance`) and called by every composite step that holds
+    it."""
     n, width = state.shape
     count = 0
     for c in range(n):
@@ -123,7 +123,7 @@ def _advance_part(rows, part, state, y, params, new_state, out, shared, index, w
             part_state[r, j] = state[c, j]
         for j in range(P):
             part_params[r, j] = params[pc, at + j]
-    status = rows(part_state, part_y, part_params, part_new, part_out, False)
+    status = _ROWS(part_state, part_y, part_params, part_new, part_out, False)
     if status != -1:
         return index[status] if status >= 0 else -2 - index[-2 - status]
     for r in range(count):
@@ -140,35 +140,58 @@ def _advance_part(rows, part, state, y, params, new_state, out, shared, index, w
     return -1
 
 
-# the globals of the template below, bound per tuple of part steps by cached_instance (unused slots: None, in
-# branches numba prunes because _N_PARTS is a constant). The slots are written out: a loop over different
-# functions needs numba's first-class function types, still experimental, and calls through a pointer that LLVM
-# cannot inline.
+_ROWS = None  # the global of the template above, bound per part step by cached_instance
+_ADVANCES: dict = {}
+
+
+def _advance(rows):
+    """The compiled :func:`_advance_template` of the part step ``rows`` (a cached dispatcher, made once per step).
+
+    Why a function of its own, called rather than inlined into each composite step: the gathering and scattering
+    around the part's step is most of a composite's code, and typed again in every composite that inlines it, ~2 s
+    of compilation per part on a cold cache; ``"auto"`` builds a composite of other steps for nearly every
+    environment and sensor, while the steps themselves are a handful. A call per part and sample costs nothing
+    measurable next to the gathering itself (module notes).
+    """
+    advance = _ADVANCES.get(rows)
+    if advance is None:
+        label = f"{rows.py_func.__module__}.{rows.py_func.__qualname__}"
+        deps = sorted({inspect.getfile(rows.py_func), _kernels.__file__})
+        options = dict(cache=_kernels.CACHE, error_model="numpy")
+        advance = _ADVANCES[rows] = cached_instance(_advance_template, label, options, deps, _ROWS=rows)
+    return advance
+
+
+# the globals of the template below, bound per tuple of part steps by cached_instance: each part's compiled
+# _advance (unused slots: None, in branches numba prunes because _N_PARTS is a constant). The slots are written
+# out: a loop over different functions needs numba's first-class function types, still experimental.
 _N_PARTS = 0
-_R0 = _R1 = _R2 = _R3 = _R4 = _R5 = _R6 = _R7 = None
+_A0 = _A1 = _A2 = _A3 = _A4 = _A5 = _A6 = _A7 = None
 
 
 def _per_channel_rows_template(state, y, params, new_state, out, shared):
-    """The composite's step (module notes): every part's step (``_R0`` ...) on its channels, stopping at the first
-    that fails."""
+    """The composite's step (module notes): every part's step (``_A0`` ...: :func:`_advance` of each) on its
+    channels, stopping at the first that fails."""
     n, width = state.shape
     index = np.empty(n, np.int64)
     work = np.empty(n * (3 * width + params.shape[1] + 1))  # one allocation per sample, shared by the parts
-    status = _advance_part(_R0, 0, state, y, params, new_state, out, shared, index, work)
+    # the part's index typed int64, not as the literal 0, 1, ...: numba compiles a callee once per literal
+    # argument, so a step's _advance would be compiled again for each slot it takes in some composite
+    status = _A0(np.int64(0), state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 1 and status == -1:
-        status = _advance_part(_R1, 1, state, y, params, new_state, out, shared, index, work)
+        status = _A1(np.int64(1), state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 2 and status == -1:
-        status = _advance_part(_R2, 2, state, y, params, new_state, out, shared, index, work)
+        status = _A2(np.int64(2), state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 3 and status == -1:
-        status = _advance_part(_R3, 3, state, y, params, new_state, out, shared, index, work)
+        status = _A3(np.int64(3), state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 4 and status == -1:
-        status = _advance_part(_R4, 4, state, y, params, new_state, out, shared, index, work)
+        status = _A4(np.int64(4), state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 5 and status == -1:
-        status = _advance_part(_R5, 5, state, y, params, new_state, out, shared, index, work)
+        status = _A5(np.int64(5), state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 6 and status == -1:
-        status = _advance_part(_R6, 6, state, y, params, new_state, out, shared, index, work)
+        status = _A6(np.int64(6), state, y, params, new_state, out, shared, index, work)
     if _N_PARTS > 7 and status == -1:
-        status = _advance_part(_R7, 7, state, y, params, new_state, out, shared, index, work)
+        status = _A7(np.int64(7), state, y, params, new_state, out, shared, index, work)
     return status
 
 
@@ -188,7 +211,7 @@ def composite_step(steps: Sequence[_kernels.Step]) -> _kernels.Step:
         # the name numba caches it under: short (it is part of a file name), unique (the digest of the full names)
         digest = hashlib.sha1("+".join(labels).encode()).hexdigest()[:10]
         label = "+".join(r.py_func.__qualname__ for r in rows)[:60] + "." + digest
-        slots = {f"_R{i}": rows[i] if i < len(rows) else None for i in range(MAX_PARTS)}
+        slots = {f"_A{i}": _advance(rows[i]) if i < len(rows) else None for i in range(MAX_PARTS)}
         deps = sorted({inspect.getfile(r.py_func) for r in rows} | {_kernels.__file__})
         # compiled once and called by its drivers (the batch kernels, the offline loop, the wrapper's one-call
         # drivers), not inlined into each: numba's inlining types the parts' code again in every driver, 6-8 s
