@@ -1,11 +1,13 @@
 #!/usr/bin/env python
-"""Write the calibrations shipped with the package: Gymnasium's MuJoCo environments with the wrapper's defaults.
+"""Write the calibrations shipped with the package: Gymnasium's MuJoCo environments and the dm_control suite tasks
+of the benchmarks, with the wrapper's defaults.
 
-For every environment of :data:`ENVS` and both sampling rates, ``EstimatedVelocity(gym.make(env_id), rate=rate)``
-is built with its defaults (sensor ``encoder-12bit-noisy``, ``observer="auto"``) and ``disk_cache=False`` (so
-neither the user's cache nor the file being replaced is read): the calibration rollouts and the trials of
-``"auto"`` run, and what they memoized (:func:`smo_gym._cache.memory_entries`: the calibration levels and the
-trials' errors, under the same keys the wrapper looks up) is written to :data:`smo_gym._cache.SHIPPED_FILE`.
+For every environment of :data:`ENVS` and both sampling rates, ``EstimatedVelocity(gym.make(env_id), rate=rate)`` (for a
+dm_control task what ``make_dm_control(domain, task, rate=rate)`` builds) is built with its defaults (sensor
+``encoder-12bit-noisy``, ``observer="auto"``) and ``disk_cache=False`` (so neither the user's cache nor the file being
+replaced is read): the calibration rollouts and the trials of ``"auto"`` run, and what they memoized
+(:func:`smo_gym._cache.memory_entries`: the calibration levels and the trials' errors, under the same keys the wrapper
+looks up) is written to :data:`smo_gym._cache.SHIPPED_FILE`.
 
 A new process then finds these environments calibrated: it skips the rollouts and the trials, and compiling the
 candidates the trials run (``scripts/bench_coldstart.py``). The keys hash the model and every setting, so anything
@@ -35,7 +37,7 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 import gymnasium as gym
 
 from smo_gym import _cache
-from smo_gym._extras import progress
+from smo_gym._extras import progress, require
 from smo_gym.wrappers import EstimatedVelocity
 
 ENVS = (
@@ -50,12 +52,19 @@ ENVS = (
     "Reacher-v5",
     "Swimmer-v5",
     "Walker2d-v5",
+    # the suite tasks of the documentation's dm_control table (shimmy's ids, as make_dm_control builds them)
+    "dm_control/acrobot-swingup-v0",
+    "dm_control/cartpole-swingup-v0",
+    "dm_control/cheetah-run-v0",
+    "dm_control/walker-walk-v0",
 )
 RATES = ("physics", "env")
 
 
 def computed_entries(envs) -> dict[str, list]:
     """The memoized calibrations of ``envs`` at both rates, computed in this process."""
+    if any(env_id.startswith("dm_control/") for env_id in envs):
+        require("shimmy", "dm_control")  # registers the dm_control/... ids
     jobs = [(env_id, rate) for env_id in envs for rate in RATES]
     for env_id, rate in progress(jobs, desc="calibrating", unit="env"):
         t0 = time.perf_counter()

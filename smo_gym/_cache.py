@@ -1,11 +1,12 @@
 """Memoized calibrations: cache keys that are the same in every process, kept in memory and in a JSON file.
 
-The file is ``$SMO_GYM_CACHE_DIR/calibration.json`` (default ``~/.cache/smo_gym``); a read-only home is not an
-error, the memory cache still works. Below the user's file lies a read-only one shipped with the package
-(:data:`SHIPPED_FILE`): the calibrations of Gymnasium's MuJoCo environments with the wrapper's defaults, written by
-``scripts/ship_calibrations.py``. The keys are the same (they hash the model itself and every setting), so an
-environment, model, sensor or setting of its own simply misses it and is calibrated as before; a hit spares a new
-process the calibration rollouts, the trials of ``observer="auto"`` and compiling the candidates it tries.
+The file is ``$SMO_GYM_CACHE_DIR/calibration.json`` (default ``~/.cache/smo_gym``); a read-only home is not an error,
+the memory cache still works. Below the user's file lies a read-only one shipped with the package
+(:data:`SHIPPED_FILE`): the calibrations of Gymnasium's MuJoCo environments and four dm_control suite tasks with the
+wrapper's defaults, written by ``scripts/ship_calibrations.py``. The keys are the same (they hash the model itself and
+every setting), so an environment, model, sensor or setting of its own simply misses it and is calibrated as before; a
+hit spares a new process the calibration rollouts, the trials of ``observer="auto"`` and compiling the candidates it
+tries.
 """
 
 from __future__ import annotations

@@ -61,7 +61,7 @@ def test_suite_task(domain, task):
 
     env_id = f"dm_control/{domain}-{task}-v0"
     raw = gym.make(env_id)
-    wrapped = make_dm_control(domain, task)  # default: noisy 12-bit encoder, super-twisting, physics rate
+    wrapped = make_dm_control(domain, task)  # default: noisy 12-bit encoder, "auto", physics rate
     assert isinstance(wrapped.adapter, DmControlAdapter)
     assert wrapped.observation_space == raw.observation_space
     assert isinstance(wrapped.observation_space, gym.spaces.Dict)
