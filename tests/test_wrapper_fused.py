@@ -120,9 +120,13 @@ def test_fused_path_is_taken_only_where_it_is_exact():
     humanoid = EstimatedVelocity(gym.make("Humanoid-v5"), observer="super-twisting", disk_cache=False)
     humanoid.reset(seed=0)
     assert humanoid._fused is not None
+    # the implicit-Lyapunov-function differentiator's step is compiled too (its implicit equation solved in it)
     ilf = EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer="ilf-finite", disk_cache=False)
     ilf.reset(seed=0)
-    assert ilf._fused is None  # no fused driver for its kernel
+    assert ilf._fused is not None
+    wco = EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer="worst-case-optimal", disk_cache=False)
+    wco.reset(seed=0)
+    assert wco._fused is None  # its kernel is not a registered step: no fused driver
 
 
 def test_fused_errors_name_the_channel_and_keep_the_state():

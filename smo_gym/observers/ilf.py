@@ -34,10 +34,12 @@ level of the implicit Lyapunov function's argument — since for a frozen :math:
 .. math:: \big(I_k - h\,\tilde C R_w(\mathcal D(\rho)L - F)\big)\,s_{k+1} = s^-,\qquad
           R_w = (I - hA_w)^{-1},\quad s^- = C_0^{-1}(y_{k+1} - C\hat x^-).
 
-It is solved on :math:`\log\rho` by the Illinois method (regula falsi kept bracketing, vectorised over the
-batch) after an expanding bracket. With :math:`\tilde r_m = 1` (finite time, :math:`\mu = 1`) the last injection is
-discontinuous and the exact solution can be :math:`s_{k+1} = 0`; the scheme then returns the solution with
-:math:`\rho = \rho_{\min}` (a regularisation at ``rho_min``, the set-valued limit to that precision).
+It is solved on :math:`\log\rho` by the Illinois method (regula falsi kept bracketing) after an expanding bracket,
+compiled and row by row (:func:`solve_implicit_output_error`); the integrator-chain differentiators
+(``"ilf-finite"``, ``"ilf-fixed"``) run that solver inside their compiled step. With :math:`\tilde r_m = 1` (finite
+time, :math:`\mu = 1`) the last injection is discontinuous and the exact solution can be :math:`s_{k+1} = 0`; the
+scheme then returns the solution with :math:`\rho = \rho_{\min}` (a regularisation at ``rho_min``, the set-valued
+limit to that precision).
 
 References
 ----------
@@ -65,6 +67,7 @@ from .._validation import (
     check_positive_array,
 )
 from ..design.ilf import BlockDecomposition, block_decomposition, ilf_degrees, ilf_gains
+from . import _kernels
 from .base import Observer
 from .registry import lipschitz_unit_rule, register_observer
 
@@ -93,15 +96,93 @@ def injection_weights(rho, r_full: np.ndarray, kind: str) -> np.ndarray:
     return 0.5 * (np.exp(-r_full * logr) + np.exp(r_full * logr))
 
 
-def _output_error_at(rho, s_pred, Q, QF, L, h, r_full, kind):
-    """``s(rho)`` solving ``(I - h Q (D(rho) L - F)) s = s_pred``; batch ``(B, k)``."""
-    d = injection_weights(rho, r_full, kind)  # (B, n)
-    k = s_pred.shape[-1]
+@njit(cache=True, error_model="numpy")
+def _weights_at(log_rho, r, fixed, d):
+    """:func:`injection_weights` at one level, from its logarithm, into ``d`` (n,)."""
+    for i in range(r.shape[0]):
+        w = math.exp(-r[i] * log_rho)
+        d[i] = 0.5 * (w + math.exp(r[i] * log_rho)) if fixed else w
+
+
+@njit(cache=True, error_model="numpy")
+def _output_error_row(t, s_pred, Q, QF, L, h, r, fixed, d, s):
+    r"""``s(rho)``, :math:`\rho = e^t`, solving :math:`(I - hQ(\mathcal D(\rho)L - F))s = s^-` for one row, into
+    ``s`` (k,) (``d`` (n,) receives the weights); returns :math:`\log\|s\| - t`, decreasing through its root."""
+    k, n = Q.shape
+    _weights_at(t, r, fixed, d)
     if k == 1:  # scalar output: closed form
-        QDL = np.sum(Q[..., 0, :] * d * L[..., :, 0], axis=-1)
-        return s_pred / (1.0 - h * (QDL - QF[..., 0, 0]))[..., None]
-    N = np.eye(k) - h[..., None, None] * (np.einsum("...in,...n,...nj->...ij", Q, d, L) - QF)
-    return np.linalg.solve(N, s_pred[..., None])[..., 0]
+        qdl = 0.0
+        for j in range(n):
+            qdl += Q[0, j] * d[j] * L[j, 0]
+        s[0] = s_pred[0] / (1.0 - h * (qdl - QF[0, 0]))
+        norm = abs(s[0])
+    else:
+        N = np.empty((k, k))
+        for a in range(k):
+            for b in range(k):
+                qdl = 0.0
+                for j in range(n):
+                    qdl += Q[a, j] * d[j] * L[j, b]
+                N[a, b] = (1.0 if a == b else 0.0) - h * (qdl - QF[a, b])
+        s[:] = np.linalg.solve(N, s_pred)
+        norm = math.sqrt(np.sum(s * s))
+    return math.log(max(norm, 1e-300)) - t
+
+
+@njit(cache=True, error_model="numpy")
+def _solve_row(s_pred, Q, QF, L, h, r, fixed, rho_min, iterations, d, s):
+    """:func:`solve_implicit_output_error` for one row: ``s`` (k,) receives :math:`s_{k+1}`; returns
+    :math:`\rho`."""
+    norm0 = math.sqrt(np.sum(s_pred * s_pred))
+    if not norm0 > 0.0:  # s_pred = 0: nothing to correct
+        s[:] = 0.0
+        return 0.0
+    lo = math.log(rho_min)
+    f_lo = _output_error_row(lo, s_pred, Q, QF, L, h, r, fixed, d, s)
+    hi = math.log(max(norm0, rho_min)) + 1.0
+    f_hi = _output_error_row(hi, s_pred, Q, QF, L, h, r, fixed, d, s)
+    for _ in range(80):  # expand the bracket upwards until phi <= 0
+        if not f_hi > 0:
+            break
+        hi += 5.0
+        f_hi = _output_error_row(hi, s_pred, Q, QF, L, h, r, fixed, d, s)
+    set_valued = f_lo <= 0  # no root above rho_min: the discontinuous injection zeroes s
+    # Illinois (modified regula falsi) on the bracket [a, b], phi(a) > 0 >= phi(b)
+    a, b, fa, fb = lo, hi, f_lo, f_hi
+    todo = not set_valued
+    side = 0
+    for _ in range(iterations):
+        if not todo:
+            break
+        denom = fb - fa
+        t_new = b - fb * (b - a) / denom if denom != 0 else 0.5 * (a + b)
+        t_new = min(max(t_new, min(a, b)), max(a, b))
+        f_new = _output_error_row(t_new, s_pred, Q, QF, L, h, r, fixed, d, s)
+        pos = f_new > 0
+        # keep the bracket: replace the end with the same sign; halve the other's value if it stayed twice
+        if pos:
+            if side == -1:
+                fb = 0.5 * fb
+            a, fa, side = t_new, f_new, -1
+        else:
+            if side == 1:
+                fa = 0.5 * fa
+            b, fb, side = t_new, f_new, 1
+        todo = abs(f_new) > 1e-14 and abs(b - a) > 1e-14 * (1.0 + abs(b))
+    t = lo if set_valued else (a if abs(fa) < abs(fb) else b)  # the better end
+    _output_error_row(t, s_pred, Q, QF, L, h, r, fixed, d, s)
+    return math.exp(t)
+
+
+@njit(cache=True, error_model="numpy")
+def _solve_rows(s_pred, Q, QF, L, h, r, fixed, rho_min, iterations, s_new, rho):
+    """:func:`_solve_row` for every row (``Q``, ``QF``, ``L``: one row for all or one per row)."""
+    d = np.empty(r.shape[0])
+    for i in range(s_pred.shape[0]):
+        j = 0 if Q.shape[0] == 1 else i
+        jf = 0 if QF.shape[0] == 1 else i
+        jl = 0 if L.shape[0] == 1 else i
+        rho[i] = _solve_row(s_pred[i], Q[j], QF[jf], L[jl], h[i], r, fixed, rho_min, iterations, d, s_new[i])
 
 
 def solve_implicit_output_error(
@@ -134,62 +215,18 @@ def solve_implicit_output_error(
     -------
     s_new : ndarray, shape (B, k)
     rho : ndarray, shape (B,)
+
+    Notes
+    -----
+    Compiled, row by row: the integrator-chain differentiators (``"ilf-finite"``, ``"ilf-fixed"``) call the same
+    row solver from their compiled step.
     """
-    B = s_pred.shape[0]
-    norm0 = np.linalg.norm(s_pred, axis=-1)
+    s_pred = np.ascontiguousarray(s_pred, dtype=float)
     s_new = np.zeros_like(s_pred)
-    rho = np.zeros(B)
-    live = norm0 > 0.0  # s_pred = 0: nothing to correct
-    if not np.any(live):
-        return s_new, rho
-    idx = np.flatnonzero(live)
-
-    def take(a):
-        return a if a.shape[0] == 1 else a[idx]
-
-    sp, Qi, QFi, Li, hi = s_pred[idx], take(Q), take(QF), take(L), h[idx]
-
-    def phi(t):  # log||s(e^t)|| - t, decreasing through its root
-        s = _output_error_at(np.exp(t), sp, Qi, QFi, Li, hi, r_full, kind)
-        return np.log(np.maximum(np.linalg.norm(s, axis=-1), 1e-300)) - t, s
-
-    lo = np.full(idx.size, math.log(rho_min))
-    f_lo, _s_lo = phi(lo)
-    hi_t = np.log(np.maximum(norm0[idx], rho_min)) + 1.0
-    f_hi, _ = phi(hi_t)
-    for _ in range(80):  # expand the bracket upwards until phi <= 0
-        bad = f_hi > 0
-        if not np.any(bad):
-            break
-        hi_t = np.where(bad, hi_t + 5.0, hi_t)
-        f_hi, _ = phi(hi_t)
-    set_valued = f_lo <= 0  # no root above rho_min: the discontinuous injection zeroes s
-    # Illinois (modified regula falsi) on the bracket [a, b], phi(a) > 0 >= phi(b), vectorised
-    a, b, fa, fb = lo.copy(), hi_t.copy(), f_lo.copy(), f_hi.copy()
-    todo = ~set_valued
-    side = np.zeros(idx.size, dtype=int)
-    for _ in range(iterations):
-        if not np.any(todo):
-            break
-        denom = fb - fa
-        t_new = np.where(denom != 0, b - fb * (b - a) / np.where(denom != 0, denom, 1.0), 0.5 * (a + b))
-        t_new = np.clip(t_new, np.minimum(a, b), np.maximum(a, b))
-        f_new, _ = phi(t_new)
-        pos = f_new > 0
-        # keep the bracket: replace the end with the same sign; halve the other's value if it stayed twice
-        fb = np.where(todo & pos & (side == -1), 0.5 * fb, fb)
-        fa = np.where(todo & ~pos & (side == 1), 0.5 * fa, fa)
-        a = np.where(todo & pos, t_new, a)
-        fa = np.where(todo & pos, f_new, fa)
-        b = np.where(todo & ~pos, t_new, b)
-        fb = np.where(todo & ~pos, f_new, fb)
-        side = np.where(todo, np.where(pos, -1, 1), side)
-        todo &= (np.abs(f_new) > 1e-14) & (np.abs(b - a) > 1e-14 * (1.0 + np.abs(b)))
-    a = np.where(np.abs(fa) < np.abs(fb), a, b)  # the better end
-    t = np.where(set_valued, lo, a)
-    _, s_t = phi(t)
-    s_new[idx] = s_t
-    rho[idx] = np.exp(t)
+    rho = np.zeros(s_pred.shape[0])
+    f64 = (np.ascontiguousarray(a, dtype=float) for a in (Q, QF, L, h, r_full))
+    Q, QF, L, h, r_full = f64
+    _solve_rows(s_pred, Q, QF, L, h, r_full, kind == "fixed", float(rho_min), int(iterations), s_new, rho)
     return s_new, rho
 
 
@@ -623,62 +660,72 @@ def chain_gain(n: int, mu: float, kind: str, alpha: float | None) -> tuple[float
     return tuple(design.L[:, 0])
 
 
-def _ilf_chain_kernel(state, y, params, new_state, out):
-    r"""Batch step of the chain observer in the time scale :math:`\tau = \omega t` (same convention as the kernels).
+@njit(cache=True, error_model="numpy")
+def ilf_chain_rows(state, y, params, new_state, out, shared):
+    r"""One step of the chain observer on every channel, in the time scale :math:`\tau = \omega t` (the calling
+    convention of :mod:`smo_gym.observers._kernels`; ``shared``: one parameter row for every channel).
 
-    ``state`` rows ``[x~_1..x~_n, innovation]`` with :math:`\tilde x_i = \hat x_i/\omega^{i-1}`; ``params`` rows
-    ``[h, omega, kind(0 finite/1 fixed), mu, rho_min, u, L_1..L_n]``, ``u`` the channel's unit: the step runs on
-    :math:`y/u` and :math:`\tilde x/u`. The step is the one of :class:`ILFObserver` with :math:`A` the shift matrix,
-    :math:`\Phi = I`, ``F = 0`` and step :math:`\omega h`.
+    ``state`` rows ``[x~_1..x~_m, innovation]`` with :math:`\tilde x_i = \hat x_i/\omega^{i-1}`; ``params`` rows
+    ``[h, omega, kind(0 finite/1 fixed), mu, rho_min, u, L_1..L_m]``, ``u`` the channel's unit: the step runs on
+    :math:`y/u` and :math:`\tilde x/u`. It is the step of :class:`ILFObserver` with :math:`A` the shift matrix,
+    :math:`\Phi = I`, ``F = 0`` and step :math:`\omega h`: the exact prediction :math:`e^{hN}\tilde x` (Taylor),
+    the implicit output error of :func:`solve_implicit_output_error` (its row solver, :math:`Q` the first row
+    ``[1, h, h^2, ...]`` of :math:`(I - hN)^{-1}`), and the injection :math:`h(I - hN)^{-1}\mathcal D(\rho)Ls`.
     """
-    y = y.reshape(-1)
-    bad = np.flatnonzero(~np.isfinite(y))
-    if bad.size:
-        return int(bad[0])
-    with np.errstate(all="ignore"):  # a non-finite new state is reported by the status, like the compiled kernels
-        return _ilf_chain_step(state, y, params, new_state, out)
+    m = out.shape[1]
+    Q = np.empty((1, m))  # the first row of R = (I - hN)^-1: [1, h, h^2, ...]
+    QF = np.zeros((1, 1))
+    L = np.empty((m, 1))
+    r = np.empty(m)
+    d = np.empty(m)
+    s_pred = np.empty(1)
+    s = np.empty(1)
+    x = np.empty(m)
+    failed = False
+    for c in range(y.shape[0]):
+        p = params[0 if shared else c]
+        omega, fixed, mu, rho_min, unit = p[1], p[2] != 0.0, p[3], p[4], p[5]
+        h = p[0] * omega  # the step in tau
+        power = 1.0
+        for i in range(m):
+            r[i] = (i + 1) * mu / (1.0 + (m - 1) * mu)  # ilf_degrees(m, mu)
+            L[i, 0] = p[6 + i]
+            Q[0, i] = power
+            power *= h
+        for i in range(m):  # the exact prediction, in units of u (the fixed-time weights take |s| in them)
+            acc = 0.0
+            term = 1.0  # h^(j - i) / (j - i)!
+            for j in range(i, m):
+                acc += state[c, j] / unit * term
+                term *= h / (j - i + 1)
+            x[i] = acc
+        s_pred[0] = y[c] / unit - x[0]
+        rho = _solve_row(s_pred, Q, QF, L, h, r, fixed, rho_min, 60, d, s)
+        _weights_at(math.log(rho) if rho > 0 else 0.0, r, fixed, d)  # weights 1 where rho is 0
+        for i in range(m):  # the injection D(rho) L s
+            d[i] = d[i] * L[i, 0] * s[0]
+        scale = 1.0
+        for i in range(m):  # x_new = x_pred - h R inj, R_ij = h^(j-i) for j >= i
+            acc = 0.0
+            for j in range(i, m):
+                acc += d[j] * Q[0, j - i]
+            new_state[c, i] = (x[i] - h * acc) * unit
+            out[c, i] = new_state[c, i] * scale
+            scale *= omega
+        new_state[c, m] = y[c] - unit * x[0]
+        for i in range(m + 1):
+            failed |= not math.isfinite(new_state[c, i])
+        for i in range(m):
+            failed |= not math.isfinite(out[c, i])
+    return _kernels._check_state(new_state, out) if failed else -1
 
 
-def _ilf_chain_step(state, y, params, new_state, out):
-    """The step of :func:`_ilf_chain_kernel` for a finite ``y``."""
-    m = out.shape[-1]
-    N = y.shape[0]
-    h = params[:, 0] * params[:, 1]  # step in tau
-    omega, unit = params[:, 1], params[:, 5]
-    kind = "finite" if params[0, 2] == 0.0 else "fixed"
-    mu = params[0, 3]
-    L = params[:, 6 : 6 + m]
-    x = state[:, :m] / unit[:, None]  # in units of u: the fixed-time weights rho^(+r) take |s| in them
-    y_unit = y / unit
-    # exact prediction e^{hN} x (Taylor matrix) and first row of R = (I - hN)^-1: [1, h, h^2, ...]
-    j = np.arange(m)
-    hp = h[:, None] ** j[None, :]  # (N, m)
-    fact = np.array([math.factorial(i) for i in range(m)], dtype=float)
-    x_pred = np.empty_like(x)
-    for i in range(m):
-        x_pred[:, i] = np.sum(x[:, i:] * hp[:, : m - i] / fact[: m - i], axis=1)
-    s_pred = (y_unit - x_pred[:, 0])[:, None]
-    r = ilf_degrees(m, mu)
-    s_new, rho = solve_implicit_output_error(
-        s_pred, hp[:, None, :], np.zeros((1, 1, 1)), L[:, :, None], h, r, kind, rho_min=params[0, 4]
-    )
-    d = injection_weights(np.where(rho > 0, rho, 1.0), r, kind)
-    inj = d * L * s_new  # (N, m): D L s
-    # x_new = x_pred - h R inj, R_ij = h^(j-i) for j >= i
-    x_new = np.empty_like(x)
-    for i in range(m):
-        x_new[:, i] = x_pred[:, i] - h * np.sum(inj[:, i:] * hp[:, : m - i], axis=1)
-    new_state[:, :m] = x_new * unit[:, None]
-    new_state[:, m] = y - unit * x_pred[:, 0]
-    out.reshape(N, m)[:] = new_state[:, :m] * omega[:, None] ** j[None, :]
-    finite = np.isfinite(new_state).all(axis=1) & np.isfinite(out.reshape(N, m)).all(axis=1)
-    if not finite.all():
-        return -2 - int(np.flatnonzero(~finite)[0])
-    return -1
+_STEP = _kernels.register_step(ilf_chain_rows, allocates=True)
 
 
 @register_observer(
     "ilf-finite",
+    steps=(_STEP,),
     calibrate=lipschitz_unit_rule,
     given=(("lipschitz",), ("rate",)),
     examples=(dict(order=1, lipschitz=20.0),),
@@ -724,7 +771,7 @@ class ILFDifferentiator(Observer):
         ``rho_min``).
     discretization : {"implicit"}
         Exact chain prediction plus implicit-Euler injection (see :mod:`smo_gym.observers.ilf`); stable at any
-        step and any error. Not a compiled kernel: a NumPy step of about 0.5-1 ms.
+        step and any error.
     wrap : bool or array_like of bool, optional
         Channels measured as angles modulo ``2 pi`` (see :class:`~smo_gym.observers.Observer`).
 
@@ -790,7 +837,7 @@ class ILFDifferentiator(Observer):
 
     @property
     def _kernel(self):
-        return _ilf_chain_kernel
+        return _STEP.kernel
 
     def _load_estimate(self, state, x0, params):
         r"""The state in the time scale :math:`\tau = \omega t`: :math:`\tilde x_i = \hat x_i/\omega^{i-1}`."""
@@ -822,6 +869,7 @@ class ILFDifferentiator(Observer):
 
 @register_observer(
     "ilf-fixed",
+    steps=(_STEP,),
     calibrate=lipschitz_unit_rule,
     given=(("lipschitz",), ("rate",)),
     examples=(dict(order=1, rate=30.0),),
