@@ -90,18 +90,27 @@ def injection_weights(rho, r_full: np.ndarray, kind: str) -> np.ndarray:
     ``"finite"``: :math:`\rho^{-\tilde r_i}` (7); ``"fixed"``: :math:`\tfrac12(\rho^{-\tilde r_i}+\rho^{\tilde r_i})`
     (17). ``r_full`` holds one weight per coordinate.
     """
-    logr = np.log(np.asarray(rho, dtype=float))[..., None]
-    if kind == "finite":
-        return np.exp(-r_full * logr)
-    return 0.5 * (np.exp(-r_full * logr) + np.exp(r_full * logr))
+    logr = np.log(np.asarray(rho, dtype=float))
+    r_full = np.ascontiguousarray(r_full, dtype=float)
+    weights = np.empty(logr.shape + r_full.shape)
+    _weights_rows(logr.reshape(-1), r_full, kind == "fixed", weights.reshape(-1, r_full.size))
+    return weights
 
 
 @njit(cache=True, error_model="numpy")
 def _weights_at(log_rho, r, fixed, d):
-    """:func:`injection_weights` at one level, from its logarithm, into ``d`` (n,)."""
+    """:func:`injection_weights` at one level, from its logarithm, into ``d`` (n,): the one place of the formula,
+    for the compiled steps and (:func:`_weights_rows`) for NumPy callers."""
     for i in range(r.shape[0]):
         w = math.exp(-r[i] * log_rho)
         d[i] = 0.5 * (w + math.exp(r[i] * log_rho)) if fixed else w
+
+
+@njit(cache=True, error_model="numpy")
+def _weights_rows(log_rho, r, fixed, out):
+    """:func:`_weights_at` at every level of ``log_rho`` (B,), into ``out`` (B, n)."""
+    for b in range(log_rho.shape[0]):
+        _weights_at(log_rho[b], r, fixed, out[b])
 
 
 @njit(cache=True, error_model="numpy")
@@ -666,7 +675,8 @@ def ilf_chain_rows(state, y, params, new_state, out, shared):
     convention of :mod:`smo_gym.observers._kernels`; ``shared``: one parameter row for every channel).
 
     ``state`` rows ``[x~_1..x~_m, innovation]`` with :math:`\tilde x_i = \hat x_i/\omega^{i-1}`; ``params`` rows
-    ``[h, omega, kind(0 finite/1 fixed), mu, rho_min, u, L_1..L_m]``, ``u`` the channel's unit: the step runs on
+    ``[h, omega, kind(0 finite/1 fixed), rho_min, u, L_1..L_m, r_1..r_m]``, ``u`` the channel's unit, ``r`` the
+    weights :func:`~smo_gym.design.ilf_degrees` of ``mu``: the step runs on
     :math:`y/u` and :math:`\tilde x/u`. It is the step of :class:`ILFObserver` with :math:`A` the shift matrix,
     :math:`\Phi = I`, ``F = 0`` and step :math:`\omega h`: the exact prediction :math:`e^{hN}\tilde x` (Taylor),
     the implicit output error of :func:`solve_implicit_output_error` (its row solver, :math:`Q` the first row
@@ -684,12 +694,12 @@ def ilf_chain_rows(state, y, params, new_state, out, shared):
     failed = False
     for c in range(y.shape[0]):
         p = params[0 if shared else c]
-        omega, fixed, mu, rho_min, unit = p[1], p[2] != 0.0, p[3], p[4], p[5]
+        omega, fixed, rho_min, unit = p[1], p[2] != 0.0, p[3], p[4]
         h = p[0] * omega  # the step in tau
         power = 1.0
         for i in range(m):
-            r[i] = (i + 1) * mu / (1.0 + (m - 1) * mu)  # ilf_degrees(m, mu)
-            L[i, 0] = p[6 + i]
+            L[i, 0] = p[5 + i]
+            r[i] = p[5 + m + i]
             Q[0, i] = power
             power *= h
         for i in range(m):  # the exact prediction, in units of u (the fixed-time weights take |s| in them)
@@ -859,12 +869,12 @@ class ILFDifferentiator(Observer):
                 np.full(N, self.dt),
                 omega,
                 np.full(N, 0.0 if self.kind == "finite" else 1.0),
-                np.full(N, self.mu),
                 np.full(N, self.rho_min),
                 unit,
             ]
         )
-        return np.hstack([head, np.broadcast_to(self.gain, (N, n))])
+        weights = ilf_degrees(n, self.mu)
+        return np.hstack([head, np.broadcast_to(self.gain, (N, n)), np.broadcast_to(weights, (N, n))])
 
 
 @register_observer(
