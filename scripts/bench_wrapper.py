@@ -32,10 +32,17 @@ HalfCheetah         1.20            1.40
 Humanoid            1.10            1.20
 ================== ============== ==================
 
+``--tables resets`` times the same blocks with the resets at episode ends (no seed, as a vector env's autoreset
+does) counted too: what a training loop pays per environment step, where a short-episode environment resets every
+few steps; then the wrapper's reset against the raw one, with its parts timed in situ (the environment's own reset,
+the sensor's and the observer's, the check of the compiled observation, the first observation). No targets: those
+are the steps'.
+
 ``--profile ENV`` prints a cProfile of the wrapped step (``rate="physics"`` and ``"env"``) on that environment,
 sorted by internal time, to show where the wrapper's time goes.
 
-Run: ``MUJOCO_GL=disable .venv/bin/python scripts/bench_wrapper.py`` (``--quick`` for a short run).
+Run: ``MUJOCO_GL=disable .venv/bin/python scripts/bench_wrapper.py`` (``--quick`` for a short run;
+``--tables resets --observer auto`` for the resets with the wrapper's default observer).
 """
 
 from __future__ import annotations
@@ -88,8 +95,9 @@ def smooth_actions(space: gym.spaces.Box, n: int, seed: int) -> list[np.ndarray]
     return out
 
 
-def timed_block(env: gym.Env, actions: list[np.ndarray], seed: int) -> float:
-    """CPU seconds spent in ``env.step`` over ``actions`` (reset, untimed, at episode ends and at the start)."""
+def timed_block(env: gym.Env, actions: list[np.ndarray], seed: int, resets: bool = False) -> float:
+    """CPU seconds spent in ``env.step`` over ``actions``, reset at episode ends (without a seed, as an autoreset):
+    those resets untimed, or timed too with ``resets``. The reset at the start is never timed."""
     env.reset(seed=seed)
     step, clock = env.step, CLOCK
     total = 0.0
@@ -97,17 +105,41 @@ def timed_block(env: gym.Env, actions: list[np.ndarray], seed: int) -> float:
     for a in actions:
         _, _, terminated, truncated, _ = step(a)
         if terminated or truncated:
+            if resets:
+                env.reset()
+                continue
             total += clock() - t0
             env.reset()
             t0 = clock()
     return total + (clock() - t0)
 
 
+def episode_ends(env_id: str, actions: list[np.ndarray], seed: int) -> int:
+    """How many episodes end within ``actions`` from ``reset(seed=seed)`` (the same for every variant)."""
+    env = gym.make(env_id)
+    env.reset(seed=seed)
+    ends = 0
+    for a in actions:
+        _, _, terminated, truncated, _ = env.step(a)
+        if terminated or truncated:
+            ends += 1
+            env.reset()
+    env.close()
+    return ends
+
+
 def bench_env(
-    env_id: str, repeats: int, steps: int, seed: int = 0, observer: str = "super-twisting", envs: dict | None = None
+    env_id: str,
+    repeats: int,
+    steps: int,
+    seed: int = 0,
+    observer: str = "super-twisting",
+    envs: dict | None = None,
+    resets: bool = False,
 ) -> dict:
     """Median step-time ratios against ``raw`` (interleaved, see the module docstring); ``envs`` maps variant
-    names to environments (default: :data:`VARIANTS`), one of them ``"raw"``."""
+    names to environments (default: :data:`VARIANTS`), one of them ``"raw"``; ``resets``: the resets at episode
+    ends are timed too (:func:`timed_block`)."""
     envs = envs or {v: make_variant(env_id, v, observer) for v in VARIANTS}
     variants = tuple(envs)
     actions = smooth_actions(envs["raw"].action_space, steps, seed)
@@ -121,7 +153,7 @@ def bench_env(
         for r in range(repeats):
             for idx in order_rng.permutation(len(variants)):
                 v = variants[idx]
-                times[v].append(timed_block(envs[v], actions, seed + r))
+                times[v].append(timed_block(envs[v], actions, seed + r, resets))
             gc.collect()
     finally:
         if gc_was_enabled:
@@ -239,6 +271,93 @@ def format_ablation(env_id: str, rate: str, res: dict) -> str:
     return "\n".join(lines)
 
 
+def format_with_resets(results: list[dict], ends: dict) -> str:
+    """Markdown table of :func:`bench_env` results timed with the resets (no targets: those are for the steps)."""
+    lines = [
+        "| environment | episode ends (block of seed 0) | raw us/step | NormalizeObservation | "
+        'rate="env" | rate="physics" |',
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for res in results:
+        cells = []
+        for v in ("NormalizeObservation", "env", "physics"):
+            q1, q3 = res[v]["iqr"]
+            cells.append(f"{res[v]['ratio']:.3f} [{q1:.2f}-{q3:.2f}]")
+        lines.append(f"| {res['env_id']} | {ends[res['env_id']]} | {res['raw_us']:.1f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+#: the calls of ``EstimatedVelocity.reset`` timed by :func:`reset_parts`: (label, the object, the attribute)
+RESET_PARTS = (
+    ("the environment's own reset", lambda env: (env.env, "reset")),
+    ("sensor (JointMeasurement.reset)", lambda env: (env.measurement, "reset")),
+    ("observer (VelocityEstimator.reset: a restart)", lambda env: (env.estimator, "reset")),
+    ("check of the compiled observation (ScratchObservation.verify)", lambda env: (env.adapter.evaluation, "verify")),
+    ("observation and info['smo'] (general path)", lambda env: (env, "_observe")),
+)
+
+
+def reset_parts(env_id: str, observer: str, resets: int = 2000, rates=("env", "physics")) -> dict:
+    """Median wall time (us) of ``resets`` resets without a seed of the raw environment and of the wrapper at each
+    of ``rates``, and of each part of the wrapper's reset (:data:`RESET_PARTS`) timed in situ by wrapping the calls
+    with a clock read before and after (instance attributes; ~0.1 us each). Interleaved in blocks of 100 resets
+    (raw, then each rate), so that the machine's drift hits every column alike. Returns ``{rate: {part: us}}``,
+    each with ``"raw"`` and ``"wrapped"``."""
+    raw = make_variant(env_id, "raw")
+    wrapped = {rate: make_variant(env_id, rate, observer) for rate in rates}
+    clock = time.perf_counter_ns
+
+    def timed(call, into: list):
+        def call_timed(*args, **kwargs):
+            t0 = clock()
+            out = call(*args, **kwargs)
+            into.append(clock() - t0)
+            return out
+
+        return call_timed
+
+    parts = {rate: {} for rate in rates}
+    for e in (raw, *wrapped.values()):
+        e.reset(seed=0)
+        e.step(e.action_space.sample())
+    for rate, env in wrapped.items():
+        for name, where in RESET_PARTS:
+            obj, attr = where(env)
+            setattr(obj, attr, timed(getattr(obj, attr), parts[rate].setdefault(name, [])))
+    totals = {key: [] for key in ("raw", *rates)}
+    for _ in range(resets // 100):
+        for key, e in (("raw", raw), *wrapped.items()):
+            for _ in range(100):
+                t0 = clock()
+                e.reset()
+                totals[key].append(clock() - t0)
+    out = {}
+    for rate in rates:
+        times = {"raw": totals["raw"], "wrapped": totals[rate], **parts[rate]}
+        out[rate] = {key: 1e-3 * float(np.median(v)) for key, v in times.items()}
+    for e in (raw, *wrapped.values()):
+        e.close()
+    return out
+
+
+def format_resets(env_id: str, res: dict) -> str:
+    """Markdown table of :func:`reset_parts` (``res`` maps each rate to its result)."""
+    rates = tuple(res)
+    lines = [
+        f"{env_id}: reset without a seed, median us (parts timed in situ)",
+        "| part | " + " | ".join(f"rate={r!r}" for r in rates) + " |",
+        "|---|" + "---:|" * len(rates),
+        "| raw environment's reset | " + " | ".join(f"{res[r]['raw']:.1f}" for r in rates) + " |",
+        "| EstimatedVelocity's reset | " + " | ".join(f"{res[r]['wrapped']:.1f}" for r in rates) + " |",
+    ]
+    for name, _ in RESET_PARTS:
+        lines.append(f"| - {name} | " + " | ".join(f"{res[r][name]:.1f}" for r in rates) + " |")
+    rest = [res[r]["wrapped"] - sum(res[r][name] for name, _ in RESET_PARTS) for r in rates]
+    lines.append("| - the rest (streams, bookkeeping, the fused path's preparation) | "
+                 + " | ".join(f"{v:.1f}" for v in rest) + " |")  # fmt: skip
+    return "\n".join(lines)
+
+
 def cold_path(env_id: str, n: int = 3000, repeats: int = 5) -> str:
     """Why the wrapper costs more inside a step than its parts cost in a loop: after ``env.step`` the first
     (sensor measure + observer update) pair of a step is timed against a second identical pair and against the
@@ -307,7 +426,16 @@ def main(argv=None) -> int:
         action="store_true",
         help="also print the marginal cost of each part of the wrapper (see ablations())",
     )
+    parser.add_argument(
+        "--tables",
+        default="steps",
+        help="comma-separated among: steps (the step-time table, the default), resets (the steps timed with the "
+        "resets at episode ends, and the parts of a reset)",
+    )
     args = parser.parse_args(argv)
+    tables = {t.strip() for t in args.tables.split(",") if t.strip()}
+    if not tables or tables - {"steps", "resets"}:
+        parser.error(f"expected --tables among steps, resets, actual value: {args.tables!r}")
     if args.quick:
         args.repeats, args.steps = 7, 200
     warnings.filterwarnings("ignore")
@@ -317,18 +445,34 @@ def main(argv=None) -> int:
             print(profile(args.profile, args.steps * 5, rate, args.observer))
         return 0
     envs = [e.strip() for e in args.envs.split(",") if e.strip()]
-    print(
-        f"EstimatedVelocity step time / raw step time ({args.observer}, default sensor), medians over "
-        f"{args.repeats} interleaved blocks of {args.steps} steps (thread CPU time); [IQR of the ratio]; "
-        f"pass = ratio <= target and < NormalizeObservation's ratio\n",
-        flush=True,
-    )
-    results = []
-    for env_id in envs:
-        t0 = time.perf_counter()
-        results.append(bench_env(env_id, args.repeats, args.steps, observer=args.observer))
-        print(f"  {env_id}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-    print(format_table(results))
+    if "steps" in tables:
+        print(
+            f"EstimatedVelocity step time / raw step time ({args.observer}, default sensor), medians over "
+            f"{args.repeats} interleaved blocks of {args.steps} steps (thread CPU time); [IQR of the ratio]; "
+            f"pass = ratio <= target and < NormalizeObservation's ratio\n",
+            flush=True,
+        )
+        results = []
+        for env_id in envs:
+            t0 = time.perf_counter()
+            results.append(bench_env(env_id, args.repeats, args.steps, observer=args.observer))
+            print(f"  {env_id}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+        print(format_table(results))
+    if "resets" in tables:
+        print(
+            f"\nWith the resets: the same blocks ({args.observer}, default sensor, {args.repeats} interleaved blocks "
+            f"of {args.steps} steps, thread CPU time), the resets at episode ends (no seed, as an autoreset) timed "
+            "too: what a training loop pays per environment step; [IQR of the ratio]\n",
+            flush=True,
+        )
+        results, ends = [], {}
+        for env_id in envs:
+            ends[env_id] = episode_ends(env_id, smooth_actions(gym.make(env_id).action_space, args.steps, 0), 0)
+            results.append(bench_env(env_id, args.repeats, args.steps, observer=args.observer, resets=True))
+        print(format_with_resets(results, ends))
+        print("\nWhere a reset's time goes: the wrapper's reset and its parts, in situ\n")
+        for env_id in envs:
+            print(format_resets(env_id, reset_parts(env_id, args.observer)) + "\n", flush=True)
     if args.cold_path:
         print("\nCold path: the same sensor+observer calls cost more right after the physics step\n")
         for env_id in envs:

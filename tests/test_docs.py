@@ -141,7 +141,7 @@ def test_benchmark_pages_are_built_from_the_results_files(site):
             "results/accuracy/uniform.md",
             "results/accuracy/dm_control.md",
         ],
-        "benchmarks/wrapper-cost": ["results/wrapper/bench_wrapper.txt"],
+        "benchmarks/wrapper-cost": ["results/wrapper/bench_wrapper.txt", "results/wrapper/bench_resets.txt"],
     }
     for page, files in pages.items():
         html = (site / page / "index.html").read_text()
