@@ -19,6 +19,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from smo_gym.observers import FiniteDifference
+
 #: the repository root
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -94,6 +96,11 @@ def private_calibration_cache(tmp_path_factory):
     """Calibrations go to a temporary cache (inherited by vector-env subprocesses), not the user's."""
     with _environment_variable("SMO_GYM_CACHE_DIR", str(tmp_path_factory.mktemp("smo_cache"))):
         yield
+
+
+class UnregisteredFiniteDifference(FiniteDifference):
+    """A subclass of a registered family: a family of its own, whose Python could differ from the family's compiled
+    step, so the compiled paths (composites, the wrapper's one-call path, batched vector steps) must not take it."""
 
 
 def smooth_actions(space, n: int, seed: int) -> list:

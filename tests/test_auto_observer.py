@@ -9,6 +9,7 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import UnregisteredFiniteDifference
 
 import smo_gym
 from smo_gym import selection
@@ -179,10 +180,6 @@ def test_per_channel_is_all_or_nothing():
     np.testing.assert_array_equal(composite.run(Y[4:9]), twin.run(Y[4:9]))
 
 
-class _Subclass(FiniteDifference):
-    """Not the registered family: its Python could differ from the compiled step."""
-
-
 @pytest.mark.parametrize(
     ("parts", "error", "message"),
     [
@@ -191,7 +188,7 @@ class _Subclass(FiniteDifference):
         ([(FiniteDifference(dt=DT), [0]), (FiniteDifference(dt=2 * DT), [1])], ValueError, "sharing one dt"),
         ([(FiniteDifference(dt=DT), [0.5])], TypeError, "sequence of ints"),
         ([("finite-difference", [0])], TypeError, r"pair \(Observer, channels\)"),
-        ([(_Subclass(dt=DT), [0])], TypeError, "runs a compiled step"),
+        ([(UnregisteredFiniteDifference(dt=DT), [0])], TypeError, "runs a compiled step"),
     ],
 )
 def test_per_channel_rejects_bad_parts(parts, error, message):

@@ -7,11 +7,12 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import UnregisteredFiniteDifference
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnvWrapper, VecNormalize
 
 from smo_gym import sensors
 from smo_gym.engine.batch import BatchedSensing, MeasurementBatch
-from smo_gym.observers import DivergenceError, FiniteDifference
+from smo_gym.observers import DivergenceError
 from smo_gym.wrappers import EstimatedVelocity, JointSensor, VecEstimatedVelocity, VectorEstimatedVelocity
 
 #: the keys of info["smo"], the same from every wrapper
@@ -571,19 +572,15 @@ def test_a_diverging_batched_observer_is_a_typed_error_and_keeps_its_state(api):
     np.testing.assert_array_equal(vec.observer.state, before)
 
 
-class _FiniteDifferenceSubclass(FiniteDifference):
-    """Not the registered family: its ``update`` could differ from the compiled step."""
-
-
 def test_an_observer_without_a_compiled_step_takes_the_general_path():
     """A subclass of a family is a family of its own, whose Python may differ from the compiled step: the vector step
     measures, updates and observes in three moves, with the per-environment wrappers' numbers."""
     dt = gym.make(ENV).unwrapped.dt
     ref = DummyVecEnv(
-        [lambda: EstimatedVelocity(gym.make(ENV), rate="env", observer=_FiniteDifferenceSubclass(dt=dt))] * 2
+        [lambda: EstimatedVelocity(gym.make(ENV), rate="env", observer=UnregisteredFiniteDifference(dt=dt))] * 2
     )
     vec = VecEstimatedVelocity(
-        DummyVecEnv([lambda: gym.make(ENV)] * 2), "encoder-12bit-noisy", _FiniteDifferenceSubclass(dt=dt)
+        DummyVecEnv([lambda: gym.make(ENV)] * 2), "encoder-12bit-noisy", UnregisteredFiniteDifference(dt=dt)
     )
     ref.seed(4)
     vec.seed(4)

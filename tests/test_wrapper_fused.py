@@ -9,13 +9,13 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from conftest import full_forward_observation
+from conftest import UnregisteredFiniteDifference, full_forward_observation
 from gymnasium.envs.mujoco.hopper_v5 import HopperEnv
 from gymnasium.envs.mujoco.inverted_pendulum_v5 import InvertedPendulumEnv
 
 from smo_gym.engine import FusedSensing
 from smo_gym.engine.scratch import INPUT_FIELDS, OBSERVED_FIELDS, copy_observed_fields
-from smo_gym.observers import DivergenceError, FiniteDifference
+from smo_gym.observers import DivergenceError
 from smo_gym.specs import parse_observer_spec
 from smo_gym.wrappers import EstimatedVelocity
 from smo_gym.wrappers.adapters import make_adapter
@@ -125,20 +125,16 @@ def test_fused_path_is_taken_only_where_it_is_exact():
     ilf = EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer="ilf-finite", disk_cache=False)
     ilf.reset(seed=0)
     assert ilf._fused is not None
-    # and the worst-case-optimal differentiator's window
+    # and the worst-case-optimal differentiator (a window of past samples in its state)
     wco = EstimatedVelocity(gym.make("InvertedPendulum-v5"), observer="worst-case-optimal", disk_cache=False)
     wco.reset(seed=0)
     assert wco._fused is not None
     # a subclass of a family is a family of its own, whose Python may differ from the compiled step: not fused
     subclass = EstimatedVelocity(
-        gym.make("InvertedPendulum-v5"), observer=_FiniteDifferenceSubclass(dt=0.02), disk_cache=False
+        gym.make("InvertedPendulum-v5"), observer=UnregisteredFiniteDifference(dt=0.02), disk_cache=False
     )
     subclass.reset(seed=0)
     assert subclass._fused is None
-
-
-class _FiniteDifferenceSubclass(FiniteDifference):
-    """Not the registered family: its ``update`` could differ from the compiled step."""
 
 
 def test_fused_errors_name_the_channel_and_keep_the_state():
