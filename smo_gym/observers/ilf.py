@@ -233,8 +233,7 @@ def solve_implicit_output_error(
     s_pred = np.ascontiguousarray(s_pred, dtype=float)
     s_new = np.zeros_like(s_pred)
     rho = np.zeros(s_pred.shape[0])
-    f64 = (np.ascontiguousarray(a, dtype=float) for a in (Q, QF, L, h, r_full))
-    Q, QF, L, h, r_full = f64
+    Q, QF, L, h, r_full = (np.ascontiguousarray(a, dtype=float) for a in (Q, QF, L, h, r_full))
     _solve_rows(s_pred, Q, QF, L, h, r_full, kind == "fixed", float(rho_min), int(iterations), s_new, rho)
     return s_new, rho
 
