@@ -405,9 +405,7 @@ class Sensor:
         if rng is not None and rng is self._rng and config == self._config:
             # the same stream continues (an episode restart without a new seed): the packed parameters and the
             # pre-drawn random block stay valid, so a restart costs no refill
-            self._state[:] = 0.0
-            self._ring[:] = 0.0
-            self._ring_pos[:] = 0
+            return self._start(y0.reshape(1, n))
         else:
             stages = self.stages
             S = len(stages)
@@ -439,14 +437,53 @@ class Sensor:
             ]
             self._t = BLOCK  # drawn at the first sample
             self._block_call = None
+        return self._start(y0.reshape(1, n))
+
+    def restart(self, y0) -> np.ndarray:
+        """Start a new episode at the true signal ``y0`` on the stream of the last reset, which goes on: the
+        reset with that reset's generator, ``dt`` and ``angular``, for a ``y0`` of its shape.
+
+        The stages' state starts again (delays, held values; biases drawn anew) and the packed parameters and the
+        random numbers already drawn are kept, as in that reset; the arguments that did not change are not checked
+        again (a wrapper restarts its sensor at every episode end, and the checks cost as much as the restart).
+
+        Returns
+        -------
+        ndarray, shape (..., n_channels)
+            The first measurement, as :meth:`reset`'s.
+
+        Raises
+        ------
+        RuntimeError
+            Before any reset.
+        ValueError
+            ``y0`` of another shape than the last reset's, or not finite (the sensor's state is kept).
+        """
+        y0 = self._check_ready(y0, "y0")
+        if y0.shape != self._shape:
+            raise ValueError(f"expected y0 with the last reset's shape {self._shape}, actual value: {y0.shape}")
+        y0f = y0.reshape(1, self._size)
+        if not np.isfinite(y0f).all():
+            channel = int(np.flatnonzero(~np.isfinite(y0f[0]))[0])
+            raise ValueError(
+                f"expected a finite measurement, actual value: {y0f[0, channel]!r} at "
+                f"{self._where(channel, self._shape)} in the true signal y0; the sensor's state was kept"
+            )
+        return self._start(y0f)
+
+    def _start(self, y0f: np.ndarray) -> np.ndarray:
+        """A new episode at the checked true signal ``y0f`` ``(1, n)``: the stages' state from zero and the drawn ones
+        (:class:`Bias`) drawn, then the first measurement (one compiled call)."""
+        self._state[:] = 0.0
+        self._ring[:] = 0.0
+        self._ring_pos[:] = 0
         for s, st in self._drawn:
-            self._state[s] = st._initial_state(n, self._rng)
+            self._state[s] = st._initial_state(self._size, self._rng)
         if self._t >= BLOCK:
             self._refill()
         if self._block_call is None:
             self._bind()
-        out = np.empty((1, n))
-        y0f = y0.reshape(1, n)
+        out = np.empty_like(y0f)
         status = self._block_call(
             y0f, self._kinds, self._params, self._state, self._ring, self._ring_pos, self._rand, self._t, out, True
         )

@@ -272,6 +272,40 @@ def test_restart_with_the_same_generator_continues_the_stream_and_restarts_the_s
     np.testing.assert_allclose(a[9], 51.0 + bias_2, atol=1e-5)
 
 
+def test_restart_is_a_reset_on_the_same_stream():
+    """``restart(y0)`` is ``reset(y0, rng=<the last reset's generator>)`` with the same ``dt`` and ``angular``, bit
+    for bit over episodes (a drawn bias, a delay line, dropouts, noise), and refuses what that reset would not take:
+    before any reset, another shape, a non-finite true signal (the state kept: the stream goes on as a twin's)."""
+    from smo_gym.sensors import Bias, Delay, GaussianNoise
+
+    def make():
+        return Delay(2) | Bias(0.0, std=0.1) | Dropout(0.3) | GaussianNoise(1e-3)
+
+    angular = np.array([True, False, True])
+    Y = np.cumsum(np.full((40, 3), 0.01), axis=0)
+    reset, restart = make(), make()
+    with pytest.raises(RuntimeError, match="reset"):
+        restart.restart(Y[0])
+    rng_a, rng_b = np.random.default_rng(5), np.random.default_rng(5)
+    got = {"reset": [reset.reset(Y[0], rng=rng_a, dt=0.01, angular=angular)],
+           "restart": [restart.reset(Y[0], rng=rng_b, dt=0.01, angular=angular)]}  # fmt: skip
+    for episode in range(1, 4):
+        start = 10 * episode
+        got["reset"].append(reset.reset(Y[start], rng=rng_a, dt=0.01, angular=angular))
+        got["restart"].append(restart.restart(Y[start]))
+        for name, sensor in (("reset", reset), ("restart", restart)):
+            got[name] += list(sensor.run(Y[start + 1 : start + 10]))
+    np.testing.assert_array_equal(np.array(got["restart"]), np.array(got["reset"]))
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        restart.restart(Y[0, :2])
+    bad = Y[0].copy()
+    bad[2] = np.nan
+    with pytest.raises(ValueError, match="channel 2") as excinfo:
+        restart.restart(bad)
+    assert_worded(excinfo)
+    np.testing.assert_array_equal(restart.run(Y[:5]), reset.run(Y[:5]))
+
+
 # ---- bad input ----------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "sensor", [Delay(2), Dropout(0.5), Delay(3) | Dropout(0.3) | GaussianNoise(1e-3), make_sensor("low-cost")], ids=repr
