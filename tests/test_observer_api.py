@@ -142,6 +142,15 @@ def test_restart_equals_a_fresh_reset_in_place(name, kwargs, rng):
 
 
 @pytest.mark.parametrize("name, kwargs", CASES)
+def test_the_declared_state_width_is_the_states(name, kwargs, rng):
+    """``_state_width()`` is the width of the state a reset makes: a composite (:class:`PerChannel`) sizes its rows
+    and groups its parts by it, before any part is reset."""
+    obs = build(name, kwargs)
+    obs.reset(measurements(rng, T=1)[0])
+    assert obs._state.shape[1] == obs._state_width()
+
+
+@pytest.mark.parametrize("name, kwargs", CASES)
 def test_restore_returns_to_the_checkpoint(name, kwargs, rng):
     """After ``restore(checkpoint())`` the observer continues exactly as a twin that never took the samples in
     between (a caller undoing a step it cannot complete), with its state array kept; a checkpoint of another shape

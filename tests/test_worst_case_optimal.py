@@ -367,6 +367,28 @@ def test_batch_equals_the_per_channel_loop(noisy, rng):
             np.testing.assert_array_equal(bounds[-1, i, j], single.certified_bound[0])
 
 
+@pytest.mark.parametrize("noisy", [True, False], ids=["noise", "estimated"])
+def test_a_part_of_a_composite_estimates_as_alone(noisy, rng):
+    """In a :class:`~smo_gym.observers.PerChannel` beside another family, on channels with per-channel windows,
+    the differentiator gives its own estimates bit for bit (its state holds its window: the composite had sized its
+    rows by the default width of three columns, and the reset failed)."""
+    from smo_gym.observers import PerChannel
+
+    Y = signals(rng)[:, 0]
+    L, eps = per_channel_parameters((4,))
+    kw = dict(noise=eps[[3, 0, 2]]) if noisy else dict(window=12)
+
+    def make():
+        return WorstCaseOptimal(1e-3, L[[3, 0, 2]], **kw)
+
+    composite = PerChannel([(make(), [3, 0, 2]), (FiniteDifference(1e-3), [1])])
+    composite.reset(Y[0])
+    got = composite.run(Y[1:])
+    alone = make()
+    alone.reset(Y[0, [3, 0, 2]])
+    np.testing.assert_array_equal(got[:, [3, 0, 2], :2], alone.run(Y[1:, [3, 0, 2]]))
+
+
 def test_masked_reset_pickling_and_run(rng):
     """A masked reset restarts the selected rows' windows (they estimate from the new samples only), the others
     continue bit for bit; a pickled or copied observer mid-run continues like the original."""

@@ -366,6 +366,17 @@ class WorstCaseOptimal(Observer):
             window = default_window(self.dt, lipschitz, eps) if self.window is None else np.full(eps.shape, self.window)
         return np.column_stack([np.full(lipschitz.shape, self.dt), lipschitz, eps, window.astype(float)])
 
+    def _state_width(self) -> int:
+        """Columns of the state: six scalars, then the last ``m + 1`` samples, ``m`` the largest window of any
+        channel (what :meth:`_channel_params` gives them, from the same attributes)."""
+        if self.window is not None:
+            window = self.window
+        elif self.noise is None:
+            window = DEFAULT_ESTIMATION_WINDOW
+        else:
+            window = int(np.max(default_window(self.dt, self.lipschitz, self.noise)))
+        return _BUFFER + window + 1
+
     def _initial_state(self, y0, params):
         """Value ``y0``, zero derivative, no certificate, one sample held (``y0``, the newest of the buffer)."""
         state = np.zeros((y0.shape[0], _BUFFER + int(np.max(params[:, _WINDOW])) + 1))
