@@ -55,10 +55,6 @@ from .adapters import GymnasiumMujocoAdapter, SubstepHook, SubstepRecording, reg
 __all__ = ["DmControlAdapter", "DmControlTaskView", "is_dm_control_env", "make_dm_control"]
 
 
-#: how many scratch ``MjData`` a :class:`DmControlTaskView` keeps a ``Physics`` for (the probes make more, once)
-_PHYSICS_KEPT = 4
-
-
 def is_dm_control_env(unwrapped) -> bool:
     """Whether ``unwrapped`` is shimmy's ``DmControlCompatibilityV0`` (checked without importing shimmy)."""
     cls = type(unwrapped)
@@ -81,9 +77,7 @@ class DmControlTaskView:
         self.environment = environment
         self.frame_skip = int(environment._n_sub_steps)
         self._override = None
-        #: ``(MjData, Physics around it)``, the newest first: the adapter's scratch data and the one of its reset check
-        #: (:meth:`~smo_gym.engine.scratch.ScratchObservation.verify`) take turns at every reset, and a Physics costs a
-        #: forward pass and its indexers to build (~5 ms for cheetah)
+        # (MjData, Physics around it), the last four: the scratch data's and the reset check's alternate (~5 ms each)
         self._physics: list[tuple] = []
         self.keys: list[str] | None = None
         self.shapes: list[tuple] = []
@@ -118,7 +112,7 @@ class DmControlTaskView:
         snapshot = copy.copy(data)
         physics = type(live)(wrapper.MjData(data))
         mujoco.mj_copyData(data, self.model, snapshot)
-        self._physics = [(data, physics), *self._physics[: _PHYSICS_KEPT - 1]]
+        self._physics = [(data, physics), *self._physics[:3]]
         return physics
 
     def task_observation(self, physics) -> dict:
@@ -138,9 +132,7 @@ class DmControlTaskView:
         return np.concatenate([np.ravel(np.asarray(obs[k], dtype=np.float64)) for k in self.keys])
 
     def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_override"], state["_physics"] = None, []
-        return state
+        return {**self.__dict__, "_override": None, "_physics": []}
 
 
 class DmControlAdapter(GymnasiumMujocoAdapter):
