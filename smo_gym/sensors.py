@@ -372,12 +372,7 @@ class Sensor:
             raise ValueError(
                 f"expected y0 with at least one channel and no empty batch dimension, actual value: shape {y0.shape}"
             )
-        if not np.isfinite(y0).all():
-            channel = int(np.flatnonzero(~np.isfinite(y0))[0])
-            raise ValueError(
-                f"expected a finite measurement, actual value: {y0.reshape(-1)[channel]!r} at "
-                f"{self._where(channel, y0.shape)} in the true signal y0; the sensor's state was kept"
-            )
+        self._check_finite_start(y0)
         dt = check_positive("dt", dt)
         if rng is not None and not isinstance(rng, np.random.Generator):
             raise TypeError(f"expected rng to be a numpy.random.Generator (or None), actual value: {rng!r}")
@@ -462,14 +457,17 @@ class Sensor:
         y0 = self._check_ready(y0, "y0")
         if y0.shape != self._shape:
             raise ValueError(f"expected y0 with the last reset's shape {self._shape}, actual value: {y0.shape}")
-        y0f = y0.reshape(1, self._size)
-        if not np.isfinite(y0f).all():
-            channel = int(np.flatnonzero(~np.isfinite(y0f[0]))[0])
+        self._check_finite_start(y0)
+        return self._start(y0.reshape(1, self._size))
+
+    def _check_finite_start(self, y0: np.ndarray) -> None:
+        """Refuse a true signal ``y0`` to start from with a non-finite entry, naming it, before any state changes."""
+        if not np.isfinite(y0).all():
+            channel = int(np.flatnonzero(~np.isfinite(y0))[0])
             raise ValueError(
-                f"expected a finite measurement, actual value: {y0f[0, channel]!r} at "
-                f"{self._where(channel, self._shape)} in the true signal y0; the sensor's state was kept"
+                f"expected a finite measurement, actual value: {y0.reshape(-1)[channel]!r} at "
+                f"{self._where(channel, y0.shape)} in the true signal y0; the sensor's state was kept"
             )
-        return self._start(y0f)
 
     def _start(self, y0f: np.ndarray) -> np.ndarray:
         """A new episode at the checked true signal ``y0f`` ``(1, n)``: the stages' state from zero and the drawn ones
